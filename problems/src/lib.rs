@@ -1,0 +1,1 @@
+//! The paper's systems and the `spark` command-line program.

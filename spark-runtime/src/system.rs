@@ -1,0 +1,200 @@
+//! The system trait: everything the SPARK stepper needs to know about a
+//! nonholonomic Lagrangian system `L(t,q,v)`, `0 = k(t,q,v)`.
+//!
+//! `nonholonomic_system!` generates implementations of [`NonholonomicSystem`];
+//! hand-written implementations are allowed (tests use them as references).
+//! Sign conventions follow the paper (eq. 6.1): the *momentum* is
+//! `p = ∇_v L`, the *force* is `F = ∇_q L`, and the *constraint force* of a
+//! multiplier `ψ` is `R = −K(t,q,v)ᵀψ` with `K = k_v`.
+
+use nalgebra::{SMatrix, SVector};
+
+/// Column vector of `f64` with `N` entries, on the stack.
+pub type Vector<const N: usize> = SVector<f64, N>;
+/// `R × C` matrix of `f64`, on the stack.
+pub type Matrix<const R: usize, const C: usize> = SMatrix<f64, R, C>;
+
+/// How the constraints `k(t,q,v)` depend on the velocities `v`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum ConstraintForm {
+    /// The system has no constraints (`M = 0`).
+    None,
+    /// `k = K(t,q) v`.
+    Linear,
+    /// `k = K(t,q) v + b(t,q)` with `b ≢ 0`.
+    Affine,
+    /// Anything else (Chetaev's rule, `K = ∂k/∂v`, applies).
+    Nonlinear,
+}
+
+/// Structure facts the macro proved about a system; the runtime uses them to
+/// skip work that cannot change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub struct Structure {
+    /// `L` does not depend explicitly on `t`.
+    pub lagrangian_autonomous: bool,
+    /// `k` does not depend explicitly on `t`.
+    pub constraints_autonomous: bool,
+    /// `∇²_vv L` is independent of `(t,q,v)` (it may depend on parameters).
+    pub constant_mass_matrix: bool,
+    /// `∇_q L` is independent of `v` and `∇_v L` is independent of `q`
+    /// (`L = T(t,v) − U(t,q)`), so `∂(∇_q L)/∂v = 0` and `∂(∇_v L)/∂q = 0`.
+    pub separable: bool,
+    /// How `k` depends on `v`.
+    pub constraint_form: ConstraintForm,
+}
+
+impl Structure {
+    /// Neither `L` nor `k` depends explicitly on time.
+    pub const fn autonomous(&self) -> bool {
+        self.lagrangian_autonomous && self.constraints_autonomous
+    }
+    /// `K = k_v` does not depend on `v` (no constraints, linear or affine).
+    pub const fn constraint_matrix_velocity_free(&self) -> bool {
+        !matches!(self.constraint_form, ConstraintForm::Nonlinear)
+    }
+}
+
+/// Values at one stage point `(T_i, Q_i, V_i, Ψ_i)`: what one residual
+/// evaluation of the SPARK equations needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StageValues<const N: usize, const M: usize> {
+    /// `P = ∇_v L(t,q,v)`.
+    pub momentum: Vector<N>,
+    /// `F = ∇_q L(t,q,v)`.
+    pub force: Vector<N>,
+    /// `k(t,q,v)`.
+    pub constraint: Vector<M>,
+    /// `R = −K(t,q,v)ᵀ ψ`.
+    pub constraint_force: Vector<N>,
+}
+
+/// First derivatives of the [`StageValues`] with respect to `q` and `v`:
+/// what one Newton Jacobian needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StageJacobians<const N: usize, const M: usize> {
+    /// `∂(∇_v L)/∂q`.
+    pub momentum_q: Matrix<N, N>,
+    /// `∂(∇_v L)/∂v = ∇²_vv L`, the mass matrix.
+    pub mass: Matrix<N, N>,
+    /// `∂(∇_q L)/∂q`.
+    pub force_q: Matrix<N, N>,
+    /// `∂(∇_q L)/∂v`.
+    pub force_v: Matrix<N, N>,
+    /// `k_q`.
+    pub constraint_q: Matrix<M, N>,
+    /// `K = k_v`.
+    pub constraint_v: Matrix<M, N>,
+    /// `∂R/∂q = −∂(Kᵀψ)/∂q`.
+    pub constraint_force_q: Matrix<N, N>,
+    /// `∂R/∂v = −∂(Kᵀψ)/∂v`.
+    pub constraint_force_v: Matrix<N, N>,
+}
+
+/// Explicit time derivatives; all zero for an autonomous system.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimeDerivatives<const N: usize, const M: usize> {
+    /// `∂L/∂t`.
+    pub lagrangian_t: f64,
+    /// `∂(∇_v L)/∂t = ∇²_tv L`.
+    pub momentum_t: Vector<N>,
+    /// `∂(∇_q L)/∂t`.
+    pub force_t: Vector<N>,
+    /// `k_t`.
+    pub constraint_t: Vector<M>,
+}
+
+/// Operation counts of the generated code (additions, multiplications,
+/// divisions and elementary-function calls after simplification and CSE;
+/// constant outputs cost nothing).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct OperationCounts {
+    /// [`NonholonomicSystem::stage_values`].
+    pub stage_values: usize,
+    /// [`NonholonomicSystem::stage_jacobians`] (values and Jacobians together).
+    pub stage_jacobians: usize,
+    /// The bundle CasADi is compared with: `L`, `∇_q L`, `∇_v L`, `∇²_vv L`,
+    /// `∂(∇_v L)/∂q`, `k`, `k_q`, `k_v`, `Kᵀψ` and its Jacobians in `q`, `v`.
+    pub bundle: usize,
+}
+
+/// The user's source expressions in a neutral text form, so that an
+/// independent tool (CasADi) can rebuild and differentiate them itself.
+///
+/// Expressions are prefix S-expressions over this grammar:
+///
+/// ```text
+/// expr  := number | "t" | "pi" | "(q " name ")" | "(v " name ")" | "(p " name ")"
+///        | "(" op expr+ ")"
+/// op    := "+" | "*"                        (n-ary)
+///        | "-" | "/" | "^" | "atan2"        (binary)
+///        | "neg" | "sqrt" | "exp" | "ln" | "sin" | "cos" | "tan"
+///        | "sinh" | "cosh" | "tanh"       (unary)
+/// number:= a decimal literal that round-trips to the same f64
+/// ```
+/// `(q x)` is the coordinate `x`, `(v x)` its velocity, `(p m)` the runtime
+/// parameter `m`; named constants are already substituted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SystemSource {
+    /// The type's name.
+    pub name: &'static str,
+    /// Generalized coordinates, in order (`N` of them).
+    pub coordinates: &'static [&'static str],
+    /// Runtime parameters, in order (see [`NonholonomicSystem::parameter_values`]).
+    pub parameters: &'static [&'static str],
+    /// `L(t,q,v)`.
+    pub lagrangian: &'static str,
+    /// `k_1, …, k_M`.
+    pub constraints: &'static [&'static str],
+}
+
+/// A mechanical system with `N` generalized coordinates and `M` ideal
+/// nonholonomic constraints, with every derivative the SPARK stepper needs.
+///
+/// All functions are pure and allocation-free. `stage_values` and
+/// `stage_jacobians` are fused: they share common subexpressions between all
+/// their outputs.
+pub trait NonholonomicSystem<const N: usize, const M: usize> {
+    /// Structure facts proved at compile time.
+    const STRUCTURE: Structure;
+    /// The user's source expressions, in neutral text.
+    const SOURCE: SystemSource;
+    /// Operation counts of the generated code (zero for hand-written systems).
+    const OPERATIONS: OperationCounts;
+
+    /// Current values of the runtime parameters, in the order of
+    /// [`SystemSource::parameters`].
+    fn parameter_values(&self) -> Vec<f64>;
+    /// Sets a runtime parameter by name; `Err` names the known parameters.
+    fn set_parameter(&mut self, name: &str, value: f64) -> Result<(), crate::SystemError>;
+
+    /// `L(t,q,v)`.
+    fn lagrangian(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64;
+    /// `E = ∇_v L · v − L`.
+    fn energy(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64;
+    /// `∇_v L`.
+    fn momentum(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Vector<N>;
+    /// `∇_q L`.
+    fn force(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Vector<N>;
+    /// `∇²_vv L`.
+    fn mass_matrix(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Matrix<N, N>;
+    /// `k(t,q,v)`.
+    fn constraint(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Vector<M>;
+    /// `k_q(t,q,v)`.
+    fn constraint_q(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Matrix<M, N>;
+    /// `K = k_v(t,q,v)`.
+    fn constraint_v(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Matrix<M, N>;
+    /// Explicit time derivatives (zeros when autonomous).
+    fn time_derivatives(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> TimeDerivatives<N, M>;
+
+    /// Fused: everything one residual evaluation needs at a stage point.
+    fn stage_values(&self, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>) -> StageValues<N, M>;
+    /// Fused: values and Jacobians at a stage point.
+    fn stage_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+    ) -> (StageValues<N, M>, StageJacobians<N, M>);
+}

@@ -1,0 +1,227 @@
+//! The parsed declaration handed from `spark-macros` (the parser) to the
+//! engine: names, parameters and source expressions, each with the span of
+//! the token it came from so that every error points at the user's code.
+//!
+//! This is the contract between the two crates: the parser resolves every
+//! identifier (coordinate, velocity, parameter, constant, time, `pi`) and
+//! checks function names and arities; the engine does everything after that
+//! (differentiation, structure analysis, code emission) and reports semantic
+//! errors (e.g. a holonomic constraint) as [`SpecError`] with a span.
+
+use proc_macro2::{Span, TokenStream};
+
+/// Elementary functions of the DSL.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Func {
+    /// `sqrt(x)`.
+    Sqrt,
+    /// `exp(x)`.
+    Exp,
+    /// `ln(x)`.
+    Ln,
+    /// `sin(x)`.
+    Sin,
+    /// `cos(x)`.
+    Cos,
+    /// `tan(x)`.
+    Tan,
+    /// `sinh(x)`.
+    Sinh,
+    /// `cosh(x)`.
+    Cosh,
+    /// `tanh(x)`.
+    Tanh,
+    /// `atan2(y, x)`.
+    Atan2,
+}
+
+impl Func {
+    /// Looks a DSL function name up.
+    pub fn from_name(name: &str) -> Option<Func> {
+        Some(match name {
+            "sqrt" => Func::Sqrt,
+            "exp" => Func::Exp,
+            "ln" => Func::Ln,
+            "sin" => Func::Sin,
+            "cos" => Func::Cos,
+            "tan" => Func::Tan,
+            "sinh" => Func::Sinh,
+            "cosh" => Func::Cosh,
+            "tanh" => Func::Tanh,
+            "atan2" => Func::Atan2,
+            _ => return None,
+        })
+    }
+    /// The DSL (and neutral-text) name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Func::Sqrt => "sqrt",
+            Func::Exp => "exp",
+            Func::Ln => "ln",
+            Func::Sin => "sin",
+            Func::Cos => "cos",
+            Func::Tan => "tan",
+            Func::Sinh => "sinh",
+            Func::Cosh => "cosh",
+            Func::Tanh => "tanh",
+            Func::Atan2 => "atan2",
+        }
+    }
+    /// Number of arguments.
+    pub fn arity(self) -> usize {
+        match self {
+            Func::Atan2 => 2,
+            _ => 1,
+        }
+    }
+    /// Every function, for error messages and tests.
+    pub const ALL: [Func; 10] = [
+        Func::Sqrt,
+        Func::Exp,
+        Func::Ln,
+        Func::Sin,
+        Func::Cos,
+        Func::Tan,
+        Func::Sinh,
+        Func::Cosh,
+        Func::Tanh,
+        Func::Atan2,
+    ];
+}
+
+/// Binary operators of the DSL.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BinOp {
+    /// `a + b`.
+    Add,
+    /// `a - b`.
+    Sub,
+    /// `a * b`.
+    Mul,
+    /// `a / b`.
+    Div,
+    /// `a ^ b` (integer or real power).
+    Pow,
+}
+
+/// A source expression as the user wrote it, with identifiers resolved.
+#[derive(Clone, Debug)]
+pub enum SrcExpr {
+    /// A numeric literal.
+    Num(f64, Span),
+    /// The time `t`.
+    Time(Span),
+    /// `pi`.
+    Pi(Span),
+    /// Coordinate `q_i` (index into [`SystemSpec::coordinates`]).
+    Coord(usize, Span),
+    /// Velocity `v_i = dot(q_i)`.
+    Velocity(usize, Span),
+    /// Runtime parameter (index into [`SystemSpec::parameters`]).
+    Param(usize, Span),
+    /// Named constant (index into [`SystemSpec::constants`]).
+    Const(usize, Span),
+    /// Unary minus.
+    Neg(Box<SrcExpr>, Span),
+    /// Binary operation.
+    Binary(BinOp, Box<SrcExpr>, Box<SrcExpr>, Span),
+    /// Function call with the right number of arguments.
+    Call(Func, Vec<SrcExpr>, Span),
+}
+
+impl SrcExpr {
+    /// The span of the token (or operator) this node came from.
+    pub fn span(&self) -> Span {
+        match self {
+            SrcExpr::Num(_, s)
+            | SrcExpr::Time(s)
+            | SrcExpr::Pi(s)
+            | SrcExpr::Coord(_, s)
+            | SrcExpr::Velocity(_, s)
+            | SrcExpr::Param(_, s)
+            | SrcExpr::Const(_, s)
+            | SrcExpr::Neg(_, s)
+            | SrcExpr::Binary(_, _, _, s)
+            | SrcExpr::Call(_, _, s) => *s,
+        }
+    }
+}
+
+/// A name with the span where it was declared.
+#[derive(Clone, Debug)]
+pub struct Named {
+    /// The identifier as written.
+    pub name: String,
+    /// Where it was declared.
+    pub span: Span,
+}
+
+/// A runtime parameter: a public `f64` field with a default value.
+#[derive(Clone, Debug)]
+pub struct Parameter {
+    /// Name and declaration site.
+    pub name: Named,
+    /// Default value.
+    pub default: f64,
+}
+
+/// A named constant, folded into the expressions at compile time. Its value
+/// may refer to earlier constants and to numbers, never to coordinates,
+/// velocities, `t` or parameters (the parser checks this).
+#[derive(Clone, Debug)]
+pub struct Constant {
+    /// Name and declaration site.
+    pub name: Named,
+    /// Value expression.
+    pub value: SrcExpr,
+}
+
+/// One constraint `k_j(t,q,v)` as written, with its span.
+#[derive(Clone, Debug)]
+pub struct ConstraintSpec {
+    /// The expression.
+    pub expr: SrcExpr,
+    /// Span covering the whole constraint (for "this constraint is holonomic").
+    pub span: Span,
+}
+
+/// A whole declaration.
+#[derive(Clone, Debug)]
+pub struct SystemSpec {
+    /// Outer attributes (doc comments, derives) passed through to the struct.
+    pub attrs: TokenStream,
+    /// Visibility of the struct (`pub`, `pub(crate)`, or empty).
+    pub vis: TokenStream,
+    /// Type name.
+    pub name: proc_macro2::Ident,
+    /// Generalized coordinates, at least one.
+    pub coordinates: Vec<Named>,
+    /// Runtime parameters.
+    pub parameters: Vec<Parameter>,
+    /// Named constants.
+    pub constants: Vec<Constant>,
+    /// `L(t,q,v)`.
+    pub lagrangian: SrcExpr,
+    /// `k(t,q,v)`, possibly empty.
+    pub constraints: Vec<ConstraintSpec>,
+    /// Path under which generated code finds the runtime
+    /// (`::spark_runtime` unless the caller says otherwise).
+    pub runtime_path: TokenStream,
+}
+
+/// A semantic error found by the engine, with the span to point at.
+#[derive(Clone, Debug)]
+pub struct SpecError {
+    /// Where.
+    pub span: Span,
+    /// What is wrong and what to write instead.
+    pub message: String,
+}
+
+impl SpecError {
+    /// The error as a `compile_error!` invocation at its span.
+    pub fn to_compile_error(&self) -> TokenStream {
+        let msg = &self.message;
+        quote::quote_spanned!(self.span=> ::core::compile_error!(#msg);)
+    }
+}
