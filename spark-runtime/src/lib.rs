@@ -2,6 +2,7 @@
 #![warn(missing_docs)]
 
 mod error;
+pub mod reference;
 pub mod system;
 
 pub use error::SystemError;
