@@ -5,19 +5,69 @@
 //! It is an ordinary library (no proc-macro context needed) so that it can be
 //! tested, fuzzed and benchmarked on its own; `spark-macros` only calls
 //! [`expand`].
+//!
+//! Pipeline: [`dsl::parse`] → [`SystemSpec`] → [`model::Model::build`]
+//! (lowering, derivatives, structure) → [`codegen::generate_items`] (CSE and
+//! emission through [`emit`]).
 #![warn(missing_docs)]
 
+pub mod codegen;
+pub mod diff;
 pub mod dsl;
+pub mod emit;
+pub mod graph;
+pub mod lower;
+pub mod model;
+pub mod simplify;
+pub mod source;
 pub mod spec;
 
+pub use codegen::Operations;
+pub use model::{ConstraintForm, Structure};
 pub use spec::{BinOp, Constant, ConstraintSpec, Func, Named, Parameter, SpecError, SrcExpr, SystemSpec};
 
 use proc_macro2::TokenStream;
 
+/// What the engine proved and measured about a declaration, for tools that
+/// want the facts without the code.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Analysis {
+    /// Number of coordinates `N`.
+    pub n: usize,
+    /// Number of constraints `M`.
+    pub m: usize,
+    /// Structure facts (autonomy, constant mass matrix, separability, constraint form).
+    pub structure: Structure,
+    /// Operation counts of the generated code.
+    pub operations: Operations,
+    /// Neutral S-expression text of `L`.
+    pub lagrangian_source: String,
+    /// Neutral S-expression text of each `k_j`.
+    pub constraint_sources: Vec<String>,
+}
+
+/// Builds the symbolic model of `spec` and reports its structure and the
+/// operation counts the generated code will have.
+pub fn analyze(spec: &SystemSpec) -> Result<Analysis, SpecError> {
+    let mut model = model::Model::build(spec)?;
+    let params: Vec<proc_macro2::Ident> =
+        spec.parameters.iter().map(|p| proc_macro2::Ident::new(&p.name.name, p.name.span)).collect();
+    let operations = codegen::count_operations(&mut model, &params);
+    Ok(Analysis {
+        n: model.n,
+        m: model.m,
+        structure: model.structure,
+        operations,
+        lagrangian_source: source::sexpr(spec, &spec.lagrangian),
+        constraint_sources: spec.constraints.iter().map(|c| source::sexpr(spec, &c.expr)).collect(),
+    })
+}
+
 /// Generates the struct, its `Default`, inherent items and the
 /// `NonholonomicSystem` implementation for a parsed declaration.
 pub fn generate(spec: &SystemSpec) -> Result<TokenStream, SpecError> {
-    Err(SpecError { span: spec.name.span(), message: "spark-symbolic: code generation not implemented yet".into() })
+    let mut model = model::Model::build(spec)?;
+    codegen::generate_items(spec, &mut model).map(|(tokens, _)| tokens)
 }
 
 /// The whole macro: DSL tokens in, generated items (or a `compile_error!`

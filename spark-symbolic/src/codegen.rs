@@ -1,0 +1,520 @@
+//! Assembly of the generated items: the parameter struct, its `Default`, the
+//! inherent `N`/`M`/`new`, and the `NonholonomicSystem` implementation whose
+//! method bodies come from [`crate::emit`].
+
+use crate::emit::{emit, Emitted, Inputs, Target};
+use crate::graph::NodeId;
+use crate::model::{ConstraintForm, Model, NodeMatrix};
+use crate::source::sexpr;
+use crate::spec::{SpecError, SystemSpec};
+use proc_macro2::{Ident, Literal, TokenStream};
+use quote::{format_ident, quote};
+
+/// Operation counts of the generated functions (see [`crate::emit`] for
+/// what is counted).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Operations {
+    /// `stage_values`.
+    pub stage_values: usize,
+    /// `stage_jacobians` (values and Jacobians together).
+    pub stage_jacobians: usize,
+    /// `L`, `∇_q L`, `∇_v L`, `∇²_vv L`, `∂(∇_v L)/∂q`, `k`, `k_q`, `k_v`,
+    /// `R = −Kᵀψ`, `∂R/∂q`, `∂R/∂v`, evaluated together (the set CasADi is
+    /// compared with).
+    pub bundle: usize,
+}
+
+/// Statement threshold above which a body is split into helper functions
+/// so that rustc's super-linear passes stay fast.
+pub const SPLIT_STATEMENTS: usize = 400;
+
+fn vector_outputs(name: &Ident, xs: &[NodeId]) -> Vec<(Target, NodeId)> {
+    xs.iter()
+        .enumerate()
+        .map(|(i, &x)| {
+            let i = Literal::usize_unsuffixed(i);
+            (Target::Store(quote!(#name[#i])), x)
+        })
+        .collect()
+}
+
+fn matrix_outputs(name: &Ident, xs: &NodeMatrix) -> Vec<(Target, NodeId)> {
+    let mut out = Vec::new();
+    for (i, row) in xs.iter().enumerate() {
+        for (j, &x) in row.iter().enumerate() {
+            let (i, j) = (Literal::usize_unsuffixed(i), Literal::usize_unsuffixed(j));
+            out.push((Target::Store(quote!(#name[(#i, #j)])), x));
+        }
+    }
+    out
+}
+
+/// One output variable of a generated method: its name, type and entries.
+struct Out {
+    name: Ident,
+    ty: TokenStream,
+    entries: Vec<(Target, NodeId)>,
+}
+
+struct Gen<'a> {
+    model: &'a mut Model,
+    params: Vec<Ident>,
+    rt: TokenStream,
+    n: Literal,
+    m: Literal,
+    helpers: Vec<TokenStream>,
+}
+
+impl Gen<'_> {
+    fn vector(&self, name: &str, xs: &[NodeId], len: &Literal) -> Out {
+        let name = format_ident!("{}", name);
+        let rt = &self.rt;
+        Out { entries: vector_outputs(&name, xs), ty: quote!(#rt::Vector<#len>), name }
+    }
+
+    fn matrix(&self, name: &str, xs: &NodeMatrix, rows: &Literal) -> Out {
+        let name = format_ident!("{}", name);
+        let (rt, n) = (&self.rt, &self.n);
+        Out { entries: matrix_outputs(&name, xs), ty: quote!(#rt::Matrix<#rows, #n>), name }
+    }
+
+    /// Emits a body computing `outs` (declared with `zeros()`) and the scalar
+    /// `lets`, splitting it into helpers when it is large. Returns the
+    /// statements and the operation count.
+    fn body(&mut self, fname: &str, lets: Vec<(Target, NodeId)>, outs: &[Out], psi: bool) -> (TokenStream, usize) {
+        let mut entries = lets;
+        for o in outs {
+            entries.extend(o.entries.iter().cloned());
+        }
+        let inputs = Inputs { parameters: &self.params };
+        let Emitted { statements, ops, .. } = emit(&mut self.model.graph, &entries, &inputs);
+        let decls = outs.iter().map(|o| {
+            let (name, ty) = (&o.name, &o.ty);
+            quote!(let mut #name = <#ty>::zeros();)
+        });
+        let decls: Vec<TokenStream> = decls.collect();
+        let has_lets = entries.iter().any(|(t, _)| matches!(t, Target::Let(_)));
+        if statements.len() <= SPLIT_STATEMENTS || has_lets {
+            return (quote!(#(#decls)* #(#statements)*), ops);
+        }
+        (self.split(fname, decls, statements, outs, psi), ops)
+    }
+
+    /// Splits a long body: shared values move into a stack array `w`, and
+    /// consecutive chunks of statements become helper functions.
+    fn split(
+        &mut self,
+        fname: &str,
+        decls: Vec<TokenStream>,
+        statements: Vec<TokenStream>,
+        outs: &[Out],
+        psi: bool,
+    ) -> TokenStream {
+        // Rewrite `let sK = e;` into `w[K] = e;` and every `sK` use into `w[K]`.
+        let mut shared = 0usize;
+        let rewritten: Vec<TokenStream> = statements.iter().map(|s| rewrite_shared(s.clone(), &mut shared)).collect();
+        let (rt, n, m) = (&self.rt, &self.n, &self.m);
+        let psi_param = if psi { quote!(psi: &#rt::Vector<#m>,) } else { quote!() };
+        let psi_arg = if psi { quote!(psi,) } else { quote!() };
+        let out_params: Vec<TokenStream> = outs
+            .iter()
+            .map(|o| {
+                let (name, ty) = (&o.name, &o.ty);
+                quote!(#name: &mut #ty)
+            })
+            .collect();
+        let out_args: Vec<TokenStream> = outs
+            .iter()
+            .map(|o| {
+                let name = &o.name;
+                quote!(&mut #name)
+            })
+            .collect();
+        let shared_len = Literal::usize_unsuffixed(shared.max(1));
+        let mut calls = Vec::new();
+        for (k, chunk) in rewritten.chunks(SPLIT_STATEMENTS).enumerate() {
+            let helper = format_ident!("__{}_part{}", fname, k);
+            self.helpers.push(quote! {
+                #[inline(never)]
+                #[allow(clippy::too_many_arguments)]
+                fn #helper(&self, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>, #psi_param
+                    w: &mut [f64; #shared_len], #(#out_params),*) {
+                    #(#chunk)*
+                }
+            });
+            calls.push(quote!(self.#helper(t, q, v, #psi_arg &mut w, #(#out_args),*);));
+        }
+        quote! {
+            #(#decls)*
+            let mut w = [0.0f64; #shared_len];
+            #(#calls)*
+        }
+    }
+}
+
+/// Replaces `let sK = e;` by `w[K] = e;` and identifiers `sK` by `w[K]`.
+fn rewrite_shared(s: TokenStream, shared: &mut usize) -> TokenStream {
+    use proc_macro2::{Group, TokenTree};
+    fn index(id: &Ident) -> Option<usize> {
+        let s = id.to_string();
+        s.strip_prefix('s').and_then(|d| if d.is_empty() { None } else { d.parse().ok() })
+    }
+    fn walk(s: TokenStream) -> TokenStream {
+        s.into_iter()
+            .flat_map(|tt| -> Vec<TokenTree> {
+                match tt {
+                    TokenTree::Ident(id) if index(&id).is_some() => {
+                        let k = Literal::usize_unsuffixed(index(&id).unwrap_or(0));
+                        quote!(w[#k]).into_iter().collect()
+                    }
+                    TokenTree::Group(g) => {
+                        let mut ng = Group::new(g.delimiter(), walk(g.stream()));
+                        ng.set_span(g.span());
+                        vec![TokenTree::Group(ng)]
+                    }
+                    other => vec![other],
+                }
+            })
+            .collect()
+    }
+    let tts: Vec<TokenTree> = s.into_iter().collect();
+    if let [TokenTree::Ident(kw), TokenTree::Ident(id), rest @ ..] = &tts[..] {
+        if kw == "let" && index(id).is_some() {
+            *shared = (*shared).max(index(id).unwrap_or(0) + 1);
+            let k = Literal::usize_unsuffixed(index(id).unwrap_or(0));
+            let rest: TokenStream = rest.iter().cloned().collect();
+            let rest = walk(rest);
+            return quote!(w[#k] #rest);
+        }
+    }
+    walk(tts.into_iter().collect())
+}
+
+fn form_tokens(rt: &TokenStream, f: ConstraintForm) -> TokenStream {
+    match f {
+        ConstraintForm::None => quote!(#rt::ConstraintForm::None),
+        ConstraintForm::Linear => quote!(#rt::ConstraintForm::Linear),
+        ConstraintForm::Affine => quote!(#rt::ConstraintForm::Affine),
+        ConstraintForm::Nonlinear => quote!(#rt::ConstraintForm::Nonlinear),
+    }
+}
+
+/// Operation counts of a built model, without generating code.
+pub fn count_operations(model: &mut Model, params: &[Ident]) -> Operations {
+    let mut gen = Gen {
+        model,
+        params: params.to_vec(),
+        rt: quote!(::spark_runtime),
+        n: Literal::usize_unsuffixed(0),
+        m: Literal::usize_unsuffixed(0),
+        helpers: Vec::new(),
+    };
+    let (sv, sj, bundle) = gen.fused();
+    Operations { stage_values: sv.1, stage_jacobians: sj.1, bundle: bundle.1 }
+}
+
+impl Gen<'_> {
+    fn stage_outs(&self) -> (Vec<Out>, Vec<Out>) {
+        let (n, m) = (self.n.clone(), self.m.clone());
+        let md = &*self.model;
+        let values = vec![
+            self.vector("momentum", &md.momentum, &n),
+            self.vector("force", &md.force, &n),
+            self.vector("constraint", &md.constraint, &m),
+            self.vector("constraint_force", &md.constraint_force, &n),
+        ];
+        let jacobians = vec![
+            self.matrix("momentum_q", &md.momentum_q, &n),
+            self.matrix("mass", &md.mass, &n),
+            self.matrix("force_q", &md.force_q, &n),
+            self.matrix("force_v", &md.force_v, &n),
+            self.matrix("constraint_q", &md.constraint_q, &m),
+            self.matrix("constraint_v", &md.constraint_v, &m),
+            self.matrix("constraint_force_q", &md.constraint_force_q, &n),
+            self.matrix("constraint_force_v", &md.constraint_force_v, &n),
+        ];
+        (values, jacobians)
+    }
+
+    /// Bodies of `stage_values`, `stage_jacobians` and the bundle.
+    fn fused(&mut self) -> ((TokenStream, usize), (TokenStream, usize), (TokenStream, usize)) {
+        let (values, jacobians) = self.stage_outs();
+        let sv = self.body("stage_values", Vec::new(), &values, true);
+        let mut all = values;
+        all.extend(jacobians);
+        let sj = self.body("stage_jacobians", Vec::new(), &all, true);
+        let md = &*self.model;
+        let n = self.n.clone();
+        let m = self.m.clone();
+        let bundle_outs = vec![
+            self.vector("force", &md.force, &n),
+            self.vector("momentum", &md.momentum, &n),
+            self.matrix("mass", &md.mass, &n),
+            self.matrix("momentum_q", &md.momentum_q, &n),
+            self.vector("constraint", &md.constraint, &m),
+            self.matrix("constraint_q", &md.constraint_q, &m),
+            self.matrix("constraint_v", &md.constraint_v, &m),
+            self.vector("constraint_force", &md.constraint_force, &n),
+            self.matrix("constraint_force_q", &md.constraint_force_q, &n),
+            self.matrix("constraint_force_v", &md.constraint_force_v, &n),
+        ];
+        let l = vec![(Target::Let(format_ident!("lagrangian")), md.lagrangian)];
+        let inputs = Inputs { parameters: &self.params };
+        let mut entries = l;
+        for o in &bundle_outs {
+            entries.extend(o.entries.iter().cloned());
+        }
+        let bundle = emit(&mut self.model.graph, &entries, &inputs).ops;
+        (sv, sj, (TokenStream::new(), bundle))
+    }
+}
+
+/// Generates all items for `spec` from its built `model`.
+pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStream, Operations), SpecError> {
+    let rt = if spec.runtime_path.is_empty() { quote!(::spark_runtime) } else { spec.runtime_path.clone() };
+    let params: Vec<Ident> = spec.parameters.iter().map(|p| Ident::new(&p.name.name, p.name.span)).collect();
+    let (nn, mm) = (model.n, model.m);
+    let structure = model.structure;
+    let mut gen = Gen {
+        model,
+        params: params.clone(),
+        rt: rt.clone(),
+        n: Literal::usize_unsuffixed(nn),
+        m: Literal::usize_unsuffixed(mm),
+        helpers: Vec::new(),
+    };
+    let (n, m) = (gen.n.clone(), gen.m.clone());
+    let sig = quote!(&self, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>);
+
+    // Simple methods.
+    let (lag_body, _) = gen.body(
+        "lagrangian",
+        vec![(Target::Let(format_ident!("lagrangian")), gen.model.lagrangian)],
+        &[],
+        false,
+    );
+    let (energy_body, _) =
+        gen.body("energy", vec![(Target::Let(format_ident!("energy")), gen.model.energy)], &[], false);
+    let single = |gen: &mut Gen, fname: &str, out: Out| -> TokenStream {
+        let name = out.name.clone();
+        let (body, _) = gen.body(fname, Vec::new(), &[out], false);
+        quote!(#body #name)
+    };
+    let o = gen.vector("momentum", &gen.model.momentum.clone(), &n);
+    let momentum_body = single(&mut gen, "momentum", o);
+    let o = gen.vector("force", &gen.model.force.clone(), &n);
+    let force_body = single(&mut gen, "force", o);
+    let o = gen.matrix("mass", &gen.model.mass.clone(), &n);
+    let mass_body = single(&mut gen, "mass_matrix", o);
+    let o = gen.vector("constraint", &gen.model.constraint.clone(), &m);
+    let constraint_body = single(&mut gen, "constraint", o);
+    let o = gen.matrix("constraint_q", &gen.model.constraint_q.clone(), &m);
+    let kq_body = single(&mut gen, "constraint_q", o);
+    let o = gen.matrix("constraint_v", &gen.model.constraint_v.clone(), &m);
+    let kv_body = single(&mut gen, "constraint_v", o);
+
+    // Time derivatives.
+    let md = &*gen.model;
+    let td_outs = vec![
+        gen.vector("momentum_t", &md.momentum_t, &n),
+        gen.vector("force_t", &md.force_t, &n),
+        gen.vector("constraint_t", &md.constraint_t, &m),
+    ];
+    let lt = md.lagrangian_t;
+    let (td_body, _) =
+        gen.body("time_derivatives", vec![(Target::Let(format_ident!("lagrangian_t")), lt)], &td_outs, false);
+
+    // Fused stage functions.
+    let (sv, sj, bundle) = gen.fused();
+    let ops = Operations { stage_values: sv.1, stage_jacobians: sj.1, bundle: bundle.1 };
+    let (sv_body, sj_body) = (sv.0, sj.0);
+    let helpers = std::mem::take(&mut gen.helpers);
+
+    // Struct, Default, inherent items.
+    let (attrs, vis, name) = (&spec.attrs, &spec.vis, &spec.name);
+    let fields = spec.parameters.iter().zip(&params).map(|(p, id)| {
+        let doc = format!("Runtime parameter `{}` (default `{:?}`).", p.name.name, p.default);
+        quote!(#[doc = #doc] pub #id: f64,)
+    });
+    let defaults = spec.parameters.iter().zip(&params).map(|(p, id)| {
+        let d = Literal::f64_unsuffixed(p.default.abs());
+        if p.default < 0.0 {
+            quote!(#id: -#d,)
+        } else {
+            quote!(#id: #d,)
+        }
+    });
+    for p in &spec.parameters {
+        if !p.default.is_finite() {
+            return Err(SpecError {
+                span: p.name.span,
+                message: format!("parameter `{}` needs a finite default value", p.name.name),
+            });
+        }
+    }
+
+    // SOURCE.
+    let name_str = name.to_string();
+    let coord_names = spec.coordinates.iter().map(|c| c.name.clone());
+    let param_names: Vec<String> = spec.parameters.iter().map(|p| p.name.name.clone()).collect();
+    let lag_src = sexpr(spec, &spec.lagrangian);
+    let k_src = spec.constraints.iter().map(|c| sexpr(spec, &c.expr));
+
+    // set_parameter.
+    let known = param_names.join(", ");
+    let unknown = quote! {
+        ::core::result::Result::Err(#rt::SystemError::UnknownParameter {
+            name: ::std::string::ToString::to_string(name),
+            known: ::std::string::ToString::to_string(#known),
+        })
+    };
+    let set_body = if params.is_empty() {
+        quote!(let _ = value; #unknown)
+    } else {
+        let arms = param_names.iter().zip(&params).map(|(s, id)| quote!(#s => &mut self.#id,));
+        quote! {
+            let slot: &mut f64 = match name {
+                #(#arms)*
+                _ => return #unknown,
+            };
+            if !value.is_finite() {
+                return ::core::result::Result::Err(#rt::SystemError::NonFiniteParameter {
+                    name: ::std::string::ToString::to_string(name),
+                    value,
+                });
+            }
+            *slot = value;
+            ::core::result::Result::Ok(())
+        }
+    };
+
+    let b = |x: bool| if x { quote!(true) } else { quote!(false) };
+    let (la, ca, cm, sep) = (
+        b(structure.lagrangian_autonomous),
+        b(structure.constraints_autonomous),
+        b(structure.constant_mass_matrix),
+        b(structure.separable),
+    );
+    let form = form_tokens(&rt, structure.constraint_form);
+    let (o_sv, o_sj, o_b) = (
+        Literal::usize_unsuffixed(ops.stage_values),
+        Literal::usize_unsuffixed(ops.stage_jacobians),
+        Literal::usize_unsuffixed(ops.bundle),
+    );
+    let doc_n = "Number of generalized coordinates.";
+    let doc_m = "Number of constraints.";
+    let tokens = quote! {
+        #attrs
+        #[derive(Clone, Copy, Debug, PartialEq)]
+        #vis struct #name {
+            #(#fields)*
+        }
+
+        impl ::core::default::Default for #name {
+            fn default() -> Self {
+                Self { #(#defaults)* }
+            }
+        }
+
+        #[allow(dead_code)]
+        impl #name {
+            #[doc = #doc_n]
+            pub const N: usize = #n;
+            #[doc = #doc_m]
+            pub const M: usize = #m;
+            /// The system with its default parameters.
+            pub fn new() -> Self {
+                <Self as ::core::default::Default>::default()
+            }
+            #(#helpers)*
+        }
+
+        #[allow(unused_variables, unused_mut, clippy::all)]
+        impl #rt::NonholonomicSystem<#n, #m> for #name {
+            const STRUCTURE: #rt::Structure = #rt::Structure {
+                lagrangian_autonomous: #la,
+                constraints_autonomous: #ca,
+                constant_mass_matrix: #cm,
+                separable: #sep,
+                constraint_form: #form,
+            };
+            const SOURCE: #rt::SystemSource = #rt::SystemSource {
+                name: #name_str,
+                coordinates: &[#(#coord_names),*],
+                parameters: &[#(#param_names),*],
+                lagrangian: #lag_src,
+                constraints: &[#(#k_src),*],
+            };
+            const OPERATIONS: #rt::OperationCounts = #rt::OperationCounts {
+                stage_values: #o_sv,
+                stage_jacobians: #o_sj,
+                bundle: #o_b,
+            };
+
+            fn parameter_values(&self) -> ::std::vec::Vec<f64> {
+                ::std::vec![#(self.#params),*]
+            }
+
+            fn set_parameter(&mut self, name: &str, value: f64) -> ::core::result::Result<(), #rt::SystemError> {
+                #set_body
+            }
+
+            fn lagrangian(#sig) -> f64 {
+                #lag_body
+                lagrangian
+            }
+
+            fn energy(#sig) -> f64 {
+                #energy_body
+                energy
+            }
+
+            fn momentum(#sig) -> #rt::Vector<#n> {
+                #momentum_body
+            }
+
+            fn force(#sig) -> #rt::Vector<#n> {
+                #force_body
+            }
+
+            fn mass_matrix(#sig) -> #rt::Matrix<#n, #n> {
+                #mass_body
+            }
+
+            fn constraint(#sig) -> #rt::Vector<#m> {
+                #constraint_body
+            }
+
+            fn constraint_q(#sig) -> #rt::Matrix<#m, #n> {
+                #kq_body
+            }
+
+            fn constraint_v(#sig) -> #rt::Matrix<#m, #n> {
+                #kv_body
+            }
+
+            fn time_derivatives(#sig) -> #rt::TimeDerivatives<#n, #m> {
+                #td_body
+                #rt::TimeDerivatives { lagrangian_t, momentum_t, force_t, constraint_t }
+            }
+
+            fn stage_values(#sig, psi: &#rt::Vector<#m>) -> #rt::StageValues<#n, #m> {
+                #sv_body
+                #rt::StageValues { momentum, force, constraint, constraint_force }
+            }
+
+            fn stage_jacobians(#sig, psi: &#rt::Vector<#m>)
+                -> (#rt::StageValues<#n, #m>, #rt::StageJacobians<#n, #m>) {
+                #sj_body
+                (
+                    #rt::StageValues { momentum, force, constraint, constraint_force },
+                    #rt::StageJacobians {
+                        momentum_q, mass, force_q, force_v, constraint_q, constraint_v,
+                        constraint_force_q, constraint_force_v,
+                    },
+                )
+            }
+        }
+    };
+    Ok((tokens, ops))
+}

@@ -1,0 +1,400 @@
+//! Code emission for one generated function: common-subexpression
+//! elimination across all its outputs, a readable rendering of each node
+//! (subtractions, divisions, `sqrt`, powers as multiplications) and the
+//! operation count of exactly the code emitted.
+//!
+//! Because the graph is hash-consed, CSE amounts to binding every node the
+//! rendered code references more than once to a `let`, in topological order.
+//! Nodes that depend on runtime parameters only are bound first, so they are
+//! computed once per call however often they are used.
+//!
+//! **Operation count** (what [`Emitted::ops`] and `OperationCounts` report):
+//! every binary `+ − × ÷` written in the generated code counts 1, every
+//! function or method call (`sqrt`, `sin`, `atan2`, `powi`, `powf`, …) counts
+//! 1, a unary minus counts 1. Negative literals, reading inputs or
+//! parameters, and stores count 0. A negation folded into a subtraction
+//! (`a − b` instead of `a + (−b)`) is just the subtraction. Each shared
+//! subexpression is counted once. Zero outputs are not written (the output
+//! was created by `zeros()`), so they cost nothing.
+
+use crate::graph::{Graph, Node, NodeId, Var};
+use crate::simplify::is_int;
+use proc_macro2::{Ident, Literal, Span, TokenStream};
+use quote::{format_ident, quote};
+use std::collections::HashMap;
+
+/// How the rendered code uses a node: the children listed here are the ones
+/// the code refers to, which is what CSE counts.
+#[derive(Clone, Debug)]
+enum View {
+    Leaf,
+    Sum { terms: Vec<(f64, NodeId)>, constant: f64 },
+    Prod { coef: f64, num: Vec<NodeId>, den: Vec<NodeId> },
+    Times(NodeId, NodeId),
+    Recip(NodeId),
+    Method(&'static str, Vec<NodeId>),
+    Powi(NodeId, i32),
+    Powf(NodeId, NodeId),
+}
+
+impl View {
+    fn children(&self) -> Vec<NodeId> {
+        match self {
+            View::Leaf => Vec::new(),
+            View::Sum { terms, .. } => terms.iter().map(|t| t.1).collect(),
+            View::Prod { num, den, .. } => num.iter().chain(den).copied().collect(),
+            View::Times(a, b) | View::Powf(a, b) => vec![*a, *b],
+            View::Recip(a) | View::Powi(a, _) => vec![*a],
+            View::Method(_, xs) => xs.clone(),
+        }
+    }
+}
+
+fn view(g: &mut Graph, n: NodeId) -> View {
+    match g.node(n).clone() {
+        Node::Const(_) | Node::Var(_) => View::Leaf,
+        Node::Add(xs) => {
+            let mut constant = 0.0;
+            let mut terms = Vec::new();
+            for &x in xs.iter() {
+                match g.as_const(x) {
+                    Some(c) => constant += c,
+                    None => terms.push(g.split_coefficient(x)),
+                }
+            }
+            View::Sum { terms, constant }
+        }
+        Node::Mul(xs) => {
+            let mut coef = 1.0;
+            let mut num = Vec::new();
+            let mut den = Vec::new();
+            for &x in xs.iter() {
+                if let Some(c) = g.as_const(x) {
+                    coef *= c;
+                    continue;
+                }
+                match g.node(x).clone() {
+                    Node::Pow(b, e) if g.as_const(e).is_some_and(|e| e < 0.0) => {
+                        let e = g.as_const(e).unwrap_or(-1.0);
+                        den.push(g.powc(b, -e));
+                    }
+                    _ => num.push(x),
+                }
+            }
+            View::Prod { coef, num, den }
+        }
+        Node::Pow(b, e) => match g.as_const(e) {
+            Some(k) if is_int(k) && k >= 2.0 && k <= 32.0 => {
+                let k = k as i64;
+                if k % 2 == 0 {
+                    let h = g.powc(b, (k / 2) as f64);
+                    View::Times(h, h)
+                } else {
+                    let h = g.powc(b, (k - 1) as f64);
+                    View::Times(h, b)
+                }
+            }
+            Some(k) if is_int(k) && k > 32.0 => View::Powi(b, k as i32),
+            Some(k) if k < 0.0 && (is_int(k) || is_int(k - 0.5)) => View::Recip(g.powc(b, -k)),
+            Some(0.5) => View::Method("sqrt", vec![b]),
+            Some(k) if k > 0.0 && is_int(k - 0.5) => {
+                let whole = g.powc(b, k - 0.5);
+                let half = g.powc(b, 0.5);
+                View::Times(whole, half)
+            }
+            _ => View::Powf(b, e),
+        },
+        Node::Call(f, xs) => View::Method(f.method(), xs.to_vec()),
+    }
+}
+
+/// A rendered Rust expression, kept as a tree so that its operations can be
+/// counted and parentheses placed by precedence.
+#[derive(Clone, Debug)]
+enum R {
+    Lit(f64),
+    Raw(TokenStream),
+    Bin(char, Box<R>, Box<R>),
+    Neg(Box<R>),
+    Method(Box<R>, &'static str, Vec<R>),
+    Powi(Box<R>, i32),
+}
+
+impl R {
+    fn prec(&self) -> u8 {
+        match self {
+            R::Lit(x) if *x < 0.0 => 3,
+            R::Lit(_) | R::Raw(_) => 5,
+            R::Bin('+' | '-', ..) => 1,
+            R::Bin(..) => 2,
+            R::Neg(_) => 3,
+            R::Method(..) | R::Powi(..) => 4,
+        }
+    }
+
+    fn ops(&self) -> usize {
+        match self {
+            R::Lit(_) | R::Raw(_) => 0,
+            R::Bin(_, a, b) => 1 + a.ops() + b.ops(),
+            R::Neg(a) | R::Powi(a, _) => 1 + a.ops(),
+            R::Method(a, _, xs) => 1 + a.ops() + xs.iter().map(R::ops).sum::<usize>(),
+        }
+    }
+
+    fn wrap(&self, min: u8) -> TokenStream {
+        let t = self.tokens();
+        if self.prec() < min {
+            quote!((#t))
+        } else {
+            t
+        }
+    }
+
+    fn tokens(&self) -> TokenStream {
+        match self {
+            R::Lit(x) => {
+                let l = Literal::f64_unsuffixed(x.abs());
+                if *x < 0.0 {
+                    quote!(-#l)
+                } else {
+                    quote!(#l)
+                }
+            }
+            R::Raw(t) => t.clone(),
+            R::Bin(op, a, b) => {
+                let p = self.prec();
+                let (a, b) = (a.wrap(p), b.wrap(p + 1));
+                match op {
+                    '+' => quote!(#a + #b),
+                    '-' => quote!(#a - #b),
+                    '*' => quote!(#a * #b),
+                    _ => quote!(#a / #b),
+                }
+            }
+            R::Neg(a) => {
+                let a = a.wrap(3);
+                quote!(-#a)
+            }
+            R::Method(recv, name, args) => {
+                let recv = match **recv {
+                    R::Lit(x) => {
+                        let l = Literal::f64_suffixed(x);
+                        quote!((#l))
+                    }
+                    _ => recv.wrap(4),
+                };
+                let name = Ident::new(name, Span::call_site());
+                let args = args.iter().map(R::tokens);
+                quote!(#recv.#name(#(#args),*))
+            }
+            R::Powi(recv, k) => {
+                let recv = recv.wrap(4);
+                let k = Literal::i32_unsuffixed(*k);
+                quote!(#recv.powi(#k))
+            }
+        }
+    }
+}
+
+fn bin(op: char, a: R, b: R) -> R {
+    R::Bin(op, Box::new(a), Box::new(b))
+}
+
+/// Where an output goes.
+#[derive(Clone, Debug)]
+pub enum Target {
+    /// `let name: f64 = …;` (always written, even when zero).
+    Let(Ident),
+    /// `place = …;` into storage created by `zeros()` (skipped when zero).
+    Store(TokenStream),
+}
+
+/// The statements of one function body and what they cost.
+#[derive(Clone, Debug)]
+pub struct Emitted {
+    /// `let` bindings of shared subexpressions, then the output stores.
+    pub statements: Vec<TokenStream>,
+    /// Operation count (see the module documentation).
+    pub ops: usize,
+    /// Number of shared subexpressions bound to `let`s.
+    pub shared: usize,
+}
+
+/// Renders the inputs: `t`, `q[i]`, `v[i]`, `psi[j]`, `self.<parameter>`.
+pub struct Inputs<'a> {
+    /// Parameter field names, by index.
+    pub parameters: &'a [Ident],
+}
+
+impl Inputs<'_> {
+    fn var(&self, v: Var) -> TokenStream {
+        let lit = |i: u32| Literal::usize_unsuffixed(i as usize);
+        match v {
+            Var::Time => quote!(t),
+            Var::Q(i) => {
+                let i = lit(i);
+                quote!(q[#i])
+            }
+            Var::V(i) => {
+                let i = lit(i);
+                quote!(v[#i])
+            }
+            Var::Psi(i) => {
+                let i = lit(i);
+                quote!(psi[#i])
+            }
+            Var::P(i) => match self.parameters.get(i as usize) {
+                Some(p) => quote!(self.#p),
+                None => quote!(f64::NAN),
+            },
+        }
+    }
+}
+
+struct Emitter<'a> {
+    views: HashMap<NodeId, View>,
+    names: HashMap<NodeId, Ident>,
+    inputs: &'a Inputs<'a>,
+}
+
+impl Emitter<'_> {
+    fn render(&self, g: &Graph, n: NodeId, top: bool) -> R {
+        if !top {
+            if let Some(name) = self.names.get(&n) {
+                return R::Raw(quote!(#name));
+            }
+        }
+        let sub = |x: NodeId| self.render(g, x, false);
+        match &self.views[&n] {
+            View::Leaf => match g.node(n) {
+                Node::Var(v) => R::Raw(self.inputs.var(*v)),
+                _ => R::Lit(g.as_const(n).unwrap_or(f64::NAN)),
+            },
+            View::Sum { terms, constant } => {
+                let term = |c: f64, x: NodeId| if c == 1.0 { sub(x) } else { bin('*', R::Lit(c), sub(x)) };
+                let mut acc: Option<R> = None;
+                for &(c, x) in terms.iter().filter(|t| t.0 > 0.0) {
+                    let t = term(c, x);
+                    acc = Some(match acc {
+                        None => t,
+                        Some(a) => bin('+', a, t),
+                    });
+                }
+                for &(c, x) in terms.iter().filter(|t| t.0 < 0.0) {
+                    acc = Some(match acc {
+                        None if c == -1.0 => R::Neg(Box::new(sub(x))),
+                        None => bin('*', R::Lit(c), sub(x)),
+                        Some(a) => bin('-', a, term(-c, x)),
+                    });
+                }
+                let acc = acc.unwrap_or(R::Lit(0.0));
+                if *constant > 0.0 {
+                    bin('+', acc, R::Lit(*constant))
+                } else if *constant < 0.0 {
+                    bin('-', acc, R::Lit(-constant))
+                } else {
+                    acc
+                }
+            }
+            View::Prod { coef, num, den } => {
+                let product = |xs: &[NodeId]| -> Option<R> {
+                    xs.iter().map(|&x| sub(x)).reduce(|a, b| bin('*', a, b))
+                };
+                let mut numer = product(num);
+                let neg = *coef == -1.0;
+                if coef.abs() != 1.0 {
+                    numer = Some(match numer {
+                        None => R::Lit(*coef),
+                        Some(x) => bin('*', R::Lit(*coef), x),
+                    });
+                }
+                let numer = numer.unwrap_or(R::Lit(1.0));
+                let e = match product(den) {
+                    None => numer,
+                    Some(d) => bin('/', numer, d),
+                };
+                if neg {
+                    R::Neg(Box::new(e))
+                } else {
+                    e
+                }
+            }
+            View::Times(a, b) => bin('*', sub(*a), sub(*b)),
+            View::Recip(a) => bin('/', R::Lit(1.0), sub(*a)),
+            View::Method(name, xs) => {
+                R::Method(Box::new(sub(xs[0])), name, xs[1..].iter().map(|&x| sub(x)).collect())
+            }
+            View::Powi(a, k) => R::Powi(Box::new(sub(*a)), *k),
+            View::Powf(a, e) => R::Method(Box::new(sub(*a)), "powf", vec![sub(*e)]),
+        }
+    }
+}
+
+/// Emits the body of one function computing `outputs`, sharing every common
+/// subexpression between them.
+pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) -> Emitted {
+    // Pass 1: views and reference counts, iteratively (deep graphs are fine).
+    let mut views: HashMap<NodeId, View> = HashMap::new();
+    let mut refs: HashMap<NodeId, usize> = HashMap::new();
+    let mut order: Vec<NodeId> = Vec::new();
+    for (target, root) in outputs {
+        if matches!(target, Target::Store(_)) && g.is_const(*root, 0.0) {
+            continue;
+        }
+        let mut stack = vec![(*root, false)];
+        while let Some((n, done)) = stack.pop() {
+            if done {
+                order.push(n);
+                continue;
+            }
+            let count = refs.entry(n).or_insert(0);
+            *count += 1;
+            if *count > 1 {
+                continue;
+            }
+            let v = view(g, n);
+            stack.push((n, true));
+            for c in v.children().into_iter().rev() {
+                stack.push((c, false));
+            }
+            views.insert(n, v);
+        }
+    }
+    // Pass 2: which nodes become `let`s, parameter-only ones first.
+    let bound = |n: &NodeId| {
+        !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only())
+    };
+    let mut lets: Vec<NodeId> = order.iter().copied().filter(|n| bound(n) && g.deps(*n).parameters_only()).collect();
+    lets.extend(order.iter().copied().filter(|n| bound(n) && !g.deps(*n).parameters_only()));
+    let mut em = Emitter { views, names: HashMap::new(), inputs };
+    let mut statements = Vec::new();
+    let mut ops = 0;
+    for (k, &n) in lets.iter().enumerate() {
+        let e = em.render(g, n, true);
+        ops += e.ops();
+        let name = format_ident!("s{}", k);
+        let t = e.tokens();
+        statements.push(quote!(let #name = #t;));
+        em.names.insert(n, name);
+    }
+    for (target, root) in outputs {
+        match target {
+            Target::Let(name) => {
+                let e = if g.is_const(*root, 0.0) { R::Lit(0.0) } else { em.render(g, *root, false) };
+                ops += e.ops();
+                let t = e.tokens();
+                statements.push(quote!(let #name: f64 = #t;));
+            }
+            Target::Store(place) => {
+                if g.is_const(*root, 0.0) {
+                    continue;
+                }
+                let e = em.render(g, *root, false);
+                ops += e.ops();
+                let t = e.tokens();
+                statements.push(quote!(#place = #t;));
+            }
+        }
+    }
+    Emitted { statements, ops, shared: lets.len() }
+}

@@ -1,0 +1,144 @@
+//! Lowering of the parser's [`SrcExpr`] trees into the expression graph:
+//! named constants and `pi` are folded at compile time, identifiers become
+//! [`Var`]s, `sqrt` becomes a power.
+
+use crate::graph::{Fun, Graph, NodeId, Var};
+use crate::spec::{BinOp, Func, SpecError, SrcExpr, SystemSpec};
+
+/// Lowers source expressions of one declaration, caching its named constants.
+pub struct Lowerer<'a> {
+    spec: &'a SystemSpec,
+    constants: Vec<Option<NodeId>>,
+}
+
+fn fun_of(f: Func) -> Option<Fun> {
+    Some(match f {
+        Func::Sqrt => return None,
+        Func::Exp => Fun::Exp,
+        Func::Ln => Fun::Ln,
+        Func::Sin => Fun::Sin,
+        Func::Cos => Fun::Cos,
+        Func::Tan => Fun::Tan,
+        Func::Sinh => Fun::Sinh,
+        Func::Cosh => Fun::Cosh,
+        Func::Tanh => Fun::Tanh,
+        Func::Atan2 => Fun::Atan2,
+    })
+}
+
+impl<'a> Lowerer<'a> {
+    /// A lowerer for the expressions of `spec`.
+    pub fn new(spec: &'a SystemSpec) -> Lowerer<'a> {
+        Lowerer { spec, constants: vec![None; spec.constants.len()] }
+    }
+
+    /// Lowers one expression. Errors point at the offending token: an index
+    /// the parser did not resolve, a named constant that refers to itself, or
+    /// a constant subexpression that is not a finite number (`1/0`, `ln(0)`).
+    pub fn lower(&mut self, g: &mut Graph, e: &SrcExpr) -> Result<NodeId, SpecError> {
+        self.lower_depth(g, e, 0)
+    }
+
+    fn lower_depth(&mut self, g: &mut Graph, e: &SrcExpr, depth: usize) -> Result<NodeId, SpecError> {
+        let err = |span, message: String| SpecError { span, message };
+        if depth > 2_000 {
+            return Err(err(e.span(), "expression nested too deeply (more than 2000 levels)".into()));
+        }
+        let n = self.spec.coordinates.len();
+        let id = match e {
+            SrcExpr::Num(x, s) => {
+                if !x.is_finite() {
+                    return Err(err(*s, format!("number `{x}` is not finite; write a finite f64 literal")));
+                }
+                g.constant(*x)
+            }
+            SrcExpr::Time(_) => g.var(Var::Time),
+            SrcExpr::Pi(_) => g.constant(std::f64::consts::PI),
+            SrcExpr::Coord(i, s) | SrcExpr::Velocity(i, s) => {
+                if *i >= n {
+                    return Err(err(*s, format!("coordinate index {i} out of range (the system has {n} coordinates)")));
+                }
+                let i = *i as u32;
+                g.var(if matches!(e, SrcExpr::Coord(..)) { Var::Q(i) } else { Var::V(i) })
+            }
+            SrcExpr::Param(i, s) => {
+                if *i >= self.spec.parameters.len() {
+                    return Err(err(*s, format!("parameter index {i} out of range")));
+                }
+                g.var(Var::P(*i as u32))
+            }
+            SrcExpr::Const(i, s) => {
+                let Some(c) = self.spec.constants.get(*i) else {
+                    return Err(err(*s, format!("constant index {i} out of range")));
+                };
+                if let Some(id) = self.constants[*i] {
+                    return Ok(id);
+                }
+                let value = c.value.clone();
+                let id = self.lower_depth(g, &value, depth + 1)?;
+                if g.as_const(id).is_none() {
+                    return Err(err(
+                        *s,
+                        format!(
+                            "constant `{}` must be a number known at compile time; use a parameter for values that \
+                             change at run time",
+                            c.name.name
+                        ),
+                    ));
+                }
+                self.constants[*i] = Some(id);
+                id
+            }
+            SrcExpr::Neg(a, _) => {
+                let a = self.lower_depth(g, a, depth + 1)?;
+                g.neg(a)
+            }
+            SrcExpr::Binary(op, a, b, s) => {
+                let a = self.lower_depth(g, a, depth + 1)?;
+                let b = self.lower_depth(g, b, depth + 1)?;
+                let r = match op {
+                    BinOp::Add => g.add2(a, b),
+                    BinOp::Sub => g.sub(a, b),
+                    BinOp::Mul => g.mul2(a, b),
+                    BinOp::Div => g.div(a, b),
+                    BinOp::Pow => g.pow(a, b),
+                };
+                check_finite(g, &[a, b], r, *s)?;
+                r
+            }
+            SrcExpr::Call(f, args, s) => {
+                if args.len() != f.arity() {
+                    return Err(err(
+                        *s,
+                        format!("`{}` takes {} argument(s), got {}", f.name(), f.arity(), args.len()),
+                    ));
+                }
+                let mut xs = Vec::with_capacity(args.len());
+                for a in args {
+                    xs.push(self.lower_depth(g, a, depth + 1)?);
+                }
+                let r = match fun_of(*f) {
+                    None => g.sqrt(xs[0]),
+                    Some(fun) => g.call(fun, &xs),
+                };
+                check_finite(g, &xs, r, *s)?;
+                r
+            }
+        };
+        Ok(id)
+    }
+}
+
+/// Constant operands whose result could not be folded mean the value is not
+/// a finite number: say so at the operator instead of emitting `inf`/`NaN`.
+fn check_finite(g: &Graph, args: &[NodeId], r: NodeId, span: proc_macro2::Span) -> Result<(), SpecError> {
+    if args.iter().all(|&a| g.as_const(a).is_some()) && g.as_const(r).is_none() {
+        return Err(SpecError {
+            span,
+            message: "this constant subexpression is not a finite number (division by zero or a function outside \
+                      its domain)"
+                .into(),
+        });
+    }
+    Ok(())
+}

@@ -1,0 +1,254 @@
+//! The symbolic model of one declaration: `L` and `k` lowered into the graph,
+//! every derivative the runtime asks for, and the structure facts proved
+//! from them (autonomy, constant mass matrix, separability, constraint form).
+
+use crate::diff::Differentiator;
+use crate::graph::{Deps, Graph, Node, NodeId, Var};
+use crate::lower::Lowerer;
+use crate::spec::{SpecError, SystemSpec};
+use std::collections::HashMap;
+
+/// How the constraints depend on the velocities (mirrors
+/// `spark_runtime::ConstraintForm`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ConstraintForm {
+    /// No constraints.
+    None,
+    /// `k = K(t,q) v`.
+    Linear,
+    /// `k = K(t,q) v + b(t,q)`, `b ≢ 0`.
+    Affine,
+    /// Anything else.
+    Nonlinear,
+}
+
+/// Structure facts (mirrors `spark_runtime::Structure`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Structure {
+    /// `L` does not depend on `t`.
+    pub lagrangian_autonomous: bool,
+    /// `k` does not depend on `t`.
+    pub constraints_autonomous: bool,
+    /// `∇²_vv L` depends on parameters at most.
+    pub constant_mass_matrix: bool,
+    /// `∇_q L` free of `v` and `∇_v L` free of `q`.
+    pub separable: bool,
+    /// How `k` depends on `v`.
+    pub constraint_form: ConstraintForm,
+}
+
+/// Row-major matrix of nodes.
+pub type NodeMatrix = Vec<Vec<NodeId>>;
+
+/// `L`, `k` and all their derivatives as graph nodes.
+#[derive(Debug)]
+pub struct Model {
+    /// The graph holding every expression below.
+    pub graph: Graph,
+    /// Number of coordinates `N`.
+    pub n: usize,
+    /// Number of constraints `M`.
+    pub m: usize,
+    /// `L`.
+    pub lagrangian: NodeId,
+    /// `E = ∇_v L · v − L`.
+    pub energy: NodeId,
+    /// `P = ∇_v L`.
+    pub momentum: Vec<NodeId>,
+    /// `F = ∇_q L`.
+    pub force: Vec<NodeId>,
+    /// `k`.
+    pub constraint: Vec<NodeId>,
+    /// `R = −Kᵀψ`.
+    pub constraint_force: Vec<NodeId>,
+    /// `∂P/∂q` (`N × N`).
+    pub momentum_q: NodeMatrix,
+    /// `∂P/∂v = ∇²_vv L`.
+    pub mass: NodeMatrix,
+    /// `∂F/∂q`.
+    pub force_q: NodeMatrix,
+    /// `∂F/∂v`.
+    pub force_v: NodeMatrix,
+    /// `k_q` (`M × N`).
+    pub constraint_q: NodeMatrix,
+    /// `K = k_v` (`M × N`).
+    pub constraint_v: NodeMatrix,
+    /// `∂R/∂q`.
+    pub constraint_force_q: NodeMatrix,
+    /// `∂R/∂v`.
+    pub constraint_force_v: NodeMatrix,
+    /// `∂L/∂t`.
+    pub lagrangian_t: NodeId,
+    /// `∂P/∂t`.
+    pub momentum_t: Vec<NodeId>,
+    /// `∂F/∂t`.
+    pub force_t: Vec<NodeId>,
+    /// `k_t`.
+    pub constraint_t: Vec<NodeId>,
+    /// Proved structure.
+    pub structure: Structure,
+}
+
+fn gradient(g: &mut Graph, d: &mut Differentiator, f: NodeId, vars: &[Var]) -> Vec<NodeId> {
+    vars.iter().map(|&x| d.diff(g, f, x)).collect()
+}
+
+fn jacobian(g: &mut Graph, d: &mut Differentiator, fs: &[NodeId], vars: &[Var]) -> NodeMatrix {
+    fs.iter().map(|&f| gradient(g, d, f, vars)).collect()
+}
+
+/// Replaces every variable of the kinds in `kinds` by zero.
+pub fn substitute_zero(g: &mut Graph, node: NodeId, kinds: Deps, memo: &mut HashMap<NodeId, NodeId>) -> NodeId {
+    if !g.deps(node).any(kinds) {
+        return node;
+    }
+    if let Some(&r) = memo.get(&node) {
+        return r;
+    }
+    let r = match g.node(node).clone() {
+        Node::Const(_) => node,
+        Node::Var(v) => {
+            if v.dep().any(kinds) {
+                g.constant(0.0)
+            } else {
+                node
+            }
+        }
+        Node::Add(xs) => {
+            let ys: Vec<NodeId> = xs.iter().map(|&x| substitute_zero(g, x, kinds, memo)).collect();
+            g.add(&ys)
+        }
+        Node::Mul(xs) => {
+            let ys: Vec<NodeId> = xs.iter().map(|&x| substitute_zero(g, x, kinds, memo)).collect();
+            g.mul(&ys)
+        }
+        Node::Pow(b, e) => {
+            let b = substitute_zero(g, b, kinds, memo);
+            let e = substitute_zero(g, e, kinds, memo);
+            g.pow(b, e)
+        }
+        Node::Call(f, xs) => {
+            let ys: Vec<NodeId> = xs.iter().map(|&x| substitute_zero(g, x, kinds, memo)).collect();
+            g.call(f, &ys)
+        }
+    };
+    memo.insert(node, r);
+    r
+}
+
+impl Model {
+    /// Lowers `spec` and takes every derivative. Fails with a span on the
+    /// offending expression (bad constant, holonomic constraint).
+    pub fn build(spec: &SystemSpec) -> Result<Model, SpecError> {
+        let n = spec.coordinates.len();
+        let m = spec.constraints.len();
+        if n == 0 {
+            return Err(SpecError {
+                span: spec.name.span(),
+                message: "a system needs at least one generalized coordinate".into(),
+            });
+        }
+        let mut g = Graph::new();
+        let mut lower = Lowerer::new(spec);
+        let lagrangian = lower.lower(&mut g, &spec.lagrangian)?;
+        let mut constraint = Vec::with_capacity(m);
+        for c in &spec.constraints {
+            constraint.push(lower.lower(&mut g, &c.expr)?);
+        }
+        let mut d = Differentiator::new();
+        let qs: Vec<Var> = (0..n as u32).map(Var::Q).collect();
+        let vs: Vec<Var> = (0..n as u32).map(Var::V).collect();
+        let momentum = gradient(&mut g, &mut d, lagrangian, &vs);
+        let force = gradient(&mut g, &mut d, lagrangian, &qs);
+        let constraint_q = jacobian(&mut g, &mut d, &constraint, &qs);
+        let constraint_v = jacobian(&mut g, &mut d, &constraint, &vs);
+        for (j, row) in constraint_v.iter().enumerate() {
+            if row.iter().all(|&x| g.is_const(x, 0.0)) {
+                let name = spec.coordinates[0].name.as_str();
+                return Err(SpecError {
+                    span: spec.constraints[j].span,
+                    message: format!(
+                        "constraint {} does not depend on the velocities: it is holonomic (a position constraint \
+                         g(t, q) = 0), which this integrator does not take directly; write its time derivative \
+                         instead, the velocity-level constraint g_t + g_q·v = 0 (e.g. for g = {name} write the \
+                         velocity of `{name}`)",
+                        j + 1
+                    ),
+                });
+            }
+        }
+        let mut r = Vec::with_capacity(n);
+        for i in 0..n {
+            let terms: Vec<NodeId> = (0..m).map(|j| {
+                let psi = g.var(Var::Psi(j as u32));
+                g.mul2(constraint_v[j][i], psi)
+            })
+            .collect();
+            let s = g.add(&terms);
+            r.push(g.neg(s));
+        }
+        let momentum_q = jacobian(&mut g, &mut d, &momentum, &qs);
+        let mass = jacobian(&mut g, &mut d, &momentum, &vs);
+        let force_q = jacobian(&mut g, &mut d, &force, &qs);
+        let force_v = jacobian(&mut g, &mut d, &force, &vs);
+        let constraint_force_q = jacobian(&mut g, &mut d, &r, &qs);
+        let constraint_force_v = jacobian(&mut g, &mut d, &r, &vs);
+        let lagrangian_t = d.diff(&mut g, lagrangian, Var::Time);
+        let momentum_t: Vec<NodeId> = momentum.iter().map(|&p| d.diff(&mut g, p, Var::Time)).collect();
+        let force_t: Vec<NodeId> = force.iter().map(|&f| d.diff(&mut g, f, Var::Time)).collect();
+        let constraint_t: Vec<NodeId> = constraint.iter().map(|&k| d.diff(&mut g, k, Var::Time)).collect();
+        let pv: Vec<NodeId> = (0..n).map(|i| {
+            let vi = g.var(Var::V(i as u32));
+            g.mul2(momentum[i], vi)
+        })
+        .collect();
+        let pv = g.add(&pv);
+        let energy = g.sub(pv, lagrangian);
+
+        let free_of = |g: &Graph, xs: &[NodeId], kinds: Deps| xs.iter().all(|&x| !g.deps(x).any(kinds));
+        let constraint_form = if m == 0 {
+            ConstraintForm::None
+        } else if constraint_v.iter().all(|row| free_of(&g, row, Deps::V)) {
+            let mut memo = HashMap::new();
+            let b: Vec<NodeId> = constraint.iter().map(|&k| substitute_zero(&mut g, k, Deps::V, &mut memo)).collect();
+            if b.iter().all(|&x| g.is_const(x, 0.0)) {
+                ConstraintForm::Linear
+            } else {
+                ConstraintForm::Affine
+            }
+        } else {
+            ConstraintForm::Nonlinear
+        };
+        let structure = Structure {
+            lagrangian_autonomous: !g.deps(lagrangian).any(Deps::T),
+            constraints_autonomous: free_of(&g, &constraint, Deps::T),
+            constant_mass_matrix: mass.iter().all(|row| row.iter().all(|&x| g.deps(x).parameters_only())),
+            separable: free_of(&g, &force, Deps::V) && free_of(&g, &momentum, Deps::Q),
+            constraint_form,
+        };
+        Ok(Model {
+            graph: g,
+            n,
+            m,
+            lagrangian,
+            energy,
+            momentum,
+            force,
+            constraint,
+            constraint_force: r,
+            momentum_q,
+            mass,
+            force_q,
+            force_v,
+            constraint_q,
+            constraint_v,
+            constraint_force_q,
+            constraint_force_v,
+            lagrangian_t,
+            momentum_t,
+            force_t,
+            constraint_t,
+            structure,
+        })
+    }
+}

@@ -1,0 +1,74 @@
+//! The neutral S-expression text of the user's source expressions (see
+//! `spark_runtime::SystemSource`): named constants substituted, numbers
+//! printed so that they parse back to the same `f64`.
+
+use crate::spec::{BinOp, SrcExpr, SystemSpec};
+
+/// Prints one source expression as a prefix S-expression.
+pub fn sexpr(spec: &SystemSpec, e: &SrcExpr) -> String {
+    let mut out = String::new();
+    write(spec, e, &mut out, 0);
+    out
+}
+
+fn number(x: f64, out: &mut String) {
+    // `{:?}` of an f64 is the shortest text that round-trips.
+    out.push_str(&format!("{x:?}"));
+}
+
+fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
+    if depth > 2_000 {
+        out.push_str("nan");
+        return;
+    }
+    let named = |kind: &str, list: &[&str], i: usize, out: &mut String| {
+        out.push_str(&format!("({kind} {})", list.get(i).copied().unwrap_or("?")));
+    };
+    match e {
+        SrcExpr::Num(x, _) => number(*x, out),
+        SrcExpr::Time(_) => out.push('t'),
+        SrcExpr::Pi(_) => out.push_str("pi"),
+        SrcExpr::Coord(i, _) | SrcExpr::Velocity(i, _) => {
+            let names: Vec<&str> = spec.coordinates.iter().map(|c| c.name.as_str()).collect();
+            named(if matches!(e, SrcExpr::Coord(..)) { "q" } else { "v" }, &names, *i, out)
+        }
+        SrcExpr::Param(i, _) => {
+            let names: Vec<&str> = spec.parameters.iter().map(|p| p.name.name.as_str()).collect();
+            named("p", &names, *i, out)
+        }
+        SrcExpr::Const(i, _) => match spec.constants.get(*i) {
+            Some(c) => write(spec, &c.value, out, depth + 1),
+            None => out.push_str("nan"),
+        },
+        SrcExpr::Neg(a, _) => {
+            out.push_str("(neg ");
+            write(spec, a, out, depth + 1);
+            out.push(')');
+        }
+        SrcExpr::Binary(op, a, b, _) => {
+            let name = match op {
+                BinOp::Add => "+",
+                BinOp::Sub => "-",
+                BinOp::Mul => "*",
+                BinOp::Div => "/",
+                BinOp::Pow => "^",
+            };
+            out.push('(');
+            out.push_str(name);
+            out.push(' ');
+            write(spec, a, out, depth + 1);
+            out.push(' ');
+            write(spec, b, out, depth + 1);
+            out.push(')');
+        }
+        SrcExpr::Call(f, args, _) => {
+            out.push('(');
+            out.push_str(f.name());
+            for a in args {
+                out.push(' ');
+                write(spec, a, out, depth + 1);
+            }
+            out.push(')');
+        }
+    }
+}
