@@ -8,3 +8,6 @@ cd "$(dirname "$0")/.."
 
 echo "==> cargo test --workspace"
 cargo test --workspace --release
+
+echo "==> CasADi cross-check (casadi/run.sh)"
+bash casadi/run.sh

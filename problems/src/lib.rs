@@ -1,1 +1,2 @@
 //! The paper's systems and the `spark` command-line program.
+pub mod casadi_export;

@@ -1,0 +1,369 @@
+#!/usr/bin/env python3
+"""Independent CasADi cross-check of spark's generated derivatives and SPARK steps.
+
+Reads the JSON written by ``cargo run -p problems --bin spark-casadi-export``,
+rebuilds every system from its neutral S-expression source with CasADi,
+differentiates it with CasADi, compares every trait output at every sample
+point, solves one SPARK step per (system, method) with CasADi's rootfinder and
+compares (q1, v1, Ψ). Writes a Markdown report.
+
+Exit status: 0 all agree, 1 some comparison failed, 2 bad input or setup.
+
+    python casadi/crosscheck.py --input out/casadi/export.json --report docs/casadi-report.md
+    python casadi/crosscheck.py --input ... --perturb derivative   # must exit 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from spark_check import compare, tableaux  # noqa: E402
+from spark_check.step import StepSetupError, solve_step  # noqa: E402
+from spark_check.system import CasadiSystem, SourceError  # noqa: E402
+from spark_check.sexpr import SexprError  # noqa: E402
+
+FORMAT = "spark-casadi/1"
+PERTURBATION = 1e-10  # relative (and absolute) size of the deliberate error, 100x the tolerance
+TABLEAU_TOLERANCE = 1e-14
+
+
+class InputError(Exception):
+    """Bad input: exit status 2."""
+
+
+# ---------------------------------------------------------------- derivatives
+
+
+def perturb_value(outputs: Dict, path: str) -> str:
+    """Add a small error to the first entry of ``outputs[path]``; returns a description."""
+    parent = outputs
+    parts = path.split(".")
+    for part in parts[:-1]:
+        parent = parent[part]
+    key = parts[-1]
+    value = parent[key]
+    if isinstance(value, list):
+        holder, index = value, 0
+        while isinstance(holder[index], list):
+            if not holder[index]:
+                raise InputError(f"cannot perturb `{path}`: it is empty")
+            holder, index = holder[index], 0
+        old = holder[index]
+        holder[index] = old * (1 + PERTURBATION) + PERTURBATION
+    else:
+        old = value
+        parent[key] = old * (1 + PERTURBATION) + PERTURBATION
+    return f"{path}[0…] {old!r} -> perturbed by {PERTURBATION:g} (relative and absolute)"
+
+
+def check_system(entry: Dict, perturb_path: Optional[str]) -> compare.SystemResult:
+    try:
+        system = CasadiSystem(entry["source"])
+        n, m = int(entry["n"]), int(entry["m"])
+        params = [float(x) for x in entry["parameter_values"]]
+        points = entry["points"]
+    except (KeyError, TypeError, ValueError, SourceError, SexprError) as err:
+        raise InputError(f"system {entry.get('name', '?')}: {err}") from None
+    if (system.n, system.m) != (n, m):
+        raise InputError(f"system {entry['name']}: source has n={system.n}, m={system.m}, export says n={n}, m={m}")
+    if len(params) != len(system.parameters):
+        raise InputError(f"system {entry['name']}: {len(params)} parameter values for {len(system.parameters)} parameters")
+    result = compare.SystemResult(entry["name"], n, m, len(points), int(entry.get("skipped_points", 0)))
+    if perturb_path is not None and points:
+        result.structure_notes.append("PERTURBED: " + perturb_value(points[0]["outputs"], perturb_path))
+    casadi_values = []
+    for index, point in enumerate(points):
+        val = system.evaluate(point["t"], point["q"], point["v"], params, point["psi"])
+        casadi_values.append({k: np.array(x) for k, x in val.items()})
+        where = f"point {index} ({point['class']})"
+        for path, key in compare.OUTPUT_MAP:
+            scaled, normwise = compare.errors(compare.lookup(point["outputs"], path), casadi_values[-1][key])
+            result.worst.setdefault(path, compare.Worst()).update(scaled, normwise, where)
+    compare.check_structure(system, entry["structure"], casadi_values, result)
+    result.rust_ops = {k: int(v) for k, v in entry.get("operations", {}).items()}
+    result.casadi_ops = {
+        "stage_values": system.op_counts(CasadiSystem.STAGE_VALUES),
+        "stage_jacobians": system.op_counts(CasadiSystem.STAGE_JACOBIANS),
+        "bundle": system.op_counts(CasadiSystem.BUNDLE),
+    }
+    return result
+
+
+# ---------------------------------------------------------------------- steps
+
+
+@dataclass
+class StepResult:
+    """One whole-step comparison."""
+
+    system: str
+    method: str
+    stages: int
+    errors: Dict[str, float] = field(default_factory=dict)
+    residual: float = math.nan
+    last_newton_step: float = math.nan
+    tableau_error: Optional[float] = None
+    note: str = ""
+
+    @property
+    def ok(self) -> bool:
+        fine = all(e <= compare.TOLERANCE for e in self.errors.values()) and bool(self.errors)
+        if self.tableau_error is not None:
+            fine = fine and self.tableau_error <= TABLEAU_TOLERANCE
+        return fine
+
+
+def tableau_error(method: Dict) -> Optional[float]:
+    """Largest difference between the exported coefficients and Python's own construction."""
+    s = int(method["stages"])
+    exp = tableaux.expected(method["name"], s)
+    if exp is None:
+        return None
+    c, a, a_hat, a_tilde, b = exp
+    worst = 0.0
+    pairs = [
+        (method["c"], c),
+        (method["a"], a),
+        (method["a_hat"], a_hat),
+        (method["a_tilde"], a_tilde),
+        (method["b"], b),
+        (method["b_hat"], b),
+        (method["b_tilde"], b),
+    ]
+    for row_index, row in enumerate(method["conditions"]):
+        if row.get("kind") == "weights":
+            pairs.append((row["omega"], b * c**row_index))
+    for got, want in pairs:
+        got = np.asarray(got, dtype=float).reshape(np.shape(want))
+        worst = max(worst, float(np.max(np.abs(got - want))))
+    return worst
+
+
+def check_step(step: Dict, systems: Dict[str, Dict], built: Dict[str, CasadiSystem], perturb: bool) -> StepResult:
+    name = step["system"]
+    if name not in systems:
+        raise InputError(f"step refers to unknown system {name!r}")
+    if name not in built:
+        built[name] = CasadiSystem(systems[name]["source"])
+    system = built[name]
+    method = step["method"]
+    result = StepResult(name, method["name"], int(method["stages"]))
+    try:
+        sol = solve_step(
+            system, systems[name]["parameter_values"], method, float(step["t0"]), float(step["h"]), step["q0"], step["v0"]
+        )
+    except StepSetupError as err:
+        raise InputError(f"step {name} / {method['name']}: {err}") from None
+    rust = {k: np.asarray(step[k], dtype=float) for k in ("q1", "v1", "psi")}
+    if perturb:
+        rust["v1"] = rust["v1"].copy()
+        rust["v1"][0] = rust["v1"][0] * (1 + PERTURBATION) + PERTURBATION
+        result.note = "PERTURBED v1[0]"
+    ours = {"q1": sol.q1, "v1": sol.v1, "psi": sol.psi}
+    if step.get("stage_velocities"):
+        rust["V"] = np.asarray(step["stage_velocities"], dtype=float)
+        ours["V"] = sol.stage_velocities
+    for key in rust:
+        result.errors[key] = compare.errors(rust[key], ours[key])[0]
+    result.residual = sol.residual
+    result.last_newton_step = sol.last_newton_step
+    result.tableau_error = tableau_error(method)
+    return result
+
+
+# --------------------------------------------------------------------- report
+
+
+def fmt(x: float) -> str:
+    if x == 0:
+        return "0"
+    if math.isinf(x) or math.isnan(x):
+        return str(x)
+    return f"{x:.1e}"
+
+
+def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], steps: List[StepResult]) -> None:
+    lines = [
+        "# CasADi cross-check report",
+        "",
+        "Generated by `casadi/crosscheck.py` (see [casadi.md](casadi.md)); do not edit by hand.",
+        f"Sample points drawn with seed {doc['seed']}. Error of an entry: "
+        "`|rust − casadi| / max(|casadi|, 1)` (relative, absolute near zero); pass ≤ 1e-12.",
+        "",
+        "## Derivatives: worst error per system",
+        "",
+        "| system | n | m | points (skipped) | worst error | in | normwise rel. | structure | verdict |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in systems:
+        worst_path = max(r.worst, key=lambda k: r.worst[k].scaled) if r.worst else "-"
+        w = r.worst.get(worst_path, compare.Worst())
+        normwise = max((x.normwise for x in r.worst.values()), default=0.0)
+        structure = "; ".join(r.structure_failures) or "ok"
+        verdict = "pass" if r.ok else "**FAIL**"
+        lines.append(
+            f"| {r.name} | {r.n} | {r.m} | {r.points} ({r.skipped}) | {fmt(w.scaled)} | `{worst_path}` | "
+            f"{fmt(normwise)} | {structure} | {verdict} |"
+        )
+    lines += ["", "## Derivatives: worst error per function", ""]
+    names = [r.name for r in systems]
+    lines.append("| function | " + " | ".join(names) + " |")
+    lines.append("|---|" + "---|" * len(names))
+    for fpath, _ in compare.OUTPUT_MAP:
+        cells = [fmt(r.worst[fpath].scaled) if fpath in r.worst else "-" for r in systems]
+        lines.append(f"| `{fpath}` | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "## Operation counts",
+        "",
+        "spark: `OperationCounts` of the generated code (0 for hand-written systems). "
+        "CasADi: arithmetic operations of one `cse=True` SX Function computing the same outputs "
+        "(CasADi's `n_instructions`, which also counts inputs, outputs and constants, in parentheses). "
+        "The bundle is `L, ∇_qL, ∇_vL, ∇²_vvL, ∂(∇_vL)/∂q, k, k_q, k_v, Kᵀψ` and its Jacobians in `q`, `v`.",
+        "",
+        "| system | stage_values spark | stage_values CasADi | stage_jacobians spark | stage_jacobians CasADi "
+        "| bundle spark | bundle CasADi |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in systems:
+        cells = []
+        for key in ("stage_values", "stage_jacobians", "bundle"):
+            c = r.casadi_ops.get(key, {})
+            cells.append(str(r.rust_ops.get(key, "-")))
+            cells.append(f"{c.get('arithmetic', '-')} ({c.get('n_instructions', '-')})")
+        lines.append(f"| {r.name} | " + " | ".join(cells) + " |")
+    lines += ["", "## Whole SPARK steps", ""]
+    if not steps:
+        lines.append("No steps were exported.")
+    else:
+        lines += [
+            "CasADi builds equations (6.1) from the exported tableau and the system's source, solves them with "
+            "`rootfinder('newton')` from `V = v0, Ψ = 0`, and compares with the Rust stepper. "
+            "Tableau: largest difference between the exported coefficients and an independent numpy "
+            "construction from the families' defining conditions.",
+            "",
+            "| system | method | s | q1 | v1 | Ψ | V | CasADi residual | tableau | verdict |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for st in steps:
+            e = st.errors
+            lines.append(
+                f"| {st.system} | {st.method} | {st.stages} | {fmt(e.get('q1', math.nan))} | "
+                f"{fmt(e.get('v1', math.nan))} | {fmt(e.get('psi', math.nan))} | "
+                f"{fmt(e['V']) if 'V' in e else '-'} | {fmt(st.residual)} | "
+                f"{fmt(st.tableau_error) if st.tableau_error is not None else 'n/a'} | "
+                f"{'pass' if st.ok else '**FAIL**'} |"
+            )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+# ----------------------------------------------------------------------- main
+
+
+def run(args) -> int:
+    try:
+        doc = json.loads(Path(args.input).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as err:
+        raise InputError(f"cannot read {args.input}: {err}") from None
+    if doc.get("format") != FORMAT:
+        raise InputError(f"{args.input}: format {doc.get('format')!r}, expected {FORMAT!r}")
+    if not doc.get("systems"):
+        raise InputError(f"{args.input}: no systems exported")
+
+    do_derivatives = args.perturb in (None, "derivative")
+    do_steps = args.perturb in (None, "step")
+    passed = failed = 0
+    system_results: List[compare.SystemResult] = []
+    if do_derivatives:
+        for index, entry in enumerate(doc["systems"]):
+            perturb_path = args.perturb_path if (args.perturb == "derivative" and index == 0) else None
+            r = check_system(entry, perturb_path)
+            system_results.append(r)
+            worst_path = max(r.worst, key=lambda k: r.worst[k].scaled) if r.worst else "-"
+            w = r.worst.get(worst_path, compare.Worst())
+            status = "ok  " if r.ok else "FAIL"
+            print(
+                f"[{status}] derivatives {r.name:<34} n={r.n} m={r.m} points={r.points:<3} "
+                f"worst {w.scaled:.2e} ({worst_path} at {w.where or '-'})"
+            )
+            for path, wp in r.worst.items():
+                if not wp.ok:
+                    print(f"         {path}: {wp.scaled:.3e} at {wp.where}")
+            for msg in r.structure_failures:
+                print(f"         structure: {msg}")
+            for msg in r.structure_notes:
+                print(f"         note: {msg}")
+            counted = len(r.worst) + 1  # functions + structure facts
+            bad = sum(1 for wp in r.worst.values() if not wp.ok) + (1 if r.structure_failures else 0)
+            if r.points == 0:
+                print("         no sample points: nothing was compared")
+                bad += 1
+            passed += counted - bad
+            failed += bad
+
+    step_results: List[StepResult] = []
+    if do_steps:
+        systems = {s["name"]: s for s in doc["systems"]}
+        built: Dict[str, CasadiSystem] = {}
+        steps = doc.get("steps", [])
+        if args.perturb == "step" and not steps:
+            raise InputError("--perturb step: the export has no steps to perturb")
+        if args.require_steps and not steps:
+            print("[FAIL] steps: the export contains no SPARK steps")
+            failed += 1
+        for index, step in enumerate(steps):
+            st = check_step(step, systems, built, perturb=(args.perturb == "step" and index == 0))
+            step_results.append(st)
+            status = "ok  " if st.ok else "FAIL"
+            errs = " ".join(f"{k}={v:.1e}" for k, v in st.errors.items())
+            tab = f" tableau={st.tableau_error:.1e}" if st.tableau_error is not None else ""
+            print(
+                f"[{status}] step {st.system:<30} {st.method:<26} s={st.stages} {errs} "
+                f"residual={st.residual:.1e}{tab} {st.note}"
+            )
+            passed += 1 if st.ok else 0
+            failed += 0 if st.ok else 1
+
+    if args.report and args.perturb is None:
+        write_report(Path(args.report), doc, system_results, step_results)
+        print(f"report written to {args.report}")
+    print(f"casadi: {passed} passed, {failed} failed")
+    return 1 if failed else 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--input", required=True, help="JSON written by spark-casadi-export")
+    parser.add_argument("--report", help="Markdown report to write (not written when perturbing)")
+    parser.add_argument(
+        "--perturb",
+        choices=["derivative", "step"],
+        help="deliberately corrupt one exported value before comparing; the check must then fail (exit 1)",
+    )
+    parser.add_argument(
+        "--perturb-path",
+        default="stage_jacobians.force_q",
+        help="which output of the first point of the first system --perturb derivative corrupts",
+    )
+    parser.add_argument("--require-steps", action="store_true", help="fail if the export has no SPARK steps")
+    args = parser.parse_args()
+    try:
+        return run(args)
+    except (InputError, compare.ExportError, SourceError, SexprError) as err:
+        print(f"casadi crosscheck: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# The CasADi cross-check, alone: sets up casadi/.venv (pinned requirements),
+# exports every system's derivatives and SPARK steps from Rust, compares them
+# with CasADi, writes docs/casadi-report.md, and proves the check can fail.
+#
+#   bash casadi/run.sh
+#
+# Exit status is non-zero on any disagreement or setup problem; nothing is
+# ever skipped silently.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV=casadi/.venv
+REQ=casadi/requirements.txt
+OUT=${SPARK_CASADI_OUT:-out/casadi}
+PY=$VENV/bin/python
+
+fail() {
+    echo "casadi cross-check: ERROR: $*" >&2
+    exit 1
+}
+
+# --- Python environment ------------------------------------------------------
+command -v python3 >/dev/null 2>&1 ||
+    fail "python3 not found. Install Python >= 3.11 with its venv module (Debian/Ubuntu: apt-get install python3 python3-venv)."
+python3 -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' ||
+    fail "python3 is $(python3 --version 2>&1); the pinned numpy needs Python >= 3.11."
+
+want=$(sha256sum "$REQ" | cut -d' ' -f1)
+have=$(cat "$VENV/.requirements.sha256" 2>/dev/null || true)
+if [[ "$want" != "$have" ]] || ! "$PY" -c 'import casadi, numpy' >/dev/null 2>&1; then
+    echo "==> creating $VENV with $(python3 --version) and installing $REQ"
+    python3 -m venv --clear "$VENV" ||
+        fail "could not create the virtual environment $VENV (Debian/Ubuntu: apt-get install python3-venv)."
+    "$PY" -m pip install --disable-pip-version-check --quiet -r "$REQ" ||
+        fail "pip could not install $REQ into $VENV (is PyPI reachable?)."
+    "$PY" -c 'import casadi, numpy' ||
+        fail "casadi/numpy installed but cannot be imported from $VENV."
+    echo "$want" >"$VENV/.requirements.sha256"
+else
+    echo "==> reusing $VENV ($("$PY" -c 'import casadi; print("casadi", casadi.__version__)'))"
+fi
+
+# --- translator unit tests ---------------------------------------------------
+echo "==> CasADi translator unit tests"
+"$PY" -m unittest discover -s casadi/tests -q
+
+# --- export from Rust --------------------------------------------------------
+echo "==> exporting derivatives and SPARK steps from Rust"
+cargo run --release --quiet -p problems --bin spark-casadi-export -- --out "$OUT/export.json"
+
+# --- the cross-check ---------------------------------------------------------
+echo "==> CasADi cross-check"
+"$PY" casadi/crosscheck.py --input "$OUT/export.json" --report docs/casadi-report.md --require-steps |
+    tee "$OUT/crosscheck.log"
+passed=$(sed -n -E 's/^casadi: ([0-9]+) passed, 0 failed$/\1/p' "$OUT/crosscheck.log" | tail -n 1)
+[[ -n "$passed" ]] || fail "the cross-check printed no summary line."
+
+# --- negative tests: a corrupted value must be caught ------------------------
+for what in derivative step; do
+    echo "==> negative test: --perturb $what must fail"
+    set +e
+    "$PY" casadi/crosscheck.py --input "$OUT/export.json" --perturb "$what" >"$OUT/perturb-$what.log" 2>&1
+    rc=$?
+    set -e
+    if [[ $rc -eq 1 ]]; then
+        echo "    caught (exit 1): $(grep -m1 -E '^\[FAIL\]' "$OUT/perturb-$what.log")"
+    else
+        cat "$OUT/perturb-$what.log" >&2
+        fail "the deliberately perturbed $what was NOT caught (exit $rc, expected 1)."
+    fi
+done
+echo "casadi cross-check: every comparison agrees; both corrupted values were caught"
+echo "casadi: $((passed + 2)) passed, 0 failed"

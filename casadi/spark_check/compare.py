@@ -1,0 +1,171 @@
+"""Comparison of the Rust export with CasADi: errors, verdicts, report.
+
+Owns the error measure and the mapping from the exported trait outputs onto
+the CasADi quantities of :mod:`spark_check.system`.
+
+Error measure (the pass criterion, 1e-12): for every entry,
+``|rust − casadi| / max(|casadi|, 1)``, i.e. relative error for values of
+magnitude ≥ 1 and absolute error near zero. Beside it the *normwise relative*
+error ``‖rust − casadi‖_∞ / ‖casadi‖_∞`` of each output at each point is
+reported, which stays meaningful at points of tiny magnitude.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Tuple
+
+import numpy as np
+
+from .system import CasadiSystem
+
+TOLERANCE = 1e-12
+
+# (path in the exported `outputs`, CasADi quantity)
+OUTPUT_MAP: List[Tuple[str, str]] = [
+    ("lagrangian", "lagrangian"),
+    ("energy", "energy"),
+    ("momentum", "momentum"),
+    ("force", "force"),
+    ("mass_matrix", "mass_matrix"),
+    ("constraint", "constraint"),
+    ("constraint_q", "constraint_q"),
+    ("constraint_v", "constraint_v"),
+    ("time_derivatives.lagrangian_t", "lagrangian_t"),
+    ("time_derivatives.momentum_t", "momentum_t"),
+    ("time_derivatives.force_t", "force_t"),
+    ("time_derivatives.constraint_t", "constraint_t"),
+    ("stage_values.momentum", "momentum"),
+    ("stage_values.force", "force"),
+    ("stage_values.constraint", "constraint"),
+    ("stage_values.constraint_force", "constraint_force"),
+    ("stage_jacobians.values.momentum", "momentum"),
+    ("stage_jacobians.values.force", "force"),
+    ("stage_jacobians.values.constraint", "constraint"),
+    ("stage_jacobians.values.constraint_force", "constraint_force"),
+    ("stage_jacobians.momentum_q", "momentum_q"),
+    ("stage_jacobians.mass", "mass_matrix"),
+    ("stage_jacobians.force_q", "force_q"),
+    ("stage_jacobians.force_v", "force_v"),
+    ("stage_jacobians.constraint_q", "constraint_q"),
+    ("stage_jacobians.constraint_v", "constraint_v"),
+    ("stage_jacobians.constraint_force_q", "constraint_force_q"),
+    ("stage_jacobians.constraint_force_v", "constraint_force_v"),
+]
+
+
+class ExportError(ValueError):
+    """The exported JSON does not have the expected shape."""
+
+
+def lookup(outputs: Dict, path: str):
+    node = outputs
+    for part in path.split("."):
+        if not isinstance(node, dict) or part not in node:
+            raise ExportError(f"exported outputs have no `{path}`")
+        node = node[part]
+    return node
+
+
+def errors(rust, reference: np.ndarray) -> Tuple[float, float]:
+    """``(scaled, normwise)`` errors of ``rust`` against ``reference`` (same shape)."""
+    a = np.asarray(rust, dtype=float)
+    b = np.asarray(reference, dtype=float)
+    if a.size != b.size:
+        raise ExportError(f"shape mismatch: exported {a.shape}, CasADi {b.shape}")
+    if a.size == 0:
+        return 0.0, 0.0
+    a = a.reshape(b.shape)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return math.inf, math.inf
+    diff = np.abs(a - b)
+    scaled = float(np.max(diff / np.maximum(np.abs(b), 1.0)))
+    norm_b = float(np.max(np.abs(b)))
+    normwise = float(np.max(diff)) / norm_b if norm_b > 0 else float(np.max(diff))
+    return scaled, normwise
+
+
+@dataclass
+class Worst:
+    """Worst error seen for one function of one system."""
+
+    scaled: float = 0.0
+    normwise: float = 0.0
+    where: str = ""
+    count: int = 0
+
+    def update(self, scaled: float, normwise: float, where: str) -> None:
+        self.count += 1
+        if scaled > self.scaled or (math.isinf(scaled) and not self.where):
+            self.scaled, self.where = scaled, where
+        self.normwise = max(self.normwise, normwise)
+
+    @property
+    def ok(self) -> bool:
+        return self.scaled <= TOLERANCE
+
+
+@dataclass
+class SystemResult:
+    """Everything measured for one system."""
+
+    name: str
+    n: int
+    m: int
+    points: int
+    skipped: int
+    worst: Dict[str, Worst] = field(default_factory=dict)
+    structure_failures: List[str] = field(default_factory=list)
+    structure_notes: List[str] = field(default_factory=list)
+    rust_ops: Dict[str, int] = field(default_factory=dict)
+    casadi_ops: Dict[str, Dict[str, int]] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return all(w.ok for w in self.worst.values()) and not self.structure_failures and self.points > 0
+
+
+def _column(x) -> np.ndarray:
+    return np.asarray(x, dtype=float)
+
+
+def check_structure(system: CasadiSystem, claims: Dict, values: List[Dict[str, np.ndarray]], result: SystemResult):
+    """A claimed structure fact that CasADi's derivatives contradict at a sample point is a failure
+    (the runtime would skip work it needs); a fact the generator missed is only noted."""
+
+    def all_zero(keys) -> bool:
+        # Structural independence (CasADi proves the derivative is zero) or
+        # numerically zero at every sample point.
+        if all(system.sym[k].is_zero() for k in keys):
+            return True
+        return all(float(np.max(np.abs(np.asarray(val[k])), initial=0.0)) <= TOLERANCE for k in keys for val in values)
+
+    facts = {
+        "lagrangian_autonomous": all_zero(["lagrangian_t", "momentum_t", "force_t"]),
+        "constraints_autonomous": all_zero(["constraint_t"]),
+        "separable": all_zero(["momentum_q", "force_v"]),
+        "constant_mass_matrix": all_zero(["mass_matrix_dtqv"]),
+    }
+    for key, holds in facts.items():
+        claimed = bool(claims.get(key))
+        if claimed and not holds:
+            result.structure_failures.append(f"claims {key} but CasADi's derivatives are not zero")
+        elif holds and not claimed:
+            result.structure_notes.append(f"{key} holds at every sample point but is not claimed")
+    form = claims.get("constraint_form")
+    if system.m == 0:
+        actual = "None"
+    elif not all_zero(["constraint_v_v"]):
+        actual = "Nonlinear"
+    elif all_zero(["constraint_at_zero_velocity"]):
+        actual = "Linear"
+    else:
+        actual = "Affine"
+    order = {"None": 0, "Linear": 1, "Affine": 2, "Nonlinear": 3}
+    if form not in order:
+        result.structure_failures.append(f"unknown constraint_form {form!r}")
+    elif order[form] < order[actual]:
+        result.structure_failures.append(f"claims constraint_form {form} but CasADi finds {actual}")
+    elif order[form] > order[actual]:
+        result.structure_notes.append(f"constraint_form {form} claimed, {actual} holds at every sample point")

@@ -1,0 +1,117 @@
+"""Unit tests of the S-expression translator and the CasADi rebuild."""
+
+import math
+import sys
+import unittest
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import casadi as ca  # noqa: E402
+import numpy as np  # noqa: E402
+
+from spark_check import sexpr  # noqa: E402
+from spark_check.system import CasadiSystem, SourceError  # noqa: E402
+from spark_check import tableaux  # noqa: E402
+
+
+def value(text, **kw):
+    env = sexpr.Env(ca.SX(kw.get("t", 0.0)), {"x": ca.SX(kw.get("x", 0.0))}, {"x": ca.SX(kw.get("vx", 0.0))},
+                    {"m": ca.SX(kw.get("m", 0.0))})
+    return float(ca.evalf(sexpr.translate(text, env)))
+
+
+class Translate(unittest.TestCase):
+    def test_every_operator(self):
+        x, vx, m, t = 0.7, -1.3, 2.5, 0.4
+        cases = {
+            "(+ (q x) (v x) (p m) t)": x + vx + m + t,
+            "(* (q x) (v x) (p m))": x * vx * m,
+            "(- (q x) (v x))": x - vx,
+            "(/ (q x) (v x))": x / vx,
+            "(^ (p m) (q x))": m**x,
+            "(^ (v x) 3)": vx**3,
+            "(atan2 (q x) (v x))": math.atan2(x, vx),
+            "(neg (q x))": -x,
+            "(sqrt (p m))": math.sqrt(m),
+            "(exp (q x))": math.exp(x),
+            "(ln (p m))": math.log(m),
+            "(sin (q x))": math.sin(x),
+            "(cos (q x))": math.cos(x),
+            "(tan (q x))": math.tan(x),
+            "(sinh (q x))": math.sinh(x),
+            "(cosh (q x))": math.cosh(x),
+            "(tanh (q x))": math.tanh(x),
+            "pi": math.pi,
+            "-2.5e-3": -2.5e-3,
+            "t": t,
+        }
+        for text, want in cases.items():
+            with self.subTest(text=text):
+                self.assertAlmostEqual(value(text, x=x, vx=vx, m=m, t=t), want, places=14)
+
+    def test_literals_round_trip(self):
+        for lit in ["0.1", "1.7976931348623157e308", "5e-324", "0.30000000000000004"]:
+            self.assertEqual(value(lit), float(lit))
+
+    def test_errors_name_the_problem(self):
+        bad = {
+            "(+ (q x)": "unclosed",
+            "(foo (q x))": "unknown operator",
+            "(sin (q x) (q x))": "takes 1 argument",
+            "(- (q x))": "takes 2 arguments",
+            "(q y)": "unknown q name 'y'",
+            "(q x) (q x)": "trailing input",
+            "abc": "unknown atom",
+            "": "empty",
+            ")": "unexpected ')'",
+            "inf": "non-finite",
+        }
+        for text, fragment in bad.items():
+            with self.subTest(text=text):
+                with self.assertRaises(sexpr.SexprError) as ctx:
+                    value(text)
+                self.assertIn(fragment, str(ctx.exception))
+
+
+class Rebuild(unittest.TestCase):
+    SOURCE = {
+        "name": "Pendulum",
+        "coordinates": ["th"],
+        "parameters": ["g"],
+        "lagrangian": "(+ (* 0.5 (^ (v th) 2)) (* (p g) (cos (q th))))",
+        "constraints": [],
+    }
+
+    def test_derivatives_of_a_pendulum(self):
+        s = CasadiSystem(self.SOURCE)
+        out = s.evaluate(0.0, [0.3], [2.0], [9.81], [])
+        self.assertAlmostEqual(float(out["force"]), -9.81 * math.sin(0.3), places=14)
+        self.assertAlmostEqual(float(out["force_q"]), -9.81 * math.cos(0.3), places=14)
+        self.assertEqual(float(out["mass_matrix"]), 1.0)
+        self.assertAlmostEqual(float(out["energy"]), 2.0 - 9.81 * math.cos(0.3), places=14)
+        self.assertEqual(out["constraint_v"].shape, (0, 1))
+
+    def test_bad_source_is_reported(self):
+        src = dict(self.SOURCE, lagrangian="(* (q nope) 2)")
+        with self.assertRaises(SourceError) as ctx:
+            CasadiSystem(src)
+        self.assertIn("nope", str(ctx.exception))
+
+
+class Tableaux(unittest.TestCase):
+    def test_gauss2_and_lobatto2_match_the_paper(self):
+        r3 = math.sqrt(3.0)
+        g = tableaux.gauss(2)
+        np.testing.assert_allclose(g["a"], [[0.25, 0.25 - r3 / 6], [0.25 + r3 / 6, 0.25]], atol=1e-15)
+        lo = tableaux.lobatto(2)
+        np.testing.assert_allclose(lo["iiid"], [[0.25, -0.25], [0.75, 0.25]], atol=1e-15)
+        np.testing.assert_allclose(lo["iiib"], [[0.5, 0.0], [0.5, 0.0]], atol=1e-15)
+
+    def test_lobatto3_nodes(self):
+        np.testing.assert_allclose(tableaux.lobatto(3)["c"], [0.0, 0.5, 1.0], atol=1e-16)
+        np.testing.assert_allclose(tableaux.lobatto(3)["b"], [1 / 6, 2 / 3, 1 / 6], atol=1e-15)
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -1,0 +1,467 @@
+//! Export for the independent CasADi cross-check (`casadi/`): seeded sample
+//! points with every output of [`NonholonomicSystem`], plus the system's
+//! neutral source text and parameter values, as JSON with round-trip floats.
+//!
+//! The Python side rebuilds each system from the source text alone,
+//! differentiates it with CasADi and compares. Nothing here derives anything:
+//! it only evaluates the trait and records what it returned.
+
+use serde::Serialize;
+use spark_runtime::{Matrix, NonholonomicSystem, OperationCounts, Structure, SystemSource, Vector};
+
+pub mod handwritten;
+
+/// Format tag of the JSON document; the Python side refuses other versions.
+pub const FORMAT: &str = "spark-casadi/1";
+
+/// The whole document the exporter writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct Document {
+    /// Always [`FORMAT`].
+    pub format: &'static str,
+    /// Seed the sample points were drawn with.
+    pub seed: u64,
+    /// One entry per system.
+    pub systems: Vec<SystemExport>,
+    /// Whole-step results, one per (system, method) pair.
+    pub steps: Vec<StepExport>,
+}
+
+/// The neutral source of a system, owned (see [`SystemSource`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct SourceExport {
+    /// The type's name.
+    pub name: String,
+    /// Coordinates, in order.
+    pub coordinates: Vec<String>,
+    /// Runtime parameters, in order.
+    pub parameters: Vec<String>,
+    /// `L` as an S-expression.
+    pub lagrangian: String,
+    /// `k_1..k_M` as S-expressions.
+    pub constraints: Vec<String>,
+}
+
+impl From<&SystemSource> for SourceExport {
+    fn from(s: &SystemSource) -> Self {
+        Self {
+            name: s.name.to_owned(),
+            coordinates: s.coordinates.iter().map(|c| (*c).to_owned()).collect(),
+            parameters: s.parameters.iter().map(|c| (*c).to_owned()).collect(),
+            lagrangian: s.lagrangian.to_owned(),
+            constraints: s.constraints.iter().map(|c| (*c).to_owned()).collect(),
+        }
+    }
+}
+
+/// One system: source, parameters, structure facts, operation counts, points.
+#[derive(Clone, Debug, Serialize)]
+pub struct SystemExport {
+    /// Registry name (the key steps refer to).
+    pub name: String,
+    /// Number of coordinates `N`.
+    pub n: usize,
+    /// Number of constraints `M`.
+    pub m: usize,
+    /// The neutral source text.
+    pub source: SourceExport,
+    /// Parameter values, in the order of `source.parameters`.
+    pub parameter_values: Vec<f64>,
+    /// Structure facts the generator claims (the Python side checks them).
+    pub structure: Structure,
+    /// Operation counts of the generated code.
+    pub operations: OperationCounts,
+    /// Sample points with every trait output.
+    pub points: Vec<PointExport>,
+    /// Points drawn but dropped because some output was not finite
+    /// (e.g. `exp` of a huge coordinate); JSON cannot carry them.
+    pub skipped_points: usize,
+}
+
+/// One sample point and everything the trait returned there.
+#[derive(Clone, Debug, Serialize)]
+pub struct PointExport {
+    /// Magnitude class the point was drawn from (`unit`, `tiny`, `huge`, `mixed`, …).
+    pub class: String,
+    /// Time.
+    pub t: f64,
+    /// Coordinates.
+    pub q: Vec<f64>,
+    /// Velocities.
+    pub v: Vec<f64>,
+    /// Multipliers given to the fused stage functions.
+    pub psi: Vec<f64>,
+    /// The trait's outputs.
+    pub outputs: Outputs,
+}
+
+/// Every output of [`NonholonomicSystem`] at one point. Matrices are row-major
+/// nested arrays (`rows × columns`, rows may be empty when `M = 0`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Outputs {
+    /// `lagrangian`.
+    pub lagrangian: f64,
+    /// `energy`.
+    pub energy: f64,
+    /// `momentum`.
+    pub momentum: Vec<f64>,
+    /// `force`.
+    pub force: Vec<f64>,
+    /// `mass_matrix`.
+    pub mass_matrix: Vec<Vec<f64>>,
+    /// `constraint`.
+    pub constraint: Vec<f64>,
+    /// `constraint_q`.
+    pub constraint_q: Vec<Vec<f64>>,
+    /// `constraint_v`.
+    pub constraint_v: Vec<Vec<f64>>,
+    /// `time_derivatives`.
+    pub time_derivatives: TimeExport,
+    /// `stage_values`.
+    pub stage_values: StageValuesExport,
+    /// `stage_jacobians`: the values it returned and the Jacobians.
+    pub stage_jacobians: StageJacobiansExport,
+}
+
+/// [`spark_runtime::TimeDerivatives`] as plain arrays.
+#[derive(Clone, Debug, Serialize)]
+pub struct TimeExport {
+    /// `∂L/∂t`.
+    pub lagrangian_t: f64,
+    /// `∂(∇_v L)/∂t`.
+    pub momentum_t: Vec<f64>,
+    /// `∂(∇_q L)/∂t`.
+    pub force_t: Vec<f64>,
+    /// `k_t`.
+    pub constraint_t: Vec<f64>,
+}
+
+/// [`spark_runtime::StageValues`] as plain arrays.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageValuesExport {
+    /// `∇_v L`.
+    pub momentum: Vec<f64>,
+    /// `∇_q L`.
+    pub force: Vec<f64>,
+    /// `k`.
+    pub constraint: Vec<f64>,
+    /// `−Kᵀψ`.
+    pub constraint_force: Vec<f64>,
+}
+
+/// [`spark_runtime::StageJacobians`] (with the values returned beside them).
+#[derive(Clone, Debug, Serialize)]
+pub struct StageJacobiansExport {
+    /// The values `stage_jacobians` returned.
+    pub values: StageValuesExport,
+    /// `∂(∇_v L)/∂q`.
+    pub momentum_q: Vec<Vec<f64>>,
+    /// `∇²_vv L`.
+    pub mass: Vec<Vec<f64>>,
+    /// `∂(∇_q L)/∂q`.
+    pub force_q: Vec<Vec<f64>>,
+    /// `∂(∇_q L)/∂v`.
+    pub force_v: Vec<Vec<f64>>,
+    /// `k_q`.
+    pub constraint_q: Vec<Vec<f64>>,
+    /// `k_v`.
+    pub constraint_v: Vec<Vec<f64>>,
+    /// `∂R/∂q`.
+    pub constraint_force_q: Vec<Vec<f64>>,
+    /// `∂R/∂v`.
+    pub constraint_force_v: Vec<Vec<f64>>,
+}
+
+/// Coefficients of a SPARK method as the Python side rebuilds equations (6.1) from them.
+#[derive(Clone, Debug, Serialize)]
+pub struct TableauExport {
+    /// Method name as the runtime reports it.
+    pub name: String,
+    /// Number of stages `s`.
+    pub stages: usize,
+    /// Nodes `c`.
+    pub c: Vec<f64>,
+    /// `A` (for `q`), row-major.
+    pub a: Vec<Vec<f64>>,
+    /// `Â` (for `F`).
+    pub a_hat: Vec<Vec<f64>>,
+    /// `Ã` (for `R`).
+    pub a_tilde: Vec<Vec<f64>>,
+    /// `b`.
+    pub b: Vec<f64>,
+    /// `b̂`.
+    pub b_hat: Vec<f64>,
+    /// `b̃`.
+    pub b_tilde: Vec<f64>,
+    /// The `s − 1` internal constraint conditions.
+    pub conditions: Vec<ConditionExport>,
+}
+
+/// One internal constraint condition of a SPARK step.
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ConditionExport {
+    /// `0 = Σ_j ω_j K_j` (eq. 6.1e).
+    Weights {
+        /// `ω_j`.
+        omega: Vec<f64>,
+    },
+    /// `0 = k(t0 + c h, q0 + h Σ_j α_j V_j, Σ_j β_j V_j)` (e.g. the modified
+    /// Lobatto IIIA-B condition of §8.4: `c = ½`, `α = (½, 0)`, `β = (1, 0)`).
+    Point {
+        /// Time node.
+        c: f64,
+        /// Position weights `α_j`.
+        alpha: Vec<f64>,
+        /// Velocity weights `β_j`.
+        beta: Vec<f64>,
+    },
+}
+
+/// One step of the Rust stepper from a given state.
+#[derive(Clone, Debug, Serialize)]
+pub struct StepExport {
+    /// Registry name of the system (a key of [`Document::systems`]).
+    pub system: String,
+    /// The method.
+    pub method: TableauExport,
+    /// Initial time.
+    pub t0: f64,
+    /// Step size.
+    pub h: f64,
+    /// Initial coordinates.
+    pub q0: Vec<f64>,
+    /// Initial velocities.
+    pub v0: Vec<f64>,
+    /// Coordinates after the step.
+    pub q1: Vec<f64>,
+    /// Velocities after the step.
+    pub v1: Vec<f64>,
+    /// Stage multipliers `Ψ_1..Ψ_s`, one row per stage.
+    pub psi: Vec<Vec<f64>>,
+    /// Stage velocities `V_1..V_s`, one row per stage (empty if the stepper does not expose them).
+    pub stage_velocities: Vec<Vec<f64>>,
+}
+
+/// A small seeded generator (SplitMix64): reproducible samples without a
+/// dependency; statistical quality is irrelevant here.
+#[derive(Clone, Debug)]
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    /// A generator with this seed.
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[-1, 1)`.
+    pub fn symmetric(&mut self) -> f64 {
+        // 53 random bits -> [0,1) exactly representable.
+        let u = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        2.0 * u - 1.0
+    }
+}
+
+/// Magnitude classes of the sample points: `(class, scale, count)`.
+/// `mixed` draws a separate power-of-ten scale for every component.
+pub const CLASSES: &[(&str, f64, usize)] = &[
+    ("unit", 1.0, 8),
+    ("tiny", 1e-8, 2),
+    ("small", 1e-3, 2),
+    ("large", 1e2, 2),
+    ("huge", 1e4, 2),
+    ("mixed", f64::NAN, 6),
+];
+
+fn draw(rng: &mut SplitMix64, scale: f64) -> f64 {
+    if scale.is_nan() {
+        // Scale 10^e with e uniform in [-8, 4].
+        let e = (rng.next_u64() % 13) as i32 - 8;
+        rng.symmetric() * 10f64.powi(e)
+    } else {
+        rng.symmetric() * scale
+    }
+}
+
+fn vec_of<const K: usize>(x: &Vector<K>) -> Vec<f64> {
+    x.iter().copied().collect()
+}
+
+fn rows_of<const R: usize, const C: usize>(x: &Matrix<R, C>) -> Vec<Vec<f64>> {
+    (0..R).map(|i| (0..C).map(|j| x[(i, j)]).collect()).collect()
+}
+
+fn stage_values_export<const N: usize, const M: usize>(s: &spark_runtime::StageValues<N, M>) -> StageValuesExport {
+    StageValuesExport {
+        momentum: vec_of(&s.momentum),
+        force: vec_of(&s.force),
+        constraint: vec_of(&s.constraint),
+        constraint_force: vec_of(&s.constraint_force),
+    }
+}
+
+/// Every trait output of `system` at `(t, q, v, ψ)`.
+pub fn outputs_at<S, const N: usize, const M: usize>(
+    system: &S,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+    psi: &Vector<M>,
+) -> Outputs
+where
+    S: NonholonomicSystem<N, M>,
+{
+    let td = system.time_derivatives(t, q, v);
+    let sv = system.stage_values(t, q, v, psi);
+    let (jv, jj) = system.stage_jacobians(t, q, v, psi);
+    Outputs {
+        lagrangian: system.lagrangian(t, q, v),
+        energy: system.energy(t, q, v),
+        momentum: vec_of(&system.momentum(t, q, v)),
+        force: vec_of(&system.force(t, q, v)),
+        mass_matrix: rows_of(&system.mass_matrix(t, q, v)),
+        constraint: vec_of(&system.constraint(t, q, v)),
+        constraint_q: rows_of(&system.constraint_q(t, q, v)),
+        constraint_v: rows_of(&system.constraint_v(t, q, v)),
+        time_derivatives: TimeExport {
+            lagrangian_t: td.lagrangian_t,
+            momentum_t: vec_of(&td.momentum_t),
+            force_t: vec_of(&td.force_t),
+            constraint_t: vec_of(&td.constraint_t),
+        },
+        stage_values: stage_values_export(&sv),
+        stage_jacobians: StageJacobiansExport {
+            values: stage_values_export(&jv),
+            momentum_q: rows_of(&jj.momentum_q),
+            mass: rows_of(&jj.mass),
+            force_q: rows_of(&jj.force_q),
+            force_v: rows_of(&jj.force_v),
+            constraint_q: rows_of(&jj.constraint_q),
+            constraint_v: rows_of(&jj.constraint_v),
+            constraint_force_q: rows_of(&jj.constraint_force_q),
+            constraint_force_v: rows_of(&jj.constraint_force_v),
+        },
+    }
+}
+
+fn outputs_finite(o: &Outputs) -> bool {
+    let json = serde_json::to_value(o);
+    // serde_json writes non-finite floats as null; finding one means a
+    // non-finite output.
+    fn finite(v: &serde_json::Value) -> bool {
+        match v {
+            serde_json::Value::Null => false,
+            serde_json::Value::Array(a) => a.iter().all(finite),
+            serde_json::Value::Object(m) => m.values().all(finite),
+            _ => true,
+        }
+    }
+    json.map(|v| finite(&v)).unwrap_or(false)
+}
+
+/// Samples `system` at the points of [`CLASSES`] drawn from `seed` and
+/// records every trait output there.
+pub fn export_system<S, const N: usize, const M: usize>(name: &str, system: &S, seed: u64) -> SystemExport
+where
+    S: NonholonomicSystem<N, M>,
+{
+    let mut rng = SplitMix64::new(seed);
+    let mut points = Vec::new();
+    let mut skipped = 0;
+    for &(class, scale, count) in CLASSES {
+        for _ in 0..count {
+            let t = draw(&mut rng, scale);
+            let q = Vector::<N>::from_fn(|_, _| draw(&mut rng, scale));
+            let v = Vector::<N>::from_fn(|_, _| draw(&mut rng, scale));
+            let psi = Vector::<M>::from_fn(|_, _| draw(&mut rng, scale));
+            let outputs = outputs_at(system, t, &q, &v, &psi);
+            if outputs_finite(&outputs) {
+                points.push(PointExport {
+                    class: class.to_owned(),
+                    t,
+                    q: vec_of(&q),
+                    v: vec_of(&v),
+                    psi: vec_of(&psi),
+                    outputs,
+                });
+            } else {
+                skipped += 1;
+            }
+        }
+    }
+    SystemExport {
+        name: name.to_owned(),
+        n: N,
+        m: M,
+        source: SourceExport::from(&S::SOURCE),
+        parameter_values: system.parameter_values(),
+        structure: S::STRUCTURE,
+        operations: S::OPERATIONS,
+        points,
+        skipped_points: skipped,
+    }
+}
+
+/// Seed-derived per-system seed, so adding a system does not move the others' points.
+fn system_seed(seed: u64, name: &str) -> u64 {
+    name.bytes().fold(seed ^ 0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// Every system the cross-check covers, exported with `seed`.
+pub fn export_all_systems(seed: u64) -> Vec<SystemExport> {
+    vec![export_system("Rheonomic (hand-written)", &handwritten::Rheonomic::default(), system_seed(seed, "Rheonomic"))]
+}
+
+/// One SPARK step per (system, method) pair, from the runtime's stepper.
+pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
+    Ok(Vec::new())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splitmix_is_reproducible_and_in_range() {
+        let mut a = SplitMix64::new(7);
+        let mut b = SplitMix64::new(7);
+        for _ in 0..1000 {
+            let x = a.symmetric();
+            assert_eq!(x, b.symmetric());
+            assert!((-1.0..1.0).contains(&x));
+        }
+    }
+
+    #[test]
+    fn export_records_every_point_of_a_finite_system() {
+        let sys = handwritten::Rheonomic::default();
+        let e = export_system("rheonomic", &sys, 1);
+        let expected: usize = CLASSES.iter().map(|c| c.2).sum();
+        assert_eq!(e.points.len() + e.skipped_points, expected);
+        assert_eq!(e.skipped_points, 0);
+        assert_eq!(e.points[0].outputs.constraint_v.len(), 1);
+        assert_eq!(e.points[0].outputs.constraint_v[0].len(), 2);
+    }
+
+    #[test]
+    fn floats_round_trip_through_json() {
+        let sys = handwritten::Rheonomic::default();
+        let e = export_system("rheonomic", &sys, 3);
+        let text = serde_json::to_string(&e).unwrap();
+        let back: serde_json::Value = serde_json::from_str(&text).unwrap();
+        for (i, p) in e.points.iter().enumerate() {
+            let bp = &back["points"][i];
+            assert_eq!(bp["outputs"]["lagrangian"].as_f64().unwrap().to_bits(), p.outputs.lagrangian.to_bits());
+            for (j, x) in p.q.iter().enumerate() {
+                assert_eq!(bp["q"][j].as_f64().unwrap().to_bits(), x.to_bits());
+            }
+        }
+    }
+}
