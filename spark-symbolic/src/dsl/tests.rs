@@ -1,0 +1,427 @@
+//! Parser tests: accepted declarations, precedence, every error message with
+//! the token it points at, and random token soup that must never panic.
+
+use super::*;
+use crate::spec::{BinOp, SrcExpr};
+use proptest::prelude::*;
+
+const SKATE: &str = r#"
+    /// Skate on an inclined plane
+    pub struct Skate {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 1.0, g = 1.0, beta = pi/2 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + m*g*x*sin(beta),
+        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+    }
+"#;
+
+fn parse_str(src: &str) -> Result<SystemSpec, SpecError> {
+    parse(src.parse::<TokenStream>().expect("test source must lex"))
+}
+
+/// Fully parenthesized prefix form, with names, for structural comparisons.
+fn sexpr(e: &SrcExpr, s: &SystemSpec) -> String {
+    match e {
+        SrcExpr::Num(v, _) => format!("{v}"),
+        SrcExpr::Time(_) => "t".into(),
+        SrcExpr::Pi(_) => "pi".into(),
+        SrcExpr::Coord(i, _) => s.coordinates[*i].name.clone(),
+        SrcExpr::Velocity(i, _) => format!("(dot {})", s.coordinates[*i].name),
+        SrcExpr::Param(i, _) => s.parameters[*i].name.name.clone(),
+        SrcExpr::Const(i, _) => s.constants[*i].name.name.clone(),
+        SrcExpr::Neg(a, _) => format!("(neg {})", sexpr(a, s)),
+        SrcExpr::Binary(op, a, b, _) => {
+            let o = match op {
+                BinOp::Add => "+",
+                BinOp::Sub => "-",
+                BinOp::Mul => "*",
+                BinOp::Div => "/",
+                BinOp::Pow => "^",
+            };
+            format!("({o} {} {})", sexpr(a, s), sexpr(b, s))
+        }
+        SrcExpr::Call(f, args, _) => {
+            let args: Vec<String> = args.iter().map(|a| sexpr(a, s)).collect();
+            format!("({} {})", f.name(), args.join(" "))
+        }
+    }
+}
+
+/// Parses `lagrangian: <expr>` in a fixed context and returns its S-expression.
+fn lag(expr: &str) -> String {
+    let src = format!(
+        "struct S {{ coordinates: [x, y, z], parameters: {{ a = 1, b = 2, c = 3 }}, constants: {{ k = 2 }}, lagrangian: {expr} }}"
+    );
+    let spec = parse_str(&src).unwrap_or_else(|e| panic!("`{expr}` should parse, got: {}", e.message));
+    sexpr(&spec.lagrangian, &spec)
+}
+
+/// The source text a span covers (needs proc-macro2's `span-locations`).
+fn text_at(src: &str, span: Span) -> String {
+    let (start, end) = (span.start(), span.end());
+    let lines: Vec<&str> = src.lines().collect();
+    if start.line == 0 || start.line > lines.len() {
+        return String::new();
+    }
+    if start.line == end.line {
+        lines[start.line - 1].chars().skip(start.column).take(end.column - start.column).collect()
+    } else {
+        lines[start.line - 1].chars().skip(start.column).collect()
+    }
+}
+
+/// Parses a declaration that must fail; returns (message, text under the span).
+fn error(src: &str) -> (String, String) {
+    match parse_str(src) {
+        Ok(_) => panic!("expected an error for:\n{src}"),
+        Err(e) => (e.message.clone(), text_at(src, e.span)),
+    }
+}
+
+/// A declaration whose lagrangian is `expr`; the error must point at `at` and
+/// mention `needle`.
+fn assert_error(src: &str, at: &str, needle: &str) {
+    let (msg, text) = error(src);
+    assert!(msg.contains(needle), "message `{msg}` lacks `{needle}`");
+    assert_eq!(text, at, "span of `{msg}`");
+}
+
+fn with_lag(expr: &str) -> String {
+    format!("struct S {{ coordinates: [x, y, theta], parameters: {{ m = 1 }}, lagrangian: {expr} }}")
+}
+
+#[test]
+fn skate_parses() {
+    let s = parse_str(SKATE).unwrap();
+    assert_eq!(s.name.to_string(), "Skate");
+    assert_eq!(s.vis.to_string(), "pub");
+    assert!(s.attrs.to_string().contains("doc"));
+    let coords: Vec<&str> = s.coordinates.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(coords, ["x", "y", "theta"]);
+    let params: Vec<(&str, f64)> = s.parameters.iter().map(|p| (p.name.name.as_str(), p.default)).collect();
+    assert_eq!(params, [("m", 1.0), ("inertia", 1.0), ("g", 1.0), ("beta", std::f64::consts::FRAC_PI_2)]);
+    assert_eq!(s.constraints.len(), 1);
+    assert_eq!(sexpr(&s.constraints[0].expr, &s), "(- (* (cos theta) (dot y)) (* (sin theta) (dot x)))");
+    assert_eq!(
+        sexpr(&s.lagrangian, &s),
+        "(+ (+ (* (/ m 2) (+ (^ (dot x) 2) (^ (dot y) 2))) (* (/ inertia 2) (^ (dot theta) 2))) (* (* (* m g) x) (sin beta)))"
+    );
+    assert_eq!(s.runtime_path.to_string(), ":: spark_runtime");
+}
+
+#[test]
+fn precedence_and_associativity() {
+    assert_eq!(lag("-x^2"), "(neg (^ x 2))");
+    assert_eq!(lag("a*b^c"), "(* a (^ b c))");
+    assert_eq!(lag("a^b^c"), "(^ a (^ b c))");
+    assert_eq!(lag("x^-2"), "(^ x (neg 2))");
+    assert_eq!(lag("-x^-y^2"), "(neg (^ x (neg (^ y 2))))");
+    assert_eq!(lag("a/b*c"), "(* (/ a b) c)");
+    assert_eq!(lag("a-b-c"), "(- (- a b) c)");
+    assert_eq!(lag("a-b*c+x"), "(+ (- a (* b c)) x)");
+    assert_eq!(lag("(a+b)^2"), "(^ (+ a b) 2)");
+    assert_eq!(lag("2*-x"), "(* 2 (neg x))");
+    assert_eq!(lag("--x"), "(neg (neg x))");
+    assert_eq!(lag("+x"), "x");
+    assert_eq!(lag("dot(x)^2*k"), "(* (^ (dot x) 2) k)");
+    assert_eq!(lag("atan2(y, x) + sqrt(exp(t))"), "(+ (atan2 y x) (sqrt (exp t)))");
+    assert_eq!(lag("sinh(x)*cosh(y)/tanh(z) - tan(ln(x))"), "(- (/ (* (sinh x) (cosh y)) (tanh z)) (tan (ln x)))");
+    assert_eq!(lag("1e-3 + 2.5 + 10 + 1_000 + 3f64"), "(+ (+ (+ (+ 0.001 2.5) 10) 1000) 3)");
+    assert_eq!(lag("pi*t"), "(* pi t)");
+}
+
+#[test]
+fn sections_in_any_order_with_trailing_commas() {
+    let s = parse_str(
+        "pub(crate) struct P { constraints: [dot(z) - y*dot(x),], lagrangian: dot(x)^2, constants: { h = 1/2, q = h*h, }, coordinates: [x, y, z,], }",
+    )
+    .unwrap();
+    assert_eq!(s.vis.to_string(), "pub (crate)");
+    assert_eq!(s.constants.len(), 2);
+    assert_eq!(eval_constant(&s.constants[1].value, &[0.5]).unwrap(), 0.25);
+    assert!(s.parameters.is_empty());
+    let s = parse_str("struct U { coordinates: [x], lagrangian: dot(x)^2, constraints: [] }").unwrap();
+    assert!(s.constraints.is_empty());
+}
+
+#[test]
+fn parameter_defaults_are_evaluated() {
+    let s = parse_str(
+        "struct P { constants: { two = 2 }, coordinates: [x], parameters: { a = -two^2, b = atan2(1, 1)*4, c = sqrt(two)^2, d = 1e3 }, lagrangian: dot(x)^2 }",
+    )
+    .unwrap();
+    let d: Vec<f64> = s.parameters.iter().map(|p| p.default).collect();
+    assert_eq!(d[0], -4.0);
+    assert_eq!(d[1], std::f64::consts::PI);
+    assert!((d[2] - 2.0).abs() < 1e-15);
+    assert_eq!(d[3], 1000.0);
+}
+
+#[test]
+fn spark_attribute_sets_runtime_path_and_is_not_passed_through() {
+    let s =
+        parse_str("#[spark(crate = crate::rt)] #[derive(Default)] struct A { coordinates: [x], lagrangian: dot(x)^2 }")
+            .unwrap();
+    assert_eq!(s.runtime_path.to_string(), "crate :: rt");
+    assert_eq!(s.attrs.to_string(), "# [derive (Default)]");
+}
+
+#[test]
+fn header_errors() {
+    assert_error("pub Skate { coordinates: [x], lagrangian: dot(x)^2 }", "Skate", "missing `struct`");
+    assert_error("pub enum Skate { }", "enum", "declares a struct");
+    assert_error("struct { coordinates: [x] }", "{ coordinates: [x] }", "struct's name");
+    assert_error("struct S<T> { coordinates: [x] }", "<", "generic parameters are not supported");
+    assert_error("struct S;", ";", "expected `{`");
+    assert_error("struct S { coordinates: [x], lagrangian: dot(x)^2 } struct T {}", "struct", "one struct");
+    assert_error("#![doc = \"x\"] struct S {}", "!", "inner attributes");
+    assert_error("#[spark(krate = x)] struct S {}", "krate", "unknown `spark` option");
+    let (msg, _) = error("");
+    assert!(msg.contains("found nothing"), "{msg}");
+}
+
+#[test]
+fn section_errors() {
+    assert_error(
+        "struct S { coordinates: [x], lagrangian: dot(x)^2, coordinate: [y] }",
+        "coordinate",
+        "did you mean `coordinates`?",
+    );
+    assert_error(
+        "struct S { coordinates: [x], lagrangian: dot(x)^2, coordinates: [y] }",
+        "coordinates",
+        "appears twice",
+    );
+    assert_error("struct S { coordinates: [x] }", "S", "has no Lagrangian");
+    assert_error("struct S { lagrangian: 1 }", "S", "has no coordinates");
+    assert_error("struct S { coordinates: [], lagrangian: 1 }", "[]", "no coordinates");
+    assert_error("struct S { coordinates: (x, y), lagrangian: 1 }", "(x, y)", "brackets");
+    assert_error("struct S { coordinates: [x: f64], lagrangian: 1 }", ":", "just a name");
+    assert_error("struct S { coordinates: [x], lagrangian: dot(x)^2, x }", "x", "remove the `,` before it");
+    assert_error("struct S { coordinates [x], lagrangian: 1 }", "coordinates", "expected `:`");
+    assert_error("struct S { coordinates: [x], lagrangian:, }", "lagrangian", "has no value");
+    assert_error("struct S { coordinates: [x],, lagrangian: 1 }", ",", "unexpected `,`");
+    assert_error("struct S { /// doc\n coordinates: [x], lagrangian: 1 }", "/// doc", "above `struct`");
+    assert_error("struct S { coordinates: [x], lagrangian: 1, constraints: dot(x) }", "dot", "list in brackets");
+}
+
+#[test]
+fn name_errors() {
+    assert_error("struct S { coordinates: [x, y, x], lagrangian: 1 }", "x", "declared twice as a coordinate");
+    assert_error(
+        "struct S { coordinates: [x], parameters: { x = 1 }, lagrangian: 1 }",
+        "x",
+        "already declared as a coordinate",
+    );
+    assert_error(
+        "struct S { constants: { m = 2 }, coordinates: [x], parameters: { m = 1 }, lagrangian: 1 }",
+        "m",
+        "already declared as a constant",
+    );
+    assert_error("struct S { coordinates: [t], lagrangian: 1 }", "t", "reserved for the time");
+    assert_error("struct S { coordinates: [x], parameters: { pi = 3 }, lagrangian: 1 }", "pi", "reserved");
+    assert_error("struct S { coordinates: [sin], lagrangian: 1 }", "sin", "is a function");
+    assert_error("struct S { coordinates: [dot], lagrangian: 1 }", "dot", "reserved for velocities");
+    assert_error("struct S { coordinates: [x, type], lagrangian: 1 }", "type", "Rust keyword");
+    assert_error("struct S { coordinates: [__q], lagrangian: 1 }", "__q", "reserved for generated code");
+}
+
+#[test]
+fn parameter_and_constant_errors() {
+    assert_error(
+        "struct S { coordinates: [x], parameters: { m = \"heavy\" }, lagrangian: 1 }",
+        "\"heavy\"",
+        "found the string",
+    );
+    assert_error(
+        "struct S { coordinates: [x], parameters: { m = x }, lagrangian: 1 }",
+        "x",
+        "must be a constant number, not the coordinate `x`",
+    );
+    assert_error(
+        "struct S { coordinates: [x], parameters: { a = 1, b = a }, lagrangian: 1 }",
+        "a",
+        "not the runtime parameter `a`",
+    );
+    assert_error("struct S { coordinates: [x], parameters: { m = t }, lagrangian: 1 }", "t", "not the time");
+    assert_error("struct S { coordinates: [x], parameters: { m = dot(x) }, lagrangian: 1 }", "dot", "velocity");
+    assert_error("struct S { coordinates: [x], parameters: { m }, lagrangian: 1 }", "m", "needs a default value");
+    assert_error("struct S { coordinates: [x], parameters: { m: f64 = 1.0 }, lagrangian: 1 }", ":", "write `m = 1.0`");
+    assert_error("struct S { coordinates: [x], parameters: { m = 1/0 }, lagrangian: 1 }", "/", "evaluates to inf");
+    assert_error(
+        "struct S { coordinates: [x], constants: { c = x }, lagrangian: 1 }",
+        "x",
+        "constant `c` cannot depend on the coordinate `x`",
+    );
+    assert_error(
+        "struct S { coordinates: [x], parameters: { m = 1 }, constants: { c = 2*m }, lagrangian: 1 }",
+        "m",
+        "runtime parameter `m`",
+    );
+    assert_error("struct S { coordinates: [x], constants: { a = b, b = 1 }, lagrangian: 1 }", "b", "declared later");
+    assert_error("struct S { coordinates: [x], constants: { a = a }, lagrangian: 1 }", "a", "itself");
+    assert_error("struct S { coordinates: [x], constants: { a = ln(0) }, lagrangian: 1 }", "ln", "evaluates to -inf");
+    assert_error(
+        "struct S { coordinates: [x], parameters: { m = 1, }, constants: { two = true }, lagrangian: 1 }",
+        "true",
+        "unknown identifier",
+    );
+}
+
+#[test]
+fn expression_errors() {
+    assert_error(&with_lag("thta"), "thta", "did you mean `theta`?");
+    assert_error(&with_lag("foo"), "foo", "Known names");
+    assert_error(&with_lag("xdot"), "xdot", "write `dot(x)`");
+    assert_error(&with_lag("PI"), "PI", "write `pi`");
+    assert_error(&with_lag("FRAC_PI_2"), "FRAC_PI_2", "write `pi/2`");
+    assert_error(&with_lag("dot(z)"), "z", "velocity of unknown coordinate `z`");
+    assert_error(&with_lag("dot(thetta)"), "thetta", "did you mean `dot(theta)`?");
+    assert_error(&with_lag("dot(m)"), "m", "is a parameter, not a coordinate");
+    assert_error(&with_lag("dot(x + y)"), "x", "not an expression");
+    assert_error(&with_lag("dot(2)"), "2", "one coordinate name");
+    assert_error(&with_lag("dot()"), "()", "needs a coordinate");
+    assert_error(&with_lag("dot(dot(x))"), "dot", "accelerations");
+    assert_error(&with_lag("dot"), "dot", "write `dot(x)`");
+    assert_error(&with_lag("sine(x)"), "sine", "did you mean `sin`?");
+    assert_error(&with_lag("log(x)"), "log", "write `ln(x)`");
+    assert_error(&with_lag("pow(x, 2)"), "pow", "`a^b`");
+    assert_error(&with_lag("x(y)"), "x", "not a function");
+    assert_error(&with_lag("sin(x, y)"), "sin", "takes 1 argument: `sin(x)`, found 2");
+    assert_error(&with_lag("atan2(y)"), "atan2", "takes 2 arguments");
+    assert_error(&with_lag("sin"), "sin", "is a function");
+    assert_error(&with_lag("x +"), "+", "ends with `+`");
+    assert_error(&with_lag("* x"), "*", "starts with `*`");
+    assert_error(&with_lag("x + * y"), "*", "two operators in a row");
+    assert_error(&with_lag("x^"), "^", "ends with `^`");
+    assert_error(&with_lag("x ** 2"), "*", "write `x^2`");
+    assert_error(&with_lag("2 x"), "x", "missing operator");
+    assert_error(&with_lag("2x"), "2x", "write `2*x`");
+    assert_error(&with_lag("2u8"), "2u8", "remove the type suffix");
+    assert_error(&with_lag("x.sin()"), ".", "method calls");
+    assert_error(&with_lag("()"), "()", "empty parentheses");
+    assert_error(&with_lag("[x]"), "[x]", "use parentheses");
+    assert_error(&with_lag("sin(x,,)"), ",", "empty argument");
+    assert_error(&with_lag("std::f64::consts::PI"), "std", "paths are not supported");
+    assert_error(&with_lag("x = y"), "=", "must vanish");
+    assert_error("struct S { coordinates: [x], lagrangian: 1, constraints: [dot(x),, x] }", ",", "unexpected `,`");
+    assert_error(
+        "struct S { coordinates: [x], lagrangian: 1, constraints: [dot(x) +] }",
+        "+",
+        "constraint 1 ends with `+`",
+    );
+}
+
+/// A random well-formed expression over a fixed scope, printed with the
+/// minimal parentheses the grammar needs, and its expected S-expression.
+fn arb_expr() -> impl Strategy<Value = (String, String)> {
+    let leaf = prop_oneof![
+        Just(("x".to_string(), "x".to_string())),
+        Just(("dot(y)".to_string(), "(dot y)".to_string())),
+        Just(("a".to_string(), "a".to_string())),
+        Just(("k".to_string(), "k".to_string())),
+        Just(("t".to_string(), "t".to_string())),
+        Just(("pi".to_string(), "pi".to_string())),
+        (0u32..20).prop_map(|n| (n.to_string(), n.to_string())),
+    ];
+    // Every subexpression is printed parenthesized unless it is a leaf, so the
+    // expected structure is unambiguous; operators and functions cover all.
+    leaf.prop_recursive(4, 40, 3, |inner| {
+        prop_oneof![
+            (inner.clone(), inner.clone(), 0usize..5).prop_map(|((a, sa), (b, sb), op)| {
+                let o = ["+", "-", "*", "/", "^"][op];
+                (format!("({a}) {o} ({b})"), format!("({o} {sa} {sb})"))
+            }),
+            inner.clone().prop_map(|(a, sa)| (format!("-({a})"), format!("(neg {sa})"))),
+            (inner.clone(), 0usize..9).prop_map(|((a, sa), f)| {
+                let f = ["sqrt", "exp", "ln", "sin", "cos", "tan", "sinh", "cosh", "tanh"][f];
+                (format!("{f}({a})"), format!("({f} {sa})"))
+            }),
+            (inner.clone(), inner)
+                .prop_map(|((a, sa), (b, sb))| (format!("atan2({a}, {b})"), format!("(atan2 {sa} {sb})"))),
+        ]
+    })
+}
+
+/// Tokens a user might plausibly (mis)type.
+fn arb_soup() -> impl Strategy<Value = String> {
+    let atom = prop_oneof![
+        Just("x"),
+        Just("y"),
+        Just("dot"),
+        Just("sin"),
+        Just("atan2"),
+        Just("t"),
+        Just("pi"),
+        Just("m"),
+        Just("struct"),
+        Just("pub"),
+        Just("S"),
+        Just("coordinates"),
+        Just("parameters"),
+        Just("constants"),
+        Just("lagrangian"),
+        Just("constraints"),
+        Just(":"),
+        Just(","),
+        Just("="),
+        Just("+"),
+        Just("-"),
+        Just("*"),
+        Just("/"),
+        Just("^"),
+        Just("#"),
+        Just("!"),
+        Just("."),
+        Just(";"),
+        Just("::"),
+        Just("1"),
+        Just("2.5"),
+        Just("1e-3"),
+        Just("\"s\""),
+        Just("2x"),
+        Just("true"),
+        Just("'c'"),
+        Just("<"),
+        Just(">"),
+        Just("__a"),
+        Just("type"),
+        Just("_"),
+        Just("1e999"),
+        Just("0x1F"),
+        Just("3u8"),
+    ]
+    .prop_map(str::to_string);
+    atom.prop_recursive(4, 64, 8, |inner| {
+        prop_oneof![
+            prop::collection::vec(inner.clone(), 0..8).prop_map(|v| format!("({})", v.join(" "))),
+            prop::collection::vec(inner.clone(), 0..8).prop_map(|v| format!("[{}]", v.join(" "))),
+            prop::collection::vec(inner.clone(), 0..8).prop_map(|v| format!("{{{}}}", v.join(" "))),
+            prop::collection::vec(inner, 1..8).prop_map(|v| v.join(" ")),
+        ]
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_expressions_parse_to_their_structure((src, expected) in arb_expr()) {
+        prop_assert_eq!(lag(&src), expected);
+    }
+
+    #[test]
+    fn token_soup_never_panics(soup in arb_soup(), prefix in 0usize..4) {
+        let src = match prefix {
+            0 => soup,
+            1 => format!("struct S {{ {soup} }}"),
+            2 => format!("struct S {{ coordinates: [x, y], parameters: {{ m = 1 }}, lagrangian: {soup} }}"),
+            _ => format!("struct S {{ coordinates: [x], lagrangian: 1, constraints: [{soup}], constants: {{ c = {soup} }} }}"),
+        };
+        if let Ok(tokens) = src.parse::<TokenStream>() {
+            if let Err(e) = parse(tokens) {
+                prop_assert!(!e.message.is_empty());
+            }
+        }
+    }
+}
