@@ -20,3 +20,155 @@ pub enum SystemError {
         value: f64,
     },
 }
+
+/// One Newton iteration, as recorded in a [`NewtonHistory`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IterationRecord {
+    /// Max-norm of the residual before the update.
+    pub residual: f64,
+    /// Scaled max-norm of the update (`|Δz_i| / (1 + |z_i|)`).
+    pub update: f64,
+    /// Contraction rate `‖Δz_k‖ / ‖Δz_{k−1}‖` (NaN on the first iteration).
+    pub rate: f64,
+}
+
+/// Capacity of a [`NewtonHistory`]; also the hard cap on Newton iterations.
+pub const HISTORY_CAPACITY: usize = 32;
+
+/// The iterations of one Newton solve, stored inline (no heap).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NewtonHistory {
+    records: [IterationRecord; HISTORY_CAPACITY],
+    len: usize,
+}
+
+impl Default for NewtonHistory {
+    fn default() -> Self {
+        NewtonHistory { records: [IterationRecord::default(); HISTORY_CAPACITY], len: 0 }
+    }
+}
+
+impl NewtonHistory {
+    /// The recorded iterations, oldest first.
+    pub fn iterations(&self) -> &[IterationRecord] {
+        &self.records[..self.len]
+    }
+    /// Number of recorded iterations.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+    /// No iteration recorded.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+    /// Appends a record (ignored beyond [`HISTORY_CAPACITY`]).
+    pub fn push(&mut self, r: IterationRecord) {
+        if self.len < HISTORY_CAPACITY {
+            self.records[self.len] = r;
+            self.len += 1;
+        }
+    }
+    /// Forgets all records.
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+}
+
+impl std::fmt::Display for NewtonHistory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (k, r) in self.iterations().iter().enumerate() {
+            if k > 0 {
+                f.write_str("; ")?;
+            }
+            write!(f, "#{}: |G|={:.3e} |dz|={:.3e} rate={:.3}", k + 1, r.residual, r.update, r.rate)?;
+        }
+        Ok(())
+    }
+}
+
+/// Why one SPARK step (or the initial-value check) failed. Newton failures
+/// carry the iteration history (boxed: only the failure path allocates).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StepError {
+    /// The step size is zero, NaN or infinite, or the input state is not finite.
+    #[error("invalid step at t = {t}, h = {h}: {reason}")]
+    InvalidStep {
+        /// Start time.
+        t: f64,
+        /// Step size.
+        h: f64,
+        /// What is wrong.
+        reason: &'static str,
+    },
+    /// Newton updates grew (contraction rate ≥ 1 above round-off level).
+    #[error("Newton diverged in the step from t = {t} with h = {h} (try a smaller step); history: {history}")]
+    Diverged {
+        /// Start time.
+        t: f64,
+        /// Step size.
+        h: f64,
+        /// The iterations.
+        history: Box<NewtonHistory>,
+    },
+    /// Newton did not reach the tolerance within the iteration limit.
+    #[error("Newton did not converge in {} iterations in the step from t = {t} with h = {h}; history: {history}", history.len())]
+    MaxIterations {
+        /// Start time.
+        t: f64,
+        /// Step size.
+        h: f64,
+        /// The iterations.
+        history: Box<NewtonHistory>,
+    },
+    /// The Newton matrix is singular to working precision (e.g. the
+    /// Lagrangian is not regular or the constraints are dependent there).
+    #[error("singular Newton matrix (pivot {pivot} of column {column}) in the step from t = {t} with h = {h}; history: {history}")]
+    SingularMatrix {
+        /// Start time.
+        t: f64,
+        /// Step size.
+        h: f64,
+        /// The offending column of the Newton matrix.
+        column: usize,
+        /// The pivot found there.
+        pivot: f64,
+        /// The iterations.
+        history: Box<NewtonHistory>,
+    },
+    /// The system produced NaN or infinite values.
+    #[error("non-finite value in the {stage} of the step from t = {t} with h = {h}; history: {history}")]
+    NonFinite {
+        /// Start time.
+        t: f64,
+        /// Step size.
+        h: f64,
+        /// Where it appeared (residual, Jacobian, update).
+        stage: &'static str,
+        /// The iterations.
+        history: Box<NewtonHistory>,
+    },
+    /// `|k(t₀, q₀, v₀)|` exceeds the tolerance and the policy says not to project.
+    #[error(
+        "inconsistent initial state: |k(t0,q0,v0)| = {residual:.3e} > {tolerance:.3e}; \
+         choose ConsistencyPolicy::Project to project v0 onto the constraints"
+    )]
+    InconsistentInitialState {
+        /// `max_i |k_i(t₀,q₀,v₀)|`.
+        residual: f64,
+        /// The tolerance.
+        tolerance: f64,
+    },
+}
+
+impl StepError {
+    /// The Newton history, when the failure came from a Newton solve.
+    pub fn history(&self) -> Option<&NewtonHistory> {
+        match self {
+            StepError::Diverged { history, .. }
+            | StepError::MaxIterations { history, .. }
+            | StepError::SingularMatrix { history, .. }
+            | StepError::NonFinite { history, .. } => Some(history),
+            _ => None,
+        }
+    }
+}

@@ -1,0 +1,353 @@
+//! The integration driver: fixed steps or a list of output times (any sign,
+//! any spacing), observers (energy, constraint residual, multipliers, or a
+//! user callback), a serializable [`Trajectory`] and a per-run [`RunReport`].
+
+use crate::error::StepError;
+use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+use crate::stepper::{State, Stepper};
+use crate::system::{NonholonomicSystem, Vector};
+use crate::tableau::Method;
+
+/// Where to produce output.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Schedule<'a> {
+    /// `steps` steps of size `h` from `t₀` (negative `h` integrates backward).
+    Fixed {
+        /// Step size.
+        h: f64,
+        /// Number of steps.
+        steps: usize,
+    },
+    /// Step from `t₀` to each of these times in turn (each step is
+    /// `t_{k+1} − t_k`; any nonzero spacing and either direction).
+    Times(&'a [f64]),
+}
+
+/// Which quantities the driver records at each output point.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Observe {
+    /// `E = ∇_v L · v − L`.
+    pub energy: bool,
+    /// `max_i |k_i(t, q, v)|`.
+    pub constraint_residual: bool,
+    /// The multiplier `ψ(t, q, v)` of the ψ-eliminated equations at the
+    /// numerical state (costs a stage Jacobian and a small saddle solve).
+    pub multipliers: bool,
+}
+
+impl Default for Observe {
+    fn default() -> Self {
+        Observe { energy: true, constraint_residual: true, multipliers: false }
+    }
+}
+
+/// Options of one integration run.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RunOptions {
+    /// What to record.
+    pub observe: Observe,
+    /// Record every `record_every`-th step (and always the first and last
+    /// point); `0` records only the endpoints.
+    pub record_every: usize,
+    /// How to treat an inconsistent initial velocity.
+    pub consistency: ConsistencyPolicy,
+    /// When Newton fails, retry the step as two half steps, at most this
+    /// many times nested (each retry counts as a rejected step).
+    pub max_halvings: u32,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            observe: Observe::default(),
+            record_every: 1,
+            consistency: ConsistencyPolicy::default(),
+            max_halvings: 0,
+        }
+    }
+}
+
+/// One recorded point of a trajectory.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Sample<const N: usize, const M: usize> {
+    /// Time.
+    pub t: f64,
+    /// Coordinates.
+    pub q: Vector<N>,
+    /// Velocities.
+    pub v: Vector<N>,
+    /// Energy, when observed.
+    pub energy: Option<f64>,
+    /// `max_i |k_i(t,q,v)|`, when observed.
+    pub constraint_residual: Option<f64>,
+    /// `ψ(t,q,v)`, when observed (`None` also if the saddle matrix was singular).
+    pub multipliers: Option<Vector<M>>,
+    /// Newton iterations of the step that produced this point (0 at the start).
+    pub newton_iterations: usize,
+}
+
+/// Statistics of one run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RunReport {
+    /// Accepted steps.
+    pub steps: usize,
+    /// Newton iterations over all accepted steps.
+    pub newton_iterations_total: usize,
+    /// Mean Newton iterations per accepted step.
+    pub newton_iterations_mean: f64,
+    /// Largest Newton iteration count of one step.
+    pub newton_iterations_max: usize,
+    /// Steps whose Newton failed and were retried as two half steps.
+    pub rejected_steps: usize,
+    /// Steps started cold (no usable previous step to extrapolate from).
+    pub cold_starts: usize,
+    /// Largest `max_i |k_i|` over the recorded points (0 if not observed).
+    pub max_constraint_residual: f64,
+    /// Largest `|E − E₀|` over the recorded points (0 if not observed).
+    pub max_energy_error: f64,
+    /// Whether `v₀` was projected onto the constraints.
+    pub projected_initial_velocity: bool,
+}
+
+/// A recorded solution with its provenance; serializes to JSON (serde) and CSV.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Trajectory<const N: usize, const M: usize> {
+    /// The system's type name.
+    pub system: String,
+    /// Coordinate names.
+    pub coordinates: Vec<String>,
+    /// The method.
+    pub method: Method,
+    /// Number of stages.
+    pub stages: usize,
+    /// The recorded points.
+    pub samples: Vec<Sample<N, M>>,
+    /// Run statistics.
+    pub report: RunReport,
+}
+
+/// An integration run failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum IntegrationError {
+    /// The schedule is unusable.
+    #[error("invalid schedule: {0}")]
+    InvalidSchedule(&'static str),
+    /// The initial state was rejected or could not be projected.
+    #[error("initial state: {0}")]
+    Initial(#[source] StepError),
+    /// A step failed (after any retries).
+    #[error("step {index} from t = {t} failed: {source}")]
+    Step {
+        /// Index of the failed step (0-based).
+        index: usize,
+        /// Its start time.
+        t: f64,
+        /// Why.
+        source: StepError,
+        /// The trajectory up to the failure.
+        partial: Box<RunReport>,
+    },
+}
+
+/// Receives every accepted step (not only recorded ones).
+pub trait Observer<const N: usize, const M: usize> {
+    /// Called after each accepted step with the new state and the Newton
+    /// iteration count.
+    fn observe(&mut self, state: &State<N>, iterations: usize);
+}
+
+/// An observer that does nothing.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoObserver;
+
+impl<const N: usize, const M: usize> Observer<N, M> for NoObserver {
+    fn observe(&mut self, _: &State<N>, _: usize) {}
+}
+
+impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> for F {
+    fn observe(&mut self, state: &State<N>, iterations: usize) {
+        self(state, iterations)
+    }
+}
+
+impl<const N: usize, const M: usize> Trajectory<N, M> {
+    /// The last recorded state.
+    pub fn last(&self) -> Option<State<N>> {
+        self.samples.last().map(|s| State { t: s.t, q: s.q, v: s.v })
+    }
+
+    /// CSV with a header `t, q_<name>…, v_<name>…, energy, constraint_residual, psi_1…, newton_iterations`
+    /// (unobserved columns are empty).
+    pub fn write_csv<W: std::io::Write>(&self, writer: W) -> Result<(), csv::Error> {
+        let mut w = csv::Writer::from_writer(writer);
+        let mut header = vec!["t".to_string()];
+        header.extend(self.coordinates.iter().map(|c| format!("q_{c}")));
+        header.extend(self.coordinates.iter().map(|c| format!("v_{c}")));
+        header.push("energy".into());
+        header.push("constraint_residual".into());
+        header.extend((1..=M).map(|i| format!("psi_{i}")));
+        header.push("newton_iterations".into());
+        w.write_record(&header)?;
+        let opt = |x: Option<f64>| x.map(|v| format!("{v:e}")).unwrap_or_default();
+        for s in &self.samples {
+            let mut rec = Vec::with_capacity(header.len());
+            rec.push(format!("{:e}", s.t));
+            rec.extend(s.q.iter().chain(s.v.iter()).map(|x| format!("{x:e}")));
+            rec.push(opt(s.energy));
+            rec.push(opt(s.constraint_residual));
+            for i in 0..M {
+                rec.push(opt(s.multipliers.map(|p| p[i])));
+            }
+            rec.push(s.newton_iterations.to_string());
+            w.write_record(&rec)?;
+        }
+        w.flush()?;
+        Ok(())
+    }
+
+    /// The CSV text (see [`Trajectory::write_csv`]).
+    pub fn to_csv_string(&self) -> Result<String, csv::Error> {
+        let mut buf = Vec::new();
+        self.write_csv(&mut buf)?;
+        Ok(String::from_utf8_lossy(&buf).into_owned())
+    }
+
+    /// Pretty JSON of the whole trajectory.
+    pub fn to_json_string(&self) -> Result<String, serde_json::Error> {
+        serde_json::to_string_pretty(self)
+    }
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    fn sample(&self, state: &State<N>, observe: &Observe, iterations: usize) -> Sample<N, M> {
+        let sys = self.system();
+        Sample {
+            t: state.t,
+            q: state.q,
+            v: state.v,
+            energy: observe.energy.then(|| sys.energy(state.t, &state.q, &state.v)),
+            constraint_residual: observe
+                .constraint_residual
+                .then(|| sys.constraint(state.t, &state.q, &state.v).amax()),
+            multipliers: if observe.multipliers {
+                consistent_acceleration(sys, state.t, &state.q, &state.v).map(|(_, psi)| psi)
+            } else {
+                None
+            },
+            newton_iterations: iterations,
+        }
+    }
+
+    /// One step of size `h`, retried as two half steps (recursively, at most
+    /// `halvings` deep) when Newton fails. Returns the new state, the Newton
+    /// iterations and the number of rejections.
+    fn robust_step(&mut self, state: &State<N>, h: f64, halvings: u32) -> Result<(State<N>, usize, usize), StepError> {
+        match self.step(state, h) {
+            Ok(r) => Ok((r.state, r.iterations, 0)),
+            Err(e @ (StepError::InvalidStep { .. } | StepError::InconsistentInitialState { .. })) => Err(e),
+            Err(e) if halvings == 0 => Err(e),
+            Err(_) => {
+                self.reset_warm_start();
+                let (mid, i1, r1) = self.robust_step(state, 0.5 * h, halvings - 1)?;
+                let (mut end, i2, r2) = self.robust_step(&mid, h - 0.5 * h, halvings - 1)?;
+                // Land exactly on the scheduled time.
+                end.t = state.t + h;
+                Ok((end, i1 + i2, 1 + r1 + r2))
+            }
+        }
+    }
+
+    /// Integrates from `(t₀, q₀, v₀)` over `schedule`, checking (or projecting)
+    /// the initial velocity first, recording samples per `options` and
+    /// calling `observer` after every accepted step.
+    pub fn integrate<O: Observer<N, M>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut O,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        let steps = match schedule {
+            Schedule::Fixed { h, steps } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                steps
+            }
+            Schedule::Times(ts) => {
+                if ts.iter().any(|t| !t.is_finite()) {
+                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
+                }
+                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| a == b) {
+                    return Err(IntegrationError::InvalidSchedule("consecutive output times must differ"));
+                }
+                ts.len()
+            }
+        };
+        let v0c =
+            consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
+        self.reset_warm_start();
+        let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
+        let every = options.record_every;
+        let capacity = if every == 0 { 2 } else { steps / every + 2 };
+        let mut samples = Vec::with_capacity(capacity);
+        let mut state = State { t: t0, q: *q0, v: v0c };
+        let first = self.sample(&state, &options.observe, 0);
+        let e0 = first.energy;
+        let track = |s: &Sample<N, M>, report: &mut RunReport| {
+            if let Some(r) = s.constraint_residual {
+                report.max_constraint_residual = report.max_constraint_residual.max(r);
+            }
+            if let (Some(e), Some(e0)) = (s.energy, e0) {
+                report.max_energy_error = report.max_energy_error.max((e - e0).abs());
+            }
+        };
+        track(&first, &mut report);
+        samples.push(first);
+        for k in 0..steps {
+            let (h, t_target) = match schedule {
+                Schedule::Fixed { h, .. } => (h, t0 + (k + 1) as f64 * h),
+                Schedule::Times(ts) => (ts[k] - state.t, ts[k]),
+            };
+            let warm_before = self.is_warm_for(&state);
+            let (mut next, iters, rejected) = self
+                .robust_step(&state, h, options.max_halvings)
+                .map_err(|source| IntegrationError::Step { index: k, t: state.t, source, partial: Box::new(report) })?;
+            // Accumulating t0 + Σh drifts; pin t to the scheduled value.
+            next.t = t_target;
+            if !warm_before || rejected > 0 {
+                report.cold_starts += 1;
+            }
+            report.steps += 1;
+            report.rejected_steps += rejected;
+            report.newton_iterations_total += iters;
+            report.newton_iterations_max = report.newton_iterations_max.max(iters);
+            observer.observe(&next, iters);
+            let last = k + 1 == steps;
+            if last || (every != 0 && (k + 1) % every == 0) {
+                let s = self.sample(&next, &options.observe, iters);
+                track(&s, &mut report);
+                samples.push(s);
+            }
+            state = next;
+            self.retarget_warm_start(&state);
+        }
+        if report.steps > 0 {
+            report.newton_iterations_mean = report.newton_iterations_total as f64 / report.steps as f64;
+        }
+        let source = Sys::SOURCE;
+        Ok(Trajectory {
+            system: source.name.to_string(),
+            coordinates: source.coordinates.iter().map(|c| c.to_string()).collect(),
+            method: self.tableau().method,
+            stages: S,
+            samples,
+            report,
+        })
+    }
+}

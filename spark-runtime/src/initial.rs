@@ -1,0 +1,152 @@
+//! Initial values: the consistency check of `(t₀, q₀, v₀)`, the projection of
+//! `v₀` onto `{v : k(t₀,q₀,v) = 0}` in the kinetic-energy metric, and the
+//! consistent acceleration and multiplier of the ψ-eliminated equations
+//! (used for the stepper's cold-start guess and the multiplier observer).
+
+use crate::error::{IterationRecord, NewtonHistory, StepError};
+use crate::linalg::Lu;
+use crate::system::{Matrix, NonholonomicSystem, Vector};
+
+/// What to do when `|k(t₀, q₀, v₀)|` exceeds the tolerance.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum ConsistencyPolicy {
+    /// Return [`StepError::InconsistentInitialState`].
+    Error {
+        /// Largest accepted `max_i |k_i(t₀,q₀,v₀)|`.
+        tolerance: f64,
+    },
+    /// Replace `v₀` by the closest consistent velocity in the kinetic-energy
+    /// metric `∇²_vv L(t₀,q₀,v₀)`.
+    Project {
+        /// Largest accepted `max_i |k_i|` before projecting.
+        tolerance: f64,
+    },
+}
+
+impl Default for ConsistencyPolicy {
+    fn default() -> Self {
+        ConsistencyPolicy::Error { tolerance: 1e-12 }
+    }
+}
+
+/// Solves `[[W, Kᵀ],[K, 0]] [x; y] = [r1; r2]` by the Schur complement
+/// `K W⁻¹ Kᵀ` (all fixed-size: `N + M` cannot be named as a const on stable).
+pub(crate) fn saddle_solve<const N: usize, const M: usize>(
+    w: &Matrix<N, N>,
+    k: &Matrix<M, N>,
+    r1: &Vector<N>,
+    r2: &Vector<M>,
+) -> Option<(Vector<N>, Vector<M>)> {
+    let mut wlu = Lu::<N>::new();
+    wlu.factor(w).ok()?;
+    let mut winv_r1 = *r1;
+    wlu.solve_in_place(&mut winv_r1);
+    if M == 0 {
+        return Some((winv_r1, Vector::<M>::zeros()));
+    }
+    let mut winv_kt = k.transpose();
+    for mut col in winv_kt.column_iter_mut() {
+        let mut c: Vector<N> = col.clone_owned();
+        wlu.solve_in_place(&mut c);
+        col.copy_from(&c);
+    }
+    let schur = k * winv_kt;
+    let mut slu = Lu::<M>::new();
+    slu.factor(&schur).ok()?;
+    let mut y = k * winv_r1 - r2;
+    slu.solve_in_place(&mut y);
+    let x = winv_r1 - winv_kt * y;
+    (x.iter().chain(y.iter()).all(|v| v.is_finite())).then_some((x, y))
+}
+
+/// The acceleration `a = v̇` and multiplier `ψ` of the constrained equations
+/// at `(t, q, v)`, from
+/// `W a + Kᵀψ = ∇_q L − (∂p/∂q) v − ∂p/∂t` and `K a = −(k_q v + k_t)`.
+/// Returns `None` when the saddle-point matrix is singular.
+pub fn consistent_acceleration<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+) -> Option<(Vector<N>, Vector<M>)>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let (vals, jac) = sys.stage_jacobians(t, q, v, &Vector::<M>::zeros());
+    let (mut r1, mut r2) = (vals.force - jac.momentum_q * v, -(jac.constraint_q * v));
+    if !Sys::STRUCTURE.autonomous() {
+        let td = sys.time_derivatives(t, q, v);
+        r1 -= td.momentum_t;
+        r2 -= td.constraint_t;
+    }
+    saddle_solve(&jac.mass, &jac.constraint_v, &r1, &r2)
+}
+
+/// Checks `(t₀, q₀, v₀)` against the constraints and, by `policy`, returns
+/// `v₀` unchanged, returns the projected velocity, or fails.
+///
+/// The projection minimizes `½(v − v₀)ᵀ W (v − v₀)` subject to
+/// `k(t₀, q₀, v) = 0` with `W = ∇²_vv L(t₀, q₀, v₀)`, by Newton on
+/// `W(v − v₀) + K(v)ᵀλ = 0`, `k(v) = 0`.
+pub fn consistent_velocity<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    policy: ConsistencyPolicy,
+) -> Result<Vector<N>, StepError>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    if !t0.is_finite() || q0.iter().chain(v0.iter()).any(|x| !x.is_finite()) {
+        return Err(StepError::InvalidStep { t: t0, h: 0.0, reason: "initial state is not finite" });
+    }
+    let residual = sys.constraint(t0, q0, v0).amax();
+    let tolerance = match policy {
+        ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
+    };
+    if residual <= tolerance {
+        return Ok(*v0);
+    }
+    if let ConsistencyPolicy::Error { .. } = policy {
+        return Err(StepError::InconsistentInitialState { residual, tolerance });
+    }
+    let w = sys.mass_matrix(t0, q0, v0);
+    let mut v = *v0;
+    let mut lambda = Vector::<M>::zeros();
+    let mut history = NewtonHistory::default();
+    let mut prev = f64::NAN;
+    for _ in 0..crate::error::HISTORY_CAPACITY {
+        let (vals, jac) = sys.stage_jacobians(t0, q0, &v, &lambda);
+        // Residual: W(v − v0) − R(λ) with R = −Kᵀλ, and k(v).
+        let g1 = w * (v - v0) - vals.constraint_force;
+        let g2 = vals.constraint;
+        let res = g1.amax().max(g2.amax());
+        // Jacobian [[W − ∂R/∂v, Kᵀ],[K, 0]].
+        let a = w - jac.constraint_force_v;
+        let Some((dv, dl)) = saddle_solve(&a, &jac.constraint_v, &g1, &g2) else {
+            return Err(StepError::SingularMatrix { t: t0, h: 0.0, column: 0, pivot: 0.0, history: Box::new(history) });
+        };
+        v -= dv;
+        lambda -= dl;
+        let upd = dv.iter().zip(v.iter()).map(|(d, x)| d.abs() / (1.0 + x.abs())).fold(0.0, f64::max);
+        let rate = upd / prev;
+        history.push(IterationRecord { residual: res, update: upd, rate });
+        if !upd.is_finite() {
+            return Err(StepError::NonFinite {
+                t: t0,
+                h: 0.0,
+                stage: "velocity projection",
+                history: Box::new(history),
+            });
+        }
+        if upd <= 4.0 * f64::EPSILON || (rate < 1.0 && rate * upd <= 4.0 * f64::EPSILON) {
+            return Ok(v);
+        }
+        if rate >= 1.0 && history.len() > 2 {
+            return Err(StepError::Diverged { t: t0, h: 0.0, history: Box::new(history) });
+        }
+        prev = upd;
+    }
+    Err(StepError::MaxIterations { t: t0, h: 0.0, history: Box::new(history) })
+}

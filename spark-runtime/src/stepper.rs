@@ -1,0 +1,589 @@
+//! The SPARK step (paper eq. 6.1) and its Newton solver.
+//!
+//! Unknowns `z = [V_1..V_S | μ_1..μ_S | v₁]` with `μ_i = hΨ_i` (scaling the
+//! multipliers by `h` keeps every block of the Newton matrix `O(1)`), `D =
+//! S(N+M)+N` of them. Equations, in this order:
+//!
+//! ```text
+//! P_i − p₀ − hΣ_j â_ij F_j − hΣ_j ã_ij R_j = 0      i = 1..S      (S·N rows)
+//! p₁  − p₀ − hΣ_j b̂_j F_j  − hΣ_j b̃_j R_j  = 0                    (N rows)
+//! condition rows (ω-sums, §8.4 midpoint constraint, or Ψ_i − Ψ_{i+1})  ((S−1)·M rows)
+//! k(t₁, q₁, v₁) = 0                                                (M rows)
+//! ```
+//!
+//! with `Q_i = q₀ + hΣ_j a_ij V_j` and `q₁ = q₀ + hΣ_j b_j V_j` substituted,
+//! so the exact Jacobian follows from the system's stage Jacobians by the
+//! chain rule `∂Q_i/∂V_l = h a_il I`.
+//!
+//! # Why a fourth const parameter `D`
+//! The Newton matrix is `D × D` with `D = S(N+M)+N`, but stable Rust cannot
+//! write `SMatrix<f64, {S*(N+M)+N}, _>` for generic `N, M, S` (that needs the
+//! unstable `generic_const_exprs`). So `D` is a parameter of its own, checked
+//! at compile time by an inline `const { assert!(D == S * (N + M) + N) }` in
+//! [`Stepper::new`]; a wrong `D` is a compile error at monomorphization, not
+//! a runtime failure. The [`Stepper!`](crate::Stepper!) macro computes `D`.
+
+use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
+use crate::initial::consistent_acceleration;
+use crate::linalg::Lu;
+use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
+use crate::tableau::{ConditionRows, Tableau};
+
+/// Full Newton (Jacobian re-evaluated every iteration) or simplified Newton
+/// (Jacobian frozen at the starting guess for the whole step).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum NewtonMode {
+    /// Exact Jacobian and a fresh factorization every iteration.
+    Full,
+    /// One Jacobian and factorization per step.
+    Simplified,
+}
+
+/// Newton solver settings.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NewtonOptions {
+    /// Full or simplified Newton.
+    pub mode: NewtonMode,
+    /// Target for the estimated remaining error of the scaled unknowns
+    /// (`|Δz_i| / (1 + |z_i|)`); default `16 ε ≈ 3.6e-15`.
+    pub tolerance: f64,
+    /// Updates below this level that stop contracting are round-off
+    /// stagnation and are accepted; above it they count as divergence.
+    pub stagnation_level: f64,
+    /// Iteration limit (at most [`HISTORY_CAPACITY`]).
+    pub max_iterations: usize,
+    /// Extrapolate the starting guess from the previous step's stages when
+    /// the new step continues it; otherwise start from the consistent
+    /// acceleration at `(t₀, q₀, v₀)`.
+    pub warm_start: bool,
+}
+
+impl Default for NewtonOptions {
+    fn default() -> Self {
+        NewtonOptions {
+            mode: NewtonMode::Full,
+            tolerance: 16.0 * f64::EPSILON,
+            stagnation_level: 1e-12,
+            max_iterations: 20,
+            warm_start: true,
+        }
+    }
+}
+
+/// A point `(t, q, v)` of the phase space.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct State<const N: usize> {
+    /// Time.
+    pub t: f64,
+    /// Generalized coordinates.
+    pub q: Vector<N>,
+    /// Generalized velocities.
+    pub v: Vector<N>,
+}
+
+impl<const N: usize> State<N> {
+    /// A state from its parts.
+    pub fn new(t: f64, q: Vector<N>, v: Vector<N>) -> Self {
+        State { t, q, v }
+    }
+}
+
+/// The outcome of one successful step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepResult<const N: usize, const M: usize, const S: usize> {
+    /// `(t₁, q₁, v₁)`.
+    pub state: State<N>,
+    /// Stage velocities `V_i`.
+    pub stage_velocities: [Vector<N>; S],
+    /// Stage multipliers `Ψ_i`.
+    pub stage_multipliers: [Vector<M>; S],
+    /// Newton iterations (linear solves) used.
+    pub iterations: usize,
+    /// Whether the starting guess came from the previous step.
+    pub warm_started: bool,
+}
+
+/// The previous step, kept for extrapolating the next starting guess.
+#[derive(Clone, Copy, Debug)]
+struct Warm<const N: usize, const M: usize, const S: usize> {
+    h: f64,
+    end: State<N>,
+    v: [Vector<N>; S],
+    mu: [Vector<M>; S],
+}
+
+/// An `S`-stage SPARK integrator for a system with `N` coordinates and `M`
+/// constraints; `D` must equal `S(N+M)+N` (see the module docs). Name the
+/// type with [`Stepper!`](crate::Stepper!) to have `D` computed for you.
+///
+/// A step allocates nothing on the heap: all state, the Newton matrix and
+/// its factorization are fixed-size nalgebra values.
+#[derive(Clone, Debug)]
+pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize> {
+    system: Sys,
+    tableau: Tableau<S>,
+    options: NewtonOptions,
+    warm: Option<Warm<N, M, S>>,
+    jacobian: Matrix<D, D>,
+    lu: Lu<D>,
+}
+
+/// Everything one residual evaluation produced.
+struct Eval<const N: usize, const M: usize, const S: usize> {
+    stages: [StageValues<N, M>; S],
+    end: StageValues<N, M>,
+    mid: Option<StageValues<N, M>>,
+}
+
+/// Jacobians of one evaluation (only for full-Jacobian iterations).
+struct EvalJac<const N: usize, const M: usize, const S: usize> {
+    stages: [StageJacobians<N, M>; S],
+    end: StageJacobians<N, M>,
+    mid: Option<StageJacobians<N, M>>,
+}
+
+fn zero_values<const N: usize, const M: usize>() -> StageValues<N, M> {
+    StageValues {
+        momentum: Vector::zeros(),
+        force: Vector::zeros(),
+        constraint: Vector::zeros(),
+        constraint_force: Vector::zeros(),
+    }
+}
+
+fn zero_jacobians<const N: usize, const M: usize>() -> StageJacobians<N, M> {
+    StageJacobians {
+        momentum_q: Matrix::zeros(),
+        mass: Matrix::zeros(),
+        force_q: Matrix::zeros(),
+        force_v: Matrix::zeros(),
+        constraint_q: Matrix::zeros(),
+        constraint_v: Matrix::zeros(),
+        constraint_force_q: Matrix::zeros(),
+        constraint_force_v: Matrix::zeros(),
+    }
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// A stepper for `system` with the coefficients `tableau` and default
+    /// Newton options. Fails to compile unless `D == S·(N+M)+N`.
+    pub fn new(system: Sys, tableau: Tableau<S>) -> Self {
+        const { assert!(D == S * (N + M) + N, "Stepper: D must equal S*(N+M)+N; use the Stepper! macro") };
+        Stepper {
+            system,
+            tableau,
+            options: NewtonOptions::default(),
+            warm: None,
+            jacobian: Matrix::zeros(),
+            lu: Lu::new(),
+        }
+    }
+
+    /// Replaces the Newton options (builder style).
+    pub fn with_options(mut self, options: NewtonOptions) -> Self {
+        self.options = options;
+        self
+    }
+
+    /// The Newton options.
+    pub fn options(&self) -> &NewtonOptions {
+        &self.options
+    }
+
+    /// Mutable access to the Newton options.
+    pub fn options_mut(&mut self) -> &mut NewtonOptions {
+        &mut self.options
+    }
+
+    /// The system.
+    pub fn system(&self) -> &Sys {
+        &self.system
+    }
+
+    /// Mutable access to the system (e.g. to change parameters); forgets the
+    /// warm start.
+    pub fn system_mut(&mut self) -> &mut Sys {
+        self.warm = None;
+        &mut self.system
+    }
+
+    /// The coefficients.
+    pub fn tableau(&self) -> &Tableau<S> {
+        &self.tableau
+    }
+
+    /// Whether a step from `state` would be warm-started.
+    pub(crate) fn is_warm_for(&self, state: &State<N>) -> bool {
+        self.options.warm_start && self.warm.as_ref().is_some_and(|w| w.end == *state)
+    }
+
+    /// Declares that `state` (the last step's result with its time pinned to
+    /// the schedule) continues the last step.
+    pub(crate) fn retarget_warm_start(&mut self, state: &State<N>) {
+        if let Some(w) = self.warm.as_mut() {
+            w.end = *state;
+        }
+    }
+
+    /// Forgets the previous step, so the next step starts cold.
+    pub fn reset_warm_start(&mut self) {
+        self.warm = None;
+    }
+
+    /// One SPARK step of size `h` (negative `h` integrates backward) from a
+    /// consistent `state`. Returns `(t₀+h, q₁, v₁)` with the stage values.
+    pub fn step(&mut self, state: &State<N>, h: f64) -> Result<StepResult<N, M, S>, StepError> {
+        let t0 = state.t;
+        if h == 0.0 || !h.is_finite() {
+            return Err(StepError::InvalidStep { t: t0, h, reason: "step size must be finite and nonzero" });
+        }
+        if !t0.is_finite() || state.q.iter().chain(state.v.iter()).any(|x| !x.is_finite()) {
+            return Err(StepError::InvalidStep { t: t0, h, reason: "state is not finite" });
+        }
+        if !(t0 + h).is_finite() || t0 + h == t0 {
+            return Err(StepError::InvalidStep { t: t0, h, reason: "step size is below the resolution of t" });
+        }
+        let (mut z, warm_started) = self.starting_guess(state, h);
+        let iterations = self.newton(state, h, &mut z)?;
+        let (v, mu) = split::<N, M, S, D>(&z);
+        let mut q1 = state.q;
+        for (bj, vj) in self.tableau.b.iter().zip(v.iter()) {
+            q1 += (h * bj) * vj;
+        }
+        let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
+        let end = State { t: t0 + h, q: q1, v: v1 };
+        self.warm = Some(Warm { h, end, v, mu });
+        let mut psi = mu;
+        for p in psi.iter_mut() {
+            *p /= h;
+        }
+        Ok(StepResult { state: end, stage_velocities: v, stage_multipliers: psi, iterations, warm_started })
+    }
+
+    /// The starting guess: extrapolated from the previous step when this
+    /// step continues it, else from the consistent acceleration.
+    fn starting_guess(&self, state: &State<N>, h: f64) -> (Vector<D>, bool) {
+        let c = &self.tableau.c;
+        let mut z = Vector::<D>::zeros();
+        if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
+            let r = h / w.h;
+            if r.abs() <= 4.0 {
+                // Interpolating polynomial through the previous stage values
+                // (nodes c_j in units of the previous step), evaluated at the
+                // new stage times θ = 1 + c_i r and at the new end θ = 1 + r.
+                let lagrange = |theta: f64, j: usize| -> f64 {
+                    let mut l = 1.0;
+                    for k in 0..S {
+                        if k != j {
+                            l *= (theta - c[k]) / (c[j] - c[k]);
+                        }
+                    }
+                    l
+                };
+                let distinct = (0..S).all(|j| (0..j).all(|k| c[k] != c[j]));
+                for i in 0..=S {
+                    let theta = if i < S { 1.0 + c[i] * r } else { 1.0 + r };
+                    let mut vi = Vector::<N>::zeros();
+                    let mut mi = Vector::<M>::zeros();
+                    for j in 0..S {
+                        let l = if distinct { lagrange(theta, j) } else { 1.0 / S as f64 };
+                        vi += l * w.v[j];
+                        mi += l * w.mu[j];
+                    }
+                    if i < S {
+                        z.fixed_rows_mut::<N>(i * N).copy_from(&vi);
+                        // μ = hΨ: rescale to the new step size.
+                        z.fixed_rows_mut::<M>(S * N + i * M).copy_from(&(mi * r));
+                    } else {
+                        z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&vi);
+                    }
+                }
+                return (z, true);
+            }
+        }
+        let (a0, psi0) = consistent_acceleration(&self.system, state.t, &state.q, &state.v)
+            .unwrap_or((Vector::zeros(), Vector::zeros()));
+        for i in 0..S {
+            z.fixed_rows_mut::<N>(i * N).copy_from(&(state.v + (c[i] * h) * a0));
+            z.fixed_rows_mut::<M>(S * N + i * M).copy_from(&(psi0 * h));
+        }
+        z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&(state.v + h * a0));
+        (z, false)
+    }
+
+    /// Evaluates the stage points of `z`, optionally with Jacobians.
+    fn evaluate(&self, state: &State<N>, h: f64, z: &Vector<D>, jac: Option<&mut EvalJac<N, M, S>>) -> Eval<N, M, S> {
+        let tab = &self.tableau;
+        let (v, mu) = split::<N, M, S, D>(z);
+        let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
+        let zero_m = Vector::<M>::zeros();
+        let mut ev = Eval { stages: [zero_values(); S], end: zero_values(), mid: None };
+        let mut q1 = state.q;
+        for j in 0..S {
+            q1 += (h * tab.b[j]) * v[j];
+        }
+        let t1 = state.t + h;
+        let mid_point = || {
+            let tm = state.t + 0.5 * h;
+            (tm, state.q + (0.5 * h) * v[0])
+        };
+        let stage_q = |i: usize| {
+            let mut qi = state.q;
+            for j in 0..S {
+                if tab.a[i][j] != 0.0 {
+                    qi += (h * tab.a[i][j]) * v[j];
+                }
+            }
+            qi
+        };
+        match jac {
+            Some(jac) => {
+                for i in 0..S {
+                    let psi = mu[i] / h;
+                    (ev.stages[i], jac.stages[i]) =
+                        self.system.stage_jacobians(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
+                }
+                (ev.end, jac.end) = self.system.stage_jacobians(t1, &q1, &v1, &zero_m);
+                if tab.conditions == ConditionRows::MidpointConstraint {
+                    let (tm, qm) = mid_point();
+                    let (mv, mj) = self.system.stage_jacobians(tm, &qm, &v[0], &zero_m);
+                    ev.mid = Some(mv);
+                    jac.mid = Some(mj);
+                }
+            }
+            None => {
+                for i in 0..S {
+                    let psi = mu[i] / h;
+                    ev.stages[i] = self.system.stage_values(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
+                }
+                ev.end = self.system.stage_values(t1, &q1, &v1, &zero_m);
+                if tab.conditions == ConditionRows::MidpointConstraint {
+                    let (tm, qm) = mid_point();
+                    ev.mid = Some(self.system.stage_values(tm, &qm, &v[0], &zero_m));
+                }
+            }
+        }
+        ev
+    }
+
+    /// The SPARK residual `G(z)` (see the module docs for the row layout).
+    fn residual(&self, p0: &Vector<N>, h: f64, z: &Vector<D>, ev: &Eval<N, M, S>) -> Vector<D> {
+        let tab = &self.tableau;
+        let mut g = Vector::<D>::zeros();
+        let mut row = |i: usize, weights_hat: &[f64; S], weights_tilde: &[f64; S], momentum: &Vector<N>| {
+            let mut r = momentum - p0;
+            for j in 0..S {
+                if weights_hat[j] != 0.0 {
+                    r -= (h * weights_hat[j]) * ev.stages[j].force;
+                }
+                if weights_tilde[j] != 0.0 {
+                    r -= (h * weights_tilde[j]) * ev.stages[j].constraint_force;
+                }
+            }
+            g.fixed_rows_mut::<N>(i * N).copy_from(&r);
+        };
+        for i in 0..S {
+            row(i, &tab.a_hat[i], &tab.a_tilde[i], &ev.stages[i].momentum);
+        }
+        row(S, &tab.b_hat, &tab.b_tilde, &ev.end.momentum);
+        let base = S * N + N;
+        match tab.conditions {
+            ConditionRows::Omega => {
+                for r in 0..S.saturating_sub(1) {
+                    let mut k = Vector::<M>::zeros();
+                    for j in 0..S {
+                        k += tab.omega[r][j] * ev.stages[j].constraint;
+                    }
+                    g.fixed_rows_mut::<M>(base + r * M).copy_from(&k);
+                }
+            }
+            ConditionRows::MidpointConstraint => {
+                if let Some(mid) = &ev.mid {
+                    g.fixed_rows_mut::<M>(base).copy_from(&mid.constraint);
+                }
+            }
+            ConditionRows::EqualMultipliers => {
+                for r in 0..S.saturating_sub(1) {
+                    let d = z.fixed_rows::<M>(S * N + r * M) - z.fixed_rows::<M>(S * N + (r + 1) * M);
+                    g.fixed_rows_mut::<M>(base + r * M).copy_from(&d);
+                }
+            }
+        }
+        g.fixed_rows_mut::<M>(D - M).copy_from(&ev.end.constraint);
+        g
+    }
+
+    /// The exact Jacobian `∂G/∂z`, skipping blocks the structure facts prove zero.
+    fn assemble_jacobian(&mut self, h: f64, jac: &EvalJac<N, M, S>) {
+        let tab = self.tableau;
+        let st = Sys::STRUCTURE;
+        // L = T(v) − U(q): ∂P/∂q = 0 and ∂F/∂v = 0.
+        let separable = st.separable;
+        // K independent of v: ∂R/∂v = 0.
+        let k_velocity_free = st.constraint_matrix_velocity_free();
+        let j = &mut self.jacobian;
+        j.fill(0.0);
+        let h2 = h * h;
+        // Momentum rows: stage rows i < S use (a_i, â_i, ã_i); the p₁ row uses
+        // (b, b̂, b̃) with its momentum evaluated at the end point.
+        for i in 0..=S {
+            let (a_row, ah_row, at_row) =
+                if i < S { (&tab.a[i], &tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b, &tab.b_hat, &tab.b_tilde) };
+            let pq = if i < S { &jac.stages[i].momentum_q } else { &jac.end.momentum_q };
+            for l in 0..S {
+                let mut blk = Matrix::<N, N>::zeros();
+                if i == l {
+                    blk += jac.stages[l].mass;
+                }
+                if !separable {
+                    if a_row[l] != 0.0 {
+                        blk += (h * a_row[l]) * pq;
+                    }
+                    if ah_row[l] != 0.0 {
+                        blk -= (h * ah_row[l]) * jac.stages[l].force_v;
+                    }
+                }
+                if !k_velocity_free && at_row[l] != 0.0 {
+                    blk -= (h * at_row[l]) * jac.stages[l].constraint_force_v;
+                }
+                for m in 0..S {
+                    let aml = tab.a[m][l];
+                    if aml == 0.0 {
+                        continue;
+                    }
+                    if ah_row[m] != 0.0 {
+                        blk -= (h2 * ah_row[m] * aml) * jac.stages[m].force_q;
+                    }
+                    if at_row[m] != 0.0 {
+                        blk -= (h2 * at_row[m] * aml) * jac.stages[m].constraint_force_q;
+                    }
+                }
+                j.fixed_view_mut::<N, N>(i * N, l * N).copy_from(&blk);
+                // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h).
+                if at_row[l] != 0.0 {
+                    j.fixed_view_mut::<N, M>(i * N, S * N + l * M)
+                        .copy_from(&(at_row[l] * jac.stages[l].constraint_v.transpose()));
+                }
+            }
+        }
+        // ∂p₁/∂v₁.
+        j.fixed_view_mut::<N, N>(S * N, S * (N + M)).copy_from(&jac.end.mass);
+        let base = S * N + N;
+        match tab.conditions {
+            ConditionRows::Omega => {
+                for r in 0..S.saturating_sub(1) {
+                    for l in 0..S {
+                        let mut blk = tab.omega[r][l] * jac.stages[l].constraint_v;
+                        for m in 0..S {
+                            let c = tab.omega[r][m] * tab.a[m][l];
+                            if c != 0.0 {
+                                blk += (h * c) * jac.stages[m].constraint_q;
+                            }
+                        }
+                        j.fixed_view_mut::<M, N>(base + r * M, l * N).copy_from(&blk);
+                    }
+                }
+            }
+            ConditionRows::MidpointConstraint => {
+                if let Some(mj) = &jac.mid {
+                    let blk = mj.constraint_v + (0.5 * h) * mj.constraint_q;
+                    j.fixed_view_mut::<M, N>(base, 0).copy_from(&blk);
+                }
+            }
+            ConditionRows::EqualMultipliers => {
+                for r in 0..S.saturating_sub(1) {
+                    for d in 0..M {
+                        j[(base + r * M + d, S * N + r * M + d)] = 1.0;
+                        j[(base + r * M + d, S * N + (r + 1) * M + d)] = -1.0;
+                    }
+                }
+            }
+        }
+        for l in 0..S {
+            j.fixed_view_mut::<M, N>(D - M, l * N).copy_from(&((h * tab.b[l]) * jac.end.constraint_q));
+        }
+        j.fixed_view_mut::<M, N>(D - M, S * (N + M)).copy_from(&jac.end.constraint_v);
+    }
+
+    /// Newton's method on `G(z) = 0`; returns the number of iterations.
+    fn newton(&mut self, state: &State<N>, h: f64, z: &mut Vector<D>) -> Result<usize, StepError> {
+        let t = state.t;
+        let opts = self.options;
+        let p0 = self.system.momentum(t, &state.q, &state.v);
+        let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
+        let mut history = NewtonHistory::default();
+        let mut jac = EvalJac { stages: [zero_jacobians(); S], end: zero_jacobians(), mid: None };
+        let mut prev_update = f64::NAN;
+        let fail_nonfinite =
+            |stage, history: NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(history) };
+        for k in 0..max_iter {
+            let fresh = k == 0 || opts.mode == NewtonMode::Full;
+            let ev = self.evaluate(state, h, z, fresh.then_some(&mut jac));
+            let mut g = self.residual(&p0, h, z, &ev);
+            let residual = g.amax();
+            if !g.iter().all(|x| x.is_finite()) {
+                history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
+                return Err(fail_nonfinite("residual", history));
+            }
+            if fresh {
+                self.assemble_jacobian(h, &jac);
+                if let Err(s) = self.lu.factor(&self.jacobian) {
+                    history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
+                    return Err(if self.jacobian.iter().all(|x| x.is_finite()) {
+                        StepError::SingularMatrix { t, h, column: s.column, pivot: s.pivot, history: Box::new(history) }
+                    } else {
+                        fail_nonfinite("Jacobian", history)
+                    });
+                }
+            }
+            self.lu.solve_in_place(&mut g);
+            *z -= g;
+            let update = g.iter().zip(z.iter()).map(|(d, x)| d.abs() / (1.0 + x.abs())).fold(0.0, f64::max);
+            let rate = update / prev_update;
+            history.push(IterationRecord { residual, update, rate });
+            if !update.is_finite() {
+                return Err(fail_nonfinite("update", history));
+            }
+            if update <= opts.tolerance {
+                return Ok(k + 1);
+            }
+            if k > 0 {
+                if rate >= 1.0 {
+                    if update <= opts.stagnation_level {
+                        return Ok(k + 1);
+                    }
+                    return Err(StepError::Diverged { t, h, history: Box::new(history) });
+                }
+                // Predicted size of the next update: quadratic convergence for
+                // full Newton once it is clearly in its asymptotic regime,
+                // linear (θ/(1−θ)) otherwise.
+                let predicted = if opts.mode == NewtonMode::Full && rate < 0.1 {
+                    update * rate * rate
+                } else {
+                    update * rate / (1.0 - rate)
+                };
+                if predicted <= opts.tolerance {
+                    return Ok(k + 1);
+                }
+            }
+            prev_update = update;
+        }
+        Err(StepError::MaxIterations { t, h, history: Box::new(history) })
+    }
+}
+
+/// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
+fn split<const N: usize, const M: usize, const S: usize, const D: usize>(
+    z: &Vector<D>,
+) -> ([Vector<N>; S], [Vector<M>; S]) {
+    let mut v = [Vector::<N>::zeros(); S];
+    let mut mu = [Vector::<M>::zeros(); S];
+    for i in 0..S {
+        v[i] = z.fixed_rows::<N>(i * N).into_owned();
+        mu[i] = z.fixed_rows::<M>(S * N + i * M).into_owned();
+    }
+    (v, mu)
+}
