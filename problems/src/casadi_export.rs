@@ -7,7 +7,10 @@
 //! it only evaluates the trait and records what it returned.
 
 use serde::Serialize;
-use spark_runtime::{Matrix, NonholonomicSystem, OperationCounts, Structure, SystemSource, Vector};
+use spark_runtime::{
+    consistent_velocity, ConditionRows, ConsistencyPolicy, Matrix, Method, NonholonomicSystem, OperationCounts, State,
+    Stepper, Structure, SystemSource, Tableau, Vector,
+};
 
 pub mod handwritten;
 
@@ -216,6 +219,46 @@ pub enum ConditionExport {
         /// Velocity weights `β_j`.
         beta: Vec<f64>,
     },
+    /// `0 = Ψ_i − Ψ_j` (0-based stage indices; McLachlan–Perlmutter, eq. 7.3).
+    MultiplierDifference {
+        /// First stage.
+        i: usize,
+        /// Second stage.
+        j: usize,
+    },
+}
+
+impl TableauExport {
+    /// The coefficients of `tableau`, with its condition rows spelled out as
+    /// the equations the paper writes (so the Python side needs no knowledge
+    /// of the runtime's enum).
+    pub fn of<const S: usize>(tableau: &Tableau<S>) -> Self {
+        let rows = |m: &[[f64; S]; S]| m.iter().map(|r| r.to_vec()).collect::<Vec<_>>();
+        let conditions = (0..S.saturating_sub(1))
+            .map(|i| match tableau.conditions {
+                ConditionRows::Omega => ConditionExport::Weights { omega: tableau.omega[i].to_vec() },
+                // Paper §8.4: 0 = k(t0 + h/2, q0 + (h/2) V_1, V_1).
+                ConditionRows::MidpointConstraint => ConditionExport::Point {
+                    c: 0.5,
+                    alpha: (0..S).map(|j| if j == 0 { 0.5 } else { 0.0 }).collect(),
+                    beta: (0..S).map(|j| if j == 0 { 1.0 } else { 0.0 }).collect(),
+                },
+                ConditionRows::EqualMultipliers => ConditionExport::MultiplierDifference { i, j: i + 1 },
+            })
+            .collect();
+        Self {
+            name: tableau.method.name().to_owned(),
+            stages: S,
+            c: tableau.c.to_vec(),
+            a: rows(&tableau.a),
+            a_hat: rows(&tableau.a_hat),
+            a_tilde: rows(&tableau.a_tilde),
+            b: tableau.b.to_vec(),
+            b_hat: tableau.b_hat.to_vec(),
+            b_tilde: tableau.b_tilde.to_vec(),
+            conditions,
+        }
+    }
 }
 
 /// One step of the Rust stepper from a given state.
@@ -409,6 +452,70 @@ where
     }
 }
 
+/// One SPARK step of `method` with `S` stages (`D = S(N+M)+N`, see
+/// [`Stepper`]) from `(t0, q0, v0)`, with the stepper's default Newton
+/// options and a cold start. `v0` is first made consistent (projected onto
+/// `k(t0, q0, ·) = 0`) so that the step starts where the stepper expects.
+#[allow(clippy::too_many_arguments)]
+pub fn export_step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    name: &str,
+    system: &Sys,
+    method: Method,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    h: f64,
+) -> Result<StepExport, String>
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let tableau = Tableau::<S>::new(method).map_err(|e| e.to_string())?;
+    let v0 = consistent_velocity(system, t0, q0, v0, ConsistencyPolicy::Project { tolerance: 0.0 })
+        .map_err(|e| format!("{name}: projecting v0: {e}"))?;
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(system.clone(), tableau);
+    let r = stepper.step(&State::new(t0, *q0, v0), h).map_err(|e| format!("{name}, {} s={S}: {e}", method.name()))?;
+    Ok(StepExport {
+        system: name.to_owned(),
+        method: TableauExport::of(&tableau),
+        t0,
+        h,
+        q0: vec_of(q0),
+        v0: vec_of(&v0),
+        q1: vec_of(&r.state.q),
+        v1: vec_of(&r.state.v),
+        psi: r.stage_multipliers.iter().map(vec_of).collect(),
+        stage_velocities: r.stage_velocities.iter().map(vec_of).collect(),
+    })
+}
+
+/// Exports one step of every method the cross-check covers (Gauss s = 1..3,
+/// Lobatto IIIA-B and IIIA-B-D s = 2..3, symplectic Euler I and II, modified
+/// Lobatto IIIA-B and McLachlan–Perlmutter's LDA) for a system type with
+/// inherent `N` and `M` constants.
+#[macro_export]
+macro_rules! casadi_steps_for {
+    ($out:expr, $name:expr, $ty:ty, $sys:expr, $t0:expr, $q0:expr, $v0:expr, $h:expr) => {{
+        use spark_runtime::Method;
+        use $crate::casadi_export::export_step;
+        const N: usize = <$ty>::N;
+        const M: usize = <$ty>::M;
+        let (sys, t0, q0, v0, h): (&$ty, f64, _, _, f64) = (&$sys, $t0, &$q0, &$v0, $h);
+        $out.push(export_step::<$ty, N, M, 1, { N + M + N }>($name, sys, Method::Gauss, t0, q0, v0, h));
+        $out.push(export_step::<$ty, N, M, 2, { 2 * (N + M) + N }>($name, sys, Method::Gauss, t0, q0, v0, h));
+        $out.push(export_step::<$ty, N, M, 3, { 3 * (N + M) + N }>($name, sys, Method::Gauss, t0, q0, v0, h));
+        for method in [Method::LobattoIIIAB, Method::LobattoIIIABD] {
+            $out.push(export_step::<$ty, N, M, 2, { 2 * (N + M) + N }>($name, sys, method, t0, q0, v0, h));
+            $out.push(export_step::<$ty, N, M, 3, { 3 * (N + M) + N }>($name, sys, method, t0, q0, v0, h));
+        }
+        for method in [Method::SymplecticEulerI, Method::SymplecticEulerII] {
+            $out.push(export_step::<$ty, N, M, 1, { N + M + N }>($name, sys, method, t0, q0, v0, h));
+        }
+        for method in [Method::ModifiedLobattoIIIAB, Method::LobattoIIIBALda] {
+            $out.push(export_step::<$ty, N, M, 2, { 2 * (N + M) + N }>($name, sys, method, t0, q0, v0, h));
+        }
+    }};
+}
+
 /// Seed-derived per-system seed, so adding a system does not move the others' points.
 fn system_seed(seed: u64, name: &str) -> u64 {
     name.bytes().fold(seed ^ 0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
@@ -421,7 +528,16 @@ pub fn export_all_systems(seed: u64) -> Vec<SystemExport> {
 
 /// One SPARK step per (system, method) pair, from the runtime's stepper.
 pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
-    Ok(Vec::new())
+    let mut out: Vec<Result<StepExport, String>> = Vec::new();
+    let rheonomic = handwritten::Rheonomic::default();
+    let q0 = Vector::<2>::new(0.3, -0.2);
+    let v0 = Vector::<2>::new(0.5, 0.1);
+    casadi_steps_for!(out, "Rheonomic (hand-written)", handwritten::Rheonomic, rheonomic, 0.1, q0, v0, 0.05);
+    let errors: Vec<String> = out.iter().filter_map(|r| r.as_ref().err().cloned()).collect();
+    if !errors.is_empty() {
+        return Err(errors.join("\n"));
+    }
+    out.into_iter().collect()
 }
 
 #[cfg(test)]

@@ -35,6 +35,11 @@ impl Default for Rheonomic {
 }
 
 impl Rheonomic {
+    /// Number of coordinates (for `Stepper!`).
+    pub const N: usize = 2;
+    /// Number of constraints.
+    pub const M: usize = 1;
+
     fn scale(&self, t: f64) -> f64 {
         self.m * (1.0 + self.a * t)
     }
