@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from spark_check import compare, tableaux  # noqa: E402
-from spark_check.step import StepSetupError, solve_step  # noqa: E402
+from spark_check.step import StepSetupError, lda_applicable, solve_lda, solve_step  # noqa: E402
 from spark_check.system import CasadiSystem, SourceError  # noqa: E402
 from spark_check.sexpr import SexprError  # noqa: E402
 
@@ -175,6 +175,13 @@ def check_step(step: Dict, systems: Dict[str, Dict], built: Dict[str, CasadiSyst
         ours["V"] = sol.stage_velocities
     for key in rust:
         result.errors[key] = compare.errors(rust[key], ours[key])[0]
+    if method["name"].lower().startswith("lobatto iiib-a lda") and lda_applicable(system):
+        # Also against the paper's own statement of the method (7.3), not its SPARK rewriting.
+        q1, v1, psi = solve_lda(
+            system, systems[name]["parameter_values"], float(step["t0"]), float(step["h"]), step["q0"], step["v0"]
+        )
+        for key, ours_73 in (("q1", q1), ("v1", v1), ("psi", np.tile(psi, (int(method["stages"]), 1)))):
+            result.errors[key + "(7.3)"] = compare.errors(rust[key], ours_73)[0]
     result.residual = sol.residual
     result.last_newton_step = sol.last_newton_step
     result.tableau_error = tableau_error(method)

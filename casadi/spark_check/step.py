@@ -152,3 +152,47 @@ def solve_step(system: CasadiSystem, parameter_values, method: Dict, t0: float, 
         residual=float(np.max(np.abs(res))) if res.size else 0.0,
         last_newton_step=float(np.max(np.abs(dx))) if dx.size else 0.0,
     )
+
+
+def lda_applicable(system: CasadiSystem) -> bool:
+    """Eq. (7.3) is stated for ``L = ½vᵀMv − U(q)``, ``k = K(q)v + b(q)``: check that form with CasADi."""
+    t, q, v = system.t, system.q, system.v
+    mass = ca.hessian(system.L, v)[0]
+    return (
+        not ca.depends_on(system.L, t)
+        and not ca.depends_on(system.k, t)
+        and not ca.depends_on(mass, ca.vertcat(q, v))
+        and ca.jacobian(system.grad_v, q).is_zero()
+        and ca.jacobian(system.grad_q, v).is_zero()
+        and ca.jacobian(ca.vec(system.k_v), v).is_zero()
+    )
+
+
+def solve_lda(system: CasadiSystem, parameter_values, t0: float, h: float, q0, v0):
+    """McLachlan–Perlmutter's Lobatto IIIB-A LDA step written as the paper's eq. (7.3):
+
+    ``Q1 = q0 + (h/2) v0``, ``M v1 = M v0 − h(∇U(Q1) + K(Q1)ᵀΨ)``,
+    ``q1 = q0 + (h/2)(v0 + v1)``, ``0 = K(q1) v1 + b(q1)``; returns ``(q1, v1, Ψ)``.
+    """
+    n, m = system.n, system.m
+    tt, qq, vv, pp, psi = system.t, system.q, system.v, system.p, system.psi
+    grad_v = ca.Function("gv", [tt, qq, vv, pp], [system.grad_v])
+    grad_q = ca.Function("gq", [tt, qq, vv, pp], [system.grad_q])
+    kfun = ca.Function("k", [tt, qq, vv, pp], [system.k])
+    rfun = ca.Function("r", [tt, qq, vv, pp, psi], [system.R])
+    x = ca.SX.sym("x", n + m)
+    v1, Psi = x[:n], x[n:]
+    q0s, v0s = ca.DM(q0), ca.DM(v0)
+    p = ca.DM(parameter_values)
+    Q1 = q0s + h / 2 * v0s
+    q1 = q0s + h / 2 * (v0s + v1)
+    # ∇_q L = −∇U and R = −KᵀΨ; ∇_v L = M v (the force terms do not depend on v here).
+    g = ca.vertcat(
+        grad_v(t0, Q1, v1, p) - grad_v(t0, Q1, v0s, p) - h * (grad_q(t0, Q1, v0s, p) + rfun(t0, Q1, v0s, p, Psi)),
+        kfun(t0 + h, q1, v1, p),
+    )
+    rf = ca.rootfinder("lda", "newton", ca.Function("g", [x], [g]), {"abstol": 1e-300, "abstolStep": 1e-15,
+                                                                     "max_iter": 60, "error_on_fail": False})
+    sol = np.array(rf(np.concatenate([np.asarray(v0, float), np.zeros(m)]))).ravel()
+    v1n = sol[:n]
+    return np.asarray(q0, float) + h / 2 * (np.asarray(v0, float) + v1n), v1n, sol[n:]

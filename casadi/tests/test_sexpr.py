@@ -113,5 +113,56 @@ class Tableaux(unittest.TestCase):
         np.testing.assert_allclose(tableaux.lobatto(3)["b"], [1 / 6, 2 / 3, 1 / 6], atol=1e-15)
 
 
+class Steps(unittest.TestCase):
+    PARTICLE = {
+        "name": "Particle",
+        "coordinates": ["x", "y", "z"],
+        "parameters": [],
+        "lagrangian": "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2) (^ (v z) 2))) (+ (^ (q x) 2) (^ (q y) 2)))",
+        "constraints": ["(- (v z) (* (q y) (v x)))"],
+    }
+
+    @staticmethod
+    def method(name, s, c, a, a_hat, a_tilde, b, conditions):
+        rows = lambda m: np.asarray(m, float).tolist()  # noqa: E731
+        return {"name": name, "stages": s, "c": list(c), "a": rows(a), "a_hat": rows(a_hat), "a_tilde": rows(a_tilde),
+                "b": list(b), "b_hat": list(b), "b_tilde": list(b), "conditions": conditions}
+
+    def test_lda_as_spark_equals_eq_7_3(self):
+        from spark_check.step import lda_applicable, solve_lda, solve_step
+
+        system = CasadiSystem(self.PARTICLE)
+        self.assertTrue(lda_applicable(system))
+        lo = tableaux.lobatto(2)
+        m = self.method("Lobatto IIIB-A LDA", 2, lo["c"], lo["iiib"], lo["iiia"], lo["iiia"], lo["b"],
+                        [{"kind": "multiplier_difference", "i": 0, "j": 1}])
+        q0, v0 = [1.0, 0.2, 0.0], [0.0, 1.0, 0.2]
+        spark = solve_step(system, [], m, 0.0, 0.1, q0, v0)
+        q1, v1, psi = solve_lda(system, [], 0.0, 0.1, q0, v0)
+        np.testing.assert_allclose(spark.q1, q1, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(spark.v1, v1, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(spark.psi[0], psi, rtol=0, atol=1e-14)
+
+    def test_gauss_order_on_the_particle(self):
+        # Global-order sanity of the CasADi step: one-step error of s-stage Gauss is O(h^(2s+1)).
+        from spark_check.step import solve_step
+
+        system = CasadiSystem(self.PARTICLE)
+        q0, v0 = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
+        for s in (1, 2):
+            g = tableaux.gauss(s)
+            m = self.method("Gauss", s, g["c"], g["a"], g["a"], g["a"], g["b"],
+                            [{"kind": "weights", "omega": list(g["b"] * g["c"] ** i)} for i in range(s - 1)])
+            ref = tableaux.gauss(3)
+            mref = self.method("Gauss", 3, ref["c"], ref["a"], ref["a"], ref["a"], ref["b"],
+                               [{"kind": "weights", "omega": list(ref["b"] * ref["c"] ** i)} for i in range(2)])
+            errs = []
+            for h in (0.2, 0.1):
+                errs.append(np.max(np.abs(solve_step(system, [], m, 0.0, h, q0, v0).q1
+                                          - solve_step(system, [], mref, 0.0, h, q0, v0).q1)))
+            rate = math.log2(errs[0] / errs[1])
+            self.assertGreater(rate, 2 * s + 1 - 0.5, f"s={s}: local rate {rate}")
+
+
 if __name__ == "__main__":
     unittest.main()
