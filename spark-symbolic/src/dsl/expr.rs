@@ -216,8 +216,9 @@ impl Scope<'_> {
         }
         let known = self.known_names();
         let mut msg = format!("unknown identifier `{name}`{place}");
-        if let Some(s) = nearest(name, known.iter().copied()) {
-            msg.push_str(&format!("; did you mean `{s}`?"));
+        match nearest(name, known.iter().copied()) {
+            Some(s) => msg.push_str(&format!("; did you mean `{s}`?")),
+            None => msg.push('.'),
         }
         if dynamic {
             msg.push_str(&format!(
@@ -270,8 +271,9 @@ impl Scope<'_> {
                 format!("velocity of unknown coordinate `{name}`")
             };
             let mut msg = format!("{what}; only coordinates have velocities");
-            if let Some(s) = nearest(&name, coords.iter().copied()) {
-                msg.push_str(&format!("; did you mean `dot({s})`?"));
+            match nearest(&name, coords.iter().copied()) {
+                Some(s) => msg.push_str(&format!("; did you mean `dot({s})`?")),
+                None => msg.push('.'),
             }
             msg.push_str(&format!(" Coordinates: {}.", list(&coords)));
             return err(span, msg);
@@ -553,9 +555,11 @@ impl Parser<'_, '_> {
         let funcs: Vec<&str> = Func::ALL.iter().map(|f| f.name()).collect();
         let mut msg = format!("unknown function `{name}`");
         if let Some(h) = hint {
-            msg.push_str(&format!(": {h}"));
+            msg.push_str(&format!(": {h}."));
         } else if let Some(n) = nearest(name, funcs.iter().copied().chain(["dot"])) {
             msg.push_str(&format!("; did you mean `{n}`?"));
+        } else {
+            msg.push('.');
         }
         msg.push_str(&format!(" Functions: {}, and `dot(x)` for velocities.", list(&funcs)));
         msg

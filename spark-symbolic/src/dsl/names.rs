@@ -66,13 +66,17 @@ pub(crate) fn edit_distance(a: &str, b: &str) -> usize {
 /// The candidate closest to `name`, if it is close enough to be a plausible
 /// typo (or `name` is a prefix of it, as `coord` of `coordinates`).
 pub(crate) fn nearest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
-    let limit = (name.chars().count() / 3).max(1);
+    // One- and two-letter names are too short for an edit distance to mean
+    // anything (`z` is one edit from every other letter).
+    let len = name.chars().count();
+    let limit = if len < 3 { 0 } else { (len / 3).max(1) };
     let mut best: Option<(usize, &str)> = None;
     for c in candidates {
         if c == name {
             continue;
         }
-        let d = if name.len() >= 3 && c.starts_with(name) { 1 } else { edit_distance(name, c) };
+        let prefix = (name.len() >= 3 && c.starts_with(name)) || (c.len() >= 3 && name.starts_with(c));
+        let d = if prefix { 1 } else { edit_distance(name, c) };
         if d <= limit && best.is_none_or(|(bd, _)| d < bd) {
             best = Some((d, c));
         }
@@ -103,6 +107,9 @@ mod tests {
         assert_eq!(nearest("coord", ["coordinates", "constants"]), Some("coordinates"));
         assert_eq!(nearest("zzzzzz", ["x", "theta"]), None);
         assert_eq!(nearest("constraint", ["constraints", "constants"]), Some("constraints"));
+        assert_eq!(nearest("cosine", ["sin", "cos"]), Some("cos"));
+        assert_eq!(nearest("z", ["x", "y"]), None);
+        assert_eq!(nearest("PI", ["pi"]), Some("pi"));
     }
 
     #[test]
