@@ -213,6 +213,20 @@ pub fn count_operations(model: &mut Model, params: &[Ident]) -> Operations {
     Operations { stage_values: sv.1, stage_jacobians: sj.1, bundle: bundle.1 }
 }
 
+/// The statements of the bundle CasADi is compared with (see
+/// [`Operations::bundle`]), for review of what the count covers.
+pub fn bundle_code(model: &mut Model, params: &[Ident]) -> (TokenStream, usize) {
+    let mut gen = Gen {
+        model,
+        params: params.to_vec(),
+        rt: quote!(::spark_runtime),
+        n: Literal::usize_unsuffixed(0),
+        m: Literal::usize_unsuffixed(0),
+        helpers: Vec::new(),
+    };
+    gen.fused().2
+}
+
 impl Gen<'_> {
     fn stage_outs(&self) -> (Vec<Out>, Vec<Out>) {
         let (n, m) = (self.n.clone(), self.m.clone());
@@ -264,8 +278,9 @@ impl Gen<'_> {
         for o in &bundle_outs {
             entries.extend(o.entries.iter().cloned());
         }
-        let bundle = emit(&mut self.model.graph, &entries, &inputs).ops;
-        (sv, sj, (TokenStream::new(), bundle))
+        let bundle = emit(&mut self.model.graph, &entries, &inputs);
+        let statements = bundle.statements;
+        (sv, sj, (quote!(#(#statements)*), bundle.ops))
     }
 }
 
@@ -287,12 +302,8 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
     let sig = quote!(&self, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>);
 
     // Simple methods.
-    let (lag_body, _) = gen.body(
-        "lagrangian",
-        vec![(Target::Let(format_ident!("lagrangian")), gen.model.lagrangian)],
-        &[],
-        false,
-    );
+    let (lag_body, _) =
+        gen.body("lagrangian", vec![(Target::Let(format_ident!("lagrangian")), gen.model.lagrangian)], &[], false);
     let (energy_body, _) =
         gen.body("energy", vec![(Target::Let(format_ident!("energy")), gen.model.energy)], &[], false);
     let single = |gen: &mut Gen, fname: &str, out: Out| -> TokenStream {

@@ -17,7 +17,7 @@
 //! subexpression is counted once. Zero outputs are not written (the output
 //! was created by `zeros()`), so they cost nothing.
 
-use crate::graph::{Graph, Node, NodeId, Var};
+use crate::graph::{Deps, Graph, Node, NodeId, Var};
 use crate::simplify::is_int;
 use proc_macro2::{Ident, Literal, Span, TokenStream};
 use quote::{format_ident, quote};
@@ -28,8 +28,11 @@ use std::collections::HashMap;
 #[derive(Clone, Debug)]
 enum View {
     Leaf,
-    Sum { terms: Vec<(f64, NodeId)>, constant: f64 },
-    Prod { coef: f64, num: Vec<NodeId>, den: Vec<NodeId> },
+    /// `±t1 ± t2 … + constant`, each `t` a node (positive counterpart for `−`).
+    Sum { terms: Vec<(bool, NodeId)>, constant: f64 },
+    /// `(n1 · n2) / d` with at most two numerator and one denominator node.
+    Prod { num: Vec<NodeId>, den: Vec<NodeId> },
+    Neg(NodeId),
     Times(NodeId, NodeId),
     Recip(NodeId),
     Method(&'static str, Vec<NodeId>),
@@ -44,10 +47,16 @@ impl View {
             View::Sum { terms, .. } => terms.iter().map(|t| t.1).collect(),
             View::Prod { num, den, .. } => num.iter().chain(den).copied().collect(),
             View::Times(a, b) | View::Powf(a, b) => vec![*a, *b],
-            View::Recip(a) | View::Powi(a, _) => vec![*a],
+            View::Recip(a) | View::Powi(a, _) | View::Neg(a) => vec![*a],
             View::Method(_, xs) => xs.clone(),
         }
     }
+}
+
+/// How variable a factor is: parameters only < `t` < `q` < `v` < `ψ`.
+fn rank(g: &Graph, x: NodeId) -> u8 {
+    let d = g.deps(x);
+    [(Deps::PSI, 4), (Deps::V, 3), (Deps::Q, 2), (Deps::T, 1)].iter().find(|(k, _)| d.any(*k)).map_or(0, |x| x.1)
 }
 
 fn view(g: &mut Graph, n: NodeId) -> View {
@@ -59,18 +68,23 @@ fn view(g: &mut Graph, n: NodeId) -> View {
             for &x in xs.iter() {
                 match g.as_const(x) {
                     Some(c) => constant += c,
-                    None => terms.push(g.split_coefficient(x)),
+                    None if g.split_coefficient(x).0 < 0.0 => terms.push((false, g.neg(x))),
+                    None => terms.push((true, x)),
                 }
             }
             View::Sum { terms, constant }
         }
         Node::Mul(xs) => {
-            let mut coef = 1.0;
-            let mut num = Vec::new();
+            let coef = g.as_const(xs[0]).unwrap_or(1.0);
+            if coef == -1.0 {
+                // Negate the positive product as a node of its own, so that
+                // `−a·b` and `a·b` share `a·b`.
+                return View::Neg(g.neg(n));
+            }
+            let mut items = Vec::new();
             let mut den = Vec::new();
             for &x in xs.iter() {
-                if let Some(c) = g.as_const(x) {
-                    coef *= c;
+                if g.as_const(x).is_some() {
                     continue;
                 }
                 match g.node(x).clone() {
@@ -78,10 +92,26 @@ fn view(g: &mut Graph, n: NodeId) -> View {
                         let e = g.as_const(e).unwrap_or(-1.0);
                         den.push(g.powc(b, -e));
                     }
-                    _ => num.push(x),
+                    _ => items.push(x),
                 }
             }
-            View::Prod { coef, num, den }
+            // Least variable factors first (parameters, then t, q, v, ψ):
+            // left-folded prefixes are nodes too, so `ℓ·cos θ` is shared by
+            // `ℓ·cos θ·v` and `ℓ·cos θ·ψ`, and parameter-only prefixes are
+            // hoisted.
+            items.sort_by_key(|&x| (rank(g, x), x));
+            if coef != 1.0 {
+                items.insert(0, xs[0]);
+            }
+            if items.len() >= 3 {
+                let last = items.pop().unwrap_or(xs[0]);
+                let prefix = g.mul(&items);
+                items = vec![prefix, last];
+            }
+            if den.len() >= 2 {
+                den = vec![g.mul(&den)];
+            }
+            View::Prod { num: items, den }
         }
         Node::Pow(b, e) => match g.as_const(e) {
             Some(k) if is_int(k) && k >= 2.0 && k <= 32.0 => {
@@ -271,20 +301,18 @@ impl Emitter<'_> {
                 _ => R::Lit(g.as_const(n).unwrap_or(f64::NAN)),
             },
             View::Sum { terms, constant } => {
-                let term = |c: f64, x: NodeId| if c == 1.0 { sub(x) } else { bin('*', R::Lit(c), sub(x)) };
                 let mut acc: Option<R> = None;
-                for &(c, x) in terms.iter().filter(|t| t.0 > 0.0) {
-                    let t = term(c, x);
+                for &(_, x) in terms.iter().filter(|t| t.0) {
+                    let t = sub(x);
                     acc = Some(match acc {
                         None => t,
                         Some(a) => bin('+', a, t),
                     });
                 }
-                for &(c, x) in terms.iter().filter(|t| t.0 < 0.0) {
+                for &(_, x) in terms.iter().filter(|t| !t.0) {
                     acc = Some(match acc {
-                        None if c == -1.0 => R::Neg(Box::new(sub(x))),
-                        None => bin('*', R::Lit(c), sub(x)),
-                        Some(a) => bin('-', a, term(-c, x)),
+                        None => R::Neg(Box::new(sub(x))),
+                        Some(a) => bin('-', a, sub(x)),
                     });
                 }
                 let acc = acc.unwrap_or(R::Lit(0.0));
@@ -296,34 +324,19 @@ impl Emitter<'_> {
                     acc
                 }
             }
-            View::Prod { coef, num, den } => {
-                let product = |xs: &[NodeId]| -> Option<R> {
-                    xs.iter().map(|&x| sub(x)).reduce(|a, b| bin('*', a, b))
-                };
-                let mut numer = product(num);
-                let neg = *coef == -1.0;
-                if coef.abs() != 1.0 {
-                    numer = Some(match numer {
-                        None => R::Lit(*coef),
-                        Some(x) => bin('*', R::Lit(*coef), x),
-                    });
-                }
-                let numer = numer.unwrap_or(R::Lit(1.0));
-                let e = match product(den) {
+            View::Prod { num, den } => {
+                let product =
+                    |xs: &[NodeId]| -> Option<R> { xs.iter().map(|&x| sub(x)).reduce(|a, b| bin('*', a, b)) };
+                let numer = product(num).unwrap_or(R::Lit(1.0));
+                match product(den) {
                     None => numer,
                     Some(d) => bin('/', numer, d),
-                };
-                if neg {
-                    R::Neg(Box::new(e))
-                } else {
-                    e
                 }
             }
+            View::Neg(a) => R::Neg(Box::new(sub(*a))),
             View::Times(a, b) => bin('*', sub(*a), sub(*b)),
             View::Recip(a) => bin('/', R::Lit(1.0), sub(*a)),
-            View::Method(name, xs) => {
-                R::Method(Box::new(sub(xs[0])), name, xs[1..].iter().map(|&x| sub(x)).collect())
-            }
+            View::Method(name, xs) => R::Method(Box::new(sub(xs[0])), name, xs[1..].iter().map(|&x| sub(x)).collect()),
             View::Powi(a, k) => R::Powi(Box::new(sub(*a)), *k),
             View::Powf(a, e) => R::Method(Box::new(sub(*a)), "powf", vec![sub(*e)]),
         }
@@ -361,9 +374,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         }
     }
     // Pass 2: which nodes become `let`s, parameter-only ones first.
-    let bound = |n: &NodeId| {
-        !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only())
-    };
+    let bound = |n: &NodeId| !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only());
     let mut lets: Vec<NodeId> = order.iter().copied().filter(|n| bound(n) && g.deps(*n).parameters_only()).collect();
     lets.extend(order.iter().copied().filter(|n| bound(n) && !g.deps(*n).parameters_only()));
     let mut em = Emitter { views, names: HashMap::new(), inputs };

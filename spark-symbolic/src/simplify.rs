@@ -8,9 +8,10 @@
 //! - like terms: `2x + 3x = 5x`, `x − x = 0`, `−(−x) = x`;
 //! - powers: `x·x = x²`, `x^a·x^b = x^(a+b)`, `(x^a)^n = x^(a·n)` and
 //!   `(x·y)^n = x^n·y^n` for integer `n`;
-//! - `ln(exp x) = x`, `exp(ln x) = x`.
+//! - `ln(exp x) = x`, `exp(ln x) = x`;
+//! - a number times a sum is distributed: `2(x + y) = 2x + 2y`.
 //!
-//! Nothing is distributed or expanded, so that shared subexpressions stay
+//! Nothing else is distributed or expanded, so that shared subexpressions stay
 //! shared.
 
 use crate::graph::{Fun, Graph, Node, NodeId};
@@ -191,6 +192,15 @@ impl Graph {
         out.sort();
         if out.is_empty() {
             return self.constant(coef);
+        }
+        if coef != 1.0 && out.len() == 1 {
+            if let Node::Add(terms) = self.node(out[0]).clone() {
+                // A number times a sum is distributed (as SymPy does), so
+                // that `−(−a − b)` reads `a + b` and like terms meet.
+                let c = self.constant(coef);
+                let scaled: Vec<NodeId> = terms.iter().map(|&t| self.mul(&[c, t])).collect();
+                return self.add(&scaled);
+            }
         }
         if coef != 1.0 {
             out.insert(0, self.constant(coef));
