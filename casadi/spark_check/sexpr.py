@@ -218,14 +218,3 @@ def to_sx(node: Node, env: Env):
 def translate(text: str, env: Env):
     """Parse ``text`` and build its SX expression in ``env``."""
     return to_sx(parse(text), env)
-
-
-def symbols_used(node: Node, out: set = None) -> set:
-    """The set of ``(kind, name)`` symbols a tree mentions (for diagnostics)."""
-    acc = set() if out is None else out
-    if isinstance(node, Sym):
-        acc.add((node.kind, node.name))
-    elif isinstance(node, App):
-        for a in node.args:
-            symbols_used(a, acc)
-    return acc
