@@ -294,7 +294,7 @@ where
         self.reset_warm_start();
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
         let every = options.record_every;
-        let capacity = if every == 0 { 2 } else { steps / every + 2 };
+        let capacity = steps.checked_div(every).map_or(2, |n| n + 2);
         let mut samples = Vec::with_capacity(capacity);
         let mut state = State { t: t0, q: *q0, v: v0c };
         let first = self.sample(&state, &options.observe, 0);

@@ -95,12 +95,15 @@
 
 mod driver;
 mod error;
+pub mod handwritten;
 mod initial;
 mod linalg;
 pub mod reference;
 mod stepper;
 pub mod system;
 pub mod tableau;
+#[cfg(test)]
+mod tests;
 
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,

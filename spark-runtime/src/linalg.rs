@@ -40,7 +40,8 @@ impl<const D: usize> Lu<D> {
                 }
             }
             self.perm[k] = p;
-            if !(best > 64.0 * f64::EPSILON * scale) {
+            // Written to be true for NaN pivots too.
+            if best.is_nan() || best <= 64.0 * f64::EPSILON * scale {
                 return Err(Singular { column: k, pivot: best });
             }
             if p != k {

@@ -23,6 +23,9 @@
 //! [`Stepper::new`]; a wrong `D` is a compile error at monomorphization, not
 //! a runtime failure. The [`Stepper!`](crate::Stepper!) macro computes `D`.
 
+// Stage loops index several parallel arrays (c, a, b, stage values) with one index.
+#![allow(clippy::needless_range_loop)]
+
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
 use crate::initial::consistent_acceleration;
 use crate::linalg::Lu;
@@ -572,6 +575,34 @@ where
             prev_update = update;
         }
         Err(StepError::MaxIterations { t, h, history: Box::new(history) })
+    }
+}
+
+#[cfg(test)]
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// The residual and the assembled Jacobian at `z` (for derivative tests).
+    pub(crate) fn residual_and_jacobian(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        z: &Vector<D>,
+    ) -> (Vector<D>, Matrix<D, D>) {
+        let p0 = self.system.momentum(state.t, &state.q, &state.v);
+        let mut jac = EvalJac { stages: [zero_jacobians(); S], end: zero_jacobians(), mid: None };
+        let ev = self.evaluate(state, h, z, Some(&mut jac));
+        let g = self.residual(&p0, h, z, &ev);
+        self.assemble_jacobian(h, &jac);
+        (g, self.jacobian)
+    }
+
+    /// The residual at `z`.
+    pub(crate) fn residual_at(&self, state: &State<N>, h: f64, z: &Vector<D>) -> Vector<D> {
+        let p0 = self.system.momentum(state.t, &state.q, &state.v);
+        let ev = self.evaluate(state, h, z, None);
+        self.residual(&p0, h, z, &ev)
     }
 }
 

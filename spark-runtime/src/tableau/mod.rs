@@ -199,9 +199,11 @@ fn unpack<const S: usize>(flat: &[f64]) -> [[f64; S]; S] {
 
 fn omega_of<const S: usize>(b: &[f64; S], c: &[f64; S]) -> [[f64; S]; S] {
     let mut w = [[0.0; S]; S];
-    for (i, row) in w.iter_mut().enumerate().take(S.saturating_sub(1)) {
+    let mut power = [1.0; S];
+    for row in w.iter_mut().take(S.saturating_sub(1)) {
         for j in 0..S {
-            row[j] = b[j] * c[j].powi(i as i32);
+            row[j] = b[j] * power[j];
+            power[j] *= c[j];
         }
     }
     w
@@ -440,4 +442,107 @@ family! {
     ModifiedLobattoIIIAB => ModifiedLobattoIIIAB,
     /// McLachlan–Perlmutter Lobatto IIIB-A LDA.
     LobattoIIIBALda => LobattoIIIBALda,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::conditions::{b_defect, c_defect, d_defect};
+    use super::*;
+
+    const TOL: f64 = 1e-15;
+
+    #[test]
+    fn gauss_satisfies_b2s_cs_ds() {
+        for s in 1..=MAX_STAGES {
+            let (c, b, a) = raw::gauss(s).unwrap();
+            assert!(b_defect(b, c, 2 * s) <= TOL, "Gauss s={s} B: {}", b_defect(b, c, 2 * s));
+            assert!(c_defect(a, c, s) <= TOL, "Gauss s={s} C: {}", c_defect(a, c, s));
+            assert!(d_defect(a, b, c, s) <= TOL, "Gauss s={s} D: {}", d_defect(a, b, c, s));
+        }
+    }
+
+    #[test]
+    fn lobatto_families_satisfy_their_conditions() {
+        for s in 2..=MAX_STAGES {
+            let l = raw::lobatto(s).unwrap();
+            assert!(b_defect(l.b, l.c, 2 * s - 2) <= TOL, "s={s} B");
+            assert!(c_defect(l.iiia, l.c, s) <= TOL, "IIIA s={s} C(s)");
+            assert!(d_defect(l.iiia, l.b, l.c, s - 2) <= TOL, "IIIA s={s} D(s-2)");
+            assert!(c_defect(l.iiib, l.c, s - 2) <= TOL, "IIIB s={s} C(s-2)");
+            assert!(d_defect(l.iiib, l.b, l.c, s) <= TOL, "IIIB s={s} D(s)");
+            for (name, a) in [("IIIC", l.iiic), ("IIIC*", l.iiic_star), ("IIID", l.iiid)] {
+                assert!(c_defect(a, l.c, s - 1) <= TOL, "{name} s={s} C(s-1): {}", c_defect(a, l.c, s - 1));
+                assert!(d_defect(a, l.b, l.c, s - 1) <= TOL, "{name} s={s} D(s-1): {}", d_defect(a, l.b, l.c, s - 1));
+            }
+            for i in 0..s {
+                assert_eq!(l.iiic[i * s], l.b[0], "IIIC first column is b_1");
+                assert_eq!(l.iiic_star[i * s + s - 1], 0.0, "IIIC* last column is 0");
+            }
+        }
+    }
+
+    #[test]
+    fn s2_tableaux_match_design() {
+        let l = raw::lobatto(2).unwrap();
+        assert_eq!(l.iiia, &[0.0, 0.0, 0.5, 0.5]);
+        assert_eq!(l.iiib, &[0.5, 0.0, 0.5, 0.0]);
+        assert_eq!(l.iiic, &[0.5, -0.5, 0.5, 0.5]);
+        assert_eq!(l.iiic_star, &[0.0, 0.0, 1.0, 0.0]);
+        assert_eq!(l.iiid, &[0.25, -0.25, 0.75, 0.25]);
+        let g = Tableau::<2>::new(Method::Gauss).unwrap();
+        let r = 3f64.sqrt() / 6.0;
+        assert!((g.a[0][1] - (0.25 - r)).abs() <= 1e-16 && (g.a[1][0] - (0.25 + r)).abs() <= 1e-16);
+        assert!((g.c[0] - (0.5 - r)).abs() <= 1e-16);
+    }
+
+    fn check_all<const S: usize>() {
+        for method in Method::ALL {
+            let Ok(t) = Tableau::<S>::new(method) else {
+                let (lo, hi) = method.stage_range();
+                assert!(S < lo || S > hi);
+                continue;
+            };
+            assert!(
+                t.lagrange_dalembert_defect() <= TOL,
+                "{method} s={S}: (6.2) defect {}",
+                t.lagrange_dalembert_defect()
+            );
+            let symmetric = !matches!(method, Method::SymplecticEulerI | Method::SymplecticEulerII);
+            assert_eq!(t.is_symmetric(), symmetric, "{method} s={S}");
+            if symmetric {
+                assert!(t.symmetry_defect() <= TOL, "{method} s={S}: (6.3) defect {}", t.symmetry_defect());
+            }
+            for i in 0..S.saturating_sub(1) {
+                for j in 0..S {
+                    let exact = t.b[j] * t.c[j].powi(i as i32);
+                    assert!((t.omega[i][j] - exact).abs() <= 4.0 * f64::EPSILON * exact.abs());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lagrange_dalembert_and_symmetry_conditions() {
+        check_all::<1>();
+        check_all::<2>();
+        check_all::<3>();
+        check_all::<4>();
+        check_all::<5>();
+        check_all::<6>();
+        check_all::<7>();
+        check_all::<8>();
+        check_all::<9>();
+        check_all::<10>();
+    }
+
+    #[test]
+    fn unsupported_stage_counts_are_errors() {
+        assert!(matches!(Tableau::<1>::new(Method::LobattoIIIAB), Err(TableauError::UnsupportedStages { .. })));
+        assert!(Tableau::<11>::new(Method::Gauss).is_err());
+        assert!(Tableau::<3>::new(Method::LobattoIIIBALda).is_err());
+        assert!(Tableau::<2>::new(Method::SymplecticEulerI).is_err());
+        assert!("nonsense".parse::<Method>().is_err());
+        assert_eq!("Lobatto_IIIA-B-D".parse::<Method>().unwrap(), Method::LobattoIIIABD);
+        assert_eq!(Tableau::<3>::of::<Gauss>().unwrap().order(), 6);
+    }
 }

@@ -1,0 +1,450 @@
+//! Unit tests of the stepper against hand-written systems: exact Jacobian vs
+//! finite differences, the paper's closed forms (§7.1–7.3, eqs. 7.2, 7.3),
+//! reversibility, error paths and the driver.
+
+// Stage loops index several parallel arrays (c, a, b, stage values) with one index.
+#![allow(clippy::needless_range_loop)]
+
+use crate::handwritten::{General, MobileRobot, MpParticles, Particle, Skate};
+use crate::*;
+use nalgebra::{DMatrix, DVector};
+
+type V<const N: usize> = Vector<N>;
+
+fn tab<const S: usize>(m: Method) -> Tableau<S> {
+    Tableau::new(m).unwrap()
+}
+
+// ---------------------------------------------------------------- Jacobian
+
+fn check_jacobian<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    sys: Sys,
+    method: Method,
+    state: State<N>,
+    h: f64,
+) where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let mut st = Stepper::<Sys, N, M, S, D>::new(sys, tab(method));
+    // A point away from the solution, so every block is exercised.
+    let z = Vector::<D>::from_fn(|i, _| 0.3 + 0.17 * ((i * 7 + 3) % 11) as f64 / 11.0 - 0.1 * (i % 3) as f64);
+    let (_, jac) = st.residual_and_jacobian(&state, h, &z);
+    let mut worst: f64 = 0.0;
+    for col in 0..D {
+        let eps = 1e-6 * (1.0 + z[col].abs());
+        let (mut zp, mut zm) = (z, z);
+        zp[col] += eps;
+        zm[col] -= eps;
+        let fd = (st.residual_at(&state, h, &zp) - st.residual_at(&state, h, &zm)) / (2.0 * eps);
+        for row in 0..D {
+            worst = worst.max((fd[row] - jac[(row, col)]).abs() / (1.0 + jac[(row, col)].abs()));
+        }
+    }
+    assert!(worst < 1e-7, "{method} s={S} on {}: Jacobian vs central differences {worst:e}", Sys::SOURCE.name);
+}
+
+#[test]
+fn exact_jacobian_matches_finite_differences() {
+    let g = State::new(0.4, V::<2>::new(0.3, -0.2), V::<2>::new(0.5, 0.1));
+    check_jacobian::<_, 2, 1, 1, 5>(General::default(), Method::Gauss, g, 0.3);
+    check_jacobian::<_, 2, 1, 2, 8>(General::default(), Method::Gauss, g, 0.3);
+    check_jacobian::<_, 2, 1, 3, 11>(General::default(), Method::Gauss, g, 0.3);
+    check_jacobian::<_, 2, 1, 3, 11>(General::default(), Method::LobattoIIIAB, g, 0.3);
+    check_jacobian::<_, 2, 1, 4, 14>(General::default(), Method::LobattoIIIABD, g, 0.3);
+    check_jacobian::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerI, g, 0.3);
+    check_jacobian::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerII, g, 0.3);
+    check_jacobian::<_, 2, 1, 2, 8>(General::default(), Method::ModifiedLobattoIIIAB, g, 0.3);
+    check_jacobian::<_, 2, 1, 2, 8>(General::default(), Method::LobattoIIIBALda, g, 0.3);
+    let r = State::new(0.0, V::<4>::new(0.1, 0.2, 0.7, 0.3), V::<4>::new(1.0, 0.0, 0.5, 1.0));
+    check_jacobian::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::LobattoIIIABD, r, -0.2);
+    let s = State::new(0.0, V::<3>::new(0.1, 0.2, 0.7), V::<3>::new(0.3, 0.1, 1.0));
+    check_jacobian::<_, 3, 1, 2, 11>(Skate::default(), Method::Gauss, s, 0.1);
+}
+
+// ---------------------------------------------------------------- closed forms
+
+/// Newton with a central-difference Jacobian, for the closed forms (shares
+/// nothing with the stepper's solver).
+fn fd_newton(f: impl Fn(&DVector<f64>) -> DVector<f64>, x0: DVector<f64>) -> DVector<f64> {
+    let mut x = x0;
+    for _ in 0..50 {
+        let g = f(&x);
+        let n = x.len();
+        let mut j = DMatrix::zeros(n, n);
+        for c in 0..n {
+            let eps = 1e-7 * (1.0 + x[c].abs());
+            let (mut xp, mut xm) = (x.clone(), x.clone());
+            xp[c] += eps;
+            xm[c] -= eps;
+            j.set_column(c, &((f(&xp) - f(&xm)) / (2.0 * eps)));
+        }
+        let dx = j.lu().solve(&g).unwrap();
+        x -= &dx;
+        if dx.amax() < 1e-16 * (1.0 + x.amax()) {
+            break;
+        }
+    }
+    x
+}
+
+/// `L = ½vᵀMv − U(q)`, `k = K(q)v + b(q)` pieces of a system, read from the
+/// trait at the point where each is needed (M is constant).
+struct Mech<'a, Sys, const N: usize, const M: usize>(&'a Sys);
+
+impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> Mech<'_, Sys, N, M> {
+    fn m(&self) -> Matrix<N, N> {
+        self.0.mass_matrix(0.0, &V::zeros(), &V::zeros())
+    }
+    fn grad_u(&self, q: &V<N>) -> V<N> {
+        -self.0.force(0.0, q, &V::zeros())
+    }
+    fn k(&self, q: &V<N>) -> Matrix<M, N> {
+        self.0.constraint_v(0.0, q, &V::zeros())
+    }
+    fn b(&self, q: &V<N>) -> V<M> {
+        self.0.constraint(0.0, q, &V::zeros())
+    }
+}
+
+fn dv<const N: usize>(x: &DVector<f64>, at: usize) -> V<N> {
+    V::<N>::from_fn(|i, _| x[at + i])
+}
+
+/// The paper's closed forms for one step; returns `(q₁, v₁)`.
+fn closed_form<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    method: Method,
+    q0: &V<N>,
+    v0: &V<N>,
+    h: f64,
+) -> (V<N>, V<N>)
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let s = Mech(sys);
+    let mm = s.m();
+    let x0 = DVector::from_iterator(N + M, v0.iter().copied().chain(std::iter::repeat_n(0.0, M)));
+    let cat = |a: V<N>, b: V<M>| DVector::from_iterator(N + M, a.iter().copied().chain(b.iter().copied()));
+    match method {
+        // §7.1: q₁ = q₀ + hv₁, Mv₁ = Mv₀ − h(∇U(q₀) + K(q₀)ᵀΨ), K(q₁)v₁ + b(q₁) = 0.
+        Method::SymplecticEulerI => {
+            let x = fd_newton(
+                |x| {
+                    let (v1, psi) = (dv::<N>(x, 0), dv::<M>(x, N));
+                    let q1 = q0 + h * v1;
+                    cat(mm * (v1 - v0) + h * (s.grad_u(q0) + s.k(q0).transpose() * psi), s.k(&q1) * v1 + s.b(&q1))
+                },
+                x0,
+            );
+            let v1 = dv::<N>(&x, 0);
+            (q0 + h * v1, v1)
+        }
+        // §7.2: q₁ = q₀ + hv₀, Mv₁ = Mv₀ − h(∇U(q₁) + K(q₁)ᵀΨ), K(q₁)v₁ + b(q₁) = 0.
+        Method::SymplecticEulerII => {
+            let q1 = q0 + h * v0;
+            let x = fd_newton(
+                |x| {
+                    let (v1, psi) = (dv::<N>(x, 0), dv::<M>(x, N));
+                    cat(mm * (v1 - v0) + h * (s.grad_u(&q1) + s.k(&q1).transpose() * psi), s.k(&q1) * v1 + s.b(&q1))
+                },
+                x0,
+            );
+            (q1, dv::<N>(&x, 0))
+        }
+        // §7.3: q₁ = q₀ + (h/2)(v₀+v₁), Mv₁ = Mv₀ − h∇U(q̄) − hK(q̄)ᵀΨ, K(q₁)v₁ + b(q₁) = 0.
+        Method::Gauss => {
+            let x = fd_newton(
+                |x| {
+                    let (v1, psi) = (dv::<N>(x, 0), dv::<M>(x, N));
+                    let q1 = q0 + 0.5 * h * (v0 + v1);
+                    let qm = 0.5 * (q0 + q1);
+                    cat(mm * (v1 - v0) + h * s.grad_u(&qm) + h * s.k(&qm).transpose() * psi, s.k(&q1) * v1 + s.b(&q1))
+                },
+                x0,
+            );
+            let v1 = dv::<N>(&x, 0);
+            (q0 + 0.5 * h * (v0 + v1), v1)
+        }
+        // (7.2) and, for the §8.4 variant, its condition replaced by
+        // K(q₀ + (h/2)V₁)V₁ + b(q₀ + (h/2)V₁) = 0.
+        Method::LobattoIIIAB | Method::ModifiedLobattoIIIAB => {
+            let x = fd_newton(
+                |x| {
+                    let (v, psi) = (dv::<N>(x, 0), dv::<M>(x, N));
+                    let q1 = q0 + h * v;
+                    let cond = if method == Method::LobattoIIIAB {
+                        0.5 * (s.k(q0) * v + s.b(q0)) + 0.5 * (s.k(&q1) * v + s.b(&q1))
+                    } else {
+                        let qm = q0 + 0.5 * h * v;
+                        s.k(&qm) * v + s.b(&qm)
+                    };
+                    cat(mm * (v - v0) + 0.5 * h * (s.grad_u(q0) + s.k(q0).transpose() * psi), cond)
+                },
+                x0.clone(),
+            );
+            let big_v = dv::<N>(&x, 0);
+            let q1 = q0 + h * big_v;
+            // Mv₁ + K(q₁)ᵀ(h/2 Ψ₂) = MV₁ − (h/2)∇U(q₁), K(q₁)v₁ = −b(q₁): linear.
+            let y = fd_newton(
+                |y| {
+                    let (v1, mu) = (dv::<N>(y, 0), dv::<M>(y, N));
+                    cat(
+                        mm * v1 + s.k(&q1).transpose() * mu - mm * big_v + 0.5 * h * s.grad_u(&q1),
+                        s.k(&q1) * v1 + s.b(&q1),
+                    )
+                },
+                x0,
+            );
+            (q1, dv::<N>(&y, 0))
+        }
+        // (7.3): Q₁ = q₀ + (h/2)v₀, Mv₁ = Mv₀ − h(∇U(Q₁) + K(Q₁)ᵀΨ), q₁ = q₀ + (h/2)(v₀+v₁), K(q₁)v₁ + b(q₁) = 0.
+        Method::LobattoIIIBALda => {
+            let qm = q0 + 0.5 * h * v0;
+            let x = fd_newton(
+                |x| {
+                    let (v1, psi) = (dv::<N>(x, 0), dv::<M>(x, N));
+                    let q1 = q0 + 0.5 * h * (v0 + v1);
+                    cat(mm * (v1 - v0) + h * (s.grad_u(&qm) + s.k(&qm).transpose() * psi), s.k(&q1) * v1 + s.b(&q1))
+                },
+                x0,
+            );
+            let v1 = dv::<N>(&x, 0);
+            (q0 + 0.5 * h * (v0 + v1), v1)
+        }
+        Method::LobattoIIIABD => unreachable!("no closed form in the paper"),
+    }
+}
+
+fn compare_closed_form<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    sys: Sys,
+    method: Method,
+    q0: V<N>,
+    v0: V<N>,
+    h: f64,
+    steps: usize,
+) where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let mut st = Stepper::<Sys, N, M, S, D>::new(sys.clone(), tab(method));
+    let mut state = State::new(0.0, q0, v0);
+    let (mut q, mut v) = (q0, v0);
+    for k in 0..steps {
+        state = st.step(&state, h).unwrap().state;
+        (q, v) = closed_form(&sys, method, &q, &v, h);
+        let err = (state.q - q).amax().max((state.v - v).amax());
+        assert!(err <= 1e-13, "{method} on {} step {k}: SPARK vs closed form differ by {err:e}", Sys::SOURCE.name);
+    }
+}
+
+#[test]
+fn s1_methods_and_lobatto_s2_match_the_paper_closed_forms() {
+    let (pq, pv) = (V::<3>::new(1.0, 0.0, 0.0), V::<3>::new(0.0, 1.0, 0.0));
+    let (sq, sv) = (V::<3>::new(0.0, 0.0, 0.0), V::<3>::new(0.0, 0.0, 1.0));
+    let (rq, rv) = (V::<4>::zeros(), V::<4>::new(1.0, 0.0, 0.5, 1.0));
+    for m in [Method::SymplecticEulerI, Method::SymplecticEulerII, Method::Gauss] {
+        compare_closed_form::<_, 3, 1, 1, 7>(Particle, m, pq, pv, 0.2, 20);
+        compare_closed_form::<_, 3, 1, 1, 7>(Skate::default(), m, sq, sv, 0.1, 20);
+        compare_closed_form::<_, 4, 2, 1, 10>(MobileRobot::default(), m, rq, rv, 0.2, 20);
+    }
+    for m in [Method::LobattoIIIAB, Method::ModifiedLobattoIIIAB, Method::LobattoIIIBALda] {
+        compare_closed_form::<_, 3, 1, 2, 11>(Particle, m, pq, pv, 0.2, 20);
+        compare_closed_form::<_, 3, 1, 2, 11>(Skate::default(), m, sq, sv, 0.1, 20);
+        compare_closed_form::<_, 4, 2, 2, 16>(MobileRobot::default(), m, rq, rv, 0.2, 20);
+        let mq = V::<7>::from_row_slice(&[0.8, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+        let mv = V::<7>::from_row_slice(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        compare_closed_form::<_, 7, 1, 2, 23>(MpParticles, m, mq, mv, 0.05, 20);
+    }
+}
+
+// ---------------------------------------------------------------- reversibility
+
+fn round_trip<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    sys: Sys,
+    method: Method,
+    start: State<N>,
+    h: f64,
+    steps: usize,
+) -> f64
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let mut st = Stepper::<Sys, N, M, S, D>::new(sys, tab(method));
+    let mut s = start;
+    for _ in 0..steps {
+        s = st.step(&s, h).unwrap().state;
+    }
+    for _ in 0..steps {
+        s = st.step(&s, -h).unwrap().state;
+    }
+    (s.q - start.q).amax().max((s.v - start.v).amax())
+}
+
+#[test]
+fn symmetric_methods_retrace_their_steps_and_euler_methods_do_not() {
+    let skate = State::new(0.0, V::<3>::zeros(), V::<3>::new(0.0, 0.0, 1.0));
+    let robot = State::new(0.0, V::<4>::zeros(), V::<4>::new(1.0, 0.0, 0.5, 1.0));
+    let general = State::new(0.0, V::<2>::new(0.3, -0.2), V::<2>::new(0.5, 0.15 + 0.05 * 0.25));
+    let mut g = general;
+    g.v[1] = g.q[0] * g.v[0] + 0.1 * g.v[0] * g.v[0];
+    for m in [Method::Gauss, Method::LobattoIIIAB, Method::LobattoIIIABD] {
+        if m == Method::Gauss {
+            assert!(round_trip::<_, 3, 1, 1, 7>(Skate::default(), m, skate, 0.1, 50) <= 1e-12);
+        }
+        assert!(round_trip::<_, 3, 1, 2, 11>(Skate::default(), m, skate, 0.1, 50) <= 1e-12, "{m}");
+        assert!(round_trip::<_, 4, 2, 3, 22>(MobileRobot::default(), m, robot, 0.2, 50) <= 1e-12, "{m}");
+        assert!(round_trip::<_, 2, 1, 3, 11>(General::default(), m, g, 0.1, 30) <= 1e-12, "{m}");
+    }
+    for m in [Method::SymplecticEulerI, Method::SymplecticEulerII] {
+        let d = round_trip::<_, 4, 2, 1, 10>(MobileRobot::default(), m, robot, 0.2, 50);
+        assert!(d > 1e-6, "{m} is not symmetric, yet it returned to the start within {d:e}");
+    }
+}
+
+// ---------------------------------------------------------------- Newton and errors
+
+#[test]
+fn simplified_newton_reaches_the_same_solution() {
+    let start = State::new(0.0, V::<4>::zeros(), V::<4>::new(1.0, 0.0, 0.5, 1.0));
+    let mut full = Stepper::<_, 4, 2, 3, 22>::new(MobileRobot::default(), tab(Method::Gauss));
+    let opts = NewtonOptions { mode: NewtonMode::Simplified, ..NewtonOptions::default() };
+    let mut simp = Stepper::<_, 4, 2, 3, 22>::new(MobileRobot::default(), tab(Method::Gauss)).with_options(opts);
+    let (mut a, mut b) = (start, start);
+    let (mut ia, mut ib) = (0, 0);
+    for _ in 0..40 {
+        let ra = full.step(&a, 0.2).unwrap();
+        let rb = simp.step(&b, 0.2).unwrap();
+        (a, b) = (ra.state, rb.state);
+        ia += ra.iterations;
+        ib += rb.iterations;
+    }
+    assert!((a.q - b.q).amax() < 1e-12 && (a.v - b.v).amax() < 1e-12);
+    assert!(ib >= ia, "simplified Newton ({ib}) should not need fewer iterations than full Newton ({ia})");
+}
+
+#[test]
+fn failures_are_typed_errors() {
+    let mut st = Stepper::<_, 3, 1, 2, 11>::new(Skate::default(), tab(Method::Gauss));
+    let s = State::new(0.0, V::<3>::zeros(), V::<3>::new(0.0, 0.0, 1.0));
+    assert!(matches!(st.step(&s, 0.0), Err(StepError::InvalidStep { .. })));
+    assert!(matches!(st.step(&s, f64::NAN), Err(StepError::InvalidStep { .. })));
+    let bad = State::new(0.0, V::<3>::new(f64::NAN, 0.0, 0.0), s.v);
+    assert!(matches!(st.step(&bad, 0.1), Err(StepError::InvalidStep { .. })));
+    // A huge step on the stiff quartic MP potential: Newton cannot converge.
+    let mut mp = Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tab(Method::Gauss));
+    let q = V::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+    let v = V::<7>::from_row_slice(&[0.0, 5.0, 3.0, 0.0, 0.0, 0.0, 0.0]);
+    let err = mp.step(&State::new(0.0, q, v), 40.0).unwrap_err();
+    let hist = err.history().expect("Newton failures carry their history");
+    assert!(!hist.is_empty(), "{err}");
+    assert!(matches!(
+        err,
+        StepError::Diverged { .. }
+            | StepError::MaxIterations { .. }
+            | StepError::SingularMatrix { .. }
+            | StepError::NonFinite { .. }
+    ));
+    // A singular Newton matrix: zero mass for the skate's heading.
+    let mut sk = Stepper::<_, 3, 1, 2, 11>::new(Skate { inertia: 0.0, ..Skate::default() }, tab(Method::Gauss));
+    assert!(matches!(sk.step(&s, 0.1), Err(StepError::SingularMatrix { .. })), "{:?}", sk.step(&s, 0.1));
+}
+
+#[test]
+fn inconsistent_initial_velocity_is_rejected_or_projected() {
+    let sys = MobileRobot::default();
+    let q0 = V::<4>::new(0.0, 0.0, 0.3, 0.0);
+    let v0 = V::<4>::new(1.0, 0.5, 0.5, 1.0);
+    let err = consistent_velocity(&sys, 0.0, &q0, &v0, ConsistencyPolicy::Error { tolerance: 1e-12 }).unwrap_err();
+    assert!(matches!(err, StepError::InconsistentInitialState { .. }));
+    let v = consistent_velocity(&sys, 0.0, &q0, &v0, ConsistencyPolicy::Project { tolerance: 1e-12 }).unwrap();
+    assert!(sys.constraint(0.0, &q0, &v).amax() < 1e-15);
+    // Optimality: W(v − v₀) lies in the range of Kᵀ, i.e. is orthogonal to ker K.
+    let w = sys.mass_matrix(0.0, &q0, &v0);
+    let k = sys.constraint_v(0.0, &q0, &v0);
+    let r = w * (v - v0);
+    let lambda = (k * k.transpose()).try_inverse().unwrap() * (k * r);
+    assert!((r - k.transpose() * lambda).amax() < 1e-14);
+    // Nonlinear constraint: Newton projection.
+    let g = General::default();
+    let (q, gv0) = (V::<2>::new(0.3, 0.1), V::<2>::new(0.7, 0.0));
+    let v = consistent_velocity(&g, 0.2, &q, &gv0, ConsistencyPolicy::Project { tolerance: 0.0 }).unwrap();
+    assert!(g.constraint(0.2, &q, &v).amax() < 1e-15);
+    // The driver projects by option and reports it.
+    let mut st = Stepper::<_, 4, 2, 2, 16>::new(sys, tab(Method::LobattoIIIABD));
+    let opts = RunOptions { consistency: ConsistencyPolicy::Project { tolerance: 1e-12 }, ..RunOptions::default() };
+    let tr = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.1, steps: 10 }, &opts, &mut NoObserver).unwrap();
+    assert!(tr.report.projected_initial_velocity && tr.report.max_constraint_residual <= 1e-14);
+    let e = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.1, steps: 10 }, &RunOptions::default(), &mut NoObserver);
+    assert!(matches!(e, Err(IntegrationError::Initial(StepError::InconsistentInitialState { .. }))));
+}
+
+// ---------------------------------------------------------------- driver
+
+#[test]
+fn driver_handles_time_lists_backward_steps_and_serializes() {
+    let mut st = Stepper::<_, 3, 1, 3, 15>::new(Skate::default(), tab(Method::LobattoIIIAB));
+    let (q0, v0) = (V::<3>::zeros(), V::<3>::new(0.0, 0.0, 1.0));
+    let times = [0.05, 0.2, 0.25, 0.6, 0.3, -0.1];
+    let opts = RunOptions { observe: Observe { multipliers: true, ..Observe::default() }, ..RunOptions::default() };
+    let mut seen = 0;
+    let tr =
+        st.integrate(0.0, &q0, &v0, Schedule::Times(&times), &opts, &mut |_: &State<3>, _: usize| seen += 1).unwrap();
+    assert_eq!(seen, times.len());
+    assert_eq!(tr.samples.len(), times.len() + 1);
+    for (s, t) in tr.samples[1..].iter().zip(times) {
+        assert_eq!(s.t, t);
+    }
+    // Exact skate solution: θ = t, x = (g sinβ/2)(t − sin(t)cos(t))… checked via the energy and constraint.
+    assert!(tr.report.max_constraint_residual <= 1e-14);
+    assert!(tr.report.max_energy_error < 1e-4);
+    let psi = tr.samples[0].multipliers.unwrap();
+    assert!(psi.iter().all(|x| x.is_finite()));
+    let csv = tr.to_csv_string().unwrap();
+    assert!(csv.starts_with("t,q_x,q_y,q_theta,v_x,v_y,v_theta,energy,constraint_residual,psi_1,newton_iterations"));
+    assert_eq!(csv.lines().count(), times.len() + 2);
+    let json = tr.to_json_string().unwrap();
+    let back: Trajectory<3, 1> = serde_json::from_str(&json).unwrap();
+    assert_eq!(back, tr);
+    assert!(matches!(
+        st.integrate(0.0, &q0, &v0, Schedule::Times(&[0.1, 0.1]), &opts, &mut NoObserver),
+        Err(IntegrationError::InvalidSchedule(_))
+    ));
+    // record_every thins the output but keeps the endpoints.
+    let opts = RunOptions { record_every: 7, ..RunOptions::default() };
+    let tr = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: -0.1, steps: 20 }, &opts, &mut NoObserver).unwrap();
+    assert_eq!(tr.samples.len(), 1 + 2 + 1);
+    assert_eq!(tr.samples.last().unwrap().t, -2.0);
+    assert_eq!(tr.report.steps, 20);
+    assert!(tr.report.newton_iterations_mean >= 1.0);
+}
+
+#[test]
+fn stepper_macro_computes_d() {
+    let mut st: crate::Stepper![Skate, 4] = Stepper::new(Skate::default(), tab(Method::Gauss));
+    let r = st.step(&State::new(0.0, V::<3>::zeros(), V::<3>::new(0.0, 0.0, 1.0)), 0.1).unwrap();
+    assert_eq!(r.stage_velocities.len(), 4);
+    let _: crate::Stepper![MobileRobot, 2] = Stepper::new(MobileRobot::default(), tab(Method::LobattoIIIABD));
+}
+
+#[test]
+fn general_system_converges_at_the_expected_order() {
+    // Time-dependent, non-separable, nonlinear constraint: the general path.
+    let sys = General::default();
+    let q0 = V::<2>::new(0.3, -0.2);
+    let mut v0 = V::<2>::new(0.5, 0.0);
+    v0 = consistent_velocity(&sys, 0.0, &q0, &v0, ConsistencyPolicy::Project { tolerance: 0.0 }).unwrap();
+    let t_end = 1.0;
+    let refsol = reference::integrate(&sys, 0.0, &q0, &v0, t_end, &reference::ReferenceOptions::default()).unwrap();
+    let (qr, vr) = (refsol.q[0], refsol.v[0]);
+    let err = |h_steps: usize| -> f64 {
+        let mut st = Stepper::<_, 2, 1, 2, 8>::new(sys, tab(Method::Gauss));
+        let h = t_end / h_steps as f64;
+        let mut s = State::new(0.0, q0, v0);
+        for _ in 0..h_steps {
+            s = st.step(&s, h).unwrap().state;
+        }
+        (s.q - qr).amax().max((s.v - vr).amax())
+    };
+    let (e1, e2) = (err(10), err(20));
+    let order = (e1 / e2).log2();
+    assert!((order - 4.0).abs() < 0.2, "Gauss s=2 order on the general system: {order} ({e1:e}, {e2:e})");
+}
