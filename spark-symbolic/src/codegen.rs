@@ -421,13 +421,14 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
             #(#fields)*
         }
 
+        #[allow(clippy::all)]
         impl ::core::default::Default for #name {
             fn default() -> Self {
                 Self { #(#defaults)* }
             }
         }
 
-        #[allow(dead_code)]
+        #[allow(dead_code, unused_variables, unused_mut, clippy::all)]
         impl #name {
             #[doc = #doc_n]
             pub const N: usize = #n;

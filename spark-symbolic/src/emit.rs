@@ -29,9 +29,15 @@ use std::collections::HashMap;
 enum View {
     Leaf,
     /// `±t1 ± t2 … + constant`, each `t` a node (positive counterpart for `−`).
-    Sum { terms: Vec<(bool, NodeId)>, constant: f64 },
+    Sum {
+        terms: Vec<(bool, NodeId)>,
+        constant: f64,
+    },
     /// `(n1 · n2) / d` with at most two numerator and one denominator node.
-    Prod { num: Vec<NodeId>, den: Vec<NodeId> },
+    Prod {
+        num: Vec<NodeId>,
+        den: Vec<NodeId>,
+    },
     Neg(NodeId),
     Times(NodeId, NodeId),
     Recip(NodeId),
@@ -325,8 +331,7 @@ impl Emitter<'_> {
                 }
             }
             View::Prod { num, den } => {
-                let product =
-                    |xs: &[NodeId]| -> Option<R> { xs.iter().map(|&x| sub(x)).reduce(|a, b| bin('*', a, b)) };
+                let product = |xs: &[NodeId]| -> Option<R> { xs.iter().map(|&x| sub(x)).reduce(|a, b| bin('*', a, b)) };
                 let numer = product(num).unwrap_or(R::Lit(1.0));
                 match product(den) {
                     None => numer,

@@ -108,10 +108,7 @@ impl<'a> Lowerer<'a> {
             }
             SrcExpr::Call(f, args, s) => {
                 if args.len() != f.arity() {
-                    return Err(err(
-                        *s,
-                        format!("`{}` takes {} argument(s), got {}", f.name(), f.arity(), args.len()),
-                    ));
+                    return Err(err(*s, format!("`{}` takes {} argument(s), got {}", f.name(), f.arity(), args.len())));
                 }
                 let mut xs = Vec::with_capacity(args.len());
                 for a in args {

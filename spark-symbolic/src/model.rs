@@ -179,11 +179,12 @@ impl Model {
         }
         let mut r = Vec::with_capacity(n);
         for i in 0..n {
-            let terms: Vec<NodeId> = (0..m).map(|j| {
-                let psi = g.var(Var::Psi(j as u32));
-                g.mul2(constraint_v[j][i], psi)
-            })
-            .collect();
+            let terms: Vec<NodeId> = (0..m)
+                .map(|j| {
+                    let psi = g.var(Var::Psi(j as u32));
+                    g.mul2(constraint_v[j][i], psi)
+                })
+                .collect();
             let s = g.add(&terms);
             r.push(g.neg(s));
         }
@@ -197,11 +198,12 @@ impl Model {
         let momentum_t: Vec<NodeId> = momentum.iter().map(|&p| d.diff(&mut g, p, Var::Time)).collect();
         let force_t: Vec<NodeId> = force.iter().map(|&f| d.diff(&mut g, f, Var::Time)).collect();
         let constraint_t: Vec<NodeId> = constraint.iter().map(|&k| d.diff(&mut g, k, Var::Time)).collect();
-        let pv: Vec<NodeId> = (0..n).map(|i| {
-            let vi = g.var(Var::V(i as u32));
-            g.mul2(momentum[i], vi)
-        })
-        .collect();
+        let pv: Vec<NodeId> = (0..n)
+            .map(|i| {
+                let vi = g.var(Var::V(i as u32));
+                g.mul2(momentum[i], vi)
+            })
+            .collect();
         let pv = g.add(&pv);
         let energy = g.sub(pv, lagrangian);
 

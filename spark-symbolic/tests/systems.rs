@@ -137,3 +137,17 @@ fn print_bundles() {
         println!("// {}: {ops} operations\n{}", s.name, code.to_string().replace(';', ";\n"));
     }
 }
+
+/// Operation counts grow linearly with `n` for the McLachlan–Perlmutter
+/// particles, like the expressions themselves (each coordinate adds O(1)
+/// terms to `L`, `k` and every derivative).
+#[test]
+fn mclachlan_perlmutter_counts_grow_linearly() {
+    let counts: Vec<(usize, usize)> = [7, 51, 201]
+        .iter()
+        .map(|&n| (n, analyze(&mclachlan_perlmutter(n)).expect("mp").operations.stage_jacobians))
+        .collect();
+    println!("McLachlan–Perlmutter stage_jacobians ops (n, ops): {counts:?}");
+    let per = |(n, ops): (usize, usize)| ops as f64 / n as f64;
+    assert!(per(counts[2]) <= 1.05 * per(counts[1]), "{counts:?}");
+}
