@@ -1,2 +1,5 @@
 //! The paper's systems and the `spark` command-line program.
 pub mod casadi_export;
+pub mod plot;
+pub mod analysis;
+pub mod progress;

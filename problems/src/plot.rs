@@ -1,0 +1,346 @@
+//! Line charts written as PNG and SVG with plotters.
+//!
+//! This module owns figure layout and rendering. Text is drawn with the
+//! DejaVu Sans font embedded in the binary (`problems/assets/DejaVuSans.ttf`,
+//! Bitstream Vera licence in `assets/DejaVuSans-LICENSE.txt`) and registered
+//! with plotters' `ab_glyph` font loader, so rendering needs no system font
+//! library at run time.
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::{register_font, FontStyle};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// The font family name every chart uses.
+const FONT: &str = "sans-serif";
+static FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+/// Colours for successive series (colour-blind-safe Okabe–Ito order).
+const COLORS: [RGBColor; 7] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(86, 180, 233),
+    RGBColor(230, 159, 0),
+    RGBColor(0, 0, 0),
+];
+
+/// Errors while drawing or writing a figure.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    /// The embedded font could not be parsed (a corrupted build).
+    #[error("the embedded font could not be loaded")]
+    Font,
+    /// The figure has nothing to draw in some panel.
+    #[error("panel `{panel}` of figure `{figure}` has no finite points to draw{hint}")]
+    Empty {
+        /// Figure title.
+        figure: String,
+        /// Panel title.
+        panel: String,
+        /// Extra explanation (log scales drop non-positive values).
+        hint: &'static str,
+    },
+    /// plotters failed while drawing or writing the file.
+    #[error("could not draw {path}: {message}")]
+    Draw {
+        /// Output file.
+        path: PathBuf,
+        /// The backend's message.
+        message: String,
+    },
+}
+
+/// Axis scale.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scale {
+    /// Linear axis.
+    Linear,
+    /// Base-10 logarithmic axis (non-positive values are left out).
+    Log,
+}
+
+/// One curve.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Series {
+    /// Legend text.
+    pub label: String,
+    /// `(x, y)` points in drawing order.
+    pub points: Vec<(f64, f64)>,
+    /// Draw dashed (for reference lines such as a fitted slope).
+    pub dashed: bool,
+}
+
+impl Series {
+    /// A solid curve.
+    pub fn new(label: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Series { label: label.into(), points, dashed: false }
+    }
+}
+
+/// One set of axes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Panel {
+    /// Caption above the axes.
+    pub title: String,
+    /// Horizontal axis label.
+    pub x_label: String,
+    /// Vertical axis label.
+    pub y_label: String,
+    /// Horizontal scale.
+    pub x_scale: Scale,
+    /// Vertical scale.
+    pub y_scale: Scale,
+    /// The curves.
+    pub series: Vec<Series>,
+}
+
+/// Panels on a grid, filled row by row.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Figure {
+    /// Title across the top.
+    pub title: String,
+    /// The panels.
+    pub panels: Vec<Panel>,
+    /// Panels per row.
+    pub columns: usize,
+    /// Pixel size of one panel.
+    pub panel_size: (u32, u32),
+}
+
+fn ensure_font() -> Result<(), PlotError> {
+    static REGISTERED: OnceLock<bool> = OnceLock::new();
+    let ok = *REGISTERED.get_or_init(|| register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok());
+    if ok {
+        Ok(())
+    } else {
+        Err(PlotError::Font)
+    }
+}
+
+/// Writes `fig` as `<stem>.png` and `<stem>.svg` and returns both paths.
+pub fn render(fig: &Figure, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
+    ensure_font()?;
+    let columns = fig.columns.max(1);
+    let rows = fig.panels.len().div_ceil(columns).max(1);
+    let size = (fig.panel_size.0 * columns as u32, fig.panel_size.1 * rows as u32 + 40);
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    {
+        let root = BitMapBackend::new(&png, size).into_drawing_area();
+        draw(fig, &root, rows, columns).map_err(|m| draw_error(&png, m))?;
+        root.present().map_err(|e| draw_error(&png, e.to_string()))?;
+    }
+    {
+        let root = SVGBackend::new(&svg, size).into_drawing_area();
+        draw(fig, &root, rows, columns).map_err(|m| draw_error(&svg, m))?;
+        root.present().map_err(|e| draw_error(&svg, e.to_string()))?;
+    }
+    Ok(vec![png, svg])
+}
+
+fn draw_error(path: &Path, message: String) -> PlotError {
+    PlotError::Draw { path: path.to_path_buf(), message }
+}
+
+/// Error type inside drawing: either our own empty-panel error or a backend
+/// message; kept as `String` because backends' error types differ.
+fn draw<DB: DrawingBackend>(
+    fig: &Figure,
+    root: &DrawingArea<DB, Shift>,
+    rows: usize,
+    columns: usize,
+) -> Result<(), String> {
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let root = root.titled(&fig.title, (FONT, 24)).map_err(|e| e.to_string())?;
+    let areas = root.split_evenly((rows, columns));
+    for (panel, area) in fig.panels.iter().zip(areas.iter()) {
+        draw_panel(&fig.title, panel, area)?;
+    }
+    Ok(())
+}
+
+/// Finite points of a series that the axis scales can show.
+fn visible(points: &[(f64, f64)], xs: Scale, ys: Scale) -> Vec<(f64, f64)> {
+    points
+        .iter()
+        .copied()
+        .filter(|(x, y)| {
+            x.is_finite() && y.is_finite() && (xs == Scale::Linear || *x > 0.0) && (ys == Scale::Linear || *y > 0.0)
+        })
+        .collect()
+}
+
+/// Data range padded by 5 % (or widened around a constant).
+fn range(lo: f64, hi: f64, scale: Scale) -> (f64, f64) {
+    match scale {
+        Scale::Linear => {
+            if hi > lo {
+                let pad = 0.05 * (hi - lo);
+                (lo - pad, hi + pad)
+            } else {
+                let pad = if lo == 0.0 { 1.0 } else { 0.1 * lo.abs() };
+                (lo - pad, hi + pad)
+            }
+        }
+        Scale::Log => {
+            if hi > lo {
+                (lo / 1.5, hi * 1.5)
+            } else {
+                (lo / 10.0, hi * 10.0)
+            }
+        }
+    }
+}
+
+fn tick_label(v: f64) -> String {
+    if v == 0.0 {
+        "0".into()
+    } else if v.abs() >= 1e-2 && v.abs() < 1e5 {
+        let s = format!("{v:.4}");
+        let s = s.trim_end_matches('0').trim_end_matches('.');
+        s.to_string()
+    } else {
+        format!("{v:.1e}")
+    }
+}
+
+fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    let data: Vec<Vec<(f64, f64)>> =
+        panel.series.iter().map(|s| visible(&s.points, panel.x_scale, panel.y_scale)).collect();
+    let all = data.iter().flatten();
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    for &(x, y) in all {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if !x0.is_finite() {
+        let hint = if panel.y_scale == Scale::Log { " (log scale drops values ≤ 0)" } else { "" };
+        return Err(PlotError::Empty { figure: figure.into(), panel: panel.title.clone(), hint }.to_string());
+    }
+    let (x0, x1) = if panel.x_scale == Scale::Log { range(x0, x1, Scale::Log) } else { (x0, x1.max(x0 + 1e-300)) };
+    let (y0, y1) = range(y0, y1, panel.y_scale);
+    let mut builder = ChartBuilder::on(area);
+    builder.caption(&panel.title, (FONT, 18)).margin(12).x_label_area_size(44).y_label_area_size(84);
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    // plotters types the coordinate system by scale, so each combination is
+    // its own code path; the macro keeps them identical.
+    macro_rules! finish {
+        ($chart:expr) => {{
+            let mut chart = $chart;
+            chart
+                .configure_mesh()
+                .x_desc(&panel.x_label)
+                .y_desc(&panel.y_label)
+                .x_label_formatter(&|v| tick_label(*v))
+                .y_label_formatter(&|v| tick_label(*v))
+                .label_style((FONT, 13))
+                .axis_desc_style((FONT, 15))
+                .light_line_style(WHITE.mix(0.0))
+                .draw()
+                .map_err(e)?;
+            for (k, (series, pts)) in panel.series.iter().zip(data.iter()).enumerate() {
+                let color = COLORS[k % COLORS.len()];
+                let style = ShapeStyle::from(&color).stroke_width(if series.dashed { 1 } else { 2 });
+                if series.dashed {
+                    chart
+                        .draw_series(DashedLineSeries::new(pts.iter().copied(), 6, 4, style))
+                        .map_err(e)?
+                        .label(series.label.clone())
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+                } else {
+                    chart
+                        .draw_series(LineSeries::new(pts.iter().copied(), style))
+                        .map_err(e)?
+                        .label(series.label.clone())
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                }
+            }
+            chart
+                .configure_series_labels()
+                .label_font((FONT, 13))
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK.mix(0.4))
+                .position(SeriesLabelPosition::UpperLeft)
+                .draw()
+                .map_err(e)?;
+        }};
+    }
+    match (panel.x_scale, panel.y_scale) {
+        (Scale::Linear, Scale::Linear) => finish!(builder.build_cartesian_2d(x0..x1, y0..y1).map_err(e)?),
+        (Scale::Linear, Scale::Log) => finish!(builder.build_cartesian_2d(x0..x1, (y0..y1).log_scale()).map_err(e)?),
+        (Scale::Log, Scale::Linear) => finish!(builder.build_cartesian_2d((x0..x1).log_scale(), y0..y1).map_err(e)?),
+        (Scale::Log, Scale::Log) => {
+            finish!(builder.build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale()).map_err(e)?)
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_png_and_svg_with_text() {
+        let dir = std::env::temp_dir().join(format!("spark-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let pts: Vec<(f64, f64)> = (0..200).map(|i| (i as f64 * 0.1, (i as f64 * 0.1).sin() * 1e-9)).collect();
+        let fig = Figure {
+            title: "Test figure".into(),
+            panels: vec![
+                Panel {
+                    title: "linear".into(),
+                    x_label: "t".into(),
+                    y_label: "E − E0".into(),
+                    x_scale: Scale::Linear,
+                    y_scale: Scale::Linear,
+                    series: vec![Series::new("sin", pts.clone())],
+                },
+                Panel {
+                    title: "log".into(),
+                    x_label: "t".into(),
+                    y_label: "y".into(),
+                    x_scale: Scale::Log,
+                    y_scale: Scale::Log,
+                    series: vec![Series { label: "ref".into(), points: vec![(1.0, 1.0), (10.0, 10.0)], dashed: true }],
+                },
+            ],
+            columns: 2,
+            panel_size: (400, 300),
+        };
+        let files = render(&fig, &dir.join("fig")).unwrap();
+        assert_eq!(files.len(), 2);
+        let png = std::fs::read(&files[0]).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        let svg = std::fs::read_to_string(&files[1]).unwrap();
+        assert!(svg.contains("Test figure") && svg.contains("E − E0"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn empty_log_panel_is_an_error() {
+        let fig = Figure {
+            title: "F".into(),
+            panels: vec![Panel {
+                title: "P".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                x_scale: Scale::Linear,
+                y_scale: Scale::Log,
+                series: vec![Series::new("zero", vec![(0.0, 0.0), (1.0, -1.0)])],
+            }],
+            columns: 1,
+            panel_size: (200, 200),
+        };
+        let dir = std::env::temp_dir().join(format!("spark-plot-empty-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let err = render(&fig, &dir.join("f")).unwrap_err();
+        assert!(err.to_string().contains("log scale"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
