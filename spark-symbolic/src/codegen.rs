@@ -29,21 +29,14 @@ pub struct Operations {
 pub const SPLIT_STATEMENTS: usize = 400;
 
 fn vector_outputs(name: &Ident, xs: &[NodeId]) -> Vec<(Target, NodeId)> {
-    xs.iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let i = Literal::usize_unsuffixed(i);
-            (Target::Store(quote!(#name[#i])), x)
-        })
-        .collect()
+    xs.iter().enumerate().map(|(i, &x)| (Target::Store(name.clone(), i, None), x)).collect()
 }
 
 fn matrix_outputs(name: &Ident, xs: &NodeMatrix) -> Vec<(Target, NodeId)> {
     let mut out = Vec::new();
     for (i, row) in xs.iter().enumerate() {
         for (j, &x) in row.iter().enumerate() {
-            let (i, j) = (Literal::usize_unsuffixed(i), Literal::usize_unsuffixed(j));
-            out.push((Target::Store(quote!(#name[(#i, #j)])), x));
+            out.push((Target::Store(name.clone(), i, Some(j)), x));
         }
     }
     out

@@ -120,7 +120,7 @@ fn view(g: &mut Graph, n: NodeId) -> View {
             View::Prod { num: items, den }
         }
         Node::Pow(b, e) => match g.as_const(e) {
-            Some(k) if is_int(k) && k >= 2.0 && k <= 32.0 => {
+            Some(k) if is_int(k) && (2.0..=32.0).contains(&k) => {
                 let k = k as i64;
                 if k % 2 == 0 {
                     let h = g.powc(b, (k / 2) as f64);
@@ -241,8 +241,9 @@ fn bin(op: char, a: R, b: R) -> R {
 pub enum Target {
     /// `let name: f64 = …;` (always written, even when zero).
     Let(Ident),
-    /// `place = …;` into storage created by `zeros()` (skipped when zero).
-    Store(TokenStream),
+    /// `name[i] = …;` (vector) or `name[(i, j)] = …;` (matrix) into storage
+    /// created by `zeros()`; skipped when zero.
+    Store(Ident, usize, Option<usize>),
 }
 
 /// The statements of one function body and what they cost.
@@ -356,7 +357,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
     let mut refs: HashMap<NodeId, usize> = HashMap::new();
     let mut order: Vec<NodeId> = Vec::new();
     for (target, root) in outputs {
-        if matches!(target, Target::Store(_)) && g.is_const(*root, 0.0) {
+        if matches!(target, Target::Store(..)) && g.is_const(*root, 0.0) {
             continue;
         }
         let mut stack = vec![(*root, false)];
@@ -401,10 +402,18 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
                 let t = e.tokens();
                 statements.push(quote!(let #name: f64 = #t;));
             }
-            Target::Store(place) => {
+            Target::Store(name, i, j) => {
                 if g.is_const(*root, 0.0) {
                     continue;
                 }
+                let i = Literal::usize_unsuffixed(*i);
+                let place = match j {
+                    None => quote!(#name[#i]),
+                    Some(j) => {
+                        let j = Literal::usize_unsuffixed(*j);
+                        quote!(#name[(#i, #j)])
+                    }
+                };
                 let e = em.render(g, *root, false);
                 ops += e.ops();
                 let t = e.tokens();

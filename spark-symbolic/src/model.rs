@@ -179,10 +179,12 @@ impl Model {
         }
         let mut r = Vec::with_capacity(n);
         for i in 0..n {
-            let terms: Vec<NodeId> = (0..m)
-                .map(|j| {
+            let terms: Vec<NodeId> = constraint_v
+                .iter()
+                .enumerate()
+                .map(|(j, row)| {
                     let psi = g.var(Var::Psi(j as u32));
-                    g.mul2(constraint_v[j][i], psi)
+                    g.mul2(row[i], psi)
                 })
                 .collect();
             let s = g.add(&terms);
