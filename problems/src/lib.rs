@@ -3,3 +3,4 @@ pub mod casadi_export;
 pub mod plot;
 pub mod analysis;
 pub mod progress;
+pub mod systems;

@@ -1,0 +1,160 @@
+//! The systems of the paper's §8, and more that exercise what the DSL and the
+//! engine can do (explicit time, affine and nonlinear constraints, a
+//! configuration-dependent mass matrix, no constraints), all declared with
+//! `nonholonomic_system!`.
+//!
+//! Notation in the docs: `q` are the coordinates, `v = q̇` their velocities,
+//! `L = T − U`, and `k(t, q, v) = 0` the ideal nonholonomic constraints with
+//! `K = ∂k/∂v`. Parameter defaults are the values the paper uses.
+//!
+//! To see what the macro generates for one of them (and its operation count):
+//! `cargo run -p spark-symbolic --example expand -- problems/src/systems.rs Skate`.
+
+use spark_runtime::nonholonomic_system;
+
+nonholonomic_system! {
+    /// The nonholonomic particle (paper §8.1; Cortés, Bloch; `n = 3`, `m = 1`).
+    ///
+    /// `L = ½(v₁² + v₂² + v₃²) − (q₁² + q₂²)`, constraint `v₃ − q₂ v₁ = 0`
+    /// (linear in `v`, scleronomic). Energy `E = T + U` is conserved. The
+    /// paper starts from `q₀ = (1, 0, 0)`, `v₀ = (0, 1, 0)`.
+    pub struct NonholonomicParticle {
+        coordinates: [x, y, z],
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2),
+        constraints: [ dot(z) - y*dot(x) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The skate on an inclined plane (paper §8.2; Arnold–Kozlov–Neishtadt,
+    /// Neimark–Fufaev; `n = 3`, `m = 1`).
+    ///
+    /// `L = ½m(v₁² + v₂²) + ½I v₃² + m g q₁ sin β` (the plane is inclined by
+    /// `β` along `q₁`), constraint `cos(q₃) v₂ − sin(q₃) v₁ = 0`: the blade,
+    /// at angle `q₃`, does not slide sideways. Parameters `m = I = g = 1`,
+    /// `β = π/2` as in the paper; `q₀ = 0`, `v₀ = (0, 0, 1)`.
+    pub struct Skate {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 1.0, g = 1.0, beta = pi/2 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + m*g*x*sin(beta),
+        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+    }
+}
+
+nonholonomic_system! {
+    /// A mobile robot with fixed orientation and a potential (paper §8.3;
+    /// Cortés; `n = 4`, `m = 2`).
+    ///
+    /// `L = ½m(v₁² + v₂²) + ½I v₃² + (3/2) I_ω v₄² − 10 sin q₄`, constraints
+    /// `v₁ − ℓ cos(q₃) v₄ = 0`, `v₂ − ℓ sin(q₃) v₄ = 0` (the wheels roll
+    /// without slipping). Parameters `m = I = I_ω = ℓ = 1`;
+    /// `q₀ = 0`, `v₀ = (1, 0, 0, 1)`.
+    pub struct MobileRobot {
+        coordinates: [x, y, theta, phi],
+        parameters: { m = 1.0, inertia = 1.0, inertia_wheel = 1.0, ell = 1.0 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + 3/2*inertia_wheel*dot(phi)^2
+            - 10*sin(phi),
+        constraints: [
+            dot(x) - ell*cos(theta)*dot(phi),
+            dot(y) - ell*sin(theta)*dot(phi),
+        ],
+    }
+}
+
+nonholonomic_system! {
+    /// McLachlan and Perlmutter's particles for `n = 2m + 1 = 7` (paper §8.4;
+    /// McLachlan–Perlmutter 2004, 2006; `m = 3`, one constraint).
+    ///
+    /// `L = ½|v|² − U`, `U = ½(|q|² + q₅²q₆² + Σ_{i=1..3} q_{1+i}² q_{4+i}²)`,
+    /// constraint `v₁ + q₅v₅ + q₆v₆ + q₇v₇ = 0`. The paper's initial states are
+    /// `q₀ = (cos(jπ/18), 0.6, 0.4, 0.2, 1, 1, 1)`, `v₀ = (0, sin(jπ/18), 0, …, 0)`,
+    /// all with energy 3.06.
+    pub struct McLachlanPerlmutter7 {
+        coordinates: [q1, q2, q3, q4, q5, q6, q7],
+        lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
+            - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
+               + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
+        constraints: [ dot(q1) + q5*dot(q5) + q6*dot(q6) + q7*dot(q7) ],
+    }
+}
+
+nonholonomic_system! {
+    /// A skate on a turntable whose angular velocity varies in time: a
+    /// rheonomic, affine constraint (`n = 3`, `m = 1`).
+    ///
+    /// The rheonomic version of §8.2 (cf. Neimark–Fufaev, *Dynamics of
+    /// Nonholonomic Systems*, ch. I, on moving supports), built for this
+    /// project. In the inertial frame `L = ½m(v₁² + v₂²) + ½I v₃²`; the table
+    /// turns about the origin with `ω(t) = ω₀(1 + ε sin(νt))`, so the surface
+    /// under the blade moves with `(−ω q₂, ω q₁)`. The blade cannot slide
+    /// sideways relative to the surface:
+    /// `k = cos(q₃)(v₂ − ω q₁) − sin(q₃)(v₁ + ω q₂) = 0`, i.e.
+    /// `K = (−sin q₃, cos q₃, 0)`, `b(t, q) = −ω(t)(q₁ cos q₃ + q₂ sin q₃)`.
+    /// Energy is not conserved (the table does work).
+    pub struct TurntableSkate {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 1.0, omega0 = 1.0, eps = 0.5, nu = 2.0 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2,
+        constraints: [
+            cos(theta)*(dot(y) - omega0*(1 + eps*sin(nu*t))*x)
+                - sin(theta)*(dot(x) + omega0*(1 + eps*sin(nu*t))*y),
+        ],
+    }
+}
+
+nonholonomic_system! {
+    /// The Appell–Hamel particle: a constraint nonlinear in the velocities
+    /// (Appell 1911, Hamel 1935; Neimark–Fufaev ch. III; `n = 3`, `m = 1`).
+    ///
+    /// A particle of mass `m` under gravity, `L = ½m(v₁² + v₂² + v₃²) − m g q₃`,
+    /// whose vertical speed is tied to its horizontal speed (the original
+    /// mechanism: a cord wound on a weightless wheel):
+    /// `k = v₃² − a²(v₁² + v₂²) = 0`, squared so that it is polynomial.
+    /// `K = (−2a²v₁, −2a²v₂, 2v₃)` is nonzero, and
+    /// `[[M, Kᵀ], [K, 0]]` regular, wherever `v ≠ 0` (e.g. at
+    /// `v = (1, 0, a)`); Chetaev's rule applies. `E = T + U` is conserved
+    /// since `K v = 2k = 0`.
+    pub struct AppellHamel {
+        coordinates: [x, y, z],
+        parameters: { m = 1.0, g = 1.0, a = 0.5 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2 + dot(z)^2) - m*g*z,
+        constraints: [ dot(z)^2 - a^2*(dot(x)^2 + dot(y)^2) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The Chaplygin sleigh on an inclined plane: a configuration-dependent
+    /// mass matrix and a Lagrangian that is not `T(v) − U(q)` (Chaplygin 1911;
+    /// Bloch, *Nonholonomic Mechanics and Control*, §1.7; `n = 3`, `m = 1`).
+    ///
+    /// `(x, y)` is the contact point of the knife edge, `θ` its direction, the
+    /// centre of mass sits at distance `a` ahead of it:
+    /// `L = ½m(v₁² + v₂² + a²v₃² + 2a v₃(−v₁ sin θ + v₂ cos θ)) + ½I v₃²
+    ///      + m g sin α (x + a cos θ)`,
+    /// constraint `−sin(θ) v₁ + cos(θ) v₂ = 0` (no sideways slip). The mass
+    /// matrix depends on `θ`; `∂(∇_v L)/∂q` and `∂(∇_q L)/∂v` are nonzero.
+    pub struct ChaplyginSleigh {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 0.5, a = 0.5, g = 1.0, alpha = pi/6 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2 + a^2*dot(theta)^2
+                         + 2*a*dot(theta)*(-dot(x)*sin(theta) + dot(y)*cos(theta)))
+            + inertia/2*dot(theta)^2 + m*g*sin(alpha)*(x + a*cos(theta)),
+        constraints: [ -sin(theta)*dot(x) + cos(theta)*dot(y) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The planar double pendulum: no constraints, a non-separable Lagrangian
+    /// (`n = 2`, `m = 0`; e.g. Goldstein, *Classical Mechanics*, §1.6).
+    ///
+    /// Angles `θ₁, θ₂` from the downward vertical:
+    /// `L = ½(m₁ + m₂)ℓ₁²v₁² + ½m₂ℓ₂²v₂² + m₂ℓ₁ℓ₂ cos(θ₁ − θ₂) v₁v₂
+    ///      + (m₁ + m₂) g ℓ₁ cos θ₁ + m₂ g ℓ₂ cos θ₂`.
+    pub struct DoublePendulum {
+        coordinates: [theta1, theta2],
+        parameters: { m1 = 1.0, m2 = 1.0, l1 = 1.0, l2 = 1.0, g = 9.81 },
+        lagrangian: (m1 + m2)/2*l1^2*dot(theta1)^2 + m2/2*l2^2*dot(theta2)^2
+            + m2*l1*l2*cos(theta1 - theta2)*dot(theta1)*dot(theta2)
+            + (m1 + m2)*g*l1*cos(theta1) + m2*g*l2*cos(theta2),
+    }
+}
