@@ -82,9 +82,8 @@ nonholonomic_system! {
     /// A skate on a turntable whose angular velocity varies in time: a
     /// rheonomic, affine constraint (`n = 3`, `m = 1`).
     ///
-    /// The rheonomic version of §8.2 (cf. Neimark–Fufaev, *Dynamics of
-    /// Nonholonomic Systems*, ch. I, on moving supports), built for this
-    /// project. In the inertial frame `L = ½m(v₁² + v₂²) + ½I v₃²`; the table
+    /// A rheonomic variant of §8.2 built for this project (moving supports
+    /// as in Neimark–Fufaev, *Dynamics of Nonholonomic Systems*). In the inertial frame `L = ½m(v₁² + v₂²) + ½I v₃²`; the table
     /// turns about the origin with `ω(t) = ω₀(1 + ε sin(νt))`, so the surface
     /// under the blade moves with `(−ω q₂, ω q₁)`. The blade cannot slide
     /// sideways relative to the surface:
@@ -104,7 +103,8 @@ nonholonomic_system! {
 
 nonholonomic_system! {
     /// The Appell–Hamel particle: a constraint nonlinear in the velocities
-    /// (Appell 1911, Hamel 1935; Neimark–Fufaev ch. III; `n = 3`, `m = 1`).
+    /// (Appell 1911, Hamel; see Neimark–Fufaev, *Dynamics of Nonholonomic
+    /// Systems*; `n = 3`, `m = 1`).
     ///
     /// A particle of mass `m` under gravity, `L = ½m(v₁² + v₂² + v₃²) − m g q₃`,
     /// whose vertical speed is tied to its horizontal speed (the original
@@ -125,7 +125,7 @@ nonholonomic_system! {
 nonholonomic_system! {
     /// The Chaplygin sleigh on an inclined plane: a configuration-dependent
     /// mass matrix and a Lagrangian that is not `T(v) − U(q)` (Chaplygin 1911;
-    /// Bloch, *Nonholonomic Mechanics and Control*, §1.7; `n = 3`, `m = 1`).
+    /// Bloch, *Nonholonomic Mechanics and Control*, ch. 1; `n = 3`, `m = 1`).
     ///
     /// `(x, y)` is the contact point of the knife edge, `θ` its direction, the
     /// centre of mass sits at distance `a` ahead of it:
@@ -145,7 +145,8 @@ nonholonomic_system! {
 
 nonholonomic_system! {
     /// The planar double pendulum: no constraints, a non-separable Lagrangian
-    /// (`n = 2`, `m = 0`; e.g. Goldstein, *Classical Mechanics*, §1.6).
+    /// (`n = 2`, `m = 0`; a standard textbook example, e.g. Goldstein,
+    /// *Classical Mechanics*, ch. 1).
     ///
     /// Angles `θ₁, θ₂` from the downward vertical:
     /// `L = ½(m₁ + m₂)ℓ₁²v₁² + ½m₂ℓ₂²v₂² + m₂ℓ₁ℓ₂ cos(θ₁ − θ₂) v₁v₂
