@@ -250,9 +250,17 @@ impl Gen<'_> {
         let mut all = values;
         all.extend(jacobians);
         let sj = self.body("stage_jacobians", Vec::new(), &all, true);
-        let md = &*self.model;
         let n = self.n.clone();
         let m = self.m.clone();
+        // The bundle has Kᵀψ (as CasADi computes it), the negative of R.
+        let md = &mut *self.model;
+        let g = &mut md.graph;
+        let neg_v =
+            |g: &mut crate::graph::Graph, xs: &[NodeId]| -> Vec<NodeId> { xs.iter().map(|&x| g.neg(x)).collect() };
+        let kt_psi = neg_v(g, &md.constraint_force);
+        let kt_psi_q: NodeMatrix = md.constraint_force_q.iter().map(|row| neg_v(g, row)).collect();
+        let kt_psi_v: NodeMatrix = md.constraint_force_v.iter().map(|row| neg_v(g, row)).collect();
+        let md = &*self.model;
         let bundle_outs = vec![
             self.vector("force", &md.force, &n),
             self.vector("momentum", &md.momentum, &n),
@@ -261,9 +269,9 @@ impl Gen<'_> {
             self.vector("constraint", &md.constraint, &m),
             self.matrix("constraint_q", &md.constraint_q, &m),
             self.matrix("constraint_v", &md.constraint_v, &m),
-            self.vector("constraint_force", &md.constraint_force, &n),
-            self.matrix("constraint_force_q", &md.constraint_force_q, &n),
-            self.matrix("constraint_force_v", &md.constraint_force_v, &n),
+            self.vector("kt_psi", &kt_psi, &n),
+            self.matrix("kt_psi_q", &kt_psi_q, &n),
+            self.matrix("kt_psi_v", &kt_psi_v, &n),
         ];
         let l = vec![(Target::Let(format_ident!("lagrangian")), md.lagrangian)];
         let inputs = Inputs { parameters: &self.params };

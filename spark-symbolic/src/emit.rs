@@ -28,9 +28,11 @@ use std::collections::HashMap;
 #[derive(Clone, Debug)]
 enum View {
     Leaf,
-    /// `±t1 ± t2 … + constant`, each `t` a node (positive counterpart for `−`).
+    /// `±t1 ± t2 … + constant`, each `t` a node (positive counterpart for `−`),
+    /// plus `± c·inner` for groups of terms sharing the coefficient `c`.
     Sum {
         terms: Vec<(bool, NodeId)>,
+        scaled: Vec<(bool, f64, NodeId)>,
         constant: f64,
     },
     /// `(n1 · n2) / d` with at most two numerator and one denominator node.
@@ -50,7 +52,7 @@ impl View {
     fn children(&self) -> Vec<NodeId> {
         match self {
             View::Leaf => Vec::new(),
-            View::Sum { terms, .. } => terms.iter().map(|t| t.1).collect(),
+            View::Sum { terms, scaled, .. } => terms.iter().map(|t| t.1).chain(scaled.iter().map(|s| s.2)).collect(),
             View::Prod { num, den, .. } => num.iter().chain(den).copied().collect(),
             View::Times(a, b) | View::Powf(a, b) => vec![*a, *b],
             View::Recip(a) | View::Powi(a, _) | View::Neg(a) => vec![*a],
@@ -71,14 +73,42 @@ fn view(g: &mut Graph, n: NodeId) -> View {
         Node::Add(xs) => {
             let mut constant = 0.0;
             let mut terms = Vec::new();
+            let mut groups: Vec<(f64, Vec<(bool, NodeId)>)> = Vec::new();
             for &x in xs.iter() {
-                match g.as_const(x) {
-                    Some(c) => constant += c,
-                    None if g.split_coefficient(x).0 < 0.0 => terms.push((false, g.neg(x))),
-                    None => terms.push((true, x)),
+                if let Some(c) = g.as_const(x) {
+                    constant += c;
+                    continue;
+                }
+                let (c, rest) = g.split_coefficient(x);
+                if c.abs() == 1.0 {
+                    terms.push((c > 0.0, rest));
+                    continue;
+                }
+                match groups.iter_mut().find(|(a, _)| *a == c.abs()) {
+                    Some((_, members)) => members.push((c > 0.0, rest)),
+                    None => groups.push((c.abs(), vec![(c > 0.0, rest)])),
                 }
             }
-            View::Sum { terms, constant }
+            // Terms sharing a coefficient are summed first and scaled once:
+            // `0.5·(a + b − c)` rather than `0.5·a + 0.5·b − 0.5·c`.
+            let mut scaled = Vec::new();
+            for (c, members) in groups {
+                if members.len() == 1 {
+                    let (positive, rest) = members[0];
+                    let term = g.scale(c, rest);
+                    terms.push((positive, term));
+                    continue;
+                }
+                // Sum the group with the sign that needs fewest negations;
+                // a sum without any positive term starts with this group.
+                let positives = members.iter().filter(|m| m.0).count();
+                let leading = !terms.iter().any(|t| t.0) && !scaled.iter().any(|s: &(bool, f64, NodeId)| s.0);
+                let sign = leading || 2 * positives >= members.len();
+                let inner: Vec<NodeId> = members.iter().map(|&(p, r)| if p == sign { r } else { g.neg(r) }).collect();
+                let inner = g.add(&inner);
+                scaled.push((sign, c, inner));
+            }
+            View::Sum { terms, scaled, constant }
         }
         Node::Mul(xs) => {
             let coef = g.as_const(xs[0]).unwrap_or(1.0);
@@ -149,7 +179,10 @@ fn view(g: &mut Graph, n: NodeId) -> View {
 #[derive(Clone, Debug)]
 enum R {
     Lit(f64),
-    Raw(TokenStream),
+    /// An input, with its rendering.
+    Var(Var, TokenStream),
+    /// The `k`-th shared value (`let sK`), with its rendering.
+    Shared(usize, TokenStream),
     Bin(char, Box<R>, Box<R>),
     Neg(Box<R>),
     Method(Box<R>, &'static str, Vec<R>),
@@ -160,7 +193,7 @@ impl R {
     fn prec(&self) -> u8 {
         match self {
             R::Lit(x) if *x < 0.0 => 3,
-            R::Lit(_) | R::Raw(_) => 5,
+            R::Lit(_) | R::Var(..) | R::Shared(..) => 5,
             R::Bin('+' | '-', ..) => 1,
             R::Bin(..) => 2,
             R::Neg(_) => 3,
@@ -170,10 +203,49 @@ impl R {
 
     fn ops(&self) -> usize {
         match self {
-            R::Lit(_) | R::Raw(_) => 0,
+            R::Lit(_) | R::Var(..) | R::Shared(..) => 0,
             R::Bin(_, a, b) => 1 + a.ops() + b.ops(),
             R::Neg(a) | R::Powi(a, _) => 1 + a.ops(),
             R::Method(a, _, xs) => 1 + a.ops() + xs.iter().map(R::ops).sum::<usize>(),
+        }
+    }
+
+    /// Evaluates exactly the rendered expression (same operations, same
+    /// order), for tests of the emitter.
+    fn eval(&self, env: &dyn Fn(Var) -> f64, shared: &[f64]) -> f64 {
+        match self {
+            R::Lit(x) => *x,
+            R::Var(v, _) => env(*v),
+            R::Shared(k, _) => shared.get(*k).copied().unwrap_or(f64::NAN),
+            R::Bin(op, a, b) => {
+                let (a, b) = (a.eval(env, shared), b.eval(env, shared));
+                match op {
+                    '+' => a + b,
+                    '-' => a - b,
+                    '*' => a * b,
+                    _ => a / b,
+                }
+            }
+            R::Neg(a) => -a.eval(env, shared),
+            R::Powi(a, k) => a.eval(env, shared).powi(*k),
+            R::Method(a, name, args) => {
+                let x = a.eval(env, shared);
+                let y = args.first().map_or(f64::NAN, |b| b.eval(env, shared));
+                match *name {
+                    "sqrt" => x.sqrt(),
+                    "exp" => x.exp(),
+                    "ln" => x.ln(),
+                    "sin" => x.sin(),
+                    "cos" => x.cos(),
+                    "tan" => x.tan(),
+                    "sinh" => x.sinh(),
+                    "cosh" => x.cosh(),
+                    "tanh" => x.tanh(),
+                    "atan2" => x.atan2(y),
+                    "powf" => x.powf(y),
+                    _ => f64::NAN,
+                }
+            }
         }
     }
 
@@ -196,7 +268,7 @@ impl R {
                     quote!(#l)
                 }
             }
-            R::Raw(t) => t.clone(),
+            R::Var(_, t) | R::Shared(_, t) => t.clone(),
             R::Bin(op, a, b) => {
                 let p = self.prec();
                 let (a, b) = (a.wrap(p), b.wrap(p + 1));
@@ -255,6 +327,22 @@ pub struct Emitted {
     pub ops: usize,
     /// Number of shared subexpressions bound to `let`s.
     pub shared: usize,
+    lets: Vec<R>,
+    outputs: Vec<Option<R>>,
+}
+
+impl Emitted {
+    /// Evaluates the emitted code at a point, interpreting exactly the
+    /// operations written (for tests of the emitter against the graph).
+    /// Returns one value per output, `0` for outputs not written.
+    pub fn evaluate(&self, env: &dyn Fn(Var) -> f64) -> Vec<f64> {
+        let mut shared = Vec::with_capacity(self.lets.len());
+        for e in &self.lets {
+            let x = e.eval(env, &shared);
+            shared.push(x);
+        }
+        self.outputs.iter().map(|o| o.as_ref().map_or(0.0, |e| e.eval(env, &shared))).collect()
+    }
 }
 
 /// Renders the inputs: `t`, `q[i]`, `v[i]`, `psi[j]`, `self.<parameter>`.
@@ -291,6 +379,7 @@ impl Inputs<'_> {
 struct Emitter<'a> {
     views: HashMap<NodeId, View>,
     names: HashMap<NodeId, Ident>,
+    order: HashMap<NodeId, usize>,
     inputs: &'a Inputs<'a>,
 }
 
@@ -298,28 +387,30 @@ impl Emitter<'_> {
     fn render(&self, g: &Graph, n: NodeId, top: bool) -> R {
         if !top {
             if let Some(name) = self.names.get(&n) {
-                return R::Raw(quote!(#name));
+                return R::Shared(self.order[&n], quote!(#name));
             }
         }
         let sub = |x: NodeId| self.render(g, x, false);
         match &self.views[&n] {
             View::Leaf => match g.node(n) {
-                Node::Var(v) => R::Raw(self.inputs.var(*v)),
+                Node::Var(v) => R::Var(*v, self.inputs.var(*v)),
                 _ => R::Lit(g.as_const(n).unwrap_or(f64::NAN)),
             },
-            View::Sum { terms, constant } => {
+            View::Sum { terms, scaled, constant } => {
                 let mut acc: Option<R> = None;
-                for &(_, x) in terms.iter().filter(|t| t.0) {
-                    let t = sub(x);
+                let plain = terms.iter().map(|&(p, x)| (p, sub(x)));
+                let scaled = scaled.iter().map(|&(p, c, x)| (p, bin('*', R::Lit(c), sub(x))));
+                let all: Vec<(bool, R)> = plain.chain(scaled).collect();
+                for (_, t) in all.iter().filter(|t| t.0) {
                     acc = Some(match acc {
-                        None => t,
-                        Some(a) => bin('+', a, t),
+                        None => t.clone(),
+                        Some(a) => bin('+', a, t.clone()),
                     });
                 }
-                for &(_, x) in terms.iter().filter(|t| !t.0) {
+                for (_, t) in all.iter().filter(|t| !t.0) {
                     acc = Some(match acc {
-                        None => R::Neg(Box::new(sub(x))),
-                        Some(a) => bin('-', a, sub(x)),
+                        None => R::Neg(Box::new(t.clone())),
+                        Some(a) => bin('-', a, t.clone()),
                     });
                 }
                 let acc = acc.unwrap_or(R::Lit(0.0));
@@ -383,7 +474,9 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
     let bound = |n: &NodeId| !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only());
     let mut lets: Vec<NodeId> = order.iter().copied().filter(|n| bound(n) && g.deps(*n).parameters_only()).collect();
     lets.extend(order.iter().copied().filter(|n| bound(n) && !g.deps(*n).parameters_only()));
-    let mut em = Emitter { views, names: HashMap::new(), inputs };
+    let mut em = Emitter { views, names: HashMap::new(), order: HashMap::new(), inputs };
+    let mut lets_r = Vec::new();
+    let mut outputs_r = Vec::new();
     let mut statements = Vec::new();
     let mut ops = 0;
     for (k, &n) in lets.iter().enumerate() {
@@ -393,6 +486,8 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         let t = e.tokens();
         statements.push(quote!(let #name = #t;));
         em.names.insert(n, name);
+        em.order.insert(n, k);
+        lets_r.push(e);
     }
     for (target, root) in outputs {
         match target {
@@ -401,9 +496,11 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
                 ops += e.ops();
                 let t = e.tokens();
                 statements.push(quote!(let #name: f64 = #t;));
+                outputs_r.push(Some(e));
             }
             Target::Store(name, i, j) => {
                 if g.is_const(*root, 0.0) {
+                    outputs_r.push(None);
                     continue;
                 }
                 let i = Literal::usize_unsuffixed(*i);
@@ -418,8 +515,9 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
                 ops += e.ops();
                 let t = e.tokens();
                 statements.push(quote!(#place = #t;));
+                outputs_r.push(Some(e));
             }
         }
     }
-    Emitted { statements, ops, shared: lets.len() }
+    Emitted { statements, ops, shared: lets.len(), lets: lets_r, outputs: outputs_r }
 }

@@ -5,6 +5,7 @@
 use num_dual::{DualNum, HyperDual64};
 use proptest::prelude::*;
 use spark_symbolic::diff::Differentiator;
+use spark_symbolic::emit::{emit, Inputs, Target};
 use spark_symbolic::graph::{Fun, Graph, NodeId, Var};
 
 /// A random expression over three variables. Domains are kept valid by
@@ -209,6 +210,7 @@ proptest! {
         prop_assume!(reference.is_finite() && reference.abs() < 1e8);
         let value = g.eval(f, &env);
         prop_assert!(close(value, reference, 1e-12), "value {value} vs {reference} for {e:?}");
+        let mut outputs = vec![f];
         for i in 0..3 {
             for j in 0..3 {
                 let mut xs = [HyperDual64::from(x[0]), HyperDual64::from(x[1]), HyperDual64::from(x[2])];
@@ -220,7 +222,21 @@ proptest! {
                 let (gi, gij) = (g.eval(di, &env), g.eval(dij, &env));
                 prop_assert!(close(gi, r.eps1, 1e-12), "d/dx{i}: {gi} vs {} for {e:?}", r.eps1);
                 prop_assert!(close(gij, r.eps1eps2, 1e-12), "d2/dx{i}dx{j}: {gij} vs {} for {e:?}", r.eps1eps2);
+                outputs.extend([di, dij]);
             }
+        }
+        // The emitted code (one fused body with CSE over the value and all
+        // derivatives) computes what the graph computes.
+        let targets: Vec<(Target, NodeId)> = outputs
+            .iter()
+            .enumerate()
+            .map(|(k, &n)| (Target::Store(proc_macro2::Ident::new("out", proc_macro2::Span::call_site()), k, None), n))
+            .collect();
+        let emitted = emit(&mut g, &targets, &Inputs { parameters: &[] });
+        let values = emitted.evaluate(&env);
+        for (k, &n) in outputs.iter().enumerate() {
+            let want = g.eval(n, &env);
+            prop_assert!(close(values[k], want, 1e-12), "emitted output {k}: {} vs {want} for {e:?}", values[k]);
         }
     }
 }

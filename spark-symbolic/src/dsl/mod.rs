@@ -250,16 +250,15 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
                     return err(p.span(), format!("write `{sname}: …` with a single `:`"));
                 }
             }
-            other => {
+            _ => {
                 let msg = match (known, previous) {
                     (Some(k), _) => format!("expected `:` after `{k}`: write `{k}: …`"),
-                    (None, Some(prev)) if matches!(prev, "lagrangian" | "coordinates" | "constraints" | "parameters" | "constants") => format!(
+                    (None, Some(prev)) => format!(
                         "expected a section ({section_list}), found `{sname}`; if it belongs to `{prev}`, remove the `,` before it"
                     ),
                     _ => format!("expected a section ({section_list}), found `{sname}`"),
                 };
-                let span = other.map_or(ident.span(), |_| ident.span());
-                return err(span, msg);
+                return err(ident.span(), msg);
             }
         }
         let Some(kind) = known else {
@@ -314,25 +313,20 @@ fn single_group(kind: &str, span: Span, value: &[TokenTree], delim: Delimiter) -
 }
 
 /// Checks a new name against the reserved ones and the ones declared so far.
-fn declare(
-    ident: &Ident,
-    kind: &str,
-    declared: &mut Vec<(String, &'static str)>,
-    kind_static: &'static str,
-) -> Result<Named, SpecError> {
+fn declare(ident: &Ident, kind: &'static str, declared: &mut Vec<(String, &'static str)>) -> Result<Named, SpecError> {
     let name = ident.to_string();
     if let Some(reason) = reserved_reason(&name) {
         return err(ident.span(), format!("{reason}; choose another name for this {kind}"));
     }
     if let Some((_, prev)) = declared.iter().find(|(n, _)| *n == name) {
-        let what = if *prev == kind_static {
+        let what = if *prev == kind {
             format!("`{name}` is declared twice as a {kind}")
         } else {
             format!("`{name}` is already declared as a {prev}")
         };
         return err(ident.span(), format!("{what}; every coordinate, parameter and constant needs its own name"));
     }
-    declared.push((name.clone(), kind_static));
+    declared.push((name.clone(), kind));
     Ok(Named { name, span: ident.span() })
 }
 
@@ -406,9 +400,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
                 let toks: Vec<TokenTree> = group.stream().into_iter().collect();
                 for (piece, comma) in split_commas(&toks) {
                     match piece.as_slice() {
-                        [TokenTree::Ident(id)] => {
-                            coordinates.push(declare(id, "coordinate", &mut declared, "coordinate")?)
-                        }
+                        [TokenTree::Ident(id)] => coordinates.push(declare(id, "coordinate", &mut declared)?),
                         [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
                         [TokenTree::Ident(id), second, ..] => {
                             return err(
@@ -436,7 +428,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
                     s.parameters.as_ref().map(|(a, b)| (*a, b.as_slice())).unwrap_or((name.span(), &[]));
                 let group = single_group("parameters", span, value, Delimiter::Brace)?;
                 for (id, value, eq) in assignments("parameter", &group)? {
-                    param_names.push(declare(&id, "parameter", &mut declared, "parameter")?);
+                    param_names.push(declare(&id, "parameter", &mut declared)?);
                     param_raw.push((value, eq));
                 }
             }
@@ -444,7 +436,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
                 let (span, value) = s.constants.as_ref().map(|(a, b)| (*a, b.as_slice())).unwrap_or((name.span(), &[]));
                 let group = single_group("constants", span, value, Delimiter::Brace)?;
                 for (id, value, eq) in assignments("constant", &group)? {
-                    const_names.push(declare(&id, "constant", &mut declared, "constant")?);
+                    const_names.push(declare(&id, "constant", &mut declared)?);
                     const_raw.push((value, eq));
                 }
             }

@@ -98,13 +98,12 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         q: &::spark_runtime::Vector<3>,
         v: &::spark_runtime::Vector<3>,
     ) -> f64 {
-        let s0 = 0.5 * self.m;
-        let s1 = 0.5 * self.inertia;
-        let s2 = self.m * self.g;
-        let s3 = self.beta.sin();
-        let s4 = s2 * s3;
-        let lagrangian: f64 = s0 * (v[0] * v[0] + v[1] * v[1]) + s1 * (v[2] * v[2])
-            + s4 * q[0];
+        let s0 = self.m * self.g;
+        let s1 = self.beta.sin();
+        let s2 = s0 * s1;
+        let lagrangian: f64 = s2 * q[0]
+            + 0.5
+                * (self.m * (v[0] * v[0] + v[1] * v[1]) + self.inertia * (v[2] * v[2]));
         lagrangian
     }
     fn energy(
@@ -113,15 +112,13 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         q: &::spark_runtime::Vector<3>,
         v: &::spark_runtime::Vector<3>,
     ) -> f64 {
-        let s0 = 0.5 * self.inertia;
-        let s1 = 0.5 * self.m;
-        let s2 = self.m * self.g;
-        let s3 = self.beta.sin();
-        let s4 = s2 * s3;
-        let s5 = v[0] * v[0];
-        let s6 = v[1] * v[1];
-        let energy: f64 = s0 * (v[2] * v[2]) + self.m * s5 + self.m * s6 - s1 * (s5 + s6)
-            - s4 * q[0];
+        let s0 = self.m * self.g;
+        let s1 = self.beta.sin();
+        let s2 = s0 * s1;
+        let s3 = v[0] * v[0];
+        let s4 = v[1] * v[1];
+        let energy: f64 = self.m * s3 + self.m * s4
+            + 0.5 * (self.inertia * (v[2] * v[2]) - self.m * (s3 + s4)) - s2 * q[0];
         energy
     }
     fn momentum(
