@@ -4,3 +4,6 @@ pub mod plot;
 pub mod analysis;
 pub mod progress;
 pub mod systems;
+pub mod simulate;
+pub mod output;
+pub mod paper;
