@@ -521,18 +521,150 @@ fn system_seed(seed: u64, name: &str) -> u64 {
     name.bytes().fold(seed ^ 0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
 }
 
-/// Every system the cross-check covers, exported with `seed`.
-pub fn export_all_systems(seed: u64) -> Vec<SystemExport> {
-    vec![export_system("Rheonomic (hand-written)", &handwritten::Rheonomic::default(), system_seed(seed, "Rheonomic"))]
+/// Every system the cross-check covers, exported with `seed`: all systems of
+/// [`crate::systems`] and the hand-written [`handwritten::Rheonomic`], each
+/// with its default parameters and again with varied parameters.
+pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
+    use crate::systems::*;
+    let mut out = Vec::new();
+    macro_rules! one {
+        ($name:expr, $sys:expr) => {{
+            let sys = $sys;
+            out.push(export_system($name, &sys, system_seed(seed, $name)));
+            // Again with every parameter moved off its default, so that
+            // special values (β = π/2, unit masses) hide nothing and
+            // `set_parameter` is exercised.
+            let label = format!("{} (varied parameters)", $name);
+            if let Some(varied) = with_varied_parameters(&sys, system_seed(seed, &label))? {
+                out.push(export_system(&label, &varied, system_seed(seed, &label)));
+            }
+        }};
+    }
+    one!("NonholonomicParticle", NonholonomicParticle::default());
+    one!("Skate", Skate::default());
+    one!("MobileRobot", MobileRobot::default());
+    one!("McLachlanPerlmutter7", McLachlanPerlmutter7::default());
+    one!("TurntableSkate", TurntableSkate::default());
+    one!("AppellHamel", AppellHamel::default());
+    one!("ChaplyginSleigh", ChaplyginSleigh::default());
+    one!("DoublePendulum", DoublePendulum::default());
+    one!(HANDWRITTEN, handwritten::Rheonomic::default());
+    Ok(out)
 }
 
+/// A copy of `system` with every parameter multiplied by a seeded factor in
+/// `[0.5, 1.5)`; `Ok(None)` if the system has no parameters, `Err` if it
+/// rejects one of the parameter names its own source declares.
+pub fn with_varied_parameters<S, const N: usize, const M: usize>(system: &S, seed: u64) -> Result<Option<S>, String>
+where
+    S: NonholonomicSystem<N, M> + Clone,
+{
+    if S::SOURCE.parameters.is_empty() {
+        return Ok(None);
+    }
+    let mut rng = SplitMix64::new(seed);
+    let mut varied = system.clone();
+    for (name, value) in S::SOURCE.parameters.iter().zip(system.parameter_values()) {
+        let factor = 1.0 + 0.5 * rng.symmetric();
+        varied.set_parameter(name, value * factor).map_err(|e| format!("{}: {e}", S::SOURCE.name))?;
+    }
+    Ok(Some(varied))
+}
+
+/// Registry name of the hand-written reference system.
+pub const HANDWRITTEN: &str = "Rheonomic (hand-written)";
+
 /// One SPARK step per (system, method) pair, from the runtime's stepper.
+///
+/// The paper's systems start from the paper's initial values and step sizes;
+/// the others from a generic state (projected onto the constraints) with a
+/// step the default Newton solver converges on.
 pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
+    use crate::systems::*;
+    type V<const K: usize> = Vector<K>;
     let mut out: Vec<Result<StepExport, String>> = Vec::new();
-    let rheonomic = handwritten::Rheonomic::default();
-    let q0 = Vector::<2>::new(0.3, -0.2);
-    let v0 = Vector::<2>::new(0.5, 0.1);
-    casadi_steps_for!(out, "Rheonomic (hand-written)", handwritten::Rheonomic, rheonomic, 0.1, q0, v0, 0.05);
+    let j = 1.0 * std::f64::consts::PI / 18.0; // §8.4, j = 1 of J = 9
+    casadi_steps_for!(
+        out,
+        "NonholonomicParticle",
+        NonholonomicParticle,
+        NonholonomicParticle::default(),
+        0.0,
+        V::<3>::new(1.0, 0.0, 0.0),
+        V::<3>::new(0.0, 1.0, 0.0),
+        0.2
+    );
+    casadi_steps_for!(out, "Skate", Skate, Skate::default(), 0.0, V::<3>::zeros(), V::<3>::new(0.0, 0.0, 1.0), 0.1);
+    casadi_steps_for!(
+        out,
+        "MobileRobot",
+        MobileRobot,
+        MobileRobot::default(),
+        0.0,
+        V::<4>::zeros(),
+        V::<4>::new(1.0, 0.0, 0.0, 1.0),
+        0.2
+    );
+    casadi_steps_for!(
+        out,
+        "McLachlanPerlmutter7",
+        McLachlanPerlmutter7,
+        McLachlanPerlmutter7::default(),
+        0.0,
+        V::<7>::from_column_slice(&[j.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),
+        V::<7>::from_column_slice(&[0.0, j.sin(), 0.0, 0.0, 0.0, 0.0, 0.0]),
+        0.05
+    );
+    casadi_steps_for!(
+        out,
+        "TurntableSkate",
+        TurntableSkate,
+        TurntableSkate::default(),
+        0.3,
+        V::<3>::new(0.5, 0.2, 0.3),
+        V::<3>::new(0.1, 0.4, 1.0),
+        0.1
+    );
+    casadi_steps_for!(
+        out,
+        "AppellHamel",
+        AppellHamel,
+        AppellHamel::default(),
+        0.0,
+        V::<3>::zeros(),
+        V::<3>::new(1.0, 0.0, 0.5),
+        0.1
+    );
+    casadi_steps_for!(
+        out,
+        "ChaplyginSleigh",
+        ChaplyginSleigh,
+        ChaplyginSleigh::default(),
+        0.0,
+        V::<3>::new(0.0, 0.0, 0.4),
+        V::<3>::new(1.0, 0.3, 0.5),
+        0.1
+    );
+    casadi_steps_for!(
+        out,
+        "DoublePendulum",
+        DoublePendulum,
+        DoublePendulum::default(),
+        0.0,
+        V::<2>::new(0.5, -0.3),
+        V::<2>::new(0.2, 0.1),
+        0.05
+    );
+    casadi_steps_for!(
+        out,
+        HANDWRITTEN,
+        handwritten::Rheonomic,
+        handwritten::Rheonomic::default(),
+        0.1,
+        V::<2>::new(0.3, -0.2),
+        V::<2>::new(0.5, 0.1),
+        0.05
+    );
     let errors: Vec<String> = out.iter().filter_map(|r| r.as_ref().err().cloned()).collect();
     if !errors.is_empty() {
         return Err(errors.join("\n"));
@@ -543,6 +675,40 @@ pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Names declared with `nonholonomic_system!` in `systems.rs`.
+    fn declared_systems() -> Vec<String> {
+        let text = include_str!("systems.rs");
+        let mut names = Vec::new();
+        for chunk in text.split("nonholonomic_system! {").skip(1) {
+            let after = chunk.split("struct").nth(1).expect("a struct in every invocation");
+            let name: String = after.trim_start().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+            names.push(name);
+        }
+        names
+    }
+
+    #[test]
+    fn every_declared_system_is_exported() {
+        let exported: Vec<String> = export_all_systems(1).unwrap().into_iter().map(|s| s.name).collect();
+        let declared = declared_systems();
+        assert!(declared.len() >= 8, "found only {declared:?}");
+        for name in &declared {
+            assert!(exported.contains(name), "{name} is declared in systems.rs but not exported for CasADi");
+        }
+    }
+
+    #[test]
+    fn every_system_takes_every_step() {
+        let systems = export_all_systems(1).unwrap().iter().filter(|s| !s.name.contains("varied")).count();
+        let steps = export_all_steps().expect("all steps succeed");
+        // Gauss 1..3, IIIA-B 2..3, IIIA-B-D 2..3, Euler I, II, modified Lobatto, LDA.
+        assert_eq!(steps.len(), 11 * systems);
+        for st in &steps {
+            assert_eq!(st.psi.len(), st.method.stages);
+            assert_eq!(st.method.conditions.len(), st.method.stages - 1);
+        }
+    }
 
     #[test]
     fn splitmix_is_reproducible_and_in_range() {

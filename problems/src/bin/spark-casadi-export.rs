@@ -26,7 +26,7 @@ fn run(args: &Args) -> Result<(), String> {
     let document = Document {
         format: casadi_export::FORMAT,
         seed: args.seed,
-        systems: casadi_export::export_all_systems(args.seed),
+        systems: casadi_export::export_all_systems(args.seed).map_err(|e| format!("exporting systems: {e}"))?,
         steps: casadi_export::export_all_steps().map_err(|e| format!("exporting SPARK steps: {e}"))?,
     };
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
