@@ -62,7 +62,7 @@ impl View {
 }
 
 /// How variable a factor is: parameters only < `t` < `q` < `v` < `ψ`.
-fn rank(g: &Graph, x: NodeId) -> u8 {
+pub(crate) fn rank(g: &Graph, x: NodeId) -> u8 {
     let d = g.deps(x);
     [(Deps::PSI, 4), (Deps::V, 3), (Deps::Q, 2), (Deps::T, 1)].iter().find(|(k, _)| d.any(*k)).map_or(0, |x| x.1)
 }

@@ -18,6 +18,7 @@ pub mod emit;
 pub mod graph;
 pub mod lower;
 pub mod model;
+pub mod pretty;
 pub mod simplify;
 pub mod source;
 pub mod spec;

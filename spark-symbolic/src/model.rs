@@ -164,14 +164,26 @@ impl Model {
         let constraint_v = jacobian(&mut g, &mut d, &constraint, &vs);
         for (j, row) in constraint_v.iter().enumerate() {
             if row.iter().all(|&x| g.is_const(x, 0.0)) {
-                let name = spec.coordinates[0].name.as_str();
+                // Suggest the velocity-level constraint dg/dt = g_t + g_q·v.
+                let mut terms = vec![d.diff(&mut g, constraint[j], Var::Time)];
+                for (i, &gq) in constraint_q[j].iter().enumerate() {
+                    let vi = g.var(Var::V(i as u32));
+                    terms.push(g.mul2(gq, vi));
+                }
+                let gdot = g.add(&terms);
+                let hint = if g.is_const(gdot, 0.0) {
+                    "it is constant, so it constrains nothing; remove it".to_string()
+                } else {
+                    format!(
+                        "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}`",
+                        crate::pretty::dsl_text(&g, spec, gdot)
+                    )
+                };
                 return Err(SpecError {
                     span: spec.constraints[j].span,
                     message: format!(
                         "constraint {} does not depend on the velocities: it is holonomic (a position constraint \
-                         g(t, q) = 0), which this integrator does not take directly; write its time derivative \
-                         instead, the velocity-level constraint g_t + g_q·v = 0 (e.g. for g = {name} write the \
-                         velocity of `{name}`)",
+                         g(t, q) = 0), which this integrator does not take directly; {hint}",
                         j + 1
                     ),
                 });

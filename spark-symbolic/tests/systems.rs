@@ -105,6 +105,7 @@ fn holonomic_constraint_is_an_error_that_says_what_to_write() {
     let err = analyze(&s).expect_err("holonomic");
     assert!(err.message.contains("holonomic"), "{}", err.message);
     assert!(err.message.contains("time derivative"), "{}", err.message);
+    assert!(err.message.ends_with("`2*x*dot(x) - dot(y)`"), "{}", err.message);
 }
 
 #[test]
