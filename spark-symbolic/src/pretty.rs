@@ -75,7 +75,7 @@ fn print(g: &Graph, spec: &SystemSpec, id: NodeId, depth: usize) -> (String, u8)
             factors.sort_by_key(|&f| (crate::emit::rank(g, f), f));
             let body = factors.iter().map(|&f| wrap(print(g, spec, f, depth + 1), PRODUCT)).collect::<Vec<_>>();
             match c {
-                Some(c) if c == -1.0 => (format!("-{}", body.join("*")), UNARY),
+                Some(-1.0) => (format!("-{}", body.join("*")), UNARY),
                 Some(c) if c < 0.0 => (format!("-{}*{}", number(-c), body.join("*")), UNARY),
                 Some(c) => (format!("{}*{}", number(c), body.join("*")), PRODUCT),
                 None => (body.join("*"), PRODUCT),
