@@ -327,12 +327,18 @@ pub(crate) fn number(lit: &proc_macro2::Literal) -> Result<f64, SpecError> {
     }
 }
 
+/// Nesting (parentheses, powers, signs, calls) beyond which an expression is
+/// rejected, so that absurd input cannot overflow the compiler's stack.
+const MAX_DEPTH: usize = 200;
+
 /// The token-level parser for one expression.
 struct Parser<'s, 'a> {
     toks: Vec<TokenTree>,
     pos: usize,
     scope: &'s Scope<'a>,
     what: &'s str,
+    /// Current nesting of `unary` calls, including enclosing expressions.
+    depth: usize,
 }
 
 /// Parses `tokens` as one complete expression. `what` names it in messages
@@ -344,10 +350,20 @@ pub(crate) fn parse_expression(
     what: &str,
     anchor: Span,
 ) -> Result<SrcExpr, SpecError> {
+    parse_nested(tokens, scope, what, anchor, 0)
+}
+
+fn parse_nested(
+    tokens: &[TokenTree],
+    scope: &Scope<'_>,
+    what: &str,
+    anchor: Span,
+    depth: usize,
+) -> Result<SrcExpr, SpecError> {
     if tokens.is_empty() {
         return err(anchor, format!("{what} is empty: write an expression, e.g. `dot(x)^2/2`"));
     }
-    let mut p = Parser { toks: tokens.to_vec(), pos: 0, scope, what };
+    let mut p = Parser { toks: tokens.to_vec(), pos: 0, scope, what, depth };
     let e = p.sum()?;
     if let Some(tt) = p.toks.get(p.pos) {
         return p.trailing(tt);
@@ -391,6 +407,23 @@ impl Parser<'_, '_> {
     }
 
     fn unary(&mut self) -> Result<SrcExpr, SpecError> {
+        if self.depth >= MAX_DEPTH {
+            let span = self.peek().map_or_else(Span::call_site, TokenTree::span);
+            return err(
+                span,
+                format!(
+                    "{} is nested too deeply (over {MAX_DEPTH} levels): split it using constants or simplify it",
+                    self.what
+                ),
+            );
+        }
+        self.depth += 1;
+        let result = self.unary_inner();
+        self.depth -= 1;
+        result
+    }
+
+    fn unary_inner(&mut self) -> Result<SrcExpr, SpecError> {
         match self.peek_op() {
             Some(('-', span)) => {
                 self.pos += 1;
@@ -471,7 +504,7 @@ impl Parser<'_, '_> {
                     if inner.is_empty() {
                         return err(g.span(), "empty parentheses: write an expression inside `( … )`");
                     }
-                    parse_expression(&inner, self.scope, self.what, g.span())
+                    parse_nested(&inner, self.scope, self.what, g.span(), self.depth)
                 }
                 Delimiter::Bracket | Delimiter::Brace => err(
                     g.span(),
@@ -519,7 +552,7 @@ impl Parser<'_, '_> {
                 );
             }
             let what = format!("argument {} of `{name}`", i + 1);
-            args.push(parse_expression(piece, self.scope, &what, group.span())?);
+            args.push(parse_nested(piece, self.scope, &what, group.span(), self.depth)?);
         }
         if args.len() != func.arity() {
             let expected = if func.arity() == 2 {

@@ -312,6 +312,19 @@ fn expression_errors() {
     );
 }
 
+#[test]
+fn deep_nesting_is_an_error_not_a_stack_overflow() {
+    let deep = format!("{}x{}", "(".repeat(5000), ")".repeat(5000));
+    let (msg, _) = error(&with_lag(&deep));
+    assert!(msg.contains("nested too deeply"), "{msg}");
+    let (msg, _) = error(&with_lag(&format!("{}x", "-".repeat(5000))));
+    assert!(msg.contains("nested too deeply"), "{msg}");
+    let (msg, _) = error(&with_lag(&vec!["x"; 5000].join("^")));
+    assert!(msg.contains("nested too deeply"), "{msg}");
+    // Moderate nesting is fine.
+    lag(&format!("{}x{}", "(".repeat(100), ")".repeat(100)));
+}
+
 /// A random well-formed expression over a fixed scope, printed with the
 /// minimal parentheses the grammar needs, and its expected S-expression.
 fn arb_expr() -> impl Strategy<Value = (String, String)> {
