@@ -126,10 +126,6 @@ class SystemResult:
         return all(w.ok for w in self.worst.values()) and not self.structure_failures and self.points > 0
 
 
-def _column(x) -> np.ndarray:
-    return np.asarray(x, dtype=float)
-
-
 def check_structure(system: CasadiSystem, claims: Dict, values: List[Dict[str, np.ndarray]], result: SystemResult):
     """A claimed structure fact that CasADi's derivatives contradict at a sample point is a failure
     (the runtime would skip work it needs); a fact the generator missed is only noted."""

@@ -113,6 +113,36 @@ class Tableaux(unittest.TestCase):
         np.testing.assert_allclose(tableaux.lobatto(3)["b"], [1 / 6, 2 / 3, 1 / 6], atol=1e-15)
 
 
+class Structure(unittest.TestCase):
+    SOURCE = {
+        "name": "Rheonomic",
+        "coordinates": ["x", "y"],
+        "parameters": ["m"],
+        "lagrangian": "(+ (* 0.5 (p m) (+ 1 t) (^ (v x) 2)) (* (q x) (v y)))",
+        "constraints": ["(- (^ (v x) 2) (* (sin t) (q y)))"],
+    }
+
+    def run_check(self, claims):
+        from spark_check import compare
+
+        system = CasadiSystem(self.SOURCE)
+        values = [{k: np.array(v) for k, v in system.evaluate(0.3, [0.1, 0.2], [0.3, -0.4], [1.2], [0.5]).items()}]
+        result = compare.SystemResult("t", 2, 1, 1, 0)
+        compare.check_structure(system, claims, values, result)
+        return result
+
+    def test_false_claims_fail_and_missed_facts_are_noted(self):
+        honest = {"lagrangian_autonomous": False, "constraints_autonomous": False, "constant_mass_matrix": False,
+                  "separable": False, "constraint_form": "Nonlinear"}
+        self.assertEqual(self.run_check(honest).structure_failures, [])
+        for key in ("lagrangian_autonomous", "constraints_autonomous", "constant_mass_matrix", "separable"):
+            with self.subTest(key=key):
+                self.assertEqual(len(self.run_check(dict(honest, **{key: True})).structure_failures), 1)
+        for form in ("None", "Linear", "Affine"):
+            with self.subTest(form=form):
+                self.assertEqual(len(self.run_check(dict(honest, constraint_form=form)).structure_failures), 1)
+
+
 class Steps(unittest.TestCase):
     PARTICLE = {
         "name": "Particle",
