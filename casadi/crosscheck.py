@@ -254,7 +254,7 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
         "spark: `OperationCounts` of the generated code (0 for hand-written systems). "
         "CasADi: arithmetic operations of one `cse=True` SX Function computing the same outputs "
         "(CasADi's `n_instructions`, which also counts inputs, outputs and constants, in parentheses). "
-        "The bundle is `L, ∇_qL, ∇_vL, ∇²_vvL, ∂(∇_vL)/∂q, k, k_q, k_v, Kᵀψ` and its Jacobians in `q`, `v`.",
+        "The bundle is `L, ∇_qL, ∇_vL, ∇²_vvL, ∂(∇_vL)/∂q, k, k_q, k_v, Kᵀψ` and its Jacobians in `q`, `v` (as `OperationCounts::bundle`); `stage_values`/`stage_jacobians` are the fused trait functions (with `R = −Kᵀψ`).",
         "",
         "| system | stage_values spark | stage_values CasADi | stage_jacobians spark | stage_jacobians CasADi "
         "| bundle spark | bundle CasADi |",

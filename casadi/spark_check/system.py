@@ -84,6 +84,11 @@ class CasadiSystem:
             "force_t": ca.jacobian(self.grad_q, t),
             "constraint_t": ca.jacobian(self.k, t),
         }
+        # Kᵀψ itself (not R = −Kᵀψ) is what `OperationCounts::bundle` counts.
+        kt_psi = ca.mtimes(self.k_v.T, psi)
+        self.sym["kt_psi"] = kt_psi
+        self.sym["kt_psi_q"] = ca.jacobian(kt_psi, q)
+        self.sym["kt_psi_v"] = ca.jacobian(kt_psi, v)
         # Quantities the structure-fact check needs.
         mass = self.sym["mass_matrix"]
         self.sym["mass_matrix_dtqv"] = ca.jacobian(ca.vec(mass), ca.vertcat(t, q, v))
@@ -110,9 +115,9 @@ class CasadiSystem:
         "constraint",
         "constraint_q",
         "constraint_v",
-        "constraint_force",
-        "constraint_force_q",
-        "constraint_force_v",
+        "kt_psi",
+        "kt_psi_q",
+        "kt_psi_v",
     )
     STAGE_VALUES = ("momentum", "force", "constraint", "constraint_force")
     STAGE_JACOBIANS = STAGE_VALUES + (
