@@ -36,7 +36,7 @@ pub struct IterationRecord {
 pub const HISTORY_CAPACITY: usize = 32;
 
 /// The iterations of one Newton solve, stored inline (no heap).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, PartialEq)]
 pub struct NewtonHistory {
     records: [IterationRecord; HISTORY_CAPACITY],
     len: usize,
@@ -71,6 +71,12 @@ impl NewtonHistory {
     /// Forgets all records.
     pub fn clear(&mut self) {
         self.len = 0;
+    }
+}
+
+impl std::fmt::Debug for NewtonHistory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list().entries(self.iterations()).finish()
     }
 }
 

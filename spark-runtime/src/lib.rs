@@ -99,6 +99,7 @@ pub mod handwritten;
 mod initial;
 mod linalg;
 pub mod reference;
+pub mod rejection;
 mod stepper;
 pub mod system;
 pub mod tableau;
@@ -110,6 +111,10 @@ pub use driver::{
 };
 pub use error::{IterationRecord, NewtonHistory, StepError, SystemError, HISTORY_CAPACITY};
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+pub use rejection::{
+    integrate_with_rejection, step_with_rejection, ProtectedStep, RejectionError, RejectionPolicy, RejectionReport,
+    RejectionRunError,
+};
 pub use spark_macros::nonholonomic_system;
 pub use stepper::{NewtonMode, NewtonOptions, State, StepResult, Stepper};
 pub use system::{
