@@ -16,6 +16,9 @@ use std::sync::OnceLock;
 const FONT: &str = "sans-serif";
 static FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
+/// Series with more points than this are drawn with thin lines.
+const DENSE: usize = 300;
+
 /// Colours for successive series (colour-blind-safe Okabe–Ito order).
 const COLORS: [RGBColor; 7] = [
     RGBColor(0, 114, 178),
@@ -186,17 +189,20 @@ fn range(lo: f64, hi: f64, scale: Scale) -> (f64, f64) {
             }
         }
         Scale::Log => {
-            if hi > lo {
-                (lo / 1.5, hi * 1.5)
-            } else {
-                (lo / 10.0, hi * 10.0)
+            // Whole decades, at least two, so the axis always gets labels.
+            let mut a = lo.log10().floor();
+            let mut b = hi.log10().ceil();
+            if b - a < 2.0 {
+                a -= 1.0;
+                b = a + 3.0;
             }
+            (10f64.powf(a), 10f64.powf(b))
         }
     }
 }
 
-fn tick_label(v: f64) -> String {
-    if v == 0.0 {
+fn tick_label(v: f64, span: f64) -> String {
+    if v == 0.0 || v.abs() < 1e-9 * span {
         "0".into()
     } else if v.abs() >= 1e-2 && v.abs() < 1e5 {
         let s = format!("{v:.4}");
@@ -236,8 +242,8 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
                 .configure_mesh()
                 .x_desc(&panel.x_label)
                 .y_desc(&panel.y_label)
-                .x_label_formatter(&|v| tick_label(*v))
-                .y_label_formatter(&|v| tick_label(*v))
+                .x_label_formatter(&|v| tick_label(*v, x1 - x0))
+                .y_label_formatter(&|v| tick_label(*v, y1 - y0))
                 .label_style((FONT, 13))
                 .axis_desc_style((FONT, 15))
                 .light_line_style(WHITE.mix(0.0))
@@ -245,7 +251,11 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
                 .map_err(e)?;
             for (k, (series, pts)) in panel.series.iter().zip(data.iter()).enumerate() {
                 let color = COLORS[k % COLORS.len()];
-                let style = ShapeStyle::from(&color).stroke_width(if series.dashed { 1 } else { 2 });
+                // Wide polylines get miter joins, which shoot far out of the
+                // chart at the sharp turns of dense oscillating data; dense
+                // curves are therefore drawn one pixel wide.
+                let width = if series.dashed || pts.len() > DENSE { 1 } else { 2 };
+                let style = ShapeStyle::from(&color).stroke_width(width);
                 if series.dashed {
                     chart
                         .draw_series(DashedLineSeries::new(pts.iter().copied(), 6, 4, style))

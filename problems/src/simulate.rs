@@ -8,10 +8,13 @@
 //! `match` over systems × `S ∈ 1..=MAX_DISPATCH_STAGES`, written once in
 //! [`dispatch!`].
 
-use crate::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
+use crate::systems::{
+    AppellHamel, ChaplyginSleigh, DoublePendulum, McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate,
+    TurntableSkate,
+};
 use spark_runtime::{
-    IntegrationError, Method, NewtonOptions, NonholonomicSystem, Observe, RunOptions, Schedule, Stepper, Tableau,
-    TableauError, Vector,
+    consistent_velocity, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NonholonomicSystem, Observe,
+    RunOptions, Schedule, Stepper, Tableau, TableauError, Vector,
 };
 use std::time::{Duration, Instant};
 
@@ -31,6 +34,14 @@ pub enum SystemKind {
     Robot,
     /// McLachlan–Perlmutter particles, `n = 7` (paper §8.4).
     McLachlanPerlmutter7,
+    /// Skate on a turning table: rheonomic affine constraint (not in the paper).
+    Turntable,
+    /// Appell–Hamel particle: constraint nonlinear in `v` (not in the paper).
+    AppellHamel,
+    /// Chaplygin sleigh on an inclined plane: `q`-dependent mass matrix (not in the paper).
+    Sleigh,
+    /// Planar double pendulum: no constraints (not in the paper).
+    DoublePendulum,
 }
 
 /// Facts about one system for listings and defaults.
@@ -50,16 +61,24 @@ pub struct SystemInfo {
     pub constraints: usize,
     /// Runtime parameters with their default values.
     pub parameters: Vec<(String, f64)>,
-    /// The paper's initial coordinates.
+    /// Default initial coordinates (the paper's where it has them).
     pub q0: Vec<f64>,
-    /// The paper's initial velocities.
+    /// Default initial velocities (the paper's where it has them).
     pub v0: Vec<f64>,
 }
 
 impl SystemKind {
     /// Every system, in paper order.
-    pub const ALL: [SystemKind; 4] =
-        [SystemKind::Particle, SystemKind::Skate, SystemKind::Robot, SystemKind::McLachlanPerlmutter7];
+    pub const ALL: [SystemKind; 8] = [
+        SystemKind::Particle,
+        SystemKind::Skate,
+        SystemKind::Robot,
+        SystemKind::McLachlanPerlmutter7,
+        SystemKind::Turntable,
+        SystemKind::AppellHamel,
+        SystemKind::Sleigh,
+        SystemKind::DoublePendulum,
+    ];
 
     /// The command-line name.
     pub const fn key(self) -> &'static str {
@@ -68,6 +87,10 @@ impl SystemKind {
             SystemKind::Skate => "skate",
             SystemKind::Robot => "robot",
             SystemKind::McLachlanPerlmutter7 => "mp7",
+            SystemKind::Turntable => "turntable",
+            SystemKind::AppellHamel => "appell-hamel",
+            SystemKind::Sleigh => "sleigh",
+            SystemKind::DoublePendulum => "double-pendulum",
         }
     }
 
@@ -117,18 +140,41 @@ impl SystemKind {
                 self,
                 "McLachlan–Perlmutter particles, n = 7, chaotic, v1 + q5 v5 + q6 v6 + q7 v7 = 0 (§8.4)",
             ),
+            SystemKind::Turntable => facts::<TurntableSkate, 3, 1>(
+                self,
+                "skate on a table turning at ω(t) = ω0(1 + ε sin νt): rheonomic affine constraint, energy not conserved",
+            ),
+            SystemKind::AppellHamel => facts::<AppellHamel, 3, 1>(
+                self,
+                "Appell–Hamel particle under gravity, v3² − a²(v1² + v2²) = 0 (nonlinear in v)",
+            ),
+            SystemKind::Sleigh => facts::<ChaplyginSleigh, 3, 1>(
+                self,
+                "Chaplygin sleigh on an inclined plane: q-dependent mass matrix, no sideways slip",
+            ),
+            SystemKind::DoublePendulum => {
+                facts::<DoublePendulum, 2, 0>(self, "planar double pendulum, no constraints, non-separable L")
+            }
         }
     }
 }
 
 /// The paper's initial values (for `mp7`: the member `j = 0` of the §8.4
-/// ensemble, see [`mp7_initial_values`]).
+/// ensemble, see [`mp7_initial_values`]); for the systems not in the paper,
+/// consistent values chosen here.
 pub fn paper_initial_values(kind: SystemKind) -> (Vec<f64>, Vec<f64>) {
     match kind {
         SystemKind::Particle => (vec![1.0, 0.0, 0.0], vec![0.0, 1.0, 0.0]),
         SystemKind::Skate => (vec![0.0; 3], vec![0.0, 0.0, 1.0]),
         SystemKind::Robot => (vec![0.0; 4], vec![1.0, 0.0, 0.0, 1.0]),
         SystemKind::McLachlanPerlmutter7 => mp7_initial_values(0, 9),
+        // Not from the paper: consistent values chosen for this program.
+        SystemKind::Turntable => (vec![1.0, 0.0, 0.0], vec![0.5, 1.0, 0.5]),
+        // Falling (v3 < 0): rising would stop at v = 0, where K = ∂k/∂v
+        // vanishes and the method's Newton matrix is singular.
+        SystemKind::AppellHamel => (vec![0.0; 3], vec![1.0, 0.0, -0.5]),
+        SystemKind::Sleigh => (vec![0.0; 3], vec![1.0, 0.0, 0.5]),
+        SystemKind::DoublePendulum => (vec![1.0, 0.5], vec![0.0, 0.0]),
     }
 }
 
@@ -151,7 +197,10 @@ pub fn mp7_initial_values(j: usize, big_j: usize) -> (Vec<f64>, Vec<f64>) {
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
     /// The system name is not in the catalogue.
-    #[error("unknown system `{name}`; known: particle, skate, robot, mp7 (see `spark list`)")]
+    #[error(
+        "unknown system `{name}`; known: particle, skate, robot, mp7, turntable, appell-hamel, sleigh, \
+         double-pendulum (see `spark list`)"
+    )]
     UnknownSystem {
         /// The name given.
         name: String,
@@ -226,6 +275,8 @@ pub struct RunSpec {
     pub record_every: usize,
     /// Newton settings.
     pub newton: NewtonOptions,
+    /// What to do with an initial velocity that violates the constraints.
+    pub consistency: ConsistencyPolicy,
 }
 
 impl RunSpec {
@@ -244,6 +295,7 @@ impl RunSpec {
             v0,
             record_every: 1,
             newton: NewtonOptions::default(),
+            consistency: ConsistencyPolicy::default(),
         }
     }
 }
@@ -329,6 +381,10 @@ macro_rules! dispatch {
             SystemKind::Skate => dispatch!(@stages Skate, spec, $tick),
             SystemKind::Robot => dispatch!(@stages MobileRobot, spec, $tick),
             SystemKind::McLachlanPerlmutter7 => dispatch!(@stages McLachlanPerlmutter7, spec, $tick),
+            SystemKind::Turntable => dispatch!(@stages TurntableSkate, spec, $tick),
+            SystemKind::AppellHamel => dispatch!(@stages AppellHamel, spec, $tick),
+            SystemKind::Sleigh => dispatch!(@stages ChaplyginSleigh, spec, $tick),
+            SystemKind::DoublePendulum => dispatch!(@stages DoublePendulum, spec, $tick),
         }
     }};
 }
@@ -375,6 +431,14 @@ where
     let probe = make()?;
     let tableau = Tableau::<S>::new(spec.method)?;
     let mut stepper = Stepper::<Sys, N, M, S, D>::new(make()?, tableau).with_options(spec.newton);
+    // Check (or project) v0 here, so that E0 and the initial residual refer
+    // to the state actually integrated.
+    let v0 = consistent_velocity(&probe, spec.t0, &q0, &v0, spec.consistency).map_err(|e| RunError::Integration {
+        system: key,
+        method: spec.method,
+        stages: S,
+        source: IntegrationError::Initial(e),
+    })?;
     let e0 = probe.energy(spec.t0, &q0, &v0);
     let mut max_e: f64 = 0.0;
     let mut max_k: f64 = probe.constraint(spec.t0, &q0, &v0).amax();
@@ -390,6 +454,7 @@ where
     let options = RunOptions {
         observe: Observe { energy: true, constraint_residual: true, multipliers: false },
         record_every: spec.record_every,
+        consistency: spec.consistency,
         ..RunOptions::default()
     };
     let start = Instant::now();
