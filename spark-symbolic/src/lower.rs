@@ -93,18 +93,39 @@ impl<'a> Lowerer<'a> {
                 let a = self.lower_depth(g, a, depth + 1)?;
                 g.neg(a)
             }
-            SrcExpr::Binary(op, a, b, s) => {
+            SrcExpr::Binary(BinOp::Pow, a, b, s) => {
                 let a = self.lower_depth(g, a, depth + 1)?;
                 let b = self.lower_depth(g, b, depth + 1)?;
-                let r = match op {
-                    BinOp::Add => g.add2(a, b),
-                    BinOp::Sub => g.sub(a, b),
-                    BinOp::Mul => g.mul2(a, b),
-                    BinOp::Div => g.div(a, b),
-                    BinOp::Pow => g.pow(a, b),
-                };
+                let r = g.pow(a, b);
                 check_finite(g, &[a, b], r, *s)?;
                 r
+            }
+            SrcExpr::Binary(op, ..) => {
+                // Walk the left spine of a chain `a ± b ± c …` (or `a */ b */ c …`)
+                // iteratively, so that long sums do not count as deep nesting.
+                let additive = matches!(op, BinOp::Add | BinOp::Sub);
+                let mut chain = Vec::new();
+                let mut left = e;
+                while let SrcExpr::Binary(o, a, b, s) = left {
+                    if *o == BinOp::Pow || matches!(o, BinOp::Add | BinOp::Sub) != additive {
+                        break;
+                    }
+                    chain.push((*o, &**b, *s));
+                    left = a;
+                }
+                let mut acc = self.lower_depth(g, left, depth + 1)?;
+                for (o, b, s) in chain.into_iter().rev() {
+                    let b = self.lower_depth(g, b, depth + 1)?;
+                    let r = match o {
+                        BinOp::Add => g.add2(acc, b),
+                        BinOp::Sub => g.sub(acc, b),
+                        BinOp::Mul => g.mul2(acc, b),
+                        _ => g.div(acc, b),
+                    };
+                    check_finite(g, &[acc, b], r, s)?;
+                    acc = r;
+                }
+                acc
             }
             SrcExpr::Call(f, args, s) => {
                 if args.len() != f.arity() {

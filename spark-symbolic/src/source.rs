@@ -11,6 +11,16 @@ pub fn sexpr(spec: &SystemSpec, e: &SrcExpr) -> String {
     out
 }
 
+fn op_name(op: BinOp) -> &'static str {
+    match op {
+        BinOp::Add => "+",
+        BinOp::Sub => "-",
+        BinOp::Mul => "*",
+        BinOp::Div => "/",
+        BinOp::Pow => "^",
+    }
+}
+
 fn number(x: f64, out: &mut String) {
     // `{:?}` of an f64 is the shortest text that round-trips.
     out.push_str(&format!("{x:?}"));
@@ -46,20 +56,30 @@ fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
             out.push(')');
         }
         SrcExpr::Binary(op, a, b, _) => {
-            let name = match op {
-                BinOp::Add => "+",
-                BinOp::Sub => "-",
-                BinOp::Mul => "*",
-                BinOp::Div => "/",
-                BinOp::Pow => "^",
-            };
-            out.push('(');
-            out.push_str(name);
-            out.push(' ');
-            write(spec, a, out, depth + 1);
-            out.push(' ');
-            write(spec, b, out, depth + 1);
-            out.push(')');
+            let name = op_name(*op);
+            // A left-nested chain `a + b − c …` prints as nested binary
+            // forms `(- (+ a b) c)`, written iteratively so that long sums
+            // are not deep recursion.
+            let mut chain = vec![(name, &**b)];
+            let mut left = &**a;
+            while let SrcExpr::Binary(o, a2, b2, _) = left {
+                if *o == BinOp::Pow {
+                    break;
+                }
+                chain.push((op_name(*o), &**b2));
+                left = a2;
+            }
+            for (name, _) in chain.iter() {
+                out.push('(');
+                out.push_str(name);
+                out.push(' ');
+            }
+            write(spec, left, out, depth + 1);
+            for (_, b) in chain.iter().rev() {
+                out.push(' ');
+                write(spec, b, out, depth + 1);
+                out.push(')');
+            }
         }
         SrcExpr::Call(f, args, _) => {
             out.push('(');

@@ -152,3 +152,15 @@ fn mclachlan_perlmutter_counts_grow_linearly() {
     let per = |(n, ops): (usize, usize)| ops as f64 / n as f64;
     assert!(per(counts[2]) <= 1.05 * per(counts[1]), "{counts:?}");
 }
+
+/// A sum of thousands of terms is a long chain, not deep nesting: it lowers,
+/// analyzes and prints its neutral text without hitting the depth limit.
+#[test]
+fn long_sums_are_not_deep_nesting() {
+    let terms: Vec<_> = (0..3000).map(|k| mul(num(k as f64), sq(v(k % 2)))).collect();
+    let s = spec("Long", &["x", "y"], &[], sum(terms), vec![]);
+    let a = analyze(&s).expect("long sum");
+    assert!(a.lagrangian_source.starts_with("(+ (+ (+ "));
+    assert!(a.lagrangian_source.ends_with(" (* 2999.0 (^ (v y) 2.0)))"), "{}", &a.lagrangian_source[..80]);
+    assert!(a.structure.constant_mass_matrix);
+}
