@@ -136,6 +136,59 @@ pub fn substitute_zero(g: &mut Graph, node: NodeId, kinds: Deps, memo: &mut Hash
     r
 }
 
+/// Degree of positive homogeneity of `x` in the velocities, if `x` is
+/// homogeneous (`x(λv) = λ^d x(v)` for `λ > 0`).
+fn velocity_degree(g: &Graph, x: NodeId, depth: usize) -> Option<f64> {
+    if !g.deps(x).any(Deps::V) {
+        return Some(0.0);
+    }
+    if depth > 500 {
+        return None;
+    }
+    match g.node(x) {
+        Node::Var(Var::V(_)) => Some(1.0),
+        Node::Mul(xs) => xs.iter().map(|&f| velocity_degree(g, f, depth + 1)).sum(),
+        Node::Add(xs) => {
+            let d = velocity_degree(g, xs[0], depth + 1)?;
+            xs[1..].iter().all(|&t| velocity_degree(g, t, depth + 1) == Some(d)).then_some(d)
+        }
+        Node::Pow(b, e) if !g.deps(*e).any(Deps::V) => {
+            let e = g.as_const(*e)?;
+            Some(velocity_degree(g, *b, depth + 1)? * e)
+        }
+        _ => None,
+    }
+}
+
+/// `E = ∇_v L · v − L`, term by term: a term of `L` homogeneous of degree
+/// `d` in `v` contributes `(d − 1)·term` (Euler's relation), so that the
+/// energy of `T₂ − U` reads `T₂ + U`; other terms are differentiated.
+fn energy(g: &mut Graph, d: &mut Differentiator, lagrangian: NodeId, vs: &[Var]) -> NodeId {
+    let terms: Vec<NodeId> = match g.node(lagrangian) {
+        Node::Add(xs) => xs.to_vec(),
+        _ => vec![lagrangian],
+    };
+    let mut out = Vec::with_capacity(terms.len());
+    for term in terms {
+        match velocity_degree(g, term, 0) {
+            Some(deg) => out.push(g.scale(deg - 1.0, term)),
+            None => {
+                let mut parts: Vec<NodeId> = vs
+                    .iter()
+                    .map(|&v| {
+                        let dv = d.diff(g, term, v);
+                        let vn = g.var(v);
+                        g.mul2(dv, vn)
+                    })
+                    .collect();
+                parts.push(g.neg(term));
+                out.push(g.add(&parts));
+            }
+        }
+    }
+    g.add(&out)
+}
+
 impl Model {
     /// Lowers `spec` and takes every derivative. Fails with a span on the
     /// offending expression (bad constant, holonomic constraint).
@@ -212,14 +265,7 @@ impl Model {
         let momentum_t: Vec<NodeId> = momentum.iter().map(|&p| d.diff(&mut g, p, Var::Time)).collect();
         let force_t: Vec<NodeId> = force.iter().map(|&f| d.diff(&mut g, f, Var::Time)).collect();
         let constraint_t: Vec<NodeId> = constraint.iter().map(|&k| d.diff(&mut g, k, Var::Time)).collect();
-        let pv: Vec<NodeId> = (0..n)
-            .map(|i| {
-                let vi = g.var(Var::V(i as u32));
-                g.mul2(momentum[i], vi)
-            })
-            .collect();
-        let pv = g.add(&pv);
-        let energy = g.sub(pv, lagrangian);
+        let energy = energy(&mut g, &mut d, lagrangian, &vs);
 
         let free_of = |g: &Graph, xs: &[NodeId], kinds: Deps| xs.iter().all(|&x| !g.deps(x).any(kinds));
         let constraint_form = if m == 0 {

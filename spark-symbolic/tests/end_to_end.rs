@@ -25,18 +25,43 @@ fn skate_from_dsl_generates_valid_rust() {
     assert!(a.structure.constant_mass_matrix);
 }
 
-#[test]
-fn every_function_and_time_from_dsl() {
-    let spec = parse(
-        "struct Everything {
+const EVERYTHING: &str = "struct Everything {
             coordinates: [a, b],
             parameters: { k = 2.0 },
             constants: { c = 3.0, d = c^2 },
             lagrangian: exp(a)*dot(a)^2/2 + sqrt(1 + b^2)*dot(b)^2 + k*t*a + atan2(a, 2 + b^2)
-                + tanh(b)*sinh(a)*cosh(dot(b)) - d*a^(-2.5)*ln(2 + b^2) + tan(a/10)*dot(a)*dot(b) + cos(a),
+                + tanh(b)*sinh(a)*cosh(dot(b)) - d*a^(-2.5)*ln(2 + b^2) + tan(a/10)*dot(a)*dot(b) + cos(a)
+                + sqrt(dot(a)^2 + dot(b)^2)^3 + dot(a)*b,
             constraints: [ dot(a)^2 + b*dot(b) + t, sin(a)*dot(b) - 1 ],
-        }",
-    );
+        }";
+
+/// The energy (built term by term with Euler's relation where a term is
+/// homogeneous in `v`) equals `∇_v L · v − L` at random points.
+#[test]
+fn energy_matches_its_definition() {
+    use spark_symbolic::graph::Var;
+    let spec = parse(EVERYTHING);
+    let m = spark_symbolic::model::Model::build(&spec).expect("model");
+    for k in 0..20 {
+        let x = |i: u32| ((k * 7 + i * 3) as f64 * 0.37).sin() + 1.2;
+        let env = |v: Var| match v {
+            Var::Time => x(0),
+            Var::Q(i) => x(1 + i),
+            Var::V(i) => x(4 + i) - 1.5,
+            Var::P(_) => 2.0,
+            Var::Psi(_) => f64::NAN,
+        };
+        let g = &m.graph;
+        let pv: f64 = (0..2).map(|i| g.eval(m.momentum[i], &env) * env(Var::V(i as u32))).sum();
+        let want = pv - g.eval(m.lagrangian, &env);
+        let got = g.eval(m.energy, &env);
+        assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "{got} vs {want}");
+    }
+}
+
+#[test]
+fn every_function_and_time_from_dsl() {
+    let spec = parse(EVERYTHING);
     syn::parse2::<syn::File>(generate(&spec).expect("generate")).expect("valid Rust");
     let a = analyze(&spec).expect("analyze");
     assert!(!a.structure.lagrangian_autonomous && !a.structure.constraints_autonomous);

@@ -115,10 +115,9 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let s3 = v[0] * v[0];
-        let s4 = v[1] * v[1];
-        let energy: f64 = self.m * s3 + self.m * s4
-            + 0.5 * (self.inertia * (v[2] * v[2]) - self.m * (s3 + s4)) - s2 * q[0];
+        let energy: f64 = 0.5
+            * (self.m * (v[0] * v[0] + v[1] * v[1]) + self.inertia * (v[2] * v[2]))
+            - s2 * q[0];
         energy
     }
     fn momentum(
