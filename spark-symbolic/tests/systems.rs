@@ -25,10 +25,12 @@ fn paper_systems_structure() {
 }
 
 /// CasADi SX with `cse=True` needs about 30 / 21 / 40 / 99 operations for
-/// the bundle on skate / particle / robot / McLachlan–Perlmutter n = 7.
+/// the bundle on skate / particle / robot / McLachlan–Perlmutter n = 7 (the
+/// issue's figures); `scripts/casadi_bundle_counts.py` measures 38 / 21 / 48 /
+/// 75 with CasADi 3.8 for the same formulas. We must be at or below both.
 #[test]
 fn bundle_operation_counts_at_most_casadi() {
-    let cases = [(skate(), 30), (particle(), 21), (robot(), 40), (mclachlan_perlmutter(7), 99)];
+    let cases = [(skate(), 30), (particle(), 21), (robot(), 40), (mclachlan_perlmutter(7), 75)];
     let mut report = Vec::new();
     for (s, casadi) in cases {
         let a = analyze(&s).unwrap_or_else(|e| panic!("{}: {}", s.name, e.message));
@@ -121,10 +123,9 @@ fn generated_code_has_no_heap_allocation_outside_parameter_values() {
 
 #[test]
 fn large_bodies_are_split_into_helpers() {
-    let code = compact(&generate(&mclachlan_perlmutter(201)).expect("n = 201"));
-    assert!(code.contains("fn__stage_jacobians_part1"), "stage_jacobians not split");
-    syn::parse_str::<syn::File>(&generate(&mclachlan_perlmutter(201)).expect("n = 201").to_string())
-        .expect("split code parses");
+    let tokens = generate(&mclachlan_perlmutter(201)).expect("n = 201");
+    assert!(compact(&tokens).contains("fn__stage_jacobians_part1"), "stage_jacobians not split");
+    syn::parse2::<syn::File>(tokens).expect("split code parses");
 }
 
 #[test]
