@@ -285,6 +285,24 @@ impl Gen<'_> {
     }
 }
 
+/// Traits the user already derives on the struct (`#[derive(...)]` in the
+/// attributes passed through), so that the generated derives do not clash.
+fn user_derives(attrs: &TokenStream) -> Vec<Ident> {
+    let mut out = Vec::new();
+    let Ok(attrs) = syn::parse::Parser::parse2(syn::Attribute::parse_outer, attrs.clone()) else {
+        return out;
+    };
+    for a in attrs.iter().filter(|a| a.path().is_ident("derive")) {
+        let _ = a.parse_nested_meta(|m| {
+            if let Some(seg) = m.path.segments.last() {
+                out.push(seg.ident.clone());
+            }
+            Ok(())
+        });
+    }
+    out
+}
+
 /// Generates all items for `spec` from its built `model`.
 pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStream, Operations), SpecError> {
     let rt = if spec.runtime_path.is_empty() { quote!(::spark_runtime) } else { spec.runtime_path.clone() };
@@ -344,6 +362,18 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
 
     // Struct, Default, inherent items.
     let (attrs, vis, name) = (&spec.attrs, &spec.vis, &spec.name);
+    let derived = user_derives(attrs);
+    if let Some(d) = derived.iter().find(|d| *d == "Default") {
+        return Err(SpecError {
+            span: d.span(),
+            message: "`Default` is generated from the parameter defaults; remove it from `#[derive(...)]`".into(),
+        });
+    }
+    let derives: Vec<Ident> = ["Clone", "Copy", "Debug", "PartialEq"]
+        .iter()
+        .filter(|t| !derived.iter().any(|d| d == *t))
+        .map(|t| Ident::new(t, proc_macro2::Span::call_site()))
+        .collect();
     let fields = spec.parameters.iter().zip(&params).map(|(p, id)| {
         let doc = format!("Runtime parameter `{}` (default `{:?}`).", p.name.name, p.default);
         quote!(#[doc = #doc] pub #id: f64,)
@@ -417,7 +447,7 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
     let doc_m = "Number of constraints.";
     let tokens = quote! {
         #attrs
-        #[derive(Clone, Copy, Debug, PartialEq)]
+        #[derive(#(#derives),*)]
         #vis struct #name {
             #(#fields)*
         }

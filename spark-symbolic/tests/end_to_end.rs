@@ -77,3 +77,17 @@ fn holonomic_constraint_from_dsl_is_an_error() {
     let e = generate(&spec).expect_err("holonomic");
     assert!(e.message.contains("holonomic"), "{}", e.message);
 }
+
+/// Derives the user writes are not derived twice; `Default` is generated
+/// from the parameter defaults, so deriving it is an error that says so.
+#[test]
+fn user_derives_do_not_clash() {
+    let spec = parse("#[derive(Debug, Clone)] struct A { coordinates: [x], lagrangian: dot(x)^2 }");
+    let code = generate(&spec).expect("generate").to_string();
+    assert_eq!(code.matches("Debug").count(), 1, "{code}");
+    assert_eq!(code.matches("Clone").count(), 1, "{code}");
+    assert!(code.contains("Copy"));
+    let spec = parse("#[derive(Default)] struct A { coordinates: [x], lagrangian: dot(x)^2 }");
+    let e = generate(&spec).expect_err("derive(Default)");
+    assert!(e.message.contains("remove it"), "{}", e.message);
+}
