@@ -7,3 +7,5 @@ pub mod systems;
 pub mod simulate;
 pub mod output;
 pub mod paper;
+pub mod peers;
+pub mod workprecision;

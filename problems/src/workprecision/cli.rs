@@ -1,0 +1,77 @@
+//! The `spark work-precision` subcommand's arguments and driver (the binary
+//! only forwards to [`run`] and prints what it returns).
+
+use super::{run_work_precision, supported, WorkPrecisionConfig};
+use crate::simulate::SystemKind;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Work-precision diagrams: error vs wall time for every SPARK method, with
+/// peers (num-dual, finite differences, ode_solvers DOP853, CasADi C, SciPy)
+/// measured in the same run.
+#[derive(clap::Args, Debug, Clone)]
+pub struct WorkPrecisionArgs {
+    /// One system (particle, skate, robot, mp7); default: all four.
+    #[arg(long, short = 'y')]
+    pub system: Option<String>,
+    /// Output folder (CSV, Markdown, PNG and SVG figures).
+    #[arg(long, short, default_value = "results/work-precision")]
+    pub out: PathBuf,
+    /// Final time T.
+    #[arg(long, default_value_t = 10.0)]
+    pub t_end: f64,
+    /// Timed repeats per point (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub repeats: usize,
+    /// Largest step count of a sweep.
+    #[arg(long, default_value_t = 1 << 17)]
+    pub max_steps: usize,
+    /// Python interpreter with casadi and scipy for the CasADi C and SciPy
+    /// peers (set up by `bash casadi/peers/setup.sh`).
+    #[arg(long, default_value = "casadi/.venv/bin/python")]
+    pub python: PathBuf,
+    /// Skip the CasADi C and SciPy peers.
+    #[arg(long)]
+    pub no_python: bool,
+    /// A seconds-long smoke run of every code path (short T, few steps).
+    #[arg(long)]
+    pub quick: bool,
+}
+
+/// Runs the measurement and returns the text to print.
+pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, String> {
+    let mut cfg = if a.quick { WorkPrecisionConfig::quick(&a.out) } else { WorkPrecisionConfig::full(&a.out) };
+    if let Some(name) = &a.system {
+        let kind = SystemKind::parse(name).map_err(|e| e.to_string())?;
+        if !supported(kind) {
+            return Err(format!("work-precision supports particle, skate, robot and mp7, not `{name}`"));
+        }
+        cfg.systems = vec![kind];
+    }
+    if !a.quick {
+        if !(a.t_end.is_finite() && a.t_end > 0.0) {
+            return Err("--t-end must be a positive number".into());
+        }
+        cfg.final_time = a.t_end;
+        cfg.repeats = a.repeats.max(1);
+        cfg.max_steps = a.max_steps.max(cfg.min_steps);
+        cfg.python = Some(a.python.clone());
+    }
+    if a.no_python {
+        cfg.python = None;
+    }
+    if a.quick {
+        cfg.max_run_time = Duration::from_millis(50);
+    }
+    let all = run_work_precision(&cfg, progress).map_err(|e| e.to_string())?;
+    let mut s = super::report::overall_ratio_table(&all, &cfg);
+    for m in &all {
+        s.push_str(&format!("\n{}: cheapest method per target error\n", m.problem.system));
+        s.push_str(&super::report::cheapest_table(m, &cfg.targets));
+        for miss in &m.missing {
+            s.push_str(&format!("not measured: {miss}\n"));
+        }
+    }
+    s.push_str(&format!("\nwrote CSV, Markdown (summary.md) and figures into {}\n", cfg.out.display()));
+    Ok(s)
+}

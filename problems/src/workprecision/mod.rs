@@ -1,0 +1,612 @@
+//! What accuracy costs in time: work-precision sweeps of every SPARK method
+//! on the paper's systems, with peers measured in the same run.
+//!
+//! For one system this module integrates from the paper's initial values to
+//! a final time `T` with `n = n₀·2^k` steps for every method family and stage
+//! count, measures the global error in `q` and `v` at `T` against the
+//! independent Gragg–Bulirsch–Stoer reference
+//! ([`spark_runtime::reference`]), the largest energy error along the run,
+//! and the wall time of a run (median of repeats, observers off). Peers run
+//! on the same systems in the same process, so their ratios survive a noisy
+//! machine:
+//! - the same stepper with `num-dual` derivatives ([`crate::peers::dual`])
+//!   and with central-difference Jacobians ([`crate::peers::finite_difference`]),
+//!   at the same step counts (so at equal accuracy);
+//! - `ode_solvers`' DOP853 on the ψ-eliminated ODE ([`crate::peers::ode`])
+//!   over a tolerance sweep;
+//! - CasADi-generated C and SciPy `solve_ivp`, by running
+//!   `casadi/peers/peers.py` ([`external`]).
+//!
+//! [`report`] turns the points into CSV, Markdown tables and figures.
+
+pub mod cli;
+pub mod external;
+pub mod report;
+
+use crate::casadi_export::TableauExport;
+use crate::peers::dual::{AutoDiff, DualTwin};
+use crate::peers::finite_difference::FiniteDifference;
+use crate::peers::ode;
+use crate::simulate::{paper_initial_values, SystemKind};
+use crate::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
+use spark_runtime::reference::{self, ReferenceOptions};
+use spark_runtime::{
+    Method, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau, Vector,
+};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// Which derivative code drives the SPARK stepper.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+pub enum Provider {
+    /// The code `nonholonomic_system!` generated.
+    Generated,
+    /// Runtime forward-mode AD (`num-dual`) of a generic Lagrangian.
+    NumDual,
+    /// Generated stage values, Jacobians by central differences.
+    FiniteDifference,
+}
+
+impl Provider {
+    /// The solver label used in tables and figures.
+    pub const fn label(self) -> &'static str {
+        match self {
+            Provider::Generated => "SPARK (generated)",
+            Provider::NumDual => "SPARK + num-dual",
+            Provider::FiniteDifference => "SPARK + finite differences",
+        }
+    }
+}
+
+/// One measured run.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Point {
+    /// System key.
+    pub system: String,
+    /// Who integrated: e.g. `SPARK (generated)`, `SciPy`, `CasADi C`.
+    pub solver: String,
+    /// Method label, e.g. `Gauss s=2` or `DOP853`.
+    pub method: String,
+    /// Stage count (0 for the ODE solvers).
+    pub stages: usize,
+    /// Step size (fixed-step methods) or tolerance (adaptive ones).
+    pub setting: f64,
+    /// Steps taken.
+    pub steps: usize,
+    /// `max_i |q_i(T) − q_ref,i(T)|`.
+    pub error_q: f64,
+    /// `max_i |v_i(T) − v_ref,i(T)|`.
+    pub error_v: f64,
+    /// Largest `|E − E₀|` along the run (NaN where not measured).
+    pub energy_error: f64,
+    /// Median wall time of one run in seconds.
+    pub wall_time: f64,
+    /// `wall_time / steps`.
+    pub time_per_step: f64,
+    /// Mean Newton iterations per step (NaN where not applicable).
+    pub newton_iterations: f64,
+    /// Timed repeats behind the median.
+    pub repeats: usize,
+}
+
+impl Point {
+    /// The global error `max(error_q, error_v)`.
+    pub fn error(&self) -> f64 {
+        self.error_q.max(self.error_v)
+    }
+}
+
+/// Settings of a work-precision run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorkPrecisionConfig {
+    /// Systems to measure.
+    pub systems: Vec<SystemKind>,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Final time `T`.
+    pub final_time: f64,
+    /// Smallest step count `n₀` of the sweep.
+    pub min_steps: usize,
+    /// Largest step count of the sweep.
+    pub max_steps: usize,
+    /// A sweep stops once a run takes longer than this.
+    pub max_run_time: Duration,
+    /// A sweep stops once the error is below this (round-off floor).
+    pub floor_error: f64,
+    /// Timed repeats per point (at least; short runs repeat until
+    /// [`WorkPrecisionConfig::min_timing`] of total time).
+    pub repeats: usize,
+    /// Smallest total timed duration per point.
+    pub min_timing: Duration,
+    /// Methods `(method, s)` also run with the num-dual and
+    /// finite-difference derivative providers and exported to CasADi.
+    pub peer_methods: Vec<(Method, usize)>,
+    /// Tolerances of the DOP853 and SciPy sweeps.
+    pub tolerances: Vec<f64>,
+    /// Python interpreter with casadi and scipy (`None`: skip those peers).
+    pub python: Option<PathBuf>,
+    /// The CasADi/SciPy peer script.
+    pub peers_script: PathBuf,
+    /// Target errors of the "cheapest method" table.
+    pub targets: Vec<f64>,
+}
+
+impl WorkPrecisionConfig {
+    /// The full measurement: all paper systems, `T = 10`, steps from 8 to
+    /// 2¹⁷, peers on Gauss s = 2 and 4 and Lobatto IIIA-B s = 3.
+    pub fn full(out: impl Into<PathBuf>) -> Self {
+        WorkPrecisionConfig {
+            systems: SystemKind::ALL.iter().copied().filter(|k| supported(*k)).collect(),
+            out: out.into(),
+            final_time: 10.0,
+            min_steps: 8,
+            max_steps: 1 << 17,
+            max_run_time: Duration::from_millis(400),
+            floor_error: 2e-13,
+            repeats: 5,
+            min_timing: Duration::from_millis(20),
+            peer_methods: vec![(Method::Gauss, 2), (Method::Gauss, 4), (Method::LobattoIIIAB, 3)],
+            tolerances: (3..=13).map(|k| 10f64.powi(-k)).collect(),
+            python: Some(PathBuf::from("casadi/.venv/bin/python")),
+            peers_script: PathBuf::from("casadi/peers/peers.py"),
+            targets: vec![1e-4, 1e-8, 1e-12],
+        }
+    }
+
+    /// A seconds-long smoke run of every code path (tests, CI).
+    pub fn quick(out: impl Into<PathBuf>) -> Self {
+        WorkPrecisionConfig {
+            final_time: 1.0,
+            min_steps: 4,
+            max_steps: 64,
+            max_run_time: Duration::from_millis(50),
+            repeats: 1,
+            min_timing: Duration::ZERO,
+            peer_methods: vec![(Method::Gauss, 2)],
+            tolerances: vec![1e-4, 1e-8],
+            python: None,
+            ..Self::full(out)
+        }
+    }
+}
+
+/// Whether `kind` has everything the work-precision run needs (a
+/// hand-written num-dual twin).
+pub fn supported(kind: SystemKind) -> bool {
+    matches!(
+        kind,
+        SystemKind::Particle | SystemKind::Skate | SystemKind::Robot | SystemKind::McLachlanPerlmutter7
+    )
+}
+
+/// Every method family and stage count the sweep covers.
+pub fn method_variants() -> Vec<(Method, usize)> {
+    let mut v: Vec<(Method, usize)> = (1..=5).map(|s| (Method::Gauss, s)).collect();
+    v.extend((2..=5).map(|s| (Method::LobattoIIIAB, s)));
+    v.extend((2..=5).map(|s| (Method::LobattoIIIABD, s)));
+    v.push((Method::SymplecticEulerI, 1));
+    v.push((Method::SymplecticEulerII, 1));
+    v.push((Method::LobattoIIIBALda, 2));
+    v
+}
+
+/// A short label such as `Gauss s=3`, `Lobatto IIIA-B-D s=2`, `Euler I`, `LDA`.
+pub fn method_label(method: Method, s: usize) -> String {
+    match method {
+        Method::SymplecticEulerI => "Euler I".into(),
+        Method::SymplecticEulerII => "Euler II".into(),
+        Method::LobattoIIIBALda => "LDA (McLachlan-Perlmutter)".into(),
+        Method::ModifiedLobattoIIIAB => "modified Lobatto IIIA-B".into(),
+        m => format!("{} s={s}", m.name()),
+    }
+}
+
+/// Errors of a work-precision run.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkPrecisionError {
+    /// The system is not supported.
+    #[error("work-precision supports particle, skate, robot and mp7 (they have hand-written num-dual twins); got `{0}`")]
+    Unsupported(&'static str),
+    /// The reference solution failed.
+    #[error("reference solution of {system}: {source}")]
+    Reference {
+        /// System key.
+        system: &'static str,
+        /// Cause.
+        source: reference::ReferenceError,
+    },
+    /// A tableau could not be built.
+    #[error(transparent)]
+    Tableau(#[from] spark_runtime::TableauError),
+    /// Output could not be written.
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
+    /// A figure could not be drawn.
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
+    /// The external peers failed.
+    #[error("external peers (CasADi C, SciPy): {0}")]
+    External(String),
+    /// Invalid settings.
+    #[error("invalid work-precision settings: {0}")]
+    Invalid(String),
+}
+
+/// The reference end state and the run's starting point.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Problem {
+    /// System key.
+    pub system: &'static str,
+    /// Initial coordinates.
+    pub q0: Vec<f64>,
+    /// Initial velocities.
+    pub v0: Vec<f64>,
+    /// Final time.
+    pub final_time: f64,
+    /// Reference `q(T)`.
+    pub q_ref: Vec<f64>,
+    /// Reference `v(T)`.
+    pub v_ref: Vec<f64>,
+}
+
+/// Everything measured on one system.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SystemMeasurement {
+    /// The problem solved.
+    pub problem: Problem,
+    /// Every measured run.
+    pub points: Vec<Point>,
+    /// Why a peer was not measured, if one was not.
+    pub missing: Vec<String>,
+    /// Operation counts of the generated code.
+    pub operations: spark_runtime::OperationCounts,
+    /// `N`, `M`.
+    pub dimensions: (usize, usize),
+}
+
+fn errors<const N: usize>(q: &Vector<N>, v: &Vector<N>, q_ref: &Vector<N>, v_ref: &Vector<N>) -> (f64, f64) {
+    ((q - q_ref).amax(), (v - v_ref).amax())
+}
+
+/// Median of the timed runs of `run`, repeated `repeats` times or until
+/// `min_total` has been spent (at most 1000 times).
+fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, usize)> {
+    let mut times = Vec::new();
+    let start = Instant::now();
+    while times.len() < repeats.max(1) || (start.elapsed() < min_total && times.len() < 1000) {
+        let t = Instant::now();
+        if !run() {
+            return None;
+        }
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    let n = times.len();
+    let median = if n % 2 == 1 { times[n / 2] } else { 0.5 * (times[n / 2 - 1] + times[n / 2]) };
+    Some((median, n))
+}
+
+/// The context of one system's sweep.
+struct Ctx<'a, const N: usize> {
+    cfg: &'a WorkPrecisionConfig,
+    key: &'static str,
+    q0: Vector<N>,
+    v0: Vector<N>,
+    q_ref: Vector<N>,
+    v_ref: Vector<N>,
+}
+
+/// Runs `steps` steps of `stepper` once with energy observation (the
+/// measured point's errors) and then times it; `None` if Newton failed.
+fn measure_stepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    ctx: &Ctx<'_, N>,
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    probe: &Sys,
+    steps: usize,
+) -> Option<(f64, f64, f64, f64, f64, usize)>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let h = ctx.cfg.final_time / steps as f64;
+    let e0 = probe.energy(0.0, &ctx.q0, &ctx.v0);
+    let mut max_e: f64 = 0.0;
+    let mut observer = |s: &State<N>, _: usize| {
+        max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
+    };
+    let quiet = RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let schedule = Schedule::Fixed { h, steps };
+    let traj = stepper.integrate(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut observer).ok()?;
+    let end = traj.last()?;
+    let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
+    if !(eq.is_finite() && ev.is_finite()) {
+        return None;
+    }
+    let iterations = traj.report.newton_iterations_mean;
+    let (time, repeats) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
+        stepper.integrate(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut NoObserver).is_ok()
+    })?;
+    Some((eq, ev, max_e, iterations, time, repeats))
+}
+
+/// Step counts `n₀·2^k` up to the configured maximum.
+fn step_counts(cfg: &WorkPrecisionConfig) -> Vec<usize> {
+    let mut v = Vec::new();
+    let mut n = cfg.min_steps.max(1);
+    while n <= cfg.max_steps {
+        v.push(n);
+        n *= 2;
+    }
+    v
+}
+
+/// Sweeps one `(method, S)` with the generated code, then (for peer methods)
+/// with num-dual and finite differences at the step counts the generated
+/// sweep used.
+fn sweep_method<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    ctx: &Ctx<'_, N>,
+    method: Method,
+    with_peers: bool,
+    points: &mut Vec<Point>,
+) -> Result<(), WorkPrecisionError>
+where
+    Sys: NonholonomicSystem<N, M> + DualTwin<N, M> + Default + Clone,
+{
+    let tableau = Tableau::<S>::new(method)?;
+    let label = method_label(method, S);
+    let mut record = |provider: &str, steps: usize, m: (f64, f64, f64, f64, f64, usize)| -> Point {
+        let p = Point {
+            system: ctx.key.to_string(),
+            solver: provider.to_string(),
+            method: label.clone(),
+            stages: S,
+            setting: ctx.cfg.final_time / steps as f64,
+            steps,
+            error_q: m.0,
+            error_v: m.1,
+            energy_error: m.2,
+            wall_time: m.4,
+            time_per_step: m.4 / steps as f64,
+            newton_iterations: m.3,
+            repeats: m.5,
+        };
+        points.push(p.clone());
+        p
+    };
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau);
+    let probe = Sys::default();
+    let mut used = Vec::new();
+    let mut below_floor = 0;
+    for steps in step_counts(ctx.cfg) {
+        let Some(m) = measure_stepper(ctx, &mut stepper, &probe, steps) else { continue };
+        let p = record(Provider::Generated.label(), steps, m);
+        used.push(steps);
+        if p.error() < ctx.cfg.floor_error {
+            below_floor += 1;
+        }
+        if below_floor >= 1 || p.wall_time > ctx.cfg.max_run_time.as_secs_f64() {
+            break;
+        }
+    }
+    if with_peers {
+        let twin = <Sys as DualTwin<N, M>>::Twin::default();
+        let mut ad = Stepper::<AutoDiff<_>, N, M, S, D>::new(AutoDiff(twin), tableau);
+        let ad_probe = AutoDiff(<Sys as DualTwin<N, M>>::Twin::default());
+        let mut fd = Stepper::<FiniteDifference<Sys>, N, M, S, D>::new(FiniteDifference(Sys::default()), tableau);
+        let fd_probe = FiniteDifference(Sys::default());
+        for &steps in &used {
+            if let Some(m) = measure_stepper(ctx, &mut ad, &ad_probe, steps) {
+                record(Provider::NumDual.label(), steps, m);
+            }
+            if let Some(m) = measure_stepper(ctx, &mut fd, &fd_probe, steps) {
+                record(Provider::FiniteDifference.label(), steps, m);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Sweeps DOP853 (`ode_solvers`) over the configured tolerances.
+fn sweep_dop853<Sys, const N: usize, const M: usize, const Y: usize>(ctx: &Ctx<'_, N>, points: &mut Vec<Point>)
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let sys = Sys::default();
+    let t1 = ctx.cfg.final_time;
+    for &tol in &ctx.cfg.tolerances {
+        let Ok(run) = ode::dop853::<Sys, N, M, Y>(&sys, 0.0, &ctx.q0, &ctx.v0, t1, tol, tol) else { continue };
+        let (eq, ev) = errors(&run.q, &run.v, &ctx.q_ref, &ctx.v_ref);
+        let Some((time, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
+            ode::dop853::<Sys, N, M, Y>(&sys, 0.0, &ctx.q0, &ctx.v0, t1, tol, tol).is_ok()
+        }) else {
+            continue;
+        };
+        points.push(Point {
+            system: ctx.key.to_string(),
+            solver: "ode_solvers (Rust)".into(),
+            method: "DOP853".into(),
+            stages: 0,
+            setting: tol,
+            steps: run.steps,
+            error_q: eq,
+            error_v: ev,
+            energy_error: f64::NAN,
+            wall_time: time,
+            time_per_step: time / run.steps.max(1) as f64,
+            newton_iterations: f64::NAN,
+            repeats,
+        });
+    }
+}
+
+/// The stage-count dispatch of [`sweep_method`] for one system.
+macro_rules! stages {
+    ($sys:ty, $ctx:expr, $method:expr, $s:expr, $peers:expr, $points:expr) => {{
+        const NN: usize = <$sys>::N;
+        const MM: usize = <$sys>::M;
+        match $s {
+            1 => sweep_method::<$sys, NN, MM, 1, { NN + MM + NN }>($ctx, $method, $peers, $points),
+            2 => sweep_method::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($ctx, $method, $peers, $points),
+            3 => sweep_method::<$sys, NN, MM, 3, { 3 * (NN + MM) + NN }>($ctx, $method, $peers, $points),
+            4 => sweep_method::<$sys, NN, MM, 4, { 4 * (NN + MM) + NN }>($ctx, $method, $peers, $points),
+            5 => sweep_method::<$sys, NN, MM, 5, { 5 * (NN + MM) + NN }>($ctx, $method, $peers, $points),
+            s => Err(WorkPrecisionError::Invalid(format!("{} stages are not compiled in (1..=5)", s))),
+        }
+    }};
+}
+
+/// Measures one system: reference, SPARK sweeps, Rust peers.
+fn measure_system<Sys, const N: usize, const M: usize, const Y: usize>(
+    kind: SystemKind,
+    cfg: &WorkPrecisionConfig,
+    progress: &dyn Fn(&str),
+    sweep: &dyn Fn(&Ctx<'_, N>, Method, usize, bool, &mut Vec<Point>) -> Result<(), WorkPrecisionError>,
+) -> Result<SystemMeasurement, WorkPrecisionError>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let key = kind.key();
+    let (q0, v0) = paper_initial_values(kind);
+    let q0 = Vector::<N>::from_column_slice(&q0);
+    let v0 = Vector::<N>::from_column_slice(&v0);
+    let sys = Sys::default();
+    progress(&format!("{key}: reference solution"));
+    let exact = reference::integrate(&sys, 0.0, &q0, &v0, cfg.final_time, &ReferenceOptions::default())
+        .map_err(|source| WorkPrecisionError::Reference { system: key, source })?;
+    let (q_ref, v_ref) = (exact.q[0], exact.v[0]);
+    let ctx = Ctx { cfg, key, q0, v0, q_ref, v_ref };
+    let mut points = Vec::new();
+    for (method, s) in method_variants() {
+        progress(&format!("{key}: {}", method_label(method, s)));
+        let peers = cfg.peer_methods.contains(&(method, s));
+        sweep(&ctx, method, s, peers, &mut points)?;
+    }
+    progress(&format!("{key}: ode_solvers DOP853"));
+    sweep_dop853::<Sys, N, M, Y>(&ctx, &mut points);
+    let problem = Problem {
+        system: key,
+        q0: q0.iter().copied().collect(),
+        v0: v0.iter().copied().collect(),
+        final_time: cfg.final_time,
+        q_ref: q_ref.iter().copied().collect(),
+        v_ref: v_ref.iter().copied().collect(),
+    };
+    Ok(SystemMeasurement { problem, points, missing: Vec::new(), operations: Sys::OPERATIONS, dimensions: (N, M) })
+}
+
+/// Tableau exports of the peer methods (for the CasADi step).
+fn peer_tableaux(cfg: &WorkPrecisionConfig) -> Result<Vec<TableauExport>, WorkPrecisionError> {
+    let mut out = Vec::new();
+    for &(method, s) in &cfg.peer_methods {
+        let t = match s {
+            1 => TableauExport::of(&Tableau::<1>::new(method)?),
+            2 => TableauExport::of(&Tableau::<2>::new(method)?),
+            3 => TableauExport::of(&Tableau::<3>::new(method)?),
+            4 => TableauExport::of(&Tableau::<4>::new(method)?),
+            5 => TableauExport::of(&Tableau::<5>::new(method)?),
+            _ => return Err(WorkPrecisionError::Invalid(format!("peer method with s = {s}"))),
+        };
+        out.push(t);
+    }
+    Ok(out)
+}
+
+/// Measures one system with every Rust solver and, when configured, the
+/// external peers.
+pub fn measure(
+    kind: SystemKind,
+    cfg: &WorkPrecisionConfig,
+    progress: &dyn Fn(&str),
+) -> Result<SystemMeasurement, WorkPrecisionError> {
+    let mut m = match kind {
+        SystemKind::Particle => measure_system::<NonholonomicParticle, 3, 1, 6>(kind, cfg, progress, &|c, me, s, p, pts| {
+            stages!(NonholonomicParticle, c, me, s, p, pts)
+        })?,
+        SystemKind::Skate => {
+            measure_system::<Skate, 3, 1, 6>(kind, cfg, progress, &|c, me, s, p, pts| stages!(Skate, c, me, s, p, pts))?
+        }
+        SystemKind::Robot => measure_system::<MobileRobot, 4, 2, 8>(kind, cfg, progress, &|c, me, s, p, pts| {
+            stages!(MobileRobot, c, me, s, p, pts)
+        })?,
+        SystemKind::McLachlanPerlmutter7 => {
+            measure_system::<McLachlanPerlmutter7, 7, 1, 14>(kind, cfg, progress, &|c, me, s, p, pts| {
+                stages!(McLachlanPerlmutter7, c, me, s, p, pts)
+            })?
+        }
+        #[allow(unreachable_patterns)]
+        other => return Err(WorkPrecisionError::Unsupported(other.key())),
+    };
+    match &cfg.python {
+        None => m.missing.push("CasADi C and SciPy: not run (no Python interpreter configured)".into()),
+        Some(python) => {
+            progress(&format!("{}: CasADi C and SciPy (external)", kind.key()));
+            let tableaux = peer_tableaux(cfg)?;
+            match external::run(python, &cfg.peers_script, &cfg.out, kind, &m, &tableaux, cfg) {
+                Ok(mut pts) => m.points.append(&mut pts),
+                Err(e) => m.missing.push(format!("CasADi C and SciPy: {e}")),
+            }
+        }
+    }
+    Ok(m)
+}
+
+/// Measures every configured system, writes CSV, tables and figures into
+/// `cfg.out`, and returns the measurements.
+pub fn run_work_precision(
+    cfg: &WorkPrecisionConfig,
+    progress: &dyn Fn(&str),
+) -> Result<Vec<SystemMeasurement>, WorkPrecisionError> {
+    if cfg.systems.is_empty() {
+        return Err(WorkPrecisionError::Invalid("no systems selected".into()));
+    }
+    if !(cfg.final_time.is_finite() && cfg.final_time > 0.0) || cfg.min_steps == 0 || cfg.max_steps < cfg.min_steps {
+        return Err(WorkPrecisionError::Invalid(format!(
+            "need T > 0 and 1 ≤ min_steps ≤ max_steps (T = {}, steps {}..{})",
+            cfg.final_time, cfg.min_steps, cfg.max_steps
+        )));
+    }
+    crate::output::create_dir(&cfg.out)?;
+    let mut all = Vec::new();
+    for &kind in &cfg.systems {
+        if !supported(kind) {
+            return Err(WorkPrecisionError::Unsupported(kind.key()));
+        }
+        let m = measure(kind, cfg, progress)?;
+        report::write_system(&m, cfg)?;
+        all.push(m);
+    }
+    report::write_summary(&all, cfg)?;
+    Ok(all)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_time_takes_the_middle_of_the_repeats() {
+        let mut k = 0;
+        let (t, n) = median_time(3, Duration::ZERO, || {
+            k += 1;
+            std::thread::sleep(Duration::from_millis(if k == 2 { 30 } else { 1 }));
+            true
+        })
+        .unwrap();
+        assert_eq!(n, 3);
+        assert!(t < 0.02, "median {t} should ignore the one slow repeat");
+        assert!(median_time(3, Duration::ZERO, || false).is_none());
+    }
+
+    #[test]
+    fn sweep_covers_every_family_and_stage_count() {
+        let v = method_variants();
+        assert_eq!(v.len(), 5 + 4 + 4 + 3);
+        for (m, s) in v {
+            let (lo, hi) = m.stage_range();
+            assert!(lo <= s && s <= hi, "{m} s={s}");
+        }
+    }
+}
