@@ -462,16 +462,15 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)]) -> Result<Fig84, Pap
     let cols: Vec<(&str, &[f64])> = members.iter().map(|(n, c)| (n.as_str(), c.as_slice())).collect();
     write_columns(&members_csv, &cols)?;
 
-    // Log–log panel: means over blocks of `BLOCK` consecutive samples (the
-    // raw statistic fluctuates by a factor of ~10 from sample to sample),
-    // with a dashed reference line ∝ t through the first method's fit.
-    let log_series: Vec<Series> = series
+    // Log–log panel: means over log-spaced bins of t (the raw statistic
+    // fluctuates by a factor of ~10 from sample to sample), with a dashed
+    // reference line ∝ t ending at the first method's fit at the final time.
+    let mut log_series: Vec<Series> = series
         .iter()
-        .map(|s| Series::new(format!("{} (block means)", s.label), block_means(&s.points, BLOCK)))
+        .map(|s| Series::new(format!("{} (bin means)", s.label), log_bin_means(&s.points, LOG_BINS)))
         .collect();
-    let mut log_series = log_series;
     if let (Some(Some(fit)), Some(&t1)) = (growth.first().map(|g| g.fit), t.last()) {
-        let t0 = fit.t_min;
+        let t0 = t1 / 30.0;
         let y1 = fit.coefficient * t1.powf(fit.exponent);
         log_series.push(Series {
             label: "∝ t (reference slope 1)".into(),
@@ -496,7 +495,7 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)]) -> Result<Fig84, Pap
                 series,
             },
             Panel {
-                title: format!("log–log axes, means over blocks of {BLOCK} samples"),
+                title: format!("log–log axes, means over {LOG_BINS} log-spaced bins of t"),
                 x_label: "t".into(),
                 y_label: y_label.into(),
                 x_scale: Scale::Log,
@@ -512,19 +511,24 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)]) -> Result<Fig84, Pap
     Ok((growth, rows, files))
 }
 
-/// Samples per block of the log–log panel of Fig. 8.4.
-const BLOCK: usize = 20;
+/// Bins of the log–log panel of Fig. 8.4.
+const LOG_BINS: usize = 40;
 
-/// Means of `(x, y)` over consecutive blocks of `block` points (x and y
-/// averaged alike), skipping points with `x ≤ 0`.
-fn block_means(points: &[(f64, f64)], block: usize) -> Vec<(f64, f64)> {
+/// Means of `(x, y)` over `bins` bins evenly spaced in `log x` (points with
+/// `x ≤ 0` are skipped; empty bins give no point).
+fn log_bin_means(points: &[(f64, f64)], bins: usize) -> Vec<(f64, f64)> {
     let pts: Vec<(f64, f64)> = points.iter().copied().filter(|p| p.0 > 0.0).collect();
-    pts.chunks(block.max(1))
-        .map(|c| {
-            let n = c.len() as f64;
-            (c.iter().map(|p| p.0).sum::<f64>() / n, c.iter().map(|p| p.1).sum::<f64>() / n)
-        })
-        .collect()
+    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return Vec::new() };
+    let (l0, l1) = (first.0.ln(), last.0.ln());
+    let width = ((l1 - l0) / bins.max(1) as f64).max(f64::MIN_POSITIVE);
+    let mut sums = vec![(0.0, 0.0, 0usize); bins.max(1)];
+    for &(x, y) in &pts {
+        let k = (((x.ln() - l0) / width) as usize).min(sums.len() - 1);
+        sums[k].0 += x;
+        sums[k].1 += y;
+        sums[k].2 += 1;
+    }
+    sums.into_iter().filter(|s| s.2 > 0).map(|(x, y, n)| (x / n as f64, y / n as f64)).collect()
 }
 
 /// `(1/h⁴)·(1/(J+1)) Σ_j (E_jk − E_j0)²` at each common sample `k`.

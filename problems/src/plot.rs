@@ -213,6 +213,35 @@ fn tick_label(v: f64, span: f64) -> String {
     }
 }
 
+/// The corner of the plot area that the data touch least, for the legend.
+fn emptiest_corner(data: &[Vec<(f64, f64)>], x: (f64, f64, Scale), y: (f64, f64, Scale)) -> SeriesLabelPosition {
+    let unit = |v: f64, (lo, hi, scale): (f64, f64, Scale)| match scale {
+        Scale::Linear => (v - lo) / (hi - lo),
+        Scale::Log => (v.ln() - lo.ln()) / (hi.ln() - lo.ln()),
+    };
+    // Legend boxes take roughly the outer 45 % × 30 % of the area.
+    let mut counts = [0usize; 4];
+    for &(px, py) in data.iter().flatten() {
+        let (u, w) = (unit(px, x), unit(py, y));
+        let left = u < 0.45;
+        let right = u > 0.55;
+        let top = w > 0.7;
+        let bottom = w < 0.3;
+        counts[0] += usize::from(left && top);
+        counts[1] += usize::from(right && top);
+        counts[2] += usize::from(left && bottom);
+        counts[3] += usize::from(right && bottom);
+    }
+    let corners = [
+        SeriesLabelPosition::UpperLeft,
+        SeriesLabelPosition::UpperRight,
+        SeriesLabelPosition::LowerLeft,
+        SeriesLabelPosition::LowerRight,
+    ];
+    let best = (0..4).min_by_key(|&i| counts[i]).unwrap_or(0);
+    corners[best].clone()
+}
+
 fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingArea<DB, Shift>) -> Result<(), String> {
     let data: Vec<Vec<(f64, f64)>> =
         panel.series.iter().map(|s| visible(&s.points, panel.x_scale, panel.y_scale)).collect();
@@ -270,12 +299,13 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
                 }
             }
+            let corner = emptiest_corner(&data, (x0, x1, panel.x_scale), (y0, y1, panel.y_scale));
             chart
                 .configure_series_labels()
                 .label_font((FONT, 13))
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK.mix(0.4))
-                .position(SeriesLabelPosition::UpperLeft)
+                .position(corner)
                 .draw()
                 .map_err(e)?;
         }};
