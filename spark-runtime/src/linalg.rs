@@ -26,16 +26,20 @@ impl<const D: usize> Lu<D> {
     /// Factors `a`. A pivot below `64 ε · max_i |a_ij|` of its original
     /// column counts as singular: column scales differ by orders of
     /// magnitude in the SPARK matrix, so a global threshold would be wrong.
+    ///
+    /// Works on the column-major storage as slices (right-looking, column
+    /// by column) so the inner loops are bounds-check free and vectorize.
     pub(crate) fn factor(&mut self, a: &Matrix<D, D>) -> Result<(), Singular> {
         self.lu.copy_from(a);
+        let lu = self.lu.as_mut_slice();
         for k in 0..D {
             let scale = a.column(k).amax();
+            let col_k = &lu[k * D..(k + 1) * D];
             let mut p = k;
-            let mut best = self.lu[(k, k)].abs();
-            for i in k + 1..D {
-                let v = self.lu[(i, k)].abs();
-                if v > best {
-                    best = v;
+            let mut best = col_k[k].abs();
+            for (i, x) in col_k.iter().enumerate().skip(k + 1) {
+                if x.abs() > best {
+                    best = x.abs();
                     p = i;
                 }
             }
@@ -45,18 +49,22 @@ impl<const D: usize> Lu<D> {
                 return Err(Singular { column: k, pivot: best });
             }
             if p != k {
-                self.lu.swap_rows(k, p);
+                for j in 0..D {
+                    lu.swap(j * D + k, j * D + p);
+                }
             }
-            let inv = 1.0 / self.lu[(k, k)];
-            for i in k + 1..D {
-                self.lu[(i, k)] *= inv;
+            let (left, right) = lu.split_at_mut((k + 1) * D);
+            let col_k = &mut left[k * D..];
+            let inv = 1.0 / col_k[k];
+            for x in &mut col_k[k + 1..] {
+                *x *= inv;
             }
-            for j in k + 1..D {
-                let ukj = self.lu[(k, j)];
+            let lower = &col_k[k + 1..];
+            for col_j in right.chunks_exact_mut(D) {
+                let ukj = col_j[k];
                 if ukj != 0.0 {
-                    for i in k + 1..D {
-                        let lik = self.lu[(i, k)];
-                        self.lu[(i, j)] -= lik * ukj;
+                    for (x, l) in col_j[k + 1..].iter_mut().zip(lower) {
+                        *x -= l * ukj;
                     }
                 }
             }
@@ -66,26 +74,30 @@ impl<const D: usize> Lu<D> {
 
     /// Overwrites `b` with `A⁻¹ b`.
     pub(crate) fn solve_in_place(&self, b: &mut Vector<D>) {
+        let b = b.as_mut_slice();
         for k in 0..D {
             let p = self.perm[k];
             if p != k {
-                b.swap_rows(k, p);
+                b.swap(k, p);
             }
         }
+        let lu = self.lu.as_slice();
         for j in 0..D {
             let bj = b[j];
             if bj != 0.0 {
-                for i in j + 1..D {
-                    b[i] -= self.lu[(i, j)] * bj;
+                let col = &lu[j * D + j + 1..(j + 1) * D];
+                for (x, l) in b[j + 1..].iter_mut().zip(col) {
+                    *x -= l * bj;
                 }
             }
         }
         for j in (0..D).rev() {
-            b[j] /= self.lu[(j, j)];
+            b[j] /= lu[j * D + j];
             let bj = b[j];
             if bj != 0.0 {
-                for i in 0..j {
-                    b[i] -= self.lu[(i, j)] * bj;
+                let col = &lu[j * D..j * D + j];
+                for (x, u) in b[..j].iter_mut().zip(col) {
+                    *x -= u * bj;
                 }
             }
         }

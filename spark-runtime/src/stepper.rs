@@ -141,6 +141,9 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     warm: Option<Warm<N, M, S, D>>,
     jacobian: Matrix<D, D>,
     lu: Lu<D>,
+    /// Stage Jacobians of the latest full evaluation (kept to avoid
+    /// re-initializing them every step).
+    work: EvalJac<N, M, S>,
 }
 
 /// Everything one residual evaluation produced.
@@ -151,6 +154,7 @@ struct Eval<const N: usize, const M: usize, const S: usize> {
 }
 
 /// Jacobians of one evaluation (only for full-Jacobian iterations).
+#[derive(Clone, Debug)]
 struct EvalJac<const N: usize, const M: usize, const S: usize> {
     stages: [StageJacobians<N, M>; S],
     end: StageJacobians<N, M>,
@@ -194,6 +198,7 @@ where
             warm: None,
             jacobian: Matrix::zeros(),
             lu: Lu::new(),
+            work: EvalJac { stages: [zero_jacobians(); S], end: zero_jacobians(), mid: None },
         }
     }
 
@@ -355,8 +360,14 @@ where
     }
 
     /// Evaluates the stage points of `z`, optionally with Jacobians.
-    fn evaluate(&self, state: &State<N>, h: f64, z: &Vector<D>, jac: Option<&mut EvalJac<N, M, S>>) -> Eval<N, M, S> {
-        let tab = &self.tableau;
+    fn evaluate(
+        system: &Sys,
+        tab: &Tableau<S>,
+        state: &State<N>,
+        h: f64,
+        z: &Vector<D>,
+        jac: Option<&mut EvalJac<N, M, S>>,
+    ) -> Eval<N, M, S> {
         let (v, mu) = split::<N, M, S, D>(z);
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let zero_m = Vector::<M>::zeros();
@@ -384,12 +395,12 @@ where
                 for i in 0..S {
                     let psi = mu[i] / h;
                     (ev.stages[i], jac.stages[i]) =
-                        self.system.stage_jacobians(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
+                        system.stage_jacobians(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
                 }
-                (ev.end, jac.end) = self.system.stage_jacobians(t1, &q1, &v1, &zero_m);
+                (ev.end, jac.end) = system.stage_jacobians(t1, &q1, &v1, &zero_m);
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
-                    let (mv, mj) = self.system.stage_jacobians(tm, &qm, &v[0], &zero_m);
+                    let (mv, mj) = system.stage_jacobians(tm, &qm, &v[0], &zero_m);
                     ev.mid = Some(mv);
                     jac.mid = Some(mj);
                 }
@@ -397,12 +408,12 @@ where
             None => {
                 for i in 0..S {
                     let psi = mu[i] / h;
-                    ev.stages[i] = self.system.stage_values(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
+                    ev.stages[i] = system.stage_values(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
                 }
-                ev.end = self.system.stage_values(t1, &q1, &v1, &zero_m);
+                ev.end = system.stage_values(t1, &q1, &v1, &zero_m);
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
-                    ev.mid = Some(self.system.stage_values(tm, &qm, &v[0], &zero_m));
+                    ev.mid = Some(system.stage_values(tm, &qm, &v[0], &zero_m));
                 }
             }
         }
@@ -410,8 +421,7 @@ where
     }
 
     /// The SPARK residual `G(z)` (see the module docs for the row layout).
-    fn residual(&self, p0: &Vector<N>, h: f64, z: &Vector<D>, ev: &Eval<N, M, S>) -> Vector<D> {
-        let tab = &self.tableau;
+    fn residual(tab: &Tableau<S>, p0: &Vector<N>, h: f64, z: &Vector<D>, ev: &Eval<N, M, S>) -> Vector<D> {
         let mut g = Vector::<D>::zeros();
         let mut row = |i: usize, weights_hat: &[f64; S], weights_tilde: &[f64; S], momentum: &Vector<N>| {
             let mut r = momentum - p0;
@@ -457,7 +467,8 @@ where
     }
 
     /// The exact Jacobian `∂G/∂z`, skipping blocks the structure facts prove zero.
-    fn assemble_jacobian(&mut self, h: f64, jac: &EvalJac<N, M, S>) {
+    fn assemble_jacobian(&mut self, h: f64) {
+        let jac = &self.work;
         let tab = self.tableau;
         let st = Sys::STRUCTURE;
         // L = T(v) − U(q): ∂P/∂q = 0 and ∂F/∂v = 0.
@@ -468,26 +479,27 @@ where
         j.fill(0.0);
         let h2 = h * h;
         // Momentum rows: stage rows i < S use (a_i, â_i, ã_i); the p₁ row uses
-        // (b, b̂, b̃) with its momentum evaluated at the end point.
+        // (b, b̂, b̃) with its momentum evaluated at the end point. Blocks are
+        // accumulated in place (axpy) to avoid temporaries.
         for i in 0..=S {
             let (a_row, ah_row, at_row) =
                 if i < S { (&tab.a[i], &tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b, &tab.b_hat, &tab.b_tilde) };
             let pq = if i < S { &jac.stages[i].momentum_q } else { &jac.end.momentum_q };
             for l in 0..S {
-                let mut blk = Matrix::<N, N>::zeros();
+                let mut blk = j.fixed_view_mut::<N, N>(i * N, l * N);
                 if i == l {
-                    blk += jac.stages[l].mass;
+                    blk.copy_from(&jac.stages[l].mass);
                 }
                 if !separable {
                     if a_row[l] != 0.0 {
-                        blk += (h * a_row[l]) * pq;
+                        blk.zip_apply(pq, |x, y| *x += (h * a_row[l]) * y);
                     }
                     if ah_row[l] != 0.0 {
-                        blk -= (h * ah_row[l]) * jac.stages[l].force_v;
+                        blk.zip_apply(&jac.stages[l].force_v, |x, y| *x += (-h * ah_row[l]) * y);
                     }
                 }
                 if !k_velocity_free && at_row[l] != 0.0 {
-                    blk -= (h * at_row[l]) * jac.stages[l].constraint_force_v;
+                    blk.zip_apply(&jac.stages[l].constraint_force_v, |x, y| *x += (-h * at_row[l]) * y);
                 }
                 for m in 0..S {
                     let aml = tab.a[m][l];
@@ -495,17 +507,17 @@ where
                         continue;
                     }
                     if ah_row[m] != 0.0 {
-                        blk -= (h2 * ah_row[m] * aml) * jac.stages[m].force_q;
+                        blk.zip_apply(&jac.stages[m].force_q, |x, y| *x += (-h2 * ah_row[m] * aml) * y);
                     }
                     if at_row[m] != 0.0 {
-                        blk -= (h2 * at_row[m] * aml) * jac.stages[m].constraint_force_q;
+                        blk.zip_apply(&jac.stages[m].constraint_force_q, |x, y| *x += (-h2 * at_row[m] * aml) * y);
                     }
                 }
-                j.fixed_view_mut::<N, N>(i * N, l * N).copy_from(&blk);
                 // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h).
                 if at_row[l] != 0.0 {
-                    j.fixed_view_mut::<N, M>(i * N, S * N + l * M)
-                        .copy_from(&(at_row[l] * jac.stages[l].constraint_v.transpose()));
+                    let mut kt = j.fixed_view_mut::<N, M>(i * N, S * N + l * M);
+                    kt.tr_copy_from(&jac.stages[l].constraint_v);
+                    kt *= at_row[l];
                 }
             }
         }
@@ -555,21 +567,20 @@ where
         let p0 = self.system.momentum(t, &state.q, &state.v);
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
         let mut history = NewtonHistory::default();
-        let mut jac = EvalJac { stages: [zero_jacobians(); S], end: zero_jacobians(), mid: None };
         let mut prev_update = f64::NAN;
         let fail_nonfinite =
             |stage, history: NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(history) };
         for k in 0..max_iter {
             let fresh = k == 0 || opts.mode == NewtonMode::Full;
-            let ev = self.evaluate(state, h, z, fresh.then_some(&mut jac));
-            let mut g = self.residual(&p0, h, z, &ev);
+            let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, fresh.then_some(&mut self.work));
+            let mut g = Self::residual(&self.tableau, &p0, h, z, &ev);
             let residual = g.amax();
             if !g.iter().all(|x| x.is_finite()) {
                 history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
                 return Err(fail_nonfinite("residual", history));
             }
             if fresh {
-                self.assemble_jacobian(h, &jac);
+                self.assemble_jacobian(h);
                 if let Err(s) = self.lu.factor(&self.jacobian) {
                     history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
                     return Err(if self.jacobian.iter().all(|x| x.is_finite()) {
@@ -625,18 +636,17 @@ where
         z: &Vector<D>,
     ) -> (Vector<D>, Matrix<D, D>) {
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
-        let mut jac = EvalJac { stages: [zero_jacobians(); S], end: zero_jacobians(), mid: None };
-        let ev = self.evaluate(state, h, z, Some(&mut jac));
-        let g = self.residual(&p0, h, z, &ev);
-        self.assemble_jacobian(h, &jac);
+        let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, Some(&mut self.work));
+        let g = Self::residual(&self.tableau, &p0, h, z, &ev);
+        self.assemble_jacobian(h);
         (g, self.jacobian)
     }
 
     /// The residual at `z`.
     pub(crate) fn residual_at(&self, state: &State<N>, h: f64, z: &Vector<D>) -> Vector<D> {
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
-        let ev = self.evaluate(state, h, z, None);
-        self.residual(&p0, h, z, &ev)
+        let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, None);
+        Self::residual(&self.tableau, &p0, h, z, &ev)
     }
 }
 
