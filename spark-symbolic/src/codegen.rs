@@ -26,7 +26,7 @@ pub struct Operations {
 
 /// Statement threshold above which a body is split into helper functions
 /// so that rustc's super-linear passes stay fast.
-pub const SPLIT_STATEMENTS: usize = 400;
+pub const SPLIT_STATEMENTS: usize = 150;
 
 fn vector_outputs(name: &Ident, xs: &[NodeId]) -> Vec<(Target, NodeId)> {
     xs.iter().enumerate().map(|(i, &x)| (Target::Store(name.clone(), i, None), x)).collect()
