@@ -101,7 +101,18 @@ where
     if !t0.is_finite() || q0.iter().chain(v0.iter()).any(|x| !x.is_finite()) {
         return Err(StepError::InvalidStep { t: t0, h: 0.0, reason: "initial state is not finite" });
     }
-    let residual = sys.constraint(t0, q0, v0).amax();
+    let k0 = sys.constraint(t0, q0, v0);
+    // A NaN residual would otherwise compare as "inconsistent" and blame the
+    // velocity; the cause is a non-finite parameter or constraint value.
+    if k0.iter().any(|x| !x.is_finite()) {
+        return Err(StepError::NonFinite {
+            t: t0,
+            h: 0.0,
+            stage: "constraint at the initial state (check the parameters)",
+            history: Box::default(),
+        });
+    }
+    let residual = k0.amax();
     let tolerance = match policy {
         ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
     };

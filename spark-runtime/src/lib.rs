@@ -123,7 +123,7 @@ pub use system::{
 };
 pub use tableau::{CoefficientFamily, ConditionRows, Method, Tableau, TableauError, MAX_STAGES};
 
-/// Names the [`Stepper`] type of system `Sys` with `s` stages, computing the
+/// Names the [`Stepper`](struct@crate::Stepper) type of system `Sys` with `s` stages, computing the
 /// Newton dimension `D = s(N+M)+N` from the inherent constants `Sys::N` and
 /// `Sys::M` (which `nonholonomic_system!` emits; hand-written systems add
 /// `impl Sys { pub const N: usize = …; pub const M: usize = …; }`).

@@ -448,3 +448,19 @@ fn general_system_converges_at_the_expected_order() {
     let order = (e1 / e2).log2();
     assert!((order - 4.0).abs() < 0.2, "Gauss s=2 order on the general system: {order} ({e1:e}, {e2:e})");
 }
+
+#[test]
+fn failed_steps_are_retried_as_half_steps_when_allowed() {
+    let q = V::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+    let v = V::<7>::from_row_slice(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let mut st = Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tab(Method::Gauss));
+    let big = Schedule::Fixed { h: 4.0, steps: 2 };
+    let strict = st.integrate(0.0, &q, &v, big, &RunOptions::default(), &mut NoObserver);
+    assert!(matches!(strict, Err(IntegrationError::Step { index: 0, .. })), "{strict:?}");
+    let opts = RunOptions { max_halvings: 8, ..RunOptions::default() };
+    let tr = st.integrate(0.0, &q, &v, big, &opts, &mut NoObserver).unwrap();
+    assert_eq!(tr.report.steps, 2);
+    assert!(tr.report.rejected_steps > 0);
+    assert_eq!(tr.samples.last().unwrap().t, 8.0);
+    assert!(tr.report.max_constraint_residual <= 1e-14);
+}
