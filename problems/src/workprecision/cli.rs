@@ -55,11 +55,8 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         cfg.final_time = a.t_end;
         cfg.repeats = a.repeats.max(1);
         cfg.max_steps = a.max_steps.max(cfg.min_steps);
-        cfg.python = Some(a.python.clone());
     }
-    if a.no_python {
-        cfg.python = None;
-    }
+    cfg.python = if a.no_python { None } else { Some(a.python.clone()) };
     if a.quick {
         cfg.max_run_time = Duration::from_millis(50);
     }
