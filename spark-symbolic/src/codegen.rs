@@ -153,22 +153,27 @@ fn rewrite_shared(s: TokenStream, shared: &mut usize) -> TokenStream {
         s.strip_prefix('s').and_then(|d| if d.is_empty() { None } else { d.parse().ok() })
     }
     fn walk(s: TokenStream) -> TokenStream {
-        s.into_iter()
-            .flat_map(|tt| -> Vec<TokenTree> {
-                match tt {
-                    TokenTree::Ident(id) if index(&id).is_some() => {
-                        let k = Literal::usize_unsuffixed(index(&id).unwrap_or(0));
-                        quote!(w[#k]).into_iter().collect()
-                    }
-                    TokenTree::Group(g) => {
-                        let mut ng = Group::new(g.delimiter(), walk(g.stream()));
-                        ng.set_span(g.span());
-                        vec![TokenTree::Group(ng)]
-                    }
-                    other => vec![other],
+        let mut out = Vec::new();
+        // `self.s0` is a parameter field, not a shared value: identifiers
+        // right after a `.` are left alone.
+        let mut after_dot = false;
+        for tt in s {
+            let dot = matches!(&tt, TokenTree::Punct(p) if p.as_char() == '.');
+            match tt {
+                TokenTree::Ident(id) if !after_dot && index(&id).is_some() => {
+                    let k = Literal::usize_unsuffixed(index(&id).unwrap_or(0));
+                    out.extend(quote!(w[#k]));
                 }
-            })
-            .collect()
+                TokenTree::Group(g) => {
+                    let mut ng = Group::new(g.delimiter(), walk(g.stream()));
+                    ng.set_span(g.span());
+                    out.push(TokenTree::Group(ng));
+                }
+                other => out.push(other),
+            }
+            after_dot = dot;
+        }
+        out.into_iter().collect()
     }
     let tts: Vec<TokenTree> = s.into_iter().collect();
     if let [TokenTree::Ident(kw), TokenTree::Ident(id), rest @ ..] = &tts[..] {

@@ -165,3 +165,20 @@ fn long_sums_are_not_deep_nesting() {
     assert!(a.lagrangian_source.ends_with(" (* 2999.0 (^ (v y) 2.0)))"), "{}", &a.lagrangian_source[..80]);
     assert!(a.structure.constant_mass_matrix);
 }
+
+/// In a split body, shared values move to `w[k]`; a parameter named like a
+/// shared value (`s0`) stays `self.s0`.
+#[test]
+fn split_bodies_keep_parameter_fields() {
+    let mut s = mclachlan_perlmutter(51);
+    s.parameters.push(spark_symbolic::Parameter {
+        name: spark_symbolic::Named { name: "s0".into(), span: sp() },
+        default: 2.0,
+    });
+    let p0 = p(0);
+    s.lagrangian = add(s.lagrangian.clone(), mul(p0, sq(q(0))));
+    let code = compact(&generate(&s).expect("generate"));
+    assert!(code.contains("fn__stage_jacobians_part1"), "not split");
+    assert!(code.contains("self.s0"), "parameter field rewritten");
+    assert!(!code.contains("self.w["), "parameter field rewritten");
+}
