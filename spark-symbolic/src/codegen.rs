@@ -80,7 +80,9 @@ impl Gen<'_> {
             entries.extend(o.entries.iter().cloned());
         }
         let inputs = Inputs { parameters: &self.params };
-        let Emitted { statements, ops, .. } = emit(&mut self.model.graph, &entries, &inputs);
+        let emitted = emit(&mut self.model.graph, &entries, &inputs);
+        let Emitted { ops, shared, .. } = emitted;
+        let statements = &emitted.statements;
         let decls = outs.iter().map(|o| {
             let (name, ty) = (&o.name, &o.ty);
             quote!(let mut #name = <#ty>::zeros();)
@@ -90,7 +92,7 @@ impl Gen<'_> {
         if statements.len() <= SPLIT_STATEMENTS || has_lets {
             return (quote!(#(#decls)* #(#statements)*), ops);
         }
-        (self.split(fname, decls, statements, outs, psi), ops)
+        (self.split(fname, decls, emitted.statements_in_array(), shared, outs, psi), ops)
     }
 
     /// Splits a long body: shared values move into a stack array `w`, and
@@ -100,12 +102,10 @@ impl Gen<'_> {
         fname: &str,
         decls: Vec<TokenStream>,
         statements: Vec<TokenStream>,
+        shared: usize,
         outs: &[Out],
         psi: bool,
     ) -> TokenStream {
-        // Rewrite `let sK = e;` into `w[K] = e;` and every `sK` use into `w[K]`.
-        let mut shared = 0usize;
-        let rewritten: Vec<TokenStream> = statements.iter().map(|s| rewrite_shared(s.clone(), &mut shared)).collect();
         let (rt, n, m) = (&self.rt, &self.n, &self.m);
         let psi_param = if psi { quote!(psi: &#rt::Vector<#m>,) } else { quote!() };
         let psi_arg = if psi { quote!(psi,) } else { quote!() };
@@ -125,7 +125,7 @@ impl Gen<'_> {
             .collect();
         let shared_len = Literal::usize_unsuffixed(shared.max(1));
         let mut calls = Vec::new();
-        for (k, chunk) in rewritten.chunks(SPLIT_STATEMENTS).enumerate() {
+        for (k, chunk) in statements.chunks(SPLIT_STATEMENTS).enumerate() {
             let helper = format_ident!("__{}_part{}", fname, k);
             self.helpers.push(quote! {
                 #[inline(never)]
@@ -143,49 +143,6 @@ impl Gen<'_> {
             #(#calls)*
         }
     }
-}
-
-/// Replaces `let sK = e;` by `w[K] = e;` and identifiers `sK` by `w[K]`.
-fn rewrite_shared(s: TokenStream, shared: &mut usize) -> TokenStream {
-    use proc_macro2::{Group, TokenTree};
-    fn index(id: &Ident) -> Option<usize> {
-        let s = id.to_string();
-        s.strip_prefix('s').and_then(|d| if d.is_empty() { None } else { d.parse().ok() })
-    }
-    fn walk(s: TokenStream) -> TokenStream {
-        let mut out = Vec::new();
-        // `self.s0` is a parameter field, not a shared value: identifiers
-        // right after a `.` are left alone.
-        let mut after_dot = false;
-        for tt in s {
-            let dot = matches!(&tt, TokenTree::Punct(p) if p.as_char() == '.');
-            match tt {
-                TokenTree::Ident(id) if !after_dot && index(&id).is_some() => {
-                    let k = Literal::usize_unsuffixed(index(&id).unwrap_or(0));
-                    out.extend(quote!(w[#k]));
-                }
-                TokenTree::Group(g) => {
-                    let mut ng = Group::new(g.delimiter(), walk(g.stream()));
-                    ng.set_span(g.span());
-                    out.push(TokenTree::Group(ng));
-                }
-                other => out.push(other),
-            }
-            after_dot = dot;
-        }
-        out.into_iter().collect()
-    }
-    let tts: Vec<TokenTree> = s.into_iter().collect();
-    if let [TokenTree::Ident(kw), TokenTree::Ident(id), rest @ ..] = &tts[..] {
-        if kw == "let" && index(id).is_some() {
-            *shared = (*shared).max(index(id).unwrap_or(0) + 1);
-            let k = Literal::usize_unsuffixed(index(id).unwrap_or(0));
-            let rest: TokenStream = rest.iter().cloned().collect();
-            let rest = walk(rest);
-            return quote!(w[#k] #rest);
-        }
-    }
-    walk(tts.into_iter().collect())
 }
 
 fn form_tokens(rt: &TokenStream, f: ConstraintForm) -> TokenStream {

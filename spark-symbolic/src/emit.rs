@@ -249,8 +249,8 @@ impl R {
         }
     }
 
-    fn wrap(&self, min: u8) -> TokenStream {
-        let t = self.tokens();
+    fn wrap(&self, min: u8, array: bool) -> TokenStream {
+        let t = self.tokens(array);
         if self.prec() < min {
             quote!((#t))
         } else {
@@ -258,7 +258,8 @@ impl R {
         }
     }
 
-    fn tokens(&self) -> TokenStream {
+    /// The Rust tokens; with `array`, shared values are `w[k]` instead of `sK`.
+    fn tokens(&self, array: bool) -> TokenStream {
         match self {
             R::Lit(x) => {
                 let l = Literal::f64_unsuffixed(x.abs());
@@ -268,10 +269,14 @@ impl R {
                     quote!(#l)
                 }
             }
+            R::Shared(k, _) if array => {
+                let k = Literal::usize_unsuffixed(*k);
+                quote!(w[#k])
+            }
             R::Var(_, t) | R::Shared(_, t) => t.clone(),
             R::Bin(op, a, b) => {
                 let p = self.prec();
-                let (a, b) = (a.wrap(p), b.wrap(p + 1));
+                let (a, b) = (a.wrap(p, array), b.wrap(p + 1, array));
                 match op {
                     '+' => quote!(#a + #b),
                     '-' => quote!(#a - #b),
@@ -280,7 +285,7 @@ impl R {
                 }
             }
             R::Neg(a) => {
-                let a = a.wrap(3);
+                let a = a.wrap(3, array);
                 quote!(-#a)
             }
             R::Method(recv, name, args) => {
@@ -289,14 +294,14 @@ impl R {
                         let l = Literal::f64_suffixed(x);
                         quote!((#l))
                     }
-                    _ => recv.wrap(4),
+                    _ => recv.wrap(4, array),
                 };
                 let name = Ident::new(name, Span::call_site());
-                let args = args.iter().map(R::tokens);
+                let args = args.iter().map(|a| a.tokens(array));
                 quote!(#recv.#name(#(#args),*))
             }
             R::Powi(recv, k) => {
-                let recv = recv.wrap(4);
+                let recv = recv.wrap(4, array);
                 let k = Literal::i32_unsuffixed(*k);
                 quote!(#recv.powi(#k))
             }
@@ -328,7 +333,7 @@ pub struct Emitted {
     /// Number of shared subexpressions bound to `let`s.
     pub shared: usize,
     lets: Vec<R>,
-    outputs: Vec<Option<R>>,
+    outputs: Vec<Option<(Place, R)>>,
 }
 
 impl Emitted {
@@ -341,8 +346,34 @@ impl Emitted {
             let x = e.eval(env, &shared);
             shared.push(x);
         }
-        self.outputs.iter().map(|o| o.as_ref().map_or(0.0, |e| e.eval(env, &shared))).collect()
+        self.outputs.iter().map(|o| o.as_ref().map_or(0.0, |(_, e)| e.eval(env, &shared))).collect()
     }
+
+    /// The statements with shared values kept in an array `w` (`w[k] = …;`
+    /// and uses `w[k]`) instead of `let sK`, so that a long body can be cut
+    /// into helper functions that share `w`.
+    pub fn statements_in_array(&self) -> Vec<TokenStream> {
+        let lets = self.lets.iter().enumerate().map(|(k, e)| {
+            let k = Literal::usize_unsuffixed(k);
+            let t = e.tokens(true);
+            quote!(w[#k] = #t;)
+        });
+        let outs = self.outputs.iter().flatten().map(|(place, e)| {
+            let t = e.tokens(true);
+            match place {
+                Place::Let(name) => quote!(let #name: f64 = #t;),
+                Place::Store(place) => quote!(#place = #t;),
+            }
+        });
+        lets.chain(outs).collect()
+    }
+}
+
+/// Where a rendered output is written.
+#[derive(Clone, Debug)]
+enum Place {
+    Let(Ident),
+    Store(TokenStream),
 }
 
 /// Renders the inputs: `t`, `q[i]`, `v[i]`, `psi[j]`, `self.<parameter>`.
@@ -483,7 +514,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         let e = em.render(g, n, true);
         ops += e.ops();
         let name = format_ident!("s{}", k);
-        let t = e.tokens();
+        let t = e.tokens(false);
         statements.push(quote!(let #name = #t;));
         em.names.insert(n, name);
         em.order.insert(n, k);
@@ -494,9 +525,9 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
             Target::Let(name) => {
                 let e = if g.is_const(*root, 0.0) { R::Lit(0.0) } else { em.render(g, *root, false) };
                 ops += e.ops();
-                let t = e.tokens();
+                let t = e.tokens(false);
                 statements.push(quote!(let #name: f64 = #t;));
-                outputs_r.push(Some(e));
+                outputs_r.push(Some((Place::Let(name.clone()), e)));
             }
             Target::Store(name, i, j) => {
                 if g.is_const(*root, 0.0) {
@@ -513,9 +544,9 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
                 };
                 let e = em.render(g, *root, false);
                 ops += e.ops();
-                let t = e.tokens();
+                let t = e.tokens(false);
                 statements.push(quote!(#place = #t;));
-                outputs_r.push(Some(e));
+                outputs_r.push(Some((Place::Store(place), e)));
             }
         }
     }
