@@ -42,6 +42,12 @@ enum Command {
     /// The full run integrates 3 methods × 10 initial values × 10⁶ steps for
     /// Fig. 8.4; it uses every CPU core (set RAYON_NUM_THREADS to limit).
     Paper(PaperArgs),
+    /// Work-precision diagrams: global error and energy error vs wall time for
+    /// every method and stage count, with peers (num-dual, finite differences,
+    /// ode_solvers, CasADi-generated C, SciPy) measured in the same run.
+    ///
+    /// Example: spark work-precision --system skate --out results/work-precision
+    WorkPrecision(problems::workprecision::cli::WorkPrecisionArgs),
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -146,6 +152,9 @@ fn main() -> ExitCode {
         }
         Command::Run(args) => run_command(args),
         Command::Paper(args) => paper_command(args),
+        Command::WorkPrecision(args) => {
+            problems::workprecision::cli::run(args, &|m| eprintln!("{m}")).map(|text| print!("{text}"))
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

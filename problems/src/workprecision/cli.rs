@@ -33,6 +33,9 @@ pub struct WorkPrecisionArgs {
     /// Skip the CasADi C and SciPy peers.
     #[arg(long)]
     pub no_python: bool,
+    /// Measure the McLachlan–Perlmutter scaling study (n = 5 … 65) instead.
+    #[arg(long)]
+    pub scaling: bool,
     /// A seconds-long smoke run of every code path (short T, few steps).
     #[arg(long)]
     pub quick: bool,
@@ -59,6 +62,15 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
     cfg.python = if a.no_python { None } else { Some(a.python.clone()) };
     if a.quick {
         cfg.max_run_time = Duration::from_millis(50);
+    }
+    if a.scaling {
+        crate::output::create_dir(&cfg.out).map_err(|e| e.to_string())?;
+        let rows = super::scaling::measure_scaling(cfg.repeats)?;
+        let md = super::scaling::scaling_markdown(&rows);
+        let path = cfg.out.join("scaling.md");
+        std::fs::write(&path, &md).map_err(|e| format!("could not write {}: {e}", path.display()))?;
+        super::report::write_scaling_figure(&rows, &cfg.out).map_err(|e| e.to_string())?;
+        return Ok(md);
     }
     let all = run_work_precision(&cfg, progress).map_err(|e| e.to_string())?;
     let mut s = super::report::overall_ratio_table(&all, &cfg);

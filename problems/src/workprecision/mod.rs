@@ -22,6 +22,8 @@
 pub mod cli;
 pub mod external;
 pub mod report;
+pub mod scaling;
+pub mod scaling_systems;
 
 use crate::casadi_export::TableauExport;
 use crate::peers::dual::{AutoDiff, DualTwin};

@@ -368,6 +368,30 @@ pub fn overall_ratio_table(all: &[SystemMeasurement], cfg: &WorkPrecisionConfig)
     s
 }
 
+/// Time per step and stepper size against `n` (log–log), as PNG and SVG.
+pub fn write_scaling_figure(rows: &[super::scaling::ScalingRow], out: &Path) -> Result<(), WorkPrecisionError> {
+    let panel = |title: &str, y_label: &str, f: &dyn Fn(&super::scaling::ScalingRow) -> f64| Panel {
+        title: title.into(),
+        x_label: "n (coordinates)".into(),
+        y_label: y_label.into(),
+        x_scale: Scale::Log,
+        y_scale: Scale::Log,
+        series: vec![Series::new("Gauss s=2", rows.iter().map(|r| (r.n as f64, f(r))).collect())],
+    };
+    let fig = Figure {
+        title: "McLachlan–Perlmutter particles: cost against size".into(),
+        panels: vec![
+            panel("time per step", "seconds", &|r| r.time_per_step),
+            panel("stepper value on the stack", "bytes", &|r| r.stepper_bytes as f64),
+            panel("arithmetic rate", "GFLOP/s (estimated)", &|r| r.gflops),
+        ],
+        columns: 3,
+        panel_size: (520, 420),
+    };
+    render(&fig, &out.join("scaling"))?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
