@@ -1,0 +1,197 @@
+//! Fuzz harness (issue 7): proptest over the stepper's inputs — system and
+//! its parameters, method and stage count, state (t, q, v) and step size,
+//! drawn from ordinary values mixed with zeros, huge, tiny, NaN and infinite
+//! ones — through `Stepper::step`, the driver `integrate` (with projection of
+//! the initial velocity and step halving) and `step_with_rejection`.
+//!
+//! Properties: nothing panics; every `Ok` carries a finite state; every
+//! error renders a message.
+//!
+//! Executions: `FUZZ_CASES` (default 20 000) cases per run of this test, each
+//! case exercising one (system, s) pairing with three entry points. A larger
+//! run: `FUZZ_CASES=200000 cargo test --release -p spark-tests --test stress_fuzz`
+//! (documented in docs/stress/README.md with its outcome).
+
+use problems::stress::systems::{NearParallel, NonReversibleOscillator, RollingDisk, StiffSkate};
+use problems::systems::{AppellHamel, DoublePendulum, McLachlanPerlmutter7, NonholonomicParticle, Skate, TurntableSkate};
+use proptest::prelude::*;
+use spark_runtime::{
+    step_with_rejection, ConsistencyPolicy, Method, NoObserver, NonholonomicSystem, RejectionPolicy, RunOptions,
+    Schedule, State, Stepper, Tableau, Vector,
+};
+
+/// A float that is usually ordinary and sometimes hostile.
+fn wild() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        6 => -3.0f64..3.0,
+        1 => Just(0.0),
+        1 => prop::sample::select(vec![
+            f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e300, -1e300, 1e-300, f64::MIN_POSITIVE, 1e150, -1e16, 1e8,
+        ]),
+        1 => any::<f64>(),
+    ]
+}
+
+fn step_size() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        6 => 1e-3f64..2.0,
+        2 => -2.0f64..-1e-3,
+        1 => prop::sample::select(vec![0.0, -0.0, f64::NAN, f64::INFINITY, 1e-320, 1e-15, 50.0, 1e10, -1e300]),
+    ]
+}
+
+const METHODS: [Method; 7] = [
+    Method::Gauss,
+    Method::LobattoIIIAB,
+    Method::LobattoIIIABD,
+    Method::SymplecticEulerI,
+    Method::SymplecticEulerII,
+    Method::ModifiedLobattoIIIAB,
+    Method::LobattoIIIBALda,
+];
+
+#[derive(Clone, Debug)]
+struct Input {
+    system: usize,
+    stages: usize,
+    method: Method,
+    t0: f64,
+    h: f64,
+    q: Vec<f64>,
+    v: Vec<f64>,
+    params: Vec<f64>,
+    project: bool,
+}
+
+fn input() -> impl Strategy<Value = Input> {
+    (
+        0usize..10,
+        1usize..=3,
+        prop::sample::select(METHODS.to_vec()),
+        prop_oneof![4 => -10.0f64..10.0, 1 => wild()],
+        step_size(),
+        prop::collection::vec(wild(), 7),
+        prop::collection::vec(wild(), 7),
+        prop::collection::vec(prop_oneof![5 => 0.1f64..3.0, 1 => wild()], 5),
+        any::<bool>(),
+    )
+        .prop_map(|(system, stages, method, t0, h, q, v, params, project)| Input {
+            system,
+            stages,
+            method,
+            t0,
+            h,
+            q,
+            v,
+            params,
+            project,
+        })
+}
+
+/// Runs the three entry points; panics (a proptest failure) only if the
+/// library returns a non-finite state as success.
+fn exercise<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(mut sys: Sys, x: &Input)
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    for (i, name) in Sys::SOURCE.parameters.iter().enumerate() {
+        // Through the API (non-finite values must be refused, not stored).
+        let r = sys.set_parameter(name, x.params[i % x.params.len()]);
+        if let Err(e) = r {
+            assert!(!x.params[i % x.params.len()].is_finite(), "finite parameter refused: {e}");
+        }
+    }
+    let _ = sys.set_parameter("no_such_parameter", 1.0).unwrap_err().to_string();
+    let tableau = match Tableau::<S>::new(x.method) {
+        Ok(t) => t,
+        Err(e) => {
+            let _ = e.to_string();
+            return;
+        }
+    };
+    let q = Vector::<N>::from_fn(|i, _| x.q[i]);
+    let v = Vector::<N>::from_fn(|i, _| x.v[i]);
+    let state = State::new(x.t0, q, v);
+    let finite = |s: &State<N>| s.t.is_finite() && s.q.iter().chain(s.v.iter()).all(|z| z.is_finite());
+    let mut st = Stepper::<Sys, N, M, S, D>::new(sys, tableau);
+    match st.step(&state, x.h) {
+        Ok(r) => assert!(finite(&r.state), "step returned a non-finite state: {:?}", r.state),
+        Err(e) => {
+            let _ = e.to_string();
+        }
+    }
+    let consistency = if x.project {
+        ConsistencyPolicy::Project { tolerance: 1e-12 }
+    } else {
+        ConsistencyPolicy::Error { tolerance: 1e-12 }
+    };
+    let opts = RunOptions { consistency, max_halvings: 2, ..RunOptions::default() };
+    match st.integrate(x.t0, &q, &v, Schedule::Fixed { h: x.h, steps: 3 }, &opts, &mut NoObserver) {
+        Ok(traj) => {
+            for s in &traj.samples {
+                assert!(
+                    s.t.is_finite() && s.q.iter().chain(s.v.iter()).all(|z| z.is_finite()),
+                    "integrate returned a non-finite sample"
+                );
+            }
+        }
+        Err(e) => {
+            let _ = e.to_string();
+        }
+    }
+    let policy = RejectionPolicy { max_halvings: 4, ..RejectionPolicy::default() };
+    match step_with_rejection(&mut st, &state, x.h, &policy) {
+        Ok(r) => assert!(finite(&r.state), "protected step returned a non-finite state"),
+        Err(e) => {
+            let _ = e.to_string();
+        }
+    }
+}
+
+macro_rules! by_stages {
+    ($sys:ty, $make:expr, $x:expr) => {
+        match $x.stages {
+            1 => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 1, { 1 * (<$sys>::N + <$sys>::M) + <$sys>::N }>($make, $x),
+            2 => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 2, { 2 * (<$sys>::N + <$sys>::M) + <$sys>::N }>($make, $x),
+            _ => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 3, { 3 * (<$sys>::N + <$sys>::M) + <$sys>::N }>($make, $x),
+        }
+    };
+}
+
+fn dispatch(x: &Input) {
+    match x.system {
+        0 => by_stages!(NonholonomicParticle, NonholonomicParticle::default(), x),
+        1 => by_stages!(Skate, Skate::default(), x),
+        2 => by_stages!(McLachlanPerlmutter7, McLachlanPerlmutter7::default(), x),
+        3 => by_stages!(TurntableSkate, TurntableSkate::default(), x),
+        4 => by_stages!(AppellHamel, AppellHamel::default(), x),
+        5 => by_stages!(DoublePendulum, DoublePendulum::default(), x),
+        6 => by_stages!(NearParallel, NearParallel { eps: x.params[0] * 1e-7, ..NearParallel::default() }, x),
+        7 => by_stages!(RollingDisk, RollingDisk::default(), x),
+        8 => by_stages!(StiffSkate, StiffSkate { k: x.params[1].abs() * 1e6, ..StiffSkate::default() }, x),
+        _ => by_stages!(NonReversibleOscillator, NonReversibleOscillator::default(), x),
+    }
+}
+
+fn cases() -> u32 {
+    std::env::var("FUZZ_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(20_000)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(), failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn stepper_never_panics(x in input()) {
+        dispatch(&x);
+    }
+}
+
+/// Deterministic hostile corner: a NaN field in a system evaluated inside
+/// the constraint must come back as an error, not a silent success.
+#[test]
+fn nan_parameter_in_the_constraint_is_an_error() {
+    let sys = NearParallel { eps: f64::NAN, ..NearParallel::default() };
+    let mut st = Stepper::<NearParallel, 3, 2, 2, 13>::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let (q, v) = (Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::new(0.3, 0.0, 0.15));
+    assert!(st.step(&State::new(0.0, q, v), 0.1).is_err());
+}
