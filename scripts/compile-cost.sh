@@ -176,12 +176,18 @@ show() { awk -v x="$1" 'BEGIN { split(x, a, ","); printf "%s s (%s s)", a[1], a[
     done
     echo
     echo
+    prev=$(awk '{ print $(NF-1) }' <<<"$SIZES")
+    if [ "$prev" != "$last" ]; then
+        awk -v a="$prev" -v b="$last" -v ta="$(field "${RESULT[$prev]}" expand_cpu_ms)" -v tb="$(field "${RESULT[$last]}" expand_cpu_ms)" \
+            'BEGIN { if (ta > 0 && tb > 0) printf "The macro'"'"'s own work (optimized, CPU) grows like n^%.1f from n = %s to %s, faster than the\noperation counts; it stays a minor part of the build at n = %s.\n", log(tb / ta) / log(b / a), a, b, b }'
+    fi
+    echo
     echo "- *added seconds*: minimum over $REPS rebuilds of the crate with the declaration, minus the"
     echo "  same for the crate without it (baseline: check $(show "$base_check"), debug $(show "$base_dev"),"
     echo "  release $(show "$base_rel")). They include running the macro inside rustc."
     echo "- *expand*: the macro's work alone, optimized and at opt-level 0. Cargo builds proc macros"
     echo "  and their dependencies with \`build-override\` opt-level 0 unless a profile says"
-    echo "  otherwise, so the opt-level 0 figure is what a default build pays; a user can set"
+    echo "  otherwise, so a default build pays the opt-level 0 kind of cost; a user can set"
     echo "  \`[profile.dev.build-override] opt-level = 3\` (and the same for release) to pay the"
     echo "  optimized figure instead. The in-process opt-level 0 figure overstates what rustc pays"
     echo "  (it uses proc-macro2's fallback token implementation with span locations, which the"
