@@ -15,9 +15,7 @@
 
 use crate::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
 use nalgebra::{Const, SVector};
-use num_dual::{
-    gradient, hessian, jacobian, partial_hessian, Dual2Vec, DualNum, DualVec, HyperDualVec,
-};
+use num_dual::{gradient, hessian, jacobian, partial_hessian, Dual2Vec, DualNum, DualVec, HyperDualVec};
 use spark_runtime::{
     Matrix, NonholonomicSystem, OperationCounts, StageJacobians, StageValues, Structure, SystemError, SystemSource,
     TimeDerivatives, Vector,
@@ -151,10 +149,16 @@ impl<L: DualLagrangian<N, M>, const N: usize, const M: usize> NonholonomicSystem
         type Tv<const N: usize> = HyperDualVec<f64, f64, Const<N>, Const<1>>;
         let ts = SVector::<f64, 1>::new(t);
         let (_, lt) = gradient(|td: SVector<T1, 1>| self.0.lagrangian(td[0], &lift(q), &lift(v)), ts);
-        let (_, _, _, pt) =
-            partial_hessian(|vd: SVector<Tv<N>, N>, td: SVector<Tv<N>, 1>| self.0.lagrangian(td[0], &lift(q), &vd), *v, ts);
-        let (_, _, _, ft) =
-            partial_hessian(|qd: SVector<Tv<N>, N>, td: SVector<Tv<N>, 1>| self.0.lagrangian(td[0], &qd, &lift(v)), *q, ts);
+        let (_, _, _, pt) = partial_hessian(
+            |vd: SVector<Tv<N>, N>, td: SVector<Tv<N>, 1>| self.0.lagrangian(td[0], &lift(q), &vd),
+            *v,
+            ts,
+        );
+        let (_, _, _, ft) = partial_hessian(
+            |qd: SVector<Tv<N>, N>, td: SVector<Tv<N>, 1>| self.0.lagrangian(td[0], &qd, &lift(v)),
+            *q,
+            ts,
+        );
         let (_, kt) = jacobian(|td: SVector<T1, 1>| self.0.constraints(td[0], &lift(q), &lift(v)), ts);
         TimeDerivatives {
             lagrangian_t: lt[0],

@@ -29,9 +29,7 @@ fn column<const N: usize, const C: usize>(
     }
 }
 
-impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> NonholonomicSystem<N, M>
-    for FiniteDifference<Sys>
-{
+impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> NonholonomicSystem<N, M> for FiniteDifference<Sys> {
     const STRUCTURE: Structure = Sys::STRUCTURE;
     const SOURCE: SystemSource = Sys::SOURCE;
     const OPERATIONS: OperationCounts = Sys::OPERATIONS;

@@ -175,10 +175,7 @@ impl WorkPrecisionConfig {
 /// Whether `kind` has everything the work-precision run needs (a
 /// hand-written num-dual twin).
 pub fn supported(kind: SystemKind) -> bool {
-    matches!(
-        kind,
-        SystemKind::Particle | SystemKind::Skate | SystemKind::Robot | SystemKind::McLachlanPerlmutter7
-    )
+    matches!(kind, SystemKind::Particle | SystemKind::Skate | SystemKind::Robot | SystemKind::McLachlanPerlmutter7)
 }
 
 /// Every method family and stage count the sweep covers.
@@ -207,7 +204,9 @@ pub fn method_label(method: Method, s: usize) -> String {
 #[derive(Debug, thiserror::Error)]
 pub enum WorkPrecisionError {
     /// The system is not supported.
-    #[error("work-precision supports particle, skate, robot and mp7 (they have hand-written num-dual twins); got `{0}`")]
+    #[error(
+        "work-precision supports particle, skate, robot and mp7 (they have hand-written num-dual twins); got `{0}`"
+    )]
     Unsupported(&'static str),
     /// The reference solution failed.
     #[error("reference solution of {system}: {source}")]
@@ -460,12 +459,16 @@ macro_rules! stages {
     }};
 }
 
+/// Sweeps one `(method, s)` of one system (a closure over the stage dispatch).
+type Sweep<'f, const N: usize> =
+    dyn Fn(&Ctx<'_, N>, Method, usize, bool, &mut Vec<Point>) -> Result<(), WorkPrecisionError> + 'f;
+
 /// Measures one system: reference, SPARK sweeps, Rust peers.
 fn measure_system<Sys, const N: usize, const M: usize, const Y: usize>(
     kind: SystemKind,
     cfg: &WorkPrecisionConfig,
     progress: &dyn Fn(&str),
-    sweep: &dyn Fn(&Ctx<'_, N>, Method, usize, bool, &mut Vec<Point>) -> Result<(), WorkPrecisionError>,
+    sweep: &Sweep<'_, N>,
 ) -> Result<SystemMeasurement, WorkPrecisionError>
 where
     Sys: NonholonomicSystem<N, M> + Default,
@@ -524,9 +527,11 @@ pub fn measure(
     progress: &dyn Fn(&str),
 ) -> Result<SystemMeasurement, WorkPrecisionError> {
     let mut m = match kind {
-        SystemKind::Particle => measure_system::<NonholonomicParticle, 3, 1, 6>(kind, cfg, progress, &|c, me, s, p, pts| {
-            stages!(NonholonomicParticle, c, me, s, p, pts)
-        })?,
+        SystemKind::Particle => {
+            measure_system::<NonholonomicParticle, 3, 1, 6>(kind, cfg, progress, &|c, me, s, p, pts| {
+                stages!(NonholonomicParticle, c, me, s, p, pts)
+            })?
+        }
         SystemKind::Skate => {
             measure_system::<Skate, 3, 1, 6>(kind, cfg, progress, &|c, me, s, p, pts| stages!(Skate, c, me, s, p, pts))?
         }
@@ -600,6 +605,40 @@ mod tests {
         assert_eq!(n, 3);
         assert!(t < 0.02, "median {t} should ignore the one slow repeat");
         assert!(median_time(3, Duration::ZERO, || false).is_none());
+    }
+
+    /// Smoke test of the whole code path (the measurement itself is a
+    /// command, never a test): one system, tiny sweep, no Python.
+    #[test]
+    fn quick_run_measures_every_solver_and_writes_every_output() {
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-smoke-{}", std::process::id()));
+        let mut cfg = WorkPrecisionConfig::quick(&dir);
+        cfg.systems = vec![SystemKind::Skate];
+        cfg.max_steps = 32;
+        let all = run_work_precision(&cfg, &|_| {}).unwrap();
+        let m = &all[0];
+        for (method, s) in method_variants() {
+            let label = method_label(method, s);
+            assert!(
+                m.points.iter().any(|p| p.solver == Provider::Generated.label() && p.method == label),
+                "no point for {label}"
+            );
+        }
+        for solver in [Provider::NumDual.label(), Provider::FiniteDifference.label(), report::ODE_SOLVERS] {
+            assert!(m.points.iter().any(|p| p.solver == solver), "no point for {solver}");
+        }
+        // Gauss s=2 is of order 4: doubling the steps must shrink the error.
+        let g: Vec<&Point> =
+            m.points.iter().filter(|p| p.solver == Provider::Generated.label() && p.method == "Gauss s=2").collect();
+        assert!(g.len() >= 2 && g[1].error() < g[0].error() / 8.0, "Gauss s=2 errors {:?}", g);
+        // num-dual solves the same equations: the same errors.
+        let ad = m.points.iter().find(|p| p.solver == Provider::NumDual.label() && p.steps == g[0].steps).unwrap();
+        assert!((ad.error() - g[0].error()).abs() <= 1e-9 * g[0].error().max(1e-12));
+        assert!(m.missing.iter().any(|s| s.contains("CasADi")));
+        for f in ["skate.csv", "skate.md", "skate-error.png", "skate-energy.svg", "skate-peers.png", "summary.md"] {
+            assert!(dir.join(f).exists(), "{f} not written");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

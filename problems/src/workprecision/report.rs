@@ -266,7 +266,8 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     let mut series = vec![Series::new("SPARK, best method at each cost", envelope)];
     for ((solver, method), c) in &all {
         if *solver == *SCIPY || *solver == *ODE_SOLVERS {
-            series.push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.wall_time, p.error())).collect()));
+            series
+                .push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.wall_time, p.error())).collect()));
         }
     }
     panels.push(Panel {
@@ -277,7 +278,12 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
         y_scale: Scale::Log,
         series,
     });
-    Figure { title: format!("{}: peers, T = {}", m.problem.system, m.problem.final_time), panels, columns: 2, panel_size: (640, 460) }
+    Figure {
+        title: format!("{}: peers, T = {}", m.problem.system, m.problem.final_time),
+        panels,
+        columns: 2,
+        panel_size: (640, 460),
+    }
 }
 
 /// Writes one system's CSV, figures and Markdown into `cfg.out`.
@@ -289,9 +295,10 @@ pub fn write_system(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Result<
         p.error()
     });
     render(&fig, &cfg.out.join(format!("{key}-error")))?;
-    let fig = family_figure(m, &format!("{key}: largest energy error on [0, {t}] vs wall time"), "max |E − E₀|", |p| {
-        p.energy_error
-    });
+    let fig =
+        family_figure(m, &format!("{key}: largest energy error on [0, {t}] vs wall time"), "max |E − E₀|", |p| {
+            p.energy_error
+        });
     if !fig.panels.is_empty() {
         render(&fig, &cfg.out.join(format!("{key}-energy")))?;
     }
@@ -307,7 +314,10 @@ pub fn system_markdown(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Stri
     let mut s = String::new();
     let (n, mm) = m.dimensions;
     let _ = writeln!(s, "### {key} (n = {n}, m = {mm}, T = {})\n", m.problem.final_time);
-    let _ = writeln!(s, "![error vs time]({key}-error.png)\n![energy error vs time]({key}-energy.png)\n![peers]({key}-peers.png)\n");
+    let _ = writeln!(
+        s,
+        "![error vs time]({key}-error.png)\n![energy error vs time]({key}-energy.png)\n![peers]({key}-peers.png)\n"
+    );
     let _ = writeln!(s, "{}", cheapest_table(m, &cfg.targets));
     let _ = writeln!(s, "{}", ratio_tables(m, &cfg.targets));
     for miss in &m.missing {

@@ -13,7 +13,7 @@
 use super::scaling_systems::{
     McLachlanPerlmutter17, McLachlanPerlmutter33, McLachlanPerlmutter5, McLachlanPerlmutter65, McLachlanPerlmutter9,
 };
-use spark_runtime::{Method, NonholonomicSystem, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector};
+use spark_runtime::{Method, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, Stepper, Tableau, Vector};
 use std::time::{Duration, Instant};
 
 /// One row of the scaling table.

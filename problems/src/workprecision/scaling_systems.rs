@@ -53,4 +53,3 @@ nonholonomic_system! {
         constraints: [ dot(q1) + q34*dot(q34) + q35*dot(q35) + q36*dot(q36) + q37*dot(q37) + q38*dot(q38) + q39*dot(q39) + q40*dot(q40) + q41*dot(q41) + q42*dot(q42) + q43*dot(q43) + q44*dot(q44) + q45*dot(q45) + q46*dot(q46) + q47*dot(q47) + q48*dot(q48) + q49*dot(q49) + q50*dot(q50) + q51*dot(q51) + q52*dot(q52) + q53*dot(q53) + q54*dot(q54) + q55*dot(q55) + q56*dot(q56) + q57*dot(q57) + q58*dot(q58) + q59*dot(q59) + q60*dot(q60) + q61*dot(q61) + q62*dot(q62) + q63*dot(q63) + q64*dot(q64) + q65*dot(q65) ],
     }
 }
-
