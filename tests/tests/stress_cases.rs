@@ -89,6 +89,8 @@ fn report_is_written_only_after_every_case() {
     let written = stress::write_report(&report, &dir).unwrap();
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     assert!(md.contains("Bad input") && md.contains("![Bad input](bad_input.png)"));
-    assert!(written.iter().any(|p| p.ends_with("bad_input.png")) && written.iter().any(|p| p.ends_with("bad_input.svg")));
+    assert!(
+        written.iter().any(|p| p.ends_with("bad_input.png")) && written.iter().any(|p| p.ends_with("bad_input.svg"))
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

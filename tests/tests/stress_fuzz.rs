@@ -13,7 +13,9 @@
 //! (documented in docs/stress/README.md with its outcome).
 
 use problems::stress::systems::{NearParallel, NonReversibleOscillator, RollingDisk, StiffSkate};
-use problems::systems::{AppellHamel, DoublePendulum, McLachlanPerlmutter7, NonholonomicParticle, Skate, TurntableSkate};
+use problems::systems::{
+    AppellHamel, DoublePendulum, McLachlanPerlmutter7, NonholonomicParticle, Skate, TurntableSkate,
+};
 use proptest::prelude::*;
 use spark_runtime::{
     step_with_rejection, ConsistencyPolicy, Method, NoObserver, NonholonomicSystem, RejectionPolicy, RunOptions,
@@ -151,9 +153,15 @@ where
 macro_rules! by_stages {
     ($sys:ty, $make:expr, $x:expr) => {
         match $x.stages {
-            1 => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 1, { 1 * (<$sys>::N + <$sys>::M) + <$sys>::N }>($make, $x),
-            2 => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 2, { 2 * (<$sys>::N + <$sys>::M) + <$sys>::N }>($make, $x),
-            _ => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 3, { 3 * (<$sys>::N + <$sys>::M) + <$sys>::N }>($make, $x),
+            1 => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 1, { 1 * (<$sys>::N + <$sys>::M) + <$sys>::N }>(
+                $make, $x,
+            ),
+            2 => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 2, { 2 * (<$sys>::N + <$sys>::M) + <$sys>::N }>(
+                $make, $x,
+            ),
+            _ => exercise::<$sys, { <$sys>::N }, { <$sys>::M }, 3, { 3 * (<$sys>::N + <$sys>::M) + <$sys>::N }>(
+                $make, $x,
+            ),
         }
     };
 }

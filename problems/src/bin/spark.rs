@@ -48,6 +48,10 @@ enum Command {
     ///
     /// Example: spark work-precision --system skate --out results/work-precision
     WorkPrecision(problems::workprecision::cli::WorkPrecisionArgs),
+    /// Stress suite (issue 7): hard cases with checks, figures and a report.
+    ///
+    /// Example: spark stress --full --out docs/stress
+    Stress(problems::stress::cli::StressArgs),
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -155,6 +159,7 @@ fn main() -> ExitCode {
         Command::WorkPrecision(args) => {
             problems::workprecision::cli::run(args, &|m| eprintln!("{m}")).map(|text| print!("{text}"))
         }
+        Command::Stress(args) => problems::stress::cli::run(args).map(|text| print!("{text}")),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -23,7 +23,8 @@ fn particle_sweep<const S: usize, const D: usize>(
     v_ref: &Vector<3>,
 ) -> Result<Vec<(f64, Result<f64, String>)>, StressError> {
     let (q0, v0) = (Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    let mut st = Stepper::<NonholonomicParticle, 3, 1, S, D>::new(NonholonomicParticle::default(), Tableau::new(method)?);
+    let mut st =
+        Stepper::<NonholonomicParticle, 3, 1, S, D>::new(NonholonomicParticle::default(), Tableau::new(method)?);
     Ok(counts
         .iter()
         .map(|&n| {
@@ -103,7 +104,14 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
         );
         c.metric(format!("{label}: steepest observed order (nominal {order})"), format!("{max_order:.1}"));
         c.metric(format!("{label}: best / finest-h error"), format!("{} / {}", sci(best), sci(finest)));
-        series.push(Series::new(*label, log_points(&pts.iter().map(|p| p.0).collect::<Vec<_>>(), &pts.iter().map(|p| p.1).collect::<Vec<_>>(), 1e-17)));
+        series.push(Series::new(
+            *label,
+            log_points(
+                &pts.iter().map(|p| p.0).collect::<Vec<_>>(),
+                &pts.iter().map(|p| p.1).collect::<Vec<_>>(),
+                1e-17,
+            ),
+        ));
     }
     c.energy = "not the subject (accuracy against the reference)".into();
     c.figure = Some(Figure {
@@ -168,13 +176,37 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
             "Gauss s=2",
             4.0,
             run_fixed(&mut crate::stress_stepper!(RollingDisk, 2, Method::Gauss, disk()), &q0, &v0, h, steps, every, 0),
-            run_fixed(&mut crate::stress_stepper!(RollingDisk, 2, Method::Gauss, disk()), &q0, &v0, h / 2.0, 2 * steps, 2 * every, 0),
+            run_fixed(
+                &mut crate::stress_stepper!(RollingDisk, 2, Method::Gauss, disk()),
+                &q0,
+                &v0,
+                h / 2.0,
+                2 * steps,
+                2 * every,
+                0,
+            ),
         ),
         (
             "Lobatto IIIA-B s=3",
             4.0,
-            run_fixed(&mut crate::stress_stepper!(RollingDisk, 3, Method::LobattoIIIAB, disk()), &q0, &v0, h, steps, every, 0),
-            run_fixed(&mut crate::stress_stepper!(RollingDisk, 3, Method::LobattoIIIAB, disk()), &q0, &v0, h / 2.0, 2 * steps, 2 * every, 0),
+            run_fixed(
+                &mut crate::stress_stepper!(RollingDisk, 3, Method::LobattoIIIAB, disk()),
+                &q0,
+                &v0,
+                h,
+                steps,
+                every,
+                0,
+            ),
+            run_fixed(
+                &mut crate::stress_stepper!(RollingDisk, 3, Method::LobattoIIIAB, disk()),
+                &q0,
+                &v0,
+                h / 2.0,
+                2 * steps,
+                2 * every,
+                0,
+            ),
         ),
     ];
     for (label, order, run, half) in runs {
@@ -194,7 +226,10 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
                             f.exponent <= 1.2,
                             format!("fitted exponent {:.3} ± {:.3}", f.exponent, f.exponent_std_error),
                         );
-                        c.metric(format!("{label}: error growth exponent"), format!("{:.3} ± {:.3}", f.exponent, f.exponent_std_error));
+                        c.metric(
+                            format!("{label}: error growth exponent"),
+                            format!("{:.3} ± {:.3}", f.exponent, f.exponent_std_error),
+                        );
                     }
                     None => c.check(format!("{label}: error growth fitted"), false, "no positive errors"),
                 }
@@ -212,7 +247,10 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
                 c.metric(format!("{label}: max error (h = {h})"), sci(max));
                 c.metric(format!("{label}: max |E−E0|"), sci(d.max_energy_error));
                 series.push(Series::new(format!("{label}, h = {h}"), thin(log_points(&d.t, &err, 1e-17), 3000)));
-                series.push(Series::new(format!("{label}, h = {}", h / 2.0), thin(log_points(&d2.t, &err2, 1e-17), 3000)));
+                series.push(Series::new(
+                    format!("{label}, h = {}", h / 2.0),
+                    thin(log_points(&d2.t, &err2, 1e-17), 3000),
+                ));
             }
             (a, b) => {
                 for e in [a.err(), b.err()].into_iter().flatten() {
@@ -262,7 +300,9 @@ where
         match run_fixed(&mut st, q0, v0, h, n, 0, 0) {
             Ok(d) => {
                 let (q, v) = (d.q.last().cloned().unwrap_or_default(), d.v.last().cloned().unwrap_or_default());
-                let e = (0..N).map(|i| (q[i] - refsol.q[0][i]).abs().max((v[i] - refsol.v[0][i]).abs())).fold(0.0, f64::max);
+                let e = (0..N)
+                    .map(|i| (q[i] - refsol.q[0][i]).abs().max((v[i] - refsol.v[0][i]).abs()))
+                    .fold(0.0, f64::max);
                 out.push((h, e, d.max_residual));
             }
             Err(e) => return Ok(Err(e.to_string())),
@@ -292,10 +332,26 @@ pub fn against_reference(_scale: Scale) -> Result<CaseReport, StressError> {
     // saddle matrix becomes singular (a typed SingularMatrix error).
     let (aq, av) = (Vector::<3>::zeros(), Vector::<3>::new(1.0, 0.0, -0.5));
     let runs = [
-        ("turntable, Gauss s=3", 6.0, reference_sweep::<_, 3, 1, 3, 15>(TurntableSkate::default(), Method::Gauss, &tq, &tv, t_end, &hs)?),
-        ("turntable, Lobatto IIIA-B s=3", 4.0, reference_sweep::<_, 3, 1, 3, 15>(TurntableSkate::default(), Method::LobattoIIIAB, &tq, &tv, t_end, &hs)?),
-        ("Appell–Hamel, Gauss s=3", 6.0, reference_sweep::<_, 3, 1, 3, 15>(AppellHamel::default(), Method::Gauss, &aq, &av, t_end, &hs)?),
-        ("Appell–Hamel, Lobatto IIIA-B s=3", 4.0, reference_sweep::<_, 3, 1, 3, 15>(AppellHamel::default(), Method::LobattoIIIAB, &aq, &av, t_end, &hs)?),
+        (
+            "turntable, Gauss s=3",
+            6.0,
+            reference_sweep::<_, 3, 1, 3, 15>(TurntableSkate::default(), Method::Gauss, &tq, &tv, t_end, &hs)?,
+        ),
+        (
+            "turntable, Lobatto IIIA-B s=3",
+            4.0,
+            reference_sweep::<_, 3, 1, 3, 15>(TurntableSkate::default(), Method::LobattoIIIAB, &tq, &tv, t_end, &hs)?,
+        ),
+        (
+            "Appell–Hamel, Gauss s=3",
+            6.0,
+            reference_sweep::<_, 3, 1, 3, 15>(AppellHamel::default(), Method::Gauss, &aq, &av, t_end, &hs)?,
+        ),
+        (
+            "Appell–Hamel, Lobatto IIIA-B s=3",
+            4.0,
+            reference_sweep::<_, 3, 1, 3, 15>(AppellHamel::default(), Method::LobattoIIIAB, &aq, &av, t_end, &hs)?,
+        ),
     ];
     let mut series = Vec::new();
     for (label, order, r) in runs {
@@ -338,10 +394,24 @@ pub fn against_reference(_scale: Scale) -> Result<CaseReport, StressError> {
                     );
                 }
                 let maxk = pts.iter().map(|p| p.2).fold(0.0, f64::max);
-                c.check(format!("{label}: constraint residual ≤ 1e-11"), maxk <= 1e-11, format!("max |k| = {}", sci(maxk)));
-                c.metric(format!("{label}: errors at h = {hs:?}"), pts.iter().map(|p| sci(p.1)).collect::<Vec<_>>().join(", "));
+                c.check(
+                    format!("{label}: constraint residual ≤ 1e-11"),
+                    maxk <= 1e-11,
+                    format!("max |k| = {}", sci(maxk)),
+                );
+                c.metric(
+                    format!("{label}: errors at h = {hs:?}"),
+                    pts.iter().map(|p| sci(p.1)).collect::<Vec<_>>().join(", "),
+                );
                 c.metric(format!("{label}: max |k|"), sci(pts.iter().map(|p| p.2).fold(0.0, f64::max)));
-                series.push(Series::new(label, log_points(&pts.iter().map(|p| p.0).collect::<Vec<_>>(), &pts.iter().map(|p| p.1).collect::<Vec<_>>(), 1e-17)));
+                series.push(Series::new(
+                    label,
+                    log_points(
+                        &pts.iter().map(|p| p.0).collect::<Vec<_>>(),
+                        &pts.iter().map(|p| p.1).collect::<Vec<_>>(),
+                        1e-17,
+                    ),
+                ));
             }
         }
     }

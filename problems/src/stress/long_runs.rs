@@ -83,24 +83,52 @@ pub fn long_time(scale: Scale) -> Result<CaseReport, StressError> {
     let (pq, pv) = (Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
     let (sq, sv) = (Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
     type Job = (&'static str, Method, usize);
-    let jobs: [Job; 4] =
-        [("particle", Method::Gauss, 2), ("particle", Method::LobattoIIIAB, 3), ("skate", Method::Gauss, 2), (
-            "skate",
-            Method::LobattoIIIAB,
-            3,
-        )];
+    let jobs: [Job; 4] = [
+        ("particle", Method::Gauss, 2),
+        ("particle", Method::LobattoIIIAB, 3),
+        ("skate", Method::Gauss, 2),
+        ("skate", Method::LobattoIIIAB, 3),
+    ];
     let results: Vec<Result<RunData, String>> = jobs
         .par_iter()
         .map(|&(sys, method, s)| -> Result<Result<RunData, String>, StressError> {
             let r = match (sys, s) {
-                ("particle", 2) => {
-                    run_fixed(&mut crate::stress_stepper!(NonholonomicParticle, 2, method, NonholonomicParticle::default()), &pq, &pv, h, steps, every, 0)
-                }
-                ("particle", _) => {
-                    run_fixed(&mut crate::stress_stepper!(NonholonomicParticle, 3, method, NonholonomicParticle::default()), &pq, &pv, h, steps, every, 0)
-                }
-                (_, 2) => run_fixed(&mut crate::stress_stepper!(Skate, 2, method, Skate::default()), &sq, &sv, h, steps, every, 0),
-                _ => run_fixed(&mut crate::stress_stepper!(Skate, 3, method, Skate::default()), &sq, &sv, h, steps, every, 0),
+                ("particle", 2) => run_fixed(
+                    &mut crate::stress_stepper!(NonholonomicParticle, 2, method, NonholonomicParticle::default()),
+                    &pq,
+                    &pv,
+                    h,
+                    steps,
+                    every,
+                    0,
+                ),
+                ("particle", _) => run_fixed(
+                    &mut crate::stress_stepper!(NonholonomicParticle, 3, method, NonholonomicParticle::default()),
+                    &pq,
+                    &pv,
+                    h,
+                    steps,
+                    every,
+                    0,
+                ),
+                (_, 2) => run_fixed(
+                    &mut crate::stress_stepper!(Skate, 2, method, Skate::default()),
+                    &sq,
+                    &sv,
+                    h,
+                    steps,
+                    every,
+                    0,
+                ),
+                _ => run_fixed(
+                    &mut crate::stress_stepper!(Skate, 3, method, Skate::default()),
+                    &sq,
+                    &sv,
+                    h,
+                    steps,
+                    every,
+                    0,
+                ),
             };
             Ok(r.map_err(|e| e.to_string()))
         })
@@ -139,7 +167,10 @@ pub fn long_time(scale: Scale) -> Result<CaseReport, StressError> {
                                 sci(d.max_energy_error)
                             ),
                         );
-                        c.metric(format!("{label}: slope of |E−E0|"), format!("{} ± {}", sci(dt.block_slope), sci(dt.block_std_error)));
+                        c.metric(
+                            format!("{label}: slope of |E−E0|"),
+                            format!("{} ± {}", sci(dt.block_slope), sci(dt.block_std_error)),
+                        );
                         c.metric(format!("{label}: drift fraction"), format!("{:.4}", dt.drift_fraction));
                     }
                     None => c.check(format!("{label}: no energy drift"), false, "too few samples to fit"),
@@ -253,9 +284,15 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
                 c.check(
                     format!("{label}: energy measure {criterion}"),
                     ok,
-                    format!("p = {:.3} ± {:.3} ({} log-spaced points, t ≥ {fit_from})", f.exponent, f.exponent_std_error, f.points),
+                    format!(
+                        "p = {:.3} ± {:.3} ({} log-spaced points, t ≥ {fit_from})",
+                        f.exponent, f.exponent_std_error, f.points
+                    ),
                 );
-                c.metric(format!("{label}: fitted exponent p"), format!("{:.3} ± {:.3}", f.exponent, f.exponent_std_error));
+                c.metric(
+                    format!("{label}: fitted exponent p"),
+                    format!("{:.3} ± {:.3}", f.exponent, f.exponent_std_error),
+                );
                 c.metric(format!("{label}: coefficient C"), sci(f.coefficient));
             }
             None => c.check(format!("{label}: exponent fitted"), false, "no positive samples to fit"),

@@ -17,6 +17,7 @@
 //! has run, so a failure leaves nothing half-written in the output folder.
 
 pub mod accuracy;
+pub mod cli;
 pub mod long_runs;
 pub mod robustness;
 pub mod systems;
@@ -243,6 +244,20 @@ pub fn write_report(report: &StressReport, out: &Path) -> Result<Vec<PathBuf>, S
     Ok(written)
 }
 
+/// The summary table of the report, with every failed criterion and its
+/// reason below it (what `spark stress` prints).
+pub fn markdown_summary(report: &StressReport) -> String {
+    let full = markdown(report);
+    let table_end = full.find("\n<a id=").unwrap_or(full.len());
+    let mut s = full[..table_end].to_string();
+    for c in &report.cases {
+        for k in c.failures() {
+            s.push_str(&format!("- FAIL {}: {} — {}\n", c.key, k.criterion, k.detail));
+        }
+    }
+    s
+}
+
 /// The Markdown text of the report.
 pub fn markdown(report: &StressReport) -> String {
     use std::fmt::Write;
@@ -266,7 +281,7 @@ pub fn markdown(report: &StressReport) -> String {
             c.steps,
             c.rejections,
             c.worst_residual,
-            c.energy.replace('|', "/")
+            c.energy.replace('|', "\\|")
         );
     }
     for c in &report.cases {
@@ -286,9 +301,9 @@ pub fn markdown(report: &StressReport) -> String {
                 let _ = writeln!(
                     s,
                     "| {} | {} | {} |",
-                    k.criterion.replace('|', "/"),
+                    k.criterion.replace('|', "\\|"),
                     if k.passed { "pass" } else { "**FAIL**" },
-                    k.detail.replace('|', "/").replace('\n', " ")
+                    k.detail.replace('|', "\\|").replace('\n', " ")
                 );
             }
             s.push('\n');
@@ -296,7 +311,7 @@ pub fn markdown(report: &StressReport) -> String {
         if !c.metrics.is_empty() {
             let _ = writeln!(s, "| measured | value |\n|---|---|");
             for m in &c.metrics {
-                let _ = writeln!(s, "| {} | {} |", m.name.replace('|', "/"), m.value.replace('|', "/"));
+                let _ = writeln!(s, "| {} | {} |", m.name.replace('|', "\\|"), m.value.replace('|', "\\|"));
             }
             s.push('\n');
         }
@@ -404,12 +419,12 @@ pub fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
 macro_rules! stress_stepper {
     ($sys:ty, $s:literal, $method:expr, $system:expr) => {
         spark_runtime::Stepper::<
-            $sys,
-            { <$sys>::N },
-            { <$sys>::M },
-            $s,
-            { $s * (<$sys>::N + <$sys>::M) + <$sys>::N },
-        >::new($system, spark_runtime::Tableau::<$s>::new($method)?)
+                    $sys,
+                    { <$sys>::N },
+                    { <$sys>::M },
+                    $s,
+                    { $s * (<$sys>::N + <$sys>::M) + <$sys>::N },
+                >::new($system, spark_runtime::Tableau::<$s>::new($method)?)
     };
 }
 

@@ -141,7 +141,12 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
                     all_typed = false;
                 }
                 c.errors.push(format!("protected, h = {h}: {e}"));
-                format!("fails: {} in nominal step {} ({} rejections before)", rejection_error_kind(e), e.index, e.partial.rejections)
+                format!(
+                    "fails: {} in nominal step {} ({} rejections before)",
+                    rejection_error_kind(e),
+                    e.index,
+                    e.partial.rejections
+                )
             }
         };
         c.metric(format!("h = {h}: plain"), plain_desc);
@@ -155,14 +160,41 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
     c.check(
         "Newton stops converging somewhere in the sweep (the sweep reaches the limit)",
         !plain_fail.is_empty(),
-        format!("first plain failure at h = {:?}", plain_fail.first()),
+        match plain_fail.first() {
+            Some(h) => format!("first plain failure at h = {h}"),
+            None => "no plain run failed".into(),
+        },
     );
     c.check(
         "the rejection policy carries at least one failing run through",
         !rescued.is_empty(),
         format!("rescued at h = {rescued:?}"),
     );
-    c.energy = format!("plain runs fail from h = {:?}; see the per-h energy errors", plain_fail.first());
+    // A policy allowed a single halving cannot rescue the largest step: the
+    // protected run must then stop with a typed Floor error naming the floor
+    // and the last Newton failure.
+    let tight = RejectionPolicy { max_halvings: 1, ..policy };
+    let h_max = *hs.last().unwrap_or(&12.8);
+    let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys.clone());
+    match integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h_max, &tight, &mut |_| {}) {
+        Ok(_) => c.check(
+            format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
+            false,
+            "the run completed",
+        ),
+        Err(e) => {
+            c.errors.push(format!("protected, h = {h_max}, max_halvings = 1: {e}"));
+            c.check(
+                format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
+                matches!(e.source, RejectionError::Floor { .. }),
+                format!("{}: {e}", rejection_error_kind(&e)),
+            );
+        }
+    }
+    c.energy = match plain_fail.first() {
+        Some(h) => format!("plain runs fail from h = {h}; per-h energy errors in the metrics"),
+        None => "no plain run failed; per-h energy errors in the metrics".into(),
+    };
     c.figure = Some(Figure {
         title: c.title.clone(),
         panels: vec![
@@ -479,8 +511,24 @@ pub fn non_reversible(scale: Scale) -> Result<CaseReport, StressError> {
         for (method, name) in [(Method::Gauss, "Gauss s=2"), (Method::LobattoIIIAB, "Lobatto IIIA-B s=2")] {
             let label = format!("ε = {eps}, {name}");
             let r = match method {
-                Method::Gauss => run_fixed(&mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys.clone()), &q0, &v0, h, steps, every, 0),
-                _ => run_fixed(&mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys.clone()), &q0, &v0, h, steps, every, 0),
+                Method::Gauss => run_fixed(
+                    &mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys.clone()),
+                    &q0,
+                    &v0,
+                    h,
+                    steps,
+                    every,
+                    0,
+                ),
+                _ => run_fixed(
+                    &mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys.clone()),
+                    &q0,
+                    &v0,
+                    h,
+                    steps,
+                    every,
+                    0,
+                ),
             };
             match r {
                 Err(e) => {
@@ -510,11 +558,7 @@ pub fn non_reversible(scale: Scale) -> Result<CaseReport, StressError> {
         }
     }
     c.check("every run completes", all_ok, c.errors.join("; "));
-    c.check(
-        "constraint residual ≤ 1e-12",
-        c.worst_residual <= 1e-12,
-        format!("max |k| = {}", sci(c.worst_residual)),
-    );
+    c.check("constraint residual ≤ 1e-12", c.worst_residual <= 1e-12, format!("max |k| = {}", sci(c.worst_residual)));
     c.energy = words.join("; ");
     c.figure = Some(Figure {
         title: c.title.clone(),
@@ -560,14 +604,22 @@ pub fn bad_input(_scale: Scale) -> Result<CaseReport, StressError> {
         let mut count = 0usize;
         let mut obs = |_: &State<3>, _: usize| count += 1;
         let r = st.integrate(0.0, &q, &v, schedule, &opts, &mut obs);
-        (r.map(|t| format!("Ok({} steps)", t.report.steps)).map_err(|e| format!("{} — {e}", integration_error_kind(&e))), count)
+        (
+            r.map(|t| format!("Ok({} steps)", t.report.steps))
+                .map_err(|e| format!("{} — {e}", integration_error_kind(&e))),
+            count,
+        )
     };
     let fixed = Schedule::Fixed { h: 0.1, steps: 10 };
     let mut push = |what, expected, (got, observed_steps): (Result<String, String>, usize)| {
         cases.push(Bad { what, expected, got, observed_steps })
     };
     push("NaN in q0", "Initial/InvalidStep", drive(Skate::default(), Vector::<3>::new(f64::NAN, 0.0, 0.0), v0, fixed));
-    push("+inf in v0", "Initial/InvalidStep", drive(Skate::default(), q0, Vector::<3>::new(0.0, 0.0, f64::INFINITY), fixed));
+    push(
+        "+inf in v0",
+        "Initial/InvalidStep",
+        drive(Skate::default(), q0, Vector::<3>::new(0.0, 0.0, f64::INFINITY), fixed),
+    );
     push("h = 0", "InvalidSchedule", drive(Skate::default(), q0, v0, Schedule::Fixed { h: 0.0, steps: 10 }));
     push("h = NaN", "InvalidSchedule", drive(Skate::default(), q0, v0, Schedule::Fixed { h: f64::NAN, steps: 10 }));
     push("output time NaN", "InvalidSchedule", drive(Skate::default(), q0, v0, Schedule::Times(&[0.5, f64::NAN])));
@@ -614,7 +666,9 @@ pub fn bad_input(_scale: Scale) -> Result<CaseReport, StressError> {
             &opts,
             &mut obs,
         );
-        let got = r.map(|t| format!("Ok({} steps)", t.report.steps)).map_err(|e| format!("{} — {e}", integration_error_kind(&e)));
+        let got = r
+            .map(|t| format!("Ok({} steps)", t.report.steps))
+            .map_err(|e| format!("{} — {e}", integration_error_kind(&e)));
         push("parameter field eps = NaN in the constraint", "Initial/NonFinite", (got, count));
     }
     // Stepper::step directly.
