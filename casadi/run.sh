@@ -47,7 +47,15 @@ echo "==> CasADi translator unit tests"
 
 # --- export from Rust --------------------------------------------------------
 echo "==> exporting derivatives and SPARK steps from Rust"
-cargo run --release --quiet -p problems --bin spark-casadi-export -- --out "$OUT/export.json"
+# Built exactly as `cargo test --workspace --release` builds it (same profile
+# and feature set), so after the README's test command this is a no-op rather
+# than a second compilation of the workspace.
+cargo test --workspace --release --no-run --quiet
+target_dir=$(cargo metadata --format-version 1 --no-deps |
+    "$PY" -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+exporter="$target_dir/release/spark-casadi-export"
+[[ -x "$exporter" ]] || fail "cargo did not produce $exporter."
+"$exporter" --out "$OUT/export.json"
 
 # --- the cross-check ---------------------------------------------------------
 echo "==> CasADi cross-check"
