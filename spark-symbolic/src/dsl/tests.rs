@@ -438,3 +438,31 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn find_declaration_searches_items_and_inline_modules() {
+    let file = r#"
+        use spark_runtime::nonholonomic_system;
+        nonholonomic_system! { pub struct A { coordinates: [x], lagrangian: dot(x)^2 } }
+        mod inner {
+            spark_runtime::nonholonomic_system! {
+                /// Doc.
+                pub(crate) struct B { coordinates: [y], lagrangian: dot(y)^2 }
+            }
+        }
+        fn unrelated() {}
+    "#;
+    let b = find_declaration(file, "B").unwrap();
+    assert_eq!(parse(b).unwrap().name.to_string(), "B");
+    assert!(find_declaration(file, "A").is_ok());
+    match find_declaration(file, "C") {
+        Err(LocateError::NotFound { name, available }) => {
+            assert_eq!(name, "C");
+            assert_eq!(available, ["A", "B"]);
+        }
+        other => panic!("expected NotFound, got {other:?}"),
+    }
+    assert!(matches!(find_declaration("fn (", "A"), Err(LocateError::Syntax(_))));
+    let e = find_declaration("", "A").unwrap_err().to_string();
+    assert!(e.contains("the file has none"), "{e}");
+}
