@@ -344,6 +344,26 @@ pub struct RunStats {
     /// Wall-clock time of the integration.
     #[serde(serialize_with = "seconds")]
     pub wall_time: Duration,
+    /// CPU time of the integrating thread (Linux `/proc/thread-self/schedstat`;
+    /// `None` where unavailable). Unlike the wall time it does not grow when
+    /// other processes compete for the cores.
+    #[serde(serialize_with = "maybe_seconds")]
+    pub cpu_time: Option<Duration>,
+}
+
+fn maybe_seconds<S: serde::Serializer>(d: &Option<Duration>, s: S) -> Result<S::Ok, S::Error> {
+    match d {
+        Some(d) => s.serialize_f64(d.as_secs_f64()),
+        None => s.serialize_none(),
+    }
+}
+
+/// CPU time consumed so far by the calling thread, from the first field of
+/// `/proc/thread-self/schedstat` (nanoseconds on the CPU).
+fn thread_cpu_time() -> Option<Duration> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: u64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(Duration::from_nanos(ns))
 }
 
 fn seconds<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
@@ -458,10 +478,15 @@ where
         ..RunOptions::default()
     };
     let start = Instant::now();
+    let cpu_start = thread_cpu_time();
     let traj = stepper
         .integrate(spec.t0, &q0, &v0, Schedule::Fixed { h: spec.h, steps: spec.steps }, &options, &mut observer)
         .map_err(|source| RunError::Integration { system: key, method: spec.method, stages: S, source })?;
     let wall_time = start.elapsed();
+    let cpu_time = match (cpu_start, thread_cpu_time()) {
+        (Some(a), Some(b)) if b >= a => Some(b - a),
+        _ => None,
+    };
     tick((count % TICK_EVERY) as u64);
     let samples = &traj.samples;
     let column = |f: &dyn Fn(&spark_runtime::Sample<N, M>) -> f64| samples.iter().map(f).collect::<Vec<f64>>();
@@ -483,6 +508,7 @@ where
             max_constraint_residual: max_k,
             newton_iterations_mean: traj.report.newton_iterations_mean,
             wall_time,
+            cpu_time,
         },
     })
 }

@@ -319,7 +319,7 @@ fn print_report(report: &PaperReport) {
         "max|k|",
         "drift slope",
         "drift/max",
-        "time s"
+        "cpu s"
     );
     for r in &report.rows {
         let (slope, frac) = match r.drift {
@@ -337,7 +337,7 @@ fn print_report(report: &PaperReport) {
             r.max_constraint_residual,
             slope,
             frac,
-            r.run_seconds
+            r.cpu_seconds.unwrap_or(r.run_seconds)
         );
     }
     println!("\nFig. 8.4 growth (1/h⁴)·mean_j (E_jk − E0)² ≈ C·t^p:");
