@@ -83,7 +83,10 @@ pub struct Point {
     pub energy_error: f64,
     /// Median wall time of one run in seconds.
     pub wall_time: f64,
-    /// `wall_time / steps`.
+    /// Median CPU time of the measuring thread for one run in seconds: what
+    /// the run costs when other jobs compete for the cores (NaN if unknown).
+    pub cpu_time: f64,
+    /// [`Point::time`]` / steps`.
     pub time_per_step: f64,
     /// Mean Newton iterations per step (NaN where not applicable).
     pub newton_iterations: f64,
@@ -95,6 +98,16 @@ impl Point {
     /// The global error `max(error_q, error_v)`.
     pub fn error(&self) -> f64 {
         self.error_q.max(self.error_v)
+    }
+    /// The cost of one run used in tables and figures: the thread's CPU time
+    /// where measured (robust against other jobs on the machine), else the
+    /// wall time.
+    pub fn time(&self) -> f64 {
+        if self.cpu_time.is_finite() && self.cpu_time > 0.0 {
+            self.cpu_time
+        } else {
+            self.wall_time
+        }
     }
 }
 
@@ -269,22 +282,43 @@ fn errors<const N: usize>(q: &Vector<N>, v: &Vector<N>, q_ref: &Vector<N>, v_ref
     ((q - q_ref).amax(), (v - v_ref).amax())
 }
 
-/// Median of the timed runs of `run`, repeated `repeats` times or until
-/// `min_total` has been spent (at most 1000 times).
-fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, usize)> {
-    let mut times = Vec::new();
+/// CPU time consumed by the calling thread, in seconds.
+pub fn thread_cpu_time() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes one timespec through a valid pointer.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc == 0 {
+        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
+    } else {
+        f64::NAN
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Medians of the wall and thread-CPU times of `run`, repeated `repeats`
+/// times or until `min_total` has been spent (at most 1000 times).
+fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, f64, usize)> {
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
     let start = Instant::now();
-    while times.len() < repeats.max(1) || (start.elapsed() < min_total && times.len() < 1000) {
-        let t = Instant::now();
+    while wall.len() < repeats.max(1) || (start.elapsed() < min_total && wall.len() < 1000) {
+        let (t, c) = (Instant::now(), thread_cpu_time());
         if !run() {
             return None;
         }
-        times.push(t.elapsed().as_secs_f64());
+        cpu.push(thread_cpu_time() - c);
+        wall.push(t.elapsed().as_secs_f64());
     }
-    times.sort_by(f64::total_cmp);
-    let n = times.len();
-    let median = if n % 2 == 1 { times[n / 2] } else { 0.5 * (times[n / 2 - 1] + times[n / 2]) };
-    Some((median, n))
+    let n = wall.len();
+    Some((median(wall), median(cpu), n))
 }
 
 /// The context of one system's sweep.
@@ -297,6 +331,17 @@ struct Ctx<'a, const N: usize> {
     v_ref: Vector<N>,
 }
 
+/// What one timed stepper run measured.
+struct Measured {
+    error_q: f64,
+    error_v: f64,
+    energy: f64,
+    iterations: f64,
+    wall: f64,
+    cpu: f64,
+    repeats: usize,
+}
+
 /// Runs `steps` steps of `stepper` once with energy observation (the
 /// measured point's errors) and then times it; `None` if Newton failed.
 fn measure_stepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
@@ -304,7 +349,7 @@ fn measure_stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     stepper: &mut Stepper<Sys, N, M, S, D>,
     probe: &Sys,
     steps: usize,
-) -> Option<(f64, f64, f64, f64, f64, usize)>
+) -> Option<Measured>
 where
     Sys: NonholonomicSystem<N, M>,
 {
@@ -327,10 +372,10 @@ where
         return None;
     }
     let iterations = traj.report.newton_iterations_mean;
-    let (time, repeats) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
+    let (wall, cpu, repeats) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
         stepper.integrate(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut NoObserver).is_ok()
     })?;
-    Some((eq, ev, max_e, iterations, time, repeats))
+    Some(Measured { error_q: eq, error_v: ev, energy: max_e, iterations, wall, cpu, repeats })
 }
 
 /// Step counts `n₀·2^k` up to the configured maximum.
@@ -358,22 +403,24 @@ where
 {
     let tableau = Tableau::<S>::new(method)?;
     let label = method_label(method, S);
-    let mut record = |provider: &str, steps: usize, m: (f64, f64, f64, f64, f64, usize)| -> Point {
-        let p = Point {
+    let mut record = |provider: &str, steps: usize, m: Measured| -> Point {
+        let mut p = Point {
             system: ctx.key.to_string(),
             solver: provider.to_string(),
             method: label.clone(),
             stages: S,
             setting: ctx.cfg.final_time / steps as f64,
             steps,
-            error_q: m.0,
-            error_v: m.1,
-            energy_error: m.2,
-            wall_time: m.4,
-            time_per_step: m.4 / steps as f64,
-            newton_iterations: m.3,
-            repeats: m.5,
+            error_q: m.error_q,
+            error_v: m.error_v,
+            energy_error: m.energy,
+            wall_time: m.wall,
+            cpu_time: m.cpu,
+            time_per_step: 0.0,
+            newton_iterations: m.iterations,
+            repeats: m.repeats,
         };
+        p.time_per_step = p.time() / steps as f64;
         points.push(p.clone());
         p
     };
@@ -388,7 +435,7 @@ where
         if p.error() < ctx.cfg.floor_error {
             below_floor += 1;
         }
-        if below_floor >= 1 || p.wall_time > ctx.cfg.max_run_time.as_secs_f64() {
+        if below_floor >= 1 || p.time() > ctx.cfg.max_run_time.as_secs_f64() {
             break;
         }
     }
@@ -420,12 +467,12 @@ where
     for &tol in &ctx.cfg.tolerances {
         let Ok(run) = ode::dop853::<Sys, N, M, Y>(&sys, 0.0, &ctx.q0, &ctx.v0, t1, tol, tol) else { continue };
         let (eq, ev) = errors(&run.q, &run.v, &ctx.q_ref, &ctx.v_ref);
-        let Some((time, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
+        let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
             ode::dop853::<Sys, N, M, Y>(&sys, 0.0, &ctx.q0, &ctx.v0, t1, tol, tol).is_ok()
         }) else {
             continue;
         };
-        points.push(Point {
+        let mut p = Point {
             system: ctx.key.to_string(),
             solver: "ode_solvers (Rust)".into(),
             method: "DOP853".into(),
@@ -435,11 +482,14 @@ where
             error_q: eq,
             error_v: ev,
             energy_error: f64::NAN,
-            wall_time: time,
-            time_per_step: time / run.steps.max(1) as f64,
+            wall_time: wall,
+            cpu_time: cpu,
+            time_per_step: 0.0,
             newton_iterations: f64::NAN,
             repeats,
-        });
+        };
+        p.time_per_step = p.time() / run.steps.max(1) as f64;
+        points.push(p);
     }
 }
 
@@ -596,7 +646,7 @@ mod tests {
     #[test]
     fn median_time_takes_the_middle_of_the_repeats() {
         let mut k = 0;
-        let (t, n) = median_time(3, Duration::ZERO, || {
+        let (t, _, n) = median_time(3, Duration::ZERO, || {
             k += 1;
             std::thread::sleep(Duration::from_millis(if k == 2 { 30 } else { 1 }));
             true

@@ -30,7 +30,7 @@ pub fn curves(points: &[Point]) -> BTreeMap<(String, String), Vec<&Point>> {
 /// point that does not; `None` if no point reaches it.
 pub fn time_to_reach(curve: &[&Point], target: f64) -> Option<f64> {
     let mut pts: Vec<(f64, f64)> =
-        curve.iter().filter(|p| p.error() > 0.0 && p.wall_time > 0.0).map(|p| (p.wall_time, p.error())).collect();
+        curve.iter().filter(|p| p.error() > 0.0 && p.time() > 0.0).map(|p| (p.time(), p.error())).collect();
     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
     let first = pts.iter().position(|&(_, e)| e <= target)?;
     let (tb, eb) = pts[first];
@@ -61,7 +61,7 @@ pub fn cheapest<'a>(
 
 /// Steps the cheapest point of `curve` reaching `target` takes.
 fn steps_at(curve: &[&Point], target: f64) -> Option<usize> {
-    curve.iter().filter(|p| p.error() <= target).min_by(|a, b| a.wall_time.total_cmp(&b.wall_time)).map(|p| p.steps)
+    curve.iter().filter(|p| p.error() <= target).min_by(|a, b| a.time().total_cmp(&b.time())).map(|p| p.steps)
 }
 
 /// Median of positive finite values.
@@ -217,14 +217,14 @@ fn family_figure(m: &SystemMeasurement, title: &str, y_label: &str, y: impl Fn(&
         .enumerate()
         .map(|(k, name)| Panel {
             title: (*name).into(),
-            x_label: "wall time per run [s]".into(),
+            x_label: "time per run [s] (thread CPU)".into(),
             y_label: y_label.into(),
             x_scale: Scale::Log,
             y_scale: Scale::Log,
             series: all
                 .iter()
                 .filter(|((solver, method), _)| solver == SPARK && family(method) == k)
-                .map(|((_, method), c)| Series::new(method.clone(), c.iter().map(|p| (p.wall_time, y(p))).collect()))
+                .map(|((_, method), c)| Series::new(method.clone(), c.iter().map(|p| (p.time(), y(p))).collect()))
                 .collect(),
         })
         .filter(|p| p.series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)))
@@ -240,12 +240,12 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
         let series: Vec<Series> = all
             .iter()
             .filter(|((_, me), _)| *me == label)
-            .map(|((solver, _), c)| Series::new(solver.clone(), c.iter().map(|p| (p.wall_time, p.error())).collect()))
+            .map(|((solver, _), c)| Series::new(solver.clone(), c.iter().map(|p| (p.time(), p.error())).collect()))
             .collect();
         if !series.is_empty() {
             panels.push(Panel {
                 title: format!("{label}: same step, other derivative code"),
-                x_label: "wall time per run [s]".into(),
+                x_label: "time per run [s] (thread CPU)".into(),
                 y_label: "global error in q, v at T".into(),
                 x_scale: Scale::Log,
                 y_scale: Scale::Log,
@@ -255,7 +255,7 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     }
     // The lower envelope of all SPARK methods against the ODE solvers.
     let mut envelope: Vec<(f64, f64)> =
-        m.points.iter().filter(|p| p.solver == SPARK && p.error() > 0.0).map(|p| (p.wall_time, p.error())).collect();
+        m.points.iter().filter(|p| p.solver == SPARK && p.error() > 0.0).map(|p| (p.time(), p.error())).collect();
     envelope.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut best = f64::INFINITY;
     envelope.retain(|&(_, e)| {
@@ -266,13 +266,12 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     let mut series = vec![Series::new("SPARK, best method at each cost", envelope)];
     for ((solver, method), c) in &all {
         if *solver == *SCIPY || *solver == *ODE_SOLVERS {
-            series
-                .push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.wall_time, p.error())).collect()));
+            series.push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.time(), p.error())).collect()));
         }
     }
     panels.push(Panel {
         title: "SPARK against ODE solvers on the ψ-eliminated ODE".into(),
-        x_label: "wall time per run [s]".into(),
+        x_label: "time per run [s] (thread CPU)".into(),
         y_label: "global error in q, v at T".into(),
         x_scale: Scale::Log,
         y_scale: Scale::Log,
@@ -418,6 +417,7 @@ mod tests {
             error_v: err / 2.0,
             energy_error: f64::NAN,
             wall_time: time,
+            cpu_time: f64::NAN,
             time_per_step: time / steps as f64,
             newton_iterations: 2.0,
             repeats: 3,
