@@ -79,6 +79,11 @@ where
         r1 -= td.momentum_t;
         r2 -= td.constraint_t;
     }
+    if Sys::HAS_FORCING {
+        r1 += sys.external_force(t, q, v);
+    }
+    // A non-ideal force N(ψ) is left out: this is a starting guess, and
+    // Newton on the step equations accounts for it.
     saddle_solve(&jac.mass, &jac.constraint_v, &r1, &r2)
 }
 

@@ -32,7 +32,7 @@
 //!
 //! ```
 //! use spark_runtime::{
-//!     ConstraintForm, Matrix, NonholonomicSystem, OperationCounts, RunOptions, Schedule, StageJacobians,
+//!     ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, RunOptions, Schedule, StageJacobians,
 //!     StageValues, State, Structure, SystemError, SystemSource, Tableau, TimeDerivatives, Vector, Method,
 //!     NoObserver,
 //! };
@@ -116,6 +116,7 @@
 #![warn(missing_docs)]
 
 mod driver;
+pub mod effects;
 mod error;
 pub mod handwritten;
 mod initial;
@@ -140,8 +141,8 @@ pub use rejection::{
 pub use spark_macros::nonholonomic_system;
 pub use stepper::{NewtonMode, NewtonOptions, State, StepResult, Stepper};
 pub use system::{
-    ConstraintForm, Matrix, NonholonomicSystem, OperationCounts, StageJacobians, StageValues, Structure, SystemSource,
-    TimeDerivatives, Vector,
+    ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, StageJacobians, StageValues,
+    Structure, SystemSource, TimeDerivatives, Vector,
 };
 pub use tableau::{CoefficientFamily, ConditionRows, Method, Tableau, TableauError, MAX_STAGES};
 

@@ -98,6 +98,14 @@ pub enum ReferenceError {
         /// Time of the evaluation.
         t: f64,
     },
+    /// Newton's method for `(v̇, ψ)` with a non-ideal constraint force
+    /// `N(ψ)` did not converge: `N` is too strongly nonlinear in `ψ` there
+    /// (e.g. a friction law too sharp near `ψ = 0`).
+    #[error("the multiplier equations with the non-ideal force did not converge at t = {t}; smooth N(ψ)")]
+    NonidealNotConverged {
+        /// Time of the evaluation.
+        t: f64,
+    },
     /// The right-hand side produced NaN or infinity.
     #[error("non-finite accelerations at t = {t}; check the initial values and parameters")]
     NonFinite {
@@ -168,8 +176,14 @@ where
     let k_v: Matrix<M, N> = sys.constraint_v(t, q, v);
     let td = sys.time_derivatives(t, q, v);
     let (_, jac) = sys.stage_jacobians(t, q, v, &Vector::<M>::zeros());
-    let rhs_v = force - jac.momentum_q * v - td.momentum_t;
+    let mut rhs_v = force - jac.momentum_q * v - td.momentum_t;
+    if S::HAS_FORCING {
+        rhs_v += sys.external_force(t, q, v);
+    }
     let rhs_k = -td.constraint_t - k_q * v;
+    if S::HAS_NONIDEAL_FORCE {
+        return nonideal_acceleration(sys, t, q, v, &mass, &k_v, &rhs_v, &rhs_k);
+    }
 
     let dim = N + M;
     let mut a = DMatrix::<f64>::zeros(dim, dim);
@@ -204,6 +218,69 @@ where
     let vdot = Vector::<N>::from_fn(|i, _| x[i]);
     let psi = Vector::<M>::from_fn(|i, _| x[N + i]);
     Ok((vdot, psi))
+}
+
+/// `(v̇, ψ)` with a non-ideal constraint force: `W v̇ + Kᵀψ − N(t,q,v,ψ) = r_v`,
+/// `K v̇ = r_k`, solved by Newton's method in `(v̇, ψ)` (`N` is nonlinear in
+/// `ψ`, e.g. dry friction `∝ |ψ|`), starting from the ideal solution `N = 0`.
+#[allow(clippy::too_many_arguments)]
+fn nonideal_acceleration<S, const N: usize, const M: usize>(
+    sys: &S,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+    mass: &Matrix<N, N>,
+    k_v: &Matrix<M, N>,
+    rhs_v: &Vector<N>,
+    rhs_k: &Vector<M>,
+) -> Result<(Vector<N>, Vector<M>), ReferenceError>
+where
+    S: NonholonomicSystem<N, M> + ?Sized,
+{
+    let dim = N + M;
+    let mut x = DVector::<f64>::zeros(dim);
+    let mut converged = false;
+    for _ in 0..60 {
+        let psi = Vector::<M>::from_fn(|i, _| x[N + i]);
+        let nj = sys.nonideal_force_jacobians(t, q, v, &psi);
+        let mut a = DMatrix::<f64>::zeros(dim, dim);
+        let mut g = DVector::<f64>::zeros(dim);
+        let vdot = Vector::<N>::from_fn(|i, _| x[i]);
+        let r1 = mass * vdot + k_v.transpose() * psi - nj.value - rhs_v;
+        let r2 = k_v * vdot - rhs_k;
+        for i in 0..N {
+            for j in 0..N {
+                a[(i, j)] = mass[(i, j)];
+            }
+            for r in 0..M {
+                a[(i, N + r)] = k_v[(r, i)] - nj.psi[(i, r)];
+            }
+            g[i] = r1[i];
+        }
+        for r in 0..M {
+            for j in 0..N {
+                a[(N + r, j)] = k_v[(r, j)];
+            }
+            g[N + r] = r2[r];
+        }
+        if !a.iter().chain(g.iter()).all(|x| x.is_finite()) {
+            return Err(ReferenceError::NonFinite { t });
+        }
+        let dx = a.full_piv_lu().solve(&g).ok_or(ReferenceError::SingularSaddle { t })?;
+        x -= &dx;
+        let scale = 1.0 + x.amax();
+        if dx.amax() <= 4.0 * f64::EPSILON * scale {
+            converged = true;
+            break;
+        }
+    }
+    if !converged {
+        return Err(ReferenceError::NonidealNotConverged { t });
+    }
+    if !x.iter().all(|v| v.is_finite()) {
+        return Err(ReferenceError::NonFinite { t });
+    }
+    Ok((Vector::<N>::from_fn(|i, _| x[i]), Vector::<M>::from_fn(|i, _| x[N + i])))
 }
 
 /// Integrates from `(t0, q0, v0)` to `t1` (either direction) and returns the

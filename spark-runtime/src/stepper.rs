@@ -15,6 +15,13 @@
 //! so the exact Jacobian follows from the system's stage Jacobians by the
 //! chain rule `∂Q_i/∂V_l = h a_il I`.
 //!
+//! Optional effects enter where the paper puts them: an external force
+//! `f(t,q,v)` is added to `F` (weights `â`, `b̂`), a non-ideal constraint
+//! force `N(t,q,v,ψ)` to `R` (weights `ã`, `b̃`, paper §3.3). Both are
+//! folded into the stage values at the stage points only, behind
+//! `if Sys::HAS_FORCING` / `if Sys::HAS_NONIDEAL_FORCE` (constants, so a
+//! system without them compiles to exactly the code it had before).
+//!
 //! # Why a fourth const parameter `D`
 //! The Newton matrix is `D × D` with `D = S(N+M)+N`, but stable Rust cannot
 //! write `SMatrix<f64, {S*(N+M)+N}, _>` for generic `N, M, S` (that needs the
@@ -159,6 +166,8 @@ struct EvalJac<const N: usize, const M: usize, const S: usize> {
     stages: [StageJacobians<N, M>; S],
     end: StageJacobians<N, M>,
     mid: Option<StageJacobians<N, M>>,
+    /// `∂N/∂ψ` at the stages (only written when `Sys::HAS_NONIDEAL_FORCE`).
+    nonideal_psi: [Matrix<N, M>; S],
 }
 
 fn zero_values<const N: usize, const M: usize>() -> StageValues<N, M> {
@@ -198,7 +207,12 @@ where
             warm: None,
             jacobian: Matrix::zeros(),
             lu: Lu::new(),
-            work: EvalJac { stages: [zero_jacobians(); S], end: zero_jacobians(), mid: None },
+            work: EvalJac {
+                stages: [zero_jacobians(); S],
+                end: zero_jacobians(),
+                mid: None,
+                nonideal_psi: [Matrix::zeros(); S],
+            },
         }
     }
 
@@ -276,6 +290,12 @@ where
         }
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let end = State { t: t0 + h, q: q1, v: v1 };
+        // The convergence test folds |Δz| with f64::max, which skips NaN: a
+        // solve that produced NaN components can look converged. Never
+        // return a non-finite state as a success.
+        if !end.q.iter().chain(end.v.iter()).all(|x| x.is_finite()) {
+            return Err(StepError::NonFinite { t: t0, h, stage: "step result", history: Box::new(history) });
+        }
         let (mut past, mut depth) = ([Vector::<D>::zeros(); PAST], 0);
         if let Some(w) = self.warm.as_ref().filter(|w| w.end == *state && w.h == h) {
             past[1..].copy_from_slice(&w.past[..PAST - 1]);
@@ -394,8 +414,21 @@ where
             Some(jac) => {
                 for i in 0..S {
                     let psi = mu[i] / h;
-                    (ev.stages[i], jac.stages[i]) =
-                        system.stage_jacobians(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
+                    let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
+                    (ev.stages[i], jac.stages[i]) = system.stage_jacobians(ti, &qi, &v[i], &psi);
+                    if Sys::HAS_FORCING {
+                        let (f, fq, fv) = system.external_force_jacobians(ti, &qi, &v[i]);
+                        ev.stages[i].force += f;
+                        jac.stages[i].force_q += fq;
+                        jac.stages[i].force_v += fv;
+                    }
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        let nj = system.nonideal_force_jacobians(ti, &qi, &v[i], &psi);
+                        ev.stages[i].constraint_force += nj.value;
+                        jac.stages[i].constraint_force_q += nj.q;
+                        jac.stages[i].constraint_force_v += nj.v;
+                        jac.nonideal_psi[i] = nj.psi;
+                    }
                 }
                 (ev.end, jac.end) = system.stage_jacobians(t1, &q1, &v1, &zero_m);
                 if tab.conditions == ConditionRows::MidpointConstraint {
@@ -408,7 +441,14 @@ where
             None => {
                 for i in 0..S {
                     let psi = mu[i] / h;
-                    ev.stages[i] = system.stage_values(state.t + tab.c[i] * h, &stage_q(i), &v[i], &psi);
+                    let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
+                    ev.stages[i] = system.stage_values(ti, &qi, &v[i], &psi);
+                    if Sys::HAS_FORCING {
+                        ev.stages[i].force += system.external_force(ti, &qi, &v[i]);
+                    }
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        ev.stages[i].constraint_force += system.nonideal_force(ti, &qi, &v[i], &psi);
+                    }
                 }
                 ev.end = system.stage_values(t1, &q1, &v1, &zero_m);
                 if tab.conditions == ConditionRows::MidpointConstraint {
@@ -471,10 +511,11 @@ where
         let jac = &self.work;
         let tab = self.tableau;
         let st = Sys::STRUCTURE;
-        // L = T(v) − U(q): ∂P/∂q = 0 and ∂F/∂v = 0.
-        let separable = st.separable;
-        // K independent of v: ∂R/∂v = 0.
-        let k_velocity_free = st.constraint_matrix_velocity_free();
+        // L = T(v) − U(q): ∂P/∂q = 0 and ∂F/∂v = 0 (unless a force f(t,q,v)
+        // is added to F).
+        let separable = st.separable && !Sys::HAS_FORCING;
+        // K independent of v and no non-ideal force: ∂R/∂v = 0.
+        let k_velocity_free = st.constraint_matrix_velocity_free() && !Sys::HAS_NONIDEAL_FORCE;
         let j = &mut self.jacobian;
         j.fill(0.0);
         let h2 = h * h;
@@ -513,10 +554,14 @@ where
                         blk.zip_apply(&jac.stages[m].constraint_force_q, |x, y| *x += (-h2 * at_row[m] * aml) * y);
                     }
                 }
-                // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h).
+                // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h);
+                // with N(ψ = μ/h) also −ã_il ∂N_l/∂ψ.
                 if at_row[l] != 0.0 {
                     let mut kt = j.fixed_view_mut::<N, M>(i * N, S * N + l * M);
                     kt.tr_copy_from(&jac.stages[l].constraint_v);
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        kt -= &jac.nonideal_psi[l];
+                    }
                     kt *= at_row[l];
                 }
             }

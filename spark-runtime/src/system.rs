@@ -6,6 +6,11 @@
 //! Sign conventions follow the paper (eq. 6.1): the *momentum* is
 //! `p = ∇_v L`, the *force* is `F = ∇_q L`, and the *constraint force* of a
 //! multiplier `ψ` is `R = −K(t,q,v)ᵀψ` with `K = k_v`.
+//!
+//! Optional effects (external forcing `f(t,q,v)`, a non-ideal constraint
+//! force `N(t,q,v,ψ)`, holonomic drift residuals `g(t,q)`) are associated
+//! consts plus default methods returning zeros, so existing implementations
+//! compile unchanged and the stepper skips them on a constant branch.
 
 use nalgebra::{SMatrix, SVector};
 
@@ -197,4 +202,72 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         v: &Vector<N>,
         psi: &Vector<M>,
     ) -> (StageValues<N, M>, StageJacobians<N, M>);
+
+    // ---- Optional effects (all default to "absent"; see the module docs). ----
+
+    /// The system has an external generalized force `f(t,q,v)`
+    /// ([`external_force`](Self::external_force)). When `false` the stepper
+    /// never calls the forcing methods (the branch is on a constant).
+    const HAS_FORCING: bool = false;
+    /// The system has a non-ideal constraint force `N(t,q,v,ψ)`
+    /// ([`nonideal_force`](Self::nonideal_force)), paper §3.3.
+    const HAS_NONIDEAL_FORCE: bool = false;
+    /// Some constraints are time derivatives of holonomic constraints
+    /// `g(t,q) = 0` ([`holonomic_residual`](Self::holonomic_residual)).
+    const HAS_HOLONOMIC: bool = false;
+
+    /// External generalized force `f(t,q,v)`: enters the momentum equations
+    /// beside `F = ∇_q L` with the same weights `â`, `b̂` (forced discrete
+    /// Lagrange–d'Alembert). Zero by default.
+    fn external_force(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Vector<N> {
+        let _ = (t, q, v);
+        Vector::zeros()
+    }
+    /// `f`, `∂f/∂q`, `∂f/∂v` together. Zero by default.
+    fn external_force_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+    ) -> (Vector<N>, Matrix<N, N>, Matrix<N, N>) {
+        let _ = (t, q, v);
+        (Vector::zeros(), Matrix::zeros(), Matrix::zeros())
+    }
+    /// Non-ideal constraint force `N(t,q,v,ψ)`: the total constraint force
+    /// is `R = −Kᵀψ + N`, entering with the weights `ã`, `b̃`. Zero by default.
+    fn nonideal_force(&self, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>) -> Vector<N> {
+        let _ = (t, q, v, psi);
+        Vector::zeros()
+    }
+    /// `N`, `∂N/∂q`, `∂N/∂v`, `∂N/∂ψ` together. Zero by default.
+    fn nonideal_force_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+    ) -> NonidealJacobians<N, M> {
+        let _ = (t, q, v, psi);
+        NonidealJacobians { value: Vector::zeros(), q: Matrix::zeros(), v: Matrix::zeros(), psi: Matrix::zeros() }
+    }
+    /// Position-level residuals for drift reporting: entry `i` is `g_i(t,q)`
+    /// when constraint `i` is `k_i = ∂g_i/∂t + ∂g_i/∂q · v` of a holonomic
+    /// constraint `g_i = 0`, and `0` for a genuinely nonholonomic one.
+    fn holonomic_residual(&self, t: f64, q: &Vector<N>) -> Vector<M> {
+        let _ = (t, q);
+        Vector::zeros()
+    }
+}
+
+/// A non-ideal constraint force and its first derivatives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NonidealJacobians<const N: usize, const M: usize> {
+    /// `N(t,q,v,ψ)`.
+    pub value: Vector<N>,
+    /// `∂N/∂q`.
+    pub q: Matrix<N, N>,
+    /// `∂N/∂v`.
+    pub v: Matrix<N, N>,
+    /// `∂N/∂ψ`.
+    pub psi: Matrix<N, M>,
 }
