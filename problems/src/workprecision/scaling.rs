@@ -27,7 +27,7 @@ pub struct ScalingRow {
     pub stepper_bytes: usize,
     /// Operations of the generated `stage_jacobians`.
     pub jacobian_operations: usize,
-    /// Median time per step, seconds.
+    /// Median CPU time of the measuring thread per step, seconds.
     pub time_per_step: f64,
     /// Mean Newton iterations per step.
     pub newton_iterations: f64,
@@ -58,9 +58,9 @@ where
     let mut times = Vec::new();
     let start = Instant::now();
     while times.len() < repeats.max(1) || (start.elapsed() < Duration::from_millis(50) && times.len() < 200) {
-        let t = Instant::now();
+        let c = super::thread_cpu_time();
         stepper.integrate(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver).ok()?;
-        times.push(t.elapsed().as_secs_f64() / steps as f64);
+        times.push((super::thread_cpu_time() - c) / steps as f64);
     }
     times.sort_by(f64::total_cmp);
     let time_per_step = times[times.len() / 2];
