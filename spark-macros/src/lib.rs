@@ -55,6 +55,48 @@ use proc_macro::TokenStream;
 /// constraint is holonomic: write its time derivative). `M`, the number of
 /// constraints, is the length of the `constraints` list.
 ///
+/// # Effects and scenes
+///
+/// A declaration may add optional named effects and scenes that select some
+/// of them. The base struct (no effects) is generated as usual, and each
+/// scene becomes its own struct, generated from the base declaration with the
+/// scene's potentials subtracted from `L` and its constraints appended — so a
+/// scene's code is exactly that of the same system declared by hand without
+/// the effects it leaves out (no multipliers for absent constraints, constant
+/// mass matrices folded, no time derivatives when the scene is autonomous).
+///
+/// ```text
+/// section := … | "effects" ":" "{" (name ":" effect),* ","? "}"
+///              | "scenes"  ":" "{" (Name "=" "[" name,* "]"),* ","? "}"
+/// effect  := "potential"  "(" expr ")"   U(t,q,v), subtracted from L
+///          | "constraint" "(" expr ")"   an extra constraint k(t,q,v) = 0 (must involve velocities)
+///          | "holonomic"  "(" expr ")"   g(t,q) = 0, imposed at velocity level as k = g_t + g_q·v
+/// ```
+///
+/// ```
+/// use spark_runtime::{nonholonomic_system, NonholonomicSystem};
+///
+/// nonholonomic_system! {
+///     pub struct Cart {
+///         coordinates: [x, y, theta],
+///         parameters: { m = 1.0, inertia = 0.5, kappa = 2.0 },
+///         lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2,
+///         effects: {
+///             spring: potential(kappa/2*(x^2 + y^2)),
+///             no_slip: constraint(cos(theta)*dot(y) - sin(theta)*dot(x)),
+///         },
+///         scenes: { Free = [], Skating = [spring, no_slip] },
+///     }
+/// }
+/// assert_eq!((Free::M, Skating::M), (0, 1));
+/// ```
+///
+/// Effect and scene names must be distinct; a scene may not list an effect
+/// twice or be named like the base struct. Not yet supported by the macro
+/// (the runtime trait has them, see `NonholonomicSystem::HAS_FORCING` and
+/// `HAS_NONIDEAL_FORCE`): generalized forces `f(t,q,v)` and non-ideal
+/// constraint forces `N(t,q,v,ψ)`; implement those by hand.
+///
 /// `#[spark(crate = path)]` tells the generated code where the runtime is
 /// (default `::spark_runtime`).
 ///

@@ -74,6 +74,9 @@ pub fn generate(spec: &SystemSpec) -> Result<TokenStream, SpecError> {
 /// The whole macro: DSL tokens in, generated items (or a `compile_error!`
 /// pointing at the offending token) out. Never panics.
 pub fn expand(input: TokenStream) -> TokenStream {
+    if let Some(result) = dsl::scenes::expand_scenes(&input) {
+        return result.unwrap_or_else(|error| error.to_compile_error());
+    }
     match dsl::parse(input).and_then(|spec| generate(&spec)) {
         Ok(tokens) => tokens,
         Err(error) => error.to_compile_error(),

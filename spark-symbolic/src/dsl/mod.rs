@@ -53,6 +53,7 @@ mod eval;
 mod expr;
 mod locate;
 mod names;
+pub mod scenes;
 #[cfg(test)]
 mod tests;
 
