@@ -174,7 +174,7 @@ fn dispatch(x: &Input) {
         3 => by_stages!(TurntableSkate, TurntableSkate::default(), x),
         4 => by_stages!(AppellHamel, AppellHamel::default(), x),
         5 => by_stages!(DoublePendulum, DoublePendulum::default(), x),
-        6 => by_stages!(NearParallel, NearParallel { eps: x.params[0] * 1e-7, ..NearParallel::default() }, x),
+        6 => by_stages!(NearParallel, NearParallel { eps: x.params[0] * 1e-7 }, x),
         7 => by_stages!(RollingDisk, RollingDisk::default(), x),
         8 => by_stages!(StiffSkate, StiffSkate { k: x.params[1].abs() * 1e6, ..StiffSkate::default() }, x),
         _ => by_stages!(NonReversibleOscillator, NonReversibleOscillator::default(), x),
@@ -198,7 +198,7 @@ proptest! {
 /// the constraint must come back as an error, not a silent success.
 #[test]
 fn nan_parameter_in_the_constraint_is_an_error() {
-    let sys = NearParallel { eps: f64::NAN, ..NearParallel::default() };
+    let sys = NearParallel { eps: f64::NAN };
     let mut st = Stepper::<NearParallel, 3, 2, 2, 13>::new(sys, Tableau::new(Method::Gauss).unwrap());
     let (q, v) = (Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::new(0.3, 0.0, 0.15));
     assert!(st.step(&State::new(0.0, q, v), 0.1).is_err());

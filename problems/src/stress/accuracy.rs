@@ -11,6 +11,12 @@ use crate::systems::{AppellHamel, NonholonomicParticle, TurntableSkate};
 use spark_runtime::reference::{integrate as reference, ReferenceOptions};
 use spark_runtime::{Method, NonholonomicSystem, Stepper, Tableau, Vector};
 
+/// `(h, error or the typed error's text)` for each step size.
+type Sweep = Vec<(f64, Result<f64, String>)>;
+
+/// `(h, error, max |k|)` for each step size, or why the sweep stopped.
+type RefSweep = Result<Vec<(f64, f64, f64)>, String>;
+
 /// Final time of the high-order sweep.
 const HIGH_ORDER_T: f64 = 5.0;
 
@@ -21,7 +27,7 @@ fn particle_sweep<const S: usize, const D: usize>(
     counts: &[usize],
     q_ref: &Vector<3>,
     v_ref: &Vector<3>,
-) -> Result<Vec<(f64, Result<f64, String>)>, StressError> {
+) -> Result<Sweep, StressError> {
     let (q0, v0) = (Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
     let mut st =
         Stepper::<NonholonomicParticle, 3, 1, S, D>::new(NonholonomicParticle::default(), Tableau::new(method)?);
@@ -285,7 +291,7 @@ fn reference_sweep<Sys, const N: usize, const M: usize, const S: usize, const D:
     v0: &Vector<N>,
     t_end: f64,
     hs: &[f64],
-) -> Result<Result<Vec<(f64, f64, f64)>, String>, StressError>
+) -> Result<RefSweep, StressError>
 where
     Sys: NonholonomicSystem<N, M> + Clone,
 {

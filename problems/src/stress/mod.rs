@@ -419,12 +419,12 @@ pub fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
 macro_rules! stress_stepper {
     ($sys:ty, $s:literal, $method:expr, $system:expr) => {
         spark_runtime::Stepper::<
-                    $sys,
-                    { <$sys>::N },
-                    { <$sys>::M },
-                    $s,
-                    { $s * (<$sys>::N + <$sys>::M) + <$sys>::N },
-                >::new($system, spark_runtime::Tableau::<$s>::new($method)?)
+                            $sys,
+                            { <$sys>::N },
+                            { <$sys>::M },
+                            $s,
+                            { $s * (<$sys>::N + <$sys>::M) + <$sys>::N },
+                        >::new($system, spark_runtime::Tableau::<$s>::new($method)?)
     };
 }
 

@@ -86,7 +86,7 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
     let e0 = sys.energy(0.0, &q0, &v0);
     let mut pairs = Vec::new();
     for &h in &hs {
-        let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys.clone());
+        let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys);
         let n = (t_end / h).round() as usize;
         let plain = run_fixed(&mut st, &q0, &v0, h, n, 1, 0);
         let protected = integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h, &policy, &mut |_| {});
@@ -175,7 +175,7 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
     // and the last Newton failure.
     let tight = RejectionPolicy { max_halvings: 1, ..policy };
     let h_max = *hs.last().unwrap_or(&12.8);
-    let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys.clone());
+    let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys);
     match integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h_max, &tight, &mut |_| {}) {
         Ok(_) => c.check(
             format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
@@ -257,11 +257,10 @@ pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
     let mut top: Option<(f64, f64)> = None;
     let mut typed = true;
     for &w in &omegas {
-        let mut sys = StiffSkate::default();
-        sys.k = w * w;
+        let sys = StiffSkate { k: w * w, ..StiffSkate::default() };
         let e0 = sys.energy(0.0, &q0, &v0);
         for (method, label) in [(Method::Gauss, "Gauss s=2"), (Method::LobattoIIIAB, "Lobatto IIIA-B s=2")] {
-            let mut st = crate::stress_stepper!(StiffSkate, 2, method, sys.clone());
+            let mut st = crate::stress_stepper!(StiffSkate, 2, method, sys);
             let desc = match run_fixed(&mut st, &q0, &v0, h, n, 1, 0) {
                 Ok(d) => {
                     c.absorb(&d);
@@ -394,7 +393,7 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
     let mut zero_outcome = String::new();
     let mut zero_typed = false;
     for &eps in &epss {
-        let sys = NearParallel { eps, ..NearParallel::default() };
+        let sys = NearParallel { eps };
         let cond = saddle_condition(&sys, 0.0, &q0, &v0);
         conds.push(cond);
         if cond > CONDITION_WARNING {
@@ -407,7 +406,7 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
         if eps > 0.0 {
             cond_pts.push((eps, cond.min(1e300)));
         }
-        let mut st = crate::stress_stepper!(NearParallel, 2, Method::Gauss, sys.clone());
+        let mut st = crate::stress_stepper!(NearParallel, 2, Method::Gauss, sys);
         let desc = match run_fixed(&mut st, &q0, &v0, h, n, 1, 0) {
             Ok(d) => {
                 c.absorb(&d);
@@ -507,12 +506,12 @@ pub fn non_reversible(scale: Scale) -> Result<CaseReport, StressError> {
     let mut all_ok = true;
     let mut words = Vec::new();
     for eps in [0.0, 0.5] {
-        let sys = NonReversibleOscillator { eps, ..NonReversibleOscillator::default() };
+        let sys = NonReversibleOscillator { eps };
         for (method, name) in [(Method::Gauss, "Gauss s=2"), (Method::LobattoIIIAB, "Lobatto IIIA-B s=2")] {
             let label = format!("ε = {eps}, {name}");
             let r = match method {
                 Method::Gauss => run_fixed(
-                    &mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys.clone()),
+                    &mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys),
                     &q0,
                     &v0,
                     h,
@@ -521,7 +520,7 @@ pub fn non_reversible(scale: Scale) -> Result<CaseReport, StressError> {
                     0,
                 ),
                 _ => run_fixed(
-                    &mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys.clone()),
+                    &mut crate::stress_stepper!(NonReversibleOscillator, 2, method, sys),
                     &q0,
                     &v0,
                     h,
@@ -628,11 +627,9 @@ pub fn bad_input(_scale: Scale) -> Result<CaseReport, StressError> {
         "Initial/InconsistentInitialState",
         drive(Skate::default(), q0, Vector::<3>::new(1.0, 1.0, 0.0), fixed),
     );
-    let mut nan_field = Skate::default();
-    nan_field.beta = f64::NAN;
+    let nan_field = Skate { beta: f64::NAN, ..Skate::default() };
     push("parameter field beta = NaN (set directly)", "Step/NonFinite", drive(nan_field, q0, v0, fixed));
-    let mut inf_field = Skate::default();
-    inf_field.g = f64::INFINITY;
+    let inf_field = Skate { g: f64::INFINITY, ..Skate::default() };
     push("parameter field g = +inf (set directly)", "Step/NonFinite", drive(inf_field, q0, v0, fixed));
     // Parameters through the API.
     let mut sk = Skate::default();
@@ -654,7 +651,7 @@ pub fn bad_input(_scale: Scale) -> Result<CaseReport, StressError> {
     push("set_parameter(\"gravity\", 1)", "UnknownParameter", api(sk.set_parameter("gravity", 1.0)));
     // A constraint that depends on a non-finite parameter: the initial check must say so.
     {
-        let sys = NearParallel { eps: f64::NAN, ..NearParallel::default() };
+        let sys = NearParallel { eps: f64::NAN };
         let mut st = crate::stress_stepper!(NearParallel, 2, Method::Gauss, sys);
         let mut count = 0usize;
         let mut obs = |_: &State<3>, _: usize| count += 1;
