@@ -418,13 +418,10 @@ pub fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
 #[doc(hidden)]
 macro_rules! stress_stepper {
     ($sys:ty, $s:literal, $method:expr, $system:expr) => {
-        spark_runtime::Stepper::<
-                            $sys,
-                            { <$sys>::N },
-                            { <$sys>::M },
-                            $s,
-                            { $s * (<$sys>::N + <$sys>::M) + <$sys>::N },
-                        >::new($system, spark_runtime::Tableau::<$s>::new($method)?)
+        spark_runtime::Stepper::<$sys, { <$sys>::N }, { <$sys>::M }, $s, { $s * (<$sys>::N + <$sys>::M) + <$sys>::N }>::new(
+            $system,
+            spark_runtime::Tableau::<$s>::new($method)?,
+        )
     };
 }
 
