@@ -549,6 +549,16 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
     one!("ChaplyginSleigh", ChaplyginSleigh::default());
     one!("DoublePendulum", DoublePendulum::default());
     one!(HANDWRITTEN, handwritten::Rheonomic::default());
+    // Issue 8: systems declared with effects and scenes (scenes are plain
+    // systems to the exporter: their SOURCE holds the selected effects).
+    {
+        use crate::scenes::*;
+        one!("VerticalDisk", VerticalDisk::default());
+        one!("BallOnTurntable", BallOnTurntable::default());
+        one!("RodPendulum", RodPendulum::default());
+        one!("BodyRailed", BodyRailed::default());
+        one!("BodyTethered", BodyTethered::default());
+    }
     Ok(out)
 }
 
@@ -665,6 +675,60 @@ pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
         V::<2>::new(0.5, 0.1),
         0.05
     );
+    {
+        use crate::scenes::*;
+        let th: f64 = 0.4;
+        casadi_steps_for!(
+            out,
+            "VerticalDisk",
+            VerticalDisk,
+            VerticalDisk::default(),
+            0.0,
+            V::<4>::new(0.2, -0.1, th, 0.0),
+            V::<4>::new(1.3 * th.cos(), 1.3 * th.sin(), 0.7, 1.3),
+            0.1
+        );
+        casadi_steps_for!(
+            out,
+            "BallOnTurntable",
+            BallOnTurntable,
+            BallOnTurntable::default(),
+            0.2,
+            V::<5>::new(0.5, 0.2, 0.1, 1.4, 0.3),
+            V::<5>::new(0.3, -0.1, 0.2, 0.4, -0.3),
+            0.05
+        );
+        casadi_steps_for!(
+            out,
+            "RodPendulum",
+            RodPendulum,
+            RodPendulum::default(),
+            0.0,
+            V::<2>::new(0.6, -0.8),
+            V::<2>::new(0.8, 0.6),
+            0.1
+        );
+        casadi_steps_for!(
+            out,
+            "BodyRailed",
+            BodyRailed,
+            BodyRailed::default(),
+            0.1,
+            V::<3>::new(0.5, 0.1, 0.3),
+            V::<3>::new(0.5, 0.2, 0.7),
+            0.05
+        );
+        casadi_steps_for!(
+            out,
+            "BodyTethered",
+            BodyTethered,
+            BodyTethered::default(),
+            0.0,
+            V::<3>::new(0.6, -0.8, 0.3),
+            V::<3>::new(0.8, 0.6, 0.7),
+            0.05
+        );
+    }
     let errors: Vec<String> = out.iter().filter_map(|r| r.as_ref().err().cloned()).collect();
     if !errors.is_empty() {
         return Err(errors.join("\n"));
