@@ -17,7 +17,9 @@ fn tab<const S: usize>(m: Method) -> Tableau<S> {
 
 // ---------------------------------------------------------------- Jacobian
 
-fn check_jacobian<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+/// Exact Newton Jacobian against central differences of the residual at a
+/// point away from the solution (shared with the effects tests).
+pub(crate) fn check_jacobian<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     sys: Sys,
     method: Method,
     state: State<N>,

@@ -4,32 +4,8 @@
 
 use super::*;
 use crate::reference::{integrate_at, ReferenceOptions};
+use crate::tests::check_jacobian;
 use crate::{Method, Stepper, Tableau};
-
-fn check_jacobian<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    sys: Sys,
-    method: Method,
-    state: State<N>,
-    h: f64,
-) where
-    Sys: NonholonomicSystem<N, M>,
-{
-    let mut st = Stepper::<Sys, N, M, S, D>::new(sys, Tableau::new(method).unwrap());
-    let z = Vector::<D>::from_fn(|i, _| 0.3 + 0.17 * ((i * 7 + 3) % 11) as f64 / 11.0 - 0.1 * (i % 3) as f64);
-    let (_, jac) = st.residual_and_jacobian(&state, h, &z);
-    let mut worst: f64 = 0.0;
-    for col in 0..D {
-        let eps = 1e-6 * (1.0 + z[col].abs());
-        let (mut zp, mut zm) = (z, z);
-        zp[col] += eps;
-        zm[col] -= eps;
-        let fd = (st.residual_at(&state, h, &zp) - st.residual_at(&state, h, &zm)) / (2.0 * eps);
-        for row in 0..D {
-            worst = worst.max((fd[row] - jac[(row, col)]).abs() / (1.0 + jac[(row, col)].abs()));
-        }
-    }
-    assert!(worst < 1e-7, "{method} s={S} on {}: Jacobian vs central differences {worst:e}", Sys::SOURCE.name);
-}
 
 fn skate_state(theta: f64, speed: f64, omega: f64) -> State<3> {
     let (s, c) = theta.sin_cos();
