@@ -110,6 +110,9 @@ impl NonholonomicSystem<3, 1> for DrivenSkate {
     delegate_skate!();
     const SOURCE: SystemSource = SystemSource {
         name: "DrivenSkate",
+        external_force: &["(neg (* (p c) (v x)))", "(neg (* (p c) (v y)))", "(- (p tau) (* (p c) (v theta)))"],
+        nonideal_force: &[],
+        holonomic: &[],
         parameters: DRIVEN_PARAMETERS,
         ..<Skate as NonholonomicSystem<3, 1>>::SOURCE
     };
@@ -178,6 +181,9 @@ impl NonholonomicSystem<3, 1> for FrictionSkate {
     delegate_skate!();
     const SOURCE: SystemSource = SystemSource {
         name: "FrictionSkate",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         parameters: FRICTION_PARAMETERS,
         ..<Skate as NonholonomicSystem<3, 1>>::SOURCE
     };
@@ -261,6 +267,9 @@ impl NonholonomicSystem<2, 1> for RodPendulum {
     };
     const SOURCE: SystemSource = SystemSource {
         name: "RodPendulum",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &["(* 0.5 (- (+ (^ (q x) 2) (^ (q y) 2)) (^ (p ell) 2)))"],
         coordinates: &["x", "y"],
         parameters: ROD_PARAMETERS,
         lagrangian: "(- (* (/ (p m) 2) (+ (^ (v x) 2) (^ (v y) 2))) (* (p m) (p g) (q y)))",

@@ -212,6 +212,9 @@ impl_system!(
     CONSERVATIVE_LINEAR,
     SystemSource {
         name: "Particle",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["x", "y", "z"],
         parameters: &[],
         lagrangian: "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2) (^ (v z) 2))) (+ (^ (q x) 2) (^ (q y) 2)))",
@@ -308,6 +311,9 @@ impl_system!(
     CONSERVATIVE_LINEAR,
     SystemSource {
         name: "Skate",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["x", "y", "theta"],
         parameters: &["m", "inertia", "g", "beta"],
         lagrangian: "(+ (* (/ (p m) 2) (+ (^ (v x) 2) (^ (v y) 2))) (* (/ (p inertia) 2) (^ (v theta) 2)) \
@@ -408,6 +414,9 @@ impl_system!(
     CONSERVATIVE_LINEAR,
     SystemSource {
         name: "MobileRobot",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["x", "y", "theta", "phi"],
         parameters: &["m", "inertia", "inertia_w", "l"],
         lagrangian: "(- (+ (* (/ (p m) 2) (+ (^ (v x) 2) (^ (v y) 2))) (* (/ (p inertia) 2) (^ (v theta) 2)) \
@@ -498,6 +507,9 @@ impl_system!(
     CONSERVATIVE_LINEAR,
     SystemSource {
         name: "MpParticles",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["q1", "q2", "q3", "q4", "q5", "q6", "q7"],
         parameters: &[],
         lagrangian: "(- (* 0.5 (+ (^ (v q1) 2) (^ (v q2) 2) (^ (v q3) 2) (^ (v q4) 2) (^ (v q5) 2) (^ (v q6) 2) \
@@ -603,6 +615,9 @@ impl_system!(
     },
     SystemSource {
         name: "General",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["x", "y"],
         parameters: &["c", "a", "e"],
         lagrangian: "(- (+ (* 0.5 (+ 1 (^ (q x) 2)) (^ (v x) 2)) (* 0.5 (^ (v y) 2)) (* (p c) (sin t) (q y) (v x))) \

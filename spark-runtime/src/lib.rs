@@ -54,6 +54,9 @@
 //!     };
 //!     const SOURCE: SystemSource = SystemSource {
 //!         name: "Particle",
+//!         external_force: &[],
+//!         nonideal_force: &[],
+//!         holonomic: &[],
 //!         coordinates: &["x", "y", "z"],
 //!         parameters: &[],
 //!         lagrangian: "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2) (^ (v z) 2))) (+ (^ (q x) 2) (^ (q y) 2)))",

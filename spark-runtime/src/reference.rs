@@ -669,8 +669,16 @@ mod tests {
             separable: false,
             constraint_form: ConstraintForm::Nonlinear,
         };
-        const SOURCE: SystemSource =
-            SystemSource { name: "Analytic", coordinates: &[], parameters: &[], lagrangian: "0", constraints: &[] };
+        const SOURCE: SystemSource = SystemSource {
+            name: "Analytic",
+            coordinates: &[],
+            parameters: &[],
+            lagrangian: "0",
+            constraints: &[],
+            external_force: &[],
+            nonideal_force: &[],
+            holonomic: &[],
+        };
         const OPERATIONS: OperationCounts = OperationCounts { stage_values: 0, stage_jacobians: 0, bundle: 0 };
 
         fn parameter_values(&self) -> Vec<f64> {

@@ -129,7 +129,7 @@ pub struct OperationCounts {
 /// Expressions are prefix S-expressions over this grammar:
 ///
 /// ```text
-/// expr  := number | "t" | "pi" | "(q " name ")" | "(v " name ")" | "(p " name ")"
+/// expr  := number | "t" | "pi" | "(q " name ")" | "(v " name ")" | "(p " name ")" | "(psi " index ")"
 ///        | "(" op expr+ ")"
 /// op    := "+" | "*"                        (n-ary)
 ///        | "-" | "/" | "^" | "atan2"        (binary)
@@ -138,7 +138,8 @@ pub struct OperationCounts {
 /// number:= a decimal literal that round-trips to the same f64
 /// ```
 /// `(q x)` is the coordinate `x`, `(v x)` its velocity, `(p m)` the runtime
-/// parameter `m`; named constants are already substituted.
+/// parameter `m`, `(psi j)` the multiplier of constraint `j` (only in
+/// [`SystemSource::nonideal_force`]); named constants are already substituted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SystemSource {
     /// The type's name.
@@ -151,6 +152,18 @@ pub struct SystemSource {
     pub lagrangian: &'static str,
     /// `k_1, …, k_M`.
     pub constraints: &'static [&'static str],
+    /// External force `f_1, …, f_N` (empty when the system has none,
+    /// [`NonholonomicSystem::HAS_FORCING`] false).
+    pub external_force: &'static [&'static str],
+    /// Non-ideal constraint force `N_1, …, N_N` (empty when absent). These
+    /// expressions may also use `(psi j)`, the multiplier of constraint `j`
+    /// (0-based, `0 ≤ j < M`).
+    pub nonideal_force: &'static [&'static str],
+    /// Position-level constraints `g_1, …, g_M` over `t` and `q` (empty when
+    /// [`NonholonomicSystem::HAS_HOLONOMIC`] is false): entry `i` is `g_i`
+    /// when `k_i = ∂g_i/∂t + ∂g_i/∂q · v`, and `"0"` for a genuinely
+    /// nonholonomic constraint.
+    pub holonomic: &'static [&'static str],
 }
 
 /// A mechanical system with `N` generalized coordinates and `M` ideal

@@ -445,6 +445,9 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
             };
             const SOURCE: #rt::SystemSource = #rt::SystemSource {
                 name: #name_str,
+                external_force: &[],
+                nonideal_force: &[],
+                holonomic: &[],
                 coordinates: &[#(#coord_names),*],
                 parameters: &[#(#param_names),*],
                 lagrangian: #lag_src,

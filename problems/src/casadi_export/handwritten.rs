@@ -55,6 +55,9 @@ impl NonholonomicSystem<2, 1> for Rheonomic {
     };
     const SOURCE: SystemSource = SystemSource {
         name: "Rheonomic",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["x", "y"],
         parameters: &["m", "g", "a"],
         lagrangian: "(+ (* 0.5 (p m) (+ 1 (* (p a) t)) (+ (^ (v x) 2) (^ (v y) 2))) \

@@ -53,6 +53,9 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
     };
     const SOURCE: ::spark_runtime::SystemSource = ::spark_runtime::SystemSource {
         name: "Skate",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
         coordinates: &["x", "y", "theta"],
         parameters: &["m", "inertia", "g", "beta"],
         lagrangian: "(+ (+ (* (/ (p m) 2.0) (+ (^ (v x) 2.0) (^ (v y) 2.0))) (* (/ (p inertia) 2.0) (^ (v theta) 2.0))) (* (* (* (p m) (p g)) (q x)) (sin (p beta))))",
