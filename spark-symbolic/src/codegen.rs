@@ -22,6 +22,11 @@ pub struct Operations {
     /// `R = −Kᵀψ`, `∂R/∂q`, `∂R/∂v`, evaluated together (the set CasADi is
     /// compared with).
     pub bundle: usize,
+    /// `external_force_jacobians` (`f`, `∂f/∂q`, `∂f/∂v`); 0 without forcing.
+    pub external_force_jacobians: usize,
+    /// `nonideal_force_jacobians` (`N`, `∂N/∂q`, `∂N/∂v`, `∂N/∂ψ`); 0 without
+    /// a non-ideal force.
+    pub nonideal_force_jacobians: usize,
 }
 
 /// Statement threshold above which a body is split into helper functions
@@ -89,7 +94,8 @@ impl Gen<'_> {
         });
         let decls: Vec<TokenStream> = decls.collect();
         let has_lets = entries.iter().any(|(t, _)| matches!(t, Target::Let(_)));
-        if statements.len() <= SPLIT_STATEMENTS || has_lets {
+        // Helpers take `(t, q, v)`; `holonomic_residual` has no `v` to pass.
+        if statements.len() <= SPLIT_STATEMENTS || has_lets || fname == "holonomic_residual" {
             return (quote!(#(#decls)* #(#statements)*), ops);
         }
         (self.split(fname, decls, emitted.statements_in_array(), shared, outs, psi), ops)
@@ -165,7 +171,25 @@ pub fn count_operations(model: &mut Model, params: &[Ident]) -> Operations {
         helpers: Vec::new(),
     };
     let (sv, sj, bundle) = gen.fused();
-    Operations { stage_values: sv.1, stage_jacobians: sj.1, bundle: bundle.1 }
+    let effects = gen.effects();
+    Operations {
+        stage_values: sv.1,
+        stage_jacobians: sj.1,
+        bundle: bundle.1,
+        external_force_jacobians: effects.forcing.as_ref().map_or(0, |f| f.1 .1),
+        nonideal_force_jacobians: effects.nonideal.as_ref().map_or(0, |f| f.1 .1),
+    }
+}
+
+/// Bodies (statements, operation count) of the optional-effect methods;
+/// `None` when the declaration lacks the effect.
+struct EffectBodies {
+    /// `external_force` and `external_force_jacobians`.
+    forcing: Option<((TokenStream, usize), (TokenStream, usize))>,
+    /// `nonideal_force` and `nonideal_force_jacobians`.
+    nonideal: Option<((TokenStream, usize), (TokenStream, usize))>,
+    /// `holonomic_residual`.
+    holonomic: Option<TokenStream>,
 }
 
 /// The statements of the bundle CasADi is compared with (see
@@ -203,6 +227,39 @@ impl Gen<'_> {
             self.matrix("constraint_force_v", &md.constraint_force_v, &n),
         ];
         (values, jacobians)
+    }
+
+    /// Bodies of the optional-effect methods (after [`Self::fused`], so that
+    /// the stage functions are emitted from the same graph either way).
+    fn effects(&mut self) -> EffectBodies {
+        let (n, m, rt) = (self.n.clone(), self.m.clone(), self.rt.clone());
+        let mut out = EffectBodies { forcing: None, nonideal: None, holonomic: None };
+        if !self.model.external_force.is_empty() {
+            let md = &*self.model;
+            let f = self.vector("external_force", &md.external_force, &n);
+            let fq = self.matrix("external_force_q", &md.external_force_q, &n);
+            let fv = self.matrix("external_force_v", &md.external_force_v, &n);
+            let value = self.body("external_force", Vec::new(), std::slice::from_ref(&f), false);
+            let jac = self.body("external_force_jacobians", Vec::new(), &[f, fq, fv], false);
+            out.forcing = Some((value, jac));
+        }
+        if !self.model.nonideal_force.is_empty() {
+            let md = &*self.model;
+            let f = self.vector("nonideal_force", &md.nonideal_force, &n);
+            let fq = self.matrix("nonideal_force_q", &md.nonideal_force_q, &n);
+            let fv = self.matrix("nonideal_force_v", &md.nonideal_force_v, &n);
+            let name = format_ident!("nonideal_force_psi");
+            let fpsi =
+                Out { entries: matrix_outputs(&name, &md.nonideal_force_psi), ty: quote!(#rt::Matrix<#n, #m>), name };
+            let value = self.body("nonideal_force", Vec::new(), std::slice::from_ref(&f), true);
+            let jac = self.body("nonideal_force_jacobians", Vec::new(), &[f, fq, fv, fpsi], true);
+            out.nonideal = Some((value, jac));
+        }
+        if !self.model.holonomic.is_empty() {
+            let g = self.vector("holonomic", &self.model.holonomic.clone(), &m);
+            out.holonomic = Some(self.body("holonomic_residual", Vec::new(), &[g], false).0);
+        }
+        out
     }
 
     /// Bodies of `stage_values`, `stage_jacobians` and the bundle.
@@ -318,8 +375,62 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
 
     // Fused stage functions.
     let (sv, sj, bundle) = gen.fused();
-    let ops = Operations { stage_values: sv.1, stage_jacobians: sj.1, bundle: bundle.1 };
+    let effects = gen.effects();
+    let ops = Operations {
+        stage_values: sv.1,
+        stage_jacobians: sj.1,
+        bundle: bundle.1,
+        external_force_jacobians: effects.forcing.as_ref().map_or(0, |f| f.1 .1),
+        nonideal_force_jacobians: effects.nonideal.as_ref().map_or(0, |f| f.1 .1),
+    };
     let (sv_body, sj_body) = (sv.0, sj.0);
+    let psi_sig = quote!(psi: &#rt::Vector<#m>);
+    let mut effect_items = TokenStream::new();
+    if let Some(((value, _), (jac, _))) = effects.forcing {
+        effect_items.extend(quote! {
+            const HAS_FORCING: bool = true;
+
+            fn external_force(#sig) -> #rt::Vector<#n> {
+                #value
+                external_force
+            }
+
+            fn external_force_jacobians(#sig) -> (#rt::Vector<#n>, #rt::Matrix<#n, #n>, #rt::Matrix<#n, #n>) {
+                #jac
+                (external_force, external_force_q, external_force_v)
+            }
+        });
+    }
+    if let Some(((value, _), (jac, _))) = effects.nonideal {
+        effect_items.extend(quote! {
+            const HAS_NONIDEAL_FORCE: bool = true;
+
+            fn nonideal_force(#sig, #psi_sig) -> #rt::Vector<#n> {
+                #value
+                nonideal_force
+            }
+
+            fn nonideal_force_jacobians(#sig, #psi_sig) -> #rt::NonidealJacobians<#n, #m> {
+                #jac
+                #rt::NonidealJacobians {
+                    value: nonideal_force,
+                    q: nonideal_force_q,
+                    v: nonideal_force_v,
+                    psi: nonideal_force_psi,
+                }
+            }
+        });
+    }
+    if let Some(body) = effects.holonomic {
+        effect_items.extend(quote! {
+            const HAS_HOLONOMIC: bool = true;
+
+            fn holonomic_residual(&self, t: f64, q: &#rt::Vector<#n>) -> #rt::Vector<#m> {
+                #body
+                holonomic
+            }
+        });
+    }
     let helpers = std::mem::take(&mut gen.helpers);
 
     // Struct, Default, inherent items.
@@ -363,6 +474,19 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
     let param_names: Vec<String> = spec.parameters.iter().map(|p| p.name.name.clone()).collect();
     let lag_src = sexpr(spec, &spec.lagrangian);
     let k_src = spec.constraints.iter().map(|c| sexpr(spec, &c.expr));
+    let components = |xs: &[Option<crate::spec::SrcExpr>]| -> Vec<String> {
+        xs.iter().map(|x| x.as_ref().map_or_else(|| "0".to_string(), |e| sexpr(spec, e))).collect()
+    };
+    let f_src = components(&spec.external_force);
+    let n_src = components(&spec.nonideal_force);
+    let g_src: Vec<String> = if spec.constraints.iter().any(|c| c.position.is_some()) {
+        spec.constraints
+            .iter()
+            .map(|c| c.position.as_ref().map_or_else(|| "0".to_string(), |g| sexpr(spec, g)))
+            .collect()
+    } else {
+        Vec::new()
+    };
 
     // set_parameter.
     let known = param_names.join(", ");
@@ -445,9 +569,9 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
             };
             const SOURCE: #rt::SystemSource = #rt::SystemSource {
                 name: #name_str,
-                external_force: &[],
-                nonideal_force: &[],
-                holonomic: &[],
+                external_force: &[#(#f_src),*],
+                nonideal_force: &[#(#n_src),*],
+                holonomic: &[#(#g_src),*],
                 coordinates: &[#(#coord_names),*],
                 parameters: &[#(#param_names),*],
                 lagrangian: #lag_src,
@@ -522,6 +646,8 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
                     },
                 )
             }
+
+            #effect_items
         }
     };
     Ok((tokens, ops))

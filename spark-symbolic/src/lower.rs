@@ -61,6 +61,13 @@ impl<'a> Lowerer<'a> {
                 let i = *i as u32;
                 g.var(if matches!(e, SrcExpr::Coord(..)) { Var::Q(i) } else { Var::V(i) })
             }
+            SrcExpr::Multiplier(j, s) => {
+                let m = self.spec.constraints.len();
+                if *j >= m {
+                    return Err(err(*s, format!("multiplier index {j} out of range (the system has {m} constraints)")));
+                }
+                g.var(Var::Psi(*j as u32))
+            }
             SrcExpr::Param(i, s) => {
                 if *i >= self.spec.parameters.len() {
                     return Err(err(*s, format!("parameter index {i} out of range")));

@@ -85,8 +85,25 @@ pub struct Model {
     pub force_t: Vec<NodeId>,
     /// `k_t`.
     pub constraint_t: Vec<NodeId>,
-    /// Proved structure.
+    /// Proved structure (of `L` and `k`; the optional forces do not change it).
     pub structure: Structure,
+    /// External force `f(t,q,v)`; empty when the system has none.
+    pub external_force: Vec<NodeId>,
+    /// `∂f/∂q` (empty when `f` is absent).
+    pub external_force_q: NodeMatrix,
+    /// `∂f/∂v`.
+    pub external_force_v: NodeMatrix,
+    /// Non-ideal constraint force `N(t,q,v,ψ)`; empty when absent.
+    pub nonideal_force: Vec<NodeId>,
+    /// `∂N/∂q`.
+    pub nonideal_force_q: NodeMatrix,
+    /// `∂N/∂v`.
+    pub nonideal_force_v: NodeMatrix,
+    /// `∂N/∂ψ` (`N × M`).
+    pub nonideal_force_psi: NodeMatrix,
+    /// Position-level residuals `g_i(t,q)` (zero for constraints not declared
+    /// holonomic); empty when no constraint is.
+    pub holonomic: Vec<NodeId>,
 }
 
 fn gradient(g: &mut Graph, d: &mut Differentiator, f: NodeId, vars: &[Var]) -> Vec<NodeId> {
@@ -288,6 +305,52 @@ impl Model {
             separable: free_of(&g, &force, Deps::V) && free_of(&g, &momentum, Deps::Q),
             constraint_form,
         };
+        // The optional effects are lowered last, so that a declaration without
+        // them builds exactly the graph (and node order) it built before.
+        let mut components = |g: &mut Graph, xs: &[Option<crate::spec::SrcExpr>]| -> Result<Vec<NodeId>, SpecError> {
+            xs.iter()
+                .map(|x| match x {
+                    Some(x) => lower.lower(g, x),
+                    None => Ok(g.constant(0.0)),
+                })
+                .collect()
+        };
+        let external_force = components(&mut g, &spec.external_force)?;
+        let nonideal_force = components(&mut g, &spec.nonideal_force)?;
+        for (i, &f) in external_force.iter().enumerate() {
+            if g.deps(f).any(Deps::PSI) {
+                let span = spec.external_force[i].as_ref().map_or(spec.name.span(), |x| x.span());
+                return Err(SpecError {
+                    span,
+                    message: "an external force may not depend on multipliers; declare it as a non-ideal force".into(),
+                });
+            }
+        }
+        let psis: Vec<Var> = (0..m as u32).map(Var::Psi).collect();
+        let external_force_q = jacobian(&mut g, &mut d, &external_force, &qs);
+        let external_force_v = jacobian(&mut g, &mut d, &external_force, &vs);
+        let nonideal_force_q = jacobian(&mut g, &mut d, &nonideal_force, &qs);
+        let nonideal_force_v = jacobian(&mut g, &mut d, &nonideal_force, &vs);
+        let nonideal_force_psi = jacobian(&mut g, &mut d, &nonideal_force, &psis);
+        let mut holonomic = Vec::new();
+        if spec.constraints.iter().any(|c| c.position.is_some()) {
+            for c in &spec.constraints {
+                let node = match &c.position {
+                    Some(p) => {
+                        let node = lower.lower(&mut g, p)?;
+                        if g.deps(node).any(Deps::V) || g.deps(node).any(Deps::PSI) {
+                            return Err(SpecError {
+                                span: p.span(),
+                                message: "a holonomic constraint g(t, q) = 0 may not involve velocities".into(),
+                            });
+                        }
+                        node
+                    }
+                    None => g.constant(0.0),
+                };
+                holonomic.push(node);
+            }
+        }
         Ok(Model {
             graph: g,
             n,
@@ -311,6 +374,14 @@ impl Model {
             force_t,
             constraint_t,
             structure,
+            external_force,
+            external_force_q,
+            external_force_v,
+            nonideal_force,
+            nonideal_force_q,
+            nonideal_force_v,
+            nonideal_force_psi,
+            holonomic,
         })
     }
 }

@@ -46,6 +46,7 @@ fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
             let names: Vec<&str> = spec.parameters.iter().map(|p| p.name.name.as_str()).collect();
             named("p", &names, *i, out)
         }
+        SrcExpr::Multiplier(j, _) => out.push_str(&format!("(psi {j})")),
         SrcExpr::Const(i, _) => match spec.constants.get(*i) {
             Some(c) => write(spec, &c.value, out, depth + 1),
             None => out.push_str("nan"),

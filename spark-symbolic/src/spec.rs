@@ -127,6 +127,9 @@ pub enum SrcExpr {
     Binary(BinOp, Box<SrcExpr>, Box<SrcExpr>, Span),
     /// Function call with the right number of arguments.
     Call(Func, Vec<SrcExpr>, Span),
+    /// Multiplier `ψ_j` of constraint `j` (index into
+    /// [`SystemSpec::constraints`]); only in [`SystemSpec::nonideal_force`].
+    Multiplier(usize, Span),
 }
 
 impl SrcExpr {
@@ -142,7 +145,8 @@ impl SrcExpr {
             | SrcExpr::Const(_, s)
             | SrcExpr::Neg(_, s)
             | SrcExpr::Binary(_, _, _, s)
-            | SrcExpr::Call(_, _, s) => *s,
+            | SrcExpr::Call(_, _, s)
+            | SrcExpr::Multiplier(_, s) => *s,
         }
     }
 }
@@ -183,6 +187,10 @@ pub struct ConstraintSpec {
     pub expr: SrcExpr,
     /// Span covering the whole constraint (for "this constraint is holonomic").
     pub span: Span,
+    /// `g(t,q)` when the constraint is the velocity-level form
+    /// `k = g_t + g_q·v` of a holonomic constraint `g = 0` (a `holonomic`
+    /// effect); `None` for a constraint written at velocity level.
+    pub position: Option<SrcExpr>,
 }
 
 /// A whole declaration.
@@ -204,6 +212,14 @@ pub struct SystemSpec {
     pub lagrangian: SrcExpr,
     /// `k(t,q,v)`, possibly empty.
     pub constraints: Vec<ConstraintSpec>,
+    /// External generalized force `f(t,q,v)`: empty when the system has
+    /// none, else one entry per coordinate (`None` = zero component). Never
+    /// contains [`SrcExpr::Multiplier`].
+    pub external_force: Vec<Option<SrcExpr>>,
+    /// Non-ideal constraint force `N(t,q,v,ψ)`: empty when absent, else one
+    /// entry per coordinate (`None` = zero component); may use
+    /// [`SrcExpr::Multiplier`].
+    pub nonideal_force: Vec<Option<SrcExpr>>,
     /// Path under which generated code finds the runtime
     /// (`::spark_runtime` unless the caller says otherwise).
     pub runtime_path: TokenStream,

@@ -20,6 +20,7 @@ pub(crate) fn eval(expr: &SrcExpr, constants: &[f64]) -> Result<f64, SpecError> 
         SrcExpr::Coord(_, s) => return bad(*s, "a coordinate"),
         SrcExpr::Velocity(_, s) => return bad(*s, "a velocity"),
         SrcExpr::Param(_, s) => return bad(*s, "a parameter"),
+        SrcExpr::Multiplier(_, s) => return bad(*s, "a multiplier"),
         SrcExpr::Neg(a, _) => -eval(a, constants)?,
         SrcExpr::Binary(op, a, b, _) => {
             let (a, b) = (eval(a, constants)?, eval(b, constants)?);

@@ -24,13 +24,41 @@ pub(crate) enum Context {
     Default(usize),
 }
 
+/// Which constraint multipliers `ψ` an expression may use: only a
+/// non-ideal force `N(t,q,v,ψ)` may.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Multipliers<'a> {
+    /// Not in scope (`L`, constraints, holonomic `g`, constants, defaults):
+    /// `psi[j]` is an error that says where multipliers belong.
+    None,
+    /// An external force `f(t,q,v)`: multipliers are recognized (by index
+    /// or by a constraint effect's name) and rejected with a hint.
+    Forbidden {
+        /// Constraint effects and the multiplier index each one stands for.
+        named: &'a [(String, usize)],
+    },
+    /// A non-ideal force: `psi[j]` for the base declaration's constraints
+    /// `j < base`, and constraint effects by name.
+    Allowed {
+        /// Number of constraints of the base declaration.
+        base: usize,
+        /// Constraint effects and the multiplier index each one stands for.
+        named: &'a [(String, usize)],
+    },
+}
+
 /// The declared names an expression is resolved against.
+#[derive(Clone, Copy)]
 pub(crate) struct Scope<'a> {
     pub coordinates: &'a [Named],
     pub parameters: &'a [Named],
     pub constants: &'a [Named],
     pub context: Context,
+    pub multipliers: Multipliers<'a>,
 }
+
+const NONIDEAL_HINT: &str = "a force that depends on a constraint's multiplier is a non-ideal constraint force: \
+                             declare it as `name: nonideal { coordinate: … }` (or in `nonideal_forces: { … }`)";
 
 fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
@@ -94,6 +122,9 @@ impl Scope<'_> {
         match self.context {
             Context::Constant(i) => names.extend(self.constants[..i].iter().map(|n| n.name.as_str())),
             _ => names.extend(self.constants.iter().map(|n| n.name.as_str())),
+        }
+        if let Multipliers::Allowed { named, .. } = self.multipliers {
+            names.extend(named.iter().map(|(n, _)| n.as_str()));
         }
         names
     }
@@ -172,6 +203,25 @@ impl Scope<'_> {
             }
             return Ok(SrcExpr::Const(i, span));
         }
+        match self.multipliers {
+            Multipliers::Allowed { named, .. } => {
+                if let Some((_, j)) = named.iter().find(|(n, _)| *n == name) {
+                    return Ok(SrcExpr::Multiplier(*j, span));
+                }
+            }
+            Multipliers::Forbidden { named } => {
+                if named.iter().any(|(n, _)| *n == name) {
+                    return err(
+                        span,
+                        format!(
+                            "a force f(t, q, v) may not depend on `{name}`, the multiplier of constraint `{name}`; \
+                             {NONIDEAL_HINT}"
+                        ),
+                    );
+                }
+            }
+            Multipliers::None => {}
+        }
         if let Some(f) = Func::from_name(&name) {
             let args = if f.arity() == 2 { "y, x" } else { "x" };
             return err(span, format!("`{name}` is a function: write `{name}({args})`"));
@@ -229,6 +279,53 @@ impl Scope<'_> {
             msg.push_str(&format!(" Allowed here: numbers and {}.", list(&known)));
         }
         msg
+    }
+
+    /// `psi[j]`: the multiplier of the base declaration's constraint `j`.
+    fn multiplier(&self, psi: &proc_macro2::Ident, group: &proc_macro2::Group) -> Result<SrcExpr, SpecError> {
+        let toks: Vec<TokenTree> = group.stream().into_iter().collect();
+        let span = psi.span().join(group.span()).unwrap_or(psi.span());
+        let index = match toks.as_slice() {
+            [TokenTree::Literal(l)] => l.to_string().parse::<usize>().ok(),
+            _ => None,
+        };
+        let Some(j) = index else {
+            return err(
+                group.span(),
+                "write the multiplier of constraint j as `psi[j]` with an integer j, e.g. `psi[0]`",
+            );
+        };
+        match self.multipliers {
+            Multipliers::None => err(
+                span,
+                format!(
+                    "the multiplier `psi[{j}]` may only appear in a non-ideal constraint force \
+                     (a `name: nonideal {{ … }}` effect or the `nonideal_forces: {{ … }}` section)"
+                ),
+            ),
+            Multipliers::Forbidden { .. } => {
+                err(span, format!("a force f(t, q, v) may not depend on the multiplier `psi[{j}]`; {NONIDEAL_HINT}"))
+            }
+            Multipliers::Allowed { base, named } => {
+                if j < base {
+                    return Ok(SrcExpr::Multiplier(j, span));
+                }
+                let have = match base {
+                    0 => "the base declaration has no constraints".to_string(),
+                    1 => "the base declaration has 1 constraint, `psi[0]`".to_string(),
+                    b => format!("the base declaration has {b} constraints, `psi[0]` … `psi[{}]`", b - 1),
+                };
+                let mut msg = format!("`psi[{j}]` is out of range: {have} (indices are 0-based)");
+                if !named.is_empty() {
+                    let names: Vec<String> = named.iter().map(|(n, _)| format!("`{n}`")).collect();
+                    msg.push_str(&format!(
+                        "; the multiplier of a constraint effect is written by its name: {}",
+                        names.join(", ")
+                    ));
+                }
+                err(span, msg)
+            }
+        }
     }
 
     /// `dot(…)`: the velocity of a coordinate.
@@ -485,6 +582,13 @@ impl Parser<'_, '_> {
                         let g = g.clone();
                         self.pos += 1;
                         return self.call(&ident, &g);
+                    }
+                }
+                if let Some(TokenTree::Group(g)) = self.peek() {
+                    if g.delimiter() == Delimiter::Bracket && ident == "psi" {
+                        let g = g.clone();
+                        self.pos += 1;
+                        return self.scope.multiplier(&ident, &g);
                     }
                 }
                 if is_punct(self.peek(), ':') {

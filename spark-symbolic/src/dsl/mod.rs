@@ -51,6 +51,7 @@
 
 mod eval;
 mod expr;
+mod forces;
 mod locate;
 mod names;
 pub mod scenes;
@@ -60,13 +61,14 @@ mod tests;
 pub use locate::{find_declaration, LocateError};
 
 use crate::spec::{Constant, ConstraintSpec, Named, Parameter, SpecError, SrcExpr, SystemSpec};
-use expr::{describe, parse_expression, split_commas, Context, Scope};
+use expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
 use names::{list, nearest, reserved_reason};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 use quote::quote;
 
 /// The section names, in the order the documentation lists them.
-pub const SECTIONS: [&str; 5] = ["coordinates", "parameters", "constants", "lagrangian", "constraints"];
+pub const SECTIONS: [&str; 7] =
+    ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces"];
 
 fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
@@ -214,6 +216,8 @@ struct Sections {
     constants: Option<(Span, Vec<TokenTree>)>,
     lagrangian: Option<(Span, Vec<TokenTree>)>,
     constraints: Option<(Span, Vec<TokenTree>)>,
+    forces: Option<(Span, Vec<TokenTree>)>,
+    nonideal_forces: Option<(Span, Vec<TokenTree>)>,
     /// Section names in source order (decides which duplicate name is "second").
     order: Vec<&'static str>,
 }
@@ -279,6 +283,8 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
             "parameters" => &mut s.parameters,
             "constants" => &mut s.constants,
             "lagrangian" => &mut s.lagrangian,
+            "forces" => &mut s.forces,
+            "nonideal_forces" => &mut s.nonideal_forces,
             _ => &mut s.constraints,
         };
         if slot.is_some() {
@@ -297,6 +303,10 @@ fn section_example(kind: &str) -> &'static str {
         "parameters" => "write e.g. `parameters: { m = 1.0, g = 9.81 }`",
         "constants" => "write e.g. `constants: { two = 2 }`",
         "lagrangian" => "write e.g. `lagrangian: dot(x)^2/2 - x^2/2`",
+        "forces" => "write e.g. `forces: { theta: tau, x: -c*dot(x) }` (components by coordinate, absent = 0)",
+        "nonideal_forces" => {
+            "write e.g. `nonideal_forces: { x: -mu*psi[0]*cos(theta) }` (`psi[j]`: multiplier of constraint j)"
+        }
         _ => "write e.g. `constraints: [ dot(y) - x*dot(z) ]`, or `constraints: []` for none",
     }
 }
@@ -464,6 +474,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
             parameters: &param_names,
             constants: &const_names,
             context: Context::Constant(i),
+            multipliers: Multipliers::None,
         };
         let what = format!("constant `{}`", const_names[i].name);
         let expr = parse_expression(value, &scope, &what, *eq)?;
@@ -482,6 +493,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
             parameters: &param_names,
             constants: &const_names,
             context: Context::Default(i),
+            multipliers: Multipliers::None,
         };
         let what = format!("the default of parameter `{}`", param_names[i].name);
         let expr = parse_expression(value, &scope, &what, *eq)?;
@@ -497,6 +509,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
         parameters: &param_names,
         constants: &const_names,
         context: Context::Dynamic,
+        multipliers: Multipliers::None,
     };
     let lagrangian = parse_expression(lag_tokens, &scope, "the lagrangian", *lag_span)?;
 
@@ -511,11 +524,42 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
             let what = format!("constraint {}", j + 1);
             let expr = parse_expression(&piece, &scope, &what, first.span())?;
             let last = piece.last().map_or(first.span(), TokenTree::span);
-            constraints.push(ConstraintSpec { expr, span: first.span().join(last).unwrap_or(first.span()) });
+            constraints.push(ConstraintSpec {
+                expr,
+                span: first.span().join(last).unwrap_or(first.span()),
+                position: None,
+            });
         }
     }
 
-    Ok(SystemSpec { attrs, vis, name, coordinates, parameters, constants, lagrangian, constraints, runtime_path })
+    let mut external_force = Vec::new();
+    if let Some((span, value)) = s.forces.as_ref() {
+        let group = single_group("forces", *span, value, Delimiter::Brace)?;
+        let scope = Scope { multipliers: Multipliers::Forbidden { named: &[] }, ..scope };
+        let example = format!("`forces: {{ {}: tau }}`", coordinates[0].name);
+        external_force = forces::parse_force_block(&group, &scope, "the external force", &example)?;
+    }
+    let mut nonideal_force = Vec::new();
+    if let Some((span, value)) = s.nonideal_forces.as_ref() {
+        let group = single_group("nonideal_forces", *span, value, Delimiter::Brace)?;
+        let scope = Scope { multipliers: Multipliers::Allowed { base: constraints.len(), named: &[] }, ..scope };
+        let example = format!("`nonideal_forces: {{ {}: -mu*psi[0] }}`", coordinates[0].name);
+        nonideal_force = forces::parse_force_block(&group, &scope, "the non-ideal force", &example)?;
+    }
+
+    Ok(SystemSpec {
+        attrs,
+        vis,
+        name,
+        coordinates,
+        parameters,
+        constants,
+        lagrangian,
+        constraints,
+        external_force,
+        nonideal_force,
+        runtime_path,
+    })
 }
 
 /// Evaluates a constant [`SrcExpr`] (numbers, `pi`, functions and constants

@@ -13,13 +13,14 @@
 //! scenes  := "scenes" ":" "{" (Name "=" "[" name,* "]"),* ","? "}"
 //! ```
 
-use super::expr::{describe, parse_expression, split_commas, Context, Scope};
+use super::expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
+use super::forces::parse_force_block;
 use super::names::{list, nearest};
 use crate::spec::{BinOp, ConstraintSpec, Func, SpecError, SrcExpr, SystemSpec};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 
 /// The effect kinds, as written.
-pub const EFFECT_KINDS: [&str; 3] = ["potential", "constraint", "holonomic"];
+pub const EFFECT_KINDS: [&str; 5] = ["potential", "constraint", "holonomic", "force", "nonideal"];
 
 fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
@@ -31,7 +32,16 @@ enum Effect {
     Potential(SrcExpr),
     Constraint(SrcExpr, Span),
     /// `g` and its velocity-level form `k = g_t + g_q v`.
-    Holonomic(SrcExpr, Span),
+    Holonomic {
+        k: SrcExpr,
+        g: SrcExpr,
+        span: Span,
+    },
+    /// External force components by coordinate.
+    Force(Vec<Option<SrcExpr>>),
+    /// Non-ideal constraint force components; multipliers of constraint
+    /// effects carry provisional indices until a scene orders them.
+    Nonideal(Vec<Option<SrcExpr>>),
 }
 
 /// The base declaration and one [`SystemSpec`] per scene, or `None` when
@@ -102,47 +112,108 @@ fn example(section: &str) -> &'static str {
     }
 }
 
-fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)>, SpecError> {
-    let names = |v: &[crate::spec::Parameter]| v.iter().map(|p| p.name.clone()).collect::<Vec<_>>();
-    let params = names(&base.parameters);
-    let consts: Vec<_> = base.constants.iter().map(|c| c.name.clone()).collect();
-    let scope =
-        Scope { coordinates: &base.coordinates, parameters: &params, constants: &consts, context: Context::Dynamic };
+/// The kind keyword and argument group of one `name: kind(…)` / `name: kind { … }` entry.
+struct RawEffect {
+    name: Ident,
+    kind: Ident,
+    args: Group,
+}
+
+fn raw_effects(group: &Group) -> Result<Vec<RawEffect>, SpecError> {
     let toks: Vec<TokenTree> = group.stream().into_iter().collect();
-    let mut out: Vec<(Ident, Effect)> = Vec::new();
+    let mut out: Vec<RawEffect> = Vec::new();
     for (piece, comma) in split_commas(&toks) {
         let (name, kind, args) = match piece.as_slice() {
             [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
             [TokenTree::Ident(name), TokenTree::Punct(p), TokenTree::Ident(kind), TokenTree::Group(args)]
-                if p.as_char() == ':' && args.delimiter() == Delimiter::Parenthesis =>
+                if p.as_char() == ':' && matches!(args.delimiter(), Delimiter::Parenthesis | Delimiter::Brace) =>
             {
                 (name, kind, args)
             }
             [TokenTree::Ident(name), TokenTree::Punct(p), TokenTree::Ident(kind), rest @ ..] if p.as_char() == ':' => {
                 let at = rest.first().map_or(kind.span(), TokenTree::span);
-                return err(at, format!("effect `{name}`: write `{name}: {kind}(…)` with one parenthesized argument"));
+                let shape = if is_force_kind(&kind.to_string()) {
+                    format!("`{name}: {kind} {{ coordinate: expression, … }}`")
+                } else {
+                    format!("`{name}: {kind}(…)` with one parenthesized argument")
+                };
+                return err(at, format!("effect `{name}`: write {shape}"));
             }
             [first, ..] => {
                 return err(
                     first.span(),
                     format!(
-                        "expected `name: kind(…)` in `effects`, found {}; e.g. {}",
+                        "expected `name: kind(…)` or `name: kind {{ … }}` in `effects`, found {}; e.g. {}",
                         describe(first),
                         example("effects")
                     ),
                 )
             }
         };
-        if let Some((prev, _)) = out.iter().find(|(n, _)| *n == *name) {
-            let _ = prev;
+        if out.iter().any(|e| e.name == *name) {
             return err(name.span(), format!("effect `{name}` is declared twice; give each effect its own name"));
+        }
+        out.push(RawEffect { name: name.clone(), kind: kind.clone(), args: args.clone() });
+    }
+    Ok(out)
+}
+
+fn is_force_kind(kind: &str) -> bool {
+    kind == "force" || kind == "nonideal"
+}
+
+fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)>, SpecError> {
+    let names = |v: &[crate::spec::Parameter]| v.iter().map(|p| p.name.clone()).collect::<Vec<_>>();
+    let params = names(&base.parameters);
+    let consts: Vec<_> = base.constants.iter().map(|c| c.name.clone()).collect();
+    let scope = Scope {
+        coordinates: &base.coordinates,
+        parameters: &params,
+        constants: &consts,
+        context: Context::Dynamic,
+        multipliers: Multipliers::None,
+    };
+    let raw = raw_effects(group)?;
+    // Constraint effects name their multiplier inside `nonideal` forces. Until
+    // a scene fixes the constraint order, effect `e` stands for the index
+    // `M_base + e` (see `resolve_multipliers`).
+    let m_base = base.constraints.len();
+    let mut named: Vec<(String, usize)> = Vec::new();
+    for (e, r) in raw.iter().enumerate() {
+        if matches!(r.kind.to_string().as_str(), "constraint" | "holonomic") {
+            let n = r.name.to_string();
+            let clash = base.coordinates.iter().map(|c| &c.name).chain(params.iter().map(|p| &p.name));
+            if clash.chain(consts.iter().map(|c| &c.name)).any(|d| *d == n) {
+                return err(
+                    r.name.span(),
+                    format!(
+                        "constraint effect `{n}` has the name of a coordinate, parameter or constant; a constraint \
+                         effect's name stands for its multiplier in `nonideal` forces, so give it its own name"
+                    ),
+                );
+            }
+            named.push((n, m_base + e));
+        }
+    }
+    let mut out: Vec<(Ident, Effect)> = Vec::new();
+    for r in &raw {
+        let RawEffect { name, kind, args } = r;
+        let kind_s = kind.to_string();
+        let braces = args.delimiter() == Delimiter::Brace;
+        if EFFECT_KINDS.contains(&kind_s.as_str()) && braces != is_force_kind(&kind_s) {
+            let shape = if braces {
+                format!("`{name}: {kind_s}(…)` with parentheses")
+            } else {
+                format!("`{name}: {kind_s} {{ coordinate: expression, … }}` with braces, components by coordinate name")
+            };
+            return err(args.span(), format!("effect `{name}`: write {shape}"));
         }
         let arg_tokens: Vec<TokenTree> = args.stream().into_iter().collect();
         let what = format!("effect `{name}`");
-        let expr = parse_expression(&arg_tokens, &scope, &what, args.span())?;
-        let effect = match kind.to_string().as_str() {
-            "potential" => Effect::Potential(expr),
+        let effect = match kind_s.as_str() {
+            "potential" => Effect::Potential(parse_expression(&arg_tokens, &scope, &what, args.span())?),
             "constraint" => {
+                let expr = parse_expression(&arg_tokens, &scope, &what, args.span())?;
                 if !mentions_velocity(&expr) {
                     return err(
                         args.span(),
@@ -154,8 +225,19 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)
                 Effect::Constraint(expr, args.span())
             }
             "holonomic" => {
-                let k = time_derivative(&expr)?;
-                Effect::Holonomic(k, args.span())
+                let g = parse_expression(&arg_tokens, &scope, &what, args.span())?;
+                let k = time_derivative(&g)?;
+                Effect::Holonomic { k, g, span: args.span() }
+            }
+            "force" => {
+                let scope = Scope { multipliers: Multipliers::Forbidden { named: &named }, ..scope };
+                let example = format!("`{name}: force {{ {}: … }}`", base.coordinates[0].name);
+                Effect::Force(parse_force_block(args, &scope, &format!("force `{name}`"), &example)?)
+            }
+            "nonideal" => {
+                let scope = Scope { multipliers: Multipliers::Allowed { base: m_base, named: &named }, ..scope };
+                let example = format!("`{name}: nonideal {{ {}: … }}`", base.coordinates[0].name);
+                Effect::Nonideal(parse_force_block(args, &scope, &format!("non-ideal force `{name}`"), &example)?)
             }
             other => {
                 let mut msg = format!("unknown effect kind `{other}`");
@@ -171,6 +253,57 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)
     Ok(out)
 }
 
+/// Component-wise sum of two force blocks (empty = absent).
+fn add_forces(acc: Vec<Option<SrcExpr>>, more: &[Option<SrcExpr>]) -> Vec<Option<SrcExpr>> {
+    if acc.is_empty() {
+        return more.to_vec();
+    }
+    acc.into_iter()
+        .zip(more)
+        .map(|(a, b)| match (a, b) {
+            (None, b) => b.clone(),
+            (a, None) => a,
+            (Some(a), Some(b)) => Some(SrcExpr::Binary(BinOp::Add, Box::new(a), Box::new(b.clone()), b.span())),
+        })
+        .collect()
+}
+
+/// Replaces the provisional multiplier indices of constraint effects
+/// (`M_base + effect index`) by the scene's constraint indices; a multiplier
+/// of a constraint the scene leaves out is an error at its use.
+fn resolve_multipliers(
+    e: &SrcExpr,
+    m_base: usize,
+    index_of: &[Option<usize>],
+    effects: &[(Ident, Effect)],
+    context: &(String, String),
+) -> Result<SrcExpr, SpecError> {
+    let go = |x: &SrcExpr| resolve_multipliers(x, m_base, index_of, effects, context);
+    Ok(match e {
+        SrcExpr::Multiplier(j, s) if *j >= m_base => {
+            let k = *j - m_base;
+            match index_of.get(k).copied().flatten() {
+                Some(i) => SrcExpr::Multiplier(i, *s),
+                None => {
+                    let (effect, scene) = context;
+                    let c = effects.get(k).map_or("?".to_string(), |(n, _)| n.to_string());
+                    return err(
+                        *s,
+                        format!(
+                            "non-ideal force `{effect}` uses the multiplier of constraint `{c}`, which scene `{scene}` \
+                             does not select; add `{c}` to the scene"
+                        ),
+                    );
+                }
+            }
+        }
+        SrcExpr::Neg(a, s) => SrcExpr::Neg(Box::new(go(a)?), *s),
+        SrcExpr::Binary(op, a, b, s) => SrcExpr::Binary(*op, Box::new(go(a)?), Box::new(go(b)?), *s),
+        SrcExpr::Call(f, args, s) => SrcExpr::Call(*f, args.iter().map(go).collect::<Result<_, _>>()?, *s),
+        other => other.clone(),
+    })
+}
+
 fn parse_scenes(
     base: &SystemSpec,
     effects: &[(Ident, Effect)],
@@ -179,6 +312,7 @@ fn parse_scenes(
 ) -> Result<Vec<SystemSpec>, SpecError> {
     let toks: Vec<TokenTree> = group.stream().into_iter().collect();
     let mut specs: Vec<SystemSpec> = Vec::new();
+    let m_base = base.constraints.len();
     for (piece, comma) in split_commas(&toks) {
         let (name, list_group) = match piece.as_slice() {
             [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
@@ -205,6 +339,9 @@ fn parse_scenes(
         let mut spec = base.clone();
         spec.name = name.clone();
         let mut chosen: Vec<String> = Vec::new();
+        // Scene constraint index of each selected constraint effect.
+        let mut index_of: Vec<Option<usize>> = vec![None; effects.len()];
+        let mut nonideal: Vec<(String, &[Option<SrcExpr>])> = Vec::new();
         for (item, comma) in split_commas(&items) {
             let id = match item.as_slice() {
                 [TokenTree::Ident(id)] => id,
@@ -215,7 +352,7 @@ fn parse_scenes(
             if chosen.contains(&key) {
                 return err(id.span(), format!("effect `{key}` is listed twice in scene `{name}`"));
             }
-            let Some((_, effect)) = effects.iter().find(|(n, _)| *n == key) else {
+            let Some(e) = effects.iter().position(|(n, _)| *n == key) else {
                 let known: Vec<String> = effects.iter().map(|(n, _)| n.to_string()).collect();
                 let mut msg = format!("unknown effect `{key}` in scene `{name}`");
                 if let Some(n) = nearest(&key, known.iter().map(String::as_str)) {
@@ -231,16 +368,32 @@ fn parse_scenes(
                 }
                 return err(id.span(), msg);
             };
-            match effect {
+            match &effects[e].1 {
                 Effect::Potential(u) => {
                     let span = u.span();
                     spec.lagrangian = SrcExpr::Binary(BinOp::Sub, Box::new(spec.lagrangian), Box::new(u.clone()), span);
                 }
-                Effect::Constraint(k, span) | Effect::Holonomic(k, span) => {
-                    spec.constraints.push(ConstraintSpec { expr: k.clone(), span: *span })
+                Effect::Constraint(k, span) => {
+                    index_of[e] = Some(spec.constraints.len());
+                    spec.constraints.push(ConstraintSpec { expr: k.clone(), span: *span, position: None });
                 }
+                Effect::Holonomic { k, g, span } => {
+                    index_of[e] = Some(spec.constraints.len());
+                    spec.constraints.push(ConstraintSpec { expr: k.clone(), span: *span, position: Some(g.clone()) });
+                }
+                Effect::Force(f) => spec.external_force = add_forces(std::mem::take(&mut spec.external_force), f),
+                Effect::Nonideal(f) => nonideal.push((key.clone(), f)),
             }
             chosen.push(key);
+        }
+        // Multipliers are resolved once the scene's constraint order is known.
+        for (effect, force) in nonideal {
+            let context = (effect, name.to_string());
+            let resolved: Vec<Option<SrcExpr>> = force
+                .iter()
+                .map(|c| c.as_ref().map(|x| resolve_multipliers(x, m_base, &index_of, effects, &context)).transpose())
+                .collect::<Result<_, _>>()?;
+            spec.nonideal_force = add_forces(std::mem::take(&mut spec.nonideal_force), &resolved);
         }
         let doc = if chosen.is_empty() {
             format!("Scene `{name}` of `{}`: no effects.", base.name)
@@ -303,6 +456,7 @@ fn time_derivative(e: &SrcExpr) -> Result<SrcExpr, SpecError> {
         SrcExpr::Velocity(_, s) => {
             return err(*s, "a holonomic constraint g(t, q) = 0 may not involve velocities; use `constraint(…)`")
         }
+        SrcExpr::Multiplier(_, s) => return err(*s, "a holonomic constraint g(t, q) = 0 may not involve multipliers"),
         SrcExpr::Neg(a, s) => {
             let da = time_derivative(a)?;
             if is_zero(&da) {

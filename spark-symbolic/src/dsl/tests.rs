@@ -29,6 +29,7 @@ fn sexpr(e: &SrcExpr, s: &SystemSpec) -> String {
         SrcExpr::Velocity(i, _) => format!("(dot {})", s.coordinates[*i].name),
         SrcExpr::Param(i, _) => s.parameters[*i].name.name.clone(),
         SrcExpr::Const(i, _) => s.constants[*i].name.name.clone(),
+        SrcExpr::Multiplier(j, _) => format!("(psi {j})"),
         SrcExpr::Neg(a, _) => format!("(neg {})", sexpr(a, s)),
         SrcExpr::Binary(op, a, b, _) => {
             let o = match op {
