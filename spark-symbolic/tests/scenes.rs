@@ -123,3 +123,122 @@ fn malformed_effects_and_scenes_are_errors() {
     // Without the sections the ordinary path is taken.
     assert!(parse_with_scenes(&tokens("pub struct A { coordinates: [x], lagrangian: dot(x)^2 }")).unwrap().is_none());
 }
+
+const FORCED: &str = r#"
+pub struct Sled {
+    coordinates: [x, y, theta],
+    parameters: { m = 1.0, inertia = 0.5, tau = 0.4, c = 0.3, mu = 0.2 },
+    lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2,
+    constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+    effects: {
+        drive: force { theta: tau },
+        damping: force { x: -c*dot(x), y: -c*dot(y) },
+        rail: constraint(dot(x) - 0.5),
+        rod: holonomic((x^2 + y^2 - 1)/2),
+        rub: nonideal { x: -mu*psi[0]*cos(theta), y: -mu*rail*sin(theta) },
+    },
+    scenes: { Free = [], Driven = [drive], Both = [drive, damping], Rubbing = [rail, rub], Mixed = [rod, rail, rub] },
+}
+"#;
+
+fn forced_hand(extra: &str) -> SystemSpec {
+    dsl::parse(tokens(&format!(
+        "pub struct Hand {{ coordinates: [x, y, theta], parameters: {{ m = 1.0, inertia = 0.5, tau = 0.4, c = 0.3, \
+         mu = 0.2 }}, lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2, \
+         constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) {extra} }}"
+    )))
+    .unwrap()
+}
+
+#[test]
+fn force_and_nonideal_scenes_generate_the_code_of_the_hand_declared_system() {
+    let (base, s) = parse_with_scenes(&tokens(FORCED)).unwrap().unwrap();
+    let (free, driven, both, rubbing) = (&s[0], &s[1], &s[2], &s[3]);
+    // No effect: the code of the base declaration, no trace of forcing.
+    assert_eq!(normalized(free.clone()), normalized(base.clone()));
+    let free_code = generate(free).unwrap().to_string();
+    for absent in ["HAS_FORCING", "external_force (", "HAS_NONIDEAL_FORCE", "HAS_HOLONOMIC"] {
+        assert!(!free_code.contains(absent), "`{absent}` in a scene without effects");
+    }
+    // One force effect = the same force in the base declaration, token for token.
+    let hand = forced_hand("], forces: { theta: tau }");
+    assert_eq!(normalized(driven.clone()), normalized(hand.clone()));
+    let code = generate(driven).unwrap().to_string();
+    assert!(code.contains("const HAS_FORCING : bool = true"), "{code}");
+    assert!(code.contains("external_force : & [\"0\" , \"0\" , \"(p tau)\"]"), "{code}");
+    // Two force effects add up component by component: `a + b` in the source.
+    let hand = forced_hand("], forces: { theta: tau, x: -c*dot(x), y: -c*dot(y) }");
+    assert_eq!(normalized(both.clone()), normalized(hand.clone()));
+    let (a, h) = (analyze(both).unwrap().operations, analyze(&hand).unwrap().operations);
+    assert_eq!(a, h);
+    assert!(a.external_force_jacobians > 0 && a.nonideal_force_jacobians == 0, "{a:?}");
+    assert_eq!((a.stage_values, a.stage_jacobians), {
+        let f = analyze(free).unwrap().operations;
+        (f.stage_values, f.stage_jacobians)
+    });
+    // Non-ideal force: `psi[0]` is the base constraint, `rail` the scene's second one.
+    let hand = forced_hand(", dot(x) - 0.5 ], nonideal_forces: { x: -mu*psi[0]*cos(theta), y: -mu*psi[1]*sin(theta) }");
+    assert_eq!(normalized(rubbing.clone()), normalized(hand.clone()));
+    let code = generate(rubbing).unwrap().to_string();
+    assert!(code.contains("(psi 1)") && code.contains("fn nonideal_force_jacobians"), "{code}");
+    assert!(analyze(rubbing).unwrap().operations.nonideal_force_jacobians > 0);
+}
+
+#[test]
+fn multipliers_follow_the_scene_constraint_order_and_holonomic_rows_report_g() {
+    let (_, s) = parse_with_scenes(&tokens(FORCED)).unwrap().unwrap();
+    let mixed = &s[4];
+    // Constraints: base blade, rod (holonomic), rail: `rail` is ψ₂ here.
+    assert_eq!(mixed.constraints.len(), 3);
+    let code = generate(mixed).unwrap().to_string();
+    assert!(code.contains("\"(* (* (neg (p mu)) (psi 2)) (sin (q theta)))\""), "{code}");
+    assert!(code.contains("const HAS_HOLONOMIC : bool = true"), "{code}");
+    // g: 0 for the blade and the rail, the rod's g(q) in its row.
+    assert!(
+        code.contains("holonomic : & [\"0\" , \"(/ (- (+ (^ (q x) 2.0) (^ (q y) 2.0)) 1.0) 2.0)\" , \"0\"]"),
+        "{code}"
+    );
+    assert!(code.contains("fn holonomic_residual"), "{code}");
+}
+
+#[test]
+fn malformed_forces_are_errors() {
+    let bad = |from: &str, to: &str| error_of(&FORCED.replace(from, to));
+    let e = bad("drive: force { theta: tau }", "drive: force { thetta: tau }");
+    assert!(e.contains("unknown coordinate `thetta`") && e.contains("did you mean `theta`"), "{e}");
+    let e = bad("damping: force { x: -c*dot(x), y: -c*dot(y) }", "damping: force { x: -c*dot(x), x: -c }");
+    assert!(e.contains("coordinate `x` appears twice"), "{e}");
+    let e = bad("drive: force { theta: tau }", "drive: force { theta: tau*psi[0] }");
+    assert!(e.contains("may not depend on the multiplier `psi[0]`") && e.contains("nonideal"), "{e}");
+    let e = bad("drive: force { theta: tau }", "drive: force { theta: tau*rail }");
+    assert!(e.contains("may not depend on `rail`"), "{e}");
+    let e = bad("rub: nonideal { x: -mu*psi[0]*cos(theta)", "rub: nonideal { x: -mu*psi[1]*cos(theta)");
+    assert!(e.contains("`psi[1]` is out of range") && e.contains("`rail`"), "{e}");
+    let e = bad("y: -mu*rail*sin(theta)", "y: -mu*rial*sin(theta)");
+    assert!(e.contains("unknown identifier `rial`") && e.contains("`rail`, `rod`"), "{e}");
+    let e = bad("rod: holonomic((x^2 + y^2 - 1)/2)", "rod: holonomic(x*psi[0])");
+    assert!(e.contains("may only appear in a non-ideal"), "{e}");
+    let e = bad("rod: holonomic((x^2 + y^2 - 1)/2)", "rod: holonomic(x*dot(y))");
+    assert!(e.contains("may not involve velocities"), "{e}");
+    let e = bad("Rubbing = [rail, rub]", "Rubbing = [rub]");
+    assert!(e.contains("uses the multiplier of constraint `rail`, which scene `Rubbing` does not select"), "{e}");
+    let e = bad("drive: force { theta: tau }", "drive: force(tau)");
+    assert!(e.contains("drive: force { coordinate: expression"), "{e}");
+    let e = bad("drive: force { theta: tau }", "drive: force { tau: 1 }");
+    assert!(e.contains("`tau` is a parameter, not a coordinate"), "{e}");
+    // The base sections: psi outside `nonideal_forces`, out of range inside.
+    let err_of = |extra: &str| match dsl::parse(tokens(&format!(
+        "pub struct A {{ coordinates: [x], lagrangian: dot(x)^2/2, constraints: [dot(x) - 1], {extra} }}"
+    ))) {
+        Err(e) => e.message,
+        Ok(_) => panic!("expected an error for {extra}"),
+    };
+    assert!(err_of("forces: { x: psi[0] }").contains("may not depend on the multiplier `psi[0]`"));
+    assert!(err_of("nonideal_forces: { x: psi[1] }").contains("base declaration has 1 constraint, `psi[0]`"));
+    assert!(err_of("forces: { x: 1, x: 2 }").contains("appears twice"));
+    let e = match dsl::parse(tokens("pub struct A { coordinates: [x], lagrangian: dot(x)^2/2 + psi[0] }")) {
+        Err(e) => e.message,
+        Ok(_) => panic!("psi in L must be an error"),
+    };
+    assert!(e.contains("may only appear in a non-ideal constraint force"), "{e}");
+}
