@@ -66,9 +66,9 @@ def perturb_value(outputs: Dict, path: str) -> str:
     return f"{path}[0…] {old!r} -> perturbed by {PERTURBATION:g} (relative and absolute)"
 
 
-def check_system(entry: Dict, perturb_path: Optional[str]) -> compare.SystemResult:
+def check_system(entry: Dict, perturb_path: Optional[str], corrupt: Optional[str] = None) -> compare.SystemResult:
     try:
-        system = CasadiSystem(entry["source"])
+        system = CasadiSystem(entry["source"], corrupt, PERTURBATION)
         n, m = int(entry["n"]), int(entry["m"])
         params = [float(x) for x in entry["parameter_values"]]
         points = entry["points"]
@@ -81,21 +81,40 @@ def check_system(entry: Dict, perturb_path: Optional[str]) -> compare.SystemResu
     result = compare.SystemResult(entry["name"], n, m, len(points), int(entry.get("skipped_points", 0)))
     if perturb_path is not None and points:
         result.structure_notes.append("PERTURBED: " + perturb_value(points[0]["outputs"], perturb_path))
+    if corrupt is not None:
+        result.structure_notes.append(f"CORRUPTED: CasADi's {corrupt} is x(1+{PERTURBATION:g})+{PERTURBATION:g}")
+    comparisons = compare.output_map(system)
+    result.effects = [e for e, on in (("f", system.f), ("N", system.N), ("g", system.g)) if on is not None]
     casadi_values = []
     for index, point in enumerate(points):
         val = system.evaluate(point["t"], point["q"], point["v"], params, point["psi"])
         casadi_values.append({k: np.array(x) for k, x in val.items()})
         where = f"point {index} ({point['class']})"
-        for path, key in compare.OUTPUT_MAP:
+        for path, key in comparisons:
             scaled, normwise = compare.errors(compare.lookup(point["outputs"], path), casadi_values[-1][key])
             result.worst.setdefault(path, compare.Worst()).update(scaled, normwise, where)
+        if system.g is not None and system.holonomic_rows:
+            # CasADi against itself on the source: the velocity-level constraint
+            # of a holonomic row is the total time derivative of its g.
+            scaled, normwise = compare.errors(casadi_values[-1]["holonomic_g_dot"], casadi_values[-1]["holonomic_k"])
+            result.worst.setdefault(compare.HOLONOMIC_IDENTITY, compare.Worst()).update(scaled, normwise, where)
+    if system.g is not None:
+        symbolic = system.holonomic_identity_is_symbolic()
+        rows = ", ".join(
+            f"k_{i} = ġ_{i} {'symbolically' if sym else 'numerically'}" for i, sym in zip(system.holonomic_rows, symbolic)
+        )
+        result.structure_notes.append(f"holonomic rows {system.holonomic_rows}: {rows or 'none (all rows are 0)'}")
     compare.check_structure(system, entry["structure"], casadi_values, result)
+    compare.check_effect_flags(system, entry.get("effects", {}), result)
     result.rust_ops = {k: int(v) for k, v in entry.get("operations", {}).items()}
     result.casadi_ops = {
         "stage_values": system.op_counts(CasadiSystem.STAGE_VALUES),
         "stage_jacobians": system.op_counts(CasadiSystem.STAGE_JACOBIANS),
         "bundle": system.op_counts(CasadiSystem.BUNDLE),
     }
+    effect_outputs = system.effect_outputs()
+    if effect_outputs:
+        result.casadi_ops["effects"] = system.op_counts(effect_outputs)
     return result
 
 
@@ -149,12 +168,14 @@ def tableau_error(method: Dict) -> Optional[float]:
     return worst
 
 
-def check_step(step: Dict, systems: Dict[str, Dict], built: Dict[str, CasadiSystem], perturb: bool) -> StepResult:
+def check_step(
+    step: Dict, systems: Dict[str, Dict], built: Dict[str, CasadiSystem], perturb: bool, corrupt: Optional[str] = None
+) -> StepResult:
     name = step["system"]
     if name not in systems:
         raise InputError(f"step refers to unknown system {name!r}")
     if name not in built:
-        built[name] = CasadiSystem(systems[name]["source"])
+        built[name] = CasadiSystem(systems[name]["source"], corrupt, PERTURBATION)
     system = built[name]
     method = step["method"]
     result = StepResult(name, method["name"], int(method["stages"]))
@@ -173,6 +194,15 @@ def check_step(step: Dict, systems: Dict[str, Dict], built: Dict[str, CasadiSyst
     if step.get("stage_velocities"):
         rust["V"] = np.asarray(step["stage_velocities"], dtype=float)
         ours["V"] = sol.stage_velocities
+    if sol.holonomic_residual is not None:
+        # g(t1, q1): drift of the holonomic constraints after the step, Rust's
+        # `holonomic_residual` at its q1 against CasADi's g at CasADi's q1.
+        if step.get("holonomic_residual") is None:
+            raise InputError(f"step {name} / {method['name']}: the source declares g but no residual was exported")
+        rust["g1"] = np.asarray(step["holonomic_residual"], dtype=float)
+        ours["g1"] = sol.holonomic_residual
+    if corrupt is not None:
+        result.note = f"CORRUPTED {corrupt}"
     for key in rust:
         result.errors[key] = compare.errors(rust[key], ours[key])[0]
     if method["name"].lower().startswith("lobatto iiib-a lda") and lda_applicable(system):
@@ -206,6 +236,12 @@ def base_name(name: str) -> str:
     return name[: -len(VARIED)] if name.endswith(VARIED) else name
 
 
+def seven_three(errors: Dict[str, float]) -> str:
+    """Worst error against the paper's eq. (7.3) form of the LDA step, or ``-``."""
+    vals = [v for k, v in errors.items() if k.endswith("(7.3)")]
+    return fmt(max(vals)) if vals else "-"
+
+
 def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], steps: List[StepResult]) -> None:
     lines = [
         "# CasADi cross-check report",
@@ -216,8 +252,11 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
         "",
         "## Derivatives: worst error per system",
         "",
-        "| system | n | m | points (skipped) | worst error | in | normwise rel. | structure | verdict |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "Effects: `f` external force, `N` non-ideal constraint force (with `∂N/∂ψ`), `g` holonomic "
+        "constraints (residuals compared, and `k_i = ∂g_i/∂t + ∂g_i/∂q·v` checked on each holonomic row).",
+        "",
+        "| system | n | m | effects | points (skipped) | worst error | in | normwise rel. | structure | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in systems:
         worst_path = max(r.worst, key=lambda k: r.worst[k].scaled) if r.worst else "-"
@@ -226,7 +265,8 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
         structure = "; ".join(r.structure_failures) or "ok"
         verdict = "pass" if r.ok else "**FAIL**"
         lines.append(
-            f"| {r.name} | {r.n} | {r.m} | {r.points} ({r.skipped}) | {fmt(w.scaled)} | `{worst_path}` | "
+            f"| {r.name} | {r.n} | {r.m} | {', '.join(r.effects) or '-'} | {r.points} ({r.skipped}) | "
+            f"{fmt(w.scaled)} | `{worst_path}` | "
             f"{fmt(normwise)} | {structure} | {verdict} |"
         )
     lines += [
@@ -241,11 +281,13 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
         groups.setdefault(base_name(r.name), []).append(r)
     lines.append("| function | " + " | ".join(groups) + " |")
     lines.append("|---|" + "---|" * len(groups))
-    for fpath, _ in compare.OUTPUT_MAP:
+    for fpath in compare.ALL_PATHS:
         cells = []
         for members in groups.values():
             vals = [r.worst[fpath].scaled for r in members if fpath in r.worst]
             cells.append(fmt(max(vals)) if vals else "-")
+        if all(c == "-" for c in cells):
+            continue  # an effect no exported system has
         lines.append(f"| `{fpath}` | " + " | ".join(cells) + " |")
     lines += [
         "",
@@ -254,11 +296,12 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
         "spark: `OperationCounts` of the generated code (0 for hand-written systems). "
         "CasADi: arithmetic operations of one `cse=True` SX Function computing the same outputs "
         "(CasADi's `n_instructions`, which also counts inputs, outputs and constants, in parentheses). "
-        "The bundle is `L, ∇_qL, ∇_vL, ∇²_vvL, ∂(∇_vL)/∂q, k, k_q, k_v, Kᵀψ` and its Jacobians in `q`, `v` (as `OperationCounts::bundle`); `stage_values`/`stage_jacobians` are the fused trait functions (with `R = −Kᵀψ`).",
+        "The bundle is `L, ∇_qL, ∇_vL, ∇²_vvL, ∂(∇_vL)/∂q, k, k_q, k_v, Kᵀψ` and its Jacobians in `q`, `v` (as `OperationCounts::bundle`); `stage_values`/`stage_jacobians` are the fused trait functions (with `R = −Kᵀψ`). "
+        "Effects: CasADi's cost of `f`, `N` and their Jacobians (`OperationCounts` has no field for them).",
         "",
         "| system | stage_values spark | stage_values CasADi | stage_jacobians spark | stage_jacobians CasADi "
-        "| bundle spark | bundle CasADi |",
-        "|---|---|---|---|---|---|---|",
+        "| bundle spark | bundle CasADi | effects CasADi |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in systems:
         if base_name(r.name) != r.name:
@@ -268,6 +311,8 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
             c = r.casadi_ops.get(key, {})
             cells.append(str(r.rust_ops.get(key, "-")))
             cells.append(f"{c.get('arithmetic', '-')} ({c.get('n_instructions', '-')})")
+        c = r.casadi_ops.get("effects")
+        cells.append(f"{c['arithmetic']} ({c['n_instructions']})" if c else "-")
         lines.append(f"| {r.name} | " + " | ".join(cells) + " |")
     lines += ["", "## Whole SPARK steps", ""]
     if not steps:
@@ -277,17 +322,21 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
             "CasADi builds equations (6.1) from the exported tableau and the system's source, solves them with "
             "`rootfinder('newton')` from `V = v0, Ψ = 0`, and compares with the Rust stepper. "
             "Tableau: largest difference between the exported coefficients and an independent numpy "
-            "construction from the families' defining conditions.",
+            "construction from the families' defining conditions. With effects, CasADi's stage forces are "
+            "`F_i = ∇_qL + f` (weights `â`, `b̂`) and `R_i = −K_iᵀΨ_i + N(T_i,Q_i,V_i,Ψ_i)` (weights `ã`, `b̃`); "
+            "`g(t1,q1)` compares the holonomic residual after the step. "
+            "(7.3): the LDA step written as the paper's eq. (7.3), for systems of that form without effects.",
             "",
-            "| system | method | s | q1 | v1 | Ψ | V | CasADi residual | tableau | verdict |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "| system | method | s | q1 | v1 | Ψ | V | g(t1,q1) | (7.3) | CasADi residual | tableau | verdict |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for st in steps:
             e = st.errors
             lines.append(
                 f"| {st.system} | {st.method} | {st.stages} | {fmt(e.get('q1', math.nan))} | "
                 f"{fmt(e.get('v1', math.nan))} | {fmt(e.get('psi', math.nan))} | "
-                f"{fmt(e['V']) if 'V' in e else '-'} | {fmt(st.residual)} | "
+                f"{fmt(e['V']) if 'V' in e else '-'} | {fmt(e['g1']) if 'g1' in e else '-'} | "
+                f"{seven_three(e)} | {fmt(st.residual)} | "
                 f"{fmt(st.tableau_error) if st.tableau_error is not None else 'n/a'} | "
                 f"{'pass' if st.ok else '**FAIL**'} |"
             )
@@ -308,14 +357,24 @@ def run(args) -> int:
     if not doc.get("systems"):
         raise InputError(f"{args.input}: no systems exported")
 
-    do_derivatives = args.perturb in (None, "derivative")
-    do_steps = args.perturb in (None, "step")
+    # --perturb force / nonideal: CasADi's f or N is corrupted, and only the
+    # systems whose source declares that effect are checked (derivatives and
+    # steps); both kinds of comparison must then fail.
+    corrupt = args.perturb if args.perturb in ("force", "nonideal") else None
+    effect_field = {"force": "external_force", "nonideal": "nonideal_force"}.get(args.perturb or "")
+    selected = [e for e in doc["systems"] if effect_field is None or e["source"].get(effect_field)]
+    if effect_field is not None and not selected:
+        raise InputError(f"--perturb {args.perturb}: no exported system declares `{effect_field}`")
+    if effect_field is not None:
+        print(f"corrupted: {len(selected)} systems declare `{effect_field}`")
+    do_derivatives = args.perturb in (None, "derivative", "force", "nonideal")
+    do_steps = args.perturb in (None, "step", "force", "nonideal")
     passed = failed = 0
     system_results: List[compare.SystemResult] = []
     if do_derivatives:
-        for index, entry in enumerate(doc["systems"]):
+        for index, entry in enumerate(selected):
             perturb_path = args.perturb_path if (args.perturb == "derivative" and index == 0) else None
-            r = check_system(entry, perturb_path)
+            r = check_system(entry, perturb_path, corrupt)
             system_results.append(r)
             worst_path = max(r.worst, key=lambda k: r.worst[k].scaled) if r.worst else "-"
             w = r.worst.get(worst_path, compare.Worst())
@@ -343,14 +402,17 @@ def run(args) -> int:
     if do_steps:
         systems = {s["name"]: s for s in doc["systems"]}
         built: Dict[str, CasadiSystem] = {}
-        steps = doc.get("steps", [])
+        names = {e["name"] for e in selected}
+        steps = [st for st in doc.get("steps", []) if st.get("system") in names or effect_field is None]
+        if effect_field is not None and not steps:
+            raise InputError(f"--perturb {args.perturb}: no exported step of a system with `{effect_field}`")
         if args.perturb == "step" and not steps:
             raise InputError("--perturb step: the export has no steps to perturb")
         if args.require_steps and not steps:
             print("[FAIL] steps: the export contains no SPARK steps")
             failed += 1
         for index, step in enumerate(steps):
-            st = check_step(step, systems, built, perturb=(args.perturb == "step" and index == 0))
+            st = check_step(step, systems, built, perturb=(args.perturb == "step" and index == 0), corrupt=corrupt)
             step_results.append(st)
             status = "ok  " if st.ok else "FAIL"
             errs = " ".join(f"{k}={v:.1e}" for k, v in st.errors.items())
@@ -375,8 +437,9 @@ def main() -> int:
     parser.add_argument("--report", help="Markdown report to write (not written when perturbing)")
     parser.add_argument(
         "--perturb",
-        choices=["derivative", "step"],
-        help="deliberately corrupt one exported value before comparing; the check must then fail (exit 1)",
+        choices=["derivative", "step", "force", "nonideal"],
+        help="deliberately corrupt one exported value (derivative, step) or CasADi's own f or N "
+        "(force, nonideal: only systems with that effect are checked) by 1e-10; the check must then fail (exit 1)",
     )
     parser.add_argument(
         "--perturb-path",

@@ -78,5 +78,26 @@ for what in derivative step; do
         fail "the deliberately perturbed $what was NOT caught (exit $rc, expected 1)."
     fi
 done
-echo "casadi cross-check: every comparison agrees; both corrupted values were caught"
-echo "casadi: $((passed + 2)) passed, 0 failed"
+# A corrupted effect (CasADi's f or N changed by 1e-10 on every system that
+# declares it) must be caught by the value comparisons of every such system
+# and by every one of their steps (v1 moves by about h·1e-10/mass, ~10x the
+# tolerance, so a step that does not notice means f or N is not in its equations).
+for what in force nonideal; do
+    echo "==> negative test: --perturb $what must fail in derivatives and in steps"
+    set +e
+    "$PY" casadi/crosscheck.py --input "$OUT/export.json" --perturb "$what" >"$OUT/perturb-$what.log" 2>&1
+    rc=$?
+    set -e
+    d=$(grep -c -E '^\[FAIL\] derivatives' "$OUT/perturb-$what.log" || true)
+    s=$(grep -c -E '^\[FAIL\] step' "$OUT/perturb-$what.log" || true)
+    total_s=$(grep -c -E '^\[(FAIL|ok  )\] step' "$OUT/perturb-$what.log" || true)
+    k=$(sed -n -E 's/^corrupted: ([0-9]+) systems declare .*/\1/p' "$OUT/perturb-$what.log")
+    if [[ $rc -eq 1 && -n "$k" && $d -eq $k && $s -gt 0 && $s -eq $total_s ]]; then
+        echo "    caught (exit 1): all $d system(s) in derivatives, all $s step(s)"
+    else
+        cat "$OUT/perturb-$what.log" >&2
+        fail "the corrupted $what was NOT caught (exit $rc, derivative failures $d of ${k:-?} systems, step failures $s of $total_s)."
+    fi
+done
+echo "casadi cross-check: every comparison agrees; all four corrupted values were caught"
+echo "casadi: $((passed + 4)) passed, 0 failed"

@@ -55,6 +55,55 @@ OUTPUT_MAP: List[Tuple[str, str]] = [
 ]
 
 
+# Effects (present only for systems whose source declares them).
+FORCE_MAP: List[Tuple[str, str]] = [
+    ("external_force.value", "external_force"),
+    ("external_force.jacobians.value", "external_force"),
+    ("external_force.jacobians.q", "external_force_q"),
+    ("external_force.jacobians.v", "external_force_v"),
+]
+NONIDEAL_MAP: List[Tuple[str, str]] = [
+    ("nonideal_force.value", "nonideal_force"),
+    ("nonideal_force.jacobians.value", "nonideal_force"),
+    ("nonideal_force.jacobians.q", "nonideal_force_q"),
+    ("nonideal_force.jacobians.v", "nonideal_force_v"),
+    ("nonideal_force.jacobians.psi", "nonideal_force_psi"),
+]
+HOLONOMIC_MAP: List[Tuple[str, str]] = [("holonomic_residual", "holonomic_residual")]
+# Not a Rust output: CasADi's k_i against ∂g_i/∂t + ∂g_i/∂q·v from the source's g.
+HOLONOMIC_IDENTITY = "holonomic k = ġ"
+# Every comparison any system may have (the report's per-function table).
+ALL_PATHS: List[str] = [p for p, _ in OUTPUT_MAP + FORCE_MAP + NONIDEAL_MAP + HOLONOMIC_MAP] + [HOLONOMIC_IDENTITY]
+
+
+def output_map(system: CasadiSystem) -> List[Tuple[str, str]]:
+    """The comparisons that apply to ``system``: the trait's outputs plus its effects."""
+    out = list(OUTPUT_MAP)
+    if system.f is not None:
+        out += FORCE_MAP
+    if system.N is not None:
+        out += NONIDEAL_MAP
+    if system.g is not None:
+        out += HOLONOMIC_MAP
+    return out
+
+
+def check_effect_flags(system: CasadiSystem, effects: Dict, result: "SystemResult") -> None:
+    """The trait's ``HAS_FORCING``/``HAS_NONIDEAL_FORCE``/``HAS_HOLONOMIC`` must match the source:
+    a flag off with an effect in the source means the stepper silently drops it; a flag on with
+    no source means CasADi cannot check what the stepper adds."""
+    for flag, const, present, what in (
+        ("forcing", "HAS_FORCING", system.f is not None, "external_force"),
+        ("nonideal", "HAS_NONIDEAL_FORCE", system.N is not None, "nonideal_force"),
+        ("holonomic", "HAS_HOLONOMIC", system.g is not None, "holonomic"),
+    ):
+        claimed = bool(effects.get(flag, False))
+        if claimed != present:
+            result.structure_failures.append(
+                f"{const} is {claimed} but the source {'has' if present else 'has no'} `{what}`"
+            )
+
+
 class ExportError(ValueError):
     """The exported JSON does not have the expected shape."""
 
@@ -120,6 +169,7 @@ class SystemResult:
     structure_notes: List[str] = field(default_factory=list)
     rust_ops: Dict[str, int] = field(default_factory=dict)
     casadi_ops: Dict[str, Dict[str, int]] = field(default_factory=dict)
+    effects: List[str] = field(default_factory=list)  # "f", "N", "g" present in the source
 
     @property
     def ok(self) -> bool:

@@ -4,7 +4,7 @@ Owns the translation of the grammar documented on ``SystemSource`` in
 ``spark-runtime/src/system.rs``::
 
     expr  := number | "t" | "pi" | "(q " name ")" | "(v " name ")" | "(p " name ")"
-           | "(" op expr+ ")"
+           | "(psi " index ")" | "(" op expr+ ")"
     op    := "+" | "*"                        (n-ary)
            | "-" | "/" | "^" | "atan2"        (binary)
            | "neg" | "sqrt" | "exp" | "ln" | "sin" | "cos" | "tan"
@@ -12,7 +12,9 @@ Owns the translation of the grammar documented on ``SystemSource`` in
 
 The text is tokenized and parsed here into a small tree, then each node is
 mapped onto the corresponding CasADi call. Nothing produced by Rust is ever
-evaluated as code: the only inputs are tokens of this grammar.
+evaluated as code: the only inputs are tokens of this grammar. ``(psi j)`` (the
+0-based multiplier of constraint ``j``) is only resolvable in an :class:`Env`
+built with multipliers, i.e. for the non-ideal force ``N(t,q,v,ψ)``.
 """
 
 from __future__ import annotations
@@ -37,9 +39,9 @@ class Num:
 
 @dataclass(frozen=True)
 class Sym:
-    """``t``, ``(q x)``, ``(v x)`` or ``(p name)``."""
+    """``t``, ``(q x)``, ``(v x)``, ``(p name)`` or ``(psi j)``."""
 
-    kind: str  # "t", "q", "v" or "p"
+    kind: str  # "t", "q", "v", "p" or "psi"
     name: str
 
 
@@ -113,7 +115,7 @@ def parse(text: str) -> Node:
             raise SexprError(f"unclosed '(' at offset {off}")
         head, hoff = tokens[pos]
         pos += 1
-        if head in ("q", "v", "p"):
+        if head in ("q", "v", "p", "psi"):
             if pos >= len(tokens):
                 raise SexprError(f"missing name after {head!r} at offset {hoff}")
             name, noff = tokens[pos]
@@ -121,6 +123,8 @@ def parse(text: str) -> Node:
                 raise SexprError(f"expected a name after {head!r} at offset {noff}")
             pos += 1
             close(off)
+            if head == "psi" and not (name.isdigit() and str(int(name)) == name):
+                raise SexprError(f"multiplier index {name!r} at offset {noff} is not a non-negative integer")
             return Sym(head, name)
         if head not in NARY | BINARY | UNARY:
             raise SexprError(f"unknown operator {head!r} at offset {hoff}")
@@ -177,15 +181,27 @@ _BINARY_SX: Dict[str, Callable] = {
 
 
 class Env:
-    """Maps the symbols of one system onto CasADi SX scalars."""
+    """Maps the symbols of one system onto CasADi SX scalars.
 
-    def __init__(self, t, q: Dict[str, object], v: Dict[str, object], p: Dict[str, object]):
+    ``psi`` lists the multipliers ``ψ_0..ψ_{m-1}``; without it (``None``) a
+    ``(psi j)`` is an error, since only ``N(t,q,v,ψ)`` may use multipliers.
+    """
+
+    def __init__(self, t, q: Dict[str, object], v: Dict[str, object], p: Dict[str, object], psi=None):
         self.t = t
         self.tables = {"q": q, "v": v, "p": p}
+        self.psi = psi
 
     def lookup(self, sym: Sym):
         if sym.kind == "t":
             return self.t
+        if sym.kind == "psi":
+            if self.psi is None:
+                raise SexprError(f"(psi {sym.name}): multipliers may only appear in the non-ideal force")
+            j = int(sym.name)
+            if j >= len(self.psi):
+                raise SexprError(f"(psi {sym.name}): the system has {len(self.psi)} constraints (0-based index)")
+            return self.psi[j]
         table = self.tables[sym.kind]
         if sym.name not in table:
             known = ", ".join(table) or "(none)"

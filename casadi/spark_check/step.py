@@ -9,7 +9,7 @@ CasADi SX, solves them with CasADi's Newton ``rootfinder`` and returns
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import casadi as ca
 import numpy as np
@@ -31,6 +31,7 @@ class StepSolution:
     psi: np.ndarray  # s × m
     residual: float  # ‖G(x)‖_∞ at the solution
     last_newton_step: float  # ‖Δx‖_∞ of one more Newton step from the solution
+    holonomic_residual: Optional[np.ndarray] = None  # g(t1, q1) when the source declares g
 
 
 def _mat(rows, s: int, name: str) -> np.ndarray:
@@ -45,7 +46,8 @@ def spark_residual(system: CasadiSystem, method: Dict) -> ca.Function:
 
     Unknowns ``x = [V_1..V_s, Ψ_1..Ψ_s, v1]`` (``s(n+m)+n`` of them). Rows:
     (6.1b) ``P_i − p0 − h Σ â_ij F_j − h Σ ã_ij R_j``, (6.1d) for ``p1``, the
-    ``s−1`` condition rows (6.1e or its replacements) and (6.1f).
+    ``s−1`` condition rows (6.1e or its replacements) and (6.1f). With
+    effects, ``F_j`` includes ``f`` and ``R_j`` includes ``N`` (module docs).
     """
     s = int(method["stages"])
     n, m = system.n, system.m
@@ -67,9 +69,12 @@ def spark_residual(system: CasadiSystem, method: Dict) -> ca.Function:
     # called at every stage point.
     tt, qq, vv, pp, psi = system.t, system.q, system.v, system.p, system.psi
     grad_v = ca.Function("gv", [tt, qq, vv, pp], [system.grad_v])
-    grad_q = ca.Function("gq", [tt, qq, vv, pp], [system.grad_q])
     kfun = ca.Function("k", [tt, qq, vv, pp], [system.k])
-    rfun = ca.Function("r", [tt, qq, vv, pp, psi], [system.R])
+    # Total stage forces: F = ∇_qL + f, R = −Kᵀψ + N (each effect only if declared).
+    total_f = system.grad_q + system.f if system.f is not None else system.grad_q
+    total_r = system.R + system.N if system.N is not None else system.R
+    ffun = ca.Function("f_total", [tt, qq, vv, pp], [total_f])
+    rfun = ca.Function("r_total", [tt, qq, vv, pp, psi], [total_r])
 
     x = ca.SX.sym("x", s * (n + m) + n)
     par = ca.SX.sym("par", 2 + 2 * n + len(system.parameters))
@@ -83,7 +88,7 @@ def spark_residual(system: CasadiSystem, method: Dict) -> ca.Function:
 
     T = [t0 + c[i] * h for i in range(s)]
     Q = [q0 + h * sum(a[i, j] * V[j] for j in range(s)) for i in range(s)]
-    F = [grad_q(T[i], Q[i], V[i], p) for i in range(s)]
+    F = [ffun(T[i], Q[i], V[i], p) for i in range(s)]
     R = [rfun(T[i], Q[i], V[i], p, Psi[i]) for i in range(s)]
     K = [kfun(T[i], Q[i], V[i], p) for i in range(s)]
     p0 = grad_v(t0, q0, v0, p)
@@ -144,18 +149,27 @@ def solve_step(system: CasadiSystem, parameter_values, method: Dict, t0: float, 
     jac = ca.Function("j", [xs, ps], [ca.jacobian(g(xs, ps), xs)])
     J = np.array(jac(x, par))
     dx = np.linalg.solve(J, -res) if J.size else np.zeros(0)
+    q1 = np.asarray(q0, float) + h * sum(np.array(method["b"])[j] * x[j * n : (j + 1) * n] for j in range(s))
+    g1 = None
+    if system.g is not None:
+        gfun = ca.Function("g", [system.t, system.q, system.p], [system.g])
+        g1 = np.array(gfun(t0 + h, q1, np.asarray(parameter_values, float))).ravel()
     return StepSolution(
-        q1=np.asarray(q0, float) + h * sum(np.array(method["b"])[j] * x[j * n : (j + 1) * n] for j in range(s)),
+        q1=q1,
         v1=x[s * (n + m) :],
         stage_velocities=x[: s * n].reshape(s, n),
         psi=x[s * n : s * (n + m)].reshape(s, m),
         residual=float(np.max(np.abs(res))) if res.size else 0.0,
         last_newton_step=float(np.max(np.abs(dx))) if dx.size else 0.0,
+        holonomic_residual=g1,
     )
 
 
 def lda_applicable(system: CasadiSystem) -> bool:
-    """Eq. (7.3) is stated for ``L = ½vᵀMv − U(q)``, ``k = K(q)v + b(q)``: check that form with CasADi."""
+    """Eq. (7.3) is stated for ``L = ½vᵀMv − U(q)``, ``k = K(q)v + b(q)`` without forcing or
+    non-ideal forces: check that form with CasADi."""
+    if system.f is not None or system.N is not None:
+        return False
     t, q, v = system.t, system.q, system.v
     mass = ca.hessian(system.L, v)[0]
     return (

@@ -2,12 +2,15 @@
 
 Owns the derivative set: every quantity of the Rust trait
 ``NonholonomicSystem`` recomputed with CasADi's own ``jacobian``/``gradient``
-from the S-expressions of ``L`` and ``k`` (never from anything Rust derived).
+from the S-expressions of ``L`` and ``k`` (never from anything Rust derived),
+and of the optional effects in the source: the external force ``f(t,q,v)``,
+the non-ideal constraint force ``N(t,q,v,ψ)`` and the position-level
+constraints ``g(t,q)`` behind holonomic rows of ``k``.
 """
 
 from __future__ import annotations
 
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import casadi as ca
 
@@ -24,15 +27,24 @@ class CasadiSystem:
     Parameters are symbolic inputs ``p`` (their values are supplied at
     evaluation), so the operation counts compare like with like: the generated
     Rust code also reads its parameters at run time.
+
+    ``corrupt`` (``"force"`` or ``"nonideal"``) deliberately changes ``f`` or
+    ``N`` to ``x(1 + ε) + ε`` with ``ε = corruption`` in every entry: the
+    negative tests use it to show that an error of that size in an effect is
+    caught by both the derivative and the step comparisons.
     """
 
-    def __init__(self, source: Dict):
+    def __init__(self, source: Dict, corrupt: Optional[str] = None, corruption: float = 0.0):
         try:
             self.name: str = source["name"]
             self.coordinates: List[str] = list(source["coordinates"])
             self.parameters: List[str] = list(source["parameters"])
             lagrangian_text: str = source["lagrangian"]
             constraint_texts: List[str] = list(source["constraints"])
+            # Effects: absent fields (older exports) mean "no such effect".
+            force_texts: List[str] = list(source.get("external_force", []))
+            nonideal_texts: List[str] = list(source.get("nonideal_force", []))
+            holonomic_texts: List[str] = list(source.get("holonomic", []))
         except KeyError as err:
             raise SourceError(f"source is missing field {err}") from None
         n, m, n_p = len(self.coordinates), len(constraint_texts), len(self.parameters)
@@ -50,12 +62,37 @@ class CasadiSystem:
             {name: self.v[i] for i, name in enumerate(self.coordinates)},
             {name: self.p[i] for i, name in enumerate(self.parameters)},
         )
+        # Only N(t,q,v,ψ) may name multipliers.
+        env_psi = sexpr.Env(env.t, env.tables["q"], env.tables["v"], env.tables["p"], [self.psi[j] for j in range(m)])
+        for what, texts, want in (
+            ("external_force", force_texts, n),
+            ("nonideal_force", nonideal_texts, n),
+            ("holonomic", holonomic_texts, m),
+        ):
+            if texts and len(texts) != want:
+                raise SourceError(f"{self.name}: {what} has {len(texts)} entries, expected {want} (or none)")
         try:
             self.L = sexpr.translate(lagrangian_text, env)
             ks = [sexpr.translate(text, env) for text in constraint_texts]
+            fs = [sexpr.translate(text, env) for text in force_texts]
+            ns = [sexpr.translate(text, env_psi) for text in nonideal_texts]
+            gs = [sexpr.translate(text, env) for text in holonomic_texts]
         except sexpr.SexprError as err:
             raise SourceError(f"{self.name}: {err}") from None
         self.k = ca.vertcat(*ks) if ks else ca.SX(0, 1)
+        if corrupt not in (None, "force", "nonideal"):
+            raise SourceError(f"unknown corruption {corrupt!r}")
+        bump = (lambda x: x * (1 + corruption) + corruption)
+        #: External force f(t,q,v) (``None`` when the source has none).
+        self.f = ca.vertcat(*[bump(x) if corrupt == "force" else x for x in fs]) if fs else None
+        #: Non-ideal constraint force N(t,q,v,ψ) (``None`` when absent).
+        self.N = ca.vertcat(*[bump(x) if corrupt == "nonideal" else x for x in ns]) if ns else None
+        #: Position-level constraints g(t,q) (``None`` when absent); rows whose
+        #: source is the literal ``0`` are genuinely nonholonomic.
+        self.g = ca.vertcat(*gs) if gs else None
+        self.holonomic_rows = [i for i, text in enumerate(holonomic_texts) if text.strip() != "0"]
+        if self.g is not None and ca.depends_on(self.g, ca.vertcat(self.v, self.psi)):
+            raise SourceError(f"{self.name}: a holonomic constraint g(t,q) depends on a velocity")
 
         q, v, t, psi = self.q, self.v, self.t, self.psi
         self.grad_q = ca.gradient(self.L, q)
@@ -89,6 +126,23 @@ class CasadiSystem:
         self.sym["kt_psi"] = kt_psi
         self.sym["kt_psi_q"] = ca.jacobian(kt_psi, q)
         self.sym["kt_psi_v"] = ca.jacobian(kt_psi, v)
+        if self.f is not None:
+            self.sym["external_force"] = self.f
+            self.sym["external_force_q"] = ca.jacobian(self.f, q)
+            self.sym["external_force_v"] = ca.jacobian(self.f, v)
+        if self.N is not None:
+            self.sym["nonideal_force"] = self.N
+            self.sym["nonideal_force_q"] = ca.jacobian(self.N, q)
+            self.sym["nonideal_force_v"] = ca.jacobian(self.N, v)
+            self.sym["nonideal_force_psi"] = ca.jacobian(self.N, psi)
+        if self.g is not None:
+            self.sym["holonomic_residual"] = self.g
+            # k_i − (∂g_i/∂t + ∂g_i/∂q·v) on the holonomic rows (paper §5.1:
+            # the constraint imposed is the time derivative of g).
+            g_dot = ca.jacobian(self.g, t) + ca.mtimes(ca.jacobian(self.g, q), v)
+            rows = self.holonomic_rows
+            self.sym["holonomic_g_dot"] = g_dot[rows] if rows else ca.SX(0, 1)
+            self.sym["holonomic_k"] = self.k[rows] if rows else ca.SX(0, 1)
         # Quantities the structure-fact check needs.
         mass = self.sym["mass_matrix"]
         self.sym["mass_matrix_dtqv"] = ca.jacobian(ca.vec(mass), ca.vertcat(t, q, v))
@@ -98,6 +152,14 @@ class CasadiSystem:
         self._eval = ca.Function(
             f"{self.name}_all", [t, q, v, self.p, psi], [self.sym[k] for k in names], ["t", "q", "v", "p", "psi"], names
         )
+
+    def holonomic_identity_is_symbolic(self) -> List[bool]:
+        """Per holonomic row: whether CasADi proves ``k_i − (∂g_i/∂t + ∂g_i/∂q·v) ≡ 0``
+        after its own simplification (otherwise the identity is checked numerically)."""
+        if self.g is None:
+            return []
+        diff = self.sym["holonomic_k"] - self.sym["holonomic_g_dot"]
+        return [bool(ca.simplify(diff[i]).is_zero()) for i in range(diff.shape[0])]
 
     def evaluate(self, t: float, q, v, p, psi) -> Dict[str, "ca.DM"]:
         """Every derivative at one point, as CasADi DM matrices."""
@@ -130,6 +192,20 @@ class CasadiSystem:
         "constraint_force_q",
         "constraint_force_v",
     )
+
+    def effect_outputs(self) -> tuple:
+        """What the optional effect methods of the trait return: ``f`` with its Jacobians
+        in ``q``, ``v`` and ``N`` with its Jacobians in ``q``, ``v``, ``ψ`` (empty without effects)."""
+        keys = (
+            "external_force",
+            "external_force_q",
+            "external_force_v",
+            "nonideal_force",
+            "nonideal_force_q",
+            "nonideal_force_v",
+            "nonideal_force_psi",
+        )
+        return tuple(k for k in keys if k in self.sym)
 
     def op_counts(self, outputs) -> Dict[str, int]:
         """CasADi's cost of computing ``outputs`` together in one cse=True SX Function.

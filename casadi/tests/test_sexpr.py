@@ -194,5 +194,98 @@ class Steps(unittest.TestCase):
             self.assertGreater(rate, 2 * s + 1 - 0.5, f"s={s}: local rate {rate}")
 
 
+class Effects(unittest.TestCase):
+    # A point on a circle g = ½(x² + y² − ℓ²) at velocity level, damped, with a
+    # friction-like non-ideal force along the velocity proportional to ψ.
+    SOURCE = {
+        "name": "Effects",
+        "coordinates": ["x", "y"],
+        "parameters": ["c", "ell"],
+        "lagrangian": "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2))) (q y))",
+        "constraints": ["(+ (* (q x) (v x)) (* (q y) (v y)))"],
+        "external_force": ["(neg (* (p c) (v x)))", "(neg (* (p c) (v y)))"],
+        "nonideal_force": ["(* -0.1 (psi 0) (v x))", "(* -0.1 (psi 0) (v y))"],
+        "holonomic": ["(* 0.5 (- (+ (^ (q x) 2) (^ (q y) 2)) (^ (p ell) 2)))"],
+    }
+
+    def test_psi_only_in_the_nonideal_force(self):
+        env = sexpr.Env(ca.SX(0.0), {}, {}, {}, [ca.SX(2.5)])
+        self.assertEqual(float(ca.evalf(sexpr.translate("(* 2 (psi 0))", env))), 5.0)
+        with self.assertRaises(sexpr.SexprError) as ctx:
+            sexpr.translate("(psi 1)", env)
+        self.assertIn("1 constraints", str(ctx.exception))
+        with self.assertRaises(sexpr.SexprError):
+            sexpr.parse("(psi x)")
+        bad = dict(self.SOURCE, external_force=["(psi 0)", "0"])
+        with self.assertRaises(SourceError) as ctx:
+            CasadiSystem(bad)
+        self.assertIn("non-ideal force", str(ctx.exception))
+
+    def test_effect_values_jacobians_and_holonomic_identity(self):
+        s = CasadiSystem(self.SOURCE)
+        out = s.evaluate(0.0, [0.6, -0.8], [0.8, 0.6], [0.3, 1.0], [2.0])
+        np.testing.assert_allclose(np.array(out["external_force"]).ravel(), [-0.24, -0.18], atol=1e-15)
+        np.testing.assert_allclose(np.array(out["external_force_v"]), -0.3 * np.eye(2), atol=1e-15)
+        np.testing.assert_allclose(np.array(out["nonideal_force"]).ravel(), [-0.16, -0.12], atol=1e-15)
+        np.testing.assert_allclose(np.array(out["nonideal_force_psi"]).ravel(), [-0.08, -0.06], atol=1e-15)
+        self.assertAlmostEqual(float(out["holonomic_residual"]), 0.0, places=15)
+        self.assertEqual(s.holonomic_rows, [0])
+        self.assertEqual(s.holonomic_identity_is_symbolic(), [True])
+        # A g that is not the integral of k is told apart.
+        wrong = CasadiSystem(dict(self.SOURCE, holonomic=["(* 0.5 (- (+ (^ (q x) 2) (^ (q y) 3)) (^ (p ell) 2)))"]))
+        self.assertEqual(wrong.holonomic_identity_is_symbolic(), [False])
+        with self.assertRaises(SourceError):
+            CasadiSystem(dict(self.SOURCE, holonomic=["(* (q x) (v y))"]))
+        with self.assertRaises(SourceError):
+            CasadiSystem(dict(self.SOURCE, external_force=["0"]))
+
+    def test_corruption_changes_only_its_effect(self):
+        s = CasadiSystem(self.SOURCE, "force", 1e-10)
+        out = s.evaluate(0.0, [0.6, -0.8], [0.8, 0.6], [0.3, 1.0], [2.0])
+        self.assertAlmostEqual(float(out["external_force"][0]), -0.24 * (1 + 1e-10) + 1e-10, places=16)
+        self.assertEqual(float(out["nonideal_force"][0]), -0.1 * 2.0 * 0.8)
+
+    def test_forcing_in_the_step_has_the_gauss_local_order(self):
+        # Damped oscillator L = ½v² − ½q², f = −c v: exact solution known.
+        from spark_check.step import solve_step
+
+        src = {"name": "Damped", "coordinates": ["x"], "parameters": ["c"],
+               "lagrangian": "(- (* 0.5 (^ (v x) 2)) (* 0.5 (^ (q x) 2)))", "constraints": [],
+               "external_force": ["(neg (* (p c) (v x)))"]}
+        system = CasadiSystem(src)
+        c = 0.4
+        w = math.sqrt(1 - c * c / 4)
+
+        def exact(t):  # q(0) = 1, v(0) = 0
+            e = math.exp(-c * t / 2)
+            return e * (math.cos(w * t) + c / (2 * w) * math.sin(w * t))
+
+        g = tableaux.gauss(2)
+        m = Steps.method("Gauss", 2, g["c"], g["a"], g["a"], g["a"], g["b"],
+                         [{"kind": "weights", "omega": list(g["b"])}])
+        errs = [abs(solve_step(system, [c], m, 0.0, h, [1.0], [0.0]).q1[0] - exact(h)) for h in (0.4, 0.2)]
+        self.assertGreater(math.log2(errs[0] / errs[1]), 4.5)
+        # Without the force the step misses the damped solution by O(c h²) (300x more here).
+        undamped = solve_step(system, [0.0], m, 0.0, 0.4, [1.0], [0.0]).q1[0]
+        self.assertGreater(abs(undamped - exact(0.4)), 100 * errs[0])
+
+    def test_psi_free_nonideal_force_equals_the_same_external_force_when_weights_agree(self):
+        from spark_check.step import solve_step
+
+        base = {"name": "P", "coordinates": ["x", "y", "z"], "parameters": [],
+                "lagrangian": "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2) (^ (v z) 2))) (+ (^ (q x) 2) (^ (q y) 2)))",
+                "constraints": ["(- (v z) (* (q y) (v x)))"]}
+        push = ["(cos (q x))", "(* 0.3 (v y))", "t"]
+        g = tableaux.gauss(2)
+        m = Steps.method("Gauss", 2, g["c"], g["a"], g["a"], g["a"], g["b"],
+                         [{"kind": "weights", "omega": list(g["b"])}])
+        a = solve_step(CasadiSystem(dict(base, external_force=push)), [], m, 0.1, 0.1, [1, 0.2, 0], [0, 1, 0.2])
+        b = solve_step(CasadiSystem(dict(base, nonideal_force=push)), [], m, 0.1, 0.1, [1, 0.2, 0], [0, 1, 0.2])
+        none = solve_step(CasadiSystem(base), [], m, 0.1, 0.1, [1, 0.2, 0], [0, 1, 0.2])
+        np.testing.assert_allclose(a.v1, b.v1, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(a.psi, b.psi, rtol=0, atol=1e-14)
+        self.assertGreater(np.max(np.abs(a.v1 - none.v1)), 1e-3)
+
+
 if __name__ == "__main__":
     unittest.main()

@@ -5,6 +5,12 @@
 //! The Python side rebuilds each system from the source text alone,
 //! differentiates it with CasADi and compares. Nothing here derives anything:
 //! it only evaluates the trait and records what it returned.
+//!
+//! Optional effects (issue 8) travel the same way: for a system with
+//! `HAS_FORCING`, `HAS_NONIDEAL_FORCE` or `HAS_HOLONOMIC` the source carries
+//! `f`, `N(ψ)` or `g` and every point carries what the effect methods
+//! returned; steps of such systems are taken by the stepper with the effects
+//! folded in, and carry the holonomic residual after the step.
 
 use serde::Serialize;
 use spark_runtime::{
@@ -43,6 +49,12 @@ pub struct SourceExport {
     pub lagrangian: String,
     /// `k_1..k_M` as S-expressions.
     pub constraints: Vec<String>,
+    /// External force `f_1..f_N` (empty when absent).
+    pub external_force: Vec<String>,
+    /// Non-ideal constraint force `N_1..N_N`, may use `(psi j)` (empty when absent).
+    pub nonideal_force: Vec<String>,
+    /// Holonomic constraints `g_1..g_M`, `"0"` for nonholonomic rows (empty when absent).
+    pub holonomic: Vec<String>,
 }
 
 impl From<&SystemSource> for SourceExport {
@@ -53,6 +65,9 @@ impl From<&SystemSource> for SourceExport {
             parameters: s.parameters.iter().map(|c| (*c).to_owned()).collect(),
             lagrangian: s.lagrangian.to_owned(),
             constraints: s.constraints.iter().map(|c| (*c).to_owned()).collect(),
+            external_force: s.external_force.iter().map(|c| (*c).to_owned()).collect(),
+            nonideal_force: s.nonideal_force.iter().map(|c| (*c).to_owned()).collect(),
+            holonomic: s.holonomic.iter().map(|c| (*c).to_owned()).collect(),
         }
     }
 }
@@ -74,11 +89,33 @@ pub struct SystemExport {
     pub structure: Structure,
     /// Operation counts of the generated code.
     pub operations: OperationCounts,
+    /// Which optional effects the trait implementation declares.
+    pub effects: EffectsExport,
     /// Sample points with every trait output.
     pub points: Vec<PointExport>,
     /// Points drawn but dropped because some output was not finite
     /// (e.g. `exp` of a huge coordinate); JSON cannot carry them.
     pub skipped_points: usize,
+}
+
+/// The `HAS_*` effect constants of a system (the Python side checks them
+/// against the source: an effect in the source with its flag off would be
+/// silently dropped by the stepper).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct EffectsExport {
+    /// `HAS_FORCING`.
+    pub forcing: bool,
+    /// `HAS_NONIDEAL_FORCE`.
+    pub nonideal: bool,
+    /// `HAS_HOLONOMIC`.
+    pub holonomic: bool,
+}
+
+impl EffectsExport {
+    /// The flags of `S`.
+    pub fn of<S: NonholonomicSystem<N, M>, const N: usize, const M: usize>() -> Self {
+        Self { forcing: S::HAS_FORCING, nonideal: S::HAS_NONIDEAL_FORCE, holonomic: S::HAS_HOLONOMIC }
+    }
 }
 
 /// One sample point and everything the trait returned there.
@@ -124,6 +161,58 @@ pub struct Outputs {
     pub stage_values: StageValuesExport,
     /// `stage_jacobians`: the values it returned and the Jacobians.
     pub stage_jacobians: StageJacobiansExport,
+    /// `external_force` and `external_force_jacobians` (only with `HAS_FORCING`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub external_force: Option<ForceExport>,
+    /// `nonideal_force` and `nonideal_force_jacobians` at the point's `ψ`
+    /// (only with `HAS_NONIDEAL_FORCE`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nonideal_force: Option<NonidealExport>,
+    /// `holonomic_residual(t, q)` (only with `HAS_HOLONOMIC`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub holonomic_residual: Option<Vec<f64>>,
+}
+
+/// The external force: the plain method's value and the fused Jacobians.
+#[derive(Clone, Debug, Serialize)]
+pub struct ForceExport {
+    /// `external_force(t, q, v)`.
+    pub value: Vec<f64>,
+    /// `external_force_jacobians(t, q, v)`.
+    pub jacobians: ForceJacobiansExport,
+}
+
+/// `(f, ∂f/∂q, ∂f/∂v)` as returned together.
+#[derive(Clone, Debug, Serialize)]
+pub struct ForceJacobiansExport {
+    /// `f`.
+    pub value: Vec<f64>,
+    /// `∂f/∂q`.
+    pub q: Vec<Vec<f64>>,
+    /// `∂f/∂v`.
+    pub v: Vec<Vec<f64>>,
+}
+
+/// The non-ideal constraint force: the plain method's value and the fused Jacobians.
+#[derive(Clone, Debug, Serialize)]
+pub struct NonidealExport {
+    /// `nonideal_force(t, q, v, ψ)`.
+    pub value: Vec<f64>,
+    /// `nonideal_force_jacobians(t, q, v, ψ)`.
+    pub jacobians: NonidealJacobiansExport,
+}
+
+/// [`spark_runtime::NonidealJacobians`] as plain arrays.
+#[derive(Clone, Debug, Serialize)]
+pub struct NonidealJacobiansExport {
+    /// `N`.
+    pub value: Vec<f64>,
+    /// `∂N/∂q`.
+    pub q: Vec<Vec<f64>>,
+    /// `∂N/∂v`.
+    pub v: Vec<Vec<f64>>,
+    /// `∂N/∂ψ` (`N × M`).
+    pub psi: Vec<Vec<f64>>,
 }
 
 /// [`spark_runtime::TimeDerivatives`] as plain arrays.
@@ -284,6 +373,8 @@ pub struct StepExport {
     pub psi: Vec<Vec<f64>>,
     /// Stage velocities `V_1..V_s`, one row per stage (empty if the stepper does not expose them).
     pub stage_velocities: Vec<Vec<f64>>,
+    /// `holonomic_residual(t1, q1)` after the step (only with `HAS_HOLONOMIC`).
+    pub holonomic_residual: Option<Vec<f64>>,
 }
 
 /// A small seeded generator (SplitMix64): reproducible samples without a
@@ -364,6 +455,26 @@ where
     let td = system.time_derivatives(t, q, v);
     let sv = system.stage_values(t, q, v, psi);
     let (jv, jj) = system.stage_jacobians(t, q, v, psi);
+    let external_force = S::HAS_FORCING.then(|| {
+        let (f, fq, fv) = system.external_force_jacobians(t, q, v);
+        ForceExport {
+            value: vec_of(&system.external_force(t, q, v)),
+            jacobians: ForceJacobiansExport { value: vec_of(&f), q: rows_of(&fq), v: rows_of(&fv) },
+        }
+    });
+    let nonideal_force = S::HAS_NONIDEAL_FORCE.then(|| {
+        let nj = system.nonideal_force_jacobians(t, q, v, psi);
+        NonidealExport {
+            value: vec_of(&system.nonideal_force(t, q, v, psi)),
+            jacobians: NonidealJacobiansExport {
+                value: vec_of(&nj.value),
+                q: rows_of(&nj.q),
+                v: rows_of(&nj.v),
+                psi: rows_of(&nj.psi),
+            },
+        }
+    });
+    let holonomic_residual = S::HAS_HOLONOMIC.then(|| vec_of(&system.holonomic_residual(t, q)));
     Outputs {
         lagrangian: system.lagrangian(t, q, v),
         energy: system.energy(t, q, v),
@@ -391,6 +502,9 @@ where
             constraint_force_q: rows_of(&jj.constraint_force_q),
             constraint_force_v: rows_of(&jj.constraint_force_v),
         },
+        external_force,
+        nonideal_force,
+        holonomic_residual,
     }
 }
 
@@ -447,6 +561,7 @@ where
         parameter_values: system.parameter_values(),
         structure: S::STRUCTURE,
         operations: S::OPERATIONS,
+        effects: EffectsExport::of::<S, N, M>(),
         points,
         skipped_points: skipped,
     }
@@ -485,20 +600,25 @@ where
         v1: vec_of(&r.state.v),
         psi: r.stage_multipliers.iter().map(vec_of).collect(),
         stage_velocities: r.stage_velocities.iter().map(vec_of).collect(),
+        holonomic_residual: Sys::HAS_HOLONOMIC.then(|| vec_of(&system.holonomic_residual(r.state.t, &r.state.q))),
     })
 }
 
 /// Exports one step of every method the cross-check covers (Gauss s = 1..3,
 /// Lobatto IIIA-B and IIIA-B-D s = 2..3, symplectic Euler I and II, modified
 /// Lobatto IIIA-B and McLachlan–Perlmutter's LDA) for a system type with
-/// inherent `N` and `M` constants.
+/// inherent `N` and `M` constants; `@dims N, M;` first names them for a type
+/// without (e.g. the hand-written systems of [`spark_runtime::effects`]).
 #[macro_export]
 macro_rules! casadi_steps_for {
-    ($out:expr, $name:expr, $ty:ty, $sys:expr, $t0:expr, $q0:expr, $v0:expr, $h:expr) => {{
+    ($out:expr, $name:expr, $ty:ty, $sys:expr, $t0:expr, $q0:expr, $v0:expr, $h:expr) => {
+        $crate::casadi_steps_for!(@dims <$ty>::N, <$ty>::M; $out, $name, $ty, $sys, $t0, $q0, $v0, $h)
+    };
+    (@dims $n:expr, $m:expr; $out:expr, $name:expr, $ty:ty, $sys:expr, $t0:expr, $q0:expr, $v0:expr, $h:expr) => {{
         use spark_runtime::Method;
         use $crate::casadi_export::export_step;
-        const N: usize = <$ty>::N;
-        const M: usize = <$ty>::M;
+        const N: usize = $n;
+        const M: usize = $m;
         let (sys, t0, q0, v0, h): (&$ty, f64, _, _, f64) = (&$sys, $t0, &$q0, &$v0, $h);
         $out.push(export_step::<$ty, N, M, 1, { N + M + N }>($name, sys, Method::Gauss, t0, q0, v0, h));
         $out.push(export_step::<$ty, N, M, 2, { 2 * (N + M) + N }>($name, sys, Method::Gauss, t0, q0, v0, h));
@@ -559,6 +679,14 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
         one!("BodyRailed", BodyRailed::default());
         one!("BodyTethered", BodyTethered::default());
     }
+    // Hand-written systems with effects (spark_runtime::effects): forcing,
+    // a non-ideal force with ψ, a holonomic constraint at velocity level.
+    {
+        use spark_runtime::effects::{DrivenSkate, FrictionSkate, RodPendulum};
+        one!(HANDWRITTEN_DRIVEN_SKATE, DrivenSkate::default());
+        one!(HANDWRITTEN_FRICTION_SKATE, FrictionSkate::default());
+        one!(HANDWRITTEN_ROD_PENDULUM, RodPendulum::default());
+    }
     Ok(out)
 }
 
@@ -583,6 +711,12 @@ where
 
 /// Registry name of the hand-written reference system.
 pub const HANDWRITTEN: &str = "Rheonomic (hand-written)";
+/// Registry name of [`spark_runtime::effects::DrivenSkate`] (external force).
+pub const HANDWRITTEN_DRIVEN_SKATE: &str = "DrivenSkate (hand-written)";
+/// Registry name of [`spark_runtime::effects::FrictionSkate`] (non-ideal force).
+pub const HANDWRITTEN_FRICTION_SKATE: &str = "FrictionSkate (hand-written)";
+/// Registry name of [`spark_runtime::effects::RodPendulum`] (holonomic constraint).
+pub const HANDWRITTEN_ROD_PENDULUM: &str = "RodPendulum (hand-written)";
 
 /// One SPARK step per (system, method) pair, from the runtime's stepper.
 ///
@@ -729,6 +863,25 @@ pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
             0.05
         );
     }
+    {
+        use spark_runtime::effects::{DrivenSkate, FrictionSkate, RodPendulum};
+        let (th, speed, omega): (f64, f64, f64) = (0.7, 0.4, 0.9);
+        let q0 = V::<3>::new(0.1, -0.2, th);
+        let v0 = V::<3>::new(speed * th.cos(), speed * th.sin(), omega);
+        casadi_steps_for!(@dims 3, 1; out, HANDWRITTEN_DRIVEN_SKATE, DrivenSkate, DrivenSkate::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(@dims 3, 1; out, HANDWRITTEN_FRICTION_SKATE, FrictionSkate, FrictionSkate::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(
+            @dims 2, 1;
+            out,
+            HANDWRITTEN_ROD_PENDULUM,
+            RodPendulum,
+            RodPendulum::default(),
+            0.0,
+            V::<2>::new(0.6, -0.8),
+            V::<2>::new(0.8, 0.6),
+            0.1
+        );
+    }
     let errors: Vec<String> = out.iter().filter_map(|r| r.as_ref().err().cloned()).collect();
     if !errors.is_empty() {
         return Err(errors.join("\n"));
@@ -771,6 +924,34 @@ mod tests {
         for st in &steps {
             assert_eq!(st.psi.len(), st.method.stages);
             assert_eq!(st.method.conditions.len(), st.method.stages - 1);
+        }
+    }
+
+    #[test]
+    fn effect_systems_export_their_effects_and_flags_match_sources() {
+        let systems = export_all_systems(1).unwrap();
+        for s in &systems {
+            assert_eq!(s.effects.forcing, !s.source.external_force.is_empty(), "{}", s.name);
+            assert_eq!(s.effects.nonideal, !s.source.nonideal_force.is_empty(), "{}", s.name);
+            assert_eq!(s.effects.holonomic, !s.source.holonomic.is_empty(), "{}", s.name);
+            for p in &s.points {
+                assert_eq!(p.outputs.external_force.is_some(), s.effects.forcing);
+                assert_eq!(p.outputs.nonideal_force.is_some(), s.effects.nonideal);
+                assert_eq!(p.outputs.holonomic_residual.is_some(), s.effects.holonomic);
+            }
+        }
+        let by = |name: &str| systems.iter().find(|s| s.name == name).expect(name);
+        assert!(by(HANDWRITTEN_DRIVEN_SKATE).effects.forcing);
+        let friction = by(HANDWRITTEN_FRICTION_SKATE);
+        assert!(friction.effects.nonideal);
+        assert!(friction.source.nonideal_force[0].contains("(psi 0)"));
+        let n = friction.points[0].outputs.nonideal_force.as_ref().unwrap();
+        assert_eq!((n.jacobians.psi.len(), n.jacobians.psi[0].len()), (3, 1));
+        assert!(by(HANDWRITTEN_ROD_PENDULUM).effects.holonomic);
+        let steps = export_all_steps().unwrap();
+        for st in steps.iter().filter(|st| st.system == HANDWRITTEN_ROD_PENDULUM) {
+            let g = st.holonomic_residual.as_ref().expect("holonomic residual after the step");
+            assert!(g[0].abs() < 1e-2, "{}: drift {}", st.method.name, g[0]);
         }
     }
 

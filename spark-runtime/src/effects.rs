@@ -182,7 +182,22 @@ impl NonholonomicSystem<3, 1> for FrictionSkate {
     const SOURCE: SystemSource = SystemSource {
         name: "FrictionSkate",
         external_force: &[],
-        nonideal_force: &[],
+        // −μ √(ψ₀² + δ²) · u/√(u² + ε²) · e with u = cos θ ẋ + sin θ ẏ.
+        nonideal_force: &[
+            concat!(
+                "(neg (* (p mu) (sqrt (+ (^ (psi 0) 2) (^ (p delta) 2))) ",
+                "(/ (+ (* (cos (q theta)) (v x)) (* (sin (q theta)) (v y))) ",
+                "(sqrt (+ (^ (+ (* (cos (q theta)) (v x)) (* (sin (q theta)) (v y))) 2) (^ (p epsilon) 2)))) ",
+                "(cos (q theta))))"
+            ),
+            concat!(
+                "(neg (* (p mu) (sqrt (+ (^ (psi 0) 2) (^ (p delta) 2))) ",
+                "(/ (+ (* (cos (q theta)) (v x)) (* (sin (q theta)) (v y))) ",
+                "(sqrt (+ (^ (+ (* (cos (q theta)) (v x)) (* (sin (q theta)) (v y))) 2) (^ (p epsilon) 2)))) ",
+                "(sin (q theta))))"
+            ),
+            "0",
+        ],
         holonomic: &[],
         parameters: FRICTION_PARAMETERS,
         ..<Skate as NonholonomicSystem<3, 1>>::SOURCE
