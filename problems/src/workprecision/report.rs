@@ -385,16 +385,23 @@ pub fn write_scaling_figure(rows: &[super::scaling::ScalingRow], out: &Path) -> 
         y_label: y_label.into(),
         x_scale: Scale::Log,
         y_scale: Scale::Log,
-        series: vec![Series::new("Gauss s=2", rows.iter().map(|r| (r.n as f64, f(r))).collect())],
+        series: [2, 5]
+            .iter()
+            .map(|&st| {
+                let pts = rows.iter().filter(|r| r.stages == st).map(|r| (r.n as f64, f(r))).collect();
+                Series::new(format!("Gauss s={st}"), pts)
+            })
+            .collect(),
     };
     let fig = Figure {
         title: "McLachlan–Perlmutter particles: cost against size".into(),
         panels: vec![
-            panel("time per step", "seconds", &|r| r.time_per_step),
-            panel("stepper value on the stack", "bytes", &|r| r.stepper_bytes as f64),
+            panel("time per step (full Newton)", "seconds", &|r| r.time_per_step),
+            panel("time per step (simplified, reused LU)", "seconds", &|r| r.time_per_step_simplified),
+            panel("stepper value + heap", "bytes", &|r| (r.stepper_bytes + r.heap_bytes) as f64),
             panel("arithmetic rate", "GFLOP/s (estimated)", &|r| r.gflops),
         ],
-        columns: 3,
+        columns: 2,
         panel_size: (520, 420),
     };
     render(&fig, &out.join("scaling"))?;

@@ -1,0 +1,260 @@
+//! The Newton matrix of the SPARK equations and its block factorization.
+//!
+//! Public (narrowly) so that benchmarks can time the linear algebra of one
+//! Newton iteration apart from the derivative evaluations: get an assembled
+//! matrix from [`Stepper::newton_matrix`](crate::Stepper::newton_matrix),
+//! then time [`NewtonMatrix::factor`] and [`NewtonMatrix::solve_in_place`].
+//!
+//! # Block structure
+//! With the stepper's unknowns `z = [V | μ | v₁]` and rows `[stage momentum
+//! (S·N) | p₁ (N) | constraint rows (S·M)]`, the velocity unknowns
+//! `X = (V, v₁)` meet the momentum rows in the block lower-triangular
+//! `[[A_VV, 0], [P_V, M(Q₁)]]` (`v₁` enters only the `p₁` rows and the last
+//! constraint rows), whose diagonal blocks are the stage mass matrices plus
+//! `O(h)` and the end-point mass matrix. [`NewtonMatrix::factor`] therefore
+//! orders the columns `(V, v₁, μ)` and confines each column's pivot search to
+//! its own row block: an in-place Schur complement in the multipliers that
+//! never touches the `v₁` columns of the stage rows (structural zeros) and
+//! pivots within `S·N`, `N` and `S·M` rows instead of `D`. When a diagonal
+//! block is (numerically) singular — large steps, degenerate mass
+//! matrices — it falls back to partial pivoting over the whole matrix, so
+//! the structured path never turns a solvable system into a failure.
+//!
+//! # Storage
+//! Both `D × D` matrices live on the heap, allocated once in
+//! [`NewtonMatrix::new`] (a step allocates nothing). A stack matrix of
+//! `8·D²` bytes overflowed a 2 MiB rayon worker stack from `D ≈ 250` on;
+//! boxed, the stepper's own size is `O(S·D)` whatever `D`.
+
+use crate::linalg::{column_scales, factor_in_place, solve_in_place};
+use crate::system::{Matrix, Vector};
+use nalgebra::{Const, MatrixView, MatrixViewMut};
+
+/// Which elimination [`NewtonMatrix::factor`] used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Factorization {
+    /// Block elimination: columns `(V, v₁, μ)`, pivots confined to the stage,
+    /// `p₁` and constraint row blocks (the Schur complement in `μ`).
+    Structured,
+    /// Partial pivoting over all rows (the structured path met a singular
+    /// diagonal block).
+    Dense,
+}
+
+/// The Newton matrix was singular: a pivot of the dense elimination was zero
+/// or below `64 ε` times its column's magnitude.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("Newton matrix is singular at column {column} (pivot {pivot:e})")]
+pub struct SingularMatrix {
+    /// Column (in the order of the unknowns `z = [V | μ | v₁]`) whose pivot failed.
+    pub column: usize,
+    /// The offending pivot magnitude.
+    pub pivot: f64,
+}
+
+/// The `D × D` Newton matrix `∂G/∂z` of an `S`-stage SPARK step for a system
+/// with `N` coordinates and `M` constraints (`D = S(N+M)+N`), with its LU
+/// factors. Heap storage, allocated once.
+#[derive(Clone, Debug)]
+pub struct NewtonMatrix<const N: usize, const M: usize, const S: usize, const D: usize> {
+    /// `∂G/∂z`, column-major, unknowns and rows in the stepper's order.
+    jacobian: Box<[f64]>,
+    /// LU factors (columns permuted to `(V, v₁, μ)` on the structured path).
+    lu: Box<[f64]>,
+    /// Row interchanges of the factorization.
+    perm: Box<[usize]>,
+    factored: Option<Factorization>,
+}
+
+impl<const N: usize, const M: usize, const S: usize, const D: usize> Default for NewtonMatrix<N, M, S, D> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatrix<N, M, S, D> {
+    /// First stage-row / `V` index past the stage velocities.
+    const SN: usize = S * N;
+
+    /// A zero matrix (allocates its two `D × D` buffers; fails to compile
+    /// unless `D == S·(N+M)+N`).
+    pub fn new() -> Self {
+        const { assert!(D == S * (N + M) + N, "NewtonMatrix: D must equal S*(N+M)+N") };
+        NewtonMatrix {
+            jacobian: vec![0.0; D * D].into_boxed_slice(),
+            lu: vec![0.0; D * D].into_boxed_slice(),
+            perm: vec![0; D].into_boxed_slice(),
+            factored: None,
+        }
+    }
+
+    /// The matrix (as last assembled or set).
+    pub fn matrix(&self) -> MatrixView<'_, f64, Const<D>, Const<D>> {
+        MatrixView::from_slice_generic(&self.jacobian, Const::<D>, Const::<D>)
+    }
+
+    /// Mutable access to the matrix; invalidates the factorization.
+    pub fn matrix_mut(&mut self) -> MatrixViewMut<'_, f64, Const<D>, Const<D>> {
+        self.factored = None;
+        MatrixViewMut::from_slice_generic(&mut self.jacobian, Const::<D>, Const::<D>)
+    }
+
+    /// Sets every entry to zero (a `memset`; nalgebra's element iterator
+    /// for `fill` cost a fifth of a step).
+    pub fn clear(&mut self) {
+        self.factored = None;
+        self.jacobian.fill(0.0);
+    }
+
+    /// Copies `a` into the matrix; invalidates the factorization.
+    pub fn set(&mut self, a: &Matrix<D, D>) {
+        self.factored = None;
+        self.jacobian.copy_from_slice(a.as_slice());
+    }
+
+    /// The elimination of the current factors, `None` before [`factor`](Self::factor).
+    pub fn factorization(&self) -> Option<Factorization> {
+        self.factored
+    }
+
+    /// Factors the matrix: the structured block elimination when its
+    /// diagonal blocks are regular, else partial pivoting over all rows.
+    pub fn factor(&mut self) -> Result<Factorization, SingularMatrix> {
+        let (sn, sm) = (Self::SN, S * M);
+        // Columns (V, v₁, μ): V and the column blocks after it copied whole
+        // (column-major, so each block is one contiguous run).
+        self.lu[..sn * D].copy_from_slice(&self.jacobian[..sn * D]);
+        self.lu[sn * D..(sn + N) * D].copy_from_slice(&self.jacobian[(sn + sm) * D..]);
+        self.lu[(sn + N) * D..].copy_from_slice(&self.jacobian[sn * D..(sn + sm) * D]);
+        let scale = column_scales::<D>(&self.lu);
+        if factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[sn, sn + N, D]).is_ok() {
+            self.factored = Some(Factorization::Structured);
+            return Ok(Factorization::Structured);
+        }
+        self.lu.copy_from_slice(&self.jacobian);
+        let scale = column_scales::<D>(&self.lu);
+        match factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[D]) {
+            Ok(()) => {
+                self.factored = Some(Factorization::Dense);
+                Ok(Factorization::Dense)
+            }
+            Err(s) => {
+                self.factored = None;
+                Err(SingularMatrix { column: s.column, pivot: s.pivot })
+            }
+        }
+    }
+
+    /// Overwrites `b` with `A⁻¹ b` using the current factors. Leaves `b`
+    /// unchanged when the matrix has not been factored successfully.
+    pub fn solve_in_place(&self, b: &mut Vector<D>) {
+        let b = b.as_mut_slice();
+        match self.factored {
+            None => {}
+            Some(Factorization::Dense) => solve_in_place::<D>(&self.lu, &self.perm, b),
+            Some(Factorization::Structured) => {
+                solve_in_place::<D>(&self.lu, &self.perm, b);
+                // The solution came out in column order (V, v₁, μ); back to (V, μ, v₁).
+                b[Self::SN..].rotate_left(N);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A matrix with the SPARK zero pattern (no v₁ in stage or condition
+    /// rows) and a dominant diagonal, for N = 2, M = 1, S = 2 (D = 8).
+    fn spark_like() -> Matrix<8, 8> {
+        let mut a = Matrix::<8, 8>::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
+        for i in 0..8 {
+            a[(i, i)] += 2.0;
+        }
+        for i in (0..4).chain(6..7) {
+            for j in 6..8 {
+                a[(i, j)] = 0.0;
+            }
+        }
+        // Multiplier columns (4, 5) need their pivots in the constraint rows (6, 7).
+        a[(6, 4)] = 1.0;
+        a[(7, 5)] = -1.5;
+        a[(6, 6)] = 0.0;
+        a[(7, 6)] = 0.7;
+        a
+    }
+
+    #[test]
+    fn structured_and_dense_solve_agree() {
+        let a = spark_like();
+        let x = Vector::<8>::from_fn(|i, _| 0.5 - i as f64 * 0.3);
+        let mut nm = NewtonMatrix::<2, 1, 2, 8>::new();
+        nm.set(&a);
+        assert_eq!(nm.factor(), Ok(Factorization::Structured));
+        let mut b = a * x;
+        nm.solve_in_place(&mut b);
+        assert!((b - x).amax() < 1e-13, "{}", (b - x).amax());
+    }
+
+    #[test]
+    fn falls_back_to_dense_pivoting() {
+        // A singular stage block (rows 0..4 × V columns 0..4) in a regular matrix.
+        let mut a = spark_like();
+        for j in 0..4 {
+            a[(1, j)] = a[(0, j)];
+        }
+        a[(1, 4)] = 3.0;
+        let x = Vector::<8>::from_fn(|i, _| 1.0 + i as f64);
+        let mut nm = NewtonMatrix::<2, 1, 2, 8>::new();
+        nm.set(&a);
+        assert_eq!(nm.factor(), Ok(Factorization::Dense));
+        let mut b = a * x;
+        nm.solve_in_place(&mut b);
+        assert!((b - x).amax() < 1e-12, "{}", (b - x).amax());
+        nm.matrix_mut().fill(0.0);
+        assert!(nm.factor().is_err());
+    }
+
+    #[test]
+    fn stepper_matrices_take_the_structured_path() {
+        use crate::handwritten::{MobileRobot, Skate};
+        use crate::{Method, State, Stepper, Tableau};
+        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+        for m in [Method::Gauss, Method::LobattoIIIAB, Method::LobattoIIIABD] {
+            let mut st = Stepper::<_, 4, 2, 3, 22>::new(MobileRobot::default(), Tableau::new(m).unwrap());
+            let (nm, g) = st.newton_matrix(&robot, 0.2);
+            let mut nm = nm.clone();
+            assert_eq!(nm.factor(), Ok(Factorization::Structured), "{m}");
+            let mut x = g;
+            nm.solve_in_place(&mut x);
+            let reference = nm.matrix().into_owned().lu().solve(&g).unwrap();
+            assert!((x - reference).amax() <= 1e-12 * reference.amax().max(1.0), "{m}");
+        }
+        let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+        let mut st =
+            Stepper::<_, 3, 1, 2, 11>::new(Skate::default(), Tableau::new(Method::ModifiedLobattoIIIAB).unwrap());
+        let mut nm = st.newton_matrix(&skate, 0.1).0.clone();
+        assert_eq!(nm.factor(), Ok(Factorization::Structured));
+    }
+
+    #[test]
+    fn reused_factorization_reaches_the_same_solution() {
+        use crate::handwritten::Skate;
+        use crate::{Method, NewtonMode, NewtonOptions, State, Stepper, Tableau};
+        let start = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+        let tab = Tableau::new(Method::Gauss).unwrap();
+        let opts = NewtonOptions { mode: NewtonMode::Simplified, ..NewtonOptions::default() };
+        let mut plain = Stepper::<_, 3, 1, 2, 11>::new(Skate::default(), tab).with_options(opts);
+        let reuse = NewtonOptions { reuse_factorization: true, ..opts };
+        let mut reusing = Stepper::<_, 3, 1, 2, 11>::new(Skate::default(), tab).with_options(reuse);
+        let (mut a, mut b, mut ia, mut ib) = (start, start, 0, 0);
+        for _ in 0..50 {
+            let (ra, rb) = (plain.step(&a, 0.05).unwrap(), reusing.step(&b, 0.05).unwrap());
+            (a, b, ia, ib) = (ra.state, rb.state, ia + ra.iterations, ib + rb.iterations);
+        }
+        assert!((a.q - b.q).amax() < 1e-13 && (a.v - b.v).amax() < 1e-13);
+        // Reusing an earlier step's factors contracts more slowly: it did reuse.
+        assert!(ib > ia, "reuse {ib} vs fresh {ia} iterations");
+    }
+}
