@@ -30,11 +30,13 @@ use proc_macro::TokenStream;
 ///
 /// ```text
 /// declaration := attribute* visibility? "struct" Name "{" section ("," section)* ","? "}"
-/// section     := "coordinates" ":" "[" name ("," name)* ","? "]"           required, at least one
-///              | "parameters"  ":" "{" (name "=" const_expr),* ","? "}"    runtime f64 fields + defaults
-///              | "constants"   ":" "{" (name "=" const_expr),* ","? "}"    folded at compile time
-///              | "lagrangian"  ":" expr                                    required
-///              | "constraints" ":" "[" (expr),* ","? "]"                  optional; none or [] = unconstrained
+/// section     := "coordinates"     ":" "[" name ("," name)* ","? "]"           required, at least one
+///              | "parameters"      ":" "{" (name "=" const_expr),* ","? "}"    runtime f64 fields + defaults
+///              | "constants"       ":" "{" (name "=" const_expr),* ","? "}"    folded at compile time
+///              | "lagrangian"      ":" expr                                    required
+///              | "constraints"     ":" "[" (expr),* ","? "]"                  optional; none or [] = unconstrained
+///              | "forces"          ":" "{" (coordinate ":" expr),* ","? "}"   external force f(t,q,v); absent = 0
+///              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"   non-ideal constraint force N(t,q,v,ψ)
 /// ```
 ///
 /// Sections may come in any order, each at most once. Expressions use
@@ -71,6 +73,41 @@ use proc_macro::TokenStream;
 /// effect  := "potential"  "(" expr ")"   U(t,q,v), subtracted from L
 ///          | "constraint" "(" expr ")"   an extra constraint k(t,q,v) = 0 (must involve velocities)
 ///          | "holonomic"  "(" expr ")"   g(t,q) = 0, imposed at velocity level as k = g_t + g_q·v
+///          | "force"    "{" (coordinate ":" expr),* "}"   external force f(t,q,v), absent components 0
+///          | "nonideal" "{" (coordinate ":" expr),* "}"   non-ideal constraint force N(t,q,v,ψ)
+/// ```
+///
+/// Several `force` effects in a scene add up component by component (so do
+/// `nonideal` ones, and both add to `forces:`/`nonideal_forces:` of the base
+/// declaration). Inside a `nonideal` effect the multiplier of a constraint
+/// is written by the constraint effect's name (`blade` below) and that of a
+/// base constraint `j` as `psi[j]`; a scene that selects the non-ideal force
+/// must also select the constraints it names. A scene's constraints are the
+/// base ones followed by its `constraint`/`holonomic` effects in the order
+/// the scene lists them. Holonomic effects also give the generated type
+/// `HAS_HOLONOMIC = true` and `holonomic_residual(t, q)` (`g_i`, 0 for the
+/// other rows), so the drift of `g` can be measured.
+///
+/// ```
+/// use spark_runtime::{nonholonomic_system, NonholonomicSystem, Vector};
+///
+/// nonholonomic_system! {
+///     pub struct Sled {
+///         coordinates: [x, y, theta],
+///         parameters: { tau = 0.4, c = 0.3, mu = 0.2 },
+///         lagrangian: (dot(x)^2 + dot(y)^2 + dot(theta)^2)/2,
+///         effects: {
+///             drive: force { theta: tau },
+///             damping: force { x: -c*dot(x), y: -c*dot(y), theta: -c*dot(theta) },
+///             blade: constraint(cos(theta)*dot(y) - sin(theta)*dot(x)),
+///             friction: nonideal { x: -mu*blade*cos(theta), y: -mu*blade*sin(theta) },
+///         },
+///         scenes: { Gliding = [blade], Driven = [blade, drive, damping], Rubbing = [blade, friction] },
+///     }
+/// }
+/// assert!(!Gliding::HAS_FORCING && Driven::HAS_FORCING && Rubbing::HAS_NONIDEAL_FORCE);
+/// let (q, v) = (Vector::<3>::zeros(), Vector::<3>::new(1.0, 0.0, 2.0));
+/// assert_eq!(Driven::default().external_force(0.0, &q, &v), Vector::<3>::new(-0.3, 0.0, 0.4 - 0.6));
 /// ```
 ///
 /// ```
@@ -92,10 +129,13 @@ use proc_macro::TokenStream;
 /// ```
 ///
 /// Effect and scene names must be distinct; a scene may not list an effect
-/// twice or be named like the base struct. Not yet supported by the macro
-/// (the runtime trait has them, see `NonholonomicSystem::HAS_FORCING` and
-/// `HAS_NONIDEAL_FORCE`): generalized forces `f(t,q,v)` and non-ideal
-/// constraint forces `N(t,q,v,ψ)`; implement those by hand.
+/// twice or be named like the base struct; a constraint effect may not share
+/// its name with a coordinate, parameter or constant. Compile errors point
+/// at: an unknown or repeated coordinate in a force block, `psi[j]` outside a
+/// non-ideal force or out of range, an unknown constraint name, a `force`
+/// that uses a multiplier (declare it `nonideal`), a holonomic `g` that uses
+/// velocities, and a scene selecting a non-ideal force without the
+/// constraint whose multiplier it uses.
 ///
 /// `#[spark(crate = path)]` tells the generated code where the runtime is
 /// (default `::spark_runtime`).

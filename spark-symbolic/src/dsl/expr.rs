@@ -278,6 +278,20 @@ impl Scope<'_> {
         } else {
             msg.push_str(&format!(" Allowed here: numbers and {}.", list(&known)));
         }
+        if let Multipliers::Allowed { base, named } = self.multipliers {
+            let names: Vec<&str> = named.iter().map(|(n, _)| n.as_str()).collect();
+            let by_name = if names.is_empty() {
+                String::new()
+            } else {
+                format!(", constraint effects by name: {}", list(&names))
+            };
+            let by_index = match base {
+                0 => "none by index".to_string(),
+                1 => "`psi[0]` for the base constraint".to_string(),
+                b => format!("`psi[0]` … `psi[{}]` for the base constraints", b - 1),
+            };
+            msg.push_str(&format!(" Multipliers here: {by_index}{by_name}."));
+        }
         msg
     }
 

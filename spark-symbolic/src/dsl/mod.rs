@@ -15,6 +15,8 @@
 //!              | "constants"   ":" "{" (name "=" const_expr),* ","? "}"     folded at compile time
 //!              | "lagrangian"  ":" expr                                     required
 //!              | "constraints" ":" "[" (expr),* ","? "]"                   optional; empty = none
+//!              | "forces"      ":" "{" (coordinate ":" expr),* ","? "}"    external force f(t,q,v)
+//!              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"  non-ideal force N(t,q,v,ψ)
 //! expr        := sum
 //! sum         := product (("+" | "-") product)*          left-associative
 //! product     := unary (("*" | "/") unary)*              left-associative
@@ -35,7 +37,10 @@
 //! constants (a constant only those declared before it); parameter defaults
 //! are evaluated to `f64` here, constants are kept as expressions for the
 //! engine to fold. `lagrangian` and `constraints` may use everything,
-//! including the time `t` and velocities `dot(q)`.
+//! including the time `t` and velocities `dot(q)`. Force blocks list
+//! components by coordinate (absent = 0); only `nonideal_forces` (and
+//! `nonideal` effects, see [`scenes`]) may use `psi[j]`, the multiplier of
+//! constraint `j` (0-based), parsed as `"psi" "[" integer "]"`.
 //!
 //! ```text
 //! nonholonomic_system! {

@@ -1,17 +1,29 @@
 //! Named effects and scenes: the optional `effects:` and `scenes:` sections.
 //!
 //! A scene is desugared into a plain [`SystemSpec`] (the base declaration with
-//! the scene's potentials subtracted from `L` and its constraints appended),
-//! so each scene goes through the same engine as a hand-written declaration
-//! and its generated code holds nothing of the effects it leaves out.
+//! the scene's potentials subtracted from `L`, its constraints appended, its
+//! forces added to the base `forces`/`nonideal_forces`), so each scene goes
+//! through the same engine as a hand-written declaration and its generated
+//! code holds nothing of the effects it leaves out.
 //!
 //! ```text
 //! effects := "effects" ":" "{" (name ":" effect),* ","? "}"
 //! effect  := "potential"  "(" expr ")"     U(t,q,v), subtracted from L
 //!          | "constraint" "(" expr ")"     an extra constraint k(t,q,v) = 0
-//!          | "holonomic"  "(" expr ")"     g(t,q) = 0, imposed as k = g_t + g_q v
+//!          | "holonomic"  "(" expr ")"     g(t,q) = 0, imposed as k = g_t + g_q v (g kept for drift)
+//!          | "force"    "{" (coordinate ":" expr),* "}"   external force f(t,q,v); absent = 0
+//!          | "nonideal" "{" (coordinate ":" expr),* "}"   non-ideal constraint force N(t,q,v,ψ)
 //! scenes  := "scenes" ":" "{" (Name "=" "[" name,* "]"),* ","? "}"
 //! ```
+//!
+//! Forces of several effects in a scene add up component by component. In a
+//! `nonideal` effect the multiplier of a constraint effect is written by the
+//! effect's name, that of base constraint `j` as `psi[j]`. A scene's
+//! constraints are the base ones, then its constraint/holonomic effects in
+//! the scene's order; until a scene fixes that order, the name of effect `e`
+//! stands for the provisional index `M_base + e`, which the scene maps to the
+//! constraint's place (or rejects, if the scene leaves the constraint out).
+//! A `force` may not use multipliers (it would be a non-ideal force).
 
 use super::expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
 use super::forces::parse_force_block;
