@@ -6,6 +6,7 @@ pub mod paper;
 pub mod peers;
 pub mod plot;
 pub mod progress;
+pub mod registry;
 pub mod scenes;
 pub mod simulate;
 pub mod stress;

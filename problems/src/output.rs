@@ -95,7 +95,8 @@ pub fn read_columns(path: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>), OutputE
 }
 
 /// The trajectory as CSV: `t, q_<name>…, v_<name>…, energy, energy_error,
-/// constraint_residual`.
+/// constraint_residual` and, for systems with holonomic constraints,
+/// `holonomic_drift` (`max_i |g_i(t, q)|`).
 pub fn write_run_csv(run: &RunResult, path: &Path) -> Result<(), OutputError> {
     let qn: Vec<String> = run.coordinates.iter().map(|c| format!("q_{c}")).collect();
     let vn: Vec<String> = run.coordinates.iter().map(|c| format!("v_{c}")).collect();
@@ -106,6 +107,9 @@ pub fn write_run_csv(run: &RunResult, path: &Path) -> Result<(), OutputError> {
     cols.push(("energy", &run.energy));
     cols.push(("energy_error", &err));
     cols.push(("constraint_residual", &run.constraint));
+    if !run.holonomic.is_empty() {
+        cols.push(("holonomic_drift", &run.holonomic));
+    }
     write_columns(path, &cols)
 }
 
@@ -143,22 +147,26 @@ pub fn run_figure(run: &RunResult) -> Figure {
         y_scale,
         series,
     };
-    Figure {
-        title,
-        panels: vec![
-            panel("coordinates", "q", Scale::Linear, curves(&run.q, "")),
-            panel("velocities", "v", Scale::Linear, curves(&run.v, "v_")),
-            panel("energy error", "E − E0", Scale::Linear, vec![Series::new("E − E0", err)]),
-            panel(
-                "constraint residual (zeros shown at 1e-17)",
-                "max |k|",
-                Scale::Log,
-                vec![Series::new("max_i |k_i|", residual_points(&run.t, &run.constraint, 1e-17))],
-            ),
-        ],
-        columns: 2,
-        panel_size: (640, 420),
+    let mut panels = vec![
+        panel("coordinates", "q", Scale::Linear, curves(&run.q, "")),
+        panel("velocities", "v", Scale::Linear, curves(&run.v, "v_")),
+        panel("energy error", "E − E0", Scale::Linear, vec![Series::new("E − E0", err)]),
+        panel(
+            "constraint residual (zeros shown at 1e-17)",
+            "max |k|",
+            Scale::Log,
+            vec![Series::new("max_i |k_i|", residual_points(&run.t, &run.constraint, 1e-17))],
+        ),
+    ];
+    if !run.holonomic.is_empty() {
+        panels.push(panel(
+            "holonomic drift (zeros shown at 1e-17)",
+            "max |g|",
+            Scale::Log,
+            vec![Series::new("max_i |g_i(t, q)|", residual_points(&run.t, &run.holonomic, 1e-17))],
+        ));
     }
+    Figure { title, panels, columns: 2, panel_size: (640, 420) }
 }
 
 #[cfg(test)]

@@ -1,181 +1,24 @@
 //! One integration run chosen at run time: which system, method, stage count,
-//! step, interval and initial values. Owns the catalogue of the paper's
-//! systems as seen by the command line and the single dispatch from run-time
-//! choices to the const-generic [`Stepper`] instantiations.
+//! step, interval, parameters and initial values.
 //!
-//! The stepper type depends on the system (through `N`, `M`) and on the stage
-//! count `S` only; the method is a run-time [`Tableau`]. So the dispatch is a
-//! `match` over systems × `S ∈ 1..=MAX_DISPATCH_STAGES`, written once in
-//! [`dispatch!`].
+//! The systems, their defaults and the dispatch from run-time `(system, s)`
+//! to the const-generic [`Stepper`] live in [`crate::registry`]; this module
+//! only says what one run does for a given stepper type ([`run_with`]).
 
-use crate::systems::{
-    AppellHamel, ChaplyginSleigh, DoublePendulum, McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate,
-    TurntableSkate,
-};
+use crate::registry::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemVisitor};
+pub use crate::registry::{SystemInfo, SystemKind, MAX_DISPATCH_STAGES};
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NonholonomicSystem, Observe,
     RunOptions, Schedule, Stepper, Tableau, TableauError, Vector,
 };
 use std::time::{Duration, Instant};
 
-/// Largest stage count the command line can instantiate (each extra `S`
-/// adds one monomorphized stepper per system; 5 covers Gauss up to order 10
-/// and Lobatto up to order 8).
-pub const MAX_DISPATCH_STAGES: usize = 5;
-
-/// The systems the command line knows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-pub enum SystemKind {
-    /// Nonholonomic particle (paper §8.1).
-    Particle,
-    /// Skate on an inclined plane (paper §8.2).
-    Skate,
-    /// Mobile robot with fixed orientation and a potential (paper §8.3).
-    Robot,
-    /// McLachlan–Perlmutter particles, `n = 7` (paper §8.4).
-    McLachlanPerlmutter7,
-    /// Skate on a turning table: rheonomic affine constraint (not in the paper).
-    Turntable,
-    /// Appell–Hamel particle: constraint nonlinear in `v` (not in the paper).
-    AppellHamel,
-    /// Chaplygin sleigh on an inclined plane: `q`-dependent mass matrix (not in the paper).
-    Sleigh,
-    /// Planar double pendulum: no constraints (not in the paper).
-    DoublePendulum,
-}
-
-/// Facts about one system for listings and defaults.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SystemInfo {
-    /// Command-line name.
-    pub key: &'static str,
-    /// The enum value.
-    pub kind: SystemKind,
-    /// One-line description.
-    pub description: &'static str,
-    /// The generated type's name.
-    pub type_name: &'static str,
-    /// Coordinate names.
-    pub coordinates: Vec<String>,
-    /// Number of constraints.
-    pub constraints: usize,
-    /// Runtime parameters with their default values.
-    pub parameters: Vec<(String, f64)>,
-    /// Default initial coordinates (the paper's where it has them).
-    pub q0: Vec<f64>,
-    /// Default initial velocities (the paper's where it has them).
-    pub v0: Vec<f64>,
-}
-
-impl SystemKind {
-    /// Every system, in paper order.
-    pub const ALL: [SystemKind; 8] = [
-        SystemKind::Particle,
-        SystemKind::Skate,
-        SystemKind::Robot,
-        SystemKind::McLachlanPerlmutter7,
-        SystemKind::Turntable,
-        SystemKind::AppellHamel,
-        SystemKind::Sleigh,
-        SystemKind::DoublePendulum,
-    ];
-
-    /// The command-line name.
-    pub const fn key(self) -> &'static str {
-        match self {
-            SystemKind::Particle => "particle",
-            SystemKind::Skate => "skate",
-            SystemKind::Robot => "robot",
-            SystemKind::McLachlanPerlmutter7 => "mp7",
-            SystemKind::Turntable => "turntable",
-            SystemKind::AppellHamel => "appell-hamel",
-            SystemKind::Sleigh => "sleigh",
-            SystemKind::DoublePendulum => "double-pendulum",
-        }
-    }
-
-    /// Parses a command-line name (see [`SystemKind::key`]).
-    pub fn parse(name: &str) -> Result<Self, RunError> {
-        let key = name.trim().to_ascii_lowercase();
-        SystemKind::ALL
-            .into_iter()
-            .find(|k| k.key() == key)
-            .ok_or_else(|| RunError::UnknownSystem { name: name.to_string() })
-    }
-
-    /// Description, sizes, parameters and the paper's initial values.
-    pub fn info(self) -> SystemInfo {
-        fn facts<Sys: NonholonomicSystem<N, M> + Default, const N: usize, const M: usize>(
-            kind: SystemKind,
-            description: &'static str,
-        ) -> SystemInfo {
-            let sys = Sys::default();
-            let src = Sys::SOURCE;
-            let (q0, v0) = paper_initial_values(kind);
-            SystemInfo {
-                key: kind.key(),
-                kind,
-                description,
-                type_name: src.name,
-                coordinates: src.coordinates.iter().map(|c| c.to_string()).collect(),
-                constraints: M,
-                parameters: src.parameters.iter().map(|p| p.to_string()).zip(sys.parameter_values()).collect(),
-                q0,
-                v0,
-            }
-        }
-        match self {
-            SystemKind::Particle => facts::<NonholonomicParticle, 3, 1>(
-                self,
-                "nonholonomic particle, L = |v|²/2 − q1² − q2², v3 − q2 v1 = 0 (§8.1)",
-            ),
-            SystemKind::Skate => {
-                facts::<Skate, 3, 1>(self, "skate on an inclined plane, cos(θ) ẏ − sin(θ) ẋ = 0 (§8.2)")
-            }
-            SystemKind::Robot => facts::<MobileRobot, 4, 2>(
-                self,
-                "mobile robot with fixed orientation and potential 10 sin(q4), two rolling constraints (§8.3)",
-            ),
-            SystemKind::McLachlanPerlmutter7 => facts::<McLachlanPerlmutter7, 7, 1>(
-                self,
-                "McLachlan–Perlmutter particles, n = 7, chaotic, v1 + q5 v5 + q6 v6 + q7 v7 = 0 (§8.4)",
-            ),
-            SystemKind::Turntable => facts::<TurntableSkate, 3, 1>(
-                self,
-                "skate on a table turning at ω(t) = ω0(1 + ε sin νt): rheonomic affine constraint, energy not conserved",
-            ),
-            SystemKind::AppellHamel => facts::<AppellHamel, 3, 1>(
-                self,
-                "Appell–Hamel particle under gravity, v3² − a²(v1² + v2²) = 0 (nonlinear in v)",
-            ),
-            SystemKind::Sleigh => facts::<ChaplyginSleigh, 3, 1>(
-                self,
-                "Chaplygin sleigh on an inclined plane: q-dependent mass matrix, no sideways slip",
-            ),
-            SystemKind::DoublePendulum => {
-                facts::<DoublePendulum, 2, 0>(self, "planar double pendulum, no constraints, non-separable L")
-            }
-        }
-    }
-}
-
-/// The paper's initial values (for `mp7`: the member `j = 0` of the §8.4
-/// ensemble, see [`mp7_initial_values`]); for the systems not in the paper,
-/// consistent values chosen here.
+/// The registered default initial values of `kind` (the paper's for its four
+/// systems; for `mp7` the member `j = 0` of the §8.4 ensemble, see
+/// [`mp7_initial_values`]).
 pub fn paper_initial_values(kind: SystemKind) -> (Vec<f64>, Vec<f64>) {
-    match kind {
-        SystemKind::Particle => (vec![1.0, 0.0, 0.0], vec![0.0, 1.0, 0.0]),
-        SystemKind::Skate => (vec![0.0; 3], vec![0.0, 0.0, 1.0]),
-        SystemKind::Robot => (vec![0.0; 4], vec![1.0, 0.0, 0.0, 1.0]),
-        SystemKind::McLachlanPerlmutter7 => mp7_initial_values(0, 9),
-        // Not from the paper: consistent values chosen for this program.
-        SystemKind::Turntable => (vec![1.0, 0.0, 0.0], vec![0.5, 1.0, 0.5]),
-        // Falling (v3 < 0): rising would stop at v = 0, where K = ∂k/∂v
-        // vanishes and the method's Newton matrix is singular.
-        SystemKind::AppellHamel => (vec![0.0; 3], vec![1.0, 0.0, -0.5]),
-        SystemKind::Sleigh => (vec![0.0; 3], vec![1.0, 0.0, 0.5]),
-        SystemKind::DoublePendulum => (vec![1.0, 0.5], vec![0.0, 0.0]),
-    }
+    let e = kind.entry();
+    (e.q0.to_vec(), e.v0.to_vec())
 }
 
 /// Initial values `j` of the §8.4 ensemble with `J + 1` members:
@@ -196,14 +39,53 @@ pub fn mp7_initial_values(j: usize, big_j: usize) -> (Vec<f64>, Vec<f64>) {
 /// Errors of a run; each says what to change.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
-    /// The system name is not in the catalogue.
+    /// The system name is not in the registry.
+    #[error(transparent)]
+    UnknownSystem(#[from] LookupError),
+    /// A parameter name the system does not have.
     #[error(
-        "unknown system `{name}`; known: particle, skate, robot, mp7, turntable, appell-hamel, sleigh, \
-         double-pendulum (see `spark list`)"
+        "system `{system}` has no parameter `{name}`{}; its parameters: {known} (see `spark list`)",
+        crate::registry::did_you_mean(.suggestion)
     )]
-    UnknownSystem {
+    UnknownParameter {
+        /// The system.
+        system: &'static str,
         /// The name given.
         name: String,
+        /// The closest parameter name, if one is close.
+        suggestion: Option<&'static str>,
+        /// The system's parameters, comma-separated.
+        known: String,
+    },
+    /// `q0` violates a holonomic constraint `g(t0, q0) = 0`.
+    #[error(
+        "q0 violates the holonomic constraint of `{system}`: max |g(t0, q0)| = {residual:.3e} > {tolerance:.1e}; \
+         choose q0 on the constraint (default q0 = {default:?})"
+    )]
+    InconsistentPositions {
+        /// The system.
+        system: &'static str,
+        /// `max_i |g_i(t0, q0)|`.
+        residual: f64,
+        /// The tolerance.
+        tolerance: f64,
+        /// The registered default `q0`.
+        default: &'static [f64],
+    },
+    /// `v0` violates the constraints and projection was not asked for.
+    #[error(
+        "v0 violates the constraints of `{system}`: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; \
+         give a v0 with k = 0 or pass --project-v0 to use the nearest consistent one (default v0 = {default:?})"
+    )]
+    InconsistentVelocities {
+        /// The system.
+        system: &'static str,
+        /// `max_i |k_i(t0, q0, v0)|`.
+        residual: f64,
+        /// The tolerance.
+        tolerance: f64,
+        /// The registered default `v0`.
+        default: &'static [f64],
     },
     /// The method does not exist with this stage count.
     #[error(transparent)]
@@ -219,7 +101,7 @@ pub enum RunError {
         max: usize,
     },
     /// An initial vector has the wrong length.
-    #[error("{what} has {got} entries but system `{system}` has {expected} coordinates")]
+    #[error("{what} has {got} entries but system `{system}` has {expected} coordinates ({coordinates})")]
     Dimension {
         /// `q0` or `v0`.
         what: &'static str,
@@ -229,6 +111,8 @@ pub enum RunError {
         got: usize,
         /// Entries needed.
         expected: usize,
+        /// The coordinate names, comma-separated.
+        coordinates: String,
     },
     /// A parameter was rejected by the system.
     #[error(transparent)]
@@ -280,7 +164,18 @@ pub struct RunSpec {
 }
 
 impl RunSpec {
-    /// A run of `system` from the paper's initial values.
+    /// A run of `system` with its registered defaults: initial state, step
+    /// and final time.
+    pub fn defaults(system: SystemKind, method: Method, stages: usize) -> Self {
+        let e = system.entry();
+        let steps = (e.t_end / e.h).round().max(1.0) as usize;
+        let mut spec = RunSpec::paper(system, method, stages, e.h, steps);
+        spec.t0 = e.t0;
+        spec
+    }
+
+    /// A run of `system` from its registered (for the paper's systems: the
+    /// paper's) initial values.
     pub fn paper(system: SystemKind, method: Method, stages: usize, h: f64, steps: usize) -> Self {
         let (q0, v0) = paper_initial_values(system);
         RunSpec {
@@ -324,6 +219,9 @@ pub struct RunResult {
     pub energy: Vec<f64>,
     /// `max_i |k_i|` at each sample.
     pub constraint: Vec<f64>,
+    /// `max_i |g_i(t, q)|` at each sample, the drift of the holonomic
+    /// constraints (empty when the system has none).
+    pub holonomic: Vec<f64>,
     /// Statistics over every step (not only the samples).
     pub stats: RunStats,
 }
@@ -339,6 +237,10 @@ pub struct RunStats {
     pub max_energy_error: f64,
     /// `max_k max_i |k_i(t_k, q_k, v_k)|` over all steps, initial state included.
     pub max_constraint_residual: f64,
+    /// `max_k max_i |g_i(t_k, q_k)|` over all steps: the position-level
+    /// drift of holonomic constraints imposed at velocity level (`None`
+    /// when the system has none).
+    pub max_holonomic_drift: Option<f64>,
     /// Mean Newton iterations per step.
     pub newton_iterations_mean: f64,
     /// Wall-clock time of the integration.
@@ -377,66 +279,110 @@ pub type Tick<'a> = &'a (dyn Fn(u64) + Sync);
 /// How often the progress callback fires.
 const TICK_EVERY: usize = 4096;
 
-/// The one place that maps run-time `(system, s)` to a concrete stepper type.
-macro_rules! dispatch {
-    (@stages $sys:ty, $spec:expr, $tick:expr) => {
-        match $spec.stages {
-            1 => dispatch!(@one $sys, 1, $spec, $tick),
-            2 => dispatch!(@one $sys, 2, $spec, $tick),
-            3 => dispatch!(@one $sys, 3, $spec, $tick),
-            4 => dispatch!(@one $sys, 4, $spec, $tick),
-            5 => dispatch!(@one $sys, 5, $spec, $tick),
-            s => Err(RunError::StagesNotCompiled { method: $spec.method, stages: s, max: MAX_DISPATCH_STAGES }),
-        }
-    };
-    (@one $sys:ty, $s:literal, $spec:expr, $tick:expr) => {
-        run_with::<$sys, { <$sys>::N }, { <$sys>::M }, $s, { $s * (<$sys>::N + <$sys>::M) + <$sys>::N }>(
-            $spec, $tick,
-        )
-    };
-    ($spec:expr, $tick:expr) => {{
-        let spec: &RunSpec = $spec;
-        match spec.system {
-            SystemKind::Particle => dispatch!(@stages NonholonomicParticle, spec, $tick),
-            SystemKind::Skate => dispatch!(@stages Skate, spec, $tick),
-            SystemKind::Robot => dispatch!(@stages MobileRobot, spec, $tick),
-            SystemKind::McLachlanPerlmutter7 => dispatch!(@stages McLachlanPerlmutter7, spec, $tick),
-            SystemKind::Turntable => dispatch!(@stages TurntableSkate, spec, $tick),
-            SystemKind::AppellHamel => dispatch!(@stages AppellHamel, spec, $tick),
-            SystemKind::Sleigh => dispatch!(@stages ChaplyginSleigh, spec, $tick),
-            SystemKind::DoublePendulum => dispatch!(@stages DoublePendulum, spec, $tick),
-        }
-    }};
-}
-
 /// Runs `spec`, calling `tick` as steps complete.
 pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
     if !(spec.h.is_finite() && spec.h != 0.0) {
         return Err(RunError::Invalid(format!("step size h = {} must be finite and nonzero", spec.h)));
     }
+    if !spec.t0.is_finite() {
+        return Err(RunError::Invalid(format!("initial time t0 = {} must be finite", spec.t0)));
+    }
     let (min, max) = spec.method.stage_range();
     if spec.stages < min || spec.stages > max {
         return Err(TableauError::UnsupportedStages { method: spec.method, s: spec.stages, min, max }.into());
     }
-    dispatch!(spec, tick)
+    let entry = spec.system.entry();
+    check_parameters(entry, &spec.parameters)?;
+    crate::registry::visit_system(spec.system, RunSystem { spec, tick })
 }
 
-fn vector<const N: usize>(what: &'static str, system: &'static str, x: &[f64]) -> Result<Vector<N>, RunError> {
+/// Looks `name` up in the registry and runs it with its defaults (the
+/// shortest way to integrate a system by name).
+pub fn run_by_name(name: &str, method: Method, stages: usize) -> Result<RunResult, RunError> {
+    let kind = lookup(name)?.kind;
+    run(&RunSpec::defaults(kind, method, stages), &|_| {})
+}
+
+/// Rejects parameter names the system does not have, with a suggestion.
+pub fn check_parameters(entry: &'static SystemEntry, parameters: &[(String, f64)]) -> Result<(), RunError> {
+    for (name, _) in parameters {
+        if !entry.parameter_names.contains(&name.as_str()) {
+            let known =
+                if entry.parameter_names.is_empty() { "none".to_string() } else { entry.parameter_names.join(", ") };
+            return Err(RunError::UnknownParameter {
+                system: entry.name,
+                name: name.clone(),
+                suggestion: nearest(name, entry.parameter_names.iter().copied()),
+                known,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Stage dispatch of [`run`] for one system type.
+struct RunSystem<'a> {
+    spec: &'a RunSpec,
+    tick: Tick<'a>,
+}
+
+impl SystemVisitor for RunSystem<'_> {
+    type Output = Result<RunResult, RunError>;
+    fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+        self,
+        _: &'static SystemEntry,
+    ) -> Self::Output {
+        let (method, stages) = (self.spec.method, self.spec.stages);
+        Sys::with_stages(
+            stages,
+            RunStages::<Sys> { spec: self.spec, tick: self.tick, system: std::marker::PhantomData },
+        )
+        .map_err(|e| RunError::StagesNotCompiled { method, stages, max: e.max })?
+    }
+}
+
+struct RunStages<'a, Sys> {
+    spec: &'a RunSpec,
+    tick: Tick<'a>,
+    system: std::marker::PhantomData<Sys>,
+}
+
+impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for RunStages<'_, Sys> {
+    type Output = Result<RunResult, RunError>;
+    fn visit<const S: usize, const D: usize>(self) -> Self::Output {
+        run_with::<Sys, N, M, S, D>(self.spec, self.tick)
+    }
+}
+
+fn vector<const N: usize>(what: &'static str, entry: &SystemEntry, x: &[f64]) -> Result<Vector<N>, RunError> {
     if x.len() != N {
-        return Err(RunError::Dimension { what, system, got: x.len(), expected: N });
+        return Err(RunError::Dimension {
+            what,
+            system: entry.name,
+            got: x.len(),
+            expected: N,
+            coordinates: entry.coordinates.join(", "),
+        });
+    }
+    if let Some(bad) = x.iter().find(|x| !x.is_finite()) {
+        return Err(RunError::Invalid(format!("{what} has a non-finite entry {bad}")));
     }
     Ok(Vector::<N>::from_column_slice(x))
 }
 
+/// Largest `|g(t0, q0)|` accepted for a holonomic constraint.
+const POSITION_TOLERANCE: f64 = 1e-10;
+
 /// The generic run: one stepper type, fixed steps, per-step observation.
-fn run_with<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+pub fn run_with<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     spec: &RunSpec,
     tick: Tick<'_>,
 ) -> Result<RunResult, RunError>
 where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let key = spec.system.key();
+    let entry = spec.system.entry();
+    let key = entry.name;
     let make = || -> Result<Sys, RunError> {
         let mut sys = Sys::default();
         for (name, value) in &spec.parameters {
@@ -444,28 +390,44 @@ where
         }
         Ok(sys)
     };
-    let q0 = vector::<N>("q0", key, &spec.q0)?;
-    let v0 = vector::<N>("v0", key, &spec.v0)?;
+    let q0 = vector::<N>("q0", entry, &spec.q0)?;
+    let v0 = vector::<N>("v0", entry, &spec.v0)?;
     // A second instance evaluates energy and constraints in the observer,
     // which cannot borrow the stepper's system while the stepper runs.
     let probe = make()?;
+    if Sys::HAS_HOLONOMIC {
+        let residual = probe.holonomic_residual(spec.t0, &q0).amax();
+        if residual.is_nan() || residual > POSITION_TOLERANCE {
+            return Err(RunError::InconsistentPositions {
+                system: key,
+                residual,
+                tolerance: POSITION_TOLERANCE,
+                default: entry.q0,
+            });
+        }
+    }
     let tableau = Tableau::<S>::new(spec.method)?;
     let mut stepper = Stepper::<Sys, N, M, S, D>::new(make()?, tableau).with_options(spec.newton);
     // Check (or project) v0 here, so that E0 and the initial residual refer
     // to the state actually integrated.
-    let v0 = consistent_velocity(&probe, spec.t0, &q0, &v0, spec.consistency).map_err(|e| RunError::Integration {
-        system: key,
-        method: spec.method,
-        stages: S,
-        source: IntegrationError::Initial(e),
+    let v0 = consistent_velocity(&probe, spec.t0, &q0, &v0, spec.consistency).map_err(|e| match e {
+        spark_runtime::StepError::InconsistentInitialState { residual, tolerance } => {
+            RunError::InconsistentVelocities { system: key, residual, tolerance, default: entry.v0 }
+        }
+        e => {
+            RunError::Integration { system: key, method: spec.method, stages: S, source: IntegrationError::Initial(e) }
+        }
     })?;
+    let drift = |t: f64, q: &Vector<N>| if Sys::HAS_HOLONOMIC { probe.holonomic_residual(t, q).amax() } else { 0.0 };
     let e0 = probe.energy(spec.t0, &q0, &v0);
     let mut max_e: f64 = 0.0;
     let mut max_k: f64 = probe.constraint(spec.t0, &q0, &v0).amax();
+    let mut max_g: f64 = drift(spec.t0, &q0);
     let mut count = 0usize;
     let mut observer = |s: &spark_runtime::State<N>, _iters: usize| {
         max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
         max_k = max_k.max(probe.constraint(s.t, &s.q, &s.v).amax());
+        max_g = max_g.max(drift(s.t, &s.q));
         count += 1;
         if count.is_multiple_of(TICK_EVERY) {
             tick(TICK_EVERY as u64);
@@ -501,14 +463,67 @@ where
         v: (0..N).map(|i| column(&|s| s.v[i])).collect(),
         energy: column(&|s| s.energy.unwrap_or(f64::NAN)),
         constraint: column(&|s| s.constraint_residual.unwrap_or(f64::NAN)),
+        holonomic: if Sys::HAS_HOLONOMIC { column(&|s| drift(s.t, &s.q)) } else { Vec::new() },
         stats: RunStats {
             steps: traj.report.steps,
             e0,
             max_energy_error: max_e,
             max_constraint_residual: max_k,
+            max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(max_g),
             newton_iterations_mean: traj.report.newton_iterations_mean,
             wall_time,
             cpu_time,
         },
     })
+}
+
+/// The report of one run as Markdown: the setting, the energy error, the
+/// constraint residual, the holonomic drift (for systems with holonomic
+/// constraints), Newton iterations and timing.
+pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
+    use std::fmt::Write;
+    let entry = spec.system.entry();
+    let s = &result.stats;
+    let mut out = String::new();
+    let _ = writeln!(out, "# {} — {} s = {}\n", entry.name, result.method, result.stages);
+    let _ = writeln!(out, "{} ({}, N = {}, M = {})\n", entry.description, entry.type_name, entry.n, entry.m);
+    let _ = writeln!(out, "| quantity | value |\n|---|---|");
+    let row = |out: &mut String, k: &str, v: String| {
+        let _ = writeln!(out, "| {k} | {v} |");
+    };
+    row(
+        &mut out,
+        "steps × h",
+        format!("{} × {} (t = {} … {})", s.steps, spec.h, spec.t0, spec.t0 + s.steps as f64 * spec.h),
+    );
+    if !spec.parameters.is_empty() {
+        let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {v}")).collect();
+        row(&mut out, "parameters set", p.join(", "));
+    }
+    row(&mut out, "q0", format!("{:?}", spec.q0));
+    row(&mut out, "v0", format!("{:?}", spec.v0));
+    row(&mut out, "E0", format!("{}", s.e0));
+    let conserved = entry.structure.autonomous() && !entry.effects.does_work();
+    row(
+        &mut out,
+        "max |E − E0|",
+        if conserved {
+            format!("{:.3e}", s.max_energy_error)
+        } else {
+            format!(
+                "{:.3e} (energy is not conserved by this system: forcing, friction or time dependence)",
+                s.max_energy_error
+            )
+        },
+    );
+    row(&mut out, "max |k| (constraint residual)", format!("{:.3e}", s.max_constraint_residual));
+    if let Some(g) = s.max_holonomic_drift {
+        row(&mut out, "max |g| (holonomic drift, position level)", format!("{g:.3e}"));
+    }
+    row(&mut out, "Newton iterations per step (mean)", format!("{:.2}", s.newton_iterations_mean));
+    row(&mut out, "wall time", format!("{:.3} s", s.wall_time.as_secs_f64()));
+    if let Some(c) = s.cpu_time {
+        row(&mut out, "CPU time of the integrating thread", format!("{:.3} s", c.as_secs_f64()));
+    }
+    out
 }

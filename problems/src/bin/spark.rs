@@ -6,7 +6,8 @@ use problems::output::{create_dir, run_figure, write_run_csv, write_run_json};
 use problems::paper::{run_paper, PaperConfig, PaperReport};
 use problems::plot::render;
 use problems::progress::Progress;
-use problems::simulate::{run, RunSpec, SystemKind, MAX_DISPATCH_STAGES};
+use problems::registry::{list_json, list_table, lookup, nearest, MAX_DISPATCH_STAGES};
+use problems::simulate::{run, run_report, RunSpec};
 use spark_runtime::{ConsistencyPolicy, Method, NewtonMode};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -27,13 +28,14 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Show the systems and integration methods this program knows.
-    List,
+    /// Show the systems (name, N, M, structure, effects, parameters, default
+    /// initial state) and integration methods this program knows.
+    List(ListArgs),
     /// Integrate one system with one method; write the trajectory (CSV and/or
-    /// JSON) and a plot (PNG + SVG) of coordinates, velocities, energy error
-    /// and constraint residual.
+    /// JSON), a report (report.md, report.json: energy error, constraint
+    /// residual, holonomic drift, Newton iterations) and a plot (PNG + SVG).
     ///
-    /// Example: spark run --system robot --method lobatto-iiia-b-d --stages 3 --step 0.2 --t-end 150
+    /// Example: spark run robot --method lobatto-iiia-b-d --stages 3 --h 0.2 --t-end 150 --out results/robot
     Run(RunArgs),
     /// Reproduce the paper's experiments (Figs. 8.1–8.4): figures as PNG and
     /// SVG, the numbers behind each figure as CSV, and a summary table
@@ -79,11 +81,20 @@ impl From<Newton> for NewtonMode {
 }
 
 #[derive(Args, Debug)]
+struct ListArgs {
+    /// Print the systems as JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args, Debug)]
 struct RunArgs {
-    /// System to integrate (see `spark list`): particle, skate, robot, mp7
-    /// (the paper's), or turntable, appell-hamel, sleigh, double-pendulum.
-    #[arg(long, short = 'y')]
-    system: String,
+    /// System to integrate, by name or type name, any case (see `spark list`).
+    #[arg(value_name = "SYSTEM", required_unless_present = "system_flag")]
+    system: Option<String>,
+    /// The system, as a flag (same as the positional argument).
+    #[arg(long = "system", short = 'y', conflicts_with = "system")]
+    system_flag: Option<String>,
     /// Method: gauss, lobatto-iiia-b, lobatto-iiia-b-d, euler-1, euler-2,
     /// modified-lobatto-iiia-b or lobatto-iiib-a-lda.
     #[arg(long, short, default_value = "gauss")]
@@ -91,17 +102,22 @@ struct RunArgs {
     /// Number of stages s.
     #[arg(long, short, default_value_t = 2)]
     stages: usize,
-    /// Step size h.
-    #[arg(long, default_value_t = 0.1)]
-    step: f64,
-    /// Final time (start is t = 0); the number of steps is t_end / step, rounded.
-    #[arg(long, short, default_value_t = 10.0)]
-    t_end: f64,
-    /// Initial coordinates, comma-separated (default: the paper's).
+    /// Step size h (default: the system's, see `spark list`).
+    #[arg(long = "h", visible_alias = "step", allow_hyphen_values = true)]
+    h: Option<f64>,
+    /// Final time; the number of steps is (t_end − t0)/h, rounded (default:
+    /// the system's).
+    #[arg(long, short, allow_hyphen_values = true)]
+    t_end: Option<f64>,
+    /// Initial time (default: the system's, 0).
+    #[arg(long, allow_hyphen_values = true)]
+    t0: Option<f64>,
+    /// Initial coordinates, comma-separated (default: the system's; the
+    /// paper's for its systems).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     q0: Option<Vec<f64>>,
     /// Initial velocities, comma-separated; must satisfy the constraints
-    /// (default: the paper's).
+    /// (default: the system's).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     v0: Option<Vec<f64>>,
     /// Set a system parameter, e.g. --param beta=0.5 (repeatable).
@@ -150,10 +166,7 @@ struct PaperArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::List => {
-            list();
-            Ok(())
-        }
+        Command::List(args) => list(args),
         Command::Run(args) => run_command(args),
         Command::Paper(args) => paper_command(args),
         Command::WorkPrecision(args) => {
@@ -170,40 +183,41 @@ fn main() -> ExitCode {
     }
 }
 
-fn list() {
-    println!("Systems (use the name with --system):\n");
-    for kind in SystemKind::ALL {
-        let info = kind.info();
-        println!("  {:<9} {}", info.key, info.description);
-        println!(
-            "            type {}, coordinates [{}], {} constraint(s)",
-            info.type_name,
-            info.coordinates.join(", "),
-            info.constraints
-        );
-        if !info.parameters.is_empty() {
-            let p: Vec<String> = info.parameters.iter().map(|(n, v)| format!("{n} = {v}")).collect();
-            println!("            parameters: {}", p.join(", "));
-        }
-        println!("            default initial values: q0 = {:?}, v0 = {:?}\n", info.q0, info.v0);
+/// Method command-line names, in listing order.
+const METHODS: [(Method, &str); 7] = [
+    (Method::Gauss, "gauss"),
+    (Method::LobattoIIIAB, "lobatto-iiia-b"),
+    (Method::LobattoIIIABD, "lobatto-iiia-b-d"),
+    (Method::SymplecticEulerI, "euler-1"),
+    (Method::SymplecticEulerII, "euler-2"),
+    (Method::ModifiedLobattoIIIAB, "modified-lobatto-iiia-b"),
+    (Method::LobattoIIIBALda, "lobatto-iiib-a-lda"),
+];
+
+fn list(a: ListArgs) -> Result<(), String> {
+    if a.json {
+        let text = serde_json::to_string_pretty(&list_json()).map_err(|e| e.to_string())?;
+        println!("{text}");
+        return Ok(());
     }
-    println!("Methods (use the name with --method, the stage count with --stages):\n");
-    let keys = [
-        (Method::Gauss, "gauss"),
-        (Method::LobattoIIIAB, "lobatto-iiia-b"),
-        (Method::LobattoIIIABD, "lobatto-iiia-b-d"),
-        (Method::SymplecticEulerI, "euler-1"),
-        (Method::SymplecticEulerII, "euler-2"),
-        (Method::ModifiedLobattoIIIAB, "modified-lobatto-iiia-b"),
-        (Method::LobattoIIIBALda, "lobatto-iiib-a-lda"),
-    ];
-    for (m, key) in keys {
+    println!("Systems (use the name with `spark run NAME` or `--system NAME`):\n");
+    print!("{}", list_table());
+    println!("\nMethods (use the name with --method, the stage count with --stages):\n");
+    for (m, key) in METHODS {
         let (lo, hi) = m.stage_range();
         let hi = hi.min(MAX_DISPATCH_STAGES);
         let stages = if lo == hi { format!("s = {lo}") } else { format!("s = {lo}..{hi}") };
         let order = if lo == hi { format!("order {}", m.order(lo)) } else { "order ".to_string() + &order_formula(m) };
         println!("  {key:<24} {:<42} {stages:<10} {order}", m.name());
     }
+    Ok(())
+}
+
+fn parse_method(name: &str) -> Result<Method, String> {
+    name.parse().map_err(|e: spark_runtime::TableauError| match nearest(name, METHODS.iter().map(|m| m.1)) {
+        Some(s) => format!("{e} (did you mean `{s}`?)"),
+        None => e.to_string(),
+    })
 }
 
 fn order_formula(m: Method) -> String {
@@ -226,13 +240,21 @@ fn parse_params(params: &[String]) -> Result<Vec<(String, f64)>, String> {
 }
 
 fn run_command(a: RunArgs) -> Result<(), String> {
-    let system = SystemKind::parse(&a.system).map_err(|e| e.to_string())?;
-    let method: Method = a.method.parse().map_err(|e: spark_runtime::TableauError| e.to_string())?;
-    if !(a.step.is_finite() && a.step > 0.0 && a.t_end.is_finite() && a.t_end > 0.0) {
-        return Err("--step and --t-end must be positive numbers".into());
+    let name = a.system.as_deref().or(a.system_flag.as_deref()).ok_or("name a system (see `spark list`)")?;
+    let entry = lookup(name).map_err(|e| e.to_string())?;
+    let method = parse_method(&a.method)?;
+    let h = a.h.unwrap_or(entry.h);
+    let t0 = a.t0.unwrap_or(entry.t0);
+    let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
+    if !(h.is_finite() && h > 0.0) {
+        return Err(format!("--h must be a positive number, got {h}"));
     }
-    let steps = (a.t_end / a.step).round().max(1.0) as usize;
-    let mut spec = RunSpec::paper(system, method, a.stages, a.step, steps);
+    if !(t0.is_finite() && t_end.is_finite() && t_end > t0) {
+        return Err(format!("--t-end must be a number greater than t0 = {t0}, got {t_end}"));
+    }
+    let steps = ((t_end - t0) / h).round().max(1.0) as usize;
+    let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
+    spec.t0 = t0;
     if let Some(q0) = a.q0 {
         spec.q0 = q0;
     }
@@ -246,11 +268,11 @@ fn run_command(a: RunArgs) -> Result<(), String> {
         spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
     }
     let progress = Progress::on_terminal();
-    let bar = progress.bar(&format!("{} {} s={}", system.key(), method, a.stages), steps as u64);
+    let bar = progress.bar(&format!("{} {} s={}", entry.name, method, a.stages), steps as u64);
     let result = run(&spec, &|n| bar.inc(n)).map_err(|e| e.to_string())?;
     bar.finish_and_clear();
     create_dir(&a.out).map_err(|e| e.to_string())?;
-    let stem = a.out.join(format!("{}_{}_s{}", system.key(), a.method.to_ascii_lowercase(), a.stages));
+    let stem = a.out.join(format!("{}_{}_s{}", entry.name, method_key(method), a.stages));
     let mut files = Vec::new();
     if matches!(a.format, Format::Csv | Format::Both) {
         let p = stem.with_extension("csv");
@@ -262,27 +284,30 @@ fn run_command(a: RunArgs) -> Result<(), String> {
         write_run_json(&result, &p).map_err(|e| e.to_string())?;
         files.push(p);
     }
+    let report = run_report(&result, &spec);
+    let md = a.out.join("report.md");
+    std::fs::write(&md, &report).map_err(|e| format!("could not write {}: {e}", md.display()))?;
+    files.push(md);
+    let json = a.out.join("report.json");
+    let summary = serde_json::json!({
+        "system": entry.name, "type": entry.type_name, "method": method.name(), "stages": a.stages,
+        "h": h, "t0": t0, "q0": spec.q0, "v0": spec.v0, "parameters": spec.parameters, "stats": result.stats,
+    });
+    let text = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
+    std::fs::write(&json, text).map_err(|e| format!("could not write {}: {e}", json.display()))?;
+    files.push(json);
     if !a.no_plot {
         files.extend(render(&run_figure(&result), &stem).map_err(|e| e.to_string())?);
     }
-    let s = &result.stats;
-    println!(
-        "{} with {} s = {}: {} steps of h = {} in {:.3} s; E0 = {}, max |E − E0| = {:.3e}, max |k| = {:.3e}, {:.2} Newton iterations/step",
-        system.key(),
-        method,
-        a.stages,
-        s.steps,
-        a.step,
-        s.wall_time.as_secs_f64(),
-        s.e0,
-        s.max_energy_error,
-        s.max_constraint_residual,
-        s.newton_iterations_mean
-    );
+    print!("{report}");
     for f in files {
         println!("wrote {}", f.display());
     }
     Ok(())
+}
+
+fn method_key(m: Method) -> &'static str {
+    METHODS.iter().find(|x| x.0 == m).map_or("method", |x| x.1)
 }
 
 fn paper_command(a: PaperArgs) -> Result<(), String> {

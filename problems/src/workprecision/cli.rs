@@ -1,8 +1,8 @@
 //! The `spark work-precision` subcommand's arguments and driver (the binary
 //! only forwards to [`run`] and prints what it returns).
 
-use super::{run_work_precision, supported, WorkPrecisionConfig};
-use crate::simulate::SystemKind;
+use super::{run_work_precision, WorkPrecisionConfig};
+use crate::registry::SystemKind;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -11,9 +11,13 @@ use std::time::Duration;
 /// measured in the same run.
 #[derive(clap::Args, Debug, Clone)]
 pub struct WorkPrecisionArgs {
-    /// One system (particle, skate, robot, mp7); default: all four.
-    #[arg(long, short = 'y')]
-    pub system: Option<String>,
+    /// System by name (see `spark list`), repeatable or comma-separated;
+    /// `all` measures every registered system. Default: the paper's four
+    /// (particle, skate, robot, mp7). Peers that exist only for the paper's
+    /// systems (num-dual, finite differences, CasADi C, SciPy) are skipped
+    /// for the others, and the report says so.
+    #[arg(long, short = 'y', value_delimiter = ',')]
+    pub system: Vec<String>,
     /// Output folder (CSV, Markdown, PNG and SVG figures).
     #[arg(long, short, default_value = "results/work-precision")]
     pub out: PathBuf,
@@ -41,15 +45,33 @@ pub struct WorkPrecisionArgs {
     pub quick: bool,
 }
 
+/// The systems named on the command line, in the order given, without
+/// repeats; `all` stands for every registered system.
+pub fn select_systems(names: &[String]) -> Result<Vec<SystemKind>, String> {
+    let mut out: Vec<SystemKind> = Vec::new();
+    for name in names.iter().map(|n| n.trim()).filter(|n| !n.is_empty()) {
+        let kinds = if name.eq_ignore_ascii_case("all") {
+            SystemKind::ALL.to_vec()
+        } else {
+            vec![SystemKind::parse(name).map_err(|e| e.to_string())?]
+        };
+        for k in kinds {
+            if !out.contains(&k) {
+                out.push(k);
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err("--system needs a name (see `spark list`) or `all`".into());
+    }
+    Ok(out)
+}
+
 /// Runs the measurement and returns the text to print.
 pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, String> {
     let mut cfg = if a.quick { WorkPrecisionConfig::quick(&a.out) } else { WorkPrecisionConfig::full(&a.out) };
-    if let Some(name) = &a.system {
-        let kind = SystemKind::parse(name).map_err(|e| e.to_string())?;
-        if !supported(kind) {
-            return Err(format!("work-precision supports particle, skate, robot and mp7, not `{name}`"));
-        }
-        cfg.systems = vec![kind];
+    if !a.system.is_empty() {
+        cfg.systems = select_systems(&a.system)?;
     }
     if !a.quick {
         if !(a.t_end.is_finite() && a.t_end > 0.0) {
