@@ -69,12 +69,39 @@ nonholonomic_system! {
     /// constraint `v₁ + q₅v₅ + q₆v₆ + q₇v₇ = 0`. The paper's initial states are
     /// `q₀ = (cos(jπ/18), 0.6, 0.4, 0.2, 1, 1, 1)`, `v₀ = (0, sin(jπ/18), 0, …, 0)`,
     /// all with energy 3.06.
+    ///
+    /// This is the constraint exactly as the paper prints it
+    /// (`v₁ + Σ_{i=m+2}^{n} q_i v_i = 0`). It is **holonomic**: it is
+    /// `d/dt [q₁ + ½(q₅² + q₆² + q₇²)] = 0`, so the motion is that of a
+    /// Hamiltonian system on a level set of `φ(q) = q₁ + ½(q₅² + q₆² + q₇²)`.
+    /// See [`McLachlanPerlmutter7Nonholonomic`] for the nonholonomic reading
+    /// and `docs/stress/chaos.md` for what this changes in Fig. 8.4.
     pub struct McLachlanPerlmutter7 {
         coordinates: [q1, q2, q3, q4, q5, q6, q7],
         lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
             - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
                + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
         constraints: [ dot(q1) + q5*dot(q5) + q6*dot(q6) + q7*dot(q7) ],
+    }
+}
+
+nonholonomic_system! {
+    /// McLachlan and Perlmutter's particles (`n = 7`, `m = 3`) with the
+    /// constraint read as `v₁ + Σ_{i=m+2}^{n} q_{i−m} v_i = 0`, i.e.
+    /// `v₁ + q₂v₅ + q₃v₆ + q₄v₇ = 0` (paper §8.4 with the index `i − m`).
+    ///
+    /// Same `L` as [`McLachlanPerlmutter7`]. Unlike the printed constraint this
+    /// one is not integrable (`dq₁ + q₂dq₅ + q₃dq₆ + q₄dq₇` is a contact
+    /// form), so the system is genuinely nonholonomic, as §8.4 says, and the
+    /// paper's initial states `v₀ = (0, sin(jπ/18), 0, …, 0)` satisfy it with
+    /// energy 3.06. With it the three methods of Fig. 8.4 show the random
+    /// walk of the energy error that the paper reports (`docs/stress/chaos.md`).
+    pub struct McLachlanPerlmutter7Nonholonomic {
+        coordinates: [q1, q2, q3, q4, q5, q6, q7],
+        lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
+            - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
+               + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
+        constraints: [ dot(q1) + q2*dot(q5) + q3*dot(q6) + q4*dot(q7) ],
     }
 }
 
