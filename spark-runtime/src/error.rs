@@ -126,9 +126,17 @@ pub enum StepError {
         /// The iterations.
         history: Box<NewtonHistory>,
     },
-    /// The Newton matrix is singular to working precision (e.g. the
+    /// The Newton matrix is singular to working precision: a pivot fell
+    /// below `64 ε` times the largest entry of its column (e.g. the
     /// Lagrangian is not regular or the constraints are dependent there).
-    #[error("singular Newton matrix (pivot {pivot} of column {column}) in the step from t = {t} with h = {h}; history: {history}")]
+    /// The test is relative to the column, so a matrix evaluated at a
+    /// runaway iterate (huge multipliers dominating a column) can fail it
+    /// with an unremarkable pivot: `scale` and the history tell the cases apart.
+    #[error(
+        "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: pivot {pivot:.3e} \
+         in column {column} ({unknown}) is below 64 eps x {scale:.3e} (the column's largest entry); history: {history}",
+        history.len()
+    )]
     SingularMatrix {
         /// Start time.
         t: f64,
@@ -136,8 +144,12 @@ pub enum StepError {
         h: f64,
         /// The offending column of the Newton matrix.
         column: usize,
+        /// The unknown of that column (e.g. `V_2[3]`, `hΨ_1[1]`, `v1[2]`).
+        unknown: String,
         /// The pivot found there.
         pivot: f64,
+        /// The largest magnitude in that column (the pivot's yardstick).
+        scale: f64,
         /// The iterations.
         history: Box<NewtonHistory>,
     },
@@ -151,6 +163,42 @@ pub enum StepError {
         /// Where it appeared (residual, Jacobian, update).
         stage: &'static str,
         /// The iterations.
+        history: Box<NewtonHistory>,
+    },
+    /// The step solved its equations, but its end violates the energy
+    /// balance the structure facts guarantee (autonomous `L` and `k`,
+    /// constraints linear homogeneous in `v`, no external or non-ideal
+    /// force: `E` is a first integral): since the start of the chain of
+    /// continued steps at `since`, `|E − E₀|` exceeds `limit` times the
+    /// energy's size `|E₀| + |p₀·v₀|`. The discrete map amplifies something
+    /// the flow does not — typically a stiff mode with `ω·h` beyond the
+    /// method's stability range — so the result would be garbage. Checked
+    /// only when [`NewtonOptions::energy_drift_limit`](crate::NewtonOptions)
+    /// is set (the default).
+    #[error(
+        "energy drift in the step from t = {t} with h = {h}: E = {energy:.6e} against E0 = {energy0:.6e} at \
+         t = {since}, |E - E0| = {:.3e} > {limit} x (|E0| + |p0.v0|) = {:.3e}; E is a first integral of this \
+         system, so the discrete map is unstable at this step size (e.g. a stiff mode beyond the method's \
+         stability range): reduce h or use a method stable there",
+        (energy - energy0).abs(),
+        limit * scale
+    )]
+    EnergyDrift {
+        /// Start time of the failing step.
+        t: f64,
+        /// Step size.
+        h: f64,
+        /// Start of the chain of continued steps (where `E₀` was taken).
+        since: f64,
+        /// `E₀`.
+        energy0: f64,
+        /// `E` at the end of the failing step.
+        energy: f64,
+        /// `|E₀| + |p₀·v₀|`.
+        scale: f64,
+        /// The relative limit.
+        limit: f64,
+        /// The Newton iterations of the failing step (they converged).
         history: Box<NewtonHistory>,
     },
     /// `|k(t₀, q₀, v₀)|` exceeds the tolerance and the policy says not to project.
@@ -173,7 +221,8 @@ impl StepError {
             StepError::Diverged { history, .. }
             | StepError::MaxIterations { history, .. }
             | StepError::SingularMatrix { history, .. }
-            | StepError::NonFinite { history, .. } => Some(history),
+            | StepError::NonFinite { history, .. }
+            | StepError::EnergyDrift { history, .. } => Some(history),
             _ => None,
         }
     }

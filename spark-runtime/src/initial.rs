@@ -29,6 +29,25 @@ impl Default for ConsistencyPolicy {
     }
 }
 
+/// Why a saddle-point solve failed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum SaddleFailure {
+    /// A pivot of `W` (block `"W"`) or of the Schur complement `K W⁻¹ Kᵀ`
+    /// (block `"K W⁻¹ Kᵀ"`) fell below `64 ε` times its column's largest entry.
+    Singular {
+        /// Which factorization failed.
+        block: &'static str,
+        /// Column of that block.
+        column: usize,
+        /// The pivot.
+        pivot: f64,
+        /// The column's largest magnitude.
+        scale: f64,
+    },
+    /// The solution is not finite.
+    NonFinite,
+}
+
 /// Solves `[[W, Kᵀ],[K, 0]] [x; y] = [r1; r2]` by the Schur complement
 /// `K W⁻¹ Kᵀ` (all fixed-size: `N + M` cannot be named as a const on stable).
 pub(crate) fn saddle_solve<const N: usize, const M: usize>(
@@ -36,13 +55,18 @@ pub(crate) fn saddle_solve<const N: usize, const M: usize>(
     k: &Matrix<M, N>,
     r1: &Vector<N>,
     r2: &Vector<M>,
-) -> Option<(Vector<N>, Vector<M>)> {
+) -> Result<(Vector<N>, Vector<M>), SaddleFailure> {
     let mut wlu = Lu::<N>::new();
-    wlu.factor(w).ok()?;
+    wlu.factor(w).map_err(|e| SaddleFailure::Singular {
+        block: "W",
+        column: e.column,
+        pivot: e.pivot,
+        scale: w.column(e.column).amax(),
+    })?;
     let mut winv_r1 = *r1;
     wlu.solve_in_place(&mut winv_r1);
     if M == 0 {
-        return Some((winv_r1, Vector::<M>::zeros()));
+        return Ok((winv_r1, Vector::<M>::zeros()));
     }
     let mut winv_kt = k.transpose();
     for mut col in winv_kt.column_iter_mut() {
@@ -52,11 +76,20 @@ pub(crate) fn saddle_solve<const N: usize, const M: usize>(
     }
     let schur = k * winv_kt;
     let mut slu = Lu::<M>::new();
-    slu.factor(&schur).ok()?;
+    slu.factor(&schur).map_err(|e| SaddleFailure::Singular {
+        block: "K W⁻¹ Kᵀ",
+        column: e.column,
+        pivot: e.pivot,
+        scale: schur.column(e.column).amax(),
+    })?;
     let mut y = k * winv_r1 - r2;
     slu.solve_in_place(&mut y);
     let x = winv_r1 - winv_kt * y;
-    (x.iter().chain(y.iter()).all(|v| v.is_finite())).then_some((x, y))
+    if x.iter().chain(y.iter()).all(|v| v.is_finite()) {
+        Ok((x, y))
+    } else {
+        Err(SaddleFailure::NonFinite)
+    }
 }
 
 /// The acceleration `a = v̇` and multiplier `ψ` of the constrained equations
@@ -84,7 +117,7 @@ where
     }
     // A non-ideal force N(ψ) is left out: this is a starting guess, and
     // Newton on the step equations accounts for it.
-    saddle_solve(&jac.mass, &jac.constraint_v, &r1, &r2)
+    saddle_solve(&jac.mass, &jac.constraint_v, &r1, &r2).ok()
 }
 
 /// Checks `(t₀, q₀, v₀)` against the constraints and, by `policy`, returns
@@ -140,12 +173,33 @@ where
         let res = g1.amax().max(g2.amax());
         // Jacobian [[W − ∂R/∂v, Kᵀ],[K, 0]].
         let a = w - jac.constraint_force_v;
-        let Some((dv, dl)) = saddle_solve(&a, &jac.constraint_v, &g1, &g2) else {
-            return Err(StepError::SingularMatrix { t: t0, h: 0.0, column: 0, pivot: 0.0, history: Box::new(history) });
+        let (dv, dl) = match saddle_solve(&a, &jac.constraint_v, &g1, &g2) {
+            Ok(x) => x,
+            Err(SaddleFailure::Singular { block, column, pivot, scale }) => {
+                history.push(IterationRecord { residual: res, update: f64::NAN, rate: f64::NAN });
+                return Err(StepError::SingularMatrix {
+                    t: t0,
+                    h: 0.0,
+                    column,
+                    unknown: format!("velocity projection, block {block} of [[W, Kᵀ],[K, 0]]"),
+                    pivot,
+                    scale,
+                    history: Box::new(history),
+                });
+            }
+            Err(SaddleFailure::NonFinite) => {
+                history.push(IterationRecord { residual: res, update: f64::NAN, rate: f64::NAN });
+                return Err(StepError::NonFinite {
+                    t: t0,
+                    h: 0.0,
+                    stage: "velocity projection",
+                    history: Box::new(history),
+                });
+            }
         };
         v -= dv;
         lambda -= dl;
-        let upd = dv.iter().zip(v.iter()).map(|(d, x)| d.abs() / (1.0 + x.abs())).fold(0.0, f64::max);
+        let upd = crate::convergence::scaled_update_norm(&dv, &v);
         let rate = upd / prev;
         history.push(IterationRecord { residual: res, update: upd, rate });
         if !upd.is_finite() {

@@ -118,12 +118,14 @@
 //! ```
 #![warn(missing_docs)]
 
+mod convergence;
 mod driver;
 pub mod effects;
 mod error;
 pub mod handwritten;
 mod initial;
 mod linalg;
+pub mod newton;
 pub mod reference;
 pub mod rejection;
 mod stepper;

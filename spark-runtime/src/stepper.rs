@@ -33,9 +33,10 @@
 // Stage loops index several parallel arrays (c, a, b, stage values) with one index.
 #![allow(clippy::needless_range_loop)]
 
+use crate::convergence::{check_energy, energy_is_invariant, scaled_update_norm, EnergyAnchor, EnergyCheck};
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
 use crate::initial::consistent_acceleration;
-use crate::linalg::Lu;
+use crate::newton::NewtonMatrix;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 
@@ -69,7 +70,43 @@ pub struct NewtonOptions {
     /// Degree (1..=3) of the polynomial extrapolating the solutions of
     /// previous equal steps to the next starting guess.
     pub extrapolation_degree: usize,
+    /// Energy guard: when the structure facts make `E` a first integral
+    /// (autonomous `L` and `k`, constraints linear homogeneous in `v`, no
+    /// external or non-ideal force), refuse with
+    /// [`StepError::EnergyDrift`] a step that leaves `|E − E₀|` above this
+    /// multiple of `|E₀| + |p₀·v₀|`, `E₀` taken where the chain of continued
+    /// steps began. A sanity bound against unstable discrete maps (stiff
+    /// modes beyond a method's stability range), not an accuracy control;
+    /// `None` turns it off. Default `Some(1.0)`.
+    #[serde(default = "default_energy_drift_limit")]
+    pub energy_drift_limit: Option<f64>,
+    /// Simplified Newton only: start a step that continues the previous one
+    /// (same `h`, warm start) from the previous step's factorization instead
+    /// of a fresh Jacobian, as long as it contracts well (rate ≤ 0.2 over
+    /// the previous step; refreshed within a step when the rate exceeds 0.5).
+    /// The converged solution is the same (to the tolerance); it trades one
+    /// Jacobian + factorization per step for more, cheaper iterations. Off by
+    /// default: measured on the skate and MP particles (Gauss s = 2, h = 0.05)
+    /// an earlier step's factors contract at rate ≈ 0.1, so a step needs ≈ 7
+    /// iterations instead of 2 and costs more than a fresh factorization.
+    #[serde(default = "default_reuse")]
+    pub reuse_factorization: bool,
 }
+
+fn default_energy_drift_limit() -> Option<f64> {
+    Some(1.0)
+}
+
+fn default_reuse() -> bool {
+    false
+}
+
+/// Largest contraction rate of a step with which simplified Newton keeps
+/// its factorization for the next step.
+const REUSE_RATE: f64 = 0.2;
+/// Contraction rate above which an iteration on an earlier step's
+/// factorization triggers a fresh Jacobian at the current iterate.
+const REFRESH_RATE: f64 = 0.5;
 
 impl Default for NewtonOptions {
     fn default() -> Self {
@@ -80,6 +117,8 @@ impl Default for NewtonOptions {
             max_iterations: 20,
             warm_start: true,
             extrapolation_degree: 2,
+            reuse_factorization: default_reuse(),
+            energy_drift_limit: default_energy_drift_limit(),
         }
     }
 }
@@ -138,19 +177,26 @@ struct Warm<const N: usize, const M: usize, const S: usize, const D: usize> {
 /// constraints; `D` must equal `S(N+M)+N` (see the module docs). Name the
 /// type with [`Stepper!`](crate::Stepper!) to have `D` computed for you.
 ///
-/// A step allocates nothing on the heap: all state, the Newton matrix and
-/// its factorization are fixed-size nalgebra values.
+/// A step allocates nothing on the heap: the Newton matrix, its factors and
+/// the stage Jacobians are allocated once by [`Stepper::new`] (on the heap,
+/// so the stepper's own size is `O(S·D)` and large `D` cannot overflow a
+/// thread's stack); everything else is fixed-size nalgebra values.
 #[derive(Clone, Debug)]
 pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize> {
     system: Sys,
     tableau: Tableau<S>,
     options: NewtonOptions,
     warm: Option<Warm<N, M, S, D>>,
-    jacobian: Matrix<D, D>,
-    lu: Lu<D>,
-    /// Stage Jacobians of the latest full evaluation (kept to avoid
-    /// re-initializing them every step).
-    work: EvalJac<N, M, S>,
+    /// The Newton matrix and its factors (heap, allocated once).
+    newton: NewtonMatrix<N, M, S, D>,
+    /// Stage Jacobians of the latest full evaluation (heap, allocated once:
+    /// `(S+2)·8·N²` doubles would dominate the stepper's size).
+    work: Box<EvalJac<N, M, S>>,
+    /// The step size for which `newton` holds factors that simplified Newton
+    /// may reuse on the next continuing step (`None`: evaluate afresh).
+    reusable: Option<f64>,
+    /// Where the energy guard's chain of continued steps began.
+    anchor: Option<EnergyAnchor<N>>,
 }
 
 /// Everything one residual evaluation produced.
@@ -161,13 +207,16 @@ struct Eval<const N: usize, const M: usize, const S: usize> {
 }
 
 /// Jacobians of one evaluation (only for full-Jacobian iterations).
+/// The per-stage arrays are boxed slices (length `S`) so that building one
+/// never puts `S·64·N²` bytes on the stack (n = 65, s = 2 overflowed a
+/// 2 MiB thread when they were arrays built before boxing).
 #[derive(Clone, Debug)]
 struct EvalJac<const N: usize, const M: usize, const S: usize> {
-    stages: [StageJacobians<N, M>; S],
+    stages: Box<[StageJacobians<N, M>]>,
     end: StageJacobians<N, M>,
     mid: Option<StageJacobians<N, M>>,
     /// `∂N/∂ψ` at the stages (only written when `Sys::HAS_NONIDEAL_FORCE`).
-    nonideal_psi: [Matrix<N, M>; S],
+    nonideal_psi: Box<[Matrix<N, M>]>,
 }
 
 fn zero_values<const N: usize, const M: usize>() -> StageValues<N, M> {
@@ -205,14 +254,15 @@ where
             tableau,
             options: NewtonOptions::default(),
             warm: None,
-            jacobian: Matrix::zeros(),
-            lu: Lu::new(),
-            work: EvalJac {
-                stages: [zero_jacobians(); S],
+            newton: NewtonMatrix::new(),
+            work: Box::new(EvalJac {
+                stages: vec![zero_jacobians(); S].into_boxed_slice(),
                 end: zero_jacobians(),
                 mid: None,
-                nonideal_psi: [Matrix::zeros(); S],
-            },
+                nonideal_psi: vec![Matrix::zeros(); S].into_boxed_slice(),
+            }),
+            reusable: None,
+            anchor: None,
         }
     }
 
@@ -241,6 +291,8 @@ where
     /// warm start.
     pub fn system_mut(&mut self) -> &mut Sys {
         self.warm = None;
+        self.reusable = None;
+        self.anchor = None;
         &mut self.system
     }
 
@@ -260,11 +312,15 @@ where
         if let Some(w) = self.warm.as_mut() {
             w.end = *state;
         }
+        if let Some(a) = self.anchor.as_mut() {
+            a.end = *state;
+        }
     }
 
     /// Forgets the previous step, so the next step starts cold.
     pub fn reset_warm_start(&mut self) {
         self.warm = None;
+        self.reusable = None;
     }
 
     /// One SPARK step of size `h` (negative `h` integrates backward) from a
@@ -290,11 +346,27 @@ where
         }
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let end = State { t: t0 + h, q: q1, v: v1 };
-        // The convergence test folds |Δz| with f64::max, which skips NaN: a
-        // solve that produced NaN components can look converged. Never
-        // return a non-finite state as a success.
+        // The update norm propagates NaN, so this catches only overflow of
+        // q₁ = q₀ + hΣb_jV_j; never return a non-finite state as a success.
         if !end.q.iter().chain(end.v.iter()).all(|x| x.is_finite()) {
             return Err(StepError::NonFinite { t: t0, h, stage: "step result", history: Box::new(history) });
+        }
+        if let (Some(limit), true) = (self.options.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
+            match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, limit) {
+                EnergyCheck::Accept(a) => self.anchor = Some(a),
+                EnergyCheck::Drift(a, energy) => {
+                    return Err(StepError::EnergyDrift {
+                        t: t0,
+                        h,
+                        since: a.t,
+                        energy0: a.energy,
+                        energy,
+                        scale: a.scale,
+                        limit,
+                        history: Box::new(history),
+                    });
+                }
+            }
         }
         let (mut past, mut depth) = ([Vector::<D>::zeros(); PAST], 0);
         if let Some(w) = self.warm.as_ref().filter(|w| w.end == *state && w.h == h) {
@@ -377,6 +449,22 @@ where
         }
         z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&(state.v + h * a0));
         (z, false)
+    }
+
+    /// The Newton matrix of a step of size `h` from `state`, evaluated and
+    /// assembled at the step's starting guess, with that guess's residual.
+    ///
+    /// For benchmarks and diagnostics of the linear algebra alone: time
+    /// [`NewtonMatrix::factor`] and [`NewtonMatrix::solve_in_place`] on a
+    /// clone. The stepper's warm start is left as it was.
+    pub fn newton_matrix(&mut self, state: &State<N>, h: f64) -> (&NewtonMatrix<N, M, S, D>, Vector<D>) {
+        let (z, _) = self.starting_guess(state, h);
+        let p0 = self.system.momentum(state.t, &state.q, &state.v);
+        let ev = Self::evaluate(&self.system, &self.tableau, state, h, &z, Some(&mut *self.work));
+        let g = Self::residual(&self.tableau, &p0, h, &z, &ev);
+        self.assemble_jacobian(h);
+        self.reusable = None;
+        (&self.newton, g)
     }
 
     /// Evaluates the stage points of `z`, optionally with Jacobians.
@@ -516,8 +604,8 @@ where
         let separable = st.separable && !Sys::HAS_FORCING;
         // K independent of v and no non-ideal force: ∂R/∂v = 0.
         let k_velocity_free = st.constraint_matrix_velocity_free() && !Sys::HAS_NONIDEAL_FORCE;
-        let j = &mut self.jacobian;
-        j.fill(0.0);
+        self.newton.clear();
+        let mut j = self.newton.matrix_mut();
         let h2 = h * h;
         // Momentum rows: stage rows i < S use (a_i, â_i, ã_i); the p₁ row uses
         // (b, b̂, b̃) with its momentum evaluated at the end point. Blocks are
@@ -615,56 +703,92 @@ where
         let mut prev_update = f64::NAN;
         let fail_nonfinite =
             |stage, history: NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(history) };
-        for k in 0..max_iter {
-            let fresh = k == 0 || opts.mode == NewtonMode::Full;
-            let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, fresh.then_some(&mut self.work));
-            let mut g = Self::residual(&self.tableau, &p0, h, z, &ev);
-            let residual = g.amax();
-            if !g.iter().all(|x| x.is_finite()) {
-                history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
-                return Err(fail_nonfinite("residual", history));
-            }
-            if fresh {
-                self.assemble_jacobian(h);
-                if let Err(s) = self.lu.factor(&self.jacobian) {
-                    history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
-                    return Err(if self.jacobian.iter().all(|x| x.is_finite()) {
-                        StepError::SingularMatrix { t, h, column: s.column, pivot: s.pivot, history: Box::new(history) }
-                    } else {
-                        fail_nonfinite("Jacobian", history)
-                    });
+        let simplified = opts.mode == NewtonMode::Simplified;
+        // `stale`: the factors in `self.newton` come from an earlier step.
+        let mut stale = simplified && opts.reuse_factorization && self.reusable == Some(h) && self.is_warm_for(state);
+        self.reusable = None;
+        let mut refresh = !stale;
+        let mut max_rate = 0.0f64;
+        let result = 'solve: {
+            for k in 0..max_iter {
+                let fresh = refresh || !simplified;
+                refresh = false;
+                let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, fresh.then_some(&mut *self.work));
+                let mut g = Self::residual(&self.tableau, &p0, h, z, &ev);
+                let residual = g.amax();
+                if !g.iter().all(|x| x.is_finite()) {
+                    history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
+                    return Err(fail_nonfinite("residual", history));
                 }
-            }
-            self.lu.solve_in_place(&mut g);
-            *z -= g;
-            let update = g.iter().zip(z.iter()).map(|(d, x)| d.abs() / (1.0 + x.abs())).fold(0.0, f64::max);
-            let rate = update / prev_update;
-            history.push(IterationRecord { residual, update, rate });
-            if !update.is_finite() {
-                return Err(fail_nonfinite("update", history));
-            }
-            if update <= opts.tolerance {
-                return Ok(history);
-            }
-            if k > 0 {
-                if rate >= 1.0 {
-                    if update <= opts.stagnation_level {
-                        return Ok(history);
+                if fresh {
+                    self.assemble_jacobian(h);
+                    if let Err(s) = self.newton.factor() {
+                        history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
+                        return Err(if self.newton.matrix().iter().all(|x| x.is_finite()) {
+                            StepError::SingularMatrix {
+                                t,
+                                h,
+                                column: s.column,
+                                unknown: unknown_name::<N, M, S>(s.column),
+                                pivot: s.pivot,
+                                scale: self.newton.matrix().column(s.column).amax(),
+                                history: Box::new(history),
+                            }
+                        } else {
+                            fail_nonfinite("Jacobian", history)
+                        });
                     }
-                    return Err(StepError::Diverged { t, h, history: Box::new(history) });
+                    stale = false;
                 }
-                // Remaining error estimated as θ/(1−θ)·‖Δz‖ even for full
-                // Newton: unknowns entering linearly (the multipliers) converge
-                // in one iteration and make the first contraction look much
-                // faster than that of the nonlinear ones, so a quadratic model
-                // would stop one iteration early (measured: |k| ≈ 2e-13).
-                if update * rate / (1.0 - rate) <= opts.tolerance {
-                    return Ok(history);
+                self.newton.solve_in_place(&mut g);
+                let z_before = *z;
+                *z -= g;
+                let update = scaled_update_norm(&g, z);
+                let rate = update / prev_update;
+                history.push(IterationRecord { residual, update, rate });
+                if !update.is_finite() && !stale {
+                    return Err(fail_nonfinite("update", history));
                 }
+                if rate.is_finite() {
+                    max_rate = max_rate.max(rate);
+                }
+                if stale && !(rate <= REFRESH_RATE || (k == 0 && update.is_finite())) {
+                    // An earlier step's factors contract too slowly here: a fresh
+                    // Jacobian at the last good iterate, not a divergence.
+                    if !(rate < 1.0) {
+                        *z = z_before;
+                    }
+                    refresh = true;
+                    prev_update = f64::NAN;
+                    continue;
+                }
+                if update <= opts.tolerance {
+                    break 'solve Ok(history);
+                }
+                if k > 0 {
+                    if rate >= 1.0 {
+                        if update <= opts.stagnation_level {
+                            break 'solve Ok(history);
+                        }
+                        return Err(StepError::Diverged { t, h, history: Box::new(history) });
+                    }
+                    // Remaining error estimated as θ/(1−θ)·‖Δz‖ even for full
+                    // Newton: unknowns entering linearly (the multipliers) converge
+                    // in one iteration and make the first contraction look much
+                    // faster than that of the nonlinear ones, so a quadratic model
+                    // would stop one iteration early (measured: |k| ≈ 2e-13).
+                    if update * rate / (1.0 - rate) <= opts.tolerance {
+                        break 'solve Ok(history);
+                    }
+                }
+                prev_update = update;
             }
-            prev_update = update;
+            Err(StepError::MaxIterations { t, h, history: Box::new(history) })
+        };
+        if result.is_ok() && simplified && max_rate <= REUSE_RATE {
+            self.reusable = Some(h);
         }
-        Err(StepError::MaxIterations { t, h, history: Box::new(history) })
+        result
     }
 }
 
@@ -681,10 +805,10 @@ where
         z: &Vector<D>,
     ) -> (Vector<D>, Matrix<D, D>) {
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
-        let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, Some(&mut self.work));
+        let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, Some(&mut *self.work));
         let g = Self::residual(&self.tableau, &p0, h, z, &ev);
         self.assemble_jacobian(h);
-        (g, self.jacobian)
+        (g, self.newton.matrix().into_owned())
     }
 
     /// The residual at `z`.
@@ -692,6 +816,19 @@ where
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, None);
         Self::residual(&self.tableau, &p0, h, z, &ev)
+    }
+}
+
+/// The name of unknown `column` of `z` (1-based stage and component, as in
+/// the paper): `V_i[d]`, `hΨ_i[d]` or `v1[d]`.
+fn unknown_name<const N: usize, const M: usize, const S: usize>(column: usize) -> String {
+    if column < S * N {
+        format!("V_{}[{}]", column / N + 1, column % N + 1)
+    } else if column < S * (N + M) {
+        let c = column - S * N;
+        format!("hΨ_{}[{}]", c / M + 1, c % M + 1)
+    } else {
+        format!("v1[{}]", column - S * (N + M) + 1)
     }
 }
 
