@@ -1,24 +1,59 @@
 //! Criterion benchmarks of the generated systems (not part of the test suite;
 //! run with `cargo bench -p problems --bench spark`):
-//! - one SPARK step per paper system × method family × stage count (full
-//!   Newton, warm-started, at the work-precision sweep's mid-range step);
+//! - one SPARK step per paper system × method family × stage count
+//!   (warm-started, at the work-precision sweep's mid-range step), full
+//!   Newton (`step/…`) and simplified Newton with the factorization reused
+//!   across steps (`step-simplified/…`);
+//! - the Newton linear algebra of one iteration alone (`newton/…`: factor
+//!   the assembled `D × D` matrix and solve once, on a copy of the matrix
+//!   of a real step) and the solve alone (`newton-solve/…`);
 //! - the fused derivative evaluations alone (`stage_values`,
 //!   `stage_jacobians`), generated code against num-dual and central
 //!   differences;
 //! - the ψ-eliminated right-hand side the ODE peers integrate.
 //!
-//! The Newton linear algebra alone is the step minus its derivative calls;
-//! `docs/performance/README.md` splits one step that way.
+//! Every bench is timed by the measuring thread's CPU time
+//! (`CLOCK_THREAD_CPUTIME_ID`), not wall time: the machine is shared, and
+//! CPU time is what stays comparable between runs under load.
 
+use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use problems::peers::dual::{AutoDiff, DualTwin};
 use problems::peers::finite_difference::FiniteDifference;
 use problems::peers::ode;
 use problems::simulate::{paper_initial_values, SystemKind};
 use problems::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
-use problems::workprecision::method_label;
-use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
+use problems::workprecision::{method_label, thread_cpu_time};
+use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
+
+/// Criterion measurement by the calling thread's CPU time.
+struct ThreadCpu(WallTime);
+
+impl Measurement for ThreadCpu {
+    type Intermediate = f64;
+    type Value = Duration;
+    fn start(&self) -> f64 {
+        thread_cpu_time()
+    }
+    fn end(&self, start: f64) -> Duration {
+        Duration::from_secs_f64((thread_cpu_time() - start).max(0.0))
+    }
+    fn add(&self, a: &Duration, b: &Duration) -> Duration {
+        *a + *b
+    }
+    fn zero(&self) -> Duration {
+        Duration::ZERO
+    }
+    fn to_f64(&self, v: &Duration) -> f64 {
+        v.as_nanos() as f64
+    }
+    fn formatter(&self) -> &dyn ValueFormatter {
+        self.0.formatter()
+    }
+}
+
+type C = Criterion<ThreadCpu>;
 
 fn start<const N: usize>(kind: SystemKind) -> State<N> {
     let (q, v) = paper_initial_values(kind);
@@ -26,25 +61,53 @@ fn start<const N: usize>(kind: SystemKind) -> State<N> {
 }
 
 fn step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    c: &mut Criterion,
+    c: &mut C,
     kind: SystemKind,
     method: Method,
     h: f64,
 ) where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let mut st = Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(method).unwrap());
+    let label = format!("{}/{}", kind.key(), method_label(method, S));
     let s0 = start::<N>(kind);
+    for (group, mode) in [("step", NewtonMode::Full), ("step-simplified", NewtonMode::Simplified)] {
+        let opts = NewtonOptions { mode, ..NewtonOptions::default() };
+        let mut st = Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(method).unwrap()).with_options(opts);
+        let mut s = s0;
+        c.bench_function(&format!("{group}/{label}"), |b| {
+            b.iter(|| {
+                // Stay in the paper's regime: restart every 10 time units.
+                if s.t > 10.0 {
+                    s = s0;
+                    st.reset_warm_start();
+                }
+                s = st.step(&s, h).unwrap().state;
+                black_box(s.q[0])
+            })
+        });
+    }
+    // The linear algebra of one Newton iteration, on the matrix of a real
+    // step (one second into the trajectory, warm).
+    let mut st = Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(method).unwrap());
     let mut s = s0;
-    c.bench_function(&format!("step/{}/{}", kind.key(), method_label(method, S)), |b| {
+    while s.t < 1.0 {
+        s = st.step(&s, h).unwrap().state;
+    }
+    let (matrix, g) = st.newton_matrix(&s, h);
+    let mut work = matrix.clone();
+    c.bench_function(&format!("newton/{label}"), |b| {
         b.iter(|| {
-            // Stay in the paper's regime: restart every 10 time units.
-            if s.t > 10.0 {
-                s = s0;
-                st.reset_warm_start();
-            }
-            s = st.step(&s, h).unwrap().state;
-            black_box(s.q[0])
+            work.factor().unwrap();
+            let mut x = g;
+            work.solve_in_place(&mut x);
+            black_box(x[0])
+        })
+    });
+    c.bench_function(&format!("newton-solve/{label}"), |b| {
+        b.iter(|| {
+            let mut x = black_box(g);
+            work.solve_in_place(&mut x);
+            black_box(x[0])
         })
     });
 }
@@ -70,14 +133,14 @@ macro_rules! all_methods {
     }};
 }
 
-fn steps(c: &mut Criterion) {
+fn steps(c: &mut C) {
     all_methods!(c, NonholonomicParticle, SystemKind::Particle, 0.05);
     all_methods!(c, Skate, SystemKind::Skate, 0.05);
     all_methods!(c, MobileRobot, SystemKind::Robot, 0.05);
     all_methods!(c, McLachlanPerlmutter7, SystemKind::McLachlanPerlmutter7, 0.05);
 }
 
-fn derivatives_of<Sys, const N: usize, const M: usize>(c: &mut Criterion, kind: SystemKind)
+fn derivatives_of<Sys, const N: usize, const M: usize>(c: &mut C, kind: SystemKind)
 where
     Sys: NonholonomicSystem<N, M> + DualTwin<N, M> + Default,
 {
@@ -108,7 +171,7 @@ where
     });
 }
 
-fn derivatives(c: &mut Criterion) {
+fn derivatives(c: &mut C) {
     derivatives_of::<NonholonomicParticle, 3, 1>(c, SystemKind::Particle);
     derivatives_of::<Skate, 3, 1>(c, SystemKind::Skate);
     derivatives_of::<MobileRobot, 4, 2>(c, SystemKind::Robot);
@@ -117,7 +180,7 @@ fn derivatives(c: &mut Criterion) {
 
 criterion_group! {
     name = benches;
-    config = Criterion::default().warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
+    config = Criterion::default().with_measurement(ThreadCpu(WallTime)).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
     targets = derivatives, steps
 }
 criterion_main!(benches);

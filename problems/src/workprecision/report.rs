@@ -242,7 +242,9 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
             .filter(|((_, me), _)| *me == label)
             .map(|((solver, _), c)| Series::new(solver.clone(), c.iter().map(|p| (p.time(), p.error())).collect()))
             .collect();
-        if !series.is_empty() {
+        // A system whose solution the method reproduces exactly (error 0)
+        // has nothing to draw on log axes.
+        if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
             panels.push(Panel {
                 title: format!("{label}: same step, other derivative code"),
                 x_label: "time per run [s] (thread CPU)".into(),
@@ -269,14 +271,16 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
             series.push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.time(), p.error())).collect()));
         }
     }
-    panels.push(Panel {
-        title: "SPARK against ODE solvers on the ψ-eliminated ODE".into(),
-        x_label: "time per run [s] (thread CPU)".into(),
-        y_label: "global error in q, v at T".into(),
-        x_scale: Scale::Log,
-        y_scale: Scale::Log,
-        series,
-    });
+    if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
+        panels.push(Panel {
+            title: "SPARK against ODE solvers on the ψ-eliminated ODE".into(),
+            x_label: "time per run [s] (thread CPU)".into(),
+            y_label: "global error in q, v at T".into(),
+            x_scale: Scale::Log,
+            y_scale: Scale::Log,
+            series,
+        });
+    }
     Figure {
         title: format!("{}: peers, T = {}", m.problem.system, m.problem.final_time),
         panels,
@@ -293,7 +297,9 @@ pub fn write_system(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Result<
     let fig = family_figure(m, &format!("{key}: global error at T = {t} vs wall time"), "global error in q, v", |p| {
         p.error()
     });
-    render(&fig, &cfg.out.join(format!("{key}-error")))?;
+    if !fig.panels.is_empty() {
+        render(&fig, &cfg.out.join(format!("{key}-error")))?;
+    }
     let fig =
         family_figure(m, &format!("{key}: largest energy error on [0, {t}] vs wall time"), "max |E − E₀|", |p| {
             p.energy_error
@@ -301,7 +307,10 @@ pub fn write_system(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Result<
     if !fig.panels.is_empty() {
         render(&fig, &cfg.out.join(format!("{key}-energy")))?;
     }
-    render(&peer_figure(m, cfg), &cfg.out.join(format!("{key}-peers")))?;
+    let fig = peer_figure(m, cfg);
+    if !fig.panels.is_empty() {
+        render(&fig, &cfg.out.join(format!("{key}-peers")))?;
+    }
     let md = system_markdown(m, cfg);
     std::fs::write(cfg.out.join(format!("{key}.md")), md).map_err(|e| out_err(&cfg.out, e))?;
     Ok(())
@@ -397,7 +406,7 @@ pub fn write_scaling_figure(rows: &[super::scaling::ScalingRow], out: &Path) -> 
         title: "McLachlan–Perlmutter particles: cost against size".into(),
         panels: vec![
             panel("time per step (full Newton)", "seconds", &|r| r.time_per_step),
-            panel("time per step (simplified, reused LU)", "seconds", &|r| r.time_per_step_simplified),
+            panel("time per step (simplified Newton)", "seconds", &|r| r.time_per_step_simplified),
             panel("stepper value + heap", "bytes", &|r| (r.stepper_bytes + r.heap_bytes) as f64),
             panel("arithmetic rate", "GFLOP/s (estimated)", &|r| r.gflops),
         ],

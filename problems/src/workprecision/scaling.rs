@@ -1,7 +1,7 @@
 //! Scaling with the system size: McLachlan–Perlmutter particles for
 //! `n = 5, 9, 17, 33, 65` ([`scaling_systems`](super::scaling_systems)),
 //! Gauss SPARK `s = 2` (and `s = 5` for the large-`D` end): time per step
-//! with full Newton and with simplified Newton reusing its factorization,
+//! with full Newton and with simplified Newton (one factorization per step),
 //! the stepper's size and heap storage, and the arithmetic rate one step
 //! reaches (operation count of the generated code plus the block LU of the
 //! `D × D` Newton matrix, `D = s(n+1)+n`).
@@ -44,7 +44,7 @@ pub struct ScalingRow {
     pub time_per_step: f64,
     /// Mean Newton iterations per step, full Newton.
     pub newton_iterations: f64,
-    /// Median CPU time per step, simplified Newton reusing its factorization.
+    /// Median CPU time per step, simplified Newton (one factorization per step).
     pub time_per_step_simplified: f64,
     /// Mean Newton iterations per step, simplified Newton.
     pub newton_iterations_simplified: f64,
@@ -146,7 +146,7 @@ pub fn measure_scaling(repeats: usize) -> Result<Vec<ScalingRow>, String> {
 /// The scaling table as Markdown.
 pub fn scaling_markdown(rows: &[ScalingRow]) -> String {
     let mut s = String::from(
-        "| n | s | D | stepper value | heap (once) | ops stage_jacobians | time/step full Newton | its | time/step simplified (reused LU) | its | est. flop/step (full) | GFLOP/s |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| n | s | D | stepper value | heap (once) | ops stage_jacobians | time/step full Newton | its | time/step simplified Newton | its | est. flop/step (full) | GFLOP/s |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s.push_str(&format!(
