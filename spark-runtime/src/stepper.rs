@@ -755,7 +755,7 @@ where
                 if stale && !(rate <= REFRESH_RATE || (k == 0 && update.is_finite())) {
                     // An earlier step's factors contract too slowly here: a fresh
                     // Jacobian at the last good iterate, not a divergence.
-                    if !(rate < 1.0) {
+                    if rate.is_nan() || rate >= 1.0 {
                         *z = z_before;
                     }
                     refresh = true;
