@@ -664,6 +664,7 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
     one!("Skate", Skate::default());
     one!("MobileRobot", MobileRobot::default());
     one!("McLachlanPerlmutter7", McLachlanPerlmutter7::default());
+    one!("McLachlanPerlmutter7Nonholonomic", McLachlanPerlmutter7Nonholonomic::default());
     one!("TurntableSkate", TurntableSkate::default());
     one!("AppellHamel", AppellHamel::default());
     one!("ChaplyginSleigh", ChaplyginSleigh::default());
@@ -676,8 +677,21 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
         one!("VerticalDisk", VerticalDisk::default());
         one!("BallOnTurntable", BallOnTurntable::default());
         one!("RodPendulum", RodPendulum::default());
+        one!("BodyFree", BodyFree::default());
+        one!("BodySprung", BodySprung::default());
+        one!("BodySkating", BodySkating::default());
         one!("BodyRailed", BodyRailed::default());
         one!("BodyTethered", BodyTethered::default());
+        one!("BodySkatingByHand", BodySkatingByHand::default());
+        one!("SleighFree", SleighFree::default());
+        one!("SleighDriven", SleighDriven::default());
+        one!("SleighDamped", SleighDamped::default());
+        one!("SleighDrivenDamped", SleighDrivenDamped::default());
+        one!("SleighDrivenDampedByHand", SleighDrivenDampedByHand::default());
+        one!("SkateOnBlade", SkateOnBlade::default());
+        one!("SkateWithFriction", SkateWithFriction::default());
+        one!("AppellHamelCord", AppellHamelCord::default());
+        one!("AppellHamelSprung", AppellHamelSprung::default());
     }
     // Hand-written systems with effects (spark_runtime::effects): forcing,
     // a non-ideal force with ψ, a holonomic constraint at velocity level.
@@ -754,6 +768,16 @@ pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
         "McLachlanPerlmutter7",
         McLachlanPerlmutter7,
         McLachlanPerlmutter7::default(),
+        0.0,
+        V::<7>::from_column_slice(&[j.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),
+        V::<7>::from_column_slice(&[0.0, j.sin(), 0.0, 0.0, 0.0, 0.0, 0.0]),
+        0.05
+    );
+    casadi_steps_for!(
+        out,
+        "McLachlanPerlmutter7Nonholonomic",
+        McLachlanPerlmutter7Nonholonomic,
+        McLachlanPerlmutter7Nonholonomic::default(),
         0.0,
         V::<7>::from_column_slice(&[j.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),
         V::<7>::from_column_slice(&[0.0, j.sin(), 0.0, 0.0, 0.0, 0.0, 0.0]),
@@ -862,6 +886,44 @@ pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
             V::<3>::new(0.8, 0.6, 0.7),
             0.05
         );
+        let (q0, v0) = (V::<3>::new(0.5, 0.1, 0.3), V::<3>::new(0.5, 0.2, 0.7));
+        casadi_steps_for!(out, "BodyFree", BodyFree, BodyFree::default(), 0.1, q0, v0, 0.05);
+        casadi_steps_for!(out, "BodySprung", BodySprung, BodySprung::default(), 0.1, q0, v0, 0.05);
+        casadi_steps_for!(out, "BodySkating", BodySkating, BodySkating::default(), 0.1, q0, v0, 0.05);
+        casadi_steps_for!(out, "BodySkatingByHand", BodySkatingByHand, BodySkatingByHand::default(), 0.1, q0, v0, 0.05);
+        // Sleigh scenes: a generic heading, the velocity projected onto no-slip.
+        let (q0, v0) = (V::<3>::new(0.1, -0.2, 0.3), V::<3>::new(1.0, 0.2, 0.5));
+        casadi_steps_for!(out, "SleighFree", SleighFree, SleighFree::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(out, "SleighDriven", SleighDriven, SleighDriven::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(out, "SleighDamped", SleighDamped, SleighDamped::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(
+            out,
+            "SleighDrivenDamped",
+            SleighDrivenDamped,
+            SleighDrivenDamped::default(),
+            0.0,
+            q0,
+            v0,
+            0.1
+        );
+        casadi_steps_for!(
+            out,
+            "SleighDrivenDampedByHand",
+            SleighDrivenDampedByHand,
+            SleighDrivenDampedByHand::default(),
+            0.0,
+            q0,
+            v0,
+            0.1
+        );
+        let (th, speed, omega): (f64, f64, f64) = (0.7, 0.4, 0.9);
+        let (q0, v0) = (V::<3>::new(0.1, -0.2, th), V::<3>::new(speed * th.cos(), speed * th.sin(), omega));
+        casadi_steps_for!(out, "SkateOnBlade", SkateOnBlade, SkateOnBlade::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(out, "SkateWithFriction", SkateWithFriction, SkateWithFriction::default(), 0.0, q0, v0, 0.1);
+        // On the cone ż² = a²(ẋ² + ẏ²) with a = ½, falling.
+        let (q0, v0) = (V::<3>::new(0.1, 0.2, 0.3), V::<3>::new(0.8, 0.6, -0.5));
+        casadi_steps_for!(out, "AppellHamelCord", AppellHamelCord, AppellHamelCord::default(), 0.0, q0, v0, 0.1);
+        casadi_steps_for!(out, "AppellHamelSprung", AppellHamelSprung, AppellHamelSprung::default(), 0.0, q0, v0, 0.1);
     }
     {
         use spark_runtime::effects::{DrivenSkate, FrictionSkate, RodPendulum};
@@ -912,6 +974,41 @@ mod tests {
         assert!(declared.len() >= 8, "found only {declared:?}");
         for name in &declared {
             assert!(exported.contains(name), "{name} is declared in systems.rs but not exported for CasADi");
+        }
+    }
+
+    /// Scene names declared in `scenes.rs` (`scenes: { A = [..], B = [..] }`)
+    /// and the structs declared there.
+    fn declared_scene_types() -> Vec<String> {
+        let text = include_str!("scenes.rs");
+        let mut names = Vec::new();
+        for chunk in text.split("nonholonomic_system! {").skip(1) {
+            let body = chunk.split("\n}").next().unwrap_or("");
+            if let Some(scenes) = body.split("scenes: {").nth(1) {
+                let list = scenes.split('}').next().unwrap_or("");
+                for entry in list.split(']') {
+                    if let Some((name, _)) = entry.split_once('=') {
+                        let name = name.trim().trim_start_matches(',').trim();
+                        if !name.is_empty() {
+                            names.push(name.to_owned());
+                        }
+                    }
+                }
+            } else {
+                let after = body.split("struct").nth(1).expect("a struct in every invocation");
+                names.push(after.trim_start().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect());
+            }
+        }
+        names
+    }
+
+    #[test]
+    fn every_scene_is_exported() {
+        let exported: Vec<String> = export_all_systems(1).unwrap().into_iter().map(|s| s.name).collect();
+        let declared = declared_scene_types();
+        assert!(declared.len() >= 16, "found only {declared:?}");
+        for name in &declared {
+            assert!(exported.contains(name), "{name} is declared in scenes.rs but not exported for CasADi");
         }
     }
 
