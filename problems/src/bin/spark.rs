@@ -15,7 +15,7 @@ use std::time::Instant;
 
 /// Lagrange–d'Alembert SPARK integrators for nonholonomic mechanical systems.
 ///
-/// Start with `spark list` to see what is available, `spark run --system skate`
+/// Start with `spark list` to see what is available, `spark run skate`
 /// to integrate one system, or `spark paper` to reproduce every figure and
 /// table of the paper's §8 (L. O. Jay, "Lagrange–d'Alembert SPARK integrators
 /// for nonholonomic Lagrangian systems") into the folder `results/`.
@@ -45,10 +45,12 @@ enum Command {
     /// Fig. 8.4; it uses every CPU core (set RAYON_NUM_THREADS to limit).
     Paper(PaperArgs),
     /// Work-precision diagrams: global error and energy error vs wall time for
-    /// every method and stage count, with peers (num-dual, finite differences,
-    /// ode_solvers, CasADi-generated C, SciPy) measured in the same run.
+    /// every method and stage count on any registered system (default: the
+    /// paper's four), with peers (num-dual, finite differences, ode_solvers,
+    /// CasADi-generated C, SciPy; the paper-only ones skipped elsewhere)
+    /// measured in the same run.
     ///
-    /// Example: spark work-precision --system skate --out results/work-precision
+    /// Example: spark work-precision --system skate --system driven-skate --out results/work-precision
     WorkPrecision(problems::workprecision::cli::WorkPrecisionArgs),
     /// Stress suite (issue 7): hard cases with checks, figures and a report.
     ///
