@@ -37,6 +37,11 @@ pub struct WorkPrecisionArgs {
     /// Skip the CasADi C and SciPy peers.
     #[arg(long)]
     pub no_python: bool,
+    /// Newton mode of the SPARK stepper series (generated, num-dual, finite
+    /// differences): `full` (fresh Jacobian every iteration) or `simplified`
+    /// (one Jacobian and factorization per step, the `paper` default).
+    #[arg(long, value_parser = ["full", "simplified"], default_value = "full")]
+    pub newton: String,
     /// Measure the McLachlan–Perlmutter scaling study (n = 5 … 65) instead.
     #[arg(long)]
     pub scaling: bool,
@@ -82,6 +87,8 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         cfg.max_steps = a.max_steps.max(cfg.min_steps);
     }
     cfg.python = if a.no_python { None } else { Some(a.python.clone()) };
+    cfg.newton =
+        if a.newton == "simplified" { spark_runtime::NewtonMode::Simplified } else { spark_runtime::NewtonMode::Full };
     if a.quick {
         cfg.max_run_time = Duration::from_millis(50);
     }

@@ -34,7 +34,8 @@ use crate::peers::ode;
 use crate::registry::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::reference::{self, ReferenceOptions};
 use spark_runtime::{
-    Method, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau, Vector,
+    Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper,
+    Tableau, Vector,
 };
 use std::marker::PhantomData;
 use std::path::PathBuf;
@@ -146,6 +147,9 @@ pub struct WorkPrecisionConfig {
     pub peers_script: PathBuf,
     /// Target errors of the "cheapest method" table.
     pub targets: Vec<f64>,
+    /// Newton mode of every SPARK-stepper series (generated, num-dual,
+    /// finite differences); the CasADi C peer always does full Newton.
+    pub newton: NewtonMode,
 }
 
 impl WorkPrecisionConfig {
@@ -167,6 +171,7 @@ impl WorkPrecisionConfig {
             python: Some(PathBuf::from("casadi/.venv/bin/python")),
             peers_script: PathBuf::from("casadi/peers/peers.py"),
             targets: vec![1e-4, 1e-8, 1e-12],
+            newton: NewtonMode::Full,
         }
     }
 
@@ -422,7 +427,8 @@ where
 {
     let tableau = Tableau::<S>::new(method)?;
     let label = method_label(method, S);
-    let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau);
+    let opts = NewtonOptions { mode: ctx.cfg.newton, ..NewtonOptions::default() };
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
     let probe = Sys::default();
     let mut used = Vec::new();
     for steps in step_counts(ctx.cfg) {
@@ -452,9 +458,11 @@ where
     let tableau = Tableau::<S>::new(method)?;
     let label = method_label(method, S);
     let twin = <Sys as DualTwin<N, M>>::Twin::default();
-    let mut ad = Stepper::<AutoDiff<_>, N, M, S, D>::new(AutoDiff(twin), tableau);
+    let opts = NewtonOptions { mode: ctx.cfg.newton, ..NewtonOptions::default() };
+    let mut ad = Stepper::<AutoDiff<_>, N, M, S, D>::new(AutoDiff(twin), tableau).with_options(opts);
     let ad_probe = AutoDiff(<Sys as DualTwin<N, M>>::Twin::default());
-    let mut fd = Stepper::<FiniteDifference<Sys>, N, M, S, D>::new(FiniteDifference(Sys::default()), tableau);
+    let mut fd =
+        Stepper::<FiniteDifference<Sys>, N, M, S, D>::new(FiniteDifference(Sys::default()), tableau).with_options(opts);
     let fd_probe = FiniteDifference(Sys::default());
     for &steps in used {
         if let Some(m) = measure_stepper(ctx, &mut ad, &ad_probe, steps) {
