@@ -1,10 +1,16 @@
-//! Time per SPARK step for each scene of `problems::scenes::Body` and for the
-//! same system declared by hand (`BodySkatingByHand` = scene `BodySkating`):
-//! the cost follows the effects a scene calls for. Gauss s = 2, full Newton,
-//! warm-started, h = 0.05. Run with `cargo bench -p problems --bench scenes`.
+//! Time per SPARK step for each scene of `problems::scenes::Body`, `Sleigh`
+//! (drive and damping forces) and `IceSkate` (dry friction as a non-ideal
+//! force), and for the same systems declared by hand
+//! (`BodySkatingByHand` = scene `BodySkating`, `SleighDrivenDampedByHand` =
+//! scene `SleighDrivenDamped`): the cost follows the effects a scene calls
+//! for. Gauss s = 2, full Newton, warm-started, h = 0.05. Run with
+//! `cargo bench -p problems --bench scenes`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use problems::scenes::{BodyFree, BodyRailed, BodySkating, BodySkatingByHand, BodySprung, BodyTethered};
+use problems::scenes::{
+    BodyFree, BodyRailed, BodySkating, BodySkatingByHand, BodySprung, BodyTethered, SkateOnBlade, SkateWithFriction,
+    SleighDamped, SleighDriven, SleighDrivenDamped, SleighDrivenDampedByHand, SleighFree,
+};
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, Method, NonholonomicSystem, State, Stepper, Tableau, Vector,
 };
@@ -40,6 +46,13 @@ fn scenes(c: &mut Criterion) {
     step::<BodySkatingByHand, 3, 1, 11>(c, "BodySkatingByHand");
     step::<BodyRailed, 3, 2, 13>(c, "BodyRailed");
     step::<BodyTethered, 3, 1, 11>(c, "BodyTethered");
+    step::<SleighFree, 3, 1, 11>(c, "SleighFree");
+    step::<SleighDriven, 3, 1, 11>(c, "SleighDriven");
+    step::<SleighDamped, 3, 1, 11>(c, "SleighDamped");
+    step::<SleighDrivenDamped, 3, 1, 11>(c, "SleighDrivenDamped");
+    step::<SleighDrivenDampedByHand, 3, 1, 11>(c, "SleighDrivenDampedByHand");
+    step::<SkateOnBlade, 3, 1, 11>(c, "SkateOnBlade");
+    step::<SkateWithFriction, 3, 1, 11>(c, "SkateWithFriction");
 }
 
 criterion_group! {
