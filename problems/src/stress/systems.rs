@@ -1,7 +1,8 @@
 //! Systems built for the stress suite, declared with `nonholonomic_system!`:
 //! a skate with a stiff spring, a particle with two nearly parallel
-//! constraint rows, a non-reversible contact oscillator and the vertical
-//! rolling disk (exact solution in [`rolling_disk_exact`]).
+//! constraint rows, the Modin–Verdier non-reversible contact oscillator with
+//! its reversible twin, a gyroscopic reconstruction kept beside them, and the
+//! vertical rolling disk (exact solution in [`rolling_disk_exact`]).
 
 use spark_runtime::nonholonomic_system;
 
@@ -56,6 +57,55 @@ nonholonomic_system! {
             + eps*(x*dot(y) - y*dot(x))/2,
         constraints: [ dot(x) + z*dot(z) ],
     }
+}
+
+nonholonomic_system! {
+    /// The contact oscillator of McLachlan & Perlmutter (J. Nonlinear Sci.
+    /// 16, 2006, §5.2; `n = 3`, `m = 1`): `L = ½|v|² − U`,
+    /// `U = ½(x² + y² + z² + ε x²z²)`, constraint `ẋ + y ż = 0`. Reversible
+    /// under `(q, v, t) ↦ (q, −v, −t)`; the reversible twin of
+    /// [`NonReversibleContactOscillator`].
+    pub struct ContactOscillator {
+        coordinates: [x, y, z],
+        parameters: { eps = 0.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2 + z^2 + eps*x^2*z^2)/2,
+        constraints: [ dot(x) + y*dot(z) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The non-reversible contact oscillator of Modin & Verdier ("What makes
+    /// nonholonomic integrators work?", Numer. Math. 145, 2020), as defined
+    /// in Verdier's `odelab` (`odelab/system/nonholonomic/contactoscillator.py`,
+    /// class `NonReversibleContactOscillator`): the Hamiltonian of the
+    /// [`ContactOscillator`] with `p` replaced by `p + ∇S`, `S(q) = cos z`,
+    /// i.e. `H = ½(|q|² + ε x²z² + |p + ∇S|²)` (`n = 3`, `m = 1`).
+    ///
+    /// As a Lagrangian (`v = ∂H/∂p = p + ∇S`): `L = ½|v|² − ∇S·v − U =
+    /// ½|v|² + sin(z) ż − U`, same constraint `ẋ + y ż = 0`. The added term is
+    /// the total derivative `−dS/dt`, so the motion `(q(t), v(t))` and the
+    /// energy `E = ½|v|² + U` are exactly those of the reversible oscillator;
+    /// what changes is the momentum `p = v − ∇S` the integrators discretize,
+    /// and with it the standard reversibility map `(q, p) ↦ (q, −p)`, under
+    /// which this system is not reversible.
+    pub struct NonReversibleContactOscillator {
+        coordinates: [x, y, z],
+        parameters: { eps = 0.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 + sin(z)*dot(z) - (x^2 + y^2 + z^2 + eps*x^2*z^2)/2,
+        constraints: [ dot(x) + y*dot(z) ],
+    }
+}
+
+/// The initial state `odelab` uses for the contact oscillators
+/// (`initial_sin`, `H₀ = 1.5`, `H_y = ½`, `ż₀` momentum 0): `q0 = (x₀, 0, z₀)`
+/// with `x₀ = √((2(H₀ − H_y) − z₀²)/(1 + ε z₀²))`, momentum `p0 = (0, 1, 0)`,
+/// hence `v0 = p0 + ∇S = (0, 1, −sin z₀)` for the non-reversible system.
+/// Both systems are started from this same `(q0, v0)`, so their exact
+/// motions coincide.
+pub fn contact_oscillator_initial(z0: f64, eps: f64) -> ([f64; 3], [f64; 3]) {
+    let (h0, hy) = (1.5, 0.5);
+    let x0 = ((2.0 * (h0 - hy) - z0 * z0) / (1.0 + eps * z0 * z0)).sqrt();
+    ([x0, 0.0, z0], [0.0, (2.0 * hy).sqrt(), -z0.sin()])
 }
 
 nonholonomic_system! {
