@@ -6,7 +6,7 @@ use problems::output::read_columns;
 use problems::paper::{run_paper, PaperConfig, PaperReport};
 use problems::progress::Progress;
 use problems::simulate::mp7_initial_values;
-use problems::systems::{McLachlanPerlmutter7, NonholonomicParticle, Skate};
+use problems::systems::{McLachlanPerlmutter7, McLachlanPerlmutter7Nonholonomic, NonholonomicParticle, Skate};
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -70,7 +70,16 @@ fn every_file_is_written() {
             expected.push(format!("fig8_{f}.{ext}"));
         }
     }
-    expected.extend(["fig8_4_energy_errors.csv", "summary.md", "summary.json"].map(String::from));
+    expected.extend(
+        [
+            "fig8_4_energy_errors.csv",
+            "fig8_4_printed.csv",
+            "fig8_4_printed_energy_errors.csv",
+            "summary.md",
+            "summary.json",
+        ]
+        .map(String::from),
+    );
     for name in &expected {
         let p = s.dir.join(name);
         let len = std::fs::metadata(&p).unwrap_or_else(|_| panic!("{} not written", p.display())).len();
@@ -93,8 +102,8 @@ fn every_file_is_written() {
 #[test]
 fn summary_rows_cover_every_run_and_constraints_hold() {
     let s = shared();
-    // 3 + 3 + (3 + 6) single runs and 3 ensemble rows.
-    assert_eq!(s.report.rows.len(), 18);
+    // 3 + 3 + (3 + 6) single runs and 3 ensemble rows per reading of the §8.4 constraint.
+    assert_eq!(s.report.rows.len(), 21);
     for r in &s.report.rows {
         assert!(
             r.max_constraint_residual <= 1e-12,
@@ -106,10 +115,15 @@ fn summary_rows_cover_every_run_and_constraints_hold() {
         assert!(r.max_energy_error.is_finite() && r.steps > 0);
     }
     let ens: Vec<_> = s.report.rows.iter().filter(|r| r.figure == "Fig. 8.4").collect();
-    assert_eq!(ens.len(), 3);
+    assert_eq!(ens.len(), 6);
     let per_run = (s.cfg.fig84_t_end / 0.05).round() as usize;
-    assert!(ens.iter().all(|r| r.runs == s.cfg.fig84_members && r.steps == per_run * s.cfg.fig84_members));
-    assert_eq!(s.report.growth.len(), 3);
+    let per_run_printed = (s.cfg.fig84_printed_t_end / 0.05).round() as usize;
+    assert_eq!(ens.iter().filter(|r| r.system == "mp7-nh").count(), 3);
+    for r in &ens {
+        let n = if r.system == "mp7" { per_run_printed } else { per_run };
+        assert!(r.runs == s.cfg.fig84_members && r.steps == n * s.cfg.fig84_members, "{r:?}");
+    }
+    assert_eq!(s.report.growth.len(), 6);
     assert!(s.report.growth.iter().all(|g| g.fit.is_some_and(|f| f.exponent.is_finite())));
 }
 
@@ -161,20 +175,19 @@ fn fig82_numbers_match_a_direct_computation() {
     }
 }
 
-#[test]
-fn fig84_statistic_matches_a_direct_computation() {
-    let s = shared();
-    let (header, cols) = read_columns(&s.dir.join("fig8_4.csv")).unwrap();
+/// Fig. 8.4's statistic in `file` (LDA column) against a direct computation on `Sys`.
+fn check_fig84_statistic<Sys: NonholonomicSystem<7, 1> + Clone + Default>(s: &Shared, file: &str, t_end: f64) {
+    let (header, cols) = read_columns(&s.dir.join(file)).unwrap();
     let t = column(&header, &cols, "t");
     let quantity = column(&header, &cols, "scaled_mean_square_energy_error_lobatto_iiib_a_lda_s2");
     let every = s.cfg.fig84_sample_every;
-    let steps = (s.cfg.fig84_t_end / 0.05).round() as usize;
+    let steps = (t_end / 0.05).round() as usize;
     assert_eq!(t.len(), steps / every + 1);
     let members = s.cfg.fig84_members;
     let mut sum = vec![0.0; t.len()];
     for j in 0..members {
         let (q0, v0) = mp7_initial_values(j, members - 1);
-        let sys = McLachlanPerlmutter7::default();
+        let sys = Sys::default();
         let e0 = sys.energy(0.0, &Vector::<7>::from_column_slice(&q0), &Vector::<7>::from_column_slice(&v0));
         assert!((e0 - 3.06).abs() < 1e-14, "member {j}: E0 = {e0}");
         let d = direct_energy_errors::<_, 7, 1, 2, 23>(sys, Method::LobattoIIIBALda, &s.cfg, &q0, &v0, 0.05, steps);
@@ -188,6 +201,13 @@ fn fig84_statistic_matches_a_direct_computation() {
         assert!((file - direct).abs() <= 1e-9 * direct.abs() + 1e-12, "sample {k}: file {file:e} vs direct {direct:e}");
     }
     assert!(quantity.iter().skip(1).all(|q| *q > 0.0));
+}
+
+#[test]
+fn fig84_statistic_matches_a_direct_computation() {
+    let s = shared();
+    check_fig84_statistic::<McLachlanPerlmutter7Nonholonomic>(s, "fig8_4.csv", s.cfg.fig84_t_end);
+    check_fig84_statistic::<McLachlanPerlmutter7>(s, "fig8_4_printed.csv", s.cfg.fig84_printed_t_end);
 }
 
 #[test]

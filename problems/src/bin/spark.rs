@@ -369,12 +369,18 @@ fn print_report(report: &PaperReport) {
     }
     println!("\nFig. 8.4 growth (1/h⁴)·mean_j (E_jk − E0)² ≈ C·t^p:");
     for g in &report.growth {
+        let late = g.late_fit.map_or(String::new(), |f| format!("; last decade p = {:.3}", f.exponent));
         match g.fit {
             Some(f) => println!(
-                "  {:<44} p = {:.3} ± {:.3}  (C = {:.3e}, t ≥ {})",
-                g.method, f.exponent, f.exponent_std_error, f.coefficient, f.t_min
+                "  {:<36} {:<58} p = {:.3} ± {:.3}  (C = {:.3e}, t ≥ {}{late})",
+                g.method,
+                g.constraint.formula(),
+                f.exponent,
+                f.exponent_std_error,
+                f.coefficient,
+                f.t_min
             ),
-            None => println!("  {:<44} (not enough positive samples to fit)", g.method),
+            None => println!("  {:<36} {:<58} (not enough positive samples to fit)", g.method, g.constraint.formula()),
         }
     }
 }
