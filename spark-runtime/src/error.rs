@@ -134,7 +134,7 @@ pub enum StepError {
     /// with an unremarkable pivot: `scale` and the history tell the cases apart.
     #[error(
         "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: pivot {pivot:.3e} \
-         in column {column} ({unknown}) is below 64 eps x {scale:.3e} (the column's largest entry); history: {history}",
+         of {unknown} is below 64 eps x that largest entry; history: {history}",
         history.len()
     )]
     SingularMatrix {
@@ -142,14 +142,12 @@ pub enum StepError {
         t: f64,
         /// Step size.
         h: f64,
-        /// The offending column of the Newton matrix.
-        column: usize,
-        /// The unknown of that column (e.g. `V_2[3]`, `hΨ_1[1]`, `v1[2]`).
-        unknown: String,
+        /// The offending column of the Newton matrix, its unknown and its
+        /// largest magnitude (the pivot's yardstick), e.g. `column 5 (V_2[3],
+        /// largest entry 1.5e14)` (boxed `str`: the error stays small).
+        unknown: Box<str>,
         /// The pivot found there.
         pivot: f64,
-        /// The largest magnitude in that column (the pivot's yardstick).
-        scale: f64,
         /// The iterations.
         history: Box<NewtonHistory>,
     },
@@ -177,11 +175,10 @@ pub enum StepError {
     /// is set (the default).
     #[error(
         "energy drift in the step from t = {t} with h = {h}: E = {energy:.6e} against E0 = {energy0:.6e} at \
-         t = {since}, |E - E0| = {:.3e} > {limit} x (|E0| + |p0.v0|) = {:.3e}; E is a first integral of this \
-         system, so the discrete map is unstable at this step size (e.g. a stiff mode beyond the method's \
-         stability range): reduce h or use a method stable there",
-        (energy - energy0).abs(),
-        limit * scale
+         t = {since}, |E - E0| = {:.3e} > {bound:.3e} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
+         integral of this system, so the discrete map is unstable at this step size (e.g. a stiff mode beyond \
+         the method's stability range): reduce h or use a method stable there",
+        (energy - energy0).abs()
     )]
     EnergyDrift {
         /// Start time of the failing step.
@@ -194,12 +191,8 @@ pub enum StepError {
         energy0: f64,
         /// `E` at the end of the failing step.
         energy: f64,
-        /// `|E₀| + |p₀·v₀|`.
-        scale: f64,
-        /// The relative limit.
-        limit: f64,
-        /// The Newton iterations of the failing step (they converged).
-        history: Box<NewtonHistory>,
+        /// The bound exceeded: `energy_drift_limit · (|E₀| + |p₀·v₀|)`.
+        bound: f64,
     },
     /// `|k(t₀, q₀, v₀)|` exceeds the tolerance and the policy says not to project.
     #[error(
@@ -221,8 +214,7 @@ impl StepError {
             StepError::Diverged { history, .. }
             | StepError::MaxIterations { history, .. }
             | StepError::SingularMatrix { history, .. }
-            | StepError::NonFinite { history, .. }
-            | StepError::EnergyDrift { history, .. } => Some(history),
+            | StepError::NonFinite { history, .. } => Some(history),
             _ => None,
         }
     }

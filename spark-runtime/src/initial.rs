@@ -180,10 +180,12 @@ where
                 return Err(StepError::SingularMatrix {
                     t: t0,
                     h: 0.0,
-                    column,
-                    unknown: format!("velocity projection, block {block} of [[W, Kᵀ],[K, 0]]"),
+                    unknown: format!(
+                        "column {column} of block {block} of the velocity projection's [[W, Kᵀ],[K, 0]] \
+                         (largest entry {scale:.3e})"
+                    )
+                    .into(),
                     pivot,
-                    scale,
                     history: Box::new(history),
                 });
             }

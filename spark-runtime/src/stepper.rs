@@ -361,9 +361,7 @@ where
                         since: a.t,
                         energy0: a.energy,
                         energy,
-                        scale: a.scale,
-                        limit,
-                        history: Box::new(history),
+                        bound: limit * a.scale,
                     });
                 }
             }
@@ -728,10 +726,11 @@ where
                             StepError::SingularMatrix {
                                 t,
                                 h,
-                                column: s.column,
-                                unknown: unknown_name::<N, M, S>(s.column),
+                                unknown: unknown_name::<N, M, S>(
+                                    s.column,
+                                    self.newton.matrix().column(s.column).amax(),
+                                ),
                                 pivot: s.pivot,
-                                scale: self.newton.matrix().column(s.column).amax(),
                                 history: Box::new(history),
                             }
                         } else {
@@ -819,17 +818,19 @@ where
     }
 }
 
-/// The name of unknown `column` of `z` (1-based stage and component, as in
-/// the paper): `V_i[d]`, `hΨ_i[d]` or `v1[d]`.
-fn unknown_name<const N: usize, const M: usize, const S: usize>(column: usize) -> String {
-    if column < S * N {
+/// `column c (name, largest entry x)` for unknown `column` of `z` whose
+/// column of the Newton matrix has largest magnitude `scale`, the name with 1-based
+/// stage and component as in the paper: `V_i[d]`, `hΨ_i[d]` or `v1[d]`.
+fn unknown_name<const N: usize, const M: usize, const S: usize>(column: usize, scale: f64) -> Box<str> {
+    let name = if column < S * N {
         format!("V_{}[{}]", column / N + 1, column % N + 1)
     } else if column < S * (N + M) {
         let c = column - S * N;
         format!("hΨ_{}[{}]", c / M + 1, c % M + 1)
     } else {
         format!("v1[{}]", column - S * (N + M) + 1)
-    }
+    };
+    format!("column {column} ({name}, largest entry {scale:.3e})").into_boxed_str()
 }
 
 /// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
