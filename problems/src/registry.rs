@@ -179,7 +179,7 @@ impl SystemEntry {
         self.parameter_names.iter().map(|p| p.to_string()).zip(values).collect()
     }
 
-    /// Which constraints are holonomic, as a short text (`"—"` when none).
+    /// The effects present as a short text (`forcing, holonomic`; `—` when none).
     pub fn effects_text(&self) -> String {
         let names = self.effects.names();
         if names.is_empty() {
