@@ -133,8 +133,8 @@ pub enum StepError {
     /// runaway iterate (huge multipliers dominating a column) can fail it
     /// with an unremarkable pivot: `scale` and the history tell the cases apart.
     #[error(
-        "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: pivot {pivot:.3e} \
-         of {unknown} is below 64 eps x that largest entry; history: {history}",
+        "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: {detail}; \
+         history: {history}",
         history.len()
     )]
     SingularMatrix {
@@ -142,12 +142,11 @@ pub enum StepError {
         t: f64,
         /// Step size.
         h: f64,
-        /// The offending column of the Newton matrix, its unknown and its
-        /// largest magnitude (the pivot's yardstick), e.g. `column 5 (V_2[3],
-        /// largest entry 1.5e14)` (boxed `str`: the error stays small).
-        unknown: Box<str>,
-        /// The pivot found there.
-        pivot: f64,
+        /// The offending column, its unknown, the pivot and the column's
+        /// largest magnitude (the pivot's yardstick), e.g. `column 5 (V_2[3]):
+        /// pivot 1.000e0 is below 64 eps x its largest entry 1.5e14` (one
+        /// boxed `str` keeps the error as small as before).
+        detail: Box<str>,
         /// The iterations.
         history: Box<NewtonHistory>,
     },
@@ -175,7 +174,7 @@ pub enum StepError {
     /// is set (the default).
     #[error(
         "energy drift in the step from t = {t} with h = {h}: E = {energy:.6e} against E0 = {energy0:.6e} at \
-         t = {since}, |E - E0| = {:.3e} > {bound:.3e} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
+         the start of the continued steps, |E - E0| = {:.3e} > {bound:.3e} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
          integral of this system, so the discrete map is unstable at this step size (e.g. a stiff mode beyond \
          the method's stability range): reduce h or use a method stable there",
         (energy - energy0).abs()
@@ -185,9 +184,7 @@ pub enum StepError {
         t: f64,
         /// Step size.
         h: f64,
-        /// Start of the chain of continued steps (where `E₀` was taken).
-        since: f64,
-        /// `E₀`.
+        /// `E₀`, where the chain of continued steps began.
         energy0: f64,
         /// `E` at the end of the failing step.
         energy: f64,

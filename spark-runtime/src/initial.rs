@@ -180,12 +180,11 @@ where
                 return Err(StepError::SingularMatrix {
                     t: t0,
                     h: 0.0,
-                    unknown: format!(
-                        "column {column} of block {block} of the velocity projection's [[W, Kᵀ],[K, 0]] \
-                         (largest entry {scale:.3e})"
+                    detail: format!(
+                        "column {column} of block {block} of the velocity projection's [[W, Kᵀ],[K, 0]]: pivot \
+                         {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}"
                     )
                     .into(),
-                    pivot,
                     history: Box::new(history),
                 });
             }

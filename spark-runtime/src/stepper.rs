@@ -355,14 +355,7 @@ where
             match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, limit) {
                 EnergyCheck::Accept(a) => self.anchor = Some(a),
                 EnergyCheck::Drift(a, energy) => {
-                    return Err(StepError::EnergyDrift {
-                        t: t0,
-                        h,
-                        since: a.t,
-                        energy0: a.energy,
-                        energy,
-                        bound: limit * a.scale,
-                    });
+                    return Err(StepError::EnergyDrift { t: t0, h, energy0: a.energy, energy, bound: limit * a.scale });
                 }
             }
         }
@@ -726,11 +719,11 @@ where
                             StepError::SingularMatrix {
                                 t,
                                 h,
-                                unknown: unknown_name::<N, M, S>(
+                                detail: singular_detail::<N, M, S>(
                                     s.column,
+                                    s.pivot,
                                     self.newton.matrix().column(s.column).amax(),
                                 ),
-                                pivot: s.pivot,
                                 history: Box::new(history),
                             }
                         } else {
@@ -818,10 +811,10 @@ where
     }
 }
 
-/// `column c (name, largest entry x)` for unknown `column` of `z` whose
-/// column of the Newton matrix has largest magnitude `scale`, the name with 1-based
-/// stage and component as in the paper: `V_i[d]`, `hΨ_i[d]` or `v1[d]`.
-fn unknown_name<const N: usize, const M: usize, const S: usize>(column: usize, scale: f64) -> Box<str> {
+/// Describes a failed pivot: the column, its unknown of `z` (1-based stage
+/// and component as in the paper: `V_i[d]`, `hΨ_i[d]` or `v1[d]`), the pivot
+/// and the column's largest magnitude `scale`.
+fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize, pivot: f64, scale: f64) -> Box<str> {
     let name = if column < S * N {
         format!("V_{}[{}]", column / N + 1, column % N + 1)
     } else if column < S * (N + M) {
@@ -830,7 +823,8 @@ fn unknown_name<const N: usize, const M: usize, const S: usize>(column: usize, s
     } else {
         format!("v1[{}]", column - S * (N + M) + 1)
     };
-    format!("column {column} ({name}, largest entry {scale:.3e})").into_boxed_str()
+    format!("column {column} ({name}): pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}")
+        .into_boxed_str()
 }
 
 /// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
