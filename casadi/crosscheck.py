@@ -101,7 +101,8 @@ def check_system(entry: Dict, perturb_path: Optional[str], corrupt: Optional[str
     if system.g is not None:
         symbolic = system.holonomic_identity_is_symbolic()
         rows = ", ".join(
-            f"k_{i} = ġ_{i} {'symbolically' if sym else 'numerically'}" for i, sym in zip(system.holonomic_rows, symbolic)
+            f"k_{i} = ġ_{i} {'symbolically' if sym else 'numerically'}"
+            for i, sym in zip(system.holonomic_rows, symbolic)
         )
         result.structure_notes.append(f"holonomic rows {system.holonomic_rows}: {rows or 'none (all rows are 0)'}")
     compare.check_structure(system, entry["structure"], casadi_values, result)
