@@ -1,10 +1,13 @@
-//! Why Fig. 8.4 (McLachlan–Perlmutter particles, paper §8.4) shows a bounded
-//! energy error for the Lobatto methods: the experiments behind
+//! Why Fig. 8.4 (McLachlan–Perlmutter particles, paper §8.4) showed a
+//! bounded energy error for the Lobatto methods: the experiments behind
 //! `docs/stress/chaos.md`.
 //!
 //! ```text
-//! cargo run --release -p problems --example mp_chaos -- <experiment> [t_end]
+//! cargo run --release -p problems --example mp_chaos -- <experiment> [t_end] [printed|nonholonomic]
 //! ```
+//!
+//! The last argument restricts `readings`, `steps` and `gauss` to one
+//! reading of the constraint (default: both).
 //!
 //! Experiments (each prints a table; `all` runs every one):
 //! - `holonomy`: the printed constraint `v1 + Σ_{i≥m+2} q_i v_i = 0` is the time
@@ -16,8 +19,11 @@
 //! - `steps`: the statistic for h = 0.1, 0.05, 0.025 (both readings).
 //! - `lyapunov`: finite-time largest Lyapunov exponents of the ensemble.
 //! - `reverse`: forward n steps, then n steps with −h, distance to the start.
-//! - `gauss`: Gauss s = 2 with two Newton tolerances and two step sizes
-//!   (truncation or round-off?).
+//! - `gauss`: Gauss s = 2 with two Newton tolerances, simplified Newton and
+//!   three step sizes (truncation or solver/round-off?).
+//! - `structure FILE…`: the structure function `S(Δ)` of the energy error
+//!   from `spark paper`'s `fig8_4*_energy_errors.csv` (linear growth in `Δ`
+//!   is a random walk, a plateau a bounded error).
 //!
 //! This is an investigation tool, not part of the test suite; it runs the
 //! steppers directly (full Newton, tolerance 16ε unless stated).
@@ -25,7 +31,7 @@
 use nalgebra::SVector;
 use problems::analysis::fit_power;
 use problems::simulate::mp7_initial_values;
-use problems::stress::long_runs::{mp7_phi, mp7_rattle};
+use problems::stress::long_runs::{energy_structure_function, mp7_phi, mp7_rattle, structure_slope};
 use problems::systems::{McLachlanPerlmutter7, McLachlanPerlmutter7Nonholonomic as Mp7Nonholonomic};
 use rayon::prelude::*;
 use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau};
@@ -326,6 +332,48 @@ fn reverse() {
     }
 }
 
+/// Structure function of the energy error from a `spark paper` members file
+/// (`fig8_4_energy_errors.csv` or `fig8_4_printed_energy_errors.csv`):
+/// `S(Δ) = (1/h⁴)·mean_{j,t} (E_j(t+Δ) − E_j(t))²`. Averaging over every
+/// start time uses the whole run, so it is far less noisy than the ensemble
+/// statistic at one time. A random walk gives `S(Δ) ≈ 2σ² + DΔ` (growing
+/// linearly), a bounded error `S(Δ) → 2σ²` (flat).
+fn structure(path: &str) {
+    let (header, cols) = match problems::output::read_columns(std::path::Path::new(path)) {
+        Ok(x) => x,
+        Err(e) => {
+            eprintln!("{e}");
+            return;
+        }
+    };
+    let t = &cols[0];
+    let dt = t[1] - t[0];
+    let mut methods: Vec<String> =
+        header[1..].iter().filter_map(|c| c.split("_member").next().map(String::from)).collect();
+    methods.dedup();
+    println!("\n## Structure function S(Δ) = (1/h⁴)·mean_(j,t) (E_j(t+Δ) − E_j(t))², {path}\n");
+    let mut printed_header = false;
+    for m in &methods {
+        let members: Vec<&[f64]> = header
+            .iter()
+            .zip(&cols)
+            .filter(|(c, _)| c.starts_with(&format!("{m}_member")))
+            .map(|(_, v)| v.as_slice())
+            .collect();
+        let sf = energy_structure_function(&members, dt, 0.05);
+        if !printed_header {
+            let head: Vec<String> = sf.iter().map(|(d, _)| format!("Δ = {d}")).collect();
+            println!("| method | {} | log–log slope of S − plateau (Δ ≤ 50), last 5 lags |", head.join(" | "));
+            println!("|---|{}---|", "---|".repeat(sf.len()));
+            printed_header = true;
+        }
+        let slope = structure_slope(&sf, 50.0, 5)
+            .map_or("—".into(), |f| format!("{:.2} ± {:.2}", f.slope, f.slope_std_error));
+        let row: Vec<String> = sf.iter().map(|(_, v)| format!("{v:.3}")).collect();
+        println!("| {m} | {} | {slope} |", row.join(" | "));
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let what = args.get(1).map(String::as_str).unwrap_or("all");
@@ -342,6 +390,11 @@ fn main() {
         "lyapunov" => lyapunov(t_end.unwrap_or(500.0)),
         "reverse" => reverse(),
         "gauss" => gauss(t_end.unwrap_or(2000.0), &which),
+        "structure" => {
+            for path in args.iter().skip(2) {
+                structure(path);
+            }
+        }
         "all" => {
             holonomy(t_end.unwrap_or(1000.0));
             reverse();
