@@ -259,6 +259,9 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
     }
     let (x0, x1) = if panel.x_scale == Scale::Log { range(x0, x1, Scale::Log) } else { (x0, x1.max(x0 + 1e-300)) };
     let (y0, y1) = range(y0, y1, panel.y_scale);
+    // On a log axis every tick is a power of ten, never a rounded zero.
+    let span = |lo: f64, hi: f64, scale: Scale| if scale == Scale::Log { 0.0 } else { hi - lo };
+    let (x_span, y_span) = (span(x0, x1, panel.x_scale), span(y0, y1, panel.y_scale));
     let mut builder = ChartBuilder::on(area);
     builder.caption(&panel.title, (FONT, 18)).margin(12).x_label_area_size(44).y_label_area_size(84);
     let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
@@ -271,8 +274,8 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
                 .configure_mesh()
                 .x_desc(&panel.x_label)
                 .y_desc(&panel.y_label)
-                .x_label_formatter(&|v| tick_label(*v, x1 - x0))
-                .y_label_formatter(&|v| tick_label(*v, y1 - y0))
+                .x_label_formatter(&|v| tick_label(*v, x_span))
+                .y_label_formatter(&|v| tick_label(*v, y_span))
                 .label_style((FONT, 13))
                 .axis_desc_style((FONT, 15))
                 .light_line_style(WHITE.mix(0.0))
@@ -324,6 +327,15 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn log_axis_ticks_are_never_rounded_to_zero() {
+        // A log axis passes span 0: 1e-10 must print as itself, not "0".
+        assert_eq!(tick_label(1e-10, 0.0), "1.0e-10");
+        assert_eq!(tick_label(1e-16, 0.0), "1.0e-16");
+        // A linear axis spanning 1 still shows round-off around 0 as "0".
+        assert_eq!(tick_label(1e-12, 1.0), "0");
+    }
 
     #[test]
     fn writes_png_and_svg_with_text() {
