@@ -513,20 +513,16 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
                     sf_last.0,
                     show(fit)
                 );
-                match scale {
-                    Scale::Full => c.check(
-                        format!("{label}: energy error is a random walk: S(Δ) − plateau ∝ Δ (slope within 1 ± 0.3)"),
-                        sf_slope.is_some_and(|f| (f.slope - 1.0).abs() <= 0.3),
-                        detail,
-                    ),
-                    // Lags up to 1280 of a 4000-long run hold few independent
-                    // windows: the slope is too noisy to judge, growth is not.
-                    Scale::Quick => c.check(
-                        format!("{label}: energy error is not bounded: S(Δ_max) ≥ 2 × plateau (quick scale)"),
-                        sf_last.1 >= 2.0 * plateau,
-                        detail,
-                    ),
-                }
+                // One criterion at both scales: the claim itself (S − plateau
+                // ∝ Δ). A fixed growth factor of S at the largest lag is not
+                // one: its expected value at quick scale is itself ≈ 2, and
+                // round-off changes (any change in the linear algebra) move
+                // a chaotic ensemble's value across such a threshold.
+                c.check(
+                    format!("{label}: energy error is a random walk: S(Δ) − plateau ∝ Δ (slope within 1 ± 0.3)"),
+                    sf_slope.is_some_and(|f| (f.slope - 1.0).abs() <= 0.3),
+                    detail,
+                );
             }
             (Mp7Reading::Nonholonomic, _) => c.check(
                 format!("{label}: energy measure grows like a random walk (|p − 1| ≤ 0.25)"),
