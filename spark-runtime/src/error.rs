@@ -175,8 +175,9 @@ pub enum StepError {
     #[error(
         "energy drift in the step from t = {t} with h = {h}: E = {energy:.6e} against E0 = {energy0:.6e} at \
          the start of the continued steps, |E - E0| = {:.3e} > {bound:.3e} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
-         integral of this system, so the discrete map is unstable at this step size (e.g. a stiff mode beyond \
-         the method's stability range): reduce h or use a method stable there",
+         integral of this system, so the discrete map does not keep it at this step size (an unstable map, e.g. \
+         a stiff mode beyond the method's stability range, or the drift of a non-reversible system): reduce h, \
+         use a method stable there, or set NewtonOptions::energy_drift_limit to None to continue regardless",
         (energy - energy0).abs()
     )]
     EnergyDrift {
