@@ -111,8 +111,6 @@ impl NonholonomicSystem<3, 1> for DrivenSkate {
     const SOURCE: SystemSource = SystemSource {
         name: "DrivenSkate",
         external_force: &["(neg (* (p c) (v x)))", "(neg (* (p c) (v y)))", "(- (p tau) (* (p c) (v theta)))"],
-        nonideal_force: &[],
-        holonomic: &[],
         parameters: DRIVEN_PARAMETERS,
         ..<Skate as NonholonomicSystem<3, 1>>::SOURCE
     };
@@ -181,7 +179,6 @@ impl NonholonomicSystem<3, 1> for FrictionSkate {
     delegate_skate!();
     const SOURCE: SystemSource = SystemSource {
         name: "FrictionSkate",
-        external_force: &[],
         // −μ √(ψ₀² + δ²) · u/√(u² + ε²) · e with u = cos θ ẋ + sin θ ẏ.
         nonideal_force: &[
             concat!(
@@ -198,7 +195,6 @@ impl NonholonomicSystem<3, 1> for FrictionSkate {
             ),
             "0",
         ],
-        holonomic: &[],
         parameters: FRICTION_PARAMETERS,
         ..<Skate as NonholonomicSystem<3, 1>>::SOURCE
     };
