@@ -119,16 +119,7 @@ where
     let (mut states, mut work, mut x) = (vec![start], 0.0, start);
     for _ in 0..steps {
         let r = st.step(&x, h).unwrap();
-        // The work Σ h Σ_j b_j (f_j + N_j)ᵀV_j at the stages Q_j = q₀ + hΣ a_jl V_l.
-        for j in 0..S {
-            let mut qj = x.q;
-            for l in 0..S {
-                qj += (h * tab.a[j][l]) * r.stage_velocities[l];
-            }
-            let (tj, vj) = (x.t + tab.c[j] * h, &r.stage_velocities[j]);
-            let f = sys.external_force(tj, &qj, vj) + sys.nonideal_force(tj, &qj, vj, &r.stage_multipliers[j]);
-            work += h * tab.b[j] * f.dot(vj);
-        }
+        work += spark_runtime::effects::effect_work(&sys, &tab, &x, h, &r);
         x = r.state;
         states.push(x);
     }

@@ -46,17 +46,7 @@ where
     let mut x = start;
     for _ in 0..steps {
         let r = st.step(&x, h).unwrap();
-        // Stage coordinates Q_j = q₀ + hΣ a_jl V_l.
-        for j in 0..S {
-            let mut qj = x.q;
-            for l in 0..S {
-                qj += (h * tab.a[j][l]) * r.stage_velocities[l];
-            }
-            let tj = x.t + tab.c[j] * h;
-            let vj = &r.stage_velocities[j];
-            let f = sys.external_force(tj, &qj, vj) + sys.nonideal_force(tj, &qj, vj, &r.stage_multipliers[j]);
-            work += h * tab.b[j] * f.dot(vj);
-        }
+        work += super::effect_work(&sys, &tab, &x, h, &r);
         x = r.state;
         states.push(x);
     }
