@@ -96,6 +96,59 @@ pub struct StageJacobians<const N: usize, const M: usize> {
     pub constraint_force_v: Matrix<N, N>,
 }
 
+impl<const N: usize, const M: usize> StageValues<N, M> {
+    /// All entries zero.
+    pub fn zeros() -> Self {
+        StageValues {
+            momentum: Vector::zeros(),
+            force: Vector::zeros(),
+            constraint: Vector::zeros(),
+            constraint_force: Vector::zeros(),
+        }
+    }
+}
+
+impl<const N: usize, const M: usize> StageJacobians<N, M> {
+    /// All entries zero, as a value (`≈ 48·N²` bytes: for large `N` prefer
+    /// [`boxed_zeros`](Self::boxed_zeros), which never touches the stack).
+    pub fn zeros() -> Self {
+        StageJacobians {
+            momentum_q: Matrix::zeros(),
+            mass: Matrix::zeros(),
+            force_q: Matrix::zeros(),
+            force_v: Matrix::zeros(),
+            constraint_q: Matrix::zeros(),
+            constraint_v: Matrix::zeros(),
+            constraint_force_q: Matrix::zeros(),
+            constraint_force_v: Matrix::zeros(),
+        }
+    }
+
+    /// All entries zero, allocated zeroed on the heap directly: no
+    /// `StageJacobians` value is built on the stack, so this works for any
+    /// `N` on any thread (a value of `N = 257` alone is 3.2 MiB, more than a
+    /// 2 MiB thread stack).
+    pub fn boxed_zeros() -> Box<Self> {
+        let layout = std::alloc::Layout::new::<Self>();
+        if layout.size() == 0 {
+            return Box::new(Self::zeros());
+        }
+        // SAFETY: `Self` consists only of nalgebra `ArrayStorage<f64, R, C>`
+        // matrices (plain `f64` arrays plus zero-sized markers), for which the
+        // all-zero bit pattern is a valid value (every entry `0.0`). The
+        // layout is `Self`'s and non-zero-sized, the pointer comes from the
+        // global allocator with that layout (checked for null), so
+        // `Box::from_raw` takes ownership of a valid, initialized allocation.
+        unsafe {
+            let ptr = std::alloc::alloc_zeroed(layout).cast::<Self>();
+            if ptr.is_null() {
+                std::alloc::handle_alloc_error(layout);
+            }
+            Box::from_raw(ptr)
+        }
+    }
+}
+
 /// Explicit time derivatives; all zero for an autonomous system.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TimeDerivatives<const N: usize, const M: usize> {
@@ -215,6 +268,26 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         v: &Vector<N>,
         psi: &Vector<M>,
     ) -> (StageValues<N, M>, StageJacobians<N, M>);
+    /// Fused, in place: writes the values and Jacobians at a stage point into
+    /// `values` and `jacobians` (every entry is overwritten; the previous
+    /// contents do not matter).
+    ///
+    /// Same results as [`stage_jacobians`](Self::stage_jacobians), without
+    /// returning `≈ 48·N²` bytes by value: the stepper calls this form with
+    /// heap-allocated destinations, so a step's stack use stays `O(N)` for
+    /// generated systems. The default calls `stage_jacobians` (hand-written
+    /// systems need not implement it; their stack use stays `O(N²)`).
+    fn stage_jacobians_into(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+        values: &mut StageValues<N, M>,
+        jacobians: &mut StageJacobians<N, M>,
+    ) {
+        (*values, *jacobians) = self.stage_jacobians(t, q, v, psi);
+    }
 
     // ---- Optional effects (all default to "absent"; see the module docs). ----
 
@@ -246,6 +319,24 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         let _ = (t, q, v);
         (Vector::zeros(), Matrix::zeros(), Matrix::zeros())
     }
+    /// Adds the external force and its Jacobians to a stage evaluation in
+    /// place: `f` to `values.force`, `∂f/∂q` to `jacobians.force_q`, `∂f/∂v`
+    /// to `jacobians.force_v` (how the stepper folds `f` into `F`). The
+    /// default goes through [`external_force_jacobians`](Self::external_force_jacobians);
+    /// generated systems add entry by entry without an `N × N` temporary.
+    fn add_external_force_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        values: &mut StageValues<N, M>,
+        jacobians: &mut StageJacobians<N, M>,
+    ) {
+        let (f, fq, fv) = self.external_force_jacobians(t, q, v);
+        values.force += f;
+        jacobians.force_q += fq;
+        jacobians.force_v += fv;
+    }
     /// Non-ideal constraint force `N(t,q,v,ψ)`: the total constraint force
     /// is `R = −Kᵀψ + N`, entering with the weights `ã`, `b̃`. Zero by default.
     fn nonideal_force(&self, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>) -> Vector<N> {
@@ -262,6 +353,30 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     ) -> NonidealJacobians<N, M> {
         let _ = (t, q, v, psi);
         NonidealJacobians { value: Vector::zeros(), q: Matrix::zeros(), v: Matrix::zeros(), psi: Matrix::zeros() }
+    }
+    /// Adds the non-ideal constraint force and its Jacobians to a stage
+    /// evaluation in place: `N` to `values.constraint_force`, `∂N/∂q` to
+    /// `jacobians.constraint_force_q`, `∂N/∂v` to
+    /// `jacobians.constraint_force_v`; `∂N/∂ψ` is written (not added) to
+    /// `psi_jacobian`. The default goes through
+    /// [`nonideal_force_jacobians`](Self::nonideal_force_jacobians);
+    /// generated systems write entry by entry without `N × N` temporaries.
+    #[allow(clippy::too_many_arguments)]
+    fn add_nonideal_force_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+        values: &mut StageValues<N, M>,
+        jacobians: &mut StageJacobians<N, M>,
+        psi_jacobian: &mut Matrix<N, M>,
+    ) {
+        let nj = self.nonideal_force_jacobians(t, q, v, psi);
+        values.constraint_force += nj.value;
+        jacobians.constraint_force_q += nj.q;
+        jacobians.constraint_force_v += nj.v;
+        *psi_jacobian = nj.psi;
     }
     /// Position-level residuals for drift reporting: entry `i` is `g_i(t,q)`
     /// when constraint `i` is `k_i = ∂g_i/∂t + ∂g_i/∂q · v` of a holonomic

@@ -47,11 +47,43 @@ fn matrix_outputs(name: &Ident, xs: &NodeMatrix) -> Vec<(Target, NodeId)> {
     out
 }
 
+/// Where a generated method's output lives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Dest {
+    /// A local `let mut name = zeros();` the method returns by value.
+    Local,
+    /// A `name: &mut` binding into the caller's storage, overwritten: zeroed
+    /// first (one `fill`) only when some entry is structurally zero, since
+    /// the stores skip zero entries.
+    Write,
+    /// A `name: &mut` binding into the caller's storage, accumulated into
+    /// (`+=`): never zeroed.
+    Add,
+}
+
 /// One output variable of a generated method: its name, type and entries.
+#[derive(Clone)]
 struct Out {
     name: Ident,
     ty: TokenStream,
     entries: Vec<(Target, NodeId)>,
+    dest: Dest,
+}
+
+impl Out {
+    /// The same output written into caller storage (`Write`) or accumulated
+    /// into it (`Add`) instead of a local.
+    fn into_dest(mut self, dest: Dest) -> Self {
+        if dest == Dest::Add {
+            for (t, _) in &mut self.entries {
+                if let Target::Store(name, i, j) = t {
+                    *t = Target::Add(name.clone(), *i, *j);
+                }
+            }
+        }
+        self.dest = dest;
+        self
+    }
 }
 
 struct Gen<'a> {
@@ -67,16 +99,17 @@ impl Gen<'_> {
     fn vector(&self, name: &str, xs: &[NodeId], len: &Literal) -> Out {
         let name = format_ident!("{}", name);
         let rt = &self.rt;
-        Out { entries: vector_outputs(&name, xs), ty: quote!(#rt::Vector<#len>), name }
+        Out { entries: vector_outputs(&name, xs), ty: quote!(#rt::Vector<#len>), name, dest: Dest::Local }
     }
 
     fn matrix(&self, name: &str, xs: &NodeMatrix, rows: &Literal) -> Out {
         let name = format_ident!("{}", name);
         let (rt, n) = (&self.rt, &self.n);
-        Out { entries: matrix_outputs(&name, xs), ty: quote!(#rt::Matrix<#rows, #n>), name }
+        Out { entries: matrix_outputs(&name, xs), ty: quote!(#rt::Matrix<#rows, #n>), name, dest: Dest::Local }
     }
 
-    /// Emits a body computing `outs` (declared with `zeros()`) and the scalar
+    /// Emits a body computing `outs` (locals declared with `zeros()`, or
+    /// `&mut` bindings into caller storage, see [`Dest`]) and the scalar
     /// `lets`, splitting it into helpers when it is large. Returns the
     /// statements and the operation count.
     fn body(&mut self, fname: &str, lets: Vec<(Target, NodeId)>, outs: &[Out], psi: bool) -> (TokenStream, usize) {
@@ -88,9 +121,14 @@ impl Gen<'_> {
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         let Emitted { ops, shared, .. } = emitted;
         let statements = &emitted.statements;
-        let decls = outs.iter().map(|o| {
+        let graph = &self.model.graph;
+        let decls = outs.iter().filter_map(|o| {
             let (name, ty) = (&o.name, &o.ty);
-            quote!(let mut #name = <#ty>::zeros();)
+            match o.dest {
+                Dest::Local => Some(quote!(let mut #name = <#ty>::zeros();)),
+                Dest::Write if o.entries.iter().any(|(_, x)| graph.is_const(*x, 0.0)) => Some(quote!(#name.fill(0.0);)),
+                Dest::Write | Dest::Add => None,
+            }
         });
         let decls: Vec<TokenStream> = decls.collect();
         let has_lets = entries.iter().any(|(t, _)| matches!(t, Target::Let(_)));
@@ -126,7 +164,10 @@ impl Gen<'_> {
             .iter()
             .map(|o| {
                 let name = &o.name;
-                quote!(&mut #name)
+                match o.dest {
+                    Dest::Local => quote!(&mut #name),
+                    Dest::Write | Dest::Add => quote!(&mut *#name),
+                }
             })
             .collect();
         let shared_len = Literal::usize_unsuffixed(shared.max(1));
@@ -184,10 +225,12 @@ pub fn count_operations(model: &mut Model, params: &[Ident]) -> Operations {
 /// Bodies (statements, operation count) of the optional-effect methods;
 /// `None` when the declaration lacks the effect.
 struct EffectBodies {
-    /// `external_force` and `external_force_jacobians`.
-    forcing: Option<((TokenStream, usize), (TokenStream, usize))>,
-    /// `nonideal_force` and `nonideal_force_jacobians`.
-    nonideal: Option<((TokenStream, usize), (TokenStream, usize))>,
+    /// `external_force`, `external_force_jacobians` and
+    /// `add_external_force_jacobians` (same statements, accumulated in place).
+    forcing: Option<((TokenStream, usize), (TokenStream, usize), TokenStream)>,
+    /// `nonideal_force`, `nonideal_force_jacobians` and
+    /// `add_nonideal_force_jacobians`.
+    nonideal: Option<((TokenStream, usize), (TokenStream, usize), TokenStream)>,
     /// `holonomic_residual`.
     holonomic: Option<TokenStream>,
 }
@@ -240,8 +283,11 @@ impl Gen<'_> {
             let fq = self.matrix("external_force_q", &md.external_force_q, &n);
             let fv = self.matrix("external_force_v", &md.external_force_v, &n);
             let value = self.body("external_force", Vec::new(), std::slice::from_ref(&f), false);
+            let adds =
+                [f.clone().into_dest(Dest::Add), fq.clone().into_dest(Dest::Add), fv.clone().into_dest(Dest::Add)];
             let jac = self.body("external_force_jacobians", Vec::new(), &[f, fq, fv], false);
-            out.forcing = Some((value, jac));
+            let add = self.body("add_external_force_jacobians", Vec::new(), &adds, false).0;
+            out.forcing = Some((value, jac, add));
         }
         if !self.model.nonideal_force.is_empty() {
             let md = &*self.model;
@@ -249,11 +295,22 @@ impl Gen<'_> {
             let fq = self.matrix("nonideal_force_q", &md.nonideal_force_q, &n);
             let fv = self.matrix("nonideal_force_v", &md.nonideal_force_v, &n);
             let name = format_ident!("nonideal_force_psi");
-            let fpsi =
-                Out { entries: matrix_outputs(&name, &md.nonideal_force_psi), ty: quote!(#rt::Matrix<#n, #m>), name };
+            let fpsi = Out {
+                entries: matrix_outputs(&name, &md.nonideal_force_psi),
+                ty: quote!(#rt::Matrix<#n, #m>),
+                name,
+                dest: Dest::Local,
+            };
             let value = self.body("nonideal_force", Vec::new(), std::slice::from_ref(&f), true);
+            let adds = [
+                f.clone().into_dest(Dest::Add),
+                fq.clone().into_dest(Dest::Add),
+                fv.clone().into_dest(Dest::Add),
+                fpsi.clone().into_dest(Dest::Write),
+            ];
             let jac = self.body("nonideal_force_jacobians", Vec::new(), &[f, fq, fv, fpsi], true);
-            out.nonideal = Some((value, jac));
+            let add = self.body("add_nonideal_force_jacobians", Vec::new(), &adds, true).0;
+            out.nonideal = Some((value, jac, add));
         }
         if !self.model.holonomic.is_empty() {
             let g = self.vector("holonomic", &self.model.holonomic.clone(), &m);
@@ -262,12 +319,15 @@ impl Gen<'_> {
         out
     }
 
-    /// Bodies of `stage_values`, `stage_jacobians` and the bundle.
+    /// Bodies of `stage_values`, `stage_jacobians_into` (writing through
+    /// `&mut` bindings to the caller's `StageValues`/`StageJacobians` fields;
+    /// `stage_jacobians` delegates to it) and the bundle.
     fn fused(&mut self) -> ((TokenStream, usize), (TokenStream, usize), (TokenStream, usize)) {
         let (values, jacobians) = self.stage_outs();
         let sv = self.body("stage_values", Vec::new(), &values, true);
         let mut all = values;
         all.extend(jacobians);
+        let all: Vec<Out> = all.into_iter().map(|o| o.into_dest(Dest::Write)).collect();
         let sj = self.body("stage_jacobians", Vec::new(), &all, true);
         let n = self.n.clone();
         let m = self.m.clone();
@@ -386,7 +446,13 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
     let (sv_body, sj_body) = (sv.0, sj.0);
     let psi_sig = quote!(psi: &#rt::Vector<#m>);
     let mut effect_items = TokenStream::new();
-    if let Some(((value, _), (jac, _))) = effects.forcing {
+    let sj_sig = quote!(
+        #sig,
+        psi: &#rt::Vector<#m>,
+        values: &mut #rt::StageValues<#n, #m>,
+        jacobians: &mut #rt::StageJacobians<#n, #m>
+    );
+    if let Some(((value, _), (jac, _), add)) = effects.forcing {
         effect_items.extend(quote! {
             const HAS_FORCING: bool = true;
 
@@ -399,9 +465,20 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
                 #jac
                 (external_force, external_force_q, external_force_v)
             }
+
+            fn add_external_force_jacobians(
+                #sig,
+                values: &mut #rt::StageValues<#n, #m>,
+                jacobians: &mut #rt::StageJacobians<#n, #m>
+            ) {
+                let external_force = &mut values.force;
+                let external_force_q = &mut jacobians.force_q;
+                let external_force_v = &mut jacobians.force_v;
+                #add
+            }
         });
     }
-    if let Some(((value, _), (jac, _))) = effects.nonideal {
+    if let Some(((value, _), (jac, _), add)) = effects.nonideal {
         effect_items.extend(quote! {
             const HAS_NONIDEAL_FORCE: bool = true;
 
@@ -418,6 +495,20 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
                     v: nonideal_force_v,
                     psi: nonideal_force_psi,
                 }
+            }
+
+            fn add_nonideal_force_jacobians(
+                #sig,
+                #psi_sig,
+                values: &mut #rt::StageValues<#n, #m>,
+                jacobians: &mut #rt::StageJacobians<#n, #m>,
+                psi_jacobian: &mut #rt::Matrix<#n, #m>
+            ) {
+                let nonideal_force = &mut values.constraint_force;
+                let nonideal_force_q = &mut jacobians.constraint_force_q;
+                let nonideal_force_v = &mut jacobians.constraint_force_v;
+                let nonideal_force_psi = psi_jacobian;
+                #add
             }
         });
     }
@@ -637,14 +728,21 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
 
             fn stage_jacobians(#sig, psi: &#rt::Vector<#m>)
                 -> (#rt::StageValues<#n, #m>, #rt::StageJacobians<#n, #m>) {
+                let mut values = #rt::StageValues::zeros();
+                let mut jacobians = #rt::StageJacobians::zeros();
+                <Self as #rt::NonholonomicSystem<#n, #m>>::stage_jacobians_into(
+                    self, t, q, v, psi, &mut values, &mut jacobians,
+                );
+                (values, jacobians)
+            }
+
+            fn stage_jacobians_into(#sj_sig) {
+                let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+                let #rt::StageJacobians {
+                    momentum_q, mass, force_q, force_v, constraint_q, constraint_v,
+                    constraint_force_q, constraint_force_v,
+                } = jacobians;
                 #sj_body
-                (
-                    #rt::StageValues { momentum, force, constraint, constraint_force },
-                    #rt::StageJacobians {
-                        momentum_q, mass, force_q, force_v, constraint_q, constraint_v,
-                        constraint_force_q, constraint_force_v,
-                    },
-                )
             }
 
             #effect_items

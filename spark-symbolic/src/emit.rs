@@ -321,6 +321,10 @@ pub enum Target {
     /// `name[i] = …;` (vector) or `name[(i, j)] = …;` (matrix) into storage
     /// created by `zeros()`; skipped when zero.
     Store(Ident, usize, Option<usize>),
+    /// `name[i] += …;` or `name[(i, j)] += …;`: accumulates into existing
+    /// storage (the in-place effect methods); skipped when zero. The `+=`
+    /// itself is not counted (it is the caller's fold, not the function's).
+    Add(Ident, usize, Option<usize>),
 }
 
 /// The statements of one function body and what they cost.
@@ -363,6 +367,7 @@ impl Emitted {
             match place {
                 Place::Let(name) => quote!(let #name: f64 = #t;),
                 Place::Store(place) => quote!(#place = #t;),
+                Place::Add(place) => quote!(#place += #t;),
             }
         });
         lets.chain(outs).collect()
@@ -374,6 +379,7 @@ impl Emitted {
 enum Place {
     Let(Ident),
     Store(TokenStream),
+    Add(TokenStream),
 }
 
 /// Renders the inputs: `t`, `q[i]`, `v[i]`, `psi[j]`, `self.<parameter>`.
@@ -479,7 +485,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
     let mut refs: HashMap<NodeId, usize> = HashMap::new();
     let mut order: Vec<NodeId> = Vec::new();
     for (target, root) in outputs {
-        if matches!(target, Target::Store(..)) && g.is_const(*root, 0.0) {
+        if matches!(target, Target::Store(..) | Target::Add(..)) && g.is_const(*root, 0.0) {
             continue;
         }
         let mut stack = vec![(*root, false)];
@@ -529,7 +535,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
                 statements.push(quote!(let #name: f64 = #t;));
                 outputs_r.push(Some((Place::Let(name.clone()), e)));
             }
-            Target::Store(name, i, j) => {
+            Target::Store(name, i, j) | Target::Add(name, i, j) => {
                 if g.is_const(*root, 0.0) {
                     outputs_r.push(None);
                     continue;
@@ -545,8 +551,13 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
                 let e = em.render(g, *root, false);
                 ops += e.ops();
                 let t = e.tokens(false);
-                statements.push(quote!(#place = #t;));
-                outputs_r.push(Some((Place::Store(place), e)));
+                if matches!(target, Target::Add(..)) {
+                    statements.push(quote!(#place += #t;));
+                    outputs_r.push(Some((Place::Add(place), e)));
+                } else {
+                    statements.push(quote!(#place = #t;));
+                    outputs_r.push(Some((Place::Store(place), e)));
+                }
             }
         }
     }

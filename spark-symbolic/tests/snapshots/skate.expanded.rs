@@ -245,18 +245,49 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
         psi: &::spark_runtime::Vector<1>,
     ) -> (::spark_runtime::StageValues<3, 1>, ::spark_runtime::StageJacobians<3, 1>) {
-        let mut momentum = <::spark_runtime::Vector<3>>::zeros();
-        let mut force = <::spark_runtime::Vector<3>>::zeros();
-        let mut constraint = <::spark_runtime::Vector<1>>::zeros();
-        let mut constraint_force = <::spark_runtime::Vector<3>>::zeros();
-        let mut momentum_q = <::spark_runtime::Matrix<3, 3>>::zeros();
-        let mut mass = <::spark_runtime::Matrix<3, 3>>::zeros();
-        let mut force_q = <::spark_runtime::Matrix<3, 3>>::zeros();
-        let mut force_v = <::spark_runtime::Matrix<3, 3>>::zeros();
-        let mut constraint_q = <::spark_runtime::Matrix<1, 3>>::zeros();
-        let mut constraint_v = <::spark_runtime::Matrix<1, 3>>::zeros();
-        let mut constraint_force_q = <::spark_runtime::Matrix<3, 3>>::zeros();
-        let mut constraint_force_v = <::spark_runtime::Matrix<3, 3>>::zeros();
+        let mut values = ::spark_runtime::StageValues::zeros();
+        let mut jacobians = ::spark_runtime::StageJacobians::zeros();
+        <Self as ::spark_runtime::NonholonomicSystem<
+            3,
+            1,
+        >>::stage_jacobians_into(self, t, q, v, psi, &mut values, &mut jacobians);
+        (values, jacobians)
+    }
+    fn stage_jacobians_into(
+        &self,
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        psi: &::spark_runtime::Vector<1>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+        jacobians: &mut ::spark_runtime::StageJacobians<3, 1>,
+    ) {
+        let ::spark_runtime::StageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        let ::spark_runtime::StageJacobians {
+            momentum_q,
+            mass,
+            force_q,
+            force_v,
+            constraint_q,
+            constraint_v,
+            constraint_force_q,
+            constraint_force_v,
+        } = jacobians;
+        force.fill(0.0);
+        constraint_force.fill(0.0);
+        momentum_q.fill(0.0);
+        mass.fill(0.0);
+        force_q.fill(0.0);
+        force_v.fill(0.0);
+        constraint_q.fill(0.0);
+        constraint_v.fill(0.0);
+        constraint_force_q.fill(0.0);
+        constraint_force_v.fill(0.0);
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
@@ -279,23 +310,5 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_v[(0, 1)] = s3;
         constraint_force_q[(0, 2)] = s6;
         constraint_force_q[(1, 2)] = s5;
-        (
-            ::spark_runtime::StageValues {
-                momentum,
-                force,
-                constraint,
-                constraint_force,
-            },
-            ::spark_runtime::StageJacobians {
-                momentum_q,
-                mass,
-                force_q,
-                force_v,
-                constraint_q,
-                constraint_v,
-                constraint_force_q,
-                constraint_force_v,
-            },
-        )
     }
 }
