@@ -207,14 +207,17 @@ struct Eval<const N: usize, const M: usize, const S: usize> {
 }
 
 /// Jacobians of one evaluation (only for full-Jacobian iterations).
-/// The per-stage arrays are boxed slices (length `S`) so that building one
-/// never puts `S·64·N²` bytes on the stack (n = 65, s = 2 overflowed a
-/// 2 MiB thread when they were arrays built before boxing).
+/// Every `StageJacobians` is its own heap allocation made zeroed by
+/// [`StageJacobians::boxed_zeros`] and written in place by
+/// `stage_jacobians_into`, so neither building nor filling one puts its
+/// `≈ 48·N²` bytes on the stack (n = 65, s = 2 overflowed a 2 MiB thread when
+/// the stage arrays were built before boxing; n ≈ 120 did when the system
+/// returned them by value).
 #[derive(Clone, Debug)]
 struct EvalJac<const N: usize, const M: usize, const S: usize> {
-    stages: Box<[StageJacobians<N, M>]>,
-    end: StageJacobians<N, M>,
-    mid: Option<StageJacobians<N, M>>,
+    stages: Box<[Box<StageJacobians<N, M>>]>,
+    end: Box<StageJacobians<N, M>>,
+    mid: Option<Box<StageJacobians<N, M>>>,
     /// `∂N/∂ψ` at the stages (only written when `Sys::HAS_NONIDEAL_FORCE`).
     nonideal_psi: Box<[Matrix<N, M>]>,
 }
@@ -225,19 +228,6 @@ fn zero_values<const N: usize, const M: usize>() -> StageValues<N, M> {
         force: Vector::zeros(),
         constraint: Vector::zeros(),
         constraint_force: Vector::zeros(),
-    }
-}
-
-fn zero_jacobians<const N: usize, const M: usize>() -> StageJacobians<N, M> {
-    StageJacobians {
-        momentum_q: Matrix::zeros(),
-        mass: Matrix::zeros(),
-        force_q: Matrix::zeros(),
-        force_v: Matrix::zeros(),
-        constraint_q: Matrix::zeros(),
-        constraint_v: Matrix::zeros(),
-        constraint_force_q: Matrix::zeros(),
-        constraint_force_v: Matrix::zeros(),
     }
 }
 
@@ -256,8 +246,8 @@ where
             warm: None,
             newton: NewtonMatrix::new(),
             work: Box::new(EvalJac {
-                stages: vec![zero_jacobians(); S].into_boxed_slice(),
-                end: zero_jacobians(),
+                stages: (0..S).map(|_| StageJacobians::boxed_zeros()).collect(),
+                end: StageJacobians::boxed_zeros(),
                 mid: None,
                 nonideal_psi: vec![Matrix::zeros(); S].into_boxed_slice(),
             }),
@@ -494,27 +484,23 @@ where
                 for i in 0..S {
                     let psi = mu[i] / h;
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
-                    (ev.stages[i], jac.stages[i]) = system.stage_jacobians(ti, &qi, &v[i], &psi);
+                    // In place, into the heap work storage: no N×N value on the stack.
+                    let (vals, jac_i) = (&mut ev.stages[i], &mut *jac.stages[i]);
+                    system.stage_jacobians_into(ti, &qi, &v[i], &psi, vals, jac_i);
                     if Sys::HAS_FORCING {
-                        let (f, fq, fv) = system.external_force_jacobians(ti, &qi, &v[i]);
-                        ev.stages[i].force += f;
-                        jac.stages[i].force_q += fq;
-                        jac.stages[i].force_v += fv;
+                        system.add_external_force_jacobians(ti, &qi, &v[i], vals, jac_i);
                     }
                     if Sys::HAS_NONIDEAL_FORCE {
-                        let nj = system.nonideal_force_jacobians(ti, &qi, &v[i], &psi);
-                        ev.stages[i].constraint_force += nj.value;
-                        jac.stages[i].constraint_force_q += nj.q;
-                        jac.stages[i].constraint_force_v += nj.v;
-                        jac.nonideal_psi[i] = nj.psi;
+                        let psi_jac = &mut jac.nonideal_psi[i];
+                        system.add_nonideal_force_jacobians(ti, &qi, &v[i], &psi, vals, jac_i, psi_jac);
                     }
                 }
-                (ev.end, jac.end) = system.stage_jacobians(t1, &q1, &v1, &zero_m);
+                system.stage_jacobians_into(t1, &q1, &v1, &zero_m, &mut ev.end, &mut jac.end);
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
-                    let (mv, mj) = system.stage_jacobians(tm, &qm, &v[0], &zero_m);
-                    ev.mid = Some(mv);
-                    jac.mid = Some(mj);
+                    let mj = jac.mid.get_or_insert_with(StageJacobians::boxed_zeros);
+                    let mv = ev.mid.insert(zero_values());
+                    system.stage_jacobians_into(tm, &qm, &v[0], &zero_m, mv, mj);
                 }
             }
             None => {
