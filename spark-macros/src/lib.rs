@@ -43,7 +43,11 @@ use proc_macro::TokenStream;
 /// `+ - * /`, unary minus, `^` for powers (integer or real exponents),
 /// parentheses, numbers (`1`, `2.5`, `1e-3`), the time `t`, `pi`, the
 /// declared names, velocities `dot(x)` of coordinates, and the functions
-/// `sqrt exp ln sin cos tan sinh cosh tanh` and `atan2(y, x)`.
+/// `sqrt exp ln sin cos tan sinh cosh tanh`, `atan2(y, x)` and `atan asin
+/// acos` (rewritten as `atan2(x, 1)`, `atan2(x, sqrt(1 - x^2))`,
+/// `atan2(sqrt(1 - x^2), x)`). Non-smooth functions (`abs`, `min`, `max`,
+/// `sign`, …) are refused with a smooth stand-in to write instead: Newton
+/// needs derivatives everywhere.
 ///
 /// `^` binds tighter than unary minus and is right-associative:
 /// `-x^2 = -(x^2)`, `a*b^c = a*(b^c)`, `a^b^c = a^(b^c)`, `x^-1 = x^(-1)`;
@@ -56,6 +60,13 @@ use proc_macro::TokenStream;
 /// with `__`. Each constraint must involve the velocities (a position
 /// constraint is holonomic: write its time derivative). `M`, the number of
 /// constraints, is the length of the `constraints` list.
+///
+/// Declarations whose accelerations no state can determine are compile
+/// errors: more constraints than coordinates, a coordinate whose velocity
+/// is in neither the mass matrix `∇²_vv L` nor any constraint (a forgotten
+/// kinetic term), and two constraints with the same row of `K = ∂k/∂v`.
+/// (The base of a system with scenes is exempt from the second check, since
+/// a scene's constraint may fix that velocity; each scene is checked.)
 ///
 /// # Effects and scenes
 ///

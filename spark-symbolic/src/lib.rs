@@ -66,8 +66,21 @@ pub fn analyze(spec: &SystemSpec) -> Result<Analysis, SpecError> {
 
 /// Generates the struct, its `Default`, inherent items and the
 /// `NonholonomicSystem` implementation for a parsed declaration.
+///
+/// Declarations whose accelerations are undetermined everywhere (see
+/// [`model::Model::check_determined`]) are rejected.
 pub fn generate(spec: &SystemSpec) -> Result<TokenStream, SpecError> {
+    generate_checked(spec, true)
+}
+
+/// [`generate`], with the structural-singularity check optional: the base
+/// declaration of a system with scenes may leave a coordinate to be fixed
+/// by a scene's constraint effect, so only the scenes are checked.
+pub(crate) fn generate_checked(spec: &SystemSpec, check: bool) -> Result<TokenStream, SpecError> {
     let mut model = model::Model::build(spec)?;
+    if check {
+        model.check_determined(spec)?;
+    }
     codegen::generate_items(spec, &mut model).map(|(tokens, _)| tokens)
 }
 

@@ -207,6 +207,82 @@ fn energy(g: &mut Graph, d: &mut Differentiator, lagrangian: NodeId, vs: &[Var])
 }
 
 impl Model {
+    /// Rejects declarations whose equations of motion cannot determine the
+    /// accelerations at any point, because the SPARK Newton matrix (and the
+    /// saddle-point matrix `[[∇²_vv L, Kᵀ],[K, 0]]` of paper assumption 2.4)
+    /// is singular by construction:
+    ///
+    /// - more constraints than coordinates (`M > N`);
+    /// - a coordinate whose velocity appears neither in the mass matrix nor
+    ///   in any constraint: the column of `v₁[i]` in the step's Newton matrix
+    ///   is `[∇²_vv L; K]` column `i`, identically zero;
+    /// - two constraints that are the same expression (their rows of `K`
+    ///   coincide, so `K` never has full rank).
+    ///
+    /// Only structural zeros and identities the simplifier proves are used,
+    /// so a declaration that passes may still be singular at some points
+    /// (the runtime reports those), but one that fails is singular everywhere.
+    pub fn check_determined(&self, spec: &SystemSpec) -> Result<(), SpecError> {
+        let name = spec.name.to_string();
+        let (n, m) = (self.n, self.m);
+        if m > n {
+            return Err(SpecError {
+                span: spec.constraints[n].span,
+                message: format!(
+                    "`{name}` has {m} constraints on {n} coordinates: at most {n} velocity constraints can be \
+                     independent, so the matrix [[∇²_vv L, Kᵀ],[K, 0]] is singular everywhere and no step can be \
+                     solved; remove the constraints that follow from the others (constraint {} onwards is one too many)",
+                    n + 1
+                ),
+            });
+        }
+        let g = &self.graph;
+        for (i, coordinate) in spec.coordinates.iter().enumerate() {
+            let no_mass = (0..n).all(|j| g.is_const(self.mass[j][i], 0.0));
+            let no_constraint = self.constraint_v.iter().all(|row| g.is_const(row[i], 0.0));
+            if no_mass && no_constraint {
+                let c = &coordinate.name;
+                let how = if g.is_const(self.momentum[i], 0.0) {
+                    format!("`dot({c})` appears neither in the Lagrangian nor in any constraint")
+                } else {
+                    format!(
+                        "the Lagrangian is at most linear in `dot({c})` (∂²L/∂dot({c})∂dot(q) = 0) and no constraint \
+                         involves `dot({c})`"
+                    )
+                };
+                return Err(SpecError {
+                    span: coordinate.span,
+                    message: format!(
+                        "coordinate `{c}` of `{name}` has no inertia: {how}, so nothing determines its acceleration \
+                         and the Newton matrix of every step is singular; give it a kinetic energy term, e.g. \
+                         `+ inertia/2*dot({c})^2` (with a parameter `inertia`), constrain its velocity, or remove it"
+                    ),
+                });
+            }
+        }
+        for j in 0..m {
+            for l in 0..j {
+                if self.constraint[j] == self.constraint[l] || self.constraint_v[j] == self.constraint_v[l] {
+                    let what = if self.constraint[j] == self.constraint[l] {
+                        "the same expression"
+                    } else {
+                        "the same K = ∂k/∂v row"
+                    };
+                    return Err(SpecError {
+                        span: spec.constraints[j].span,
+                        message: format!(
+                            "constraint {} of `{name}` has {what} as constraint {}: dependent constraints make the \
+                             matrix [[∇²_vv L, Kᵀ],[K, 0]] singular; remove one of them",
+                            j + 1,
+                            l + 1
+                        ),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Lowers `spec` and takes every derivative. Fails with a span on the
     /// offending expression (bad constant, holonomic constraint).
     pub fn build(spec: &SystemSpec) -> Result<Model, SpecError> {

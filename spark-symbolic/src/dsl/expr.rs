@@ -656,7 +656,8 @@ impl Parser<'_, '_> {
         if name == "dot" {
             return self.scope.velocity(span, group);
         }
-        let Some(func) = Func::from_name(&name) else {
+        let sugar = Sugar::from_name(&name);
+        let Some(func) = Func::from_name(&name).or(sugar.map(|_| Func::Atan2)) else {
             return err(span, self.unknown_function(&name));
         };
         let toks: Vec<TokenTree> = group.stream().into_iter().collect();
@@ -671,6 +672,12 @@ impl Parser<'_, '_> {
             }
             let what = format!("argument {} of `{name}`", i + 1);
             args.push(parse_nested(piece, self.scope, &what, group.span(), self.depth)?);
+        }
+        if let Some(sugar) = sugar {
+            if args.len() != 1 {
+                return err(span, format!("`{name}` takes 1 argument: `{name}(x)`, found {}", args.len()));
+            }
+            return Ok(sugar.expand(args.remove(0), span));
         }
         if args.len() != func.arity() {
             let expected = if func.arity() == 2 {
@@ -696,14 +703,37 @@ impl Parser<'_, '_> {
         let hint = match name {
             "log" => Some("write `ln(x)` for the natural logarithm".to_string()),
             "pow" | "powi" | "powf" => Some("write `a^b` for powers".to_string()),
-            "atan" => Some("write `atan2(x, 1)`".to_string()),
+            "abs" | "fabs" => Some(
+                "it is not differentiable at 0, and Newton and the stage Jacobians need derivatives there; use a \
+                 smooth stand-in such as `sqrt(x^2 + eps^2)` with a small parameter `eps`"
+                    .to_string(),
+            ),
+            "sign" | "signum" | "sgn" => Some("it jumps at 0; use a smooth stand-in such as `tanh(x/eps)`".to_string()),
+            "min" | "max" | "fmin" | "fmax" => Some(
+                "it is not differentiable where its arguments are equal; use a smooth stand-in such as \
+                 `(a + b + sqrt((a - b)^2 + eps^2))/2` for max(a, b)"
+                    .to_string(),
+            ),
+            "floor" | "ceil" | "round" | "heaviside" | "step" => Some(
+                "it is piecewise constant, so its derivative carries no information; smooth it, e.g. with `tanh`"
+                    .to_string(),
+            ),
+            "asinh" | "arsinh" => Some("write `ln(x + sqrt(x^2 + 1))`".to_string()),
+            "acosh" | "arcosh" => Some("write `ln(x + sqrt(x^2 - 1))`".to_string()),
+            "atanh" | "artanh" => Some("write `ln((1 + x)/(1 - x))/2`".to_string()),
+            "arctan" => Some("write `atan(x)` or `atan2(y, x)`".to_string()),
+            "arcsin" => Some("write `asin(x)`".to_string()),
+            "arccos" => Some("write `acos(x)`".to_string()),
+            "cot" => Some("write `1/tan(x)`".to_string()),
+            "sec" => Some("write `1/cos(x)`".to_string()),
+            "csc" | "cosec" => Some("write `1/sin(x)`".to_string()),
             "sq" | "square" => Some("write `x^2`".to_string()),
             "log10" => Some("write `ln(x)/ln(10)`".to_string()),
             "exp2" => Some("write `2^x`".to_string()),
             "cbrt" => Some("write `x^(1/3)`".to_string()),
             _ => None,
         };
-        let funcs: Vec<&str> = Func::ALL.iter().map(|f| f.name()).collect();
+        let funcs: Vec<&str> = Func::ALL.iter().map(|f| f.name()).chain(Sugar::ALL.iter().map(|s| s.name())).collect();
         let mut msg = format!("unknown function `{name}`");
         if let Some(h) = hint {
             msg.push_str(&format!(": {h}."));
@@ -734,5 +764,56 @@ impl Parser<'_, '_> {
             ),
         };
         err(tt.span(), msg)
+    }
+}
+
+/// Inverse trigonometric functions, accepted in the DSL and rewritten at
+/// parse time through `atan2` (exact, with its derivative
+/// `(b·a′ − a·b′)/(a² + b²)`), so the engine, the neutral source text and
+/// the CasADi checker need no new operator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Sugar {
+    /// `atan(x) = atan2(x, 1)`.
+    Atan,
+    /// `asin(x) = atan2(x, sqrt(1 − x²))`, defined for `|x| ≤ 1`.
+    Asin,
+    /// `acos(x) = atan2(sqrt(1 − x²), x)`, defined for `|x| ≤ 1`.
+    Acos,
+}
+
+impl Sugar {
+    const ALL: [Sugar; 3] = [Sugar::Atan, Sugar::Asin, Sugar::Acos];
+
+    fn from_name(name: &str) -> Option<Sugar> {
+        Sugar::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Sugar::Atan => "atan",
+            Sugar::Asin => "asin",
+            Sugar::Acos => "acos",
+        }
+    }
+
+    fn expand(self, x: SrcExpr, span: Span) -> SrcExpr {
+        let num = |v: f64| SrcExpr::Num(v, span);
+        let bin = |op: BinOp, a: SrcExpr, b: SrcExpr| SrcExpr::Binary(op, Box::new(a), Box::new(b), span);
+        let cos_side = |x: &SrcExpr| {
+            let square = bin(BinOp::Pow, x.clone(), num(2.0));
+            SrcExpr::Call(Func::Sqrt, vec![bin(BinOp::Sub, num(1.0), square)], span)
+        };
+        let args = match self {
+            Sugar::Atan => vec![x, num(1.0)],
+            Sugar::Asin => {
+                let c = cos_side(&x);
+                vec![x, c]
+            }
+            Sugar::Acos => {
+                let c = cos_side(&x);
+                vec![c, x]
+            }
+        };
+        SrcExpr::Call(Func::Atan2, args, span)
     }
 }

@@ -552,6 +552,12 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
         nonideal_force = forces::parse_force_block(&group, &scope, "the non-ideal force", &example)?;
     }
 
+    let mut attrs = attrs;
+    if parameters.iter().any(|p| p.name.name.chars().any(char::is_uppercase)) {
+        // Physics names parameters `I`, `M`, `R`; they become fields, which
+        // rustc would otherwise flag at the user's token.
+        attrs.extend(quote::quote!(#[allow(non_snake_case)]));
+    }
     Ok(SystemSpec {
         attrs,
         vis,

@@ -543,7 +543,7 @@ pub fn expand_scenes(input: &TokenStream) -> Option<Result<TokenStream, SpecErro
         Err(e) => return Some(Err(e)),
     };
     let (base, scenes) = parsed;
-    let mut out = match crate::generate(&base) {
+    let mut out = match crate::generate_checked(&base, false) {
         Ok(t) => t,
         Err(e) => return Some(Err(e)),
     };
