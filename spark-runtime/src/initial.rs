@@ -4,8 +4,8 @@
 //! (used for the stepper's cold-start guess and the multiplier observer).
 
 use crate::error::{IterationRecord, NewtonHistory, StepError};
-use crate::linalg::Lu;
-use crate::system::{Matrix, NonholonomicSystem, Vector};
+use crate::linalg::{column_scales, factor_in_place, solve_in_place, Lu};
+use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 
 /// What to do when `|k(t₀, q₀, v₀)|` exceeds the tolerance.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -50,28 +50,45 @@ pub(crate) enum SaddleFailure {
 
 /// Solves `[[W, Kᵀ],[K, 0]] [x; y] = [r1; r2]` by the Schur complement
 /// `K W⁻¹ Kᵀ` (all fixed-size: `N + M` cannot be named as a const on stable).
+/// Copies `W` (`8·N²` bytes on the stack); see [`saddle_solve_in_place`].
 pub(crate) fn saddle_solve<const N: usize, const M: usize>(
     w: &Matrix<N, N>,
     k: &Matrix<M, N>,
     r1: &Vector<N>,
     r2: &Vector<M>,
 ) -> Result<(Vector<N>, Vector<M>), SaddleFailure> {
-    let mut wlu = Lu::<N>::new();
-    wlu.factor(w).map_err(|e| SaddleFailure::Singular {
+    let mut w = *w;
+    saddle_solve_in_place(&mut w, k, r1, r2)
+}
+
+/// [`saddle_solve`] factoring `w` in place (it holds the LU factors
+/// afterwards), so that no `N × N` matrix goes on the stack: the caller's
+/// `w` may live on the heap (the stepper's cold start passes its stage
+/// Jacobian work storage).
+pub(crate) fn saddle_solve_in_place<const N: usize, const M: usize>(
+    w: &mut Matrix<N, N>,
+    k: &Matrix<M, N>,
+    r1: &Vector<N>,
+    r2: &Vector<M>,
+) -> Result<(Vector<N>, Vector<M>), SaddleFailure> {
+    let scale = column_scales::<N>(w.as_slice());
+    let mut perm = [0usize; N];
+    factor_in_place::<N>(w.as_mut_slice(), &mut perm, &scale, &[N]).map_err(|e| SaddleFailure::Singular {
         block: "W",
         column: e.column,
         pivot: e.pivot,
-        scale: w.column(e.column).amax(),
+        scale: scale[e.column],
     })?;
+    let wlu = |b: &mut Vector<N>| solve_in_place::<N>(w.as_slice(), &perm, b.as_mut_slice());
     let mut winv_r1 = *r1;
-    wlu.solve_in_place(&mut winv_r1);
+    wlu(&mut winv_r1);
     if M == 0 {
         return Ok((winv_r1, Vector::<M>::zeros()));
     }
     let mut winv_kt = k.transpose();
     for mut col in winv_kt.column_iter_mut() {
         let mut c: Vector<N> = col.clone_owned();
-        wlu.solve_in_place(&mut c);
+        wlu(&mut c);
         col.copy_from(&c);
     }
     let schur = k * winv_kt;
@@ -105,7 +122,35 @@ pub fn consistent_acceleration<Sys, const N: usize, const M: usize>(
 where
     Sys: NonholonomicSystem<N, M>,
 {
-    let (vals, jac) = sys.stage_jacobians(t, q, v, &Vector::<M>::zeros());
+    if std::mem::size_of::<StageJacobians<N, M>>() > LARGE_JACOBIANS {
+        // Large N: the Jacobians go on the heap (one allocation per call).
+        let mut jac = StageJacobians::boxed_zeros();
+        return consistent_acceleration_in(sys, t, q, v, &mut StageValues::zeros(), &mut jac);
+    }
+    let (mut vals, mut jac) = (StageValues::zeros(), StageJacobians::zeros());
+    consistent_acceleration_in(sys, t, q, v, &mut vals, &mut jac)
+}
+
+/// Size of `StageJacobians` above which [`consistent_acceleration`] puts
+/// them on the heap instead of the stack (`N ≳ 37`).
+const LARGE_JACOBIANS: usize = 64 << 10;
+
+/// [`consistent_acceleration`] with caller-provided scratch storage for the
+/// stage values and Jacobians (overwritten; `jac.mass` ends up holding LU
+/// factors). With heap storage no `N × N` matrix goes on the stack: the
+/// stepper's cold start uses its own work storage, allocation-free.
+pub(crate) fn consistent_acceleration_in<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+    vals: &mut StageValues<N, M>,
+    jac: &mut StageJacobians<N, M>,
+) -> Option<(Vector<N>, Vector<M>)>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    sys.stage_jacobians_into(t, q, v, &Vector::<M>::zeros(), vals, jac);
     let (mut r1, mut r2) = (vals.force - jac.momentum_q * v, -(jac.constraint_q * v));
     if !Sys::STRUCTURE.autonomous() {
         let td = sys.time_derivatives(t, q, v);
@@ -117,7 +162,7 @@ where
     }
     // A non-ideal force N(ψ) is left out: this is a starting guess, and
     // Newton on the step equations accounts for it.
-    saddle_solve(&jac.mass, &jac.constraint_v, &r1, &r2).ok()
+    saddle_solve_in_place(&mut jac.mass, &jac.constraint_v, &r1, &r2).ok()
 }
 
 /// Checks `(t₀, q₀, v₀)` against the constraints and, by `policy`, returns

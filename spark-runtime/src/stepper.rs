@@ -35,7 +35,7 @@
 
 use crate::convergence::{check_energy, energy_is_invariant, scaled_update_norm, EnergyAnchor, EnergyCheck};
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
-use crate::initial::consistent_acceleration;
+use crate::initial::consistent_acceleration_in;
 use crate::newton::NewtonMatrix;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::{ConditionRows, Tableau};
@@ -373,7 +373,7 @@ where
     /// previous stage values at the nodes `c_j` is evaluated at the new nodes.
     /// Without a previous step: `V_i = v₀ + c_i h a₀`, `Ψ_i = ψ₀` from the
     /// consistent acceleration and multiplier.
-    fn starting_guess(&self, state: &State<N>, h: f64) -> (Vector<D>, bool) {
+    fn starting_guess(&mut self, state: &State<N>, h: f64) -> (Vector<D>, bool) {
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();
         if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
@@ -422,8 +422,13 @@ where
                 return (z, true);
             }
         }
-        let (a0, psi0) = consistent_acceleration(&self.system, state.t, &state.q, &state.v)
-            .unwrap_or((Vector::zeros(), Vector::zeros()));
+        // Scratch: the work storage's end-point Jacobians (heap, so no N×N
+        // matrix goes on the stack); every full evaluation rewrites them
+        // before the Newton matrix reads them.
+        let mut vals = zero_values();
+        let (a0, psi0) =
+            consistent_acceleration_in(&self.system, state.t, &state.q, &state.v, &mut vals, &mut self.work.end)
+                .unwrap_or((Vector::zeros(), Vector::zeros()));
         for i in 0..S {
             z.fixed_rows_mut::<N>(i * N).copy_from(&(state.v + (c[i] * h) * a0));
             z.fixed_rows_mut::<M>(S * N + i * M).copy_from(&(psi0 * h));
