@@ -1,20 +1,22 @@
 //! Scaling with the system size: McLachlan–Perlmutter particles for
-//! `n = 5, 9, 17, 33, 65` ([`scaling_systems`](super::scaling_systems)),
+//! `n = 5, 9, 17, 33, 65, 129` ([`scaling_systems`](super::scaling_systems)),
 //! Gauss SPARK `s = 2` (and `s = 5` for the large-`D` end): time per step
 //! with full Newton and with simplified Newton (one factorization per step),
 //! the stepper's size and heap storage, and the arithmetic rate one step
 //! reaches (operation count of the generated code plus the block LU of the
 //! `D × D` Newton matrix, `D = s(n+1)+n`).
 //!
-//! The Newton matrix and its factors live on the heap (allocated once per
-//! stepper), so the stepper value is `O(s·D)` bytes and a step's stack use
-//! is `O(n²)` (stage-Jacobian temporaries), not `O(D²)`. To show it, the
-//! whole measurement runs on a thread with rayon's default 2 MiB stack
+//! The Newton matrix, its factors and the stage Jacobians live on the heap
+//! (allocated once per stepper; the generated `stage_jacobians_into` writes
+//! into them in place), so the stepper value is `O(s·D)` bytes and a step's
+//! stack use is `O(D)`, not `O(n²)` or `O(D²)`. To show it, the whole
+//! measurement runs on a thread with rayon's default 2 MiB stack
 //! ([`WORKER_STACK`]), which the old stack-allocated matrices overflowed from
-//! `D ≈ 250` on.
+//! `D ≈ 250` on and the by-value stage Jacobians from `n ≈ 90`.
 
 use super::scaling_systems::{
-    McLachlanPerlmutter17, McLachlanPerlmutter33, McLachlanPerlmutter5, McLachlanPerlmutter65, McLachlanPerlmutter9,
+    McLachlanPerlmutter129, McLachlanPerlmutter17, McLachlanPerlmutter33, McLachlanPerlmutter5, McLachlanPerlmutter65,
+    McLachlanPerlmutter9,
 };
 use spark_runtime::{
     Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, Stepper, Tableau,
@@ -131,6 +133,7 @@ pub fn measure_scaling(repeats: usize) -> Result<Vec<ScalingRow>, String> {
                 row::<McLachlanPerlmutter17, 17, 1, 2, { 2 * 18 + 17 }>(repeats)?,
                 row::<McLachlanPerlmutter33, 33, 1, 2, { 2 * 34 + 33 }>(repeats)?,
                 row::<McLachlanPerlmutter65, 65, 1, 2, { 2 * 66 + 65 }>(repeats)?,
+                row::<McLachlanPerlmutter129, 129, 1, 2, { 2 * 130 + 129 }>(repeats)?,
                 row::<McLachlanPerlmutter17, 17, 1, 5, { 5 * 18 + 17 }>(repeats)?,
                 row::<McLachlanPerlmutter33, 33, 1, 5, { 5 * 34 + 33 }>(repeats)?,
                 row::<McLachlanPerlmutter65, 65, 1, 5, { 5 * 66 + 65 }>(repeats)?,
