@@ -222,15 +222,19 @@ pub fn count_operations(model: &mut Model, params: &[Ident]) -> Operations {
     }
 }
 
+/// One effect's bodies: the value method, the by-value Jacobian method
+/// (with its operation count each) and the in-place `add_*` method.
+type EffectBody = ((TokenStream, usize), (TokenStream, usize), TokenStream);
+
 /// Bodies (statements, operation count) of the optional-effect methods;
 /// `None` when the declaration lacks the effect.
 struct EffectBodies {
     /// `external_force`, `external_force_jacobians` and
     /// `add_external_force_jacobians` (same statements, accumulated in place).
-    forcing: Option<((TokenStream, usize), (TokenStream, usize), TokenStream)>,
+    forcing: Option<EffectBody>,
     /// `nonideal_force`, `nonideal_force_jacobians` and
     /// `add_nonideal_force_jacobians`.
-    nonideal: Option<((TokenStream, usize), (TokenStream, usize), TokenStream)>,
+    nonideal: Option<EffectBody>,
     /// `holonomic_residual`.
     holonomic: Option<TokenStream>,
 }
