@@ -26,7 +26,7 @@
 //! `8·D²` bytes overflowed a 2 MiB rayon worker stack from `D ≈ 250` on;
 //! boxed, the stepper's own size is `O(S·D)` whatever `D`.
 
-use crate::linalg::{column_scales, factor_in_place, solve_in_place};
+use crate::linalg::{column_scales, factor_in_place, solve_in_place, PaddedLu};
 use crate::system::{Matrix, Vector};
 use nalgebra::{Const, MatrixView, MatrixViewMut};
 
@@ -59,10 +59,14 @@ pub struct SingularMatrix {
 pub struct NewtonMatrix<const N: usize, const M: usize, const S: usize, const D: usize> {
     /// `∂G/∂z`, column-major, unknowns and rows in the stepper's order.
     jacobian: Box<[f64]>,
-    /// LU factors (columns permuted to `(V, v₁, μ)` on the structured path).
+    /// LU factors of the row-swapping kernel (columns permuted to
+    /// `(V, v₁, μ)` on the structured path); empty when `padded` is used.
     lu: Box<[f64]>,
-    /// Row interchanges of the factorization.
+    /// Row interchanges of `lu`.
     perm: Box<[usize]>,
+    /// The padded kernel's factors (same column order), when `D` and the
+    /// CPU suit it (see `linalg::PaddedLu`).
+    padded: Option<PaddedLu<D>>,
     factored: Option<Factorization>,
 }
 
@@ -80,10 +84,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
     /// unless `D == S·(N+M)+N`).
     pub fn new() -> Self {
         const { assert!(D == S * (N + M) + N, "NewtonMatrix: D must equal S*(N+M)+N") };
+        let padded = PaddedLu::new();
+        let n = if padded.is_some() { 0 } else { D };
         NewtonMatrix {
             jacobian: vec![0.0; D * D].into_boxed_slice(),
-            lu: vec![0.0; D * D].into_boxed_slice(),
-            perm: vec![0; D].into_boxed_slice(),
+            lu: vec![0.0; n * n].into_boxed_slice(),
+            perm: vec![0; n].into_boxed_slice(),
+            padded,
             factored: None,
         }
     }
@@ -120,6 +127,36 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
     /// Factors the matrix: the structured block elimination when its
     /// diagonal blocks are regular, else partial pivoting over all rows.
     pub fn factor(&mut self) -> Result<Factorization, SingularMatrix> {
+        let result = if self.padded.is_some() { self.factor_padded() } else { self.factor_swapping() };
+        self.factored = result.ok();
+        result
+    }
+
+    /// [`factor`](Self::factor) with the padded kernel.
+    fn factor_padded(&mut self) -> Result<Factorization, SingularMatrix> {
+        let Some(lu) = &mut self.padded else { return self.factor_swapping() };
+        let (sn, sm) = (Self::SN, S * M);
+        // Columns (V, v₁, μ) on the structured path.
+        let structured = std::array::from_fn(|c| {
+            if c < sn {
+                c
+            } else if c < sn + N {
+                c + sm
+            } else {
+                c - N
+            }
+        });
+        if lu.factor(&self.jacobian, &structured, &[sn, sn + N, D]).is_ok() {
+            return Ok(Factorization::Structured);
+        }
+        match lu.factor(&self.jacobian, &std::array::from_fn(|c| c), &[D]) {
+            Ok(()) => Ok(Factorization::Dense),
+            Err(s) => Err(SingularMatrix { column: s.column, pivot: s.pivot }),
+        }
+    }
+
+    /// [`factor`](Self::factor) with the row-swapping kernel.
+    fn factor_swapping(&mut self) -> Result<Factorization, SingularMatrix> {
         let (sn, sm) = (Self::SN, S * M);
         // Columns (V, v₁, μ): V and the column blocks after it copied whole
         // (column-major, so each block is one contiguous run).
@@ -128,20 +165,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
         self.lu[(sn + N) * D..].copy_from_slice(&self.jacobian[sn * D..(sn + sm) * D]);
         let scale = column_scales::<D>(&self.lu);
         if factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[sn, sn + N, D]).is_ok() {
-            self.factored = Some(Factorization::Structured);
             return Ok(Factorization::Structured);
         }
         self.lu.copy_from_slice(&self.jacobian);
         let scale = column_scales::<D>(&self.lu);
         match factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[D]) {
-            Ok(()) => {
-                self.factored = Some(Factorization::Dense);
-                Ok(Factorization::Dense)
-            }
-            Err(s) => {
-                self.factored = None;
-                Err(SingularMatrix { column: s.column, pivot: s.pivot })
-            }
+            Ok(()) => Ok(Factorization::Dense),
+            Err(s) => Err(SingularMatrix { column: s.column, pivot: s.pivot }),
         }
     }
 
@@ -151,12 +181,20 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
         let b = b.as_mut_slice();
         match self.factored {
             None => {}
-            Some(Factorization::Dense) => solve_in_place::<D>(&self.lu, &self.perm, b),
+            Some(Factorization::Dense) => self.solve_factors(b),
             Some(Factorization::Structured) => {
-                solve_in_place::<D>(&self.lu, &self.perm, b);
+                self.solve_factors(b);
                 // The solution came out in column order (V, v₁, μ); back to (V, μ, v₁).
                 b[Self::SN..].rotate_left(N);
             }
+        }
+    }
+
+    /// `b ← A⁻¹ b` in the column order of the factors.
+    fn solve_factors(&self, b: &mut [f64]) {
+        match &self.padded {
+            Some(lu) => lu.solve(b),
+            None => solve_in_place::<D>(&self.lu, &self.perm, b),
         }
     }
 }
