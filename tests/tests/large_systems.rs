@@ -149,7 +149,7 @@ fn in_place_effects_add_what_the_by_value_forms_return() {
     let (q, v, psi) = (Vector::<3>::new(0.3, -0.2, 0.9), Vector::<3>::new(0.5, 0.1, -0.4), Vector::<1>::new(0.8));
 
     let sleigh = SleighDrivenDampedByHand::default();
-    assert!(SleighDrivenDampedByHand::HAS_FORCING);
+    const { assert!(SleighDrivenDampedByHand::HAS_FORCING) };
     let (base_values, base_jac) = sleigh.stage_jacobians(0.3, &q, &v, &psi);
     let (f, fq, fv) = sleigh.external_force_jacobians(0.3, &q, &v);
     let (mut values, mut jac) = (base_values, base_jac);
@@ -160,7 +160,7 @@ fn in_place_effects_add_what_the_by_value_forms_return() {
     assert_eq!((values.momentum, jac.mass), (base_values.momentum, base_jac.mass), "other fields untouched");
 
     let skate = SkateWithFriction::default();
-    assert!(SkateWithFriction::HAS_NONIDEAL_FORCE);
+    const { assert!(SkateWithFriction::HAS_NONIDEAL_FORCE) };
     let (base_values, base_jac) = skate.stage_jacobians(0.3, &q, &v, &psi);
     let nj = skate.nonideal_force_jacobians(0.3, &q, &v, &psi);
     let (mut values, mut jac) = (base_values, base_jac);

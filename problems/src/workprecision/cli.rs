@@ -42,7 +42,7 @@ pub struct WorkPrecisionArgs {
     /// (one Jacobian and factorization per step, the `paper` default).
     #[arg(long, value_parser = ["full", "simplified"], default_value = "full")]
     pub newton: String,
-    /// Measure the McLachlan–Perlmutter scaling study (n = 5 … 65) instead.
+    /// Measure the McLachlan–Perlmutter scaling study (n = 5 … 129) instead.
     #[arg(long)]
     pub scaling: bool,
     /// A seconds-long smoke run of every code path (short T, few steps).
