@@ -1,0 +1,580 @@
+//! Systems a new user writes from the README alone, declared with
+//! `nonholonomic_system!` here (not in `problems`), run through the whole
+//! pipeline: generated derivatives against finite differences, Gauss s = 2
+//! and Lobatto IIIA-B s = 3 orders against the Gragg–Bulirsch–Stoer
+//! reference, the constraint residual at every step, Newton iteration
+//! counts, the energy where it is a first integral, and the errors a user
+//! meets with an inconsistent initial state.
+//!
+//! The systems cover what the DSL promises: a rolling disk on an inclined
+//! plane (two constraints), rheonomic constraints (`ẏ − sin t ẋ`, a moving
+//! belt, a knife edge on a turntable), constraints nonlinear in `v`
+//! (constant speed, a time-dependent Appell–Hamel cord), three constraints
+//! with parameters (a differential-drive robot), configuration-dependent
+//! mass matrices (polar particle, cart-pendulum without constraints), a
+//! time-dependent mass, every documented function (including `atan`,
+//! `asin`, `acos`), physics-style parameter names, a scene with a
+//! time-dependent holonomic rail and a chain with n = 12.
+
+use spark_runtime::reference::{integrate_at, ReferenceOptions};
+use spark_runtime::{
+    nonholonomic_system, ConsistencyPolicy, ConstraintForm, IntegrationError, Method, NoObserver, NonholonomicSystem,
+    RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
+};
+
+nonholonomic_system! {
+    /// Vertical disk rolling on a plane inclined by `alpha` (gravity along x).
+    pub struct RollingDiskIncline {
+        coordinates: [x, y, theta, phi],
+        parameters: { m = 1.0, r = 0.5, g = 9.81, alpha = 0.3 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + m*r^2/4*dot(theta)^2 + m*r^2/2*dot(phi)^2 + m*g*x*sin(alpha),
+        constraints: [
+            dot(x) - r*cos(theta)*dot(phi),
+            dot(y) - r*sin(theta)*dot(phi),
+        ],
+    }
+}
+
+nonholonomic_system! {
+    /// Sleigh with the rheonomic constraint ẏ − sin(t) ẋ = 0.
+    pub struct RheonomicSleigh {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 0.4, a = 0.2 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + (inertia + m*a^2)/2*dot(theta)^2 - y^2/2,
+        constraints: [ dot(y) - sin(t)*dot(x) ],
+    }
+}
+
+nonholonomic_system! {
+    /// Knife edge on a belt moving along x with speed u0 sin(ωt) (affine, rheonomic).
+    pub struct BeltSleigh {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 0.4, u0 = 0.5, omega = 2.0 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2,
+        constraints: [ cos(theta)*dot(y) - sin(theta)*(dot(x) - u0*sin(omega*t)) ],
+    }
+}
+
+nonholonomic_system! {
+    /// Knife edge on a table turning with angular velocity `omega` (affine, autonomous).
+    pub struct KnifeOnTurntable {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 0.3, omega = 0.7 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2,
+        constraints: [ cos(theta)*(dot(y) - omega*x) - sin(theta)*(dot(x) + omega*y) ],
+    }
+}
+
+nonholonomic_system! {
+    /// A particle kept at constant speed (k quadratic in v) in an anisotropic well.
+    pub struct ConstantSpeed {
+        coordinates: [x, y, z],
+        parameters: { speed = 1.0, k = 1.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - k/2*(x^2 + 2*y^2 + 3*z^2),
+        constraints: [ dot(x)^2 + dot(y)^2 + dot(z)^2 - speed^2 ],
+    }
+}
+
+nonholonomic_system! {
+    /// Time-varying mass, forcing through L, and a time-dependent constraint nonlinear in v.
+    pub struct TimeVarying {
+        coordinates: [x, y, z],
+        parameters: { m0 = 1.0, eps = 0.2 },
+        lagrangian: m0*(1 + eps*sin(t))/2*(dot(x)^2 + dot(y)^2) + dot(z)^2/2 + x*cos(2*t) - (x^2 + y^2 + z^2)/2,
+        constraints: [ dot(x)^2 + dot(y)^2 - (1 + eps*sin(t))^2*(1 + z^2) ],
+    }
+}
+
+nonholonomic_system! {
+    /// Differential-drive robot: two wheels, three constraints, a spring.
+    pub struct DiffDrive {
+        coordinates: [x, y, theta, phi1, phi2],
+        parameters: { m = 2.0, inertia = 0.5, jw = 0.1, r = 0.3, b = 0.4, kappa = 1.5 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + jw/2*(dot(phi1)^2 + dot(phi2)^2)
+            - kappa/2*(x^2 + y^2),
+        constraints: [
+            cos(theta)*dot(x) + sin(theta)*dot(y) - r/2*(dot(phi1) + dot(phi2)),
+            -sin(theta)*dot(x) + cos(theta)*dot(y),
+            dot(theta) - r/(2*b)*(dot(phi1) - dot(phi2)),
+        ],
+    }
+}
+
+nonholonomic_system! {
+    /// Particle in cylindrical coordinates (mass matrix depends on r) in a well, dz = r dφ.
+    pub struct PolarParticle {
+        coordinates: [r, phi, z],
+        parameters: { m = 1.0, k = 2.0 },
+        lagrangian: m/2*(dot(r)^2 + r^2*dot(phi)^2 + dot(z)^2) - k/2*(r - 1)^2 - z^2/2,
+        constraints: [ dot(z) - r*dot(phi) ],
+    }
+}
+
+nonholonomic_system! {
+    /// Cart-pendulum, no constraints (M = 0); physics-style parameter names.
+    pub struct CartPendulum {
+        coordinates: [x, th],
+        parameters: { M = 2.0, m = 0.5, l = 1.0, g = 9.81 },
+        lagrangian: (M + m)/2*dot(x)^2 + m*l*dot(x)*dot(th)*cos(th) + m*l^2/2*dot(th)^2 + m*g*l*cos(th),
+    }
+}
+
+nonholonomic_system! {
+    /// Every function the DSL offers, in L and in a rheonomic constraint.
+    pub struct Functions {
+        coordinates: [x, y, z],
+        parameters: { a = 0.7, w = 1.3 },
+        constants: { half = 1/2 },
+        lagrangian: half*(dot(x)^2 + dot(y)^2 + dot(z)^2)*(1 + tanh(x)^2/4)
+            - exp(-x^2)*cosh(y/3) + ln(2 + sin(z)) - sqrt(1 + x^2 + y^2) + w*atan2(y, 2 + x)
+            + sinh(y/5)*cos(z) + tan(z/4)^2 - (1 + x^2)^1.5/10
+            - atan(x)/3 + asin(y/3)*acos(z/4)/5,
+        constraints: [ dot(z) - a*tanh(y)*dot(x) - sin(t)*exp(-y^2) ],
+    }
+}
+
+nonholonomic_system! {
+    /// A chain of 12 masses with springs, quartic ends, one constraint.
+    pub struct Chain12 {
+        coordinates: [q1, q2, q3, q4, q5, q6, q7, q8, q9, q10, q11, q12],
+        parameters: { kk = 3.0 },
+        lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2
+            + dot(q8)^2 + dot(q9)^2 + dot(q10)^2 + dot(q11)^2 + dot(q12)^2)/2
+            - kk/2*(q1^2 + (q2-q1)^2 + (q3-q2)^2 + (q4-q3)^2 + (q5-q4)^2 + (q6-q5)^2 + (q7-q6)^2
+            + (q8-q7)^2 + (q9-q8)^2 + (q10-q9)^2 + (q11-q10)^2 + (q12-q11)^2) - (q1^4 + q12^4)/4,
+        constraints: [ dot(q12) - q1*dot(q2) + q3*dot(q4) ],
+    }
+}
+
+nonholonomic_system! {
+    /// A bead on a line turning with time (holonomic effect with t), a cord
+    /// nonlinear in v that lengthens with time, and a periodic push.
+    pub struct Bead {
+        coordinates: [x, y, z],
+        parameters: { w = 1.5, c = 0.3 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2 + z^2)/2,
+        effects: {
+            rail: holonomic(y - sin(w*t)*x),
+            cord: constraint(dot(z) - c*(1 + t/10)*sqrt(1 + dot(x)^2)),
+            push: force { x: cos(t) },
+        },
+        scenes: { BeadOnRail = [rail], BeadOnCord = [cord], BeadPushed = [rail, cord, push] },
+    }
+}
+
+/// Deterministic uniform numbers in [−1, 1).
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+}
+
+/// Fourth-order central difference of `f` along one direction.
+fn diff4<T, F>(f: F, h: f64) -> T
+where
+    F: Fn(f64) -> T,
+    T: std::ops::Sub<Output = T> + std::ops::Add<Output = T> + std::ops::Mul<f64, Output = T>,
+{
+    (f(-2.0 * h) * (1.0 / 12.0) - f(-h) * (8.0 / 12.0) + f(h) * (8.0 / 12.0) - f(2.0 * h) * (1.0 / 12.0)) * (1.0 / h)
+}
+
+/// Largest error of the generated derivatives against finite differences of
+/// the generated values at random points, relative to `1 + |derivative|`:
+/// every block of `stage_jacobians`, the explicit time derivatives, and the
+/// agreement of the unfused functions with the fused ones.
+fn derivative_error<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(sys: &Sys) -> f64 {
+    derivative_mismatch(sys, sys)
+}
+
+/// [`derivative_error`] with the derivatives taken from `sys` and the
+/// finite differences from `values` (a different parameter set shows that
+/// the check can fail).
+fn derivative_mismatch<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(sys: &Sys, values: &Sys) -> f64 {
+    let mut rng = Lcg(7);
+    let mut worst = 0.0f64;
+    let mut track = |exact: f64, approx: f64| worst = worst.max((exact - approx).abs() / (1.0 + exact.abs()));
+    let h = 1e-3;
+    for _ in 0..20 {
+        let t = rng.next();
+        let q = Vector::<N>::from_fn(|_, _| 0.8 * rng.next());
+        let v = Vector::<N>::from_fn(|_, _| rng.next() + 0.3);
+        let psi = Vector::<M>::from_fn(|_, _| rng.next());
+        let (vals, jac) = sys.stage_jacobians(t, &q, &v, &psi);
+        let plain = sys.stage_values(t, &q, &v, &psi);
+        for (a, b) in [
+            (vals.momentum, plain.momentum),
+            (vals.force, plain.force),
+            (vals.constraint_force, plain.constraint_force),
+            (sys.momentum(t, &q, &v), plain.momentum),
+            (sys.force(t, &q, &v), plain.force),
+        ] {
+            (0..N).for_each(|i| track(a[i], b[i]));
+        }
+        (0..M).for_each(|i| track(vals.constraint[i], sys.constraint(t, &q, &v)[i]));
+        let mass = sys.mass_matrix(t, &q, &v);
+        let (kq, kv) = (sys.constraint_q(t, &q, &v), sys.constraint_v(t, &q, &v));
+        for j in 0..N {
+            let at = |wrt_q: bool, e: f64| {
+                let (mut qq, mut vv) = (q, v);
+                if wrt_q {
+                    qq[j] += e;
+                } else {
+                    vv[j] += e;
+                }
+                values.stage_values(t, &qq, &vv, &psi)
+            };
+            for wrt_q in [true, false] {
+                let dp = diff4(|e| at(wrt_q, e).momentum, h);
+                let df = diff4(|e| at(wrt_q, e).force, h);
+                let dk = diff4(|e| at(wrt_q, e).constraint, h);
+                let dr = diff4(|e| at(wrt_q, e).constraint_force, h);
+                let (p, f, k, r) = if wrt_q {
+                    (&jac.momentum_q, &jac.force_q, &jac.constraint_q, &jac.constraint_force_q)
+                } else {
+                    (&jac.mass, &jac.force_v, &jac.constraint_v, &jac.constraint_force_v)
+                };
+                for i in 0..N {
+                    track(p[(i, j)], dp[i]);
+                    track(f[(i, j)], df[i]);
+                    track(r[(i, j)], dr[i]);
+                    track(mass[(i, j)], jac.mass[(i, j)]);
+                }
+                for i in 0..M {
+                    track(k[(i, j)], dk[i]);
+                    track(kq[(i, j)], jac.constraint_q[(i, j)]);
+                    track(kv[(i, j)], jac.constraint_v[(i, j)]);
+                }
+            }
+        }
+        let td = sys.time_derivatives(t, &q, &v);
+        let in_t = |e: f64| values.stage_values(t + e, &q, &v, &psi);
+        let (dp, df, dk) =
+            (diff4(|e| in_t(e).momentum, h), diff4(|e| in_t(e).force, h), diff4(|e| in_t(e).constraint, h));
+        for i in 0..N {
+            track(td.momentum_t[i], dp[i]);
+            track(td.force_t[i], df[i]);
+        }
+        (0..M).for_each(|i| track(td.constraint_t[i], dk[i]));
+        track(td.lagrangian_t, diff4(|e| values.lagrangian(t + e, &q, &v), h));
+        // E = ∇_v L · v − L, as generated, against its definition.
+        track(sys.energy(t, &q, &v), plain.momentum.dot(&v) - sys.lagrangian(t, &q, &v));
+    }
+    worst
+}
+
+/// What one fixed-step run measured.
+#[derive(Debug)]
+struct Run<const N: usize> {
+    end: State<N>,
+    /// Largest `max_i |k_i|` after any step.
+    residual: f64,
+    /// Largest `|E − E₀|`.
+    energy: f64,
+    /// Largest Newton iteration count of one step.
+    iterations: usize,
+}
+
+fn run<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    sys: &Sys,
+    method: Method,
+    start: &State<N>,
+    t_end: f64,
+    steps: usize,
+) -> Run<N>
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(sys.clone(), Tableau::new(method).unwrap());
+    let h = (t_end - start.t) / steps as f64;
+    let e0 = sys.energy(start.t, &start.q, &start.v);
+    let mut out = Run { end: *start, residual: 0.0, energy: 0.0, iterations: 0 };
+    for k in 0..steps {
+        let r = stepper
+            .step(&out.end, h)
+            .unwrap_or_else(|e| panic!("{} {method} s={S} h={h}: step {k} failed: {e}", Sys::SOURCE.name));
+        out.iterations = out.iterations.max(r.iterations);
+        out.end = r.state;
+        out.residual = out.residual.max(sys.constraint(out.end.t, &out.end.q, &out.end.v).amax());
+        out.energy = out.energy.max((sys.energy(out.end.t, &out.end.q, &out.end.v) - e0).abs());
+    }
+    out
+}
+
+/// Measured on one system: derivative error, and per method (Gauss s = 2,
+/// Lobatto IIIA-B s = 3) the orders in q and v from h = T/40 → T/80 (h = 0.1
+/// is not yet asymptotic for the cart-pendulum), the residual and the
+/// largest Newton iteration count over h = T/20, T/40, T/80, and the energy
+/// errors at the two finer step sizes.
+struct Report {
+    name: &'static str,
+    derivative_error: f64,
+    methods: Vec<MethodReport>,
+}
+
+struct MethodReport {
+    label: &'static str,
+    order_q: f64,
+    order_v: f64,
+    finest_error: f64,
+    residual: f64,
+    energy: (f64, f64),
+    iterations: usize,
+}
+
+const T_END: f64 = 2.0;
+const COARSE: usize = 20;
+
+fn measure<Sys, const N: usize, const M: usize, const D2: usize, const D3: usize>(
+    sys: Sys,
+    q0: [f64; N],
+    v0: [f64; N],
+) -> Report
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let start = State::new(0.0, Vector::<N>::from(q0), Vector::<N>::from(v0));
+    let k0 = sys.constraint(0.0, &start.q, &start.v).amax();
+    assert!(k0 <= 1e-14, "{}: test's initial state is inconsistent (|k| = {k0:e})", Sys::SOURCE.name);
+    let reference = integrate_at(&sys, 0.0, &start.q, &start.v, &[T_END], &ReferenceOptions::default()).unwrap();
+    let (qr, vr) = (reference.q[0], reference.v[0]);
+    let mut methods = Vec::new();
+    for (label, method) in [("Gauss s=2", Method::Gauss), ("Lobatto IIIA-B s=3", Method::LobattoIIIAB)] {
+        let pair = |steps: usize| {
+            if method == Method::Gauss {
+                run::<Sys, N, M, 2, D2>(&sys, method, &start, T_END, steps)
+            } else {
+                run::<Sys, N, M, 3, D3>(&sys, method, &start, T_END, steps)
+            }
+        };
+        let (first, coarse, fine) = (pair(COARSE), pair(2 * COARSE), pair(4 * COARSE));
+        let err = |r: &Run<N>| ((r.end.q - qr).amax(), (r.end.v - vr).amax());
+        let ((cq, cv), (fq, fv)) = (err(&coarse), err(&fine));
+        methods.push(MethodReport {
+            label,
+            order_q: (cq / fq).log2(),
+            order_v: (cv / fv).log2(),
+            finest_error: fq.max(fv),
+            residual: first.residual.max(coarse.residual).max(fine.residual),
+            energy: (coarse.energy, fine.energy),
+            iterations: first.iterations.max(coarse.iterations).max(fine.iterations),
+        });
+    }
+    Report { name: Sys::SOURCE.name, derivative_error: derivative_error(&sys), methods }
+}
+
+macro_rules! measure {
+    ($sys:expr, $n:literal, $m:literal, $q0:expr, $v0:expr) => {
+        measure::<_, $n, $m, { 2 * ($n + $m) + $n }, { 3 * ($n + $m) + $n }>($sys, $q0, $v0)
+    };
+}
+
+fn all_reports() -> Vec<(Report, bool)> {
+    let sqrt109 = 1.09f64.sqrt();
+    // (report, whether E is a first integral: autonomous L, constraints none or linear homogeneous in v, no forcing)
+    vec![
+        (measure!(RollingDiskIncline::default(), 4, 2, [0.0; 4], [0.5, 0.0, 1.0, 1.0]), true),
+        // k = K(t)v is rheonomic but homogeneous in v: Kᵀψ does no work on motions with Kv = 0, so E is conserved.
+        (measure!(RheonomicSleigh::default(), 3, 1, [0.0, 0.3, 0.0], [1.0, 0.0, 0.5]), true),
+        (measure!(BeltSleigh::default(), 3, 1, [0.0; 3], [1.0, 0.0, 0.5]), false),
+        (measure!(KnifeOnTurntable::default(), 3, 1, [1.0, 0.0, 0.0], [0.0, 0.7, 0.3]), false),
+        (measure!(ConstantSpeed::default(), 3, 1, [0.5, 0.0, 0.0], [0.6, 0.8, 0.0]), false),
+        (measure!(TimeVarying::default(), 3, 1, [0.1, 0.2, 0.3], [sqrt109, 0.0, 0.5]), false),
+        (measure!(DiffDrive::default(), 5, 3, [0.5, 0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.75, 2.0, 0.0]), true),
+        (measure!(PolarParticle::default(), 3, 1, [1.2, 0.0, 0.0], [0.1, 0.5, 0.6]), true),
+        (measure!(CartPendulum::default(), 2, 0, [0.0, 1.0], [0.0, 0.0]), true),
+        (measure!(Functions::default(), 3, 1, [0.1, 0.2, 0.3], [0.5, -0.3, 0.35 * 0.2f64.tanh()]), false),
+        (
+            measure!(
+                Chain12::default(),
+                12,
+                1,
+                [0.1, 0.2, -0.1, 0.0, 0.3, 0.0, 0.1, -0.2, 0.0, 0.1, 0.0, 0.0],
+                [0.0; 12]
+            ),
+            true,
+        ),
+        (measure!(BeadOnRail::default(), 3, 1, [0.5, 0.0, 0.1], [0.3, 0.75, 0.2]), false),
+        (measure!(BeadOnCord::default(), 3, 1, [0.5, 0.0, 0.1], [0.3, 0.2, 0.3 * sqrt109]), false),
+        (measure!(BeadPushed::default(), 3, 2, [0.5, 0.0, 0.1], [0.3, 0.75, 0.3 * sqrt109]), false),
+    ]
+}
+
+/// One test for the whole table, so the 14 references and 56 runs are
+/// computed once; every failure is collected and reported together.
+#[test]
+fn newcomer_systems_have_exact_derivatives_order_four_and_round_off_constraints() {
+    let mut failures = Vec::new();
+    for (r, conserved) in all_reports() {
+        println!("{:20} derivative error {:.1e}", r.name, r.derivative_error);
+        if r.derivative_error > 1e-8 || r.derivative_error.is_nan() {
+            failures.push(format!("{}: derivatives off by {:.2e} (relative)", r.name, r.derivative_error));
+        }
+        for m in &r.methods {
+            println!(
+                "    {:20} order q {:.3} v {:.3} (error {:.1e}) |k| {:.1e} |E-E0| {:.1e} -> {:.1e} Newton ≤ {}",
+                m.label, m.order_q, m.order_v, m.finest_error, m.residual, m.energy.0, m.energy.1, m.iterations
+            );
+            for (what, o) in [("q", m.order_q), ("v", m.order_v)] {
+                if (o - 4.0).abs() > 0.2 || o.is_nan() {
+                    failures.push(format!("{} {}: order in {what} {o:.3}, expected 4", r.name, m.label));
+                }
+            }
+            if m.residual > 1e-14 || m.residual.is_nan() {
+                failures.push(format!("{} {}: constraint residual {:.2e}", r.name, m.label, m.residual));
+            }
+            if m.iterations > 4 {
+                failures.push(format!("{} {}: {} Newton iterations at h = 0.1", r.name, m.label, m.iterations));
+            }
+            if !conserved && (m.energy.1 <= 1e-3 || m.energy.1.is_nan()) {
+                // Rheonomic, affine or velocity-nonlinear constraints do work:
+                // an energy that stays put would mean a lost constraint force.
+                failures.push(format!("{} {}: energy changed only {:.2e}", r.name, m.label, m.energy.1));
+            }
+            if conserved {
+                // E is a first integral: its error is the method's O(h⁴), not O(1).
+                let ratio = m.energy.0 / m.energy.1;
+                if !(m.energy.0 < 1e-3 && ratio > 12.0) {
+                    failures.push(format!(
+                        "{} {}: energy error {:.2e} -> {:.2e} (ratio {ratio:.1}, expected ≈ 16)",
+                        r.name, m.label, m.energy.0, m.energy.1
+                    ));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// The derivative check is sensitive: derivatives of one parameter set
+/// against finite differences of another are flagged.
+#[test]
+fn derivative_check_detects_a_wrong_derivative() {
+    let disk = RollingDiskIncline::default();
+    let other = RollingDiskIncline { r: 0.51, ..disk };
+    assert!(derivative_error(&disk) < 1e-8);
+    assert!(derivative_mismatch(&disk, &other) > 1e-3);
+    let sleigh = BeltSleigh::default();
+    assert!(derivative_mismatch(&sleigh, &BeltSleigh { omega: 2.01, ..sleigh }) > 1e-3);
+}
+
+#[test]
+fn structure_facts_are_what_the_declarations_say() {
+    use ConstraintForm::*;
+    let facts = [
+        (RollingDiskIncline::STRUCTURE, true, true, Linear),
+        (<RheonomicSleigh as NonholonomicSystem<3, 1>>::STRUCTURE, true, false, Linear),
+        (<BeltSleigh as NonholonomicSystem<3, 1>>::STRUCTURE, true, false, Affine),
+        (<KnifeOnTurntable as NonholonomicSystem<3, 1>>::STRUCTURE, true, true, Affine),
+        (<ConstantSpeed as NonholonomicSystem<3, 1>>::STRUCTURE, true, true, Nonlinear),
+        (<TimeVarying as NonholonomicSystem<3, 1>>::STRUCTURE, false, false, Nonlinear),
+        (<CartPendulum as NonholonomicSystem<2, 0>>::STRUCTURE, true, true, None),
+        (<BeadOnRail as NonholonomicSystem<3, 1>>::STRUCTURE, true, false, Affine),
+        (<BeadPushed as NonholonomicSystem<3, 2>>::STRUCTURE, true, false, Nonlinear),
+    ];
+    for (i, (s, lagrangian_autonomous, constraints_autonomous, form)) in facts.into_iter().enumerate() {
+        assert_eq!(
+            (s.lagrangian_autonomous, s.constraints_autonomous, s.constraint_form),
+            (lagrangian_autonomous, constraints_autonomous, form),
+            "entry {i}"
+        );
+    }
+    const {
+        assert!(!<PolarParticle as NonholonomicSystem<3, 1>>::STRUCTURE.constant_mass_matrix);
+        assert!(!<CartPendulum as NonholonomicSystem<2, 0>>::STRUCTURE.constant_mass_matrix);
+        assert!(!<TimeVarying as NonholonomicSystem<3, 1>>::STRUCTURE.constant_mass_matrix);
+        assert!(<DiffDrive as NonholonomicSystem<5, 3>>::STRUCTURE.constant_mass_matrix);
+        assert!(BeadPushed::HAS_FORCING && BeadPushed::HAS_HOLONOMIC && !BeadOnCord::HAS_HOLONOMIC);
+    }
+}
+
+/// `atan`, `asin`, `acos` (rewritten through `atan2`) and the other
+/// functions evaluate to the standard library's values.
+#[test]
+fn functions_evaluate_like_the_standard_library() {
+    let s = Functions::default();
+    let (x, y, z, t) = (0.3f64, -0.4f64, 0.7f64, 0.9f64);
+    let (q, v) = (Vector::<3>::new(x, y, z), Vector::<3>::new(0.1, 0.2, 0.3));
+    let kinetic = 0.5 * (0.01 + 0.04 + 0.09) * (1.0 + x.tanh().powi(2) / 4.0);
+    let expected = kinetic - (-x * x).exp() * (y / 3.0).cosh() + (2.0 + z.sin()).ln() - (1.0 + x * x + y * y).sqrt()
+        + 1.3 * y.atan2(2.0 + x)
+        + (y / 5.0).sinh() * z.cos()
+        + (z / 4.0).tan().powi(2)
+        - (1.0 + x * x).powf(1.5) / 10.0
+        - x.atan() / 3.0
+        + (y / 3.0).asin() * (z / 4.0).acos() / 5.0;
+    let l = s.lagrangian(t, &q, &v);
+    assert!((l - expected).abs() <= 1e-15 * (1.0 + expected.abs()), "L = {l}, expected {expected}");
+    let k = 0.3 - 0.7 * y.tanh() * 0.1 - t.sin() * (-y * y).exp();
+    assert!((s.constraint(t, &q, &v)[0] - k).abs() <= 1e-16);
+    let cart = CartPendulum { M: 3.0, ..CartPendulum::default() };
+    assert_eq!(cart.parameter_values(), vec![3.0, 0.5, 1.0, 9.81]);
+}
+
+/// Over 5000 steps the energy of a conservative system stays bounded
+/// (no drift): the error over the second half is not larger than over the first.
+#[test]
+fn energy_is_bounded_over_a_long_run() {
+    let particle = PolarParticle::default();
+    let start = State::new(0.0, Vector::<3>::new(1.2, 0.0, 0.0), Vector::<3>::new(0.1, 0.5, 0.6));
+    let mut st: spark_runtime::Stepper![PolarParticle, 3] =
+        Stepper::new(particle, Tableau::new(Method::LobattoIIIAB).unwrap());
+    let e0 = particle.energy(0.0, &start.q, &start.v);
+    let (mut s, mut first, mut second) = (start, 0.0f64, 0.0f64);
+    for k in 0..5000 {
+        s = st.step(&s, 0.1).unwrap().state;
+        let e = (particle.energy(s.t, &s.q, &s.v) - e0).abs();
+        if k < 2500 {
+            first = first.max(e);
+        } else {
+            second = second.max(e);
+        }
+        let k = particle.constraint(s.t, &s.q, &s.v).amax();
+        assert!(k <= 1e-14, "step {k}: |k| = {k:e}, q = {}, v = {}", s.q, s.v);
+    }
+    assert!(first > 0.0 && first < 1e-3 && second < 1.5 * first, "max |E − E0|: {first:e} then {second:e}");
+}
+
+/// Inconsistent initial velocities: the default policy names the residual
+/// and the remedy; `Project` moves v0 onto the constraint (nonlinear and
+/// rheonomic ones too) and the run keeps |k| at round-off.
+#[test]
+fn inconsistent_initial_states_are_refused_or_projected() {
+    let options = RunOptions::default();
+    let q0 = Vector::<3>::new(0.5, 0.0, 0.0);
+    let v0 = Vector::<3>::new(2.0, 0.0, 0.0); // |v| = 2, the constraint wants 1
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let schedule = || Schedule::Fixed { h: 0.1, steps: 20 };
+    match st.integrate(0.0, &q0, &v0, schedule(), &options, &mut NoObserver) {
+        Err(IntegrationError::Initial(StepError::InconsistentInitialState { residual, .. })) => {
+            assert_eq!(residual, 3.0);
+        }
+        other => panic!("expected InconsistentInitialState, got {other:?}"),
+    }
+    let message = st.integrate(0.0, &q0, &v0, schedule(), &options, &mut NoObserver).unwrap_err().to_string();
+    assert!(message.contains("ConsistencyPolicy::Project"), "{message}");
+
+    let project = RunOptions { consistency: ConsistencyPolicy::Project { tolerance: 1e-12 }, ..options };
+    let traj = st.integrate(0.0, &q0, &v0, schedule(), &project, &mut NoObserver).unwrap();
+    assert!(traj.report.projected_initial_velocity);
+    assert!((traj.samples[0].v.norm() - 1.0).abs() <= 1e-14, "projected v0 = {}", traj.samples[0].v);
+    assert!(traj.report.max_constraint_residual <= 1e-14);
+
+    // Rheonomic: at t0 = 1 the constraint ẏ = sin(1) ẋ.
+    let mut st: spark_runtime::Stepper![RheonomicSleigh, 3] =
+        Stepper::new(RheonomicSleigh::default(), Tableau::new(Method::LobattoIIIAB).unwrap());
+    let v0 = Vector::<3>::new(1.0, 0.0, 0.5);
+    let traj = st.integrate(1.0, &q0, &v0, schedule(), &project, &mut NoObserver).unwrap();
+    let v = traj.samples[0].v;
+    assert!((v[1] - 1f64.sin() * v[0]).abs() <= 1e-14 && traj.report.max_constraint_residual <= 1e-14);
+
+    // Projection is impossible where K = ∂k/∂v vanishes (v0 = 0 for |v| = 1):
+    // an error, not a panic or a NaN trajectory.
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let err = st.integrate(0.0, &q0, &Vector::<3>::zeros(), schedule(), &project, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, IntegrationError::Initial(_)), "{err}");
+}
