@@ -206,6 +206,24 @@ fn energy(g: &mut Graph, d: &mut Differentiator, lagrangian: NodeId, vs: &[Var])
     g.add(&out)
 }
 
+/// Rows `kj` and `kl` of `K` are proportional: every 2 × 2 minor
+/// `K_ja K_lb − K_jb K_la` simplifies to zero (neither row is zero: `build`
+/// rejects constraints free of velocities).
+fn proportional_rows(g: &mut Graph, kj: &[NodeId], kl: &[NodeId]) -> bool {
+    let n = kj.len();
+    for a in 0..n {
+        for b in (a + 1)..n {
+            let left = g.mul2(kj[a], kl[b]);
+            let right = g.mul2(kj[b], kl[a]);
+            let minor = g.sub(left, right);
+            if !g.is_const(minor, 0.0) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
 impl Model {
     /// Rejects declarations whose equations of motion cannot determine the
     /// accelerations at any point, because the SPARK Newton matrix (and the
@@ -216,8 +234,8 @@ impl Model {
     /// - a coordinate whose velocity appears neither in the mass matrix nor
     ///   in any constraint: the column of `v₁[i]` in the step's Newton matrix
     ///   is `[∇²_vv L; K]` column `i`, identically zero;
-    /// - two constraints that are the same expression (their rows of `K`
-    ///   coincide, so `K` never has full rank).
+    /// - two constraints whose rows of `K = ∂k/∂v` are proportional (every
+    ///   2 × 2 minor simplifies to 0), so `K` never has full rank.
     ///
     /// Only structural zeros and identities the simplifier proves are used,
     /// so a declaration that passes may still be singular at some points
@@ -236,8 +254,8 @@ impl Model {
                 ),
             });
         }
-        let g = &self.graph;
         for (i, coordinate) in spec.coordinates.iter().enumerate() {
+            let g = &self.graph;
             let no_mass = (0..n).all(|j| g.is_const(self.mass[j][i], 0.0));
             let no_constraint = self.constraint_v.iter().all(|row| g.is_const(row[i], 0.0));
             if no_mass && no_constraint {
@@ -260,24 +278,30 @@ impl Model {
                 });
             }
         }
+        // The minors are built in a scratch copy: the graph handed to code
+        // generation stays exactly what `build` made.
+        let mut scratch = (m > 1).then(|| self.graph.clone());
         for j in 0..m {
             for l in 0..j {
-                if self.constraint[j] == self.constraint[l] || self.constraint_v[j] == self.constraint_v[l] {
-                    let what = if self.constraint[j] == self.constraint[l] {
-                        "the same expression"
-                    } else {
-                        "the same K = ∂k/∂v row"
-                    };
-                    return Err(SpecError {
-                        span: spec.constraints[j].span,
-                        message: format!(
-                            "constraint {} of `{name}` has {what} as constraint {}: dependent constraints make the \
-                             matrix [[∇²_vv L, Kᵀ],[K, 0]] singular; remove one of them",
-                            j + 1,
-                            l + 1
-                        ),
-                    });
-                }
+                let what = if self.constraint[j] == self.constraint[l] {
+                    "is the same expression as"
+                } else if scratch
+                    .as_mut()
+                    .is_some_and(|g| proportional_rows(g, &self.constraint_v[j], &self.constraint_v[l]))
+                {
+                    "has its row of K = ∂k/∂v proportional to that of"
+                } else {
+                    continue;
+                };
+                return Err(SpecError {
+                    span: spec.constraints[j].span,
+                    message: format!(
+                        "constraint {} of `{name}` {what} constraint {}: dependent constraints make the matrix \
+                         [[∇²_vv L, Kᵀ],[K, 0]] singular everywhere; remove one of them",
+                        j + 1,
+                        l + 1
+                    ),
+                });
             }
         }
         Ok(())
