@@ -64,7 +64,8 @@ use proc_macro::TokenStream;
 /// Declarations whose accelerations no state can determine are compile
 /// errors: more constraints than coordinates, a coordinate whose velocity
 /// is in neither the mass matrix `∇²_vv L` nor any constraint (a forgotten
-/// kinetic term), and two constraints with the same row of `K = ∂k/∂v`.
+/// kinetic term), and two constraints whose rows of `K = ∂k/∂v` are
+/// proportional.
 /// (The base of a system with scenes is exempt from the second check, since
 /// a scene's constraint may fix that velocity; each scene is checked.)
 ///
