@@ -2,8 +2,12 @@
 //! run with `cargo bench -p problems --bench spark`):
 //! - one SPARK step per paper system × method family × stage count
 //!   (warm-started, at the work-precision sweep's mid-range step), full
-//!   Newton (`step/…`) and simplified Newton with the factorization reused
-//!   across steps (`step-simplified/…`);
+//!   Newton (`step/…`) and simplified Newton (`step-simplified/…`), default
+//!   options (energy guard on);
+//! - for Gauss s = 2 and Lobatto IIIA-B s = 2 the same steps with the energy
+//!   guard off (`step-no-guard/…`, `step-simplified-no-guard/…`,
+//!   `energy_drift_limit: None`), measured in the same run as the default so
+//!   that the guard's cost per step is the difference of neighbouring benches;
 //! - the Newton linear algebra of one iteration alone (`newton/…`: factor
 //!   the assembled `D × D` matrix and solve once, on a copy of the matrix
 //!   of a real step) and the solve alone (`newton-solve/…`);
@@ -65,13 +69,22 @@ fn step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     kind: SystemKind,
     method: Method,
     h: f64,
+    guard_pair: bool,
 ) where
     Sys: NonholonomicSystem<N, M> + Default,
 {
     let label = format!("{}/{}", kind.key(), method_label(method, S));
     let s0 = start::<N>(kind);
-    for (group, mode) in [("step", NewtonMode::Full), ("step-simplified", NewtonMode::Simplified)] {
-        let opts = NewtonOptions { mode, ..NewtonOptions::default() };
+    let mut runs = vec![("step", NewtonMode::Full, true), ("step-simplified", NewtonMode::Simplified, true)];
+    if guard_pair {
+        runs.push(("step-no-guard", NewtonMode::Full, false));
+        runs.push(("step-simplified-no-guard", NewtonMode::Simplified, false));
+    }
+    for (group, mode, guard) in runs {
+        let mut opts = NewtonOptions { mode, ..NewtonOptions::default() };
+        if !guard {
+            opts.energy_drift_limit = None;
+        }
         let mut st = Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(method).unwrap()).with_options(opts);
         let mut s = s0;
         c.bench_function(&format!("{group}/{label}"), |b| {
@@ -116,20 +129,20 @@ macro_rules! all_methods {
     ($c:expr, $sys:ty, $kind:expr, $h:expr) => {{
         const NN: usize = <$sys>::N;
         const MM: usize = <$sys>::M;
-        step::<$sys, NN, MM, 1, { NN + MM + NN }>($c, $kind, Method::Gauss, $h);
-        step::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h);
-        step::<$sys, NN, MM, 3, { 3 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h);
-        step::<$sys, NN, MM, 4, { 4 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h);
-        step::<$sys, NN, MM, 5, { 5 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h);
+        step::<$sys, NN, MM, 1, { NN + MM + NN }>($c, $kind, Method::Gauss, $h, false);
+        step::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h, true);
+        step::<$sys, NN, MM, 3, { 3 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h, false);
+        step::<$sys, NN, MM, 4, { 4 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h, false);
+        step::<$sys, NN, MM, 5, { 5 * (NN + MM) + NN }>($c, $kind, Method::Gauss, $h, false);
         for m in [Method::LobattoIIIAB, Method::LobattoIIIABD] {
-            step::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($c, $kind, m, $h);
-            step::<$sys, NN, MM, 3, { 3 * (NN + MM) + NN }>($c, $kind, m, $h);
-            step::<$sys, NN, MM, 4, { 4 * (NN + MM) + NN }>($c, $kind, m, $h);
-            step::<$sys, NN, MM, 5, { 5 * (NN + MM) + NN }>($c, $kind, m, $h);
+            step::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($c, $kind, m, $h, m == Method::LobattoIIIAB);
+            step::<$sys, NN, MM, 3, { 3 * (NN + MM) + NN }>($c, $kind, m, $h, false);
+            step::<$sys, NN, MM, 4, { 4 * (NN + MM) + NN }>($c, $kind, m, $h, false);
+            step::<$sys, NN, MM, 5, { 5 * (NN + MM) + NN }>($c, $kind, m, $h, false);
         }
-        step::<$sys, NN, MM, 1, { NN + MM + NN }>($c, $kind, Method::SymplecticEulerI, $h);
-        step::<$sys, NN, MM, 1, { NN + MM + NN }>($c, $kind, Method::SymplecticEulerII, $h);
-        step::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($c, $kind, Method::LobattoIIIBALda, $h);
+        step::<$sys, NN, MM, 1, { NN + MM + NN }>($c, $kind, Method::SymplecticEulerI, $h, false);
+        step::<$sys, NN, MM, 1, { NN + MM + NN }>($c, $kind, Method::SymplecticEulerII, $h, false);
+        step::<$sys, NN, MM, 2, { 2 * (NN + MM) + NN }>($c, $kind, Method::LobattoIIIBALda, $h, false);
     }};
 }
 

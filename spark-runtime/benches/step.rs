@@ -1,56 +1,136 @@
-//! Cost of one SPARK step (full and simplified Newton) on the paper's systems
-//! at the paper's step sizes, with hand-written derivatives.
+//! Cost of one SPARK step on the paper's systems with hand-written
+//! derivatives (fast to build; the generated-code benches live in
+//! `problems/benches/spark.rs`). Run with `cargo bench -p spark-runtime --bench step`.
+//!
+//! - `step/<system>/<method>/<mode>`: one warm-started step at h = 0.05,
+//!   full and simplified Newton, default options (energy guard on);
+//! - `step/<system>/<method>/<mode>/no-guard`: the same with
+//!   `energy_drift_limit: None`, measured in the same run so that the
+//!   guard's cost per step is the difference of two neighbouring lines.
+//!
+//! Timed by the measuring thread's CPU time (`CLOCK_THREAD_CPUTIME_ID`),
+//! not wall time: the machine is shared, and CPU time is what stays
+//! comparable between runs under load.
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use spark_runtime::handwritten::{MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
+use std::time::Duration;
+
+#[repr(C)]
+struct Timespec {
+    tv_sec: i64,
+    tv_nsec: i64,
+}
+
+extern "C" {
+    fn clock_gettime(clock: i32, ts: *mut Timespec) -> i32;
+}
+
+/// `CLOCK_THREAD_CPUTIME_ID` on Linux.
+const THREAD_CPU_CLOCK: i32 = 3;
+
+fn thread_cpu_time() -> f64 {
+    let mut ts = Timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes one timespec through a valid pointer.
+    let rc = unsafe { clock_gettime(THREAD_CPU_CLOCK, &mut ts) };
+    if rc == 0 {
+        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
+    } else {
+        f64::NAN
+    }
+}
+
+/// Criterion measurement by the calling thread's CPU time.
+struct ThreadCpu(WallTime);
+
+impl Measurement for ThreadCpu {
+    type Intermediate = f64;
+    type Value = Duration;
+    fn start(&self) -> f64 {
+        thread_cpu_time()
+    }
+    fn end(&self, start: f64) -> Duration {
+        Duration::from_secs_f64((thread_cpu_time() - start).max(0.0))
+    }
+    fn add(&self, a: &Duration, b: &Duration) -> Duration {
+        *a + *b
+    }
+    fn zero(&self) -> Duration {
+        Duration::ZERO
+    }
+    fn to_f64(&self, v: &Duration) -> f64 {
+        v.as_nanos() as f64
+    }
+    fn formatter(&self) -> &dyn ValueFormatter {
+        self.0.formatter()
+    }
+}
+
+type C = Criterion<ThreadCpu>;
+
+const H: f64 = 0.05;
 
 fn bench_run<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    c: &mut Criterion,
+    c: &mut C,
     name: &str,
     sys: Sys,
     method: Method,
-    mode: NewtonMode,
     start: State<N>,
-    h: f64,
+    guard_pair: bool,
 ) where
     Sys: NonholonomicSystem<N, M> + Clone,
 {
-    let opts = NewtonOptions { mode, ..NewtonOptions::default() };
-    let mut st = Stepper::<Sys, N, M, S, D>::new(sys, Tableau::new(method).unwrap()).with_options(opts);
-    let mut s = start;
-    c.bench_function(&format!("{name} {method} s={S} {mode:?}"), |b| {
-        b.iter(|| {
-            // Restart from the initial condition now and then so the
-            // trajectory stays in the paper's regime.
-            if s.t > 50.0 {
-                s = start;
-                st.reset_warm_start();
-            }
-            s = st.step(&s, h).unwrap().state;
-            s.q[0]
-        })
-    });
-}
-
-fn benches(c: &mut Criterion) {
-    let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-    let r0 = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
-    let m0 = State::new(
-        0.0,
-        Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),
-        Vector::<7>::from_row_slice(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
-    );
     for mode in [NewtonMode::Full, NewtonMode::Simplified] {
-        bench_run::<_, 3, 1, 2, 11>(c, "particle", Particle, Method::Gauss, mode, p0, 0.2);
-        bench_run::<_, 3, 1, 3, 15>(c, "skate", Skate::default(), Method::LobattoIIIAB, mode, s0, 0.1);
-        bench_run::<_, 4, 2, 3, 22>(c, "robot", MobileRobot::default(), Method::LobattoIIIABD, mode, r0, 0.2);
-        for m in [Method::LobattoIIIAB, Method::ModifiedLobattoIIIAB, Method::LobattoIIIBALda] {
-            bench_run::<_, 7, 1, 2, 23>(c, "MP", MpParticles, m, mode, m0, 0.05);
+        let variants: &[bool] = if guard_pair { &[true, false] } else { &[true] };
+        for &guard in variants {
+            let mut opts = NewtonOptions { mode, ..NewtonOptions::default() };
+            let mut label = format!("step/{name}/{method} s={S}/{mode:?}");
+            if !guard {
+                opts.energy_drift_limit = None;
+                label.push_str("/no-guard");
+            }
+            let mut st = Stepper::<Sys, N, M, S, D>::new(sys.clone(), Tableau::new(method).unwrap()).with_options(opts);
+            let mut s = start;
+            c.bench_function(&label, |b| {
+                b.iter(|| {
+                    // Restart from the initial condition every 10 time units
+                    // so the trajectory stays in the paper's regime.
+                    if s.t > 10.0 {
+                        s = start;
+                        st.reset_warm_start();
+                    }
+                    s = st.step(&s, H).unwrap().state;
+                    black_box(s.q[0])
+                })
+            });
         }
     }
 }
 
-criterion_group!(step, benches);
+fn benches(c: &mut C) {
+    let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    let r0 = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+    let m0 = State::new(0.0, Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::<7>::zeros());
+    let (gauss, lob) = (Method::Gauss, Method::LobattoIIIAB);
+    bench_run::<_, 3, 1, 2, 11>(c, "particle", Particle, gauss, p0, false);
+    bench_run::<_, 3, 1, 2, 11>(c, "skate", Skate::default(), gauss, s0, true);
+    bench_run::<_, 4, 2, 2, 16>(c, "robot", MobileRobot::default(), gauss, r0, true);
+    bench_run::<_, 7, 1, 2, 23>(c, "mp7", MpParticles, gauss, m0, true);
+    bench_run::<_, 3, 1, 3, 15>(c, "skate", Skate::default(), lob, s0, false);
+    bench_run::<_, 4, 2, 3, 22>(c, "robot", MobileRobot::default(), lob, r0, false);
+    bench_run::<_, 7, 1, 2, 23>(c, "mp7", MpParticles, lob, m0, true);
+    bench_run::<_, 7, 1, 4, 39>(c, "mp7", MpParticles, gauss, m0, false);
+}
+
+criterion_group! {
+    name = step;
+    config = Criterion::default()
+        .with_measurement(ThreadCpu(WallTime))
+        .warm_up_time(Duration::from_millis(300))
+        .measurement_time(Duration::from_secs(1));
+    targets = benches
+}
 criterion_main!(step);

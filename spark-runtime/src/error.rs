@@ -36,7 +36,10 @@ pub struct IterationRecord {
 pub const HISTORY_CAPACITY: usize = 32;
 
 /// The iterations of one Newton solve, stored inline (no heap).
-#[derive(Clone, Copy, PartialEq)]
+///
+/// Equality compares the recorded iterations only (a history is reused
+/// from step to step, so slots beyond [`len`](Self::len) hold old records).
+#[derive(Clone, Copy)]
 pub struct NewtonHistory {
     records: [IterationRecord; HISTORY_CAPACITY],
     len: usize,
@@ -71,6 +74,12 @@ impl NewtonHistory {
     /// Forgets all records.
     pub fn clear(&mut self) {
         self.len = 0;
+    }
+}
+
+impl PartialEq for NewtonHistory {
+    fn eq(&self, other: &Self) -> bool {
+        self.iterations() == other.iterations()
     }
 }
 

@@ -46,7 +46,10 @@ use crate::tableau::{ConditionRows, Tableau};
 pub enum NewtonMode {
     /// Exact Jacobian and a fresh factorization every iteration.
     Full,
-    /// One Jacobian and factorization per step.
+    /// One Jacobian and factorization per step, refreshed at the current
+    /// iterate only when the iteration on it grows or contracts too slowly
+    /// (rate above 0.5, or too slow to reach the tolerance within the
+    /// iteration limit) — large steps, stiff systems.
     Simplified,
 }
 
@@ -83,7 +86,8 @@ pub struct NewtonOptions {
     /// Simplified Newton only: start a step that continues the previous one
     /// (same `h`, warm start) from the previous step's factorization instead
     /// of a fresh Jacobian, as long as it contracts well (rate ≤ 0.2 over
-    /// the previous step; refreshed within a step when the rate exceeds 0.5).
+    /// the previous step; refreshed within a step like any simplified
+    /// Newton Jacobian, see [`NewtonMode::Simplified`]).
     /// The converged solution is the same (to the tolerance); it trades one
     /// Jacobian + factorization per step for more, cheaper iterations. Off by
     /// default: measured on the skate and MP particles (Gauss s = 2, h = 0.05)
@@ -104,8 +108,8 @@ fn default_reuse() -> bool {
 /// Largest contraction rate of a step with which simplified Newton keeps
 /// its factorization for the next step.
 const REUSE_RATE: f64 = 0.2;
-/// Contraction rate above which an iteration on an earlier step's
-/// factorization triggers a fresh Jacobian at the current iterate.
+/// Contraction rate above which an iteration on factors from an earlier
+/// iterate (simplified Newton) triggers a fresh Jacobian.
 const REFRESH_RATE: f64 = 0.5;
 
 impl Default for NewtonOptions {
@@ -154,23 +158,31 @@ pub struct StepResult<const N: usize, const M: usize, const S: usize> {
     pub iterations: usize,
     /// Whether the starting guess came from the previous step.
     pub warm_started: bool,
-    /// The Newton iterations of this step.
-    pub history: NewtonHistory,
 }
 
 /// How many previous solutions the starting-guess extrapolation keeps.
 const PAST: usize = 4;
 
 /// The previous steps, kept for extrapolating the next starting guess.
+///
+/// Updated in place after every step (a ring of the last solutions, not a
+/// shifted array rebuilt per step: that copy was `PAST·D` doubles).
 #[derive(Clone, Copy, Debug)]
-struct Warm<const N: usize, const M: usize, const S: usize, const D: usize> {
+struct Warm<const N: usize, const D: usize> {
     h: f64,
     end: State<N>,
-    v: [Vector<N>; S],
-    mu: [Vector<M>; S],
-    /// Solutions `z` of the last `depth` consecutive steps of size `h`, most recent first.
+    /// Solutions `z` of the last `depth` consecutive steps of size `h`; the
+    /// most recent is `past[head]`, the one before `past[(head + 1) % PAST]`.
     past: [Vector<D>; PAST],
+    head: usize,
     depth: usize,
+}
+
+impl<const N: usize, const D: usize> Warm<N, D> {
+    /// The `k`-th most recent solution (`k < depth`).
+    fn back(&self, k: usize) -> &Vector<D> {
+        &self.past[(self.head + k) % PAST]
+    }
 }
 
 /// An `S`-stage SPARK integrator for a system with `N` coordinates and `M`
@@ -186,7 +198,7 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     system: Sys,
     tableau: Tableau<S>,
     options: NewtonOptions,
-    warm: Option<Warm<N, M, S, D>>,
+    warm: Option<Warm<N, D>>,
     /// The Newton matrix and its factors (heap, allocated once).
     newton: NewtonMatrix<N, M, S, D>,
     /// Stage Jacobians of the latest full evaluation (heap, allocated once:
@@ -197,6 +209,13 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     reusable: Option<f64>,
     /// Where the energy guard's chain of continued steps began.
     anchor: Option<EnergyAnchor<N>>,
+    /// The Newton iterations of the latest step (kept here rather than in
+    /// every [`StepResult`]: 32 records are ≈ 0.8 KB to move per step).
+    history: NewtonHistory,
+    /// Whether `newton`'s matrix holds the structural zeros and constant
+    /// entries of this tableau and system; then [`Self::assemble_jacobian`]
+    /// overwrites only the blocks that change.
+    pattern_written: bool,
 }
 
 /// Everything one residual evaluation produced.
@@ -253,6 +272,8 @@ where
             }),
             reusable: None,
             anchor: None,
+            history: NewtonHistory::default(),
+            pattern_written: false,
         }
     }
 
@@ -291,6 +312,12 @@ where
         &self.tableau
     }
 
+    /// The Newton iterations of the latest step, successful or not (a
+    /// failed step's error carries its own copy).
+    pub fn last_history(&self) -> &NewtonHistory {
+        &self.history
+    }
+
     /// Whether a step from `state` would be warm-started.
     pub(crate) fn is_warm_for(&self, state: &State<N>) -> bool {
         self.options.warm_start && self.warm.as_ref().is_some_and(|w| w.end == *state)
@@ -327,8 +354,8 @@ where
             return Err(StepError::InvalidStep { t: t0, h, reason: "step size is below the resolution of t" });
         }
         let (mut z, warm_started) = self.starting_guess(state, h);
-        let history = self.newton(state, h, &mut z)?;
-        let iterations = history.len();
+        self.newton(state, h, &mut z)?;
+        let iterations = self.history.len();
         let (v, mu) = split::<N, M, S, D>(&z);
         let mut q1 = state.q;
         for (bj, vj) in self.tableau.b.iter().zip(v.iter()) {
@@ -339,7 +366,7 @@ where
         // The update norm propagates NaN, so this catches only overflow of
         // q₁ = q₀ + hΣb_jV_j; never return a non-finite state as a success.
         if !end.q.iter().chain(end.v.iter()).all(|x| x.is_finite()) {
-            return Err(StepError::NonFinite { t: t0, h, stage: "step result", history: Box::new(history) });
+            return Err(StepError::NonFinite { t: t0, h, stage: "step result", history: Box::new(self.history) });
         }
         if let (Some(limit), true) = (self.options.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
             match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, limit) {
@@ -349,19 +376,24 @@ where
                 }
             }
         }
-        let (mut past, mut depth) = ([Vector::<D>::zeros(); PAST], 0);
-        if let Some(w) = self.warm.as_ref().filter(|w| w.end == *state && w.h == h) {
-            past[1..].copy_from_slice(&w.past[..PAST - 1]);
-            depth = w.depth;
+        match self.warm.as_mut().filter(|w| w.end == *state && w.h == h) {
+            Some(w) => {
+                w.head = (w.head + PAST - 1) % PAST;
+                w.past[w.head] = z;
+                w.depth = (w.depth + 1).min(PAST);
+                w.end = end;
+            }
+            None => {
+                let mut past = [Vector::<D>::zeros(); PAST];
+                past[0] = z;
+                self.warm = Some(Warm { h, end, past, head: 0, depth: 1 });
+            }
         }
-        past[0] = z;
-        depth = (depth + 1).min(PAST);
-        self.warm = Some(Warm { h, end, v, mu, past, depth });
         let mut psi = mu;
         for p in psi.iter_mut() {
             *p /= h;
         }
-        Ok(StepResult { state: end, stage_velocities: v, stage_multipliers: psi, iterations, warm_started, history })
+        Ok(StepResult { state: end, stage_velocities: v, stage_multipliers: psi, iterations, warm_started })
     }
 
     /// The starting guess. When this step continues earlier steps of the
@@ -383,7 +415,7 @@ where
                     [[2.0, -1.0, 0.0, 0.0], [3.0, -3.0, 1.0, 0.0], [4.0, -6.0, 4.0, -1.0]];
                 let degree = (w.depth - 1).min(self.options.extrapolation_degree.clamp(1, PAST - 1));
                 for (k, coef) in COEFFS[degree - 1].iter().enumerate().take(degree + 1) {
-                    z += *coef * w.past[k];
+                    z += *coef * w.back(k);
                 }
                 return (z, true);
             }
@@ -402,14 +434,15 @@ where
                     l
                 };
                 let distinct = (0..S).all(|j| (0..j).all(|k| c[k] != c[j]));
+                let last = w.back(0);
                 for i in 0..=S {
                     let theta = if i < S { 1.0 + c[i] * r } else { 1.0 + r };
                     let mut vi = Vector::<N>::zeros();
                     let mut mi = Vector::<M>::zeros();
                     for j in 0..S {
                         let l = if distinct { lagrange(theta, j) } else { 1.0 / S as f64 };
-                        vi += l * w.v[j];
-                        mi += l * w.mu[j];
+                        vi += l * last.fixed_rows::<N>(j * N);
+                        mi += l * last.fixed_rows::<M>(S * N + j * M);
                     }
                     if i < S {
                         z.fixed_rows_mut::<N>(i * N).copy_from(&vi);
@@ -586,31 +619,50 @@ where
         let separable = st.separable && !Sys::HAS_FORCING;
         // K independent of v and no non-ideal force: ∂R/∂v = 0.
         let k_velocity_free = st.constraint_matrix_velocity_free() && !Sys::HAS_NONIDEAL_FORCE;
-        self.newton.clear();
+        if !self.pattern_written {
+            // Which blocks are written below depends only on the tableau and
+            // the structure facts, both fixed for this stepper: the structural
+            // zeros and the constant entries are written once, and every later
+            // assembly overwrites exactly the blocks that change (zeroing the
+            // whole D×D matrix per iteration cost more than the blocks).
+            self.newton.clear();
+            if tab.conditions == ConditionRows::EqualMultipliers {
+                let mut j = self.newton.matrix_mut();
+                let base = S * N + N;
+                for r in 0..S.saturating_sub(1) {
+                    for d in 0..M {
+                        j[(base + r * M + d, S * N + r * M + d)] = 1.0;
+                        j[(base + r * M + d, S * N + (r + 1) * M + d)] = -1.0;
+                    }
+                }
+            }
+            self.pattern_written = true;
+        }
         let mut j = self.newton.matrix_mut();
         let h2 = h * h;
         // Momentum rows: stage rows i < S use (a_i, â_i, ã_i); the p₁ row uses
-        // (b, b̂, b̃) with its momentum evaluated at the end point. Blocks are
-        // accumulated in place (axpy) to avoid temporaries.
+        // (b, b̂, b̃) with its momentum evaluated at the end point. Each block
+        // is accumulated in a contiguous local N×N matrix and stored once
+        // (nalgebra's `zip_apply` on the strided D×D view went entry by entry:
+        // ≈ 12 % of all instructions of an mp7 Gauss s = 4 step). Every entry
+        // sees the same operations in the same order as before, so the matrix
+        // is bit for bit the same.
         for i in 0..=S {
             let (a_row, ah_row, at_row) =
                 if i < S { (&tab.a[i], &tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b, &tab.b_hat, &tab.b_tilde) };
             let pq = if i < S { &jac.stages[i].momentum_q } else { &jac.end.momentum_q };
             for l in 0..S {
-                let mut blk = j.fixed_view_mut::<N, N>(i * N, l * N);
-                if i == l {
-                    blk.copy_from(&jac.stages[l].mass);
-                }
+                let mut blk = if i == l { jac.stages[l].mass } else { Matrix::<N, N>::zeros() };
                 if !separable {
                     if a_row[l] != 0.0 {
-                        blk.zip_apply(pq, |x, y| *x += (h * a_row[l]) * y);
+                        axpy(&mut blk, h * a_row[l], pq);
                     }
                     if ah_row[l] != 0.0 {
-                        blk.zip_apply(&jac.stages[l].force_v, |x, y| *x += (-h * ah_row[l]) * y);
+                        axpy(&mut blk, -h * ah_row[l], &jac.stages[l].force_v);
                     }
                 }
                 if !k_velocity_free && at_row[l] != 0.0 {
-                    blk.zip_apply(&jac.stages[l].constraint_force_v, |x, y| *x += (-h * at_row[l]) * y);
+                    axpy(&mut blk, -h * at_row[l], &jac.stages[l].constraint_force_v);
                 }
                 for m in 0..S {
                     let aml = tab.a[m][l];
@@ -618,11 +670,16 @@ where
                         continue;
                     }
                     if ah_row[m] != 0.0 {
-                        blk.zip_apply(&jac.stages[m].force_q, |x, y| *x += (-h2 * ah_row[m] * aml) * y);
+                        axpy(&mut blk, -h2 * ah_row[m] * aml, &jac.stages[m].force_q);
                     }
                     if at_row[m] != 0.0 {
-                        blk.zip_apply(&jac.stages[m].constraint_force_q, |x, y| *x += (-h2 * at_row[m] * aml) * y);
+                        axpy(&mut blk, -h2 * at_row[m] * aml, &jac.stages[m].constraint_force_q);
                     }
+                }
+                for c in 0..N {
+                    j.fixed_view_mut::<N, 1>(i * N, l * N + c)
+                        .as_mut_slice()
+                        .copy_from_slice(&blk.as_slice()[c * N..(c + 1) * N]);
                 }
                 // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h);
                 // with N(ψ = μ/h) also −ã_il ∂N_l/∂ψ.
@@ -660,14 +717,8 @@ where
                     j.fixed_view_mut::<M, N>(base, 0).copy_from(&blk);
                 }
             }
-            ConditionRows::EqualMultipliers => {
-                for r in 0..S.saturating_sub(1) {
-                    for d in 0..M {
-                        j[(base + r * M + d, S * N + r * M + d)] = 1.0;
-                        j[(base + r * M + d, S * N + (r + 1) * M + d)] = -1.0;
-                    }
-                }
-            }
+            // Constant ±1 entries, written with the structural zeros.
+            ConditionRows::EqualMultipliers => {}
         }
         for l in 0..S {
             j.fixed_view_mut::<M, N>(D - M, l * N).copy_from(&((h * tab.b[l]) * jac.end.constraint_q));
@@ -675,37 +726,43 @@ where
         j.fixed_view_mut::<M, N>(D - M, S * (N + M)).copy_from(&jac.end.constraint_v);
     }
 
-    /// Newton's method on `G(z) = 0`; returns the iteration history.
-    fn newton(&mut self, state: &State<N>, h: f64, z: &mut Vector<D>) -> Result<NewtonHistory, StepError> {
+    /// Newton's method on `G(z) = 0`; records the iterations in `self.history`.
+    fn newton(&mut self, state: &State<N>, h: f64, z: &mut Vector<D>) -> Result<(), StepError> {
         let t = state.t;
         let opts = self.options;
         let p0 = self.system.momentum(t, &state.q, &state.v);
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
-        let mut history = NewtonHistory::default();
+        self.history.clear();
         let mut prev_update = f64::NAN;
         let fail_nonfinite =
-            |stage, history: NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(history) };
+            |stage, history: &NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(*history) };
         let simplified = opts.mode == NewtonMode::Simplified;
         // `stale`: the factors in `self.newton` come from an earlier step.
-        let mut stale = simplified && opts.reuse_factorization && self.reusable == Some(h) && self.is_warm_for(state);
+        let stale = simplified && opts.reuse_factorization && self.reusable == Some(h) && self.is_warm_for(state);
         self.reusable = None;
         let mut refresh = !stale;
+        // Iteration at which the current factors were computed, and whether
+        // that was a refresh within this step (simplified Newton only).
+        let (mut factored_at, mut refreshed) = (0usize, false);
         let mut max_rate = 0.0f64;
         let result = 'solve: {
             for k in 0..max_iter {
                 let fresh = refresh || !simplified;
+                if refresh && k > 0 {
+                    refreshed = true;
+                }
                 refresh = false;
                 let ev = Self::evaluate(&self.system, &self.tableau, state, h, z, fresh.then_some(&mut *self.work));
                 let mut g = Self::residual(&self.tableau, &p0, h, z, &ev);
                 let residual = g.amax();
                 if !g.iter().all(|x| x.is_finite()) {
-                    history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
-                    return Err(fail_nonfinite("residual", history));
+                    self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
+                    return Err(fail_nonfinite("residual", &self.history));
                 }
                 if fresh {
                     self.assemble_jacobian(h);
                     if let Err(s) = self.newton.factor() {
-                        history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
+                        self.history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
                         return Err(if self.newton.matrix().iter().all(|x| x.is_finite()) {
                             StepError::SingularMatrix {
                                 t,
@@ -715,45 +772,74 @@ where
                                     s.pivot,
                                     self.newton.matrix().column(s.column).amax(),
                                 ),
-                                history: Box::new(history),
+                                history: Box::new(self.history),
                             }
                         } else {
-                            fail_nonfinite("Jacobian", history)
+                            fail_nonfinite("Jacobian", &self.history)
                         });
                     }
-                    stale = false;
+                    factored_at = k;
                 }
                 self.newton.solve_in_place(&mut g);
-                let z_before = *z;
+                // Only iterations on factors from an earlier iterate may be undone.
+                let z_before = if fresh { None } else { Some(*z) };
                 *z -= g;
                 let update = scaled_update_norm(&g, z);
                 let rate = update / prev_update;
-                history.push(IterationRecord { residual, update, rate });
-                if !update.is_finite() && !stale {
-                    return Err(fail_nonfinite("update", history));
-                }
+                self.history.push(IterationRecord { residual, update, rate });
                 if rate.is_finite() {
                     max_rate = max_rate.max(rate);
                 }
-                if stale && !(rate <= REFRESH_RATE || (k == 0 && update.is_finite())) {
-                    // An earlier step's factors contract too slowly here: a fresh
-                    // Jacobian at the last good iterate, not a divergence.
-                    if rate.is_nan() || rate >= 1.0 {
-                        *z = z_before;
+                if let Some(z_before) = z_before {
+                    // Factors from an earlier iterate (this step's frozen
+                    // Jacobian, or an earlier step's) that grow, contract slower
+                    // than REFRESH_RATE, or too slowly to reach the tolerance
+                    // within the iteration limit: take a fresh Jacobian at the
+                    // last good iterate (the standard remedy of simplified
+                    // Newton) instead of crawling into MaxIterations or reporting
+                    // a divergence full Newton would not have. Not when this
+                    // iteration is accepted below anyway, nor at round-off level
+                    // (no Jacobian helps there), nor on the first iteration of an
+                    // earlier step's factors (no rate yet).
+                    let remaining = (max_iter - 1 - k) as i32;
+                    let too_slow = rate.is_nan()
+                        || rate > REFRESH_RATE
+                        || update * rate.powi(remaining + 1) / (1.0 - rate) > opts.tolerance;
+                    let converged =
+                        update <= opts.tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= opts.tolerance);
+                    let round_off = update <= opts.stagnation_level;
+                    let first_stale = k == 0 && update.is_finite();
+                    if too_slow && !converged && !round_off && !first_stale {
+                        let growing = rate.is_nan() || rate >= 1.0;
+                        if growing && refreshed && factored_at + 1 == k {
+                            // Even a Jacobian refreshed at the previous iterate did
+                            // not contract: give up as full Newton would.
+                            return Err(if update.is_finite() {
+                                StepError::Diverged { t, h, history: Box::new(self.history) }
+                            } else {
+                                fail_nonfinite("update", &self.history)
+                            });
+                        }
+                        if growing {
+                            *z = z_before;
+                        }
+                        refresh = true;
+                        prev_update = f64::NAN;
+                        continue;
                     }
-                    refresh = true;
-                    prev_update = f64::NAN;
-                    continue;
+                }
+                if !update.is_finite() {
+                    return Err(fail_nonfinite("update", &self.history));
                 }
                 if update <= opts.tolerance {
-                    break 'solve Ok(history);
+                    break 'solve Ok(());
                 }
                 if k > 0 {
                     if rate >= 1.0 {
                         if update <= opts.stagnation_level {
-                            break 'solve Ok(history);
+                            break 'solve Ok(());
                         }
-                        return Err(StepError::Diverged { t, h, history: Box::new(history) });
+                        return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
                     }
                     // Remaining error estimated as θ/(1−θ)·‖Δz‖ even for full
                     // Newton: unknowns entering linearly (the multipliers) converge
@@ -761,12 +847,12 @@ where
                     // faster than that of the nonlinear ones, so a quadratic model
                     // would stop one iteration early (measured: |k| ≈ 2e-13).
                     if update * rate / (1.0 - rate) <= opts.tolerance {
-                        break 'solve Ok(history);
+                        break 'solve Ok(());
                     }
                 }
                 prev_update = update;
             }
-            Err(StepError::MaxIterations { t, h, history: Box::new(history) })
+            Err(StepError::MaxIterations { t, h, history: Box::new(self.history) })
         };
         if result.is_ok() && simplified && max_rate <= REUSE_RATE {
             self.reusable = Some(h);
@@ -818,6 +904,15 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize
         .into_boxed_str()
 }
 
+/// `acc += coef · x`, entry by entry on contiguous storage (nalgebra's
+/// `zip_apply` on a strided view of the D×D matrix did not vectorize).
+#[inline(always)]
+fn axpy<const N: usize>(acc: &mut Matrix<N, N>, coef: f64, x: &Matrix<N, N>) {
+    for (a, x) in acc.as_mut_slice().iter_mut().zip(x.as_slice()) {
+        *a += coef * x;
+    }
+}
+
 /// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
 fn split<const N: usize, const M: usize, const S: usize, const D: usize>(
     z: &Vector<D>,
@@ -829,4 +924,83 @@ fn split<const N: usize, const M: usize, const S: usize, const D: usize>(
         mu[i] = z.fixed_rows::<M>(S * N + i * M).into_owned();
     }
     (v, mu)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::handwritten::{MobileRobot, Particle};
+    use crate::Method;
+
+    /// Runs `steps` steps of size `h`; the states, or the first error.
+    fn run<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+        st: &mut Stepper<Sys, N, M, S, D>,
+        start: State<N>,
+        h: f64,
+        steps: usize,
+    ) -> Result<(State<N>, bool), StepError>
+    where
+        Sys: NonholonomicSystem<N, M>,
+    {
+        let mut s = start;
+        let mut refreshed = false;
+        for _ in 0..steps {
+            s = st.step(&s, h)?.state;
+            // A refresh restarts the rate: NaN after the first iteration.
+            refreshed |= st.last_history().iterations().iter().skip(1).any(|r| r.rate.is_nan());
+        }
+        Ok((s, refreshed))
+    }
+
+    /// Large steps where the Jacobian frozen at the starting guess contracts
+    /// too slowly: the robot at h = 1 (Gauss s = 2) diverged at its seventh
+    /// step, the particle at h = 0.7 ran into the iteration limit at its
+    /// fourth, while full Newton solves both. Refreshing the Jacobian at the
+    /// current iterate reaches full Newton's solution.
+    #[test]
+    fn simplified_newton_refreshes_a_slow_jacobian() {
+        let simplified = NewtonOptions { mode: NewtonMode::Simplified, energy_drift_limit: None, ..Default::default() };
+        let full = NewtonOptions { mode: NewtonMode::Full, ..simplified };
+        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let mut a = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(full);
+        let mut b = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(simplified);
+        let (ra, _) = run(&mut a, robot, 1.0, 20).expect("full Newton");
+        let (rb, refreshed) = run(&mut b, robot, 1.0, 20).expect("simplified Newton with refresh");
+        assert!(refreshed, "the robot at h = 1 must need a refresh");
+        assert!((ra.q - rb.q).amax() < 1e-10 && (ra.v - rb.v).amax() < 1e-10, "{ra:?} vs {rb:?}");
+
+        let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+        let mut a = Stepper::<_, 3, 1, 2, 11>::new(Particle, tab).with_options(full);
+        let mut b = Stepper::<_, 3, 1, 2, 11>::new(Particle, tab).with_options(simplified);
+        let (ra, _) = run(&mut a, particle, 0.7, 20).expect("full Newton");
+        let (rb, refreshed) = run(&mut b, particle, 0.7, 20).expect("simplified Newton with refresh");
+        assert!(refreshed, "the particle at h = 0.7 must need a refresh");
+        assert!((ra.q - rb.q).amax() < 1e-10 && (ra.v - rb.v).amax() < 1e-10, "{ra:?} vs {rb:?}");
+    }
+
+    /// A step whose equations even refreshed Jacobians cannot solve is still
+    /// a typed divergence with its history, not an endless refresh.
+    #[test]
+    fn hopeless_simplified_steps_still_diverge() {
+        let simplified = NewtonOptions { mode: NewtonMode::Simplified, energy_drift_limit: None, ..Default::default() };
+        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let mut st = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(simplified);
+        let err = run(&mut st, robot, 2.0, 20).expect_err("h = 2 is beyond Newton's reach here");
+        let StepError::Diverged { history, .. } = &err else { panic!("{err}") };
+        assert!(history.len() < NewtonOptions::default().max_iterations, "{err}");
+        assert_eq!(format!("{:?}", st.last_history()), format!("{history:?}"));
+    }
+
+    /// Normal steps never refresh: one Jacobian per step, as before.
+    #[test]
+    fn paper_steps_keep_one_jacobian_per_step() {
+        let simplified = NewtonOptions { mode: NewtonMode::Simplified, ..Default::default() };
+        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let tab = Tableau::<3>::new(Method::LobattoIIIAB).unwrap();
+        let mut st = Stepper::<_, 4, 2, 3, 22>::new(MobileRobot::default(), tab).with_options(simplified);
+        let (_, refreshed) = run(&mut st, robot, 0.2, 50).unwrap();
+        assert!(!refreshed);
+    }
 }
