@@ -576,4 +576,212 @@ mod tests {
         let scale = column_scales::<3>(a.as_slice());
         assert!(factor_in_place::<3>(lu.as_mut_slice(), &mut perm, &scale, &[2, 3]).is_err());
     }
+
+    /// A deterministic random matrix (xorshift), entries in `[−1, 1)`.
+    fn random_matrix<const D: usize>(seed: u64) -> Matrix<D, D> {
+        let mut x = seed | 1;
+        Matrix::<D, D>::from_fn(|_, _| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        })
+    }
+
+    /// nalgebra's LU solve (dynamic sizes: its static LU needs typenum sizes).
+    fn nalgebra_solve<const D: usize>(a: &Matrix<D, D>, b: &Vector<D>) -> Vector<D> {
+        let a = nalgebra::DMatrix::from_column_slice(D, D, a.as_slice());
+        let x = a.lu().solve(&nalgebra::DVector::from_column_slice(b.as_slice())).expect("nalgebra: singular");
+        Vector::<D>::from_column_slice(x.as_slice())
+    }
+
+    /// Padded factor + solve of `a x = b`, columns in natural order.
+    fn padded_solve<const D: usize>(a: &Matrix<D, D>, b: &Vector<D>, ends: &[usize]) -> Result<Vector<D>, Singular> {
+        let mut lu = PaddedLu::<D>::new().expect("padded kernel available");
+        lu.factor(a.as_slice(), &std::array::from_fn(|c| c), ends)?;
+        let mut x = *b;
+        lu.solve(x.as_mut_slice());
+        Ok(x)
+    }
+
+    /// Random matrices (rows permuted so pivoting is required, some
+    /// ill-conditioned) vs nalgebra's LU at every padded size class.
+    fn agrees_with_nalgebra<const D: usize>(seed: u64, diag: f64) {
+        if PaddedLu::<D>::new().is_none() {
+            return;
+        }
+        let mut a = random_matrix::<D>(seed);
+        for i in 0..D {
+            a[(i, i)] += diag;
+        }
+        // Reverse the rows: the dominant entries leave the diagonal.
+        let a = Matrix::<D, D>::from_fn(|i, j| a[(D - 1 - i, j)]);
+        let x = Vector::<D>::from_fn(|i, _| 1.0 + i as f64 * 0.25);
+        let b = a * x;
+        let reference = nalgebra_solve(&a, &b);
+        let got = padded_solve::<D>(&a, &b, &[D]).unwrap();
+        let err = (got - reference).amax() / reference.amax();
+        // Normwise backward error (‖r‖∞ / (‖A‖∞ ‖x‖∞ + ‖b‖∞)) within D·ε:
+        // what partial pivoting guarantees up to the (small) growth factor.
+        let norm_a = a.row_iter().map(|r| r.iter().map(|x| x.abs()).sum::<f64>()).fold(0.0, f64::max);
+        let eta = (a * got - b).amax() / (norm_a * got.amax() + b.amax());
+        assert!(eta < D as f64 * f64::EPSILON, "D = {D}, seed {seed}: backward error {eta:e}");
+        // Two backward-stable solutions differ by at most ~ D ε κ(A).
+        let sv = nalgebra::DMatrix::from_column_slice(D, D, a.as_slice()).singular_values();
+        let kappa = sv.max() / sv.min();
+        let tol = 10.0 * D as f64 * f64::EPSILON * kappa;
+        assert!(err < tol, "D = {D}, seed {seed}: differs from nalgebra by {err:e} (κ = {kappa:e})");
+        // The row-swapping kernel agrees too.
+        let mut lu = a;
+        let mut perm = [0; D];
+        factor_in_place::<D>(lu.as_mut_slice(), &mut perm, &column_scales::<D>(a.as_slice()), &[D]).unwrap();
+        let mut y = b;
+        solve_in_place::<D>(lu.as_slice(), &perm, y.as_mut_slice());
+        assert!((got - y).amax() / y.amax() < tol, "D = {D}, seed {seed}");
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        #[test]
+        fn padded_kernel_matches_nalgebra(seed in proptest::prelude::any::<u64>(), diag in 0.0f64..4.0) {
+            agrees_with_nalgebra::<12>(seed, diag);
+            agrees_with_nalgebra::<13>(seed, diag);
+            agrees_with_nalgebra::<17>(seed, diag);
+            agrees_with_nalgebra::<23>(seed, diag);
+            agrees_with_nalgebra::<32>(seed, diag);
+            agrees_with_nalgebra::<47>(seed, diag);
+            agrees_with_nalgebra::<64>(seed, diag);
+        }
+
+        #[test]
+        fn padded_pivots_stay_in_their_blocks(seed in proptest::prelude::any::<u64>(), e1 in 1usize..10, e2 in 1usize..10) {
+            const D: usize = 20;
+            let Some(mut lu) = PaddedLu::<D>::new() else { return Ok(()) };
+            let mut a = random_matrix::<D>(seed);
+            for i in 0..D {
+                a[(i, i)] += 3.0;
+            }
+            let ends = [e1, e1 + e2, D];
+            let x = Vector::<D>::from_fn(|i, _| (i as f64).sin());
+            let b = a * x;
+            lu.factor(a.as_slice(), &std::array::from_fn(|c| c), &ends).unwrap();
+            let mut start = 0;
+            for &end in &ends {
+                for k in start..end {
+                    proptest::prop_assert!((start..end).contains(&lu.perm[k]), "column {k} pivoted on row {}", lu.perm[k]);
+                }
+                start = end;
+            }
+            let mut y = b;
+            lu.solve(y.as_mut_slice());
+            proptest::prop_assert!((y - x).amax() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn padded_kernel_needs_and_does_pivoting() {
+        // A zero diagonal: without row interchanges the first pivot is 0.
+        const D: usize = 14;
+        if PaddedLu::<D>::new().is_none() {
+            return;
+        }
+        let a = Matrix::<D, D>::from_fn(|i, j| {
+            if (i + 1) % D == j {
+                2.0 + i as f64
+            } else if i == j {
+                0.0
+            } else {
+                0.01
+            }
+        });
+        let x = Vector::<D>::from_fn(|i, _| i as f64 - 3.0);
+        let got = padded_solve::<D>(&a, &(a * x), &[D]).unwrap();
+        assert!((got - x).amax() < 1e-13);
+    }
+
+    #[test]
+    fn padded_kernel_reports_singular_and_nonfinite_columns() {
+        const D: usize = 16;
+        if PaddedLu::<D>::new().is_none() {
+            return;
+        }
+        let base = {
+            let mut a = random_matrix::<D>(7);
+            for i in 0..D {
+                a[(i, i)] += 4.0;
+            }
+            a
+        };
+        let b = Vector::<D>::from_element(1.0);
+        // Column 5 a combination of columns 2 and 3: exactly singular.
+        let mut a = base;
+        let c = a.column(2) * 0.5 - a.column(3) * 2.0;
+        a.set_column(5, &c);
+        let err = padded_solve::<D>(&a, &b, &[D]).unwrap_err();
+        assert!(err.column <= 5, "{err:?}");
+        // Nearly singular: a relative perturbation of 1e-17 is below the
+        // 64 ε threshold, one of 1e-9 is not.
+        let mut near = a;
+        near[(0, 5)] += 1e-17 * near.column(5).amax();
+        assert!(padded_solve::<D>(&near, &b, &[D]).is_err());
+        let mut regular = a;
+        regular[(0, 5)] += 1e-9 * regular.column(5).amax();
+        let x = padded_solve::<D>(&regular, &b, &[D]).unwrap();
+        assert!((regular * x - b).amax() < 1e-5, "{}", (regular * x - b).amax());
+        // A zero column fails at that column.
+        let mut z = base;
+        z.set_column(9, &Vector::<D>::zeros());
+        assert_eq!(padded_solve::<D>(&z, &b, &[D]).unwrap_err().column, 9);
+        // NaN or infinity anywhere (also off the pivot rows) fails with a NaN pivot.
+        for (i, j, v) in [(15, 3, f64::NAN), (0, 12, f64::INFINITY), (7, 7, f64::NEG_INFINITY)] {
+            let mut n = base;
+            n[(i, j)] = v;
+            let err = padded_solve::<D>(&n, &b, &[D]).unwrap_err();
+            assert!(err.pivot.is_nan() && err.column == j, "({i}, {j}) = {v}: {err:?}");
+        }
+    }
+
+    #[test]
+    fn padded_kernel_is_reusable() {
+        // Factors of one matrix are fully replaced by the next (stale
+        // multipliers below a later column's first active lane are never read).
+        const D: usize = 18;
+        let Some(mut lu) = PaddedLu::<D>::new() else { return };
+        for seed in 1..6u64 {
+            let a = random_matrix::<D>(seed);
+            // Alternate between a matrix needing row interchanges and one that does not.
+            let a = if seed % 2 == 0 { Matrix::<D, D>::from_fn(|i, j| a[(D - 1 - i, j)]) } else { a };
+            let a = {
+                let mut a = a;
+                for i in 0..D {
+                    a[(i, i)] += 2.0;
+                }
+                a
+            };
+            let x = Vector::<D>::from_fn(|i, _| seed as f64 - i as f64);
+            lu.factor(a.as_slice(), &std::array::from_fn(|c| c), &[D]).unwrap();
+            let mut y = a * x;
+            lu.solve(y.as_mut_slice());
+            assert!((y - x).amax() < 1e-11 * x.amax(), "seed {seed}: {}", (y - x).amax());
+        }
+    }
+
+    #[test]
+    fn fma_build_of_the_swapping_kernel_solves() {
+        // D > PADDED_MAX takes the FMA build where available.
+        const D: usize = 70;
+        let mut a = random_matrix::<D>(11);
+        for i in 0..D {
+            a[(i, i)] += 1.0;
+        }
+        let x = Vector::<D>::from_fn(|i, _| (i as f64 * 0.3).cos());
+        let b = a * x;
+        let mut lu = a;
+        let mut perm = [0; D];
+        factor_in_place::<D>(lu.as_mut_slice(), &mut perm, &column_scales::<D>(a.as_slice()), &[D]).unwrap();
+        let mut y = b;
+        solve_in_place::<D>(lu.as_slice(), &perm, y.as_mut_slice());
+        let reference = nalgebra_solve(&a, &b);
+        assert!((y - reference).amax() < 1e-10 * reference.amax(), "{}", (y - reference).amax());
+    }
 }

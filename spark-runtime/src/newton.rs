@@ -295,4 +295,114 @@ mod tests {
         // Reusing an earlier step's factors contracts more slowly: it did reuse.
         assert!(ib > ia, "reuse {ib} vs fresh {ia} iterations");
     }
+
+    /// Factor + solve of a real step's Newton matrix against nalgebra's LU.
+    fn check_real<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+        sys: Sys,
+        method: crate::Method,
+        start: crate::State<N>,
+        h: f64,
+    ) where
+        Sys: crate::NonholonomicSystem<N, M> + Clone,
+    {
+        let mut st = crate::Stepper::<Sys, N, M, S, D>::new(sys, crate::Tableau::new(method).unwrap());
+        let (nm, g) = st.newton_matrix(&start, h);
+        let mut nm = nm.clone();
+        assert_eq!(nm.factor(), Ok(Factorization::Structured), "D = {D} {method}");
+        let mut x = g;
+        nm.solve_in_place(&mut x);
+        let a = nalgebra::DMatrix::from_column_slice(D, D, nm.matrix().into_owned().as_slice());
+        let reference = a.lu().solve(&nalgebra::DVector::from_column_slice(g.as_slice())).unwrap();
+        let err = x.iter().zip(reference.iter()).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(err <= 1e-12 * reference.amax().max(1.0), "D = {D} {method}: {err:e}");
+        // Simplified Newton solves again with the same factors.
+        let mut y = g * 2.0;
+        nm.solve_in_place(&mut y);
+        assert!((y - x * 2.0).amax() <= 1e-12 * x.amax().max(1.0), "D = {D} {method}");
+    }
+
+    #[test]
+    fn every_paper_size_solves_like_nalgebra() {
+        use crate::handwritten::{MobileRobot, MpParticles, Particle, Skate};
+        use crate::{Method, State};
+        let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+        let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+        let r0 = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let m0 = State::new(
+            0.0,
+            Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),
+            Vector::<7>::from_row_slice(&[0.3, -0.2, 0.1, 0.0, 0.2, -0.1, 0.1]),
+        );
+        check_real::<_, 3, 1, 2, 11>(Particle, Method::Gauss, p0, 0.2);
+        check_real::<_, 3, 1, 3, 15>(Skate::default(), Method::LobattoIIIAB, s0, 0.1);
+        check_real::<_, 4, 2, 2, 16>(MobileRobot::default(), Method::Gauss, r0, 0.2);
+        check_real::<_, 3, 1, 4, 19>(Skate::default(), Method::Gauss, s0, 0.1);
+        check_real::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::LobattoIIIABD, r0, 0.2);
+        check_real::<_, 7, 1, 2, 23>(MpParticles, Method::Gauss, m0, 0.05);
+        check_real::<_, 4, 2, 4, 28>(MobileRobot::default(), Method::Gauss, r0, 0.2);
+        check_real::<_, 7, 1, 3, 31>(MpParticles, Method::LobattoIIIAB, m0, 0.05);
+        check_real::<_, 7, 1, 4, 39>(MpParticles, Method::Gauss, m0, 0.05);
+        check_real::<_, 7, 1, 5, 47>(MpParticles, Method::Gauss, m0, 0.05);
+        // Large steps: the stage blocks are far from the mass matrices.
+        check_real::<_, 7, 1, 2, 23>(MpParticles, Method::Gauss, m0, 1.5);
+        check_real::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::LobattoIIIAB, r0, 2.0);
+    }
+
+    #[test]
+    fn padded_range_falls_back_to_dense_pivoting() {
+        // N = 3, M = 1, S = 3 (D = 15, the padded kernel where available):
+        // a singular stage block in a regular matrix.
+        const D: usize = 15;
+        let mut a = Matrix::<D, D>::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
+        for i in 0..D {
+            a[(i, i)] += 2.0;
+        }
+        for j in 0..9 {
+            a[(1, j)] = a[(0, j)];
+        }
+        a[(1, 10)] = 3.0;
+        let x = Vector::<D>::from_fn(|i, _| 1.0 + i as f64);
+        let mut nm = NewtonMatrix::<3, 1, 3, D>::new();
+        #[cfg(target_arch = "x86_64")]
+        assert_eq!(
+            nm.padded.is_some(),
+            std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        );
+        nm.set(&a);
+        assert_eq!(nm.factor(), Ok(Factorization::Dense));
+        let mut b = a * x;
+        nm.solve_in_place(&mut b);
+        assert!((b - x).amax() < 1e-12, "{}", (b - x).amax());
+        // Singular: reported with the column of the dense elimination.
+        a.set_column(4, &(a.column(2) + a.column(3)));
+        nm.set(&a);
+        let err = nm.factor().unwrap_err();
+        assert!(err.column <= 4 && nm.factorization().is_none(), "{err:?}");
+        // NaN: reported, and a later regular matrix factors again.
+        let mut n = a;
+        n[(14, 0)] = f64::NAN;
+        nm.set(&n);
+        assert!(nm.factor().unwrap_err().pivot.is_nan());
+        nm.set(&spark_like_15());
+        assert_eq!(nm.factor(), Ok(Factorization::Structured));
+    }
+
+    /// A regular D = 15 matrix with the SPARK zero pattern (N = 3, M = 1, S = 3).
+    fn spark_like_15() -> Matrix<15, 15> {
+        let mut a = Matrix::<15, 15>::from_fn(|i, j| ((i * 5 + j * 2) % 7) as f64 * 0.05 - 0.1);
+        for i in 0..15 {
+            a[(i, i)] += 2.0;
+        }
+        // v₁ (columns 12..15) only in the p₁ rows (9..12) and the last constraint row.
+        for i in (0..9).chain(12..14) {
+            for j in 12..15 {
+                a[(i, j)] = 0.0;
+            }
+        }
+        // Multipliers (columns 9..12) pivot in the constraint rows (12..15).
+        for (r, c) in [(12, 9), (13, 10), (14, 11)] {
+            a[(r, c)] = 1.5;
+        }
+        a
+    }
 }
