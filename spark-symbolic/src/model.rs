@@ -345,7 +345,9 @@ impl Model {
                     "it is constant, so it constrains nothing; remove it".to_string()
                 } else {
                     format!(
-                        "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}`",
+                        "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}` (or \
+                         declare `name: holonomic(g)` under `effects:` and select it in a scene, which imposes that \
+                         derivative and reports the drift of g)",
                         crate::pretty::dsl_text(&g, spec, gdot)
                     )
                 };
