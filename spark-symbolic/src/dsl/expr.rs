@@ -724,6 +724,10 @@ impl Parser<'_, '_> {
             "arctan" => Some("write `atan(x)` or `atan2(y, x)`".to_string()),
             "arcsin" => Some("write `asin(x)`".to_string()),
             "arccos" => Some("write `acos(x)`".to_string()),
+            "holonomic" | "constraint" | "potential" | "force" | "nonideal" => Some(format!(
+                "`{name}` is an effect kind, not a function: declare it under `effects: {{ rod: {name}(…) }}` and \
+                 select it in `scenes: {{ Rod = [rod] }}`"
+            )),
             "cot" => Some("write `1/tan(x)`".to_string()),
             "sec" => Some("write `1/cos(x)`".to_string()),
             "csc" | "cosec" => Some("write `1/sin(x)`".to_string()),
