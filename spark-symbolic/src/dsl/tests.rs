@@ -467,3 +467,46 @@ fn find_declaration_searches_items_and_inline_modules() {
     let e = find_declaration("", "A").unwrap_err().to_string();
     assert!(e.contains("the file has none"), "{e}");
 }
+
+/// The structural-singularity checks of `generate` reject exactly the
+/// declarations whose accelerations no state determines, and nothing else.
+#[test]
+fn structurally_singular_declarations_are_rejected_and_regular_ones_are_not() {
+    let generate_str = |src: &str| crate::generate(&parse_str(src).expect("parses")).map(|_| ());
+    let message = |src: &str| generate_str(src).expect_err("must be rejected").message;
+    // Regular: two independent constraints (the robot), a massless
+    // coordinate whose velocity a constraint fixes, M = N.
+    for ok in [
+        "struct R { coordinates: [x, y, th, ph], lagrangian: (dot(x)^2 + dot(y)^2 + dot(th)^2 + dot(ph)^2)/2,
+           constraints: [ dot(x) - cos(th)*dot(ph), dot(y) - sin(th)*dot(ph) ] }",
+        "struct F { coordinates: [x, s], lagrangian: dot(x)^2/2, constraints: [ dot(s) - x*dot(x) ] }",
+        "struct Q { coordinates: [x, y], lagrangian: (dot(x)^2 + dot(y)^2)/2,
+           constraints: [ dot(x) - y, dot(y) + x ] }",
+    ] {
+        assert!(generate_str(ok).is_ok(), "{ok}: {:?}", generate_str(ok).err().map(|e| e.message));
+    }
+    assert!(message("struct A { coordinates: [x, th], lagrangian: dot(x)^2/2 - th^2 }")
+        .contains("`th` of `A` has no inertia"));
+    assert!(message("struct B { coordinates: [x, y], lagrangian: dot(x)^2/2 + x*dot(y) }")
+        .contains("at most linear in `dot(y)`"));
+    assert!(message("struct C { coordinates: [x], lagrangian: dot(x)^2/2, constraints: [ dot(x), dot(x) - x ] }")
+        .contains("2 constraints on 1 coordinates"));
+    assert!(message(
+        "struct D { coordinates: [x, y, z], lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2,
+           constraints: [ dot(y) - x*dot(z), sin(x)*dot(y) - x*sin(x)*dot(z) + t ] }"
+    )
+    .contains("proportional"));
+}
+
+/// `atan`, `asin`, `acos` are rewritten through `atan2` and keep their arity check.
+#[test]
+fn inverse_trigonometric_functions_are_atan2_sugar() {
+    let s = parse_str("struct A { coordinates: [x], lagrangian: dot(x)^2/2 - atan(x) - asin(x) - acos(x) }").unwrap();
+    let text = crate::source::sexpr(&s, &s.lagrangian);
+    assert_eq!(text.matches("(atan2 ").count(), 3, "{text}");
+    assert!(!text.contains("asin") && !text.contains("acos"), "{text}");
+    let e = parse_str("struct A { coordinates: [x], lagrangian: dot(x)^2/2 - asin(x, 1) }").unwrap_err();
+    assert_eq!(e.message, "`asin` takes 1 argument: `asin(x)`, found 2");
+    let e = parse_str("struct A { coordinates: [x], lagrangian: dot(x)^2/2 - abs(x) }").unwrap_err();
+    assert!(e.message.contains("sqrt(x^2 + eps^2)"), "{}", e.message);
+}
