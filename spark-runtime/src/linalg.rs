@@ -130,8 +130,15 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
             *x = if FMA { (-l).mul_add(bj, *x) } else { *x - l * bj };
         }
     }
+    // Reciprocals first: independent divisions that overlap the forward
+    // sweep, leaving a multiply instead of a division on the back
+    // substitution's dependency chain.
+    let mut rdiag = [0.0; D];
+    for (j, r) in rdiag.iter_mut().enumerate() {
+        *r = 1.0 / lu[j * D + j];
+    }
     for j in (0..D).rev() {
-        b[j] /= lu[j * D + j];
+        b[j] *= rdiag[j];
         let bj = b[j];
         let col = &lu[j * D..j * D + j];
         for (x, u) in b[..j].iter_mut().zip(col) {
