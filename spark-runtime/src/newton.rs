@@ -20,8 +20,14 @@
 //! matrices — it falls back to partial pivoting over the whole matrix, so
 //! the structured path never turns a solvable system into a failure.
 //!
+//! # Kernels
+//! For `12 ≤ D ≤ 64` on x86-64 CPUs with AVX2 and FMA the factors use the
+//! padded, swap-free kernel of `linalg` (chosen once, in
+//! [`NewtonMatrix::new`]); otherwise the row-swapping one. Both follow the
+//! same pivoting and singularity rules.
+//!
 //! # Storage
-//! Both `D × D` matrices live on the heap, allocated once in
+//! The matrix and its factors live on the heap, allocated once in
 //! [`NewtonMatrix::new`] (a step allocates nothing). A stack matrix of
 //! `8·D²` bytes overflowed a 2 MiB rayon worker stack from `D ≈ 250` on;
 //! boxed, the stepper's own size is `O(S·D)` whatever `D`.
