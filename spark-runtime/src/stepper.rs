@@ -204,6 +204,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// Stage Jacobians of the latest full evaluation (heap, allocated once:
     /// `(S+2)·8·N²` doubles would dominate the stepper's size).
     work: Box<EvalJac<N, M, S>>,
+    /// Scratch for one `N × N` block of the Newton matrix while it is
+    /// accumulated (heap, allocated once: a local `Matrix<N, N>` put
+    /// `2·8·N²` bytes on the stack, 4.4 MiB at n = 513).
+    block: Box<[f64]>,
     /// The step size for which `newton` holds factors that simplified Newton
     /// may reuse on the next continuing step (`None`: evaluate afresh).
     reusable: Option<f64>,
@@ -270,6 +274,7 @@ where
                 mid: None,
                 nonideal_psi: vec![Matrix::zeros(); S].into_boxed_slice(),
             }),
+            block: vec![0.0; N * N].into_boxed_slice(),
             reusable: None,
             anchor: None,
             history: NewtonHistory::default(),
@@ -652,17 +657,22 @@ where
                 if i < S { (&tab.a[i], &tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b, &tab.b_hat, &tab.b_tilde) };
             let pq = if i < S { &jac.stages[i].momentum_q } else { &jac.end.momentum_q };
             for l in 0..S {
-                let mut blk = if i == l { jac.stages[l].mass } else { Matrix::<N, N>::zeros() };
+                let blk = &mut self.block[..N * N];
+                if i == l {
+                    blk.copy_from_slice(jac.stages[l].mass.as_slice());
+                } else {
+                    blk.fill(0.0);
+                }
                 if !separable {
                     if a_row[l] != 0.0 {
-                        axpy(&mut blk, h * a_row[l], pq);
+                        axpy(blk, h * a_row[l], pq);
                     }
                     if ah_row[l] != 0.0 {
-                        axpy(&mut blk, -h * ah_row[l], &jac.stages[l].force_v);
+                        axpy(blk, -h * ah_row[l], &jac.stages[l].force_v);
                     }
                 }
                 if !k_velocity_free && at_row[l] != 0.0 {
-                    axpy(&mut blk, -h * at_row[l], &jac.stages[l].constraint_force_v);
+                    axpy(blk, -h * at_row[l], &jac.stages[l].constraint_force_v);
                 }
                 for m in 0..S {
                     let aml = tab.a[m][l];
@@ -670,16 +680,16 @@ where
                         continue;
                     }
                     if ah_row[m] != 0.0 {
-                        axpy(&mut blk, -h2 * ah_row[m] * aml, &jac.stages[m].force_q);
+                        axpy(blk, -h2 * ah_row[m] * aml, &jac.stages[m].force_q);
                     }
                     if at_row[m] != 0.0 {
-                        axpy(&mut blk, -h2 * at_row[m] * aml, &jac.stages[m].constraint_force_q);
+                        axpy(blk, -h2 * at_row[m] * aml, &jac.stages[m].constraint_force_q);
                     }
                 }
                 for c in 0..N {
                     j.fixed_view_mut::<N, 1>(i * N, l * N + c)
                         .as_mut_slice()
-                        .copy_from_slice(&blk.as_slice()[c * N..(c + 1) * N]);
+                        .copy_from_slice(&blk[c * N..(c + 1) * N]);
                 }
                 // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h);
                 // with N(ψ = μ/h) also −ã_il ∂N_l/∂ψ.
@@ -905,10 +915,11 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize
 }
 
 /// `acc += coef · x`, entry by entry on contiguous storage (nalgebra's
-/// `zip_apply` on a strided view of the D×D matrix did not vectorize).
+/// `zip_apply` on a strided view of the D×D matrix did not vectorize);
+/// `acc` is the stepper's heap block scratch (`N·N` entries, column-major).
 #[inline(always)]
-fn axpy<const N: usize>(acc: &mut Matrix<N, N>, coef: f64, x: &Matrix<N, N>) {
-    for (a, x) in acc.as_mut_slice().iter_mut().zip(x.as_slice()) {
+fn axpy<const N: usize>(acc: &mut [f64], coef: f64, x: &Matrix<N, N>) {
+    for (a, x) in acc[..N * N].iter_mut().zip(x.as_slice()) {
         *a += coef * x;
     }
 }
