@@ -687,9 +687,7 @@ where
                     }
                 }
                 for c in 0..N {
-                    j.fixed_view_mut::<N, 1>(i * N, l * N + c)
-                        .as_mut_slice()
-                        .copy_from_slice(&blk[c * N..(c + 1) * N]);
+                    j.fixed_view_mut::<N, 1>(i * N, l * N + c).as_mut_slice().copy_from_slice(&blk[c * N..(c + 1) * N]);
                 }
                 // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h);
                 // with N(ψ = μ/h) also −ã_il ∂N_l/∂ψ.
