@@ -24,16 +24,16 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
 }
 
 /// Whether the energy `E = ∇_vL·v − L` is a first integral of the exact
-/// flow, by the structure facts: `L` and `k` autonomous, constraints absent
-/// or linear homogeneous in `v` (ideal constraint forces then do no work),
-/// no external force and no non-ideal constraint force.
+/// flow, by the structure facts: `L` autonomous, constraints absent or
+/// linear homogeneous in `v` (`k = K(t,q)v`, possibly rheonomic: the ideal
+/// constraint force `−Kᵀψ` then does the work `−ψᵀk = 0`), no external force
+/// and no non-ideal constraint force.
 pub(crate) const fn energy_is_invariant<Sys, const N: usize, const M: usize>() -> bool
 where
     Sys: NonholonomicSystem<N, M>,
 {
     let st = Sys::STRUCTURE;
     st.lagrangian_autonomous
-        && st.constraints_autonomous
         && matches!(st.constraint_form, ConstraintForm::None | ConstraintForm::Linear)
         && !Sys::HAS_FORCING
         && !Sys::HAS_NONIDEAL_FORCE

@@ -172,8 +172,8 @@ pub enum StepError {
         history: Box<NewtonHistory>,
     },
     /// The step solved its equations, but its end violates the energy
-    /// balance the structure facts guarantee (autonomous `L` and `k`,
-    /// constraints linear homogeneous in `v`, no external or non-ideal
+    /// balance the structure facts guarantee (autonomous `L`, constraints
+    /// linear homogeneous in `v`, possibly rheonomic, no external or non-ideal
     /// force: `E` is a first integral): since the start of the chain of
     /// continued steps at `since`, `|E − E₀|` exceeds `limit` times the
     /// energy's size `|E₀| + |p₀·v₀|`. The discrete map amplifies something

@@ -74,8 +74,9 @@ pub struct NewtonOptions {
     /// previous equal steps to the next starting guess.
     pub extrapolation_degree: usize,
     /// Energy guard: when the structure facts make `E` a first integral
-    /// (autonomous `L` and `k`, constraints linear homogeneous in `v`, no
-    /// external or non-ideal force), refuse with
+    /// (autonomous `L`, constraints absent or linear homogeneous in `v` —
+    /// `k = K(t,q)v` may depend on `t` — and no external or non-ideal
+    /// force), refuse with
     /// [`StepError::EnergyDrift`] a step that leaves `|E − E₀|` above this
     /// multiple of `|E₀| + |p₀·v₀|`, `E₀` taken where the chain of continued
     /// steps began. A sanity bound against unstable discrete maps (stiff
