@@ -116,7 +116,11 @@ pub enum StepError {
         reason: &'static str,
     },
     /// Newton updates grew (contraction rate ≥ 1 above round-off level).
-    #[error("Newton diverged in the step from t = {t} with h = {h} (try a smaller step); history: {history}")]
+    #[error(
+        "Newton diverged in the step from t = {t} with h = {h} (try a smaller step; if it diverges at every h, the \
+         equations may not be differentiable at this state, e.g. sqrt(...) of a vanishing speed in a constraint); \
+         history: {history}"
+    )]
     Diverged {
         /// Start time.
         t: f64,
@@ -142,8 +146,9 @@ pub enum StepError {
     /// runaway iterate (huge multipliers dominating a column) can fail it
     /// with an unremarkable pivot: `scale` and the history tell the cases apart.
     #[error(
-        "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: {detail}; \
-         history: {history}",
+        "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: {detail} \
+         (a V column points at the mass matrix ∇²_vv L — a zero mass or inertia parameter? — a hΨ column at \
+         dependent or vanishing constraint rows ∂k/∂v); history: {history}",
         history.len()
     )]
     SingularMatrix {

@@ -226,8 +226,14 @@ where
                     t: t0,
                     h: 0.0,
                     detail: format!(
-                        "column {column} of block {block} of the velocity projection's [[W, Kᵀ],[K, 0]]: pivot \
-                         {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}"
+                        "(the initial velocity projection, not a step) column {column} of block {block} of \
+                         [[W, Kᵀ],[K, 0]]: pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}; {}",
+                        if block == "W" {
+                            "the mass matrix W = ∇²_vv L is singular at (t0, q0): is a mass or inertia parameter zero?"
+                        } else {
+                            "the constraint rows K = ∂k/∂v are dependent or vanish at (t0, q0, v); for constraints \
+                             nonlinear in v, start from a v0 where ∂k/∂v has full rank (near the constraint surface)"
+                        }
                     )
                     .into(),
                     history: Box::new(history),
