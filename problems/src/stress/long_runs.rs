@@ -501,11 +501,18 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
                 sf_last.1 / plateau
             ),
         );
-        match (reading, method) {
-            // The bounded O(h²) oscillation dominates the ensemble mean for
-            // the first decades and 10 members make it noisy, so the random
-            // walk is judged on the structure function.
-            (Mp7Reading::Nonholonomic, Method::LobattoIIIAB) => {
+        match reading {
+            // One criterion for every method, at both scales: the claim itself,
+            // S(Δ) − plateau ∝ Δ (slope 1), told apart from a bounded error (S
+            // flat: nothing above the plateau) and from a steady drift (slope 2).
+            // The band is wide because a 10-member chaotic ensemble is one
+            // realization: initial values moved by 1e-15 … 1e-12 (CHAOS_PERTURB
+            // experiment, session 3) gave slopes 1.05–1.33 (Gauss s=2) and
+            // 1.13–1.33 (Lobatto IIIA-B s=2), and Gauss's ensemble-mean exponent
+            // p (its former criterion, |p − 1| ≤ 0.25) 0.76–1.36. The bounded
+            // O(h²) oscillation dominates the ensemble mean for the first
+            // decades, so p is reported, not judged.
+            Mp7Reading::Nonholonomic => {
                 let detail = format!(
                     "S ×{:.2} above its plateau at Δ = {}, slope {show_slope}; ensemble mean ×{growth:.2} from \
                      [0.05, 0.15]·T to [0.9, 1]·T; p on t ≥ {fit_from} = {}",
@@ -513,23 +520,16 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
                     sf_last.0,
                     show(fit)
                 );
-                // One criterion at both scales: the claim itself (S − plateau
-                // ∝ Δ). A fixed growth factor of S at the largest lag is not
-                // one: its expected value at quick scale is itself ≈ 2, and
-                // round-off changes (any change in the linear algebra) move
-                // a chaotic ensemble's value across such a threshold.
                 c.check(
-                    format!("{label}: energy error is a random walk: S(Δ) − plateau ∝ Δ (slope within 1 ± 0.3)"),
-                    sf_slope.is_some_and(|f| (f.slope - 1.0).abs() <= 0.3),
+                    format!(
+                        "{label}: energy error is a random walk: S(Δ) − plateau ∝ Δ (slope within 1 ± 0.5: bounded \
+                         would be flat, a drift slope 2)"
+                    ),
+                    sf_slope.is_some_and(|f| (f.slope - 1.0).abs() <= 0.5),
                     detail,
                 );
             }
-            (Mp7Reading::Nonholonomic, _) => c.check(
-                format!("{label}: energy measure grows like a random walk (|p − 1| ≤ 0.25)"),
-                fit.is_some_and(|f| (f.exponent - 1.0).abs() <= 0.25),
-                format!("p = {} (t ≥ {fit_from}); late p = {}", show(fit), show(late)),
-            ),
-            (Mp7Reading::Printed, Method::LobattoIIIAB) => {
+            Mp7Reading::Printed if method == Method::LobattoIIIAB => {
                 c.check(
                     format!("{label}: φ(q) is conserved to round-off (≤ 1e-11): the constraint is holonomic"),
                     e.max_phi <= 1e-11,
@@ -545,7 +545,7 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
                     ),
                 );
             }
-            (Mp7Reading::Printed, _) => {}
+            Mp7Reading::Printed => {}
         }
         let target = if reading == Mp7Reading::Nonholonomic { 0 } else { 1 };
         panels[target].1.push(Series::new(label, thin(log_points(&e.t[1..], &e.measure[1..], 1e-30), 3000)));
