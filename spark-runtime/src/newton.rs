@@ -133,14 +133,16 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
     /// Factors the matrix: the structured block elimination when its
     /// diagonal blocks are regular, else partial pivoting over all rows.
     pub fn factor(&mut self) -> Result<Factorization, SingularMatrix> {
-        let result = if self.padded.is_some() { self.factor_padded() } else { self.factor_swapping() };
+        let result = match &mut self.padded {
+            Some(lu) => Self::factor_padded(lu, &self.jacobian),
+            None => self.factor_swapping(),
+        };
         self.factored = result.ok();
         result
     }
 
     /// [`factor`](Self::factor) with the padded kernel.
-    fn factor_padded(&mut self) -> Result<Factorization, SingularMatrix> {
-        let Some(lu) = &mut self.padded else { return self.factor_swapping() };
+    fn factor_padded(lu: &mut PaddedLu<D>, jacobian: &[f64]) -> Result<Factorization, SingularMatrix> {
         let (sn, sm) = (Self::SN, S * M);
         // Columns (V, v₁, μ) on the structured path.
         let structured = std::array::from_fn(|c| {
@@ -152,10 +154,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
                 c - N
             }
         });
-        if lu.factor(&self.jacobian, &structured, &[sn, sn + N, D]).is_ok() {
+        if lu.factor(jacobian, &structured, &[sn, sn + N, D]).is_ok() {
             return Ok(Factorization::Structured);
         }
-        match lu.factor(&self.jacobian, &std::array::from_fn(|c| c), &[D]) {
+        match lu.factor(jacobian, &std::array::from_fn(|c| c), &[D]) {
             Ok(()) => Ok(Factorization::Dense),
             Err(s) => Err(SingularMatrix { column: s.column, pivot: s.pivot }),
         }

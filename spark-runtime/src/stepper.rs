@@ -266,15 +266,6 @@ struct EvalJac<const N: usize, const M: usize, const S: usize> {
     nonideal_psi: Box<[Matrix<N, M>]>,
 }
 
-fn zero_values<const N: usize, const M: usize>() -> StageValues<N, M> {
-    StageValues {
-        momentum: Vector::zeros(),
-        force: Vector::zeros(),
-        constraint: Vector::zeros(),
-        constraint_force: Vector::zeros(),
-    }
-}
-
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
 where
     Sys: NonholonomicSystem<N, M>,
@@ -503,7 +494,7 @@ where
         // Scratch: the work storage's end-point Jacobians (heap, so no N×N
         // matrix goes on the stack); every full evaluation rewrites them
         // before the Newton matrix reads them.
-        let mut vals = zero_values();
+        let mut vals = StageValues::zeros();
         let (a0, psi0) =
             consistent_acceleration_in(&self.system, state.t, &state.q, &state.v, &mut vals, &mut self.work.end)
                 .unwrap_or((Vector::zeros(), Vector::zeros()));
@@ -545,7 +536,7 @@ where
         let (v, mu) = split::<N, M, S, D>(z);
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let zero_m = Vector::<M>::zeros();
-        let mut ev = Eval { stages: [zero_values(); S], end: zero_values(), mid: None };
+        let mut ev = Eval { stages: [StageValues::zeros(); S], end: StageValues::zeros(), mid: None };
         let q1 = state.q + increment(carry, h, &tab.b, &v);
         let t1 = state.t + h;
         let mid_point = || {
@@ -573,7 +564,7 @@ where
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
                     let mj = jac.mid.get_or_insert_with(StageJacobians::boxed_zeros);
-                    let mv = ev.mid.insert(zero_values());
+                    let mv = ev.mid.insert(StageValues::zeros());
                     system.stage_jacobians_into(tm, &qm, &v[0], &zero_m, mv, mj);
                 }
             }
@@ -851,8 +842,7 @@ where
                     let too_slow = rate.is_nan()
                         || rate > REFRESH_RATE
                         || update * rate.powi(remaining + 1) / (1.0 - rate) > opts.tolerance;
-                    let converged =
-                        update <= opts.tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= opts.tolerance);
+                    let converged = accepted(update, rate, opts.tolerance);
                     let round_off = update <= opts.stagnation_level;
                     let first_stale = k == 0 && update.is_finite();
                     if too_slow && !converged && !round_off && !first_stale {
@@ -877,24 +867,14 @@ where
                 if !update.is_finite() {
                     return Err(fail_nonfinite("update", &self.history));
                 }
-                if update <= opts.tolerance {
+                if accepted(update, rate, opts.tolerance) {
                     break 'solve Ok(());
                 }
-                if k > 0 {
-                    if rate >= 1.0 {
-                        if update <= opts.stagnation_level {
-                            break 'solve Ok(());
-                        }
-                        return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
-                    }
-                    // Remaining error estimated as θ/(1−θ)·‖Δz‖ even for full
-                    // Newton: unknowns entering linearly (the multipliers) converge
-                    // in one iteration and make the first contraction look much
-                    // faster than that of the nonlinear ones, so a quadratic model
-                    // would stop one iteration early (measured: |k| ≈ 2e-13).
-                    if update * rate / (1.0 - rate) <= opts.tolerance {
+                if k > 0 && rate >= 1.0 {
+                    if update <= opts.stagnation_level {
                         break 'solve Ok(());
                     }
+                    return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
                 }
                 prev_update = update;
             }
@@ -953,6 +933,17 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize
 
 /// Largest `N·N` whose Newton-matrix blocks are accumulated on the stack.
 const SMALL_BLOCK: usize = 256;
+
+/// Newton's stopping rule: the update itself, or the remaining error
+/// estimated as `θ/(1−θ)·‖Δz‖` from the contraction rate `θ` (NaN before a
+/// rate exists), is within `tolerance`. The estimate is used even for full
+/// Newton: unknowns entering linearly (the multipliers) converge in one
+/// iteration and make the first contraction look much faster than that of
+/// the nonlinear ones, so a quadratic model would stop one iteration early
+/// (measured: |k| ≈ 2e-13).
+fn accepted(update: f64, rate: f64, tolerance: f64) -> bool {
+    update <= tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= tolerance)
+}
 
 /// `acc += coef · x`, entry by entry on contiguous storage (nalgebra's
 /// `zip_apply` on a strided view of the D×D matrix did not vectorize);

@@ -79,16 +79,7 @@ impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> Nonholonomic
         psi: &Vector<M>,
     ) -> (StageValues<N, M>, StageJacobians<N, M>) {
         let values = self.0.stage_values(t, q, v, psi);
-        let mut jac = StageJacobians {
-            momentum_q: Matrix::zeros(),
-            mass: Matrix::zeros(),
-            force_q: Matrix::zeros(),
-            force_v: Matrix::zeros(),
-            constraint_q: Matrix::zeros(),
-            constraint_v: Matrix::zeros(),
-            constraint_force_q: Matrix::zeros(),
-            constraint_force_v: Matrix::zeros(),
-        };
+        let mut jac = StageJacobians::zeros();
         for j in 0..N {
             let delta = RELATIVE_STEP * q[j].abs().max(1.0);
             let (mut qp, mut qm) = (*q, *q);
