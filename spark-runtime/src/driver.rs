@@ -330,6 +330,17 @@ where
     /// Integrates from `(t₀, q₀, v₀)` over `schedule`, checking (or projecting)
     /// the initial velocity first, recording samples per `options` and
     /// calling `observer` after every accepted step.
+    ///
+    /// The run and Newton options are checked first
+    /// ([`RunOptions::validate`], [`NewtonOptions::validate`](crate::NewtonOptions::validate));
+    /// an out-of-range one is an [`IntegrationError::InvalidOption`]. Every
+    /// run starts afresh: nothing an earlier run left in this stepper (warm
+    /// start, energy anchor, round-off compensation) reaches it, so a reused
+    /// stepper returns bit for bit what a fresh one does. A failed step is
+    /// retried once from the cold starting guess when it was warm-started,
+    /// then halved per [`RunOptions::max_halvings`]; the error reports the
+    /// last failure. Sample storage is reserved up to 1 MiB and grows as
+    /// samples arrive, so the step count alone never allocates.
     pub fn integrate<O: Observer<N, M>>(
         &mut self,
         t0: f64,
@@ -346,7 +357,7 @@ where
                 if h == 0.0 || !h.is_finite() {
                     return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
                 }
-                if !(t0 + steps as f64 * h).is_finite() {
+                if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
                     return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
                 }
                 steps

@@ -259,7 +259,8 @@ where
         return Err(interval("more than 10¹² steps"));
     }
     let steps = steps as usize;
-    stepper.reset_warm_start();
+    // A run depends on its inputs only (see `Stepper::integrate`).
+    stepper.reset_run();
     let mut state = State::new(t0, *q0, v);
     let mut report = RejectionReport { smallest_step: h.abs(), ..RejectionReport::default() };
     for k in 0..steps {

@@ -402,6 +402,9 @@ where
 
     /// One SPARK step of size `h` (negative `h` integrates backward) from a
     /// consistent `state`. Returns `(t₀+h, q₁, v₁)` with the stage values.
+    /// The first step after the Newton options were set or changed checks
+    /// them ([`NewtonOptions::validate`]): an out-of-range field is a
+    /// [`StepError::InvalidOption`].
     pub fn step(&mut self, state: &State<N>, h: f64) -> Result<StepResult<N, M, S>, StepError> {
         let t0 = state.t;
         self.check_options()?;

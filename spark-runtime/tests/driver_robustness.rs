@@ -9,7 +9,7 @@ use std::cell::Cell;
 use spark_runtime::handwritten::{MobileRobot, Skate};
 use spark_runtime::{
     nonholonomic_system, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NoObserver, NonholonomicSystem,
-    RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
+    ProtectedStep, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
     DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 
@@ -111,6 +111,26 @@ fn a_reused_stepper_reproduces_a_fresh_one() {
     // And a rerun from the first initial state repeats the first run.
     let rerun = used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
     assert_eq!(rerun, first);
+
+    // The protected run too.
+    let policy = RejectionPolicy::default();
+    let t_end = end.t + 250.0;
+    let protected = |st: &mut spark_runtime::Stepper![MobileRobot, 3]| {
+        spark_runtime::integrate_with_rejection(
+            st,
+            end.t,
+            &end.q,
+            &end.v,
+            t_end,
+            0.1,
+            &policy,
+            &mut |_: &ProtectedStep<4>| {},
+        )
+        .unwrap()
+    };
+    let mut fresh: spark_runtime::Stepper![MobileRobot, 3] = Stepper::new(MobileRobot::default(), tab);
+    used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
+    assert_eq!(protected(&mut used), protected(&mut fresh));
 }
 
 /// Step counts far beyond what could be recorded: the driver reserves a
@@ -312,7 +332,7 @@ fn error_messages_print_floats_compactly() {
             .to_string(),
     ];
     let policy = RejectionPolicy::default();
-    let mut observer = |_: &spark_runtime::ProtectedStep<3>| {};
+    let mut observer = |_: &ProtectedStep<3>| {};
     let protected =
         spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, -1e300, 1e300, &policy, &mut observer);
     let protected = protected.unwrap_err();
