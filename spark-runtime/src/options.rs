@@ -67,8 +67,8 @@ impl ConsistencyPolicy {
             ConsistencyPolicy::Error { tolerance } => ("ConsistencyPolicy::Error::tolerance", tolerance),
             ConsistencyPolicy::Project { tolerance } => ("ConsistencyPolicy::Project::tolerance", tolerance),
         };
-        // `!(x >= 0)` also refuses NaN, against which every residual compares false.
-        if !(tolerance >= 0.0) {
+        // NaN is refused too: every residual compares false against it.
+        if tolerance.is_nan() || tolerance < 0.0 {
             return Err(OptionError::float(option, tolerance, "non-negative (not NaN)"));
         }
         Ok(())
