@@ -2,8 +2,9 @@
 //! any spacing), observers (energy, constraint residual, multipliers, or a
 //! user callback), a serializable [`Trajectory`] and a per-run [`RunReport`].
 
-use crate::error::StepError;
+use crate::error::{OptionError, Sci, StepError};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+use crate::options::MAX_HALVINGS;
 use crate::stepper::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
@@ -51,10 +52,21 @@ pub struct RunOptions {
     pub record_every: usize,
     /// How to treat an inconsistent initial velocity.
     pub consistency: ConsistencyPolicy,
-    /// When Newton fails, retry the step as two half steps, at most this
-    /// many times nested (each retry counts as a rejected step).
+    /// When a step fails (after its retry from the cold starting guess),
+    /// retry it as two half steps, nested at most this many times (each
+    /// halving counts as a rejected step); at most [`MAX_HALVINGS`]. Halving
+    /// also stops where half a step no longer changes `t`. A run that
+    /// succeeds without halving is bit-identical whatever this is: a
+    /// halving happens only where the run would otherwise fail.
     pub max_halvings: u32,
 }
+
+/// The default [`RunOptions::max_halvings`]: a step that Newton cannot solve
+/// is covered by at most 16 sub-steps before the run reports the failure.
+/// Enough for the step sizes where a constraint nonlinear in `v` (the speed
+/// `|v| = c`) first defeats Newton, while a step size that is wrong for the
+/// problem is still reported after a bounded amount of work.
+pub const DEFAULT_MAX_HALVINGS: u32 = 4;
 
 impl Default for RunOptions {
     fn default() -> Self {
@@ -62,7 +74,7 @@ impl Default for RunOptions {
             observe: Observe::default(),
             record_every: 1,
             consistency: ConsistencyPolicy::default(),
-            max_halvings: 0,
+            max_halvings: DEFAULT_MAX_HALVINGS,
         }
     }
 }
@@ -99,8 +111,15 @@ pub struct RunReport {
     pub newton_iterations_max: usize,
     /// Steps whose Newton failed and were retried as two half steps.
     pub rejected_steps: usize,
-    /// Steps started cold (no usable previous step to extrapolate from).
+    /// Steps started cold (no usable previous step to extrapolate from),
+    /// retried cold or halved.
     pub cold_starts: usize,
+    /// Warm-started (sub-)steps whose Newton failed and that were retried
+    /// once from the cold starting guess (the consistent acceleration) before
+    /// any halving: an extrapolated guess can lie outside Newton's basin
+    /// where the cold one does not.
+    #[serde(default)]
+    pub cold_retries: usize,
     /// Largest `max_i |k_i|` over the recorded points (0 if not observed).
     pub max_constraint_residual: f64,
     /// Largest `|E − E₀|` over the recorded points (0 if not observed).
@@ -132,11 +151,14 @@ pub enum IntegrationError {
     /// The schedule is unusable.
     #[error("invalid schedule: {0}")]
     InvalidSchedule(&'static str),
+    /// A run or Newton option is out of range (checked before any step).
+    #[error("{0}")]
+    InvalidOption(OptionError),
     /// The initial state was rejected or could not be projected.
     #[error("initial state: {0}")]
     Initial(#[source] StepError),
     /// A step failed (after any retries).
-    #[error("step {index} from t = {t} failed: {source}")]
+    #[error("step {index} from t = {} failed: {source}", Sci(*t))]
     Step {
         /// Index of the failed step (0-based).
         index: usize,
@@ -147,6 +169,21 @@ pub enum IntegrationError {
         /// The trajectory up to the failure.
         partial: Box<RunReport>,
     },
+}
+
+/// Largest sample storage (bytes) `integrate` reserves before the run.
+const RESERVE_BYTES: usize = 1 << 20;
+
+/// The outcome of one scheduled step (see `Stepper::robust_step`).
+struct StepCounts<const N: usize> {
+    /// The state at the end of the step (its time not yet pinned).
+    state: State<N>,
+    /// Newton iterations over the accepted (sub-)steps.
+    iterations: usize,
+    /// Halvings.
+    rejected: usize,
+    /// Retries from the cold guess.
+    cold_retries: usize,
 }
 
 /// Receives every accepted step (not only recorded ones).
@@ -241,28 +278,69 @@ where
         }
     }
 
-    /// One step of size `h`, retried as two half steps (recursively, at most
-    /// `halvings` deep) when Newton fails. Returns the new state, the Newton
-    /// iterations and the number of rejections.
-    fn robust_step(&mut self, state: &State<N>, h: f64, halvings: u32) -> Result<(State<N>, usize, usize), StepError> {
-        match self.step(state, h) {
-            Ok(r) => Ok((r.state, r.iterations, 0)),
-            Err(e @ (StepError::InvalidStep { .. } | StepError::InconsistentInitialState { .. })) => Err(e),
-            Err(e) if halvings == 0 => Err(e),
-            Err(_) => {
-                self.reset_warm_start();
-                let (mid, i1, r1) = self.robust_step(state, 0.5 * h, halvings - 1)?;
-                let (mut end, i2, r2) = self.robust_step(&mid, h - 0.5 * h, halvings - 1)?;
-                // Land exactly on the scheduled time.
-                end.t = state.t + h;
-                Ok((end, i1 + i2, 1 + r1 + r2))
+    /// One step of size `h` from `state`. A warm-started attempt that fails
+    /// is retried once from the cold guess; a sub-step that still fails is
+    /// replaced by two half steps, at most `max_halvings` levels deep and
+    /// only while half of it still changes `t`. Iterative, with the pending
+    /// sub-steps in a fixed array: no recursion, no heap.
+    fn robust_step(&mut self, state: &State<N>, h: f64, max_halvings: u32) -> Result<StepCounts<N>, StepError> {
+        let max_halvings = max_halvings.min(MAX_HALVINGS);
+        // Sub-steps still to take, the next one last, with their halving
+        // level. A failure replaces its entry by its two halves one level
+        // deeper, so the levels increase strictly up the array but for a
+        // pair at the top: `MAX_HALVINGS + 1` entries suffice.
+        let mut pending = [(0.0f64, 0u32); MAX_HALVINGS as usize + 1];
+        pending[0] = (h, 0);
+        let mut len = 1;
+        let mut out = StepCounts { state: *state, iterations: 0, rejected: 0, cold_retries: 0 };
+        while len > 0 {
+            let (sub, level) = pending[len - 1];
+            let warm = self.is_warm_for(&out.state);
+            let result = match self.step(&out.state, sub) {
+                Err(e) if warm && e.is_curable() => {
+                    out.cold_retries += 1;
+                    self.reset_warm_start();
+                    self.step(&out.state, sub)
+                }
+                other => other,
+            };
+            match result {
+                Ok(r) => {
+                    out.state = r.state;
+                    out.iterations += r.iterations;
+                    len -= 1;
+                }
+                Err(e) if !e.is_curable() || level >= max_halvings => return Err(e),
+                Err(e) => {
+                    let half = 0.5 * sub;
+                    if out.state.t + half == out.state.t {
+                        return Err(e);
+                    }
+                    out.rejected += 1;
+                    self.reset_warm_start();
+                    pending[len - 1] = (sub - half, level + 1);
+                    pending[len] = (half, level + 1);
+                    len += 1;
+                }
             }
         }
+        Ok(out)
     }
 
     /// Integrates from `(t₀, q₀, v₀)` over `schedule`, checking (or projecting)
     /// the initial velocity first, recording samples per `options` and
     /// calling `observer` after every accepted step.
+    ///
+    /// The run and Newton options are checked first
+    /// ([`RunOptions::validate`], [`NewtonOptions::validate`](crate::NewtonOptions::validate));
+    /// an out-of-range one is an [`IntegrationError::InvalidOption`]. Every
+    /// run starts afresh: nothing an earlier run left in this stepper (warm
+    /// start, energy anchor, round-off compensation) reaches it, so a reused
+    /// stepper returns bit for bit what a fresh one does. A failed step is
+    /// retried once from the cold starting guess when it was warm-started,
+    /// then halved per [`RunOptions::max_halvings`]; the error reports the
+    /// last failure. Sample storage is reserved up to 1 MiB and grows as
+    /// samples arrive, so the step count alone never allocates.
     pub fn integrate<O: Observer<N, M>>(
         &mut self,
         t0: f64,
@@ -272,10 +350,15 @@ where
         options: &RunOptions,
         observer: &mut O,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
+        options.validate().map_err(IntegrationError::InvalidOption)?;
+        self.options().validate().map_err(IntegrationError::InvalidOption)?;
         let steps = match schedule {
             Schedule::Fixed { h, steps } => {
                 if h == 0.0 || !h.is_finite() {
                     return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
                 }
                 steps
             }
@@ -291,11 +374,16 @@ where
         };
         let v0c =
             consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
-        self.reset_warm_start();
+        // A run depends on its inputs only: nothing of an earlier run (warm
+        // start, energy anchor, round-off carry) reaches its first step.
+        self.reset_run();
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
         let every = options.record_every;
-        let capacity = steps.checked_div(every).map_or(2, |n| n + 2);
-        let mut samples = Vec::with_capacity(capacity);
+        // Reserve for the expected samples up to a bounded size; beyond it the
+        // storage grows as samples arrive (amortized, only when recording).
+        let expected = steps.checked_div(every).map_or(2, |n| n.saturating_add(2));
+        let bound = (RESERVE_BYTES / std::mem::size_of::<Sample<N, M>>().max(1)).max(2);
+        let mut samples = Vec::with_capacity(expected.min(bound));
         let mut state = State { t: t0, q: *q0, v: v0c };
         let first = self.sample(&state, &options.observe, 0);
         let e0 = first.energy;
@@ -315,16 +403,18 @@ where
                 Schedule::Times(ts) => (ts[k] - state.t, ts[k]),
             };
             let warm_before = self.is_warm_for(&state);
-            let (mut next, iters, rejected) = self
+            let counts = self
                 .robust_step(&state, h, options.max_halvings)
                 .map_err(|source| IntegrationError::Step { index: k, t: state.t, source, partial: Box::new(report) })?;
+            let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
-            if !warm_before || rejected > 0 {
+            if !warm_before || counts.rejected > 0 || counts.cold_retries > 0 {
                 report.cold_starts += 1;
             }
             report.steps += 1;
-            report.rejected_steps += rejected;
+            report.rejected_steps += counts.rejected;
+            report.cold_retries += counts.cold_retries;
             report.newton_iterations_total += iters;
             report.newton_iterations_max = report.newton_iterations_max.max(iters);
             observer.observe(&next, iters);

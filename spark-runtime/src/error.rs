@@ -1,5 +1,44 @@
 //! Errors a user can act on.
 
+use std::fmt;
+
+/// Displays a float in compact scientific notation, `{:.3e}` unless the
+/// format asks for another precision (`{:.6}` gives `{:.6e}`): every float
+/// in an error message goes through it, so `h = 1e300` prints as `1.000e300`
+/// instead of a 301-digit number.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Sci(pub(crate) f64);
+
+impl fmt::Display for Sci {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:.*e}", f.precision().unwrap_or(3), self.0)
+    }
+}
+
+/// An option outside its allowed range, found before any step is taken.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("invalid option {option} = {value}: it must be {allowed}")]
+pub struct OptionError {
+    /// The option, as a path a user can find (`NewtonOptions::tolerance`).
+    pub option: &'static str,
+    /// The value given, formatted.
+    pub value: Box<str>,
+    /// The allowed range.
+    pub allowed: &'static str,
+}
+
+impl OptionError {
+    /// A float option out of range.
+    pub(crate) fn float(option: &'static str, value: f64, allowed: &'static str) -> Self {
+        OptionError { option, value: Sci(value).to_string().into(), allowed }
+    }
+
+    /// An integer option out of range.
+    pub(crate) fn integer(option: &'static str, value: u64, allowed: &'static str) -> Self {
+        OptionError { option, value: value.to_string().into(), allowed }
+    }
+}
+
 /// Errors about a system's declaration or parameters.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SystemError {
@@ -12,7 +51,7 @@ pub enum SystemError {
         known: String,
     },
     /// A parameter value is NaN or infinite.
-    #[error("parameter `{name}` must be finite, got {value}")]
+    #[error("parameter `{name}` must be finite, got {}", Sci(*value))]
     NonFiniteParameter {
         /// The parameter.
         name: String,
@@ -95,7 +134,7 @@ impl std::fmt::Display for NewtonHistory {
             if k > 0 {
                 f.write_str("; ")?;
             }
-            write!(f, "#{}: |G|={:.3e} |dz|={:.3e} rate={:.3}", k + 1, r.residual, r.update, r.rate)?;
+            write!(f, "#{}: |G|={} |dz|={} rate={}", k + 1, Sci(r.residual), Sci(r.update), Sci(r.rate))?;
         }
         Ok(())
     }
@@ -106,7 +145,7 @@ impl std::fmt::Display for NewtonHistory {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum StepError {
     /// The step size is zero, NaN or infinite, or the input state is not finite.
-    #[error("invalid step at t = {t}, h = {h}: {reason}")]
+    #[error("invalid step at t = {}, h = {}: {reason}", Sci(*t), Sci(*h))]
     InvalidStep {
         /// Start time.
         t: f64,
@@ -117,9 +156,11 @@ pub enum StepError {
     },
     /// Newton updates grew (contraction rate ≥ 1 above round-off level).
     #[error(
-        "Newton diverged in the step from t = {t} with h = {h} (try a smaller step; if it diverges at every h, the \
+        "Newton diverged in the step from t = {} with h = {} (try a smaller step; if it diverges at every h, the \
          equations may not be differentiable at this state, e.g. sqrt(...) of a vanishing speed in a constraint); \
-         history: {history}"
+         history: {history}",
+        Sci(*t),
+        Sci(*h)
     )]
     Diverged {
         /// Start time.
@@ -130,7 +171,12 @@ pub enum StepError {
         history: Box<NewtonHistory>,
     },
     /// Newton did not reach the tolerance within the iteration limit.
-    #[error("Newton did not converge in {} iterations in the step from t = {t} with h = {h}; history: {history}", history.len())]
+    #[error(
+        "Newton did not converge in {} iterations in the step from t = {} with h = {}; history: {history}",
+        history.len(),
+        Sci(*t),
+        Sci(*h)
+    )]
     MaxIterations {
         /// Start time.
         t: f64,
@@ -146,10 +192,12 @@ pub enum StepError {
     /// runaway iterate (huge multipliers dominating a column) can fail it
     /// with an unremarkable pivot: `scale` and the history tell the cases apart.
     #[error(
-        "numerically singular Newton matrix at iteration {} in the step from t = {t} with h = {h}: {detail} \
+        "numerically singular Newton matrix at iteration {} in the step from t = {} with h = {}: {detail} \
          (a V column points at the mass matrix ∇²_vv L — a zero mass or inertia parameter? — a hΨ column at \
          dependent or vanishing constraint rows ∂k/∂v); history: {history}",
-        history.len()
+        history.len(),
+        Sci(*t),
+        Sci(*h)
     )]
     SingularMatrix {
         /// Start time.
@@ -165,7 +213,11 @@ pub enum StepError {
         history: Box<NewtonHistory>,
     },
     /// The system produced NaN or infinite values.
-    #[error("non-finite value in the {stage} of the step from t = {t} with h = {h}; history: {history}")]
+    #[error(
+        "non-finite value in the {stage} of the step from t = {} with h = {}; history: {history}",
+        Sci(*t),
+        Sci(*h)
+    )]
     NonFinite {
         /// Start time.
         t: f64,
@@ -187,12 +239,17 @@ pub enum StepError {
     /// only when [`NewtonOptions::energy_drift_limit`](crate::NewtonOptions)
     /// is set (the default).
     #[error(
-        "energy drift in the step from t = {t} with h = {h}: E = {energy:.6e} against E0 = {energy0:.6e} at \
-         the start of the continued steps, |E - E0| = {:.3e} > {bound:.3e} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
+        "energy drift in the step from t = {} with h = {}: E = {:.6} against E0 = {:.6} at \
+         the start of the continued steps, |E - E0| = {} > {} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
          integral of this system, so the discrete map does not keep it at this step size (an unstable map, e.g. \
          a stiff mode beyond the method's stability range, or the drift of a non-reversible system): reduce h, \
          use a method stable there, or set NewtonOptions::energy_drift_limit to None to continue regardless",
-        (energy - energy0).abs()
+        Sci(*t),
+        Sci(*h),
+        Sci(*energy),
+        Sci(*energy0),
+        Sci((energy - energy0).abs()),
+        Sci(*bound)
     )]
     EnergyDrift {
         /// Start time of the failing step.
@@ -208,8 +265,10 @@ pub enum StepError {
     },
     /// `|k(t₀, q₀, v₀)|` exceeds the tolerance and the policy says not to project.
     #[error(
-        "inconsistent initial state: |k(t0,q0,v0)| = {residual:.3e} > {tolerance:.3e}; \
-         choose ConsistencyPolicy::Project to project v0 onto the constraints"
+        "inconsistent initial state: |k(t0,q0,v0)| = {} > {}; \
+         choose ConsistencyPolicy::Project to project v0 onto the constraints",
+        Sci(*residual),
+        Sci(*tolerance)
     )]
     InconsistentInitialState {
         /// `max_i |k_i(t₀,q₀,v₀)|`.
@@ -217,6 +276,10 @@ pub enum StepError {
         /// The tolerance.
         tolerance: f64,
     },
+    /// A [`NewtonOptions`](crate::NewtonOptions) field is out of range
+    /// (checked once, before the first step with these options).
+    #[error("{0}")]
+    InvalidOption(Box<OptionError>),
 }
 
 impl StepError {
@@ -229,5 +292,16 @@ impl StepError {
             | StepError::NonFinite { history, .. } => Some(history),
             _ => None,
         }
+    }
+
+    /// Whether a smaller step, or another starting guess, may cure the
+    /// failure: not for bad input (a zero or non-finite step, a non-finite
+    /// or inconsistent state, an invalid option), which fails the same way
+    /// at any step size.
+    pub(crate) fn is_curable(&self) -> bool {
+        !matches!(
+            self,
+            StepError::InvalidStep { .. } | StepError::InconsistentInitialState { .. } | StepError::InvalidOption(_)
+        )
     }
 }

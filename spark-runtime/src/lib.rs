@@ -126,6 +126,7 @@ pub mod handwritten;
 mod initial;
 mod linalg;
 pub mod newton;
+mod options;
 pub mod reference;
 pub mod rejection;
 mod stepper;
@@ -136,9 +137,11 @@ mod tests;
 
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
+    DEFAULT_MAX_HALVINGS,
 };
-pub use error::{IterationRecord, NewtonHistory, StepError, SystemError, HISTORY_CAPACITY};
+pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+pub use options::MAX_HALVINGS;
 pub use rejection::{
     integrate_with_rejection, step_with_rejection, ProtectedStep, RejectionError, RejectionPolicy, RejectionReport,
     RejectionRunError,

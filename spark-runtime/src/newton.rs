@@ -50,7 +50,7 @@ pub enum Factorization {
 /// The Newton matrix was singular: a pivot of the dense elimination was zero
 /// or below `64 ε` times its column's magnitude.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
-#[error("Newton matrix is singular at column {column} (pivot {pivot:e})")]
+#[error("Newton matrix is singular at column {column} (pivot {})", crate::error::Sci(*pivot))]
 pub struct SingularMatrix {
     /// Column (in the order of the unknowns `z = [V | μ | v₁]`) whose pivot failed.
     pub column: usize,

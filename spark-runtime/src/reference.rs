@@ -49,6 +49,7 @@
 //! solver then reports [`ReferenceError::StepSizeTooSmall`] or
 //! [`ReferenceError::TooManySteps`] rather than returning an unverified answer.
 
+use crate::error::Sci;
 use crate::system::{Matrix, NonholonomicSystem, Vector};
 use nalgebra::{DMatrix, DVector};
 
@@ -84,7 +85,7 @@ pub enum ReferenceError {
     #[error("invalid reference option: {0}")]
     InvalidOptions(String),
     /// Output times must be finite and ordered in the direction of integration.
-    #[error("output times must be finite and monotone away from t0 = {t0}; offending time {time}")]
+    #[error("output times must be finite and monotone away from t0 = {}; offending time {}", Sci(*t0), Sci(*time))]
     InvalidTimes {
         /// Initial time.
         t0: f64,
@@ -93,7 +94,7 @@ pub enum ReferenceError {
     },
     /// The saddle-point matrix `[[∇²_vv L, Kᵀ],[K, 0]]` is singular: the
     /// system violates assumption (2.4) of the paper at this point.
-    #[error("the matrix [[∇²_vv L, Kᵀ],[K, 0]] is singular at t = {t} (paper assumption 2.4 violated)")]
+    #[error("the matrix [[∇²_vv L, Kᵀ],[K, 0]] is singular at t = {} (paper assumption 2.4 violated)", Sci(*t))]
     SingularSaddle {
         /// Time of the evaluation.
         t: f64,
@@ -101,20 +102,24 @@ pub enum ReferenceError {
     /// Newton's method for `(v̇, ψ)` with a non-ideal constraint force
     /// `N(ψ)` did not converge: `N` is too strongly nonlinear in `ψ` there
     /// (e.g. a friction law too sharp near `ψ = 0`).
-    #[error("the multiplier equations with the non-ideal force did not converge at t = {t}; smooth N(ψ)")]
+    #[error("the multiplier equations with the non-ideal force did not converge at t = {}; smooth N(ψ)", Sci(*t))]
     NonidealNotConverged {
         /// Time of the evaluation.
         t: f64,
     },
     /// The right-hand side produced NaN or infinity.
-    #[error("non-finite accelerations at t = {t}; check the initial values and parameters")]
+    #[error("non-finite accelerations at t = {}; check the initial values and parameters", Sci(*t))]
     NonFinite {
         /// Time of the evaluation.
         t: f64,
     },
     /// The error control asked for a step below the resolution of `t`:
     /// the tolerance is too tight for double precision or the solution blows up.
-    #[error("step size {h:e} too small at t = {t}; loosen rtol/atol (≥ 1e-15) or check for a singularity")]
+    #[error(
+        "step size {} too small at t = {}; loosen rtol/atol (≥ 1e-15) or check for a singularity",
+        Sci(*h),
+        Sci(*t)
+    )]
     StepSizeTooSmall {
         /// Time reached.
         t: f64,
@@ -122,7 +127,7 @@ pub enum ReferenceError {
         h: f64,
     },
     /// More step attempts than [`ReferenceOptions::max_steps`].
-    #[error("gave up after {steps} step attempts at t = {t}; raise max_steps or loosen the tolerances")]
+    #[error("gave up after {steps} step attempts at t = {}; raise max_steps or loosen the tolerances", Sci(*t))]
     TooManySteps {
         /// Time reached.
         t: f64,

@@ -10,12 +10,12 @@
 //! behind the start) are returned at once, typed, before any step is taken.
 //!
 //! The driver's [`RunOptions::max_halvings`](crate::RunOptions) retries a
-//! failed step as two half steps recursively; this module differs in that
+//! failed step as two half steps, nested; this module differs in that
 //! the sub-step size adapts within the interval (halve on failure, double
 //! back after successes) and that giving up reports the floor reached and
 //! the last Newton failure.
 
-use crate::error::StepError;
+use crate::error::{Sci, StepError};
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
 use crate::stepper::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
@@ -68,7 +68,7 @@ pub enum RejectionError {
     #[error("invalid rejection policy: {0}")]
     InvalidPolicy(&'static str),
     /// The final time lies behind the start for the sign of `h`, or a time is not finite.
-    #[error("invalid interval: t0 = {t0}, t_end = {t_end}, h = {h}: {reason}")]
+    #[error("invalid interval: t0 = {}, t_end = {}, h = {}: {reason}", Sci(*t0), Sci(*t_end), Sci(*h))]
     InvalidInterval {
         /// Start time.
         t0: f64,
@@ -85,8 +85,12 @@ pub enum RejectionError {
     Input(#[source] StepError),
     /// Newton kept failing down to the smallest sub-step allowed.
     #[error(
-        "step from t = {t} (nominal h = {h}) still fails with sub-step {h_tried:e} at the floor {floor:e} \
-         after {rejections} rejections; last failure: {last}"
+        "step from t = {} (nominal h = {}) still fails with sub-step {} at the floor {} \
+         after {rejections} rejections; last failure: {last}",
+        Sci(*t),
+        Sci(*h),
+        Sci(*h_tried),
+        Sci(*floor)
     )]
     Floor {
         /// Where the failing sub-step starts.
@@ -117,10 +121,6 @@ pub struct ProtectedStep<const N: usize> {
     pub smallest_step: f64,
     /// Newton iterations over the accepted sub-steps.
     pub iterations: usize,
-}
-
-fn curable(e: &StepError) -> bool {
-    !matches!(e, StepError::InvalidStep { .. } | StepError::InconsistentInitialState { .. })
 }
 
 /// One nominal step of size `h` from `state` under `policy`: tries `h`; on a
@@ -162,7 +162,7 @@ where
                     successes = 0;
                 }
             }
-            Err(e) if !curable(&e) => return Err(RejectionError::Input(e)),
+            Err(e) if !e.is_curable() => return Err(RejectionError::Input(e)),
             Err(e) => {
                 out.rejections += 1;
                 successes = 0;
@@ -208,7 +208,7 @@ pub struct RejectionReport {
 
 /// A protected run failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("protected run failed in nominal step {index} from t = {t}: {source}")]
+#[error("protected run failed in nominal step {index} from t = {}: {source}", Sci(*t))]
 pub struct RejectionRunError {
     /// Index of the failed nominal step (0-based; 0 also for input errors).
     pub index: usize,
@@ -259,7 +259,8 @@ where
         return Err(interval("more than 10¹² steps"));
     }
     let steps = steps as usize;
-    stepper.reset_warm_start();
+    // A run depends on its inputs only (see `Stepper::integrate`).
+    stepper.reset_run();
     let mut state = State::new(t0, *q0, v);
     let mut report = RejectionReport { smallest_step: h.abs(), ..RejectionReport::default() };
     for k in 0..steps {

@@ -224,6 +224,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// The round-off the latest step's `q₁` could not hold (compensated
     /// summation, see [`Compensation`]).
     compensation: Option<Compensation<N>>,
+    /// Whether `options` passed [`NewtonOptions::validate`]; cleared by
+    /// every way of changing them, so the check runs once per change, not
+    /// per step.
+    options_checked: bool,
 }
 
 /// Compensated summation of `q₁ = q₀ + hΣ_j b_j V_j` across steps (Hairer,
@@ -292,12 +296,14 @@ where
             history: NewtonHistory::default(),
             pattern_written: false,
             compensation: None,
+            options_checked: false,
         }
     }
 
     /// Replaces the Newton options (builder style).
     pub fn with_options(mut self, options: NewtonOptions) -> Self {
         self.options = options;
+        self.options_checked = false;
         self
     }
 
@@ -308,6 +314,7 @@ where
 
     /// Mutable access to the Newton options.
     pub fn options_mut(&mut self) -> &mut NewtonOptions {
+        self.options_checked = false;
         &mut self.options
     }
 
@@ -373,10 +380,34 @@ where
         self.reusable = None;
     }
 
+    /// Forgets everything earlier steps left behind — the warm start, the
+    /// reusable factorization, the energy guard's anchor and the round-off
+    /// compensation — so that the next step computes exactly what it would
+    /// on a fresh stepper (a new run from a given initial state).
+    pub(crate) fn reset_run(&mut self) {
+        self.reset_warm_start();
+        self.anchor = None;
+        self.compensation = None;
+    }
+
+    /// Checks the Newton options once after they changed
+    /// ([`NewtonOptions::validate`]).
+    pub(crate) fn check_options(&mut self) -> Result<(), StepError> {
+        if !self.options_checked {
+            self.options.validate().map_err(|e| StepError::InvalidOption(Box::new(e)))?;
+            self.options_checked = true;
+        }
+        Ok(())
+    }
+
     /// One SPARK step of size `h` (negative `h` integrates backward) from a
     /// consistent `state`. Returns `(t₀+h, q₁, v₁)` with the stage values.
+    /// The first step after the Newton options were set or changed checks
+    /// them ([`NewtonOptions::validate`]): an out-of-range field is a
+    /// [`StepError::InvalidOption`].
     pub fn step(&mut self, state: &State<N>, h: f64) -> Result<StepResult<N, M, S>, StepError> {
         let t0 = state.t;
+        self.check_options()?;
         if h == 0.0 || !h.is_finite() {
             return Err(StepError::InvalidStep { t: t0, h, reason: "step size must be finite and nonzero" });
         }

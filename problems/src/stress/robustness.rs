@@ -25,13 +25,15 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
         StepError::NonFinite { .. } => "NonFinite",
         StepError::EnergyDrift { .. } => "EnergyDrift",
         StepError::InconsistentInitialState { .. } => "InconsistentInitialState",
+        StepError::InvalidOption(_) => "InvalidOption",
     }
 }
 
-/// The kind of a driver failure (`Step/<kind>`, `Initial/<kind>`, `InvalidSchedule`).
+/// The kind of a driver failure (`Step/<kind>`, `Initial/<kind>`, `InvalidSchedule`, `InvalidOption`).
 pub fn integration_error_kind(e: &IntegrationError) -> String {
     match e {
         IntegrationError::InvalidSchedule(_) => "InvalidSchedule".into(),
+        IntegrationError::InvalidOption(_) => "InvalidOption".into(),
         IntegrationError::Initial(s) => format!("Initial/{}", step_error_kind(s)),
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
     }

@@ -1,0 +1,91 @@
+//! Range checks of the user-facing options, run once before the steps that
+//! use them (never per step): an out-of-range option is reported as an
+//! [`OptionError`] naming it and its allowed range, not as a failure of the
+//! initial state or of the discrete map that it would otherwise cause.
+
+use crate::driver::RunOptions;
+use crate::error::{OptionError, HISTORY_CAPACITY};
+use crate::initial::ConsistencyPolicy;
+use crate::stepper::NewtonOptions;
+
+/// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
+/// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
+pub const MAX_HALVINGS: u32 = 60;
+
+impl NewtonOptions {
+    /// Checks every field against its allowed range: `tolerance` and
+    /// `stagnation_level` finite and non-negative, `max_iterations` in
+    /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=3`,
+    /// `energy_drift_limit` (when set) finite and positive.
+    pub fn validate(&self) -> Result<(), OptionError> {
+        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+            return Err(OptionError::float(
+                "NewtonOptions::tolerance",
+                self.tolerance,
+                "finite and non-negative (0 iterates to round-off stagnation)",
+            ));
+        }
+        if !(self.stagnation_level.is_finite() && self.stagnation_level >= 0.0) {
+            return Err(OptionError::float(
+                "NewtonOptions::stagnation_level",
+                self.stagnation_level,
+                "finite and non-negative",
+            ));
+        }
+        if !(1..=HISTORY_CAPACITY).contains(&self.max_iterations) {
+            return Err(OptionError::integer(
+                "NewtonOptions::max_iterations",
+                self.max_iterations as u64,
+                "between 1 and HISTORY_CAPACITY = 32",
+            ));
+        }
+        if !(1..=3).contains(&self.extrapolation_degree) {
+            return Err(OptionError::integer(
+                "NewtonOptions::extrapolation_degree",
+                self.extrapolation_degree as u64,
+                "1, 2 or 3",
+            ));
+        }
+        if let Some(limit) = self.energy_drift_limit {
+            if !(limit.is_finite() && limit > 0.0) {
+                return Err(OptionError::float(
+                    "NewtonOptions::energy_drift_limit",
+                    limit,
+                    "finite and positive (None turns the energy guard off)",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl ConsistencyPolicy {
+    /// Checks the tolerance: non-negative and not NaN (`+∞` accepts any
+    /// initial velocity).
+    pub fn validate(&self) -> Result<(), OptionError> {
+        let (option, tolerance) = match *self {
+            ConsistencyPolicy::Error { tolerance } => ("ConsistencyPolicy::Error::tolerance", tolerance),
+            ConsistencyPolicy::Project { tolerance } => ("ConsistencyPolicy::Project::tolerance", tolerance),
+        };
+        // NaN is refused too: every residual compares false against it.
+        if tolerance.is_nan() || tolerance < 0.0 {
+            return Err(OptionError::float(option, tolerance, "non-negative (not NaN)"));
+        }
+        Ok(())
+    }
+}
+
+impl RunOptions {
+    /// Checks the consistency policy and `max_halvings ≤ MAX_HALVINGS`.
+    pub fn validate(&self) -> Result<(), OptionError> {
+        self.consistency.validate()?;
+        if self.max_halvings > MAX_HALVINGS {
+            return Err(OptionError::integer(
+                "RunOptions::max_halvings",
+                u64::from(self.max_halvings),
+                "at most MAX_HALVINGS = 60",
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,345 @@
+//! The integration driver under inputs a demanding user tries: a warm start
+//! outside Newton's basin, a stepper reused for a second run, step counts
+//! up to `usize::MAX`, unbounded halving, out-of-range options and huge
+//! floats in error messages.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use spark_runtime::handwritten::{MobileRobot, Skate};
+use spark_runtime::{
+    nonholonomic_system, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NoObserver, NonholonomicSystem,
+    ProtectedStep, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
+    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+};
+
+/// Records the largest single allocation of this thread.
+struct Largest;
+
+thread_local! {
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+}
+
+unsafe impl GlobalAlloc for Largest {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = LARGEST.try_with(|c| c.set(c.get().max(layout.size())));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = LARGEST.try_with(|c| c.set(c.get().max(new_size)));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Largest = Largest;
+
+nonholonomic_system! {
+    /// A particle kept at constant speed (k quadratic in v) in an anisotropic well.
+    pub struct ConstantSpeed {
+        coordinates: [x, y, z],
+        parameters: { speed = 1.0, k = 1.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - k/2*(x^2 + 2*y^2 + 3*z^2),
+        constraints: [ dot(x)^2 + dot(y)^2 + dot(z)^2 - speed^2 ],
+    }
+}
+
+nonholonomic_system! {
+    /// A spring of stiffness sqrt(t_end − t): the equations are NaN after
+    /// t_end, so every step past it fails at any step size.
+    pub struct Expiring {
+        coordinates: [x, y],
+        parameters: { t_end = 0.5 },
+        lagrangian: (dot(x)^2 + dot(y)^2)/2 - sqrt(t_end - t)*(x^2 + y^2)/2,
+        constraints: [ dot(y) - dot(x) ],
+    }
+}
+
+fn speed_start() -> (Vector<3>, Vector<3>) {
+    (Vector::<3>::new(0.5, 0.0, 0.0), Vector::<3>::new(0.6, 0.8, 0.0))
+}
+
+fn expiring_start() -> (Vector<2>, Vector<2>) {
+    (Vector::<2>::new(1.0, 0.0), Vector::<2>::new(0.5, 0.5))
+}
+
+fn quiet(max_halvings: u32) -> RunOptions {
+    RunOptions { max_halvings, ..RunOptions::default() }
+}
+
+/// Lobatto IIIA-B and IIIA-B-D s = 5 at h = 1/4 on |v| = 1: the guess
+/// extrapolated from the last steps lies outside Newton's basin at step 3
+/// (off by 0.12 in V) while the cold guess converges; the driver retries
+/// cold before anything else, so the run succeeds without halving.
+#[test]
+fn a_failed_warm_start_is_retried_cold() {
+    let (q0, v0) = speed_start();
+    for method in [Method::LobattoIIIAB, Method::LobattoIIIABD] {
+        let mut st: spark_runtime::Stepper![ConstantSpeed, 5] =
+            Stepper::new(ConstantSpeed::default(), Tableau::new(method).unwrap());
+        let tr = st
+            .integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.25, steps: 40 }, &quiet(0), &mut NoObserver)
+            .unwrap_or_else(|e| panic!("{method}: {e}"));
+        let r = tr.report;
+        assert_eq!(r.steps, 40);
+        assert!(r.cold_retries >= 1, "{method}: {r:?}");
+        assert!(r.cold_starts > r.cold_retries, "the first step and every retried one start cold: {r:?}");
+        assert_eq!(r.rejected_steps, 0, "{method}: {r:?}");
+        assert!(r.max_constraint_residual <= 1e-14, "{method}: {r:?}");
+    }
+}
+
+/// A second `integrate` on a used stepper, from the end of the first run,
+/// is bit-identical to the same run on a fresh stepper: nothing of the
+/// first run (warm start, round-off carry, energy anchor) leaks into it.
+#[test]
+fn a_reused_stepper_reproduces_a_fresh_one() {
+    let (q0, v0) = (Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+    let tab = Tableau::new(Method::Gauss).unwrap();
+    let schedule = Schedule::Fixed { h: 0.1, steps: 2500 };
+    let opts = RunOptions::default();
+    let mut used: spark_runtime::Stepper![MobileRobot, 3] = Stepper::new(MobileRobot::default(), tab);
+    let first = used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
+    let end = first.last().unwrap();
+    let again = used.integrate(end.t, &end.q, &end.v, schedule, &opts, &mut NoObserver).unwrap();
+    let mut fresh: spark_runtime::Stepper![MobileRobot, 3] = Stepper::new(MobileRobot::default(), tab);
+    let reference = fresh.integrate(end.t, &end.q, &end.v, schedule, &opts, &mut NoObserver).unwrap();
+    assert_eq!(again, reference);
+    // And a rerun from the first initial state repeats the first run.
+    let rerun = used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
+    assert_eq!(rerun, first);
+
+    // The protected run too.
+    let policy = RejectionPolicy::default();
+    let t_end = end.t + 250.0;
+    let protected = |st: &mut spark_runtime::Stepper![MobileRobot, 3]| {
+        spark_runtime::integrate_with_rejection(
+            st,
+            end.t,
+            &end.q,
+            &end.v,
+            t_end,
+            0.1,
+            &policy,
+            &mut |_: &ProtectedStep<4>| {},
+        )
+        .unwrap()
+    };
+    let mut fresh: spark_runtime::Stepper![MobileRobot, 3] = Stepper::new(MobileRobot::default(), tab);
+    used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
+    assert_eq!(protected(&mut used), protected(&mut fresh));
+}
+
+/// Step counts far beyond what could be recorded: the driver reserves a
+/// bounded amount of sample storage up front (1e10 steps reserved 1.1 TB and
+/// aborted; 2.9e17 overflowed the capacity), so a run that fails at its
+/// third step returns that failure; `usize::MAX` steps and a final time
+/// beyond the floats are typed errors, not overflows.
+#[test]
+fn huge_step_counts_reserve_bounded_storage() {
+    let (q0, v0) = expiring_start();
+    let mut st: spark_runtime::Stepper![Expiring, 2] =
+        Stepper::new(Expiring::default(), Tableau::new(Method::Gauss).unwrap());
+    for steps in [10_000_000_000usize, 290_000_000_000_000_000, usize::MAX] {
+        LARGEST.with(|c| c.set(0));
+        let err = st
+            .integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.2, steps }, &quiet(2), &mut NoObserver)
+            .expect_err("the equations are NaN after t = 0.5");
+        let largest = LARGEST.with(|c| c.get());
+        match &err {
+            IntegrationError::Step { index: 2, partial, .. } => assert_eq!(partial.steps, 2, "{err}"),
+            other => panic!("steps = {steps:e}: expected a failure at step 2, got {other}"),
+        }
+        assert!(largest <= 2 << 20, "steps = {steps:e}: an allocation of {largest} bytes");
+    }
+    let far = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 1e300, steps: 1 << 40 }, &quiet(0), &mut NoObserver);
+    assert!(matches!(far, Err(IntegrationError::InvalidSchedule(_))), "{far:?}");
+}
+
+/// `max_halvings` is bounded by [`MAX_HALVINGS`]: `u32::MAX` (which
+/// recursed ≈ 1075 deep and overflowed the stack) is refused by name, and
+/// the largest allowed value runs without recursion on a 256 KiB thread
+/// and returns promptly at h = 1e300.
+#[test]
+fn halving_is_bounded_and_needs_no_stack() {
+    let worker = std::thread::Builder::new().stack_size(256 << 10);
+    let handle = worker
+        .spawn(|| {
+            let (q0, v0) = speed_start();
+            let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+                Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+            let huge = Schedule::Fixed { h: 1e300, steps: 1 };
+            let refused = st.integrate(0.0, &q0, &v0, huge, &quiet(u32::MAX), &mut NoObserver).unwrap_err();
+            let deepest = st.integrate(0.0, &q0, &v0, huge, &quiet(MAX_HALVINGS), &mut NoObserver).unwrap_err();
+            (refused.to_string(), deepest)
+        })
+        .unwrap();
+    let (refused, deepest) = handle.join().expect("the driver must not overflow a 256 KiB stack");
+    assert!(refused.contains("RunOptions::max_halvings") && refused.contains("at most"), "{refused}");
+    match &deepest {
+        IntegrationError::Step { index: 0, source, .. } => assert!(source.history().is_some(), "{deepest}"),
+        other => panic!("expected the Newton failure of step 0, got {other}"),
+    }
+}
+
+/// Halving stops where half a step no longer changes `t`: at t = 1e15
+/// (resolution 0.125) a failing step of size 1 is halved a few times and
+/// the run reports the Newton failure, not a step "below the resolution of
+/// t" that the driver itself produced.
+#[test]
+fn halving_stops_at_the_resolution_of_t() {
+    let (q0, v0) = expiring_start();
+    let mut sys = Expiring::default();
+    sys.set_parameter("t_end", 1e15).unwrap();
+    let mut st: spark_runtime::Stepper![Expiring, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let schedule = Schedule::Fixed { h: 1.0, steps: 3 };
+    let err = st.integrate(1e15, &q0, &v0, schedule, &quiet(MAX_HALVINGS), &mut NoObserver).unwrap_err();
+    match &err {
+        IntegrationError::Step { index: 0, source: StepError::NonFinite { h, .. }, partial, .. } => {
+            // Halved while t + h/2 ≠ t: down to h = 2⁻³ = the resolution at 1e15.
+            assert_eq!(*h, 0.125, "{err}");
+            assert_eq!(partial.steps, 0);
+        }
+        other => panic!("expected the Newton failure, got {other}"),
+    }
+}
+
+/// The default `max_halvings` rescues steps Newton cannot solve (|v| = 1
+/// with Gauss s = 2 at h = 1.5 needs three halvings; up to h = 0.7 the
+/// cold retry alone suffices, at h = 1 one halving) and changes nothing in
+/// runs that succeed without it: paper systems and the constant-speed
+/// particle give bit-identical trajectories and reports with
+/// `max_halvings = 0`.
+#[test]
+fn the_default_halving_changes_no_successful_run() {
+    assert_eq!(RunOptions::default().max_halvings, DEFAULT_MAX_HALVINGS);
+    let default = RunOptions::default();
+    let (q0, v0) = speed_start();
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let big = Schedule::Fixed { h: 1.5, steps: 40 };
+    let strict = st.integrate(0.0, &q0, &v0, big, &quiet(0), &mut NoObserver);
+    assert!(matches!(strict, Err(IntegrationError::Step { .. })), "{strict:?}");
+    let rescued = st.integrate(0.0, &q0, &v0, big, &default, &mut NoObserver).unwrap();
+    assert!(rescued.report.rejected_steps > 0 && rescued.report.max_constraint_residual <= 1e-14);
+
+    let small = Schedule::Fixed { h: 0.1, steps: 400 };
+    let a = st.integrate(0.0, &q0, &v0, small, &quiet(0), &mut NoObserver).unwrap();
+    let b = st.integrate(0.0, &q0, &v0, small, &default, &mut NoObserver).unwrap();
+    assert_eq!(a, b);
+
+    let (q0, v0) = (Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+    let mut robot: spark_runtime::Stepper![MobileRobot, 2] =
+        Stepper::new(MobileRobot::default(), Tableau::new(Method::LobattoIIIAB).unwrap());
+    let s = Schedule::Fixed { h: 0.2, steps: 500 };
+    let a = robot.integrate(0.0, &q0, &v0, s, &quiet(0), &mut NoObserver).unwrap();
+    let b = robot.integrate(0.0, &q0, &v0, s, &default, &mut NoObserver).unwrap();
+    assert_eq!(a, b);
+
+    let (q0, v0) = (Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    let mut skate: spark_runtime::Stepper![Skate, 3] =
+        Stepper::new(Skate::default(), Tableau::new(Method::LobattoIIIAB).unwrap());
+    let times: Vec<f64> = (1..=300).map(|k| 0.1 * k as f64 + 0.01 * (k % 7) as f64).collect();
+    let a = skate.integrate(0.0, &q0, &v0, Schedule::Times(&times), &quiet(0), &mut NoObserver).unwrap();
+    let b = skate.integrate(0.0, &q0, &v0, Schedule::Times(&times), &default, &mut NoObserver).unwrap();
+    assert_eq!(a, b);
+}
+
+/// Out-of-range options are refused by name before any step, instead of
+/// rejecting a consistent state (`|k| = 0 > NaN`) or blaming the discrete
+/// map for every step.
+#[test]
+fn invalid_options_are_refused_by_name() {
+    let (q0, v0) = speed_start();
+    let schedule = Schedule::Fixed { h: 0.1, steps: 5 };
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    for (consistency, name) in [
+        (ConsistencyPolicy::Error { tolerance: f64::NAN }, "ConsistencyPolicy::Error::tolerance"),
+        (ConsistencyPolicy::Error { tolerance: -1.0 }, "ConsistencyPolicy::Error::tolerance"),
+        (ConsistencyPolicy::Project { tolerance: f64::NAN }, "ConsistencyPolicy::Project::tolerance"),
+    ] {
+        let opts = RunOptions { consistency, ..RunOptions::default() };
+        match st.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver) {
+            Err(IntegrationError::InvalidOption(e)) => assert_eq!(e.option, name, "{e}"),
+            other => panic!("{consistency:?}: expected InvalidOption, got {other:?}"),
+        }
+    }
+    // A valid tolerance still accepts the consistent state.
+    let opts = RunOptions { consistency: ConsistencyPolicy::Error { tolerance: 0.0 }, ..RunOptions::default() };
+    st.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
+
+    // The energy guard's limit, for a system whose energy it checks.
+    let (rq, rv) = (Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+    let robot = State::new(0.0, rq, rv);
+    for limit in [f64::NAN, -1.0, 0.0, f64::INFINITY] {
+        let newton = NewtonOptions { energy_drift_limit: Some(limit), ..NewtonOptions::default() };
+        let mut st: spark_runtime::Stepper![MobileRobot, 2] =
+            Stepper::new(MobileRobot::default(), Tableau::new(Method::Gauss).unwrap()).with_options(newton);
+        match st.integrate(0.0, &rq, &rv, schedule, &RunOptions::default(), &mut NoObserver) {
+            Err(IntegrationError::InvalidOption(e)) => {
+                assert_eq!(e.option, "NewtonOptions::energy_drift_limit", "{e}");
+                assert!(e.to_string().contains("None turns the energy guard off"), "{e}");
+            }
+            other => panic!("limit {limit}: expected InvalidOption, got {other:?}"),
+        }
+        match st.step(&robot, 0.1) {
+            Err(StepError::InvalidOption(e)) => assert_eq!(e.option, "NewtonOptions::energy_drift_limit"),
+            other => panic!("limit {limit}: expected InvalidOption from step, got {other:?}"),
+        }
+        // Repaired through options_mut, the same stepper steps again.
+        st.options_mut().energy_drift_limit = Some(1.0);
+        st.step(&robot, 0.1).unwrap();
+    }
+    for (newton, name) in [
+        (NewtonOptions { tolerance: f64::NAN, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
+        (NewtonOptions { tolerance: -1e-15, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
+        (
+            NewtonOptions { stagnation_level: f64::INFINITY, ..NewtonOptions::default() },
+            "NewtonOptions::stagnation_level",
+        ),
+        (NewtonOptions { max_iterations: 0, ..NewtonOptions::default() }, "NewtonOptions::max_iterations"),
+        (NewtonOptions { max_iterations: 33, ..NewtonOptions::default() }, "NewtonOptions::max_iterations"),
+        (NewtonOptions { extrapolation_degree: 0, ..NewtonOptions::default() }, "NewtonOptions::extrapolation_degree"),
+    ] {
+        assert_eq!(newton.validate().unwrap_err().option, name);
+    }
+    NewtonOptions { tolerance: 0.0, ..NewtonOptions::default() }.validate().unwrap();
+}
+
+fn longest_digit_run(s: &str) -> usize {
+    s.split(|c: char| !c.is_ascii_digit()).map(str::len).max().unwrap_or(0)
+}
+
+/// Floats in error messages are compact: h = 1e300 prints as `1.000e300`,
+/// not as a 301-digit number.
+#[test]
+fn error_messages_print_floats_compactly() {
+    let (q0, v0) = speed_start();
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let sys = ConstantSpeed::default();
+    assert!(sys.constraint(0.0, &q0, &v0).amax() <= 1e-15);
+    let start = State::new(1e300, q0, v0);
+    let mut messages = vec![
+        st.step(&start, 1e300).unwrap_err().to_string(),
+        st.step(&State::new(0.0, q0, v0), 1e300).unwrap_err().to_string(),
+        st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 1e300, steps: 1 }, &quiet(0), &mut NoObserver)
+            .unwrap_err()
+            .to_string(),
+    ];
+    let policy = RejectionPolicy::default();
+    let mut observer = |_: &ProtectedStep<3>| {};
+    let protected =
+        spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, -1e300, 1e300, &policy, &mut observer);
+    let protected = protected.unwrap_err();
+    assert!(matches!(protected.source, RejectionError::InvalidInterval { .. }), "{protected}");
+    messages.push(protected.to_string());
+    for m in &messages {
+        assert!(longest_digit_run(m) <= 17, "{m}");
+        assert!(m.contains("e300"), "{m}");
+    }
+}
