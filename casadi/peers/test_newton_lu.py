@@ -1,9 +1,11 @@
 """The Newton-LU peer against spark's own steps and its stop rule.
 
 Reads the export of ``spark-casadi-export`` (path in ``SPARK_CASADI_EXPORT``;
-``casadi/run.sh`` sets it after exporting) and, for the particle and the
-skate with Gauss s = 1..3 and Lobatto IIIA-B s = 2..3, builds the peer's C,
-takes the exported step with it from the same cold start, and checks:
+``casadi/run.sh`` sets it after exporting) and, for the particle, the skate,
+the robot and the McLachlan–Perlmutter particles (n = 7) with Gauss
+s = 1..3 and Lobatto IIIA-B s = 2..3 (the exported steps, at the paper's
+step sizes), builds the peer's C, takes the exported step with it from the
+same cold start, and checks:
 
 - the peer's stage velocities, multipliers, ``v1`` and ``q1`` agree with
   spark's to 1e-13;
@@ -35,7 +37,7 @@ sys.path.insert(0, str(HERE))
 import newton_lu  # noqa: E402
 from spark_check.system import CasadiSystem  # noqa: E402
 
-SYSTEMS = ("NonholonomicParticle", "Skate")
+SYSTEMS = ("NonholonomicParticle", "Skate", "MobileRobot", "McLachlanPerlmutter7")
 METHODS = {("Gauss", 1), ("Gauss", 2), ("Gauss", 3), ("Lobatto IIIA-B", 2), ("Lobatto IIIA-B", 3)}
 AGREEMENT = 1e-13
 
