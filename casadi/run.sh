@@ -64,6 +64,12 @@ echo "==> CasADi cross-check"
 passed=$(sed -n -E 's/^casadi: ([0-9]+) passed, 0 failed$/\1/p' "$OUT/crosscheck.log" | tail -n 1)
 [[ -n "$passed" ]] || fail "the cross-check printed no summary line."
 
+# --- the Newton-LU performance peer against spark's steps --------------------
+# casadi/peers/newton_lu.py: spark's exported steps taken again by the peer's
+# generated C and hand-written LU Newton (agreement to 1e-13, its stop rule).
+echo "==> Newton-LU peer against spark's exported steps"
+SPARK_CASADI_EXPORT="$OUT/export.json" "$PY" -m unittest discover -s casadi/peers -p 'test_*.py' -q
+
 # --- negative tests: a corrupted value must be caught ------------------------
 for what in derivative step; do
     echo "==> negative test: --perturb $what must fail"

@@ -1,20 +1,29 @@
 """Performance peers of the SPARK stepper, measured on the problem the Rust
 `spark work-precision` command hands over (JSON) and written back as CSV:
 
-1. CasADi C: the SPARK equations (paper eq. 6.1) written in CasADi from the
-   neutral S-expression source, one Newton iteration (residual, Jacobian,
-   dense QR solve) generated to C with ``CodeGenerator`` and compiled with
-   ``gcc -O3``; a small C driver loops the iterations (stop when
-   ``|Δx|∞ ≤ 16ε(1+|x|∞)``, at most 20) and the steps, with the previous step's
-   solution as starting guess, and times the whole run with
-   ``clock_gettime`` (median of repeats). Same method, same step counts as
-   the Rust run, so per-step times compare at equal accuracy.
-2. SciPy ``solve_ivp`` (DOP853 and Radau) on the ψ-eliminated ODE
+1. CasADi C (Newton-QR): the SPARK equations (paper eq. 6.1) written in
+   CasADi from the neutral S-expression source, one Newton iteration
+   (residual, Jacobian, CasADi's dense QR solve) generated to C with
+   ``CodeGenerator`` and compiled with ``gcc -O3``; a small C driver loops
+   the iterations (stop when ``|Δx|∞ ≤ 16ε(1+|x|∞)``, at most 20) and the
+   steps, with the previous step's solution as starting guess, and times the
+   whole run with ``clock_gettime`` (median of repeats). Same method, same
+   step counts as the Rust run, so per-step times compare at equal accuracy.
+2. CasADi C (Newton-LU) (``newton_lu.py``): the same equations, the residual
+   and its dense exact Jacobian generated to C (``cse``), solved by a
+   hand-written Newton with a dense partial-pivoting LU, warm-started from
+   the previous step's converged unknowns, stopping at ``|F|∞ ≤ 1e-14`` or
+   ``|Δx|∞ ≤ 1e-14``; same step counts, same clock.
+3. SciPy ``solve_ivp`` (DOP853 and Radau) on the ψ-eliminated ODE
    ``q̇ = v``, ``[[M, Kᵀ], [K, 0]] [v̇; ψ] = [F − P_q v − P_t; −k_t − k_q v]``,
    with the right-hand side and its Jacobian as CasADi functions (compiled
    expression graphs called from Python), over a tolerance sweep.
 
-Usage: peers.py --input problem.json --output points.csv --build DIR
+With ``--per-step`` only the Newton-LU peer runs, once per method at the one
+step count given, and the output is JSON (times, residual evaluations and
+factorizations per step, end state) for `spark work-precision --per-step`.
+
+Usage: peers.py --input problem.json --output points.csv --build DIR [--per-step]
 """
 
 from __future__ import annotations
@@ -35,8 +44,12 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import newton_lu  # noqa: E402
 from spark_check.step import spark_residual  # noqa: E402
 from spark_check.system import CasadiSystem  # noqa: E402
+
+QR_SOLVER = "CasADi C (Newton-QR)"
 
 FIELDS = [
     "system", "solver", "method", "stages", "setting", "steps", "error_q", "error_v",
@@ -207,9 +220,46 @@ def casadi_points(inp, system, build):
             iters, failed = float(res[2 * n + 2]), int(res[2 * n + 3])
             if failed or not all(math.isfinite(x) for x in q + v):
                 continue
-            out.append(point(inp, "CasADi C (gcc -O3)", m["label"], int(m["tableau"]["stages"]), T / steps, steps,
+            out.append(point(inp, QR_SOLVER, m["label"], int(m["tableau"]["stages"]), T / steps, steps,
                              q, v, wall, cpu, iters, inp["repeats"]))
     return out
+
+
+def newton_lu_runs(inp, system, build):
+    """Every method at every step count with the Newton-LU peer: ``(method, steps, RunOutcome)``."""
+    out = []
+    for m in inp["methods"]:
+        exe = newton_lu.build(system, m["tableau"], build, m["label"])
+        for steps in m["steps"]:
+            r = newton_lu.run(exe, steps, inp["repeats"], inp.get("min_timing", 0.0), inp["final_time"],
+                              inp["q0"], inp["v0"], inp["parameter_values"])
+            out.append((m, steps, r))
+    return out
+
+
+def newton_lu_points(inp, system, build):
+    """The Newton-LU peer's work-precision points (``newton_iterations``: factorizations per step)."""
+    out = []
+    T = inp["final_time"]
+    for m, steps, r in newton_lu_runs(inp, system, build):
+        if r.failed or not all(math.isfinite(x) for x in r.q + r.v):
+            continue
+        out.append(point(inp, newton_lu.SOLVER, m["label"], int(m["tableau"]["stages"]), T / steps, steps,
+                         r.q, r.v, r.wall, r.cpu, r.factorizations_per_step, r.repeats))
+    return out
+
+
+def per_step_rows(inp, system, build):
+    """The Newton-LU peer's per-step figures at each method's step count, for `spark work-precision --per-step`."""
+    rows = []
+    for m, steps, r in newton_lu_runs(inp, system, build):
+        rows.append({
+            "method": m["label"], "steps": steps, "failed": r.failed, "repeats": r.repeats,
+            "wall_time": r.wall, "cpu_time": r.cpu,
+            "evaluations_per_step": r.evaluations_per_step, "factorizations_per_step": r.factorizations_per_step,
+            "q": r.q, "v": r.v,
+        })
+    return rows
 
 
 def ode_rhs(system: CasadiSystem):
@@ -274,12 +324,17 @@ def main() -> int:
     ap.add_argument("--output", required=True, type=Path)
     ap.add_argument("--build", required=True, type=Path)
     ap.add_argument("--skip-casadi", action="store_true")
+    ap.add_argument("--per-step", action="store_true", help="only the Newton-LU peer's per-step figures, as JSON")
     a = ap.parse_args()
     inp = json.loads(a.input.read_text())
     system = CasadiSystem(inp)
+    if a.per_step:
+        a.output.write_text(json.dumps(per_step_rows(inp, system, a.build), indent=1))
+        return 0
     points = []
     if not a.skip_casadi:
         points += casadi_points(inp, system, a.build)
+        points += newton_lu_points(inp, system, a.build)
     points += scipy_points(inp, system)
     with a.output.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=FIELDS)

@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 /// Work-precision diagrams: error vs wall time for every SPARK method, with
-/// peers (num-dual, finite differences, ode_solvers DOP853, CasADi C, SciPy)
-/// measured in the same run.
+/// peers (num-dual, finite differences, ode_solvers DOP853, CasADi C
+/// Newton-QR and Newton-LU, SciPy) measured in the same run.
 #[derive(clap::Args, Debug, Clone)]
 pub struct WorkPrecisionArgs {
     /// System by name (see `spark list`), repeatable or comma-separated;
@@ -45,6 +45,11 @@ pub struct WorkPrecisionArgs {
     /// Measure the McLachlan–Perlmutter scaling study (n = 5 … 129) instead.
     #[arg(long)]
     pub scaling: bool,
+    /// Measure time per step at the paper's step sizes instead: SPARK (full
+    /// and simplified Newton) against the CasADi C Newton-LU peer, Gauss
+    /// s = 1..4 and Lobatto IIIA-B s = 2..4 (writes per-step.md, per-step.json).
+    #[arg(long, conflicts_with = "scaling")]
+    pub per_step: bool,
     /// A seconds-long smoke run of every code path (short T, few steps).
     #[arg(long)]
     pub quick: bool,
@@ -99,6 +104,17 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         let path = cfg.out.join("scaling.md");
         std::fs::write(&path, &md).map_err(|e| format!("could not write {}: {e}", path.display()))?;
         super::report::write_scaling_figure(&rows, &cfg.out).map_err(|e| e.to_string())?;
+        return Ok(md);
+    }
+    if a.per_step {
+        crate::output::create_dir(&cfg.out).map_err(|e| e.to_string())?;
+        let rows = super::per_step::measure_per_step(&cfg, progress)?;
+        let md = super::per_step::per_step_markdown(&rows);
+        let path = cfg.out.join("per-step.md");
+        std::fs::write(&path, &md).map_err(|e| format!("could not write {}: {e}", path.display()))?;
+        let path = cfg.out.join("per-step.json");
+        let json = serde_json::to_string_pretty(&rows).map_err(|e| e.to_string())?;
+        std::fs::write(&path, json).map_err(|e| format!("could not write {}: {e}", path.display()))?;
         return Ok(md);
     }
     let all = run_work_precision(&cfg, progress).map_err(|e| e.to_string())?;

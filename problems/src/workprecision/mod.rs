@@ -16,13 +16,18 @@
 //!   at the same step counts (so at equal accuracy);
 //! - `ode_solvers`' DOP853 on the ψ-eliminated ODE ([`crate::peers::ode`])
 //!   over a tolerance sweep;
-//! - CasADi-generated C and SciPy `solve_ivp`, by running
-//!   `casadi/peers/peers.py` ([`external`]).
+//! - CasADi-generated C in two variants (CasADi's Newton iteration with its
+//!   QR solve; CasADi's residual and dense Jacobian with a hand-written LU
+//!   Newton) and SciPy `solve_ivp`, by running `casadi/peers/peers.py`
+//!   ([`external`]).
 //!
-//! [`report`] turns the points into CSV, Markdown tables and figures.
+//! [`report`] turns the points into CSV, Markdown tables and figures;
+//! [`per_step`] times SPARK and the Newton-LU peer per step at the paper's
+//! step sizes.
 
 pub mod cli;
 pub mod external;
+pub mod per_step;
 pub mod report;
 pub mod scaling;
 pub mod scaling_systems;
@@ -148,7 +153,7 @@ pub struct WorkPrecisionConfig {
     /// Target errors of the "cheapest method" table.
     pub targets: Vec<f64>,
     /// Newton mode of every SPARK-stepper series (generated, num-dual,
-    /// finite differences); the CasADi C peer always does full Newton.
+    /// finite differences); the CasADi C peers always do full Newton.
     pub newton: NewtonMode,
 }
 

@@ -9,8 +9,13 @@ use std::path::Path;
 
 /// Solver label of the generated-code SPARK runs.
 pub const SPARK: &str = Provider::Generated.label();
-/// Solver label of the CasADi-generated C step.
-pub const CASADI_C: &str = "CasADi C (gcc -O3)";
+/// Solver labels of the CasADi-generated C steps (CasADi's Newton-QR
+/// iteration, and the hand-written LU Newton on CasADi's residual and
+/// Jacobian).
+pub const CASADI_C: [&str; 2] = [super::external::CASADI_NEWTON_QR, super::external::CASADI_NEWTON_LU];
+/// The peers compared per step, at the same method and step count.
+const PER_STEP_PEERS: [&str; 4] =
+    [Provider::NumDual.label(), Provider::FiniteDifference.label(), CASADI_C[0], CASADI_C[1]];
 /// Solver label of SciPy `solve_ivp`.
 pub const SCIPY: &str = "SciPy solve_ivp";
 /// Solver label of `ode_solvers`.
@@ -176,7 +181,7 @@ pub fn ratio_tables(m: &SystemMeasurement, targets: &[f64]) -> String {
     let _ = writeln!(s, "Per step, same method and step size (equal accuracy), median over the sweep:\n");
     let _ = writeln!(s, "| peer | method | peer / SPARK time per step | points |");
     let _ = writeln!(s, "|---|---|---|---|");
-    for peer in [Provider::NumDual.label(), Provider::FiniteDifference.label(), CASADI_C] {
+    for peer in PER_STEP_PEERS {
         let ratios = per_step_ratios(&m.points, peer);
         if ratios.is_empty() {
             let _ = writeln!(s, "| {peer} | – | not measured | 0 |");
@@ -361,17 +366,14 @@ pub fn overall_ratio_table(all: &[SystemMeasurement], cfg: &WorkPrecisionConfig)
     let _ = writeln!(s, "|---|---|---|---|");
     for m in all {
         let key = m.problem.system;
-        for peer in [Provider::NumDual.label(), Provider::FiniteDifference.label(), CASADI_C] {
+        for peer in PER_STEP_PEERS {
             let r = per_step_ratios(&m.points, peer);
             let cells: Vec<String> = r.iter().map(|(me, (x, _))| format!("{me}: {x:.1}×")).collect();
             let text = if cells.is_empty() { "not measured".to_string() } else { cells.join(", ") };
             let _ = writeln!(s, "| {key} | {peer} | per step, same method and h | {text} |");
         }
         for (peer, row) in equal_error_ratios(&m.points, &cfg.targets) {
-            if peer.starts_with(Provider::NumDual.label())
-                || peer.starts_with(Provider::FiniteDifference.label())
-                || peer.starts_with(CASADI_C)
-            {
+            if PER_STEP_PEERS.iter().any(|p| peer.starts_with(p)) {
                 continue;
             }
             let cells: Vec<String> = cfg
