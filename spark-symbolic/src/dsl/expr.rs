@@ -477,6 +477,15 @@ fn parse_nested(
     let mut p = Parser { toks: tokens.to_vec(), pos: 0, scope, what, depth };
     let e = p.sum()?;
     if let Some(tt) = p.toks.get(p.pos) {
+        if let (TokenTree::Ident(id), Some(TokenTree::Punct(next))) = (tt, p.toks.get(p.pos + 1)) {
+            if matches!(next.as_char(), '=' | ':') && next.spacing() == Spacing::Alone {
+                // `m = 1 g = 2`, `{ x: a y: b }`: the next entry of a list.
+                return err(
+                    id.span(),
+                    format!("missing `,` before `{id} {}`: separate the entries with `,`", next.as_char()),
+                );
+            }
+        }
         return p.trailing(tt);
     }
     Ok(e)
@@ -634,6 +643,17 @@ impl Parser<'_, '_> {
             },
             TokenTree::Punct(p) => {
                 let c = p.as_char();
+                if let (Some(TokenTree::Literal(lit)), '.') = (self.peek(), c) {
+                    let digits = lit.to_string();
+                    if digits.starts_with(|d: char| d.is_ascii_digit()) {
+                        return err(
+                            p.span(),
+                            format!(
+                                "write `0.{digits}` instead of `.{digits}`: a number needs a digit before its point"
+                            ),
+                        );
+                    }
+                }
                 let msg = match c {
                     '*' | '/' | '^' => {
                         if self.pos == 1 {
