@@ -244,11 +244,14 @@ impl Model {
     /// - a coordinate whose velocity appears neither in the mass matrix nor
     ///   in any constraint: the column of `v₁[i]` in the step's Newton matrix
     ///   is `[∇²_vv L; K]` column `i`, identically zero;
+    /// - `∇²_vv L ≡ 0` (no velocity term in `L`, or only linear ones): the
+    ///   momenta do not depend on the velocities, against the regularity the
+    ///   methods assume (paper §2). With no velocity term at all, the
+    ///   `(s + 1)N` momentum rows are linear combinations of the `sN` values
+    ///   `F_j + R_j`, so the Newton matrix is singular for every tableau;
     /// - fewer velocities with inertia than `N − M`: the columns of `v₁` are
     ///   `[∇²_vv L; K]`, whose rank is at most the number of nonzero columns
-    ///   of `∇²_vv L` plus `M` (a Lagrangian with no velocity term, whose
-    ///   `∇²_vv L ≡ 0`, and fewer constraints than coordinates is the
-    ///   extreme case);
+    ///   of `∇²_vv L` plus `M`;
     /// - two constraints whose rows of `K = ∂k/∂v` are proportional (every
     ///   2 × 2 minor simplifies to 0), so `K` never has full rank.
     ///
@@ -269,8 +272,25 @@ impl Model {
                 ),
             });
         }
+        let g = &self.graph;
+        if self.mass.iter().flatten().all(|&x| g.is_const(x, 0.0)) {
+            let how = if self.momentum.iter().all(|&p| g.is_const(p, 0.0)) {
+                "has no velocity term"
+            } else {
+                "is at most linear in the velocities"
+            };
+            let c = &spec.coordinates[0].name;
+            return Err(SpecError {
+                span: first_token(&spec.lagrangian),
+                message: format!(
+                    "the Lagrangian of `{name}` {how}, so its mass matrix ∇²_vv L is identically 0: the momenta ∇_v L \
+                     do not depend on the velocities, and the integrators need a regular Lagrangian (∇²_vv L \
+                     nonsingular, paper §2) for the momentum equations of a step to determine its velocities; add \
+                     a kinetic energy, e.g. `m/2*dot({c})^2 + …` for every coordinate (with a parameter `m`)"
+                ),
+            });
+        }
         for (i, coordinate) in spec.coordinates.iter().enumerate() {
-            let g = &self.graph;
             let no_mass = (0..n).all(|j| g.is_const(self.mass[j][i], 0.0));
             let no_constraint = self.constraint_v.iter().all(|row| g.is_const(row[i], 0.0));
             if no_mass && no_constraint {
@@ -295,7 +315,6 @@ impl Model {
         }
         // The columns of v₁ are [∇²_vv L; K]: their rank is at most the
         // number of nonzero columns of ∇²_vv L plus M.
-        let g = &self.graph;
         let (inertial, inert): (Vec<usize>, Vec<usize>) =
             (0..n).partition(|&i| (0..n).any(|j| !g.is_const(self.mass[j][i], 0.0)));
         if inertial.len() + m < n {
@@ -311,25 +330,19 @@ impl Model {
                 ix.iter().map(|&i| one(i)).collect::<Vec<_>>().join(", ")
             };
             let example = &spec.coordinates[inert[0]].name;
-            let what = if inertial.is_empty() {
-                let how = if self.momentum.iter().all(|&p| g.is_const(p, 0.0)) {
-                    "has no velocity term"
-                } else {
-                    "is at most linear in the velocities"
-                };
-                format!("the Lagrangian of `{name}` {how}, so its mass matrix ∇²_vv L is identically 0")
-            } else {
-                format!("the mass matrix ∇²_vv L of `{name}` involves only {}", names(&inertial, true))
-            };
             let count =
                 |k: usize, one: &str, many: &str| if k == 1 { format!("1 {one}") } else { format!("{k} {many}") };
-            let inertia = count(inertial.len(), "velocity", "velocities");
             let constraints = count(m, "constraint", "constraints");
+            let inertia = count(inertial.len(), "velocity", "velocities");
+            let what = format!(
+                "the mass matrix ∇²_vv L of `{name}` involves only {}, and {inertia} with inertia plus {constraints}",
+                names(&inertial, true)
+            );
             let coordinates = count(inert.len(), "coordinate", "coordinates");
             return Err(SpecError {
                 span: first_token(&spec.lagrangian),
                 message: format!(
-                    "{what}: {inertia} with inertia and {constraints} cannot determine {n} accelerations, so the \
+                    "{what} cannot determine {n} accelerations, so the \
                      matrix [[∇²_vv L, Kᵀ],[K, 0]] is singular everywhere and no step can be solved; give the \
                      {coordinates} {} a kinetic energy term, e.g. `+ inertia/2*dot({example})^2` (with a parameter \
                      `inertia`), or constrain more velocities",

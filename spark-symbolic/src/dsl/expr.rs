@@ -649,7 +649,7 @@ impl Parser<'_, '_> {
                         return err(
                             p.span(),
                             format!(
-                                "write `0.{digits}` instead of `.{digits}`: a number needs a digit before its point"
+                                "write `0.{digits}` instead of `.{digits}`: a number needs a digit before its decimal point"
                             ),
                         );
                     }

@@ -491,17 +491,21 @@ fn structurally_singular_declarations_are_rejected_and_regular_ones_are_not() {
         .contains("at most linear in `dot(y)`"));
     assert!(message("struct C { coordinates: [x], lagrangian: dot(x)^2/2, constraints: [ dot(x), dot(x) - x ] }")
         .contains("2 constraints on 1 coordinates"));
-    // ∇²_vv L ≡ 0 with M < N: every velocity is in a constraint, but the
-    // columns [∇²_vv L; K] of v₁ have rank M.
+    // ∇²_vv L ≡ 0: every velocity is in a constraint, but the momenta do not
+    // depend on the velocities (the runtime's Newton matrix is singular).
     let (msg, at) = generate_error(
         "struct E { coordinates: [x, y], lagrangian: -(x^2 + y^2)/2, constraints: [dot(x) - y*dot(y)] }",
     );
     assert!(msg.contains("the Lagrangian of `E` has no velocity term") && msg.contains("is identically 0"), "{msg}");
     assert_eq!(at, "-");
     let (msg, _) = generate_error(
-        "struct E { coordinates: [x, y], lagrangian: y*dot(x) - x^2/2, constraints: [dot(x) - y*dot(y)] }",
+        "struct E { coordinates: [x, y], lagrangian: y*dot(x) - x^2/2, constraints: [dot(x) - 1, dot(y) - x] }",
     );
-    assert!(msg.contains("at most linear in the velocities"), "{msg}");
+    assert!(msg.contains("at most linear in the velocities") && msg.contains("regular Lagrangian"), "{msg}");
+    let (msg, _) = generate_error("struct E { coordinates: [x], lagrangian: -x^2/2, constraints: [dot(x) - cos(t)] }");
+    assert!(msg.contains("has no velocity term"), "{msg}");
+    // Fewer velocities with inertia than N − M: the columns [∇²_vv L; K] of
+    // v₁ have rank at most 1 + 1 < 3.
     let (msg, at) = generate_error(
         "struct G { coordinates: [x, y, z], lagrangian: dot(x)^2/2 - z^2, constraints: [dot(y) - x*dot(z)] }",
     );
