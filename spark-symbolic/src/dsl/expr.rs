@@ -346,28 +346,28 @@ impl Scope<'_> {
     fn velocity(&self, dot_span: Span, group: &proc_macro2::Group) -> Result<SrcExpr, SpecError> {
         let toks: Vec<TokenTree> = group.stream().into_iter().collect();
         let example = self.coordinates.first().map_or("x", |c| c.name.as_str());
-        let ident =
-            match toks.as_slice() {
-                [] => return err(group.span(), format!("`dot()` needs a coordinate: write `dot({example})`")),
-                [TokenTree::Ident(i)] => i.clone(),
-                [TokenTree::Group(g)] if matches!(g.delimiter(), Delimiter::None | Delimiter::Parenthesis) => {
-                    let inner = proc_macro2::Group::new(Delimiter::Parenthesis, g.stream());
-                    return self.velocity(dot_span, &inner);
-                }
-                [TokenTree::Ident(i), TokenTree::Group(_), ..] if i == "dot" => return err(
-                    i.span(),
-                    "accelerations are not allowed: the Lagrangian and the constraints depend on t, q and dot(q) only",
-                ),
-                [first, ..] => {
-                    return err(
-                        first.span(),
-                        format!(
-                            "`dot` takes one coordinate name, not an expression: write e.g. `dot({example})`, \
+        let ident = match toks.as_slice() {
+            [] => return err(group.span(), format!("`dot()` needs a coordinate: write `dot({example})`")),
+            [TokenTree::Ident(i)] => i.clone(),
+            [TokenTree::Group(g)] if matches!(g.delimiter(), Delimiter::None | Delimiter::Parenthesis) => {
+                let inner = proc_macro2::Group::new(Delimiter::Parenthesis, g.stream());
+                return self.velocity(dot_span, &inner);
+            }
+            [TokenTree::Ident(i), TokenTree::Group(_), ..] if i == "dot" => return err(
+                i.span(),
+                "accelerations are not allowed: the Lagrangian and the constraints depend on t, q and dot(q) only; \
+                     write `dot(x)` for a velocity",
+            ),
+            [first, ..] => {
+                return err(
+                    first.span(),
+                    format!(
+                        "`dot` takes one coordinate name, not an expression: write e.g. `dot({example})`, \
                          and `dot(x) + dot(y)` instead of `dot(x + y)`"
-                        ),
-                    )
-                }
-            };
+                    ),
+                )
+            }
+        };
         let name = ident.to_string();
         let span = ident.span();
         let coords: Vec<&str> = self.coordinates.iter().map(|n| n.name.as_str()).collect();
@@ -621,7 +621,11 @@ impl Parser<'_, '_> {
                     );
                 }
                 if is_punct(self.peek(), '!') {
-                    return err(ident.span(), "macro calls are not supported in expressions");
+                    return err(
+                        ident.span(),
+                        "macro calls are not supported in expressions: write the value, or declare it under \
+                         `constants: { … }` or `parameters: { … }` and use its name",
+                    );
                 }
                 self.scope.resolve(&ident)
             }

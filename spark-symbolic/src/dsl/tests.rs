@@ -304,6 +304,7 @@ fn expression_errors() {
     assert_error(&with_lag("[x]"), "[x]", "use parentheses");
     assert_error(&with_lag("sin(x,,)"), ",", "empty argument");
     assert_error(&with_lag("std::f64::consts::PI"), "std", "paths are not supported");
+    assert_error(&with_lag("vec![1]"), "vec", "declare it under `constants: { … }`");
     assert_error(&with_lag("x = y"), "=", "must vanish");
     assert_error("struct S { coordinates: [x], lagrangian: 1, constraints: [dot(x),, x] }", ",", "unexpected `,`");
     assert_error(
