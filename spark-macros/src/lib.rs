@@ -58,14 +58,20 @@ use proc_macro::TokenStream;
 /// it). Names must be distinct across coordinates, parameters and constants,
 /// and may not be `t`, `pi`, `dot`, a function name, a Rust keyword, or start
 /// with `__`. Each constraint must involve the velocities (a position
-/// constraint is holonomic: write its time derivative). `M`, the number of
+/// constraint is holonomic: write its time derivative; a constraint of the
+/// time alone constrains no motion and is refused). `M`, the number of
 /// constraints, is the length of the `constraints` list.
 ///
 /// Declarations whose accelerations no state can determine are compile
-/// errors: more constraints than coordinates, a coordinate whose velocity
-/// is in neither the mass matrix `∇²_vv L` nor any constraint (a forgotten
-/// kinetic term), and two constraints whose rows of `K = ∂k/∂v` are
-/// proportional.
+/// errors: more constraints than coordinates, a Lagrangian with
+/// `∇²_vv L ≡ 0` (no velocity term, or only linear ones), a coordinate whose
+/// velocity is in neither the mass matrix `∇²_vv L` nor any constraint (a
+/// forgotten kinetic term), fewer velocities in `∇²_vv L` than coordinates
+/// minus constraints, and two constraints whose rows of `K = ∂k/∂v` are
+/// proportional. A division whose denominator simplifies to the constant 0
+/// (`m/(2 - 2)`, `dot(x)^2/(x - x)`, a constant that folds to 0) is an error
+/// at its `/`, wherever it is written: `lagrangian`, constraints, forces,
+/// effects (selected by a scene or not), constants and parameter defaults.
 /// (The base of a system with scenes is exempt from the second check, since
 /// a scene's constraint may fix that velocity; each scene is checked.)
 ///
@@ -162,10 +168,15 @@ use proc_macro::TokenStream;
 /// `cargo run -p spark-symbolic --example expand -- <file.rs> <StructName>`.
 ///
 /// # Errors
-/// Every malformed declaration is a compile error at the offending token that
-/// says what to write instead (unknown names with the nearest known one,
+/// Every malformed declaration the macro detects is a compile error at the
+/// offending token that says what is wrong and, for nearly every mistake,
+/// what to write instead (unknown names with the nearest known one,
 /// velocities of non-coordinates, duplicate names, wrong arity, non-numeric
-/// defaults, missing sections, holonomic constraints, …). The macro never panics.
+/// defaults, missing sections or commas, `.5` for `0.5`, holonomic
+/// constraints with their velocity-level form, …). The checks of structure
+/// use only the zeros and identities the simplifier proves, so a declaration
+/// that compiles may still be singular at some states (the runtime reports
+/// those). The macro never panics.
 #[proc_macro]
 pub fn nonholonomic_system(input: TokenStream) -> TokenStream {
     spark_symbolic::expand(input.into()).into()

@@ -33,8 +33,10 @@ impl<'a> Lowerer<'a> {
     }
 
     /// Lowers one expression. Errors point at the offending token: an index
-    /// the parser did not resolve, a named constant that refers to itself, or
-    /// a constant subexpression that is not a finite number (`1/0`, `ln(0)`).
+    /// the parser did not resolve, a named constant that refers to itself, a
+    /// division whose denominator simplifies to the constant 0 (`m/(2 - 2)`,
+    /// `dot(x)^2/(x - x)`), or a constant subexpression that is not a finite
+    /// number (`ln(0)`).
     pub fn lower(&mut self, g: &mut Graph, e: &SrcExpr) -> Result<NodeId, SpecError> {
         self.lower_depth(g, e, 0)
     }
@@ -123,6 +125,9 @@ impl<'a> Lowerer<'a> {
                 let mut acc = self.lower_depth(g, left, depth + 1)?;
                 for (o, b, s) in chain.into_iter().rev() {
                     let b = self.lower_depth(g, b, depth + 1)?;
+                    if o == BinOp::Div && g.is_const(b, 0.0) {
+                        return Err(err(s, DIVISION_BY_ZERO.into()));
+                    }
                     let r = match o {
                         BinOp::Add => g.add2(acc, b),
                         BinOp::Sub => g.sub(acc, b),
@@ -153,6 +158,14 @@ impl<'a> Lowerer<'a> {
         Ok(id)
     }
 }
+
+/// The message for a `/` whose denominator simplifies to the constant 0: the
+/// quotient is infinite (or NaN) wherever it is evaluated, so the generated
+/// code would carry `inf` into the mass matrix, the forces or the constraints.
+pub(crate) const DIVISION_BY_ZERO: &str =
+    "division by zero: the denominator of this `/` simplifies to the constant 0, \
+     so the quotient is infinite wherever it is evaluated; correct the denominator (e.g. `m/2` rather than \
+     `m/(2 - 2)`) or remove the division";
 
 /// Constant operands whose result could not be folded mean the value is not
 /// a finite number: say so at the operator instead of emitting `inf`/`NaN`.

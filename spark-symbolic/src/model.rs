@@ -5,7 +5,8 @@
 use crate::diff::Differentiator;
 use crate::graph::{Deps, Graph, Node, NodeId, Var};
 use crate::lower::Lowerer;
-use crate::spec::{SpecError, SystemSpec};
+use crate::spec::{SpecError, SrcExpr, SystemSpec};
+use proc_macro2::Span;
 use std::collections::HashMap;
 
 /// How the constraints depend on the velocities (mirrors
@@ -224,6 +225,15 @@ fn proportional_rows(g: &mut Graph, kj: &[NodeId], kl: &[NodeId]) -> bool {
     true
 }
 
+/// The span of the first token of `e` as written (the leftmost leaf or
+/// prefix operator), where an error about the whole expression points.
+fn first_token(e: &SrcExpr) -> Span {
+    match e {
+        SrcExpr::Binary(_, a, _, _) => first_token(a),
+        other => other.span(),
+    }
+}
+
 impl Model {
     /// Rejects declarations whose equations of motion cannot determine the
     /// accelerations at any point, because the SPARK Newton matrix (and the
@@ -234,6 +244,14 @@ impl Model {
     /// - a coordinate whose velocity appears neither in the mass matrix nor
     ///   in any constraint: the column of `v₁[i]` in the step's Newton matrix
     ///   is `[∇²_vv L; K]` column `i`, identically zero;
+    /// - `∇²_vv L ≡ 0` (no velocity term in `L`, or only linear ones): the
+    ///   momenta do not depend on the velocities, against the regularity the
+    ///   methods assume (paper §2). With no velocity term at all, the
+    ///   `(s + 1)N` momentum rows are linear combinations of the `sN` values
+    ///   `F_j + R_j`, so the Newton matrix is singular for every tableau;
+    /// - fewer velocities with inertia than `N − M`: the columns of `v₁` are
+    ///   `[∇²_vv L; K]`, whose rank is at most the number of nonzero columns
+    ///   of `∇²_vv L` plus `M`;
     /// - two constraints whose rows of `K = ∂k/∂v` are proportional (every
     ///   2 × 2 minor simplifies to 0), so `K` never has full rank.
     ///
@@ -254,8 +272,25 @@ impl Model {
                 ),
             });
         }
+        let g = &self.graph;
+        if self.mass.iter().flatten().all(|&x| g.is_const(x, 0.0)) {
+            let how = if self.momentum.iter().all(|&p| g.is_const(p, 0.0)) {
+                "has no velocity term"
+            } else {
+                "is at most linear in the velocities"
+            };
+            let c = &spec.coordinates[0].name;
+            return Err(SpecError {
+                span: first_token(&spec.lagrangian),
+                message: format!(
+                    "the Lagrangian of `{name}` {how}, so its mass matrix ∇²_vv L is identically 0: the momenta ∇_v L \
+                     do not depend on the velocities, and the integrators need a regular Lagrangian (∇²_vv L \
+                     nonsingular, paper §2) for the momentum equations of a step to determine its velocities; add \
+                     a kinetic energy, e.g. `m/2*dot({c})^2 + …` for every coordinate (with a parameter `m`)"
+                ),
+            });
+        }
         for (i, coordinate) in spec.coordinates.iter().enumerate() {
-            let g = &self.graph;
             let no_mass = (0..n).all(|j| g.is_const(self.mass[j][i], 0.0));
             let no_constraint = self.constraint_v.iter().all(|row| g.is_const(row[i], 0.0));
             if no_mass && no_constraint {
@@ -277,6 +312,43 @@ impl Model {
                     ),
                 });
             }
+        }
+        // The columns of v₁ are [∇²_vv L; K]: their rank is at most the
+        // number of nonzero columns of ∇²_vv L plus M.
+        let (inertial, inert): (Vec<usize>, Vec<usize>) =
+            (0..n).partition(|&i| (0..n).any(|j| !g.is_const(self.mass[j][i], 0.0)));
+        if inertial.len() + m < n {
+            let names = |ix: &[usize], velocity: bool| {
+                let one = |i: usize| {
+                    let c = &spec.coordinates[i].name;
+                    if velocity {
+                        format!("`dot({c})`")
+                    } else {
+                        format!("`{c}`")
+                    }
+                };
+                ix.iter().map(|&i| one(i)).collect::<Vec<_>>().join(", ")
+            };
+            let example = &spec.coordinates[inert[0]].name;
+            let count =
+                |k: usize, one: &str, many: &str| if k == 1 { format!("1 {one}") } else { format!("{k} {many}") };
+            let constraints = count(m, "constraint", "constraints");
+            let inertia = count(inertial.len(), "velocity", "velocities");
+            let what = format!(
+                "the mass matrix ∇²_vv L of `{name}` involves only {}, and {inertia} with inertia plus {constraints}",
+                names(&inertial, true)
+            );
+            let coordinates = count(inert.len(), "coordinate", "coordinates");
+            return Err(SpecError {
+                span: first_token(&spec.lagrangian),
+                message: format!(
+                    "{what} cannot determine {n} accelerations, so the \
+                     matrix [[∇²_vv L, Kᵀ],[K, 0]] is singular everywhere and no step can be solved; give the \
+                     {coordinates} {} a kinetic energy term, e.g. `+ inertia/2*dot({example})^2` (with a parameter \
+                     `inertia`), or constrain more velocities",
+                    names(&inert, false),
+                ),
+            });
         }
         // The minors are built in a scratch copy: the graph handed to code
         // generation stays exactly what `build` made.
@@ -341,22 +413,38 @@ impl Model {
                     terms.push(g.mul2(gq, vi));
                 }
                 let gdot = g.add(&terms);
-                let hint = if g.is_const(gdot, 0.0) {
-                    "it is constant, so it constrains nothing; remove it".to_string()
-                } else {
-                    format!(
-                        "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}` (or \
-                         declare `name: holonomic(g)` under `effects:` and select it in a scene, which imposes that \
-                         derivative and reports the drift of g)",
-                        crate::pretty::dsl_text(&g, spec, gdot)
-                    )
-                };
+                let number = j + 1;
+                if spec.constraints[j].position.is_some() || !g.deps(gdot).any(Deps::V) {
+                    // No coordinate enters: differentiating gives no velocity
+                    // either, so no velocity-level form exists to suggest.
+                    let what = if spec.constraints[j].position.is_some() {
+                        format!("constraint {number} comes from a holonomic constraint g(t) = 0 that involves no coordinate")
+                    } else if g.is_const(constraint[j], 0.0) {
+                        format!("constraint {number} is identically 0")
+                    } else if g.deps(constraint[j]).any(Deps::T) {
+                        format!("constraint {number} depends only on the time `t` (and parameters), not on the coordinates or velocities")
+                    } else {
+                        format!("constraint {number} involves neither the coordinates nor the velocities")
+                    };
+                    return Err(SpecError {
+                        span: spec.constraints[j].span,
+                        message: format!(
+                            "{what}: no motion can satisfy or violate it, so it cannot be a velocity constraint (and \
+                             its time derivative has no velocity either); remove it"
+                        ),
+                    });
+                }
+                let hint = format!(
+                    "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}` (or declare \
+                     `name: holonomic(g)` under `effects:` and select it in a scene, which imposes that derivative \
+                     and reports the drift of g)",
+                    crate::pretty::dsl_text(&g, spec, gdot)
+                );
                 return Err(SpecError {
                     span: spec.constraints[j].span,
                     message: format!(
-                        "constraint {} does not depend on the velocities: it is holonomic (a position constraint \
-                         g(t, q) = 0), which this integrator does not take directly; {hint}",
-                        j + 1
+                        "constraint {number} does not depend on the velocities: it is holonomic (a position \
+                         constraint g(t, q) = 0), which this integrator does not take directly; {hint}"
                     ),
                 });
             }

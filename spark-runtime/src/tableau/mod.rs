@@ -49,6 +49,32 @@ pub enum Method {
     /// written as an `s = 2` SPARK scheme: `A` = Lobatto IIIB for `q`,
     /// `Â = Ã` = Lobatto IIIA, `b = b̂ = b̃ = (½, ½)`, the multiplier rows
     /// `Ψ₁ − Ψ₂ = 0` and the final constraint `k(t₁, q₁, v₁) = 0`.
+    ///
+    /// Eq. (7.3) is stated for `L = ½vᵀMv − U(q)` and `k = K(q)v + b(q)`
+    /// only. For every system the step is the SPARK scheme above with the
+    /// Lobatto nodes `c = (0, 1)`, which reads: one stage position
+    /// `Q = q₀ + (h/2)V₁` shared by both stages, stage points
+    /// `(T₁, Q, V₁) = (t₀, Q, V₁)` and `(T₂, Q, V₂) = (t₀ + h, Q, V₂)`, one
+    /// multiplier `Ψ`, and
+    ///
+    /// ```text
+    /// ∇_v L(t₀, Q, V₁) = p₀
+    /// ∇_v L(t₁, Q, V₂) = p₀ + (h/2)(F₁ + R₁ + F₂ + R₂)
+    /// ∇_v L(t₁, q₁, v₁) = p₀ + (h/2)(F₁ + R₁ + F₂ + R₂),   q₁ = q₀ + (h/2)(V₁ + V₂)
+    /// 0 = k(t₁, q₁, v₁)
+    /// ```
+    ///
+    /// with `p₀ = ∇_v L(t₀, q₀, v₀)`, `t₁ = t₀ + h`, `F_i = ∇_q L(T_i, Q, V_i)`
+    /// (plus the external force `f(T_i, Q, V_i)` of a forced system) and
+    /// `R_i = −K(T_i, Q, V_i)ᵀΨ` (plus the non-ideal force `N(T_i, Q, V_i, Ψ)`).
+    /// So the forces are evaluated at both ends of the step in time, at the
+    /// single position `Q`, and averaged with weights ½: a time-dependent
+    /// potential enters as `½(∇U(t₀, Q) + ∇U(t₁, Q))`, not as `∇U(t₀ + h/2, Q)`
+    /// (the two differ by `O(h³)` per step; both give order 2). When the
+    /// momentum is `Mv` with constant `M`, `V₁ = v₀` and `V₂ = v₁`, and with
+    /// an autonomous `L` and `k` this is (7.3) exactly; when the momentum
+    /// depends on `q` or `t`, `V₁` is the velocity whose momentum at
+    /// `(t₀, Q)` equals `p₀`, not `v₀`.
     LobattoIIIBALda,
 }
 
@@ -448,6 +474,8 @@ family! {
 mod tests {
     use super::conditions::{b_defect, c_defect, d_defect};
     use super::*;
+    use crate::{NonholonomicSystem, Vector};
+    use nalgebra::{DMatrix, DVector};
 
     const TOL: f64 = 1e-15;
 
@@ -533,6 +561,150 @@ mod tests {
         check_all::<8>();
         check_all::<9>();
         check_all::<10>();
+    }
+
+    /// Finite-difference Newton on `r(z) = 0` from `z`, to a residual of
+    /// `1e-14`: an independent solver for the formulas the tests state.
+    fn newton(r: impl Fn(&DVector<f64>) -> DVector<f64>, mut z: DVector<f64>) -> DVector<f64> {
+        for _ in 0..50 {
+            let r0 = r(&z);
+            if r0.amax() <= 1e-14 {
+                return z;
+            }
+            let mut jac = DMatrix::<f64>::zeros(r0.len(), z.len());
+            for j in 0..z.len() {
+                let d = 1e-7 * (1.0 + z[j].abs());
+                let (mut up, mut down) = (z.clone(), z.clone());
+                up[j] += d;
+                down[j] -= d;
+                jac.set_column(j, &((r(&up) - r(&down)) / (2.0 * d)));
+            }
+            z -= jac.lu().solve(&r0).expect("the test's Newton matrix is regular");
+        }
+        panic!("the test's Newton iteration did not converge");
+    }
+
+    fn part<const K: usize>(z: &DVector<f64>, at: usize) -> Vector<K> {
+        Vector::<K>::from_iterator(z.rows(at, K).iter().copied())
+    }
+
+    /// One `LobattoIIIBALda` step solved from the formulas its documentation
+    /// states: unknowns `(V₁, V₂, v₁, Ψ)`, forces at `(t₀, Q, V₁)` and
+    /// `(t₀ + h, Q, V₂)` with `Q = q₀ + (h/2)V₁`.
+    fn documented_lda_step<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
+        sys: &Sys,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        h: f64,
+    ) -> (Vector<N>, Vector<N>) {
+        let t1 = t0 + h;
+        let p0 = sys.momentum(t0, q0, v0);
+        let residual = |z: &DVector<f64>| {
+            let (v1s, v2s, v1, psi) = (part::<N>(z, 0), part::<N>(z, N), part::<N>(z, 2 * N), part::<M>(z, 3 * N));
+            let q = q0 + (0.5 * h) * v1s;
+            let total = |t: f64, v: &Vector<N>| sys.force(t, &q, v) - sys.constraint_v(t, &q, v).transpose() * psi;
+            let rhs = p0 + (0.5 * h) * (total(t0, &v1s) + total(t1, &v2s));
+            let q1 = q0 + (0.5 * h) * (v1s + v2s);
+            let mut r = DVector::<f64>::zeros(3 * N + M);
+            r.rows_mut(0, N).copy_from(&(sys.momentum(t0, &q, &v1s) - p0));
+            r.rows_mut(N, N).copy_from(&(sys.momentum(t1, &q, &v2s) - rhs));
+            r.rows_mut(2 * N, N).copy_from(&(sys.momentum(t1, &q1, &v1) - rhs));
+            r.rows_mut(3 * N, M).copy_from(&sys.constraint(t1, &q1, &v1));
+            r
+        };
+        let mut z0 = DVector::<f64>::zeros(3 * N + M);
+        for k in 0..3 {
+            z0.rows_mut(k * N, N).copy_from(v0);
+        }
+        let z = newton(residual, z0);
+        let (v1s, v2s) = (part::<N>(&z, 0), part::<N>(&z, N));
+        (q0 + (0.5 * h) * (v1s + v2s), part::<N>(&z, 2 * N))
+    }
+
+    /// The midpoint reading of (7.3) outside its class: forces once, at
+    /// `(t₀ + h/2, q₀ + (h/2)v₀, (v₀ + v₁)/2)`.
+    fn midpoint_reading_step<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
+        sys: &Sys,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        h: f64,
+    ) -> (Vector<N>, Vector<N>) {
+        let (tm, q) = (t0 + 0.5 * h, q0 + (0.5 * h) * v0);
+        let p0 = sys.momentum(t0, q0, v0);
+        let residual = |z: &DVector<f64>| {
+            let (v1, psi) = (part::<N>(z, 0), part::<M>(z, N));
+            let vm = 0.5 * (v0 + v1);
+            let q1 = q0 + (0.5 * h) * (v0 + v1);
+            let total = sys.force(tm, &q, &vm) - sys.constraint_v(tm, &q, &vm).transpose() * psi;
+            let mut r = DVector::<f64>::zeros(N + M);
+            r.rows_mut(0, N).copy_from(&(sys.momentum(t0 + h, &q1, &v1) - p0 - h * total));
+            r.rows_mut(N, M).copy_from(&sys.constraint(t0 + h, &q1, &v1));
+            r
+        };
+        let mut z0 = DVector::<f64>::zeros(N + M);
+        z0.rows_mut(0, N).copy_from(v0);
+        let v1 = part::<N>(&newton(residual, z0), 0);
+        (q0 + (0.5 * h) * (v0 + v1), v1)
+    }
+
+    crate::nonholonomic_system! {
+        /// The nonholonomic particle (§8.1) in a pulsating potential: in the
+        /// class of (7.3) but for the time dependence of `U`.
+        #[spark(crate = crate)]
+        struct PulsedParticle {
+            coordinates: [x, y, z],
+            parameters: { omega = 3.0 },
+            lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (1 + sin(omega*t)/2)*(x^2 + y^2),
+            constraints: [ dot(z) - y*dot(x) ],
+        }
+    }
+
+    fn stepper_lda_step<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize, const D: usize>(
+        sys: Sys,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        h: f64,
+    ) -> (Vector<N>, Vector<N>) {
+        let mut st = crate::Stepper::<Sys, N, M, 2, D>::new(sys, Tableau::new(Method::LobattoIIIBALda).unwrap());
+        let end = st.step(&crate::State::new(t0, *q0, *v0), h).expect("the step converges").state;
+        (end.q, end.v)
+    }
+
+    /// Outside the class of (7.3) the step is the one the documentation of
+    /// `Method::LobattoIIIBALda` states, on a time-dependent, non-separable
+    /// system with a configuration-dependent mass matrix and a rheonomic
+    /// constraint nonlinear in `v`, and on a time-dependent potential, where
+    /// the midpoint reading differs at `O(h³)` per step.
+    #[test]
+    fn lobatto_iiib_a_lda_outside_its_class_takes_the_documented_step() {
+        let (t0, h): (f64, f64) = (0.7, 0.1);
+        let general = crate::handwritten::General::default();
+        let (q0, v0) = (Vector::<2>::new(0.3, -0.2), Vector::<2>::new(0.5, 0.0));
+        let v0 = Vector::<2>::new(v0[0], v0[1] + (q0[0] * v0[0] + 0.1 * v0[0] * v0[0] - 0.05 * t0.sin()));
+        let (q, v) = stepper_lda_step::<_, 2, 1, 8>(general, t0, &q0, &v0, h);
+        let (qd, vd) = documented_lda_step(&general, t0, &q0, &v0, h);
+        let err = (q - qd).amax().max((v - vd).amax());
+        assert!(err <= 1e-13, "General: stepper and documented step differ by {err:.3e}");
+
+        let pulsed = PulsedParticle::default();
+        let (q0, v0) = (Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+        let mut gaps = Vec::new();
+        for h in [0.1, 0.05] {
+            let (q, v) = stepper_lda_step::<_, 3, 1, 11>(pulsed, t0, &q0, &v0, h);
+            let (qd, vd) = documented_lda_step(&pulsed, t0, &q0, &v0, h);
+            let err = (q - qd).amax().max((v - vd).amax());
+            assert!(err <= 1e-13, "pulsed particle, h = {h}: stepper and documented step differ by {err:.3e}");
+            let (qm, vm) = midpoint_reading_step(&pulsed, t0, &q0, &v0, h);
+            gaps.push((q - qm).amax().max((v - vm).amax()));
+        }
+        // The midpoint reading is another method: its gap is far above the
+        // agreement above and shrinks like h³ (ratio 8 when h halves).
+        let ratio = gaps[0] / gaps[1];
+        assert!(gaps[1] > 1e-6, "the midpoint reading should differ visibly: {:.3e}", gaps[1]);
+        assert!((6.0..10.0).contains(&ratio), "gap ratio {ratio:.3e} for h → h/2 should be ≈ 8 (O(h³))");
     }
 
     #[test]

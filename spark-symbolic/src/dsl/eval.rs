@@ -1,6 +1,7 @@
 //! Numeric evaluation of constant expressions (constant values and
 //! parameter defaults), so that a default such as `pi/2` becomes an `f64`
-//! and a constant such as `ln(0)` is rejected where it is written.
+//! and a constant such as `ln(0)` or a division by zero is rejected where it
+//! is written.
 
 use crate::spec::{BinOp, Func, SpecError, SrcExpr};
 
@@ -22,12 +23,17 @@ pub(crate) fn eval(expr: &SrcExpr, constants: &[f64]) -> Result<f64, SpecError> 
         SrcExpr::Param(_, s) => return bad(*s, "a parameter"),
         SrcExpr::Multiplier(_, s) => return bad(*s, "a multiplier"),
         SrcExpr::Neg(a, _) => -eval(a, constants)?,
-        SrcExpr::Binary(op, a, b, _) => {
+        SrcExpr::Binary(op, a, b, span) => {
             let (a, b) = (eval(a, constants)?, eval(b, constants)?);
             match op {
                 BinOp::Add => a + b,
                 BinOp::Sub => a - b,
                 BinOp::Mul => a * b,
+                // Caught here even where the quotient is used in a way that
+                // gives a finite value again (`1/(1/0) = 0`).
+                BinOp::Div if b == 0.0 => {
+                    return Err(SpecError { span: *span, message: crate::lower::DIVISION_BY_ZERO.into() })
+                }
                 BinOp::Div => a / b,
                 BinOp::Pow => a.powf(b),
             }

@@ -346,28 +346,28 @@ impl Scope<'_> {
     fn velocity(&self, dot_span: Span, group: &proc_macro2::Group) -> Result<SrcExpr, SpecError> {
         let toks: Vec<TokenTree> = group.stream().into_iter().collect();
         let example = self.coordinates.first().map_or("x", |c| c.name.as_str());
-        let ident =
-            match toks.as_slice() {
-                [] => return err(group.span(), format!("`dot()` needs a coordinate: write `dot({example})`")),
-                [TokenTree::Ident(i)] => i.clone(),
-                [TokenTree::Group(g)] if matches!(g.delimiter(), Delimiter::None | Delimiter::Parenthesis) => {
-                    let inner = proc_macro2::Group::new(Delimiter::Parenthesis, g.stream());
-                    return self.velocity(dot_span, &inner);
-                }
-                [TokenTree::Ident(i), TokenTree::Group(_), ..] if i == "dot" => return err(
-                    i.span(),
-                    "accelerations are not allowed: the Lagrangian and the constraints depend on t, q and dot(q) only",
-                ),
-                [first, ..] => {
-                    return err(
-                        first.span(),
-                        format!(
-                            "`dot` takes one coordinate name, not an expression: write e.g. `dot({example})`, \
+        let ident = match toks.as_slice() {
+            [] => return err(group.span(), format!("`dot()` needs a coordinate: write `dot({example})`")),
+            [TokenTree::Ident(i)] => i.clone(),
+            [TokenTree::Group(g)] if matches!(g.delimiter(), Delimiter::None | Delimiter::Parenthesis) => {
+                let inner = proc_macro2::Group::new(Delimiter::Parenthesis, g.stream());
+                return self.velocity(dot_span, &inner);
+            }
+            [TokenTree::Ident(i), TokenTree::Group(_), ..] if i == "dot" => return err(
+                i.span(),
+                "accelerations are not allowed: the Lagrangian and the constraints depend on t, q and dot(q) only; \
+                     write `dot(x)` for a velocity",
+            ),
+            [first, ..] => {
+                return err(
+                    first.span(),
+                    format!(
+                        "`dot` takes one coordinate name, not an expression: write e.g. `dot({example})`, \
                          and `dot(x) + dot(y)` instead of `dot(x + y)`"
-                        ),
-                    )
-                }
-            };
+                    ),
+                )
+            }
+        };
         let name = ident.to_string();
         let span = ident.span();
         let coords: Vec<&str> = self.coordinates.iter().map(|n| n.name.as_str()).collect();
@@ -477,6 +477,15 @@ fn parse_nested(
     let mut p = Parser { toks: tokens.to_vec(), pos: 0, scope, what, depth };
     let e = p.sum()?;
     if let Some(tt) = p.toks.get(p.pos) {
+        if let (TokenTree::Ident(id), Some(TokenTree::Punct(next))) = (tt, p.toks.get(p.pos + 1)) {
+            if matches!(next.as_char(), '=' | ':') && next.spacing() == Spacing::Alone {
+                // `m = 1 g = 2`, `{ x: a y: b }`: the next entry of a list.
+                return err(
+                    id.span(),
+                    format!("missing `,` before `{id} {}`: separate the entries with `,`", next.as_char()),
+                );
+            }
+        }
         return p.trailing(tt);
     }
     Ok(e)
@@ -612,7 +621,11 @@ impl Parser<'_, '_> {
                     );
                 }
                 if is_punct(self.peek(), '!') {
-                    return err(ident.span(), "macro calls are not supported in expressions");
+                    return err(
+                        ident.span(),
+                        "macro calls are not supported in expressions: write the value, or declare it under \
+                         `constants: { … }` or `parameters: { … }` and use its name",
+                    );
                 }
                 self.scope.resolve(&ident)
             }
@@ -634,6 +647,17 @@ impl Parser<'_, '_> {
             },
             TokenTree::Punct(p) => {
                 let c = p.as_char();
+                if let (Some(TokenTree::Literal(lit)), '.') = (self.peek(), c) {
+                    let digits = lit.to_string();
+                    if digits.starts_with(|d: char| d.is_ascii_digit()) {
+                        return err(
+                            p.span(),
+                            format!(
+                                "write `0.{digits}` instead of `.{digits}`: a number needs a digit before its decimal point"
+                            ),
+                        );
+                    }
+                }
                 let msg = match c {
                     '*' | '/' | '^' => {
                         if self.pos == 1 {

@@ -71,9 +71,43 @@ use names::{list, nearest, reserved_reason};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 use quote::quote;
 
-/// The section names, in the order the documentation lists them.
+/// The section names [`parse`] reads, in the order the documentation lists them.
 pub const SECTIONS: [&str; 7] =
     ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces"];
+
+/// Every section name a declaration may use: [`SECTIONS`] and the optional
+/// `effects` and `scenes` that [`scenes::parse_with_scenes`] reads.
+pub const ALL_SECTIONS: [&str; 9] = [
+    "coordinates",
+    "parameters",
+    "constants",
+    "lagrangian",
+    "constraints",
+    "forces",
+    "nonideal_forces",
+    "effects",
+    "scenes",
+];
+
+/// A missing `,` between two sections: the value of section `section` holds
+/// a top-level `name:` (a colon that is not part of `::`), which no section
+/// value contains, so it starts the next section.
+pub(crate) fn missing_section_comma(section: &str, value: &[TokenTree]) -> Option<SpecError> {
+    value.windows(2).find_map(|w| match w {
+        [TokenTree::Ident(id), TokenTree::Punct(p)]
+            if p.as_char() == ':' && p.spacing() == proc_macro2::Spacing::Alone =>
+        {
+            Some(SpecError {
+                span: id.span(),
+                message: format!(
+                    "missing `,` before `{id}:`: sections are separated by commas, so end the `{section}` section \
+                     with `,`"
+                ),
+            })
+        }
+        _ => None,
+    })
+}
 
 fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
@@ -235,7 +269,7 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
         let Some(first) = piece.first() else {
             return err(comma.unwrap_or(body.span()), "unexpected `,`: remove it");
         };
-        let section_list = list(&SECTIONS);
+        let section_list = list(&ALL_SECTIONS);
         let ident = match first {
             TokenTree::Ident(id) => id,
             TokenTree::Punct(p) if p.as_char() == '#' => {
@@ -251,7 +285,7 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
             }
         };
         let sname = ident.to_string();
-        let known = SECTIONS.iter().find(|s| **s == sname).copied();
+        let known = ALL_SECTIONS.iter().find(|s| **s == sname).copied();
         match piece.get(1) {
             Some(TokenTree::Punct(p)) if p.as_char() == ':' => {
                 if p.spacing() == proc_macro2::Spacing::Joint
@@ -273,7 +307,7 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
         }
         let Some(kind) = known else {
             let mut msg = format!("unknown section `{sname}`");
-            if let Some(n) = nearest(&sname, SECTIONS) {
+            if let Some(n) = nearest(&sname, ALL_SECTIONS) {
                 msg.push_str(&format!("; did you mean `{n}`?"));
             }
             msg.push_str(&format!(" Sections: {section_list}."));
@@ -282,6 +316,17 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
         let value: Vec<TokenTree> = piece[2..].to_vec();
         if value.is_empty() {
             return err(ident.span(), format!("`{kind}:` has no value; {}", section_example(kind)));
+        }
+        if let Some(e) = missing_section_comma(kind, &value) {
+            return Err(e);
+        }
+        if kind == "effects" || kind == "scenes" {
+            // `scenes::parse_with_scenes` takes these two out before calling
+            // `parse`; reaching here means `parse` was called directly.
+            return err(
+                ident.span(),
+                format!("`{kind}:` is read by `spark_symbolic::dsl::scenes::parse_with_scenes`, not by `dsl::parse`"),
+            );
         }
         let slot = match kind {
             "coordinates" => &mut s.coordinates,
@@ -418,6 +463,12 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
                     match piece.as_slice() {
                         [TokenTree::Ident(id)] => coordinates.push(declare(id, "coordinate", &mut declared)?),
                         [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
+                        [TokenTree::Ident(id), TokenTree::Ident(next), ..] => {
+                            return err(
+                                next.span(),
+                                format!("missing `,` between coordinates `{id}` and `{next}`: write `{id}, {next}`"),
+                            )
+                        }
                         [TokenTree::Ident(id), second, ..] => {
                             return err(
                                 second.span(),

@@ -82,6 +82,9 @@ pub fn parse_with_scenes(input: &TokenStream) -> Result<Option<(SystemSpec, Vec<
                 if slot.is_some() {
                     return err(span, format!("section `{name}` appears twice; merge the two into one"));
                 }
+                if let Some(e) = super::missing_section_comma(&name, piece.get(2..).unwrap_or(&[])) {
+                    return Err(e);
+                }
                 let group = match piece.get(2..) {
                     Some([TokenTree::Group(g)]) if g.delimiter() == Delimiter::Brace => g.clone(),
                     _ => return err(span, format!("`{name}:` takes a `{{ … }}` block, e.g. {}", example(&name))),
@@ -226,7 +229,10 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)
             "potential" => Effect::Potential(parse_expression(&arg_tokens, &scope, &what, args.span())?),
             "constraint" => {
                 let expr = parse_expression(&arg_tokens, &scope, &what, args.span())?;
-                if !mentions_velocity(&expr) {
+                if !mentions(&expr, &|e| matches!(e, SrcExpr::Velocity(..))) {
+                    if !mentions(&expr, &|e| matches!(e, SrcExpr::Coord(..))) {
+                        return err(args.span(), no_coordinate_message("constraint", name));
+                    }
                     return err(
                         args.span(),
                         format!(
@@ -238,6 +244,9 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)
             }
             "holonomic" => {
                 let g = parse_expression(&arg_tokens, &scope, &what, args.span())?;
+                if !mentions(&g, &|e| matches!(e, SrcExpr::Coord(..) | SrcExpr::Velocity(..))) {
+                    return err(args.span(), no_coordinate_message("holonomic constraint", name));
+                }
                 let k = time_derivative(&g)?;
                 Effect::Holonomic { k, g, span: args.span() }
             }
@@ -262,7 +271,33 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)
         };
         out.push((name.clone(), effect));
     }
+    check_lowerable(base, m_base + raw.len(), &out)?;
     Ok(out)
+}
+
+/// Lowers every effect's expressions once into a scratch graph, so that a
+/// division by zero or a constant outside a function's domain is an error at
+/// its token even in an effect that no scene selects. Provisional multiplier
+/// indices (up to `multipliers`) stand for placeholder constraints.
+fn check_lowerable(base: &SystemSpec, multipliers: usize, effects: &[(Ident, Effect)]) -> Result<(), SpecError> {
+    let mut scratch = base.clone();
+    let placeholder = ConstraintSpec { expr: num(0.0, base.name.span()), span: base.name.span(), position: None };
+    scratch.constraints.resize(multipliers.max(base.constraints.len()), placeholder);
+    let mut lower = crate::lower::Lowerer::new(&scratch);
+    let mut graph = crate::graph::Graph::new();
+    for (_, effect) in effects {
+        match effect {
+            Effect::Potential(e) | Effect::Constraint(e, _) | Effect::Holonomic { g: e, .. } => {
+                lower.lower(&mut graph, e)?;
+            }
+            Effect::Force(components) | Effect::Nonideal(components) => {
+                for e in components.iter().flatten() {
+                    lower.lower(&mut graph, e)?;
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Component-wise sum of two force blocks (empty = absent).
@@ -422,14 +457,25 @@ fn parse_scenes(
     Ok(specs)
 }
 
-fn mentions_velocity(e: &SrcExpr) -> bool {
+/// Whether some leaf of `e` satisfies `leaf`.
+fn mentions(e: &SrcExpr, leaf: &dyn Fn(&SrcExpr) -> bool) -> bool {
     match e {
-        SrcExpr::Velocity(..) => true,
-        SrcExpr::Neg(a, _) => mentions_velocity(a),
-        SrcExpr::Binary(_, a, b, _) => mentions_velocity(a) || mentions_velocity(b),
-        SrcExpr::Call(_, args, _) => args.iter().any(mentions_velocity),
-        _ => false,
+        SrcExpr::Neg(a, _) => mentions(a, leaf),
+        SrcExpr::Binary(_, a, b, _) => mentions(a, leaf) || mentions(b, leaf),
+        SrcExpr::Call(_, args, _) => args.iter().any(|a| mentions(a, leaf)),
+        other => leaf(other),
     }
+}
+
+/// The message for a constraint effect that uses neither coordinates nor
+/// velocities: neither it nor its time derivative can restrict the motion,
+/// so suggesting the other kind of effect would suggest another error.
+fn no_coordinate_message(kind: &str, name: &Ident) -> String {
+    format!(
+        "{kind} `{name}` involves neither the coordinates nor the velocities (only the time `t`, parameters and \
+         numbers): no motion can satisfy or violate it, so it cannot be a constraint (its time derivative has no \
+         velocity either); remove it"
+    )
 }
 
 fn is_zero(e: &SrcExpr) -> bool {

@@ -248,7 +248,7 @@ fn parameter_and_constant_errors() {
     assert_error("struct S { coordinates: [x], parameters: { m = dot(x) }, lagrangian: 1 }", "dot", "velocity");
     assert_error("struct S { coordinates: [x], parameters: { m }, lagrangian: 1 }", "m", "needs a default value");
     assert_error("struct S { coordinates: [x], parameters: { m: f64 = 1.0 }, lagrangian: 1 }", ":", "write `m = 1.0`");
-    assert_error("struct S { coordinates: [x], parameters: { m = 1/0 }, lagrangian: 1 }", "/", "evaluates to inf");
+    assert_error("struct S { coordinates: [x], parameters: { m = 1/0 }, lagrangian: 1 }", "/", "division by zero");
     assert_error(
         "struct S { coordinates: [x], constants: { c = x }, lagrangian: 1 }",
         "x",
@@ -304,6 +304,7 @@ fn expression_errors() {
     assert_error(&with_lag("[x]"), "[x]", "use parentheses");
     assert_error(&with_lag("sin(x,,)"), ",", "empty argument");
     assert_error(&with_lag("std::f64::consts::PI"), "std", "paths are not supported");
+    assert_error(&with_lag("vec![1]"), "vec", "declare it under `constants: { … }`");
     assert_error(&with_lag("x = y"), "=", "must vanish");
     assert_error("struct S { coordinates: [x], lagrangian: 1, constraints: [dot(x),, x] }", ",", "unexpected `,`");
     assert_error(
@@ -491,11 +492,134 @@ fn structurally_singular_declarations_are_rejected_and_regular_ones_are_not() {
         .contains("at most linear in `dot(y)`"));
     assert!(message("struct C { coordinates: [x], lagrangian: dot(x)^2/2, constraints: [ dot(x), dot(x) - x ] }")
         .contains("2 constraints on 1 coordinates"));
+    // ∇²_vv L ≡ 0: every velocity is in a constraint, but the momenta do not
+    // depend on the velocities (the runtime's Newton matrix is singular).
+    let (msg, at) = generate_error(
+        "struct E { coordinates: [x, y], lagrangian: -(x^2 + y^2)/2, constraints: [dot(x) - y*dot(y)] }",
+    );
+    assert!(msg.contains("the Lagrangian of `E` has no velocity term") && msg.contains("is identically 0"), "{msg}");
+    assert_eq!(at, "-");
+    let (msg, _) = generate_error(
+        "struct E { coordinates: [x, y], lagrangian: y*dot(x) - x^2/2, constraints: [dot(x) - 1, dot(y) - x] }",
+    );
+    assert!(msg.contains("at most linear in the velocities") && msg.contains("regular Lagrangian"), "{msg}");
+    let (msg, _) = generate_error("struct E { coordinates: [x], lagrangian: -x^2/2, constraints: [dot(x) - cos(t)] }");
+    assert!(msg.contains("has no velocity term"), "{msg}");
+    // Fewer velocities with inertia than N − M: the columns [∇²_vv L; K] of
+    // v₁ have rank at most 1 + 1 < 3.
+    let (msg, at) = generate_error(
+        "struct G { coordinates: [x, y, z], lagrangian: dot(x)^2/2 - z^2, constraints: [dot(y) - x*dot(z)] }",
+    );
+    assert!(msg.contains("involves only `dot(x)`") && msg.contains("the 2 coordinates `y`, `z`"), "{msg}");
+    assert_eq!(at, "dot(x)");
     assert!(message(
         "struct D { coordinates: [x, y, z], lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2,
            constraints: [ dot(y) - x*dot(z), sin(x)*dot(y) - x*sin(x)*dot(z) + t ] }"
     )
     .contains("proportional"));
+}
+
+/// Parses and generates a declaration that must fail; returns (message,
+/// text under the span).
+fn generate_error(src: &str) -> (String, String) {
+    let tokens = src.parse::<TokenStream>().expect("test source must lex");
+    let result = match scenes::parse_with_scenes(&tokens) {
+        Ok(Some((base, specs))) => specs.iter().try_for_each(|s| crate::generate(s).map(|_| ())).map(|()| base),
+        Ok(None) => parse(tokens).and_then(|s| crate::generate(&s).map(|_| s)),
+        Err(e) => Err(e),
+    };
+    match result {
+        Ok(_) => panic!("expected an error for:\n{src}"),
+        Err(e) => (e.message.clone(), text_at(src, e.span)),
+    }
+}
+
+/// A `/` whose denominator simplifies to the constant 0 is an error at that
+/// `/` wherever it is written, even where the quotient is used in a way that
+/// is finite again (`1/(1/0)`) or never used (a constant, an effect no scene
+/// selects).
+#[test]
+fn divisions_by_a_denominator_that_simplifies_to_zero_are_errors_at_the_slash() {
+    let base = "coordinates: [x, y], parameters: { m = 1 }, lagrangian: m/2*(dot(x)^2 + dot(y)^2)";
+    for src in [
+        "struct A { coordinates: [x], parameters: { m = 1 }, lagrangian: m/(2 - 2)*dot(x)^2 }".to_string(),
+        "struct A { coordinates: [x], lagrangian: dot(x)^2/(x - x) }".to_string(),
+        "struct A { coordinates: [x], constants: { zero = 0 }, lagrangian: dot(x)^2/zero }".to_string(),
+        "struct A { coordinates: [x], constants: { c = 2/(1 - 1) }, lagrangian: dot(x)^2 }".to_string(),
+        "struct A { coordinates: [x], parameters: { m = 1/(1/0) }, lagrangian: dot(x)^2 }".to_string(),
+        format!("struct A {{ {base}, constraints: [dot(x) - dot(y)/(m - m)] }}"),
+        format!("struct A {{ {base}, forces: {{ x: 1/(y - y) }} }}"),
+        format!("struct A {{ {base}, effects: {{ u: potential(x^2/(1 - 1)) }}, scenes: {{ Free = [] }} }}"),
+        format!("struct A {{ {base}, effects: {{ r: holonomic(x/(y - y)) }}, scenes: {{ R = [r] }} }}"),
+    ] {
+        let (msg, at) = generate_error(&src);
+        assert!(msg.starts_with("division by zero: the denominator of this `/`"), "{src}: {msg}");
+        assert_eq!(at, "/", "{src}: {msg}");
+    }
+    // Denominators that are not the constant 0 stay accepted.
+    assert!(crate::generate(&parse_str("struct A { coordinates: [x], lagrangian: dot(x)^2/(2 - x) }").unwrap()).is_ok());
+}
+
+/// Messages that name the actual mistake: a missing `,` (between sections,
+/// inside a list, between entries), a number written `.5`, and section names
+/// including `effects` and `scenes`.
+#[test]
+fn missing_commas_leading_points_and_section_names_get_their_own_messages() {
+    assert_error(
+        "struct S { coordinates: [x, y]\n lagrangian: dot(x)^2 }",
+        "lagrangian",
+        "missing `,` before `lagrangian:`",
+    );
+    assert_error(
+        "struct S { coordinates: [x], lagrangian: dot(x)^2 constraints: [dot(x)] }",
+        "constraints",
+        "missing `,` before `constraints:`",
+    );
+    assert_error("struct S { coordinates: [x y], lagrangian: 1 }", "y", "missing `,` between coordinates `x` and `y`");
+    assert_error(
+        "struct S { coordinates: [x], parameters: { m = 1 g = 2 }, lagrangian: 1 }",
+        "g",
+        "missing `,` before `g =`",
+    );
+    assert_error(&with_lag(".5*dot(x)^2"), ".", "write `0.5` instead of `.5`");
+    assert_error("struct S { coordinates: [x], parameters: { m = .25 }, lagrangian: 1 }", ".", "write `0.25`");
+    let (msg, at) = error("struct S { coordinates: [x], lagrangian: 1, effect: { } }");
+    assert!(msg.contains("did you mean `effects`?") && msg.contains("`scenes`"), "{msg}");
+    assert_eq!(at, "effect");
+    let e = scenes::parse_with_scenes(
+        &"struct S { coordinates: [x], lagrangian: dot(x)^2, effects: { u: potential(x^2) } scenes: { U = [u] } }"
+            .parse()
+            .unwrap(),
+    )
+    .unwrap_err();
+    assert!(e.message.starts_with("missing `,` before `scenes:`"), "{}", e.message);
+}
+
+/// A constraint that involves neither coordinates nor velocities is refused
+/// without a suggestion that would itself be refused (its time derivative,
+/// or a holonomic effect).
+#[test]
+fn constraints_of_the_time_alone_are_refused_without_a_self_refuting_suggestion() {
+    let lag = "coordinates: [x, y], lagrangian: (dot(x)^2 + dot(y)^2)/2";
+    let (msg, at) = generate_error(&format!("struct A {{ {lag}, constraints: [sin(t)] }}"));
+    assert!(msg.contains("depends only on the time `t`") && msg.contains("remove it"), "{msg}");
+    assert!(!msg.contains("cos(t)") && !msg.contains("holonomic(g)"), "{msg}");
+    assert_eq!(at, "sin(t)");
+    let (msg, _) = generate_error(&format!("struct A {{ {lag}, constraints: [x - x + 1] }}"));
+    assert!(msg.contains("involves neither the coordinates nor the velocities"), "{msg}");
+    for effect in ["constraint(sin(t))", "holonomic(t - 1)"] {
+        let (msg, _) =
+            generate_error(&format!("struct A {{ {lag}, effects: {{ e: {effect} }}, scenes: {{ E = [e] }} }}"));
+        assert!(msg.contains("involves neither the coordinates nor the velocities"), "{effect}: {msg}");
+        assert!(!msg.contains("declare it as"), "{effect}: {msg}");
+    }
+    // A holonomic effect whose coordinates cancel reaches the model check.
+    let (msg, _) =
+        generate_error(&format!("struct A {{ {lag}, effects: {{ e: holonomic(x - x + t) }}, scenes: {{ E = [e] }} }}"));
+    assert!(msg.contains("holonomic constraint g(t) = 0 that involves no coordinate"), "{msg}");
+    // A position constraint still gets its velocity-level form.
+    let (msg, _) = generate_error(&format!("struct A {{ {lag}, constraints: [x - sin(t)] }}"));
+    assert!(msg.contains("write its time derivative instead") && msg.contains("dot(x)"), "{msg}");
 }
 
 /// `atan`, `asin`, `acos` are rewritten through `atan2` and keep their arity check.
