@@ -396,8 +396,7 @@ fn public_paths<const N: usize>() -> Result<(), String> {
     if off > 1e-15 * (1.0 + v.amax()) {
         return Err(format!("n = {N}: projection off the closed form by {off:e}"));
     }
-    let (a, psi) =
-        consistent_acceleration(&sys, 0.0, &q, &v).ok_or(format!("n = {N}: no consistent acceleration"))?;
+    let (a, psi) = consistent_acceleration(&sys, 0.0, &q, &v).ok_or(format!("n = {N}: no consistent acceleration"))?;
     // W = I: a = F − Kᵀψ, and K a + k_q v = 0.
     let k = sys.constraint_v(0.0, &q, &v);
     let momentum_balance = (a - sys.force(0.0, &q, &v) + k.transpose() * psi).amax();
