@@ -32,39 +32,153 @@ impl Default for ConsistencyPolicy {
 /// Why a saddle-point solve failed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum SaddleFailure {
-    /// A pivot of `W` (block `"W"`) or of the Schur complement `K W⁻¹ Kᵀ`
-    /// (block `"K W⁻¹ Kᵀ"`) fell below `64 ε` times its column's largest entry.
+    /// A pivot fell below `64 ε` times its column's largest entry: of the
+    /// whole saddle matrix in [`SaddleLu`], of `W` or of the Schur complement
+    /// `K W⁻¹ Kᵀ` in [`saddle_solve_in_place`].
     Singular {
-        /// Which factorization failed.
-        block: &'static str,
-        /// Column of that block.
+        /// Column of the factored matrix.
         column: usize,
         /// The pivot.
         pivot: f64,
         /// The column's largest magnitude.
         scale: f64,
     },
-    /// The solution is not finite.
+    /// The matrix or the solution is not finite.
     NonFinite,
 }
 
-/// Solves `[[W, Kᵀ],[K, 0]] [x; y] = [r1; r2]` by the Schur complement
-/// `K W⁻¹ Kᵀ` (all fixed-size: `N + M` cannot be named as a const on stable).
-/// Copies `W` (`8·N²` bytes on the stack); see [`saddle_solve_in_place`].
-pub(crate) fn saddle_solve<const N: usize, const M: usize>(
-    w: &Matrix<N, N>,
-    k: &Matrix<M, N>,
-    r1: &Vector<N>,
-    r2: &Vector<M>,
-) -> Result<(Vector<N>, Vector<M>), SaddleFailure> {
-    let mut w = *w;
-    saddle_solve_in_place(&mut w, k, r1, r2)
+/// LU factors, with partial pivoting over all rows, of the saddle-point
+/// matrix `[[A, Kᵀ],[K, 0]]` (`A` is `N × N`, `K` is `M × N`), stored
+/// column-major on the heap.
+///
+/// The whole matrix is factored, not `A` first and then the Schur
+/// complement `K A⁻¹ Kᵀ`: it succeeds whenever the saddle matrix is regular,
+/// also when `A` itself is singular (a coordinate without mass that the
+/// constraints tie to others). The storage, `(N + M)²` numbers, is
+/// allocated once per [`SaddleLu::new`], so no `N × N` matrix goes on the
+/// stack.
+pub(crate) struct SaddleLu<const N: usize, const M: usize> {
+    lu: Vec<f64>,
+    perm: Vec<usize>,
+    scale: Vec<f64>,
 }
 
-/// [`saddle_solve`] factoring `w` in place (it holds the LU factors
-/// afterwards), so that no `N × N` matrix goes on the stack: the caller's
-/// `w` may live on the heap (the stepper's cold start passes its stage
-/// Jacobian work storage).
+impl<const N: usize, const M: usize> SaddleLu<N, M> {
+    const DIM: usize = N + M;
+
+    pub(crate) fn new() -> Self {
+        SaddleLu { lu: vec![0.0; Self::DIM * Self::DIM], perm: vec![0; Self::DIM], scale: vec![0.0; Self::DIM] }
+    }
+
+    /// Assembles `[[a, kᵀ],[k, 0]]` and factors it (`P S = L U`). A pivot
+    /// below `64 ε` times its column's largest entry counts as singular,
+    /// as in the stepper's factorization.
+    pub(crate) fn factor(&mut self, a: &Matrix<N, N>, k: &Matrix<M, N>) -> Result<(), SaddleFailure> {
+        let d = Self::DIM;
+        let lu = &mut self.lu[..d * d];
+        for j in 0..N {
+            let col = &mut lu[j * d..(j + 1) * d];
+            col[..N].copy_from_slice(&a.as_slice()[j * N..(j + 1) * N]);
+            for r in 0..M {
+                col[N + r] = k[(r, j)];
+            }
+        }
+        for r in 0..M {
+            let col = &mut lu[(N + r) * d..(N + r + 1) * d];
+            for j in 0..N {
+                col[j] = k[(r, j)];
+            }
+            col[N..].fill(0.0);
+        }
+        if !lu.iter().all(|x| x.is_finite()) {
+            return Err(SaddleFailure::NonFinite);
+        }
+        for (j, s) in self.scale.iter_mut().enumerate() {
+            *s = lu[j * d..(j + 1) * d].iter().fold(0.0, |m: f64, x| m.max(x.abs()));
+        }
+        for c in 0..d {
+            let col_c = &lu[c * d..(c + 1) * d];
+            let (mut p, mut best) = (c, col_c[c].abs());
+            for (i, x) in col_c.iter().enumerate().skip(c + 1) {
+                if x.abs() > best {
+                    (p, best) = (i, x.abs());
+                }
+            }
+            self.perm[c] = p;
+            if best <= 64.0 * f64::EPSILON * self.scale[c] {
+                return Err(SaddleFailure::Singular { column: c, pivot: best, scale: self.scale[c] });
+            }
+            if p != c {
+                for j in 0..d {
+                    lu.swap(j * d + c, j * d + p);
+                }
+            }
+            let (left, right) = lu.split_at_mut((c + 1) * d);
+            let col_c = &mut left[c * d..];
+            let inv = 1.0 / col_c[c];
+            for x in &mut col_c[c + 1..] {
+                *x *= inv;
+            }
+            let lower = &col_c[c + 1..];
+            for col_j in right.chunks_exact_mut(d) {
+                let ucj = col_j[c];
+                if ucj != 0.0 {
+                    for (x, l) in col_j[c + 1..].iter_mut().zip(lower) {
+                        *x -= l * ucj;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Solves `[[A, Kᵀ],[K, 0]] [x; y] = [r1; r2]` with the factors of the
+    /// last successful [`factor`](Self::factor).
+    pub(crate) fn solve(&self, r1: &Vector<N>, r2: &Vector<M>) -> Result<(Vector<N>, Vector<M>), SaddleFailure> {
+        let d = Self::DIM;
+        let lu = &self.lu[..d * d];
+        let mut b: Vec<f64> = r1.iter().chain(r2.iter()).copied().collect();
+        for (c, &p) in self.perm.iter().enumerate() {
+            b.swap(c, p);
+        }
+        for j in 0..d {
+            let bj = b[j];
+            for (x, l) in b[j + 1..].iter_mut().zip(&lu[j * d + j + 1..(j + 1) * d]) {
+                *x -= l * bj;
+            }
+        }
+        for j in (0..d).rev() {
+            b[j] /= lu[j * d + j];
+            let bj = b[j];
+            for (x, u) in b[..j].iter_mut().zip(&lu[j * d..j * d + j]) {
+                *x -= u * bj;
+            }
+        }
+        if !b.iter().all(|x| x.is_finite()) {
+            return Err(SaddleFailure::NonFinite);
+        }
+        Ok((Vector::<N>::from_column_slice(&b[..N]), Vector::<M>::from_column_slice(&b[N..])))
+    }
+}
+
+/// `a x` for an `N × N` column-major matrix `a` given as a slice.
+fn mul_columns<const N: usize>(a: &[f64], x: &Vector<N>) -> Vector<N> {
+    let mut y = Vector::<N>::zeros();
+    for (j, &xj) in x.iter().enumerate() {
+        if xj != 0.0 {
+            for (yi, aij) in y.iter_mut().zip(&a[j * N..(j + 1) * N]) {
+                *yi += aij * xj;
+            }
+        }
+    }
+    y
+}
+
+/// Solves `[[W, Kᵀ],[K, 0]] [x; y] = [r1; r2]` by the Schur complement
+/// `K W⁻¹ Kᵀ`, factoring `w` in place (it holds the LU factors afterwards),
+/// without allocating: the stepper's cold start passes its heap stage
+/// Jacobian work storage, so no `N × N` matrix goes on the stack. Needs `W`
+/// regular; [`SaddleLu`] needs only the saddle matrix regular.
 pub(crate) fn saddle_solve_in_place<const N: usize, const M: usize>(
     w: &mut Matrix<N, N>,
     k: &Matrix<M, N>,
@@ -74,7 +188,6 @@ pub(crate) fn saddle_solve_in_place<const N: usize, const M: usize>(
     let scale = column_scales::<N>(w.as_slice());
     let mut perm = [0usize; N];
     factor_in_place::<N>(w.as_mut_slice(), &mut perm, &scale, &[N]).map_err(|e| SaddleFailure::Singular {
-        block: "W",
         column: e.column,
         pivot: e.pivot,
         scale: scale[e.column],
@@ -94,7 +207,6 @@ pub(crate) fn saddle_solve_in_place<const N: usize, const M: usize>(
     let schur = k * winv_kt;
     let mut slu = Lu::<M>::new();
     slu.factor(&schur).map_err(|e| SaddleFailure::Singular {
-        block: "K W⁻¹ Kᵀ",
         column: e.column,
         pivot: e.pivot,
         scale: schur.column(e.column).amax(),
@@ -112,7 +224,12 @@ pub(crate) fn saddle_solve_in_place<const N: usize, const M: usize>(
 /// The acceleration `a = v̇` and multiplier `ψ` of the constrained equations
 /// at `(t, q, v)`, from
 /// `W a + Kᵀψ = ∇_q L − (∂p/∂q) v − ∂p/∂t` and `K a = −(k_q v + k_t)`.
-/// Returns `None` when the saddle-point matrix is singular.
+///
+/// The saddle-point matrix `[[W, Kᵀ],[K, 0]]` is factored as a whole, so a
+/// singular mass matrix `W` is fine as long as the saddle matrix is regular
+/// (the condition under which the equations have a unique solution).
+/// Returns `None` when it is singular. The Jacobians and the factors live
+/// on the heap (allocated once per call), so the stack use is `O(N)`.
 pub fn consistent_acceleration<Sys, const N: usize, const M: usize>(
     sys: &Sys,
     t: f64,
@@ -122,31 +239,24 @@ pub fn consistent_acceleration<Sys, const N: usize, const M: usize>(
 where
     Sys: NonholonomicSystem<N, M>,
 {
-    if std::mem::size_of::<StageJacobians<N, M>>() > LARGE_JACOBIANS {
-        // Large N: the Jacobians go on the heap (one allocation per call).
-        let mut jac = StageJacobians::boxed_zeros();
-        return consistent_acceleration_in(sys, t, q, v, &mut StageValues::zeros(), &mut jac);
-    }
-    let (mut vals, mut jac) = (StageValues::zeros(), StageJacobians::zeros());
-    consistent_acceleration_in(sys, t, q, v, &mut vals, &mut jac)
+    let (mut vals, mut jac) = (StageValues::zeros(), StageJacobians::boxed_zeros());
+    let (r1, r2) = acceleration_rhs(sys, t, q, v, &mut vals, &mut jac);
+    let mut lu = SaddleLu::<N, M>::new();
+    lu.factor(&jac.mass, &jac.constraint_v).ok()?;
+    lu.solve(&r1, &r2).ok()
 }
 
-/// Size of `StageJacobians` above which [`consistent_acceleration`] puts
-/// them on the heap instead of the stack (`N ≳ 37`).
-const LARGE_JACOBIANS: usize = 64 << 10;
-
-/// [`consistent_acceleration`] with caller-provided scratch storage for the
-/// stage values and Jacobians (overwritten; `jac.mass` ends up holding LU
-/// factors). With heap storage no `N × N` matrix goes on the stack: the
-/// stepper's cold start uses its own work storage, allocation-free.
-pub(crate) fn consistent_acceleration_in<Sys, const N: usize, const M: usize>(
+/// Evaluates the stage Jacobians at `(t, q, v, ψ = 0)` into `vals`, `jac`
+/// and returns the right-hand sides `(∇_q L − (∂p/∂q) v − ∂p/∂t + f,
+/// −(k_q v + k_t))` of the consistent-acceleration equations.
+fn acceleration_rhs<Sys, const N: usize, const M: usize>(
     sys: &Sys,
     t: f64,
     q: &Vector<N>,
     v: &Vector<N>,
     vals: &mut StageValues<N, M>,
     jac: &mut StageJacobians<N, M>,
-) -> Option<(Vector<N>, Vector<M>)>
+) -> (Vector<N>, Vector<M>)
 where
     Sys: NonholonomicSystem<N, M>,
 {
@@ -160,17 +270,61 @@ where
     if Sys::HAS_FORCING {
         r1 += sys.external_force(t, q, v);
     }
-    // A non-ideal force N(ψ) is left out: this is a starting guess, and
-    // Newton on the step equations accounts for it.
+    // A non-ideal force N(ψ) is left out: this is a starting guess and an
+    // observer of the ideal multiplier; Newton on the step equations
+    // accounts for it.
+    (r1, r2)
+}
+
+/// [`consistent_acceleration`] with caller-provided scratch storage for the
+/// stage values and Jacobians (overwritten; `jac.mass` ends up holding LU
+/// factors), by the Schur complement through `W` (allocation-free; `None`
+/// also when `W` is singular). With heap storage no `N × N` matrix goes on
+/// the stack: the stepper's cold start uses its own work storage.
+pub(crate) fn consistent_acceleration_in<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+    vals: &mut StageValues<N, M>,
+    jac: &mut StageJacobians<N, M>,
+) -> Option<(Vector<N>, Vector<M>)>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let (r1, r2) = acceleration_rhs(sys, t, q, v, vals, jac);
     saddle_solve_in_place(&mut jac.mass, &jac.constraint_v, &r1, &r2).ok()
 }
 
 /// Checks `(t₀, q₀, v₀)` against the constraints and, by `policy`, returns
 /// `v₀` unchanged, returns the projected velocity, or fails.
 ///
-/// The projection minimizes `½(v − v₀)ᵀ W (v − v₀)` subject to
-/// `k(t₀, q₀, v) = 0` with `W = ∇²_vv L(t₀, q₀, v₀)`, by Newton on
-/// `W(v − v₀) + K(v)ᵀλ = 0`, `k(v) = 0`.
+/// # The projection
+/// With `W = ∇²_vv L(t₀, q₀, v₀)` and `K(v) = ∂k/∂v(t₀, q₀, v)`, the
+/// projected velocity `v` and a multiplier `λ` solve the first-order
+/// conditions of minimizing `½(v − v₀)ᵀ W (v − v₀)` subject to
+/// `k(t₀, q₀, v) = 0`:
+///
+/// ```text
+/// W (v − v₀) + K(v)ᵀ λ = 0,    k(t₀, q₀, v) = 0,
+/// ```
+///
+/// by Newton's method from `(v₀, 0)`, whose matrix is the saddle matrix
+/// `[[W + ∂(K(v)ᵀλ)/∂v, K(v)ᵀ],[K(v), 0]]`, factored as a whole (LU with
+/// partial pivoting, on the heap). For `k` linear or affine in `v` one
+/// Newton step solves the conditions exactly (a second confirms it), and the
+/// solution is unique whenever `[[W, Kᵀ],[K, 0]]` is regular, also when `W`
+/// is singular (a coordinate without mass, such as the mobile robot's
+/// position with `m = 0`). For a positive semidefinite `W` regularity means
+/// that `W` is positive definite on `ker K`; since the difference of two
+/// consistent velocities lies in `ker K`, `(v − v₀)ᵀW(v − v₀)` is then a
+/// norm on the feasible set, and `v` is the closest consistent velocity in
+/// it (the kinetic-energy metric). For `k` nonlinear in `v`, Newton
+/// converges from a `v₀` near the constraint surface.
+///
+/// The Jacobians and factors live on the heap (allocated once per call), so
+/// the stack use is `O(N)` for systems whose `stage_jacobians_into` writes
+/// in place (generated ones do).
 pub fn consistent_velocity<Sys, const N: usize, const M: usize>(
     sys: &Sys,
     t0: f64,
@@ -205,35 +359,67 @@ where
     if let ConsistencyPolicy::Error { .. } = policy {
         return Err(StepError::InconsistentInitialState { residual, tolerance });
     }
-    let w = sys.mass_matrix(t0, q0, v0);
+    project(sys, t0, q0, v0)
+}
+
+/// The projection of [`consistent_velocity`].
+fn project<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+) -> Result<Vector<N>, StepError>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let (mut vals, mut jac) = (StageValues::<N, M>::zeros(), StageJacobians::<N, M>::boxed_zeros());
+    // W = ∇²_vv L(t0, q0, v0), kept for the whole iteration.
+    let mut w0 = vec![0.0; N * N];
+    let mut lu = SaddleLu::<N, M>::new();
     let mut v = *v0;
     let mut lambda = Vector::<M>::zeros();
     let mut history = NewtonHistory::default();
     let mut prev = f64::NAN;
-    for _ in 0..crate::error::HISTORY_CAPACITY {
-        let (vals, jac) = sys.stage_jacobians(t0, q0, &v, &lambda);
+    let non_finite = |history: NewtonHistory| StepError::NonFinite {
+        t: t0,
+        h: 0.0,
+        stage: "velocity projection",
+        history: Box::new(history),
+    };
+    for iteration in 0..crate::error::HISTORY_CAPACITY {
+        sys.stage_jacobians_into(t0, q0, &v, &lambda, &mut vals, &mut jac);
+        if iteration == 0 {
+            w0.copy_from_slice(jac.mass.as_slice());
+        }
         // Residual: W(v − v0) − R(λ) with R = −Kᵀλ, and k(v).
-        let g1 = w * (v - v0) - vals.constraint_force;
+        let g1 = mul_columns(&w0, &(v - v0)) - vals.constraint_force;
         let g2 = vals.constraint;
         let res = g1.amax().max(g2.amax());
-        // Jacobian [[W − ∂R/∂v, Kᵀ],[K, 0]].
-        let a = w - jac.constraint_force_v;
-        let (dv, dl) = match saddle_solve(&a, &jac.constraint_v, &g1, &g2) {
+        // Jacobian [[W − ∂R/∂v, Kᵀ],[K, 0]]: W − ∂R/∂v is formed in place
+        // of ∂R/∂v (heap storage, rewritten by the next evaluation).
+        for (x, w) in jac.constraint_force_v.as_mut_slice().iter_mut().zip(&w0) {
+            *x = w - *x;
+        }
+        let step = lu.factor(&jac.constraint_force_v, &jac.constraint_v).and_then(|()| lu.solve(&g1, &g2));
+        let (dv, dl) = match step {
             Ok(x) => x,
-            Err(SaddleFailure::Singular { block, column, pivot, scale }) => {
+            Err(SaddleFailure::Singular { column, pivot, scale }) => {
                 history.push(IterationRecord { residual: res, update: f64::NAN, rate: f64::NAN });
+                let which = if column < N {
+                    format!("velocity column {column}")
+                } else {
+                    format!("multiplier column {}", column - N)
+                };
                 return Err(StepError::SingularMatrix {
                     t: t0,
                     h: 0.0,
                     detail: format!(
-                        "(the initial velocity projection, not a step) column {column} of block {block} of \
-                         [[W, Kᵀ],[K, 0]]: pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}; {}",
-                        if block == "W" {
-                            "the mass matrix W = ∇²_vv L is singular at (t0, q0): is a mass or inertia parameter zero?"
-                        } else {
-                            "the constraint rows K = ∂k/∂v are dependent or vanish at (t0, q0, v); for constraints \
-                             nonlinear in v, start from a v0 where ∂k/∂v has full rank (near the constraint surface)"
-                        }
+                        "(the initial velocity projection, not a step) {which} of the saddle matrix \
+                         [[W − ∂R/∂v, Kᵀ],[K, 0]] at (t0, q0, v): pivot {pivot:.3e} is below 64 eps x its largest \
+                         entry {scale:.3e}. Either the constraint rows K = ∂k/∂v are dependent or vanish there, or \
+                         the mass matrix W = ∇²_vv L is singular on the velocities the constraints leave free \
+                         (ker K): is the mass or inertia of a coordinate that no constraint ties to the others \
+                         zero? For constraints nonlinear in v, start from a v0 near the constraint surface."
                     )
                     .into(),
                     history: Box::new(history),
@@ -241,12 +427,7 @@ where
             }
             Err(SaddleFailure::NonFinite) => {
                 history.push(IterationRecord { residual: res, update: f64::NAN, rate: f64::NAN });
-                return Err(StepError::NonFinite {
-                    t: t0,
-                    h: 0.0,
-                    stage: "velocity projection",
-                    history: Box::new(history),
-                });
+                return Err(non_finite(history));
             }
         };
         v -= dv;
@@ -255,12 +436,7 @@ where
         let rate = upd / prev;
         history.push(IterationRecord { residual: res, update: upd, rate });
         if !upd.is_finite() {
-            return Err(StepError::NonFinite {
-                t: t0,
-                h: 0.0,
-                stage: "velocity projection",
-                history: Box::new(history),
-            });
+            return Err(non_finite(history));
         }
         if upd <= 4.0 * f64::EPSILON || (rate < 1.0 && rate * upd <= 4.0 * f64::EPSILON) {
             return Ok(v);

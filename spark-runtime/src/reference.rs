@@ -50,7 +50,7 @@
 //! [`ReferenceError::TooManySteps`] rather than returning an unverified answer.
 
 use crate::error::Sci;
-use crate::system::{Matrix, NonholonomicSystem, Vector};
+use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use nalgebra::{DMatrix, DVector};
 
 /// Settings of the extrapolation solver.
@@ -105,6 +105,23 @@ pub enum ReferenceError {
     #[error("the multiplier equations with the non-ideal force did not converge at t = {}; smooth N(ψ)", Sci(*t))]
     NonidealNotConverged {
         /// Time of the evaluation.
+        t: f64,
+    },
+    /// An entry of the initial state is NaN or infinite.
+    #[error("initial state: {which}[{index}] = {value:.3e} is not finite")]
+    NonFiniteInitialState {
+        /// `"q0"` or `"v0"`.
+        which: &'static str,
+        /// The entry's index.
+        index: usize,
+        /// Its value.
+        value: f64,
+    },
+    /// The solution left the finite numbers (it overflows or blows up)
+    /// although every right-hand side evaluated was finite.
+    #[error("the solution is not finite at t = {t:.3e}; it overflows or blows up before the end time")]
+    NonFiniteState {
+        /// Time at which the state became non-finite.
         t: f64,
     },
     /// The right-hand side produced NaN or infinity.
@@ -163,9 +180,12 @@ pub struct ReferenceSolution<const N: usize> {
 /// Accelerations and multipliers of the system at `(t, q, v)`: the solution
 /// `(v̇, ψ)` of the saddle-point system of paper eq. (2.3).
 ///
-/// Uses [`NonholonomicSystem::mass_matrix`], `force`, `constraint_q`,
-/// `constraint_v`, `time_derivatives` and the `momentum_q` block of
-/// `stage_jacobians` (evaluated with `ψ = 0`).
+/// Uses [`NonholonomicSystem::stage_jacobians_into`] (evaluated with
+/// `ψ = 0`: `∇_q L`, `∇²_vv L`, `∂(∇_v L)/∂q`, `k_q`, `K`),
+/// `time_derivatives`, and the forcing and non-ideal force when the system
+/// has them. The Jacobians and the dense saddle matrix live on the heap
+/// (allocated once per call), so the stack use is `O(N)` for systems whose
+/// in-place methods write in place (generated ones do).
 pub fn acceleration<S, const N: usize, const M: usize>(
     sys: &S,
     t: f64,
@@ -175,45 +195,78 @@ pub fn acceleration<S, const N: usize, const M: usize>(
 where
     S: NonholonomicSystem<N, M> + ?Sized,
 {
-    let mass = sys.mass_matrix(t, q, v);
-    let force = sys.force(t, q, v);
-    let k_q: Matrix<M, N> = sys.constraint_q(t, q, v);
-    let k_v: Matrix<M, N> = sys.constraint_v(t, q, v);
+    acceleration_with(sys, t, q, v, &mut Scratch::new())
+}
+
+/// Heap storage of one acceleration evaluation, allocated once per
+/// integration and reused by every right-hand side.
+struct Scratch<const N: usize, const M: usize> {
+    values: StageValues<N, M>,
+    jacobians: Box<StageJacobians<N, M>>,
+    /// `∂N/∂ψ` of a non-ideal constraint force.
+    psi_jacobian: Box<Matrix<N, M>>,
+    /// `[[∇²_vv L, Kᵀ],[K, 0]]`.
+    saddle: DMatrix<f64>,
+    /// `[r_v; r_k]`.
+    rhs: DVector<f64>,
+}
+
+impl<const N: usize, const M: usize> Scratch<N, M> {
+    fn new() -> Self {
+        Scratch {
+            values: StageValues::zeros(),
+            jacobians: StageJacobians::boxed_zeros(),
+            psi_jacobian: Box::new(Matrix::zeros()),
+            saddle: DMatrix::zeros(N + M, N + M),
+            rhs: DVector::zeros(N + M),
+        }
+    }
+}
+
+/// [`acceleration`] in caller-provided heap storage.
+fn acceleration_with<S, const N: usize, const M: usize>(
+    sys: &S,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+    scratch: &mut Scratch<N, M>,
+) -> Result<(Vector<N>, Vector<M>), ReferenceError>
+where
+    S: NonholonomicSystem<N, M> + ?Sized,
+{
+    let Scratch { values, jacobians: jac, saddle: a, rhs: b, .. } = scratch;
+    sys.stage_jacobians_into(t, q, v, &Vector::<M>::zeros(), values, jac);
     let td = sys.time_derivatives(t, q, v);
-    let (_, jac) = sys.stage_jacobians(t, q, v, &Vector::<M>::zeros());
-    let mut rhs_v = force - jac.momentum_q * v - td.momentum_t;
+    let mut rhs_v = values.force - jac.momentum_q * v - td.momentum_t;
     if S::HAS_FORCING {
         rhs_v += sys.external_force(t, q, v);
     }
-    let rhs_k = -td.constraint_t - k_q * v;
-    if S::HAS_NONIDEAL_FORCE {
-        return nonideal_acceleration(sys, t, q, v, &mass, &k_v, &rhs_v, &rhs_k);
-    }
-
-    let dim = N + M;
-    let mut a = DMatrix::<f64>::zeros(dim, dim);
-    let mut b = DVector::<f64>::zeros(dim);
-    for i in 0..N {
-        for j in 0..N {
-            a[(i, j)] = mass[(i, j)];
+    let rhs_k = -td.constraint_t - jac.constraint_q * v;
+    a.fill(0.0);
+    for j in 0..N {
+        for i in 0..N {
+            a[(i, j)] = jac.mass[(i, j)];
         }
-        b[i] = rhs_v[i];
+        b[j] = rhs_v[j];
     }
     for r in 0..M {
         for j in 0..N {
-            a[(N + r, j)] = k_v[(r, j)];
-            a[(j, N + r)] = k_v[(r, j)];
+            a[(N + r, j)] = jac.constraint_v[(r, j)];
+            a[(j, N + r)] = jac.constraint_v[(r, j)];
         }
         b[N + r] = rhs_k[r];
     }
     if !a.iter().chain(b.iter()).all(|x| x.is_finite()) {
         return Err(ReferenceError::NonFinite { t });
     }
+    if S::HAS_NONIDEAL_FORCE {
+        return nonideal_acceleration(sys, t, q, v, scratch);
+    }
     let lu = a.clone().full_piv_lu();
-    let mut x = lu.solve(&b).ok_or(ReferenceError::SingularSaddle { t })?;
+    let mut x = lu.solve(&*b).ok_or(ReferenceError::SingularSaddle { t })?;
     // One step of iterative refinement recovers the digits lost to the
     // conditioning of the saddle matrix, which matters at 1e-14 tolerances.
-    let residual = &b - &a * &x;
+    let residual = &*b - &*a * &x;
     if let Some(dx) = lu.solve(&residual) {
         x += dx;
     }
@@ -228,45 +281,38 @@ where
 /// `(v̇, ψ)` with a non-ideal constraint force: `W v̇ + Kᵀψ − N(t,q,v,ψ) = r_v`,
 /// `K v̇ = r_k`, solved by Newton's method in `(v̇, ψ)` (`N` is nonlinear in
 /// `ψ`, e.g. dry friction `∝ |ψ|`), starting from the ideal solution `N = 0`.
-#[allow(clippy::too_many_arguments)]
+/// `scratch.saddle` holds `[[W, Kᵀ],[K, 0]]` and `scratch.rhs` holds
+/// `[r_v; r_k]` on entry.
 fn nonideal_acceleration<S, const N: usize, const M: usize>(
     sys: &S,
     t: f64,
     q: &Vector<N>,
     v: &Vector<N>,
-    mass: &Matrix<N, N>,
-    k_v: &Matrix<M, N>,
-    rhs_v: &Vector<N>,
-    rhs_k: &Vector<M>,
+    scratch: &mut Scratch<N, M>,
 ) -> Result<(Vector<N>, Vector<M>), ReferenceError>
 where
     S: NonholonomicSystem<N, M> + ?Sized,
 {
+    let Scratch { values, jacobians, psi_jacobian, saddle, rhs } = scratch;
     let dim = N + M;
     let mut x = DVector::<f64>::zeros(dim);
     let mut converged = false;
     for _ in 0..60 {
         let psi = Vector::<M>::from_fn(|i, _| x[N + i]);
-        let nj = sys.nonideal_force_jacobians(t, q, v, &psi);
-        let mut a = DMatrix::<f64>::zeros(dim, dim);
-        let mut g = DVector::<f64>::zeros(dim);
-        let vdot = Vector::<N>::from_fn(|i, _| x[i]);
-        let r1 = mass * vdot + k_v.transpose() * psi - nj.value - rhs_v;
-        let r2 = k_v * vdot - rhs_k;
+        // N(ψ) accumulates into the zeroed constraint force; ∂N/∂q and
+        // ∂N/∂v go into Jacobian blocks this solve does not read.
+        values.constraint_force.fill(0.0);
+        sys.add_nonideal_force_jacobians(t, q, v, &psi, values, jacobians, psi_jacobian);
+        // g = [[W, Kᵀ],[K, 0]] x − [N; 0] − [r_v; r_k].
+        let mut g = &*saddle * &x - &*rhs;
         for i in 0..N {
-            for j in 0..N {
-                a[(i, j)] = mass[(i, j)];
-            }
-            for r in 0..M {
-                a[(i, N + r)] = k_v[(r, i)] - nj.psi[(i, r)];
-            }
-            g[i] = r1[i];
+            g[i] -= values.constraint_force[i];
         }
-        for r in 0..M {
-            for j in 0..N {
-                a[(N + r, j)] = k_v[(r, j)];
+        let mut a = saddle.clone();
+        for i in 0..N {
+            for r in 0..M {
+                a[(i, N + r)] -= psi_jacobian[(i, r)];
             }
-            g[N + r] = r2[r];
         }
         if !a.iter().chain(g.iter()).all(|x| x.is_finite()) {
             return Err(ReferenceError::NonFinite { t });
@@ -322,6 +368,11 @@ where
     validate(options)?;
     if !t0.is_finite() {
         return Err(ReferenceError::InvalidTimes { t0, time: t0 });
+    }
+    for (which, x) in [("q0", q0), ("v0", v0)] {
+        if let Some((index, &value)) = x.iter().enumerate().find(|(_, x)| !x.is_finite()) {
+            return Err(ReferenceError::NonFiniteInitialState { which, index, value });
+        }
     }
     let direction = times.iter().find(|&&t| t != t0).map_or(1.0, |&t| (t - t0).signum());
     let mut previous = t0;
@@ -409,6 +460,8 @@ struct Gbs<'a, S: ?Sized, const N: usize, const M: usize> {
     tableau: Vec<State<N>>,
     last_rejected: bool,
     stats: ReferenceStats,
+    /// Heap storage of the right-hand side's saddle solves.
+    scratch: Scratch<N, M>,
 }
 
 impl<'a, S, const N: usize, const M: usize> Gbs<'a, S, N, M>
@@ -432,12 +485,13 @@ where
             tableau: vec![State { q: Vector::zeros(), v: Vector::zeros() }; rows + 1],
             last_rejected: false,
             stats: ReferenceStats::default(),
+            scratch: Scratch::new(),
         }
     }
 
     fn rhs(&mut self, t: f64, y: &State<N>) -> Result<State<N>, ReferenceError> {
         self.stats.rhs_evaluations += 1;
-        let (vdot, _) = acceleration::<S, N, M>(self.sys, t, &y.q, &y.v)?;
+        let (vdot, _) = acceleration_with::<S, N, M>(self.sys, t, &y.q, &y.v, &mut self.scratch)?;
         Ok(State { q: y.v, v: vdot })
     }
 
@@ -576,6 +630,11 @@ where
                     self.stats.accepted_steps += 1;
                     y = State { q: y.q + self.tableau[k].q, v: y.v + self.tableau[k].v };
                     t = if last { t_end } else { t + h };
+                    // The error estimate measures increments, which stay
+                    // finite when the state itself overflows.
+                    if !y.q.iter().chain(y.v.iter()).all(|x| x.is_finite()) {
+                        return Err(ReferenceError::NonFiniteState { t });
+                    }
                     let mut kopt;
                     if k == 2 {
                         kopt = 3.min(rows - 1);
@@ -924,6 +983,28 @@ mod tests {
         assert!(matches!(r, Err(ReferenceError::InvalidTimes { .. })));
         let few = ReferenceOptions { max_steps: 3, ..Default::default() };
         assert!(matches!(integrate(&sys, 0.0, &q, &v, 100.0, &few), Err(ReferenceError::TooManySteps { .. })));
+    }
+
+    #[test]
+    fn rejects_non_finite_initial_values_and_never_returns_a_non_finite_state() {
+        let sys = skate();
+        let opts = ReferenceOptions::default();
+        let (q, v) = skate_exact(0.0);
+        let nan_q = Vector::from([f64::NAN, 0.0, 0.0]);
+        let r = integrate(&sys, 0.0, &nan_q, &v, 1.0, &opts);
+        assert!(matches!(r, Err(ReferenceError::NonFiniteInitialState { which: "q0", index: 0, .. })), "{r:?}");
+        let r = integrate_at(&sys, 0.0, &nan_q, &v, &[0.0], &opts);
+        assert!(matches!(r, Err(ReferenceError::NonFiniteInitialState { which: "q0", index: 0, .. })), "{r:?}");
+        let inf_v = Vector::from([0.0, f64::INFINITY, 1.0]);
+        let r = integrate(&sys, 0.0, &q, &inf_v, 1.0, &opts);
+        assert!(matches!(r, Err(ReferenceError::NonFiniteInitialState { which: "v0", index: 1, .. })), "{r:?}");
+        assert!(matches!(integrate(&sys, f64::NAN, &q, &v, 1.0, &opts), Err(ReferenceError::InvalidTimes { .. })));
+        assert!(matches!(integrate(&sys, 0.0, &q, &v, f64::INFINITY, &opts), Err(ReferenceError::InvalidTimes { .. })));
+        // A finite start with finite accelerations whose solution overflows:
+        // the free particle from q = v = 1e308 reaches q = 2e308 = ∞ at t = 1.
+        let free = Analytic::<1, 0> { force: |_, _, _| Vector::zeros(), ..oscillator() };
+        let r = integrate(&free, 0.0, &Vector::from([1e308]), &Vector::from([1e308]), 1.0, &opts);
+        assert!(matches!(r, Err(ReferenceError::NonFiniteState { .. })), "{r:?}");
     }
 
     #[test]

@@ -379,6 +379,34 @@ fn inconsistent_initial_velocity_is_rejected_or_projected() {
     assert!(matches!(e, Err(IntegrationError::Initial(StepError::InconsistentInitialState { .. }))));
 }
 
+#[test]
+fn projection_and_consistent_acceleration_need_only_a_regular_saddle_matrix() {
+    // m = 0: W = diag(0, 0, I, 3I_w) is singular, but W is positive definite
+    // on ker K (v_x and v_y follow v_φ), so [[W, Kᵀ],[K, 0]] is regular.
+    let sys = MobileRobot { m: 0.0, ..MobileRobot::default() };
+    let q0 = V::<4>::new(0.0, 0.0, 0.3, 0.0);
+    let v0 = V::<4>::new(1.0, 0.5, 0.5, 1.0);
+    let v = consistent_velocity(&sys, 0.0, &q0, &v0, ConsistencyPolicy::Project { tolerance: 1e-12 }).unwrap();
+    // Only v_θ and v_φ carry weight in ½(v − v₀)ᵀW(v − v₀), and k = 0 leaves
+    // both free: they keep their values, and v_x, v_y follow the wheel (ℓ = 1).
+    let expect = V::<4>::new(0.3f64.cos(), 0.3f64.sin(), 0.5, 1.0);
+    assert!((v - expect).amax() < 1e-15, "{v}");
+    let (a, psi) = consistent_acceleration(&sys, 0.0, &q0, &v).expect("the saddle matrix is regular");
+    let (w, k) = (sys.mass_matrix(0.0, &q0, &v), sys.constraint_v(0.0, &q0, &v));
+    assert!((w * a + k.transpose() * psi - sys.force(0.0, &q0, &v)).amax() < 1e-14);
+    assert!((k * a + sys.constraint_q(0.0, &q0, &v) * v).amax() < 1e-14);
+    // A singular saddle matrix (the skate's heading has no inertia and no
+    // constraint fixes it) is reported as such.
+    let skate = Skate { inertia: 0.0, ..Skate::default() };
+    let (q, v0) = (V::<3>::new(0.0, 0.0, 0.3), V::<3>::new(1.0, 0.5, 0.3));
+    let err = consistent_velocity(&skate, 0.0, &q, &v0, ConsistencyPolicy::Project { tolerance: 0.0 }).unwrap_err();
+    match &err {
+        StepError::SingularMatrix { detail, .. } => assert!(detail.contains("[[W"), "{err}"),
+        _ => panic!("{err:?}"),
+    }
+    assert!(consistent_acceleration(&skate, 0.0, &q, &v0).is_none());
+}
+
 // ---------------------------------------------------------------- driver
 
 #[test]
