@@ -75,6 +75,7 @@ fn an_interrupted_run_leaves_the_previous_results_intact() {
 
     // A second run with another step size, interrupted in its write phase
     // (as soon as anything in the folder changes).
+    let all_before = snapshot(&dir, true);
     let mut child = spark()
         .args(base)
         .args(["--h", "0.02", "--out"])
@@ -84,7 +85,6 @@ fn an_interrupted_run_leaves_the_previous_results_intact() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let all_before = snapshot(&dir, true);
     wait_until(&mut child, "writing", || snapshot(&dir, true) != all_before);
     let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(kill.success());
