@@ -279,7 +279,7 @@ const MAX_TRAJECTORY_MEMORY: u64 = 4 << 30;
 /// end elsewhere than asked) or too many steps.
 fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
     let ratio = (t_end - t0) / h;
-    if !(ratio <= MAX_STEPS) {
+    if ratio.is_nan() || ratio > MAX_STEPS {
         return Err(format!(
             "(t_end − t0)/h = {ratio:.3e} steps is more than 2^53 = {MAX_STEPS:.3e}, the most a run can count; \
              raise --h or shorten the interval --t0 … --t-end"
