@@ -17,6 +17,9 @@
 //! | `fig8_4_printed.csv`, `fig8_4_printed_energy_errors.csv` | the same for the constraint as printed |
 //! | `summary.md`, `summary.json` | per figure and method: max `|E − E0|`, max constraint residual, steps, time, drift or growth fit |
 //!
+//! The folder is locked for the whole run and the files appear together at
+//! its end, summaries last ([`crate::output::OutputDir`]).
+//!
 //! Fig. 8.4 runs two systems. §8.4 prints the constraint as
 //! `v1 + Σ_{i=m+2}^{n} q_i v_i = 0`, which is holonomic (it is
 //! `d/dt[q1 + ½ Σ q_i²] = 0`); on it Lobatto IIIA-B SPARK is RATTLE, a
@@ -28,8 +31,8 @@
 //! ([`PaperConfig::fig84_printed_t_end`]). Evidence: `docs/stress/chaos.md`.
 
 use crate::analysis::{energy_drift, fit_power, Drift, PowerFit};
-use crate::output::{create_dir, write_columns, OutputError};
-use crate::plot::{render, Figure, Panel, PlotError, Scale, Series};
+use crate::output::OutputDir;
+use crate::plot::{Figure, Panel, PlotError, Scale, Series};
 use crate::progress::Progress;
 use crate::simulate::{mp7_initial_values, run, RunError, RunResult, RunSpec, SystemKind};
 use rayon::prelude::*;
@@ -116,7 +119,7 @@ pub enum PaperError {
     },
     /// Writing a table failed.
     #[error(transparent)]
-    Output(#[from] OutputError),
+    Output(#[from] crate::output::OutputError),
     /// Drawing a figure failed.
     #[error(transparent)]
     Plot(#[from] PlotError),
@@ -312,11 +315,12 @@ fn jobs(cfg: &PaperConfig) -> Result<Vec<Job>, PaperError> {
 }
 
 /// Runs all four experiments in parallel (rayon), writes every file and
-/// returns the summary. `progress` draws one bar per figure.
+/// returns the summary. `progress` draws one bar per figure. The output
+/// folder is created and locked before the experiments start.
 pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, PaperError> {
     let start = Instant::now();
-    create_dir(&cfg.out)?;
     let jobs = jobs(cfg)?;
+    let mut out = OutputDir::open(&cfg.out)?;
     let bars: Vec<_> = (0..FIGURES.len())
         .map(|f| {
             let total: usize = jobs.iter().filter(|j| j.figure == f).map(|j| j.spec.steps).sum();
@@ -347,33 +351,27 @@ pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, 
     for f in 0..3 {
         let sel: Vec<(&Job, &RunResult)> = jobs.iter().zip(&runs).filter(|(j, _)| j.figure == f).collect();
         let (figure, table) = energy_figure(f, &sel);
-        let stem = cfg.out.join(format!("fig8_{}", f + 1));
-        let csv = stem.with_extension("csv");
+        let stem = format!("fig8_{}", f + 1);
         let cols: Vec<(&str, &[f64])> = table.iter().map(|(n, c)| (n.as_str(), c.as_slice())).collect();
-        write_columns(&csv, &cols)?;
-        files.push(csv);
-        files.extend(render(&figure, &stem)?);
+        files.push(out.write_columns(&format!("{stem}.csv"), &cols)?);
+        files.extend(out.render(&figure, &stem)?);
         for (job, r) in &sel {
             rows.push(single_row(job, r));
         }
     }
     let sel: Vec<(&Job, &RunResult)> = jobs.iter().zip(&runs).filter(|(j, _)| j.figure == 3).collect();
-    let (growth, fig84_rows, fig84_files) = figure_84(cfg, &sel)?;
+    let (growth, fig84_rows, fig84_files) = figure_84(cfg, &sel, &mut out)?;
     rows.extend(fig84_rows);
     files.extend(fig84_files);
 
     let threads = rayon::current_num_threads();
     let mut report = PaperReport { rows, growth, files, wall_seconds: 0.0, threads };
-    let md = cfg.out.join("summary.md");
-    let json = cfg.out.join("summary.json");
-    report.files.push(md.clone());
-    report.files.push(json.clone());
+    report.files.push(out.join("summary.md"));
+    report.files.push(out.join("summary.json"));
     report.wall_seconds = start.elapsed().as_secs_f64();
-    std::fs::write(&md, summary_markdown(&report, cfg))
-        .map_err(|source| OutputError::Io { path: md.clone(), source })?;
-    let text =
-        serde_json::to_string_pretty(&report).map_err(|source| OutputError::Json { path: json.clone(), source })?;
-    std::fs::write(&json, text).map_err(|source| OutputError::Io { path: json.clone(), source })?;
+    out.write_bytes("summary.md", summary_markdown(&report, cfg).as_bytes())?;
+    out.write_json("summary.json", &report)?;
+    out.commit()?;
     Ok(report)
 }
 
@@ -492,7 +490,7 @@ type Fig84 = (Vec<GrowthFit>, Vec<SummaryRow>, Vec<PathBuf>);
 
 /// Fig. 8.4: for each reading of the constraint, the ensemble statistic, its
 /// fits, tables and summary rows; one figure with a row per reading.
-fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)]) -> Result<Fig84, PaperError> {
+fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)], out: &mut OutputDir) -> Result<Fig84, PaperError> {
     let mut files = Vec::new();
     let mut growth = Vec::new();
     let mut rows = Vec::new();
@@ -546,14 +544,10 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)]) -> Result<Fig84, Pap
                     / runs.len() as f64,
             });
         }
-        let csv = cfg.out.join(format!("{}.csv", reading.stem()));
         let cols: Vec<(&str, &[f64])> = table.iter().map(|(n, c)| (n.as_str(), c.as_slice())).collect();
-        write_columns(&csv, &cols)?;
-        let members_csv = cfg.out.join(format!("{}_energy_errors.csv", reading.stem()));
+        files.push(out.write_columns(&format!("{}.csv", reading.stem()), &cols)?);
         let cols: Vec<(&str, &[f64])> = members.iter().map(|(n, c)| (n.as_str(), c.as_slice())).collect();
-        write_columns(&members_csv, &cols)?;
-        files.push(csv);
-        files.push(members_csv);
+        files.push(out.write_columns(&format!("{}_energy_errors.csv", reading.stem()), &cols)?);
 
         // Log–log panel: means over log-spaced bins of t (the raw statistic
         // fluctuates by a factor of ~10 from sample to sample), with a dashed
@@ -598,7 +592,7 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)]) -> Result<Fig84, Pap
         columns: 2,
         panel_size: (760, 480),
     };
-    files.extend(render(&figure, &cfg.out.join("fig8_4"))?);
+    files.extend(out.render(&figure, "fig8_4")?);
     Ok((growth, rows, files))
 }
 

@@ -123,25 +123,83 @@ fn ensure_font() -> Result<(), PlotError> {
     }
 }
 
-/// Writes `fig` as `<stem>.png` and `<stem>.svg` and returns both paths.
-pub fn render(fig: &Figure, stem: &Path) -> Result<Vec<PathBuf>, PlotError> {
+/// Draws `fig` into the files `png` and `svg` (the formats follow the
+/// extensions). Commands write figures through
+/// [`crate::output::OutputDir::render`], which calls this with temporary
+/// paths and renames them into place.
+pub fn render_files(fig: &Figure, png: &Path, svg: &Path) -> Result<(), PlotError> {
     ensure_font()?;
     let columns = fig.columns.max(1);
     let rows = fig.panels.len().div_ceil(columns).max(1);
     let size = (fig.panel_size.0 * columns as u32, fig.panel_size.1 * rows as u32 + 40);
-    let png = stem.with_extension("png");
-    let svg = stem.with_extension("svg");
     {
-        let root = BitMapBackend::new(&png, size).into_drawing_area();
-        draw(fig, &root, rows, columns).map_err(|m| draw_error(&png, m))?;
-        root.present().map_err(|e| draw_error(&png, e.to_string()))?;
+        let root = BitMapBackend::new(png, size).into_drawing_area();
+        draw(fig, &root, rows, columns).map_err(|m| draw_error(png, m))?;
+        root.present().map_err(|e| draw_error(png, e.to_string()))?;
     }
     {
-        let root = SVGBackend::new(&svg, size).into_drawing_area();
-        draw(fig, &root, rows, columns).map_err(|m| draw_error(&svg, m))?;
-        root.present().map_err(|e| draw_error(&svg, e.to_string()))?;
+        let root = SVGBackend::new(svg, size).into_drawing_area();
+        draw(fig, &root, rows, columns).map_err(|m| draw_error(svg, m))?;
+        root.present().map_err(|e| draw_error(svg, e.to_string()))?;
     }
-    Ok(vec![png, svg])
+    Ok(())
+}
+
+/// Most points drawn per curve for each pixel column of a panel: the
+/// smallest and the largest value in the column.
+const POINTS_PER_COLUMN: usize = 2;
+
+/// Thins a curve to at most `2·columns + 2` points that keep its envelope:
+/// the points are split into `columns` buckets (equal widths of the drawn x
+/// coordinate, `log10 x` on a log axis, when x never decreases; equal runs
+/// of consecutive points otherwise), and each bucket keeps its lowest and
+/// highest point in their original order. At one bucket per pixel column a
+/// line through these points covers the same pixels as the full curve (up
+/// to the one-pixel joins between columns). The first and last points are
+/// always kept; curves with at most `2·columns` points are returned whole.
+pub fn decimate(points: &[(f64, f64)], columns: usize, x_scale: Scale) -> Vec<(f64, f64)> {
+    let columns = columns.max(1);
+    if points.len() <= POINTS_PER_COLUMN * columns {
+        return points.to_vec();
+    }
+    let tx = |x: f64| if x_scale == Scale::Log { x.log10() } else { x };
+    let monotone = points.windows(2).all(|w| w[1].0 >= w[0].0);
+    let (first, last) = (points[0], points[points.len() - 1]);
+    let (x0, x1) = (tx(first.0), tx(last.0));
+    let bucket_of = |k: usize, x: f64| -> usize {
+        if monotone && x1 > x0 && x0.is_finite() && x1.is_finite() {
+            (((tx(x) - x0) / (x1 - x0) * columns as f64) as usize).min(columns - 1)
+        } else {
+            k * columns / points.len()
+        }
+    };
+    let mut out = Vec::with_capacity(POINTS_PER_COLUMN * columns + 2);
+    out.push(first);
+    let mut k = 0;
+    while k < points.len() {
+        let b = bucket_of(k, points[k].0);
+        let (mut lo, mut hi) = (k, k);
+        let mut end = k + 1;
+        while end < points.len() && bucket_of(end, points[end].0) == b {
+            if points[end].1 < points[lo].1 {
+                lo = end;
+            }
+            if points[end].1 > points[hi].1 {
+                hi = end;
+            }
+            end += 1;
+        }
+        for i in if lo <= hi { [lo, hi] } else { [hi, lo] } {
+            if out.last() != Some(&points[i]) {
+                out.push(points[i]);
+            }
+        }
+        k = end;
+    }
+    if out.last() != Some(&last) {
+        out.push(last);
+    }
+    out
 }
 
 fn draw_error(path: &Path, message: String) -> PlotError {
@@ -243,8 +301,14 @@ fn emptiest_corner(data: &[Vec<(f64, f64)>], x: (f64, f64, Scale), y: (f64, f64,
 }
 
 fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingArea<DB, Shift>) -> Result<(), String> {
-    let data: Vec<Vec<(f64, f64)>> =
-        panel.series.iter().map(|s| visible(&s.points, panel.x_scale, panel.y_scale)).collect();
+    // One bucket per pixel column of the panel keeps every curve at a few
+    // thousand points however long the run (file size and drawing time).
+    let columns = area.dim_in_pixel().0 as usize;
+    let data: Vec<Vec<(f64, f64)>> = panel
+        .series
+        .iter()
+        .map(|s| decimate(&visible(&s.points, panel.x_scale, panel.y_scale), columns, panel.x_scale))
+        .collect();
     let all = data.iter().flatten();
     let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
     for &(x, y) in all {
@@ -365,8 +429,8 @@ mod tests {
             columns: 2,
             panel_size: (400, 300),
         };
-        let files = render(&fig, &dir.join("fig")).unwrap();
-        assert_eq!(files.len(), 2);
+        let files = [dir.join("fig.png"), dir.join("fig.svg")];
+        render_files(&fig, &files[0], &files[1]).unwrap();
         let png = std::fs::read(&files[0]).unwrap();
         assert_eq!(&png[1..4], b"PNG");
         let svg = std::fs::read_to_string(&files[1]).unwrap();
@@ -391,7 +455,7 @@ mod tests {
         };
         let dir = std::env::temp_dir().join(format!("spark-plot-empty-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let err = render(&fig, &dir.join("f")).unwrap_err();
+        let err = render_files(&fig, &dir.join("f.png"), &dir.join("f.svg")).unwrap_err();
         assert!(err.to_string().contains("log scale"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -2,12 +2,13 @@
 //! simulation, or reproduces the paper's experiments (§8) with one command.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use problems::output::{create_dir, run_figure, write_run_csv, write_run_json};
+use problems::output::{
+    json_trajectory_bytes, run_figure, write_run_csv, write_run_json, OutputDir, MAX_JSON_TRAJECTORY_BYTES,
+};
 use problems::paper::{run_paper, PaperConfig, PaperReport};
-use problems::plot::render;
 use problems::progress::Progress;
 use problems::registry::{list_json, list_table, lookup, nearest, MAX_DISPATCH_STAGES};
-use problems::simulate::{run, run_report, RunSpec};
+use problems::simulate::{run, run_report, RunError, RunSpec};
 use spark_runtime::{ConsistencyPolicy, Method, NewtonMode};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -107,8 +108,9 @@ struct RunArgs {
     /// Step size h (default: the system's, see `spark list`).
     #[arg(long = "h", visible_alias = "step", allow_hyphen_values = true)]
     h: Option<f64>,
-    /// Final time; the number of steps is (t_end − t0)/h, rounded (default:
-    /// the system's).
+    /// Final time (default: the system's). The interval t_end − t0 must be
+    /// a whole number of steps of h (up to round-off); otherwise the run is
+    /// refused with the nearest t_end and h that are.
     #[arg(long, short, allow_hyphen_values = true)]
     t_end: Option<f64>,
     /// Initial time (default: the system's, 0).
@@ -125,13 +127,19 @@ struct RunArgs {
     /// Set a system parameter, e.g. --param beta=0.5 (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     params: Vec<String>,
-    /// Record every this many steps.
+    /// Record every this many steps (and always the endpoints). Runs whose
+    /// recorded samples would not fit in memory (at most 4 GiB, or half the
+    /// available memory), or whose JSON trajectory would exceed 64 MiB, are
+    /// refused before they start, with the --every that fits.
     #[arg(long, default_value_t = 1)]
     every: usize,
     /// Trajectory file format.
     #[arg(long, value_enum, default_value_t = Format::Csv)]
     format: Format,
-    /// Output folder.
+    /// Output folder. It is created and locked before the run starts (a
+    /// second run on the same folder is refused); the files appear together
+    /// when the run has finished, so an interrupted run leaves the previous
+    /// results in place.
     #[arg(long, short, default_value = "results/run")]
     out: PathBuf,
     /// Newton iteration.
@@ -236,9 +244,115 @@ fn parse_params(params: &[String]) -> Result<Vec<(String, f64)>, String> {
             let (name, value) =
                 p.split_once('=').ok_or_else(|| format!("--param `{p}`: write NAME=VALUE, e.g. --param beta=0.5"))?;
             let v: f64 = value.trim().parse().map_err(|_| format!("--param `{p}`: `{value}` is not a number"))?;
+            if !v.is_finite() {
+                return Err(format!("--param `{p}`: the value must be a finite number"));
+            }
             Ok((name.trim().to_string(), v))
         })
         .collect()
+}
+
+/// Every entry of `--q0` / `--v0` must be finite.
+fn check_finite(flag: &str, values: &[f64]) -> Result<(), String> {
+    match values.iter().position(|x| !x.is_finite()) {
+        Some(i) => Err(format!("{flag}: entry {} is {}, not a finite number", i + 1, values[i])),
+        None => Ok(()),
+    }
+}
+
+/// Relative tolerance within which `(t_end − t0)/h` counts as a whole number
+/// of steps (round-off of the division, e.g. 150/0.2 = 749.999…).
+const WHOLE_STEPS_TOLERANCE: f64 = 1e-9;
+
+/// Most steps `spark run` takes: 2⁵³, beyond which step counts and the times
+/// `t0 + k·h` are no longer exact in `f64`.
+const MAX_STEPS: f64 = 9_007_199_254_740_992.0;
+
+/// Fixed cap on the memory the recorded trajectory of `spark run` may take
+/// (samples in the stepper's record, the result columns and the figure's
+/// curves): 4 GiB, lowered to half the available memory when the system
+/// reports it.
+const MAX_TRAJECTORY_MEMORY: u64 = 4 << 30;
+
+/// The number of steps from `t0` to `t_end` with step `h`, or an error naming
+/// the flags when the interval is not a whole number of steps (the run would
+/// end elsewhere than asked) or too many steps.
+fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
+    let ratio = (t_end - t0) / h;
+    if ratio.is_nan() || ratio > MAX_STEPS {
+        return Err(format!(
+            "(t_end − t0)/h = {ratio:.3e} steps is more than 2^53 = {MAX_STEPS:.3e}, the most a run can count; \
+             raise --h or shorten the interval --t0 … --t-end"
+        ));
+    }
+    let steps = ratio.round();
+    if steps < 1.0 {
+        return Err(format!(
+            "the interval from t0 = {t0:.6e} to --t-end {t_end:.6e} is shorter than one step of --h {h:.6e}; \
+             use a later --t-end or a smaller --h"
+        ));
+    }
+    if (ratio - steps).abs() > WHOLE_STEPS_TOLERANCE * steps {
+        let (below, above) = (ratio.floor().max(1.0), ratio.ceil());
+        return Err(format!(
+            "the interval from t0 = {t0:.6e} to --t-end {t_end:.6e} is {ratio:.6e} steps of --h {h:.6e}, not a whole \
+             number; use --t-end {:.6e} or {:.6e}, or --h {:.6e} ({above:.0} steps)",
+            t0 + below * h,
+            t0 + above * h,
+            (t_end - t0) / above,
+        ));
+    }
+    Ok(steps as usize)
+}
+
+/// Half of `MemAvailable` from /proc/meminfo, when the system reports it.
+fn half_available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib.saturating_mul(1024) / 2)
+}
+
+/// Refuses runs whose recorded trajectory would not fit in memory, or whose
+/// JSON trajectory would be unreasonably large, before any computation.
+fn check_output_size(
+    samples: u64,
+    n: usize,
+    m: usize,
+    holonomic: bool,
+    format: Format,
+    every: usize,
+) -> Result<(), String> {
+    // Per sample: the stepper's record (t, q, v, energy, residual,
+    // multipliers, iterations), the result columns, and the figure's points.
+    let per_sample = 8 * (1 + 2 * n as u64 + 4 + m as u64 + 2) + 8 * (2 * n as u64 + 4) + 16 * (2 * n as u64 + 3);
+    let bytes = samples.saturating_mul(per_sample);
+    let limit = half_available_memory().map_or(MAX_TRAJECTORY_MEMORY, |a| a.min(MAX_TRAJECTORY_MEMORY));
+    let thin = |limit_samples: u64| (samples / limit_samples.max(1) + 1).saturating_mul(every as u64);
+    if bytes > limit {
+        return Err(format!(
+            "the run records {samples:.3e} samples ({:.3e} bytes in memory), more than the limit of {:.3e} bytes; \
+             record fewer with --every {} or more, raise --h, or shorten --t-end",
+            bytes as f64,
+            limit as f64,
+            thin(limit / per_sample),
+            samples = samples as f64,
+        ));
+    }
+    if matches!(format, Format::Json | Format::Both) {
+        let json = json_trajectory_bytes(samples, n, holonomic);
+        if json > MAX_JSON_TRAJECTORY_BYTES {
+            let per = json_trajectory_bytes(1, n, holonomic);
+            return Err(format!(
+                "the JSON trajectory would take about {:.3e} bytes, more than the limit of {:.3e}; write it as CSV \
+                 (--format csv) or record fewer samples with --every {} or more",
+                json as f64,
+                MAX_JSON_TRAJECTORY_BYTES as f64,
+                thin(MAX_JSON_TRAJECTORY_BYTES / per),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn run_command(a: RunArgs) -> Result<(), String> {
@@ -247,16 +361,36 @@ fn run_command(a: RunArgs) -> Result<(), String> {
     let method = parse_method(&a.method)?;
     let h = a.h.unwrap_or(entry.h);
     let t0 = a.t0.unwrap_or(entry.t0);
-    let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
     if !(h.is_finite() && h > 0.0) {
-        return Err(format!("--h must be a positive number, got {h}"));
+        return Err(format!("--h must be a positive number, got {h:.3e}"));
     }
-    if !(t0.is_finite() && t_end.is_finite() && t_end > t0) {
-        return Err(format!("--t-end must be a number greater than t0 = {t0}, got {t_end}"));
+    if !t0.is_finite() {
+        return Err(format!("--t0 must be a finite number, got {t0:.3e}"));
     }
-    let steps = ((t_end - t0) / h).round().max(1.0) as usize;
+    let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
+    if !(t_end.is_finite() && t_end > t0) {
+        return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));
+    }
+    if a.stages == 0 {
+        return Err("--stages must be at least 1".into());
+    }
+    if a.every == 0 {
+        return Err("--every must be at least 1 (1 records every step)".into());
+    }
+    let steps = step_count(t0, t_end, h)?;
+    let samples = (steps / a.every) as u64 + 2;
+    check_output_size(samples, entry.n, entry.m, entry.effects.holonomic, a.format, a.every)?;
     let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
     spec.t0 = t0;
+    for (flag, what, given) in [("--q0", "q0", &a.q0), ("--v0", "v0", &a.v0)] {
+        let Some(x) = given else { continue };
+        if x.len() != entry.n {
+            let coordinates = entry.coordinates.join(", ");
+            let (got, expected, system) = (x.len(), entry.n, entry.name);
+            return Err(RunError::Dimension { what, system, got, expected, coordinates }.to_string());
+        }
+        check_finite(flag, x)?;
+    }
     if let Some(q0) = a.q0 {
         spec.q0 = q0;
     }
@@ -264,43 +398,38 @@ fn run_command(a: RunArgs) -> Result<(), String> {
         spec.v0 = v0;
     }
     spec.parameters = parse_params(&a.params)?;
-    spec.record_every = a.every.max(1);
+    spec.record_every = a.every;
     spec.newton.mode = a.newton.into();
     if a.project_v0 {
         spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
     }
+    // The folder is created and locked before the run, so an unwritable or
+    // busy --out is reported at once.
+    let mut out = OutputDir::open(&a.out).map_err(|e| e.to_string())?;
     let progress = Progress::on_terminal();
     let bar = progress.bar(&format!("{} {} s={}", entry.name, method, a.stages), steps as u64);
     let result = run(&spec, &|n| bar.inc(n)).map_err(|e| e.to_string())?;
     bar.finish_and_clear();
-    create_dir(&a.out).map_err(|e| e.to_string())?;
-    let stem = a.out.join(format!("{}_{}_s{}", entry.name, method_key(method), a.stages));
-    let mut files = Vec::new();
+    let stem = format!("{}_{}_s{}", entry.name, method_key(method), a.stages);
+    let e = |e: problems::output::OutputError| e.to_string();
     if matches!(a.format, Format::Csv | Format::Both) {
-        let p = stem.with_extension("csv");
-        write_run_csv(&result, &p).map_err(|e| e.to_string())?;
-        files.push(p);
+        write_run_csv(&result, &mut out, &format!("{stem}.csv")).map_err(e)?;
     }
     if matches!(a.format, Format::Json | Format::Both) {
-        let p = stem.with_extension("json");
-        write_run_json(&result, &p).map_err(|e| e.to_string())?;
-        files.push(p);
+        write_run_json(&result, &mut out, &format!("{stem}.json")).map_err(e)?;
     }
+    if !a.no_plot {
+        out.render(&run_figure(&result), &stem).map_err(e)?;
+    }
+    // The reports come last: they describe the files above.
     let report = run_report(&result, &spec);
-    let md = a.out.join("report.md");
-    std::fs::write(&md, &report).map_err(|e| format!("could not write {}: {e}", md.display()))?;
-    files.push(md);
-    let json = a.out.join("report.json");
+    out.write_bytes("report.md", report.as_bytes()).map_err(e)?;
     let summary = serde_json::json!({
         "system": entry.name, "type": entry.type_name, "method": method.name(), "stages": a.stages,
         "h": h, "t0": t0, "q0": spec.q0, "v0": spec.v0, "parameters": spec.parameters, "stats": result.stats,
     });
-    let text = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-    std::fs::write(&json, text).map_err(|e| format!("could not write {}: {e}", json.display()))?;
-    files.push(json);
-    if !a.no_plot {
-        files.extend(render(&run_figure(&result), &stem).map_err(|e| e.to_string())?);
-    }
+    out.write_json("report.json", &summary).map_err(e)?;
+    let files = out.commit().map_err(e)?;
     print!("{report}");
     for f in files {
         println!("wrote {}", f.display());

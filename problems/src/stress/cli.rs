@@ -1,7 +1,8 @@
 //! The `spark stress` subcommand: its arguments and what it does (run the
 //! cases, write the report, return a short summary for the terminal).
 
-use super::{markdown_summary, run_all, write_report, Scale, CASES};
+use super::{markdown_summary, run_all, stage_report, Scale, CASES};
+use crate::output::OutputDir;
 use crate::progress::Progress;
 use std::path::PathBuf;
 
@@ -43,6 +44,9 @@ pub fn run(args: StressArgs) -> Result<String, String> {
         return Err(format!("unknown stress case `{bad}`; the cases are: {}", known.join(", ")));
     }
     let scale = if args.full { Scale::Full } else { Scale::Quick };
+    // The folder is created and locked before the cases run, so an
+    // unwritable or busy --out is reported at once.
+    let mut out = OutputDir::open(&args.out).map_err(|e| e.to_string())?;
     let total = if args.only.is_empty() { CASES.len() } else { args.only.len() };
     let bar = Progress::on_terminal().bar("stress cases", total as u64);
     let report = run_all(scale, &args.only, &|key| {
@@ -51,7 +55,8 @@ pub fn run(args: StressArgs) -> Result<String, String> {
     })
     .map_err(|e| e.to_string())?;
     bar.finish_and_clear();
-    let written = write_report(&report, &args.out).map_err(|e| e.to_string())?;
+    stage_report(&report, &mut out).map_err(|e| e.to_string())?;
+    let written = out.commit().map_err(|e| e.to_string())?;
     let mut text = markdown_summary(&report);
     text.push_str(&format!("\nwrote {} files into {}\n", written.len(), args.out.display()));
     let failed: Vec<&str> = report.cases.iter().filter(|c| !c.passed()).map(|c| c.key).collect();

@@ -22,7 +22,8 @@ pub mod long_runs;
 pub mod robustness;
 pub mod systems;
 
-use crate::plot::{render, Figure, PlotError};
+use crate::output::{OutputDir, OutputError};
+use crate::plot::{Figure, PlotError};
 use spark_runtime::{
     IntegrationError, NewtonOptions, NonholonomicSystem, Observe, RunOptions, RunReport, Schedule, State, Stepper,
     TableauError, Vector,
@@ -69,6 +70,9 @@ pub enum StressError {
     /// Serializing the summary failed.
     #[error("summary: {0}")]
     Json(#[from] serde_json::Error),
+    /// The output folder could not be opened or a file not written.
+    #[error(transparent)]
+    Output(#[from] OutputError),
 }
 
 /// One checked criterion of a case.
@@ -221,27 +225,26 @@ pub fn run_all(scale: Scale, only: &[String], progress: &dyn Fn(&str)) -> Result
     Ok(StressReport { scale, cases, seconds: start.elapsed().as_secs_f64() })
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StressError + '_ {
-    move |source| StressError::Io { path: path.to_path_buf(), source }
+/// Writes `report.md`, `summary.json` and each case's figure (`<key>.png`,
+/// `<key>.svg`) into `out` (created and locked, files renamed into place
+/// together; see [`crate::output::OutputDir`]); returns the paths written.
+pub fn write_report(report: &StressReport, out: &Path) -> Result<Vec<PathBuf>, StressError> {
+    let mut dir = OutputDir::open(out)?;
+    stage_report(report, &mut dir)?;
+    Ok(dir.commit()?)
 }
 
-/// Writes `report.md`, `summary.json` and each case's figure (`<key>.png`,
-/// `<key>.svg`) into `out`; returns the paths written.
-pub fn write_report(report: &StressReport, out: &Path) -> Result<Vec<PathBuf>, StressError> {
-    std::fs::create_dir_all(out).map_err(io(out))?;
-    let mut written = Vec::new();
+/// Stages the files of [`write_report`] in an open output folder; they
+/// appear at [`OutputDir::commit`], the report and summary last.
+pub fn stage_report(report: &StressReport, out: &mut OutputDir) -> Result<(), StressError> {
     for c in &report.cases {
         if let Some(fig) = &c.figure {
-            written.extend(render(fig, &out.join(c.key))?);
+            out.render(fig, c.key)?;
         }
     }
-    let md = out.join("report.md");
-    std::fs::write(&md, markdown(report)).map_err(io(&md))?;
-    written.push(md);
-    let js = out.join("summary.json");
-    std::fs::write(&js, serde_json::to_string_pretty(report)?).map_err(io(&js))?;
-    written.push(js);
-    Ok(written)
+    out.write_bytes("report.md", markdown(report).as_bytes())?;
+    out.write_json("summary.json", report)?;
+    Ok(())
 }
 
 /// The summary table of the report, with every failed criterion and its

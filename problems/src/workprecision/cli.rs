@@ -21,15 +21,15 @@ pub struct WorkPrecisionArgs {
     /// Output folder (CSV, Markdown, PNG and SVG figures).
     #[arg(long, short, default_value = "results/work-precision")]
     pub out: PathBuf,
-    /// Final time T.
-    #[arg(long, default_value_t = 10.0)]
-    pub t_end: f64,
-    /// Timed repeats per point (the median is reported).
-    #[arg(long, default_value_t = 5)]
-    pub repeats: usize,
-    /// Largest step count of a sweep.
-    #[arg(long, default_value_t = 1 << 17)]
-    pub max_steps: usize,
+    /// Final time T (default 10; 1 with --quick).
+    #[arg(long, allow_hyphen_values = true)]
+    pub t_end: Option<f64>,
+    /// Timed repeats per point, the median is reported (default 5; 1 with --quick).
+    #[arg(long)]
+    pub repeats: Option<usize>,
+    /// Largest step count of a sweep (default 131072; 64 with --quick).
+    #[arg(long)]
+    pub max_steps: Option<usize>,
     /// Python interpreter with casadi and scipy for the CasADi C and SciPy
     /// peers (set up by `bash casadi/peers/setup.sh`).
     #[arg(long, default_value = "casadi/.venv/bin/python")]
@@ -83,13 +83,27 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
     if !a.system.is_empty() {
         cfg.systems = select_systems(&a.system)?;
     }
-    if !a.quick {
-        if !(a.t_end.is_finite() && a.t_end > 0.0) {
-            return Err("--t-end must be a positive number".into());
+    // Flags given explicitly apply with and without --quick.
+    if let Some(t_end) = a.t_end {
+        if !(t_end.is_finite() && t_end > 0.0) {
+            return Err(format!("--t-end must be a positive number, got {t_end:.3e}"));
         }
-        cfg.final_time = a.t_end;
-        cfg.repeats = a.repeats.max(1);
-        cfg.max_steps = a.max_steps.max(cfg.min_steps);
+        cfg.final_time = t_end;
+    }
+    if let Some(repeats) = a.repeats {
+        if repeats == 0 {
+            return Err("--repeats must be at least 1".into());
+        }
+        cfg.repeats = repeats;
+    }
+    if let Some(max_steps) = a.max_steps {
+        if max_steps < cfg.min_steps {
+            return Err(format!(
+                "--max-steps must be at least the smallest step count of the sweep, {}; got {max_steps}",
+                cfg.min_steps
+            ));
+        }
+        cfg.max_steps = max_steps;
     }
     cfg.python = if a.no_python { None } else { Some(a.python.clone()) };
     cfg.newton =
@@ -98,12 +112,12 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         cfg.max_run_time = Duration::from_millis(50);
     }
     if a.scaling {
-        crate::output::create_dir(&cfg.out).map_err(|e| e.to_string())?;
+        let mut out = crate::output::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
         let rows = super::scaling::measure_scaling(cfg.repeats)?;
         let md = super::scaling::scaling_markdown(&rows);
-        let path = cfg.out.join("scaling.md");
-        std::fs::write(&path, &md).map_err(|e| format!("could not write {}: {e}", path.display()))?;
-        super::report::write_scaling_figure(&rows, &cfg.out).map_err(|e| e.to_string())?;
+        super::report::write_scaling_figure(&rows, &mut out).map_err(|e| e.to_string())?;
+        out.write_bytes("scaling.md", md.as_bytes()).map_err(|e| e.to_string())?;
+        out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }
     if a.per_step {

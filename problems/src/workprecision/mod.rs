@@ -699,20 +699,27 @@ pub fn run_work_precision(
     if cfg.systems.is_empty() {
         return Err(WorkPrecisionError::Invalid("no systems selected".into()));
     }
-    if !(cfg.final_time.is_finite() && cfg.final_time > 0.0) || cfg.min_steps == 0 || cfg.max_steps < cfg.min_steps {
+    if !(cfg.final_time.is_finite() && cfg.final_time > 0.0)
+        || cfg.min_steps == 0
+        || cfg.max_steps < cfg.min_steps
+        || cfg.repeats == 0
+    {
         return Err(WorkPrecisionError::Invalid(format!(
-            "need T > 0 and 1 ≤ min_steps ≤ max_steps (T = {}, steps {}..{})",
-            cfg.final_time, cfg.min_steps, cfg.max_steps
+            "need T > 0, 1 ≤ min_steps ≤ max_steps and repeats ≥ 1 (T = {:.3e}, steps {}..{}, repeats {})",
+            cfg.final_time, cfg.min_steps, cfg.max_steps, cfg.repeats
         )));
     }
-    crate::output::create_dir(&cfg.out)?;
+    // Created and locked before measuring; the files appear together at the
+    // end, the summary last.
+    let mut out = crate::output::OutputDir::open(&cfg.out)?;
     let mut all = Vec::new();
     for &kind in &cfg.systems {
         let m = measure(kind, cfg, progress)?;
-        report::write_system(&m, cfg)?;
+        report::write_system(&m, cfg, &mut out)?;
         all.push(m);
     }
-    report::write_summary(&all, cfg)?;
+    report::write_summary(&all, cfg, &mut out)?;
+    out.commit()?;
     Ok(all)
 }
 

@@ -2,10 +2,10 @@
 //! error" and peer-ratio tables as Markdown, and the figures.
 
 use super::{Point, Provider, SystemMeasurement, WorkPrecisionConfig, WorkPrecisionError};
-use crate::plot::{render, Figure, Panel, Scale, Series};
+use crate::output::OutputDir;
+use crate::plot::{Figure, Panel, Scale, Series};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::path::Path;
 
 /// Solver label of the generated-code SPARK runs.
 pub const SPARK: &str = Provider::Generated.label();
@@ -131,18 +131,17 @@ pub fn duration(seconds: f64) -> String {
     }
 }
 
-/// Writes every point as CSV.
-pub fn write_points_csv(points: &[Point], path: &Path) -> Result<(), WorkPrecisionError> {
-    let mut w = csv::Writer::from_path(path).map_err(|e| out_err(path, e))?;
-    for p in points {
-        w.serialize(p).map_err(|e| out_err(path, e))?;
-    }
-    w.flush().map_err(|e| out_err(path, e))?;
+/// Stages every point as the CSV file `name` in `out`.
+pub fn write_points_csv(points: &[Point], out: &mut OutputDir, name: &str) -> Result<(), WorkPrecisionError> {
+    out.write_with(name, |w| {
+        let mut w = csv::Writer::from_writer(w);
+        for p in points {
+            w.serialize(p)?;
+        }
+        w.flush()?;
+        Ok::<(), crate::output::WriteFailure>(())
+    })?;
     Ok(())
-}
-
-fn out_err(path: &Path, e: impl std::fmt::Display) -> WorkPrecisionError {
-    WorkPrecisionError::Invalid(format!("could not write {}: {e}", path.display()))
 }
 
 /// The "which method is cheapest" table of one system (Markdown).
@@ -294,30 +293,34 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     }
 }
 
-/// Writes one system's CSV, figures and Markdown into `cfg.out`.
-pub fn write_system(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Result<(), WorkPrecisionError> {
+/// Stages one system's CSV, figures and Markdown in `out`.
+pub fn write_system(
+    m: &SystemMeasurement,
+    cfg: &WorkPrecisionConfig,
+    out: &mut OutputDir,
+) -> Result<(), WorkPrecisionError> {
     let key = m.problem.system;
-    write_points_csv(&m.points, &cfg.out.join(format!("{key}.csv")))?;
+    write_points_csv(&m.points, out, &format!("{key}.csv"))?;
     let t = m.problem.final_time;
     let fig = family_figure(m, &format!("{key}: global error at T = {t} vs wall time"), "global error in q, v", |p| {
         p.error()
     });
     if !fig.panels.is_empty() {
-        render(&fig, &cfg.out.join(format!("{key}-error")))?;
+        out.render(&fig, &format!("{key}-error"))?;
     }
     let fig =
         family_figure(m, &format!("{key}: largest energy error on [0, {t}] vs wall time"), "max |E − E₀|", |p| {
             p.energy_error
         });
     if !fig.panels.is_empty() {
-        render(&fig, &cfg.out.join(format!("{key}-energy")))?;
+        out.render(&fig, &format!("{key}-energy"))?;
     }
     let fig = peer_figure(m, cfg);
     if !fig.panels.is_empty() {
-        render(&fig, &cfg.out.join(format!("{key}-peers")))?;
+        out.render(&fig, &format!("{key}-peers"))?;
     }
     let md = system_markdown(m, cfg);
-    std::fs::write(cfg.out.join(format!("{key}.md")), md).map_err(|e| out_err(&cfg.out, e))?;
+    out.write_bytes(&format!("{key}.md"), md.as_bytes())?;
     Ok(())
 }
 
@@ -344,17 +347,21 @@ pub fn system_markdown(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Stri
     s
 }
 
-/// Writes `summary.md` (all systems) and `points.csv` (all points).
-pub fn write_summary(all: &[SystemMeasurement], cfg: &WorkPrecisionConfig) -> Result<(), WorkPrecisionError> {
+/// Stages `summary.md` (all systems) and `points.csv` (all points) in `out`.
+pub fn write_summary(
+    all: &[SystemMeasurement],
+    cfg: &WorkPrecisionConfig,
+    out: &mut OutputDir,
+) -> Result<(), WorkPrecisionError> {
     let points: Vec<Point> = all.iter().flat_map(|m| m.points.iter().cloned()).collect();
-    write_points_csv(&points, &cfg.out.join("points.csv"))?;
+    write_points_csv(&points, out, "points.csv")?;
     let mut s = String::new();
     let _ = writeln!(s, "## Peer ratios (one run, medians)\n");
     let _ = writeln!(s, "{}", overall_ratio_table(all, cfg));
     for m in all {
         let _ = writeln!(s, "{}", system_markdown(m, cfg));
     }
-    std::fs::write(cfg.out.join("summary.md"), s).map_err(|e| out_err(&cfg.out, e))?;
+    out.write_bytes("summary.md", s.as_bytes())?;
     Ok(())
 }
 
@@ -388,8 +395,12 @@ pub fn overall_ratio_table(all: &[SystemMeasurement], cfg: &WorkPrecisionConfig)
     s
 }
 
-/// Time per step and stepper size against `n` (log–log), as PNG and SVG.
-pub fn write_scaling_figure(rows: &[super::scaling::ScalingRow], out: &Path) -> Result<(), WorkPrecisionError> {
+/// Time per step and stepper size against `n` (log–log), staged in `out` as
+/// `scaling.png` and `scaling.svg`.
+pub fn write_scaling_figure(
+    rows: &[super::scaling::ScalingRow],
+    out: &mut OutputDir,
+) -> Result<(), WorkPrecisionError> {
     let panel = |title: &str, y_label: &str, f: &dyn Fn(&super::scaling::ScalingRow) -> f64| Panel {
         title: title.into(),
         x_label: "n (coordinates)".into(),
@@ -415,7 +426,7 @@ pub fn write_scaling_figure(rows: &[super::scaling::ScalingRow], out: &Path) -> 
         columns: 2,
         panel_size: (520, 420),
     };
-    render(&fig, &out.join("scaling"))?;
+    out.render(&fig, "scaling")?;
     Ok(())
 }
 

@@ -1,0 +1,236 @@
+//! The `spark` binary's output folder: results appear all at once or not at
+//! all (an interrupted run leaves the previous ones intact), one run at a
+//! time per folder, an unusable `--out` or argument is refused before any
+//! computation, and output sizes stay bounded.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// The test-only pause (`problems::output::TEST_PAUSE_ENV`), spelled out so
+/// that this file also builds against code without the hook.
+const PAUSE_ENV: &str = "SPARK_TEST_PAUSE_AFTER_FIRST_FILE_MS";
+
+fn spark() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_spark"));
+    c.env_remove(PAUSE_ENV);
+    c
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("spark-cli-files-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn run_ok(args: &[&str], out: &Path) -> Output {
+    let o = spark().args(args).arg("--out").arg(out).output().unwrap();
+    assert!(o.status.success(), "spark {args:?} failed:\n{}", String::from_utf8_lossy(&o.stderr));
+    o
+}
+
+fn run_err(args: &[&str]) -> String {
+    let o = spark().args(args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success(), "spark {args:?} should fail; stdout:\n{}", String::from_utf8_lossy(&o.stdout));
+    stderr
+}
+
+/// Contents of the files in `dir`: hidden ones (temporary files) included
+/// or not; the lock file never.
+fn snapshot(dir: &Path, hidden: bool) -> BTreeMap<String, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if name == ".spark-lock" || (!hidden && name.starts_with('.')) {
+            continue;
+        }
+        // A file may be renamed away between listing and reading.
+        if let Ok(bytes) = std::fs::read(entry.path()) {
+            files.insert(name, bytes);
+        }
+    }
+    files
+}
+
+fn wait_until(child: &mut Child, what: &str, mut done: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !done() {
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!("the run ended ({status}) before {what}");
+        }
+        assert!(start.elapsed() < Duration::from_secs(60), "timed out waiting until {what}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+#[test]
+fn an_interrupted_run_leaves_the_previous_results_intact() {
+    let dir = temp_dir("sigint");
+    let base = ["run", "skate", "--t-end", "10", "--format", "both"];
+    run_ok(&[&base[..], &["--h", "0.01"]].concat(), &dir);
+    let before = snapshot(&dir, false);
+    assert!(before.len() >= 6, "{:?}", before.keys());
+
+    // A second run with another step size, interrupted in its write phase
+    // (as soon as anything in the folder changes).
+    let all_before = snapshot(&dir, true);
+    let mut child = spark()
+        .args(base)
+        .args(["--h", "0.02", "--out"])
+        .arg(&dir)
+        .env(PAUSE_ENV, "60000")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_until(&mut child, "writing", || snapshot(&dir, true) != all_before);
+    let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    assert!(!status.success(), "the interrupted run must not succeed");
+
+    let after = snapshot(&dir, false);
+    assert_eq!(after.keys().collect::<Vec<_>>(), before.keys().collect::<Vec<_>>());
+    for (name, bytes) in &before {
+        assert!(
+            after[name] == *bytes,
+            "{name} changed by the interrupted run ({} → {} bytes)",
+            bytes.len(),
+            after[name].len()
+        );
+    }
+
+    // The next run replaces the results and removes the interrupted run's
+    // temporary files.
+    run_ok(&[&base[..], &["--h", "0.02"]].concat(), &dir);
+    let names: Vec<String> = snapshot(&dir, true).into_keys().collect();
+    assert!(names.iter().all(|n| !n.starts_with(".spark-tmp-")), "{names:?}");
+    assert_ne!(snapshot(&dir, false)["skate_gauss_s2.csv"], before["skate_gauss_s2.csv"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_second_run_on_a_busy_folder_is_refused_and_rows_never_interleave() {
+    let dir = temp_dir("lock");
+    let mut first = spark()
+        .args(["run", "skate", "--h", "0.01", "--t-end", "20", "--out"])
+        .arg(&dir)
+        .env(PAUSE_ENV, "3000")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = format!("pid {}", first.id());
+    let lock = dir.join(".spark-lock");
+    wait_until(&mut first, "it took the folder lock", || {
+        std::fs::read_to_string(&lock).is_ok_and(|s| s.contains(&pid))
+    });
+    let second = spark().args(["run", "skate", "--h", "0.02", "--t-end", "20", "--out"]).arg(&dir).output().unwrap();
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert!(!second.status.success(), "the second run must be refused");
+    assert!(err.contains("in use by another spark run") && err.contains(&pid), "{err}");
+    assert!(err.contains(&lock.display().to_string()), "the message names the lock file: {err}");
+    let status = first.wait().unwrap();
+    assert!(status.success());
+
+    // The first run's trajectory is whole: every row complete, t increasing.
+    let csv = std::fs::read_to_string(dir.join("skate_gauss_s2.csv")).unwrap();
+    let mut lines = csv.lines();
+    let width = lines.next().unwrap().split(',').count();
+    let mut last = f64::NEG_INFINITY;
+    let mut rows = 0;
+    for line in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        assert_eq!(fields.len(), width, "torn row {line}");
+        let t: f64 = fields[0].parse().unwrap();
+        assert!(t > last, "t goes backwards at {t}");
+        last = t;
+        rows += 1;
+    }
+    assert_eq!(rows, 2001);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn an_unwritable_out_is_reported_before_any_computation() {
+    // The velocity violates the skate's constraint, which the run itself
+    // reports: the folder error must come first.
+    let err = run_err(&["run", "skate", "--v0", "0,1,0", "--out", "/proc/spark-no-such-dir/out"]);
+    assert!(err.contains("/proc/spark-no-such-dir/out"), "{err}");
+    assert!(!err.contains("violates the constraints"), "the run started before the folder was checked: {err}");
+    let err = run_err(&["stress", "--only", "bad_input", "--out", "/proc/spark-no-such-dir/out"]);
+    assert!(err.contains("/proc/spark-no-such-dir/out"), "{err}");
+}
+
+#[test]
+fn an_interval_that_is_not_a_whole_number_of_steps_is_refused() {
+    let dir = temp_dir("interval");
+    let out = dir.to_str().unwrap();
+    let err = run_err(&["run", "skate", "--t-end", "1e-9", "--h", "0.1", "--out", out]);
+    assert!(err.contains("shorter than one step") && err.contains("--t-end") && err.contains("--h"), "{err}");
+    let err = run_err(&["run", "skate", "--t-end", "0.25", "--h", "0.1", "--out", out]);
+    assert!(err.contains("not a whole") && err.contains("--t-end 2.000000e-1 or 3.000000e-1"), "{err}");
+    assert!(!dir.join("skate_gauss_s2.csv").exists());
+    // 0.3/0.1 = 2.9999999999999996 is three steps.
+    run_ok(&["run", "skate", "--t-end", "0.3", "--h", "0.1", "--no-plot"], &dir);
+    let csv = std::fs::read_to_string(dir.join("skate_gauss_s2.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn every_numeric_argument_is_checked_and_named() {
+    let dir = temp_dir("numbers");
+    let out = dir.to_str().unwrap();
+    let cases: [(&[&str], &str); 12] = [
+        (&["run", "skate", "--h", "nan"], "--h"),
+        (&["run", "skate", "--h", "-0.1"], "--h"),
+        (&["run", "skate", "--t-end", "nan"], "--t-end"),
+        (&["run", "skate", "--t0", "inf"], "--t0"),
+        (&["run", "skate", "--every", "0"], "--every"),
+        (&["run", "skate", "--stages", "0"], "--stages"),
+        (&["run", "skate", "--q0", "0,nan,0"], "--q0"),
+        (&["run", "skate", "--v0", "inf,0,0"], "--v0"),
+        (&["run", "skate", "--param", "m=nan"], "--param"),
+        (&["work-precision", "--quick", "--no-python", "--t-end", "nan"], "--t-end"),
+        (&["work-precision", "--quick", "--no-python", "--repeats", "0"], "--repeats"),
+        (&["work-precision", "--quick", "--no-python", "--max-steps", "0"], "--max-steps"),
+    ];
+    for (args, flag) in cases {
+        let err = run_err(&[args, &["--out", out]].concat());
+        assert!(err.contains(flag), "spark {args:?}: the message must name {flag}: {err}");
+    }
+    assert!(!dir.join("summary.md").exists() && !dir.join("report.md").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn runs_whose_output_would_not_fit_are_refused_up_front() {
+    let dir = temp_dir("size");
+    let out = dir.to_str().unwrap();
+    // 10⁹ samples do not fit in memory: thin with --every.
+    let err = run_err(&["run", "skate", "--t-end", "1e6", "--h", "0.001", "--out", out]);
+    assert!(err.contains("--every") && err.contains("samples"), "{err}");
+    // 10³⁰⁰ steps cannot be counted.
+    let err = run_err(&["run", "skate", "--h", "1e-300", "--out", out]);
+    assert!(err.contains("2^53") && err.contains("--h"), "{err}");
+    // A 3·10⁵-sample JSON trajectory is too large: use CSV or --every.
+    let err = run_err(&["run", "skate", "--t-end", "3000", "--h", "0.01", "--format", "json", "--out", out]);
+    assert!(err.contains("--format csv") && err.contains("--every"), "{err}");
+    assert!(!dir.join("skate_gauss_s2.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_figure_of_a_long_run_stays_small() {
+    // 10⁵ samples of eight curves: decimated to a few thousand points each.
+    let dir = temp_dir("svg");
+    run_ok(&["run", "skate", "--t-end", "100", "--h", "0.001"], &dir);
+    let svg = std::fs::metadata(dir.join("skate_gauss_s2.svg")).unwrap().len();
+    let csv = std::fs::metadata(dir.join("skate_gauss_s2.csv")).unwrap().len();
+    assert!(csv > 10_000_000, "the CSV keeps every sample ({csv} bytes)");
+    assert!(svg < 1_000_000, "SVG of {svg} bytes");
+    let _ = std::fs::remove_dir_all(&dir);
+}

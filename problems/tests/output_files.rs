@@ -1,0 +1,98 @@
+//! The output folder ([`OutputDir`]): one writer at a time, files visible
+//! only after the commit, leftovers of killed runs cleaned; and the
+//! decimation that bounds the size of figures.
+
+use problems::output::{OutputDir, OutputError, LOCK_FILE, TEMP_PREFIX};
+use problems::plot::{decimate, Scale};
+use std::path::Path;
+
+fn visible_files(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != LOCK_FILE)
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn a_folder_has_one_writer_and_files_appear_only_at_commit() {
+    let dir = std::env::temp_dir().join(format!("spark-out-lock-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut out = OutputDir::open(&dir).unwrap();
+    // A second opener (another open file description, as another process
+    // would have) is refused with the lock file and this process named.
+    match OutputDir::open(&dir) {
+        Err(OutputError::Locked { lock, holder, .. }) => {
+            assert_eq!(lock, dir.join(LOCK_FILE));
+            assert!(holder.contains(&format!("pid {}", std::process::id())), "{holder}");
+        }
+        other => panic!("second open must be refused, got {other:?}"),
+    }
+    out.write_bytes("report.md", b"first").unwrap();
+    out.write_columns("a.csv", &[("x", &[1.0, 2.0])]).unwrap();
+    // Staged files exist only under temporary names.
+    assert!(visible_files(&dir).iter().all(|n| n.starts_with(TEMP_PREFIX)), "{:?}", visible_files(&dir));
+    let files = out.commit().unwrap();
+    assert_eq!(files, vec![dir.join("report.md"), dir.join("a.csv")]);
+    assert_eq!(visible_files(&dir), vec!["a.csv", "report.md"]);
+    // Dropping an uncommitted folder removes its temporary files and
+    // leaves the committed ones untouched; the lock is free again.
+    let mut out = OutputDir::open(&dir).unwrap();
+    out.write_bytes("report.md", b"second").unwrap();
+    drop(out);
+    assert_eq!(visible_files(&dir), vec!["a.csv", "report.md"]);
+    assert_eq!(std::fs::read(dir.join("report.md")).unwrap(), b"first");
+    // A temporary file left by a killed run is removed by the next open.
+    std::fs::write(dir.join(format!("{TEMP_PREFIX}1-0-a.csv")), b"x,\n1").unwrap();
+    let out = OutputDir::open(&dir).unwrap();
+    assert_eq!(visible_files(&dir), vec!["a.csv", "report.md"]);
+    drop(out);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_unwritable_folder_fails_at_open() {
+    let err = OutputDir::open(Path::new("/proc/spark-cannot-exist/out")).unwrap_err();
+    assert!(err.to_string().contains("/proc/spark-cannot-exist"), "{err}");
+}
+#[test]
+fn decimation_keeps_the_envelope_of_a_million_points() {
+    // A fast oscillation with a slow drift and one isolated spike: the
+    // thinned curve must keep every bucket's extremes, hence the spike
+    // and the global extremes, in at most 2·columns + 2 points.
+    let n = 1_000_000;
+    let pts: Vec<(f64, f64)> = (0..n)
+        .map(|k| {
+            let t = k as f64 * 1e-3;
+            let spike = if k == 777_777 { 50.0 } else { 0.0 };
+            (t, (t * 40.0).sin() + 1e-3 * t + spike)
+        })
+        .collect();
+    let columns = 700;
+    let thin = decimate(&pts, columns, Scale::Linear);
+    assert!(thin.len() <= 2 * columns + 2, "{} points", thin.len());
+    assert_eq!(thin.first(), pts.first());
+    assert_eq!(thin.last(), pts.last());
+    assert!(thin.contains(&pts[777_777]), "the spike is lost");
+    let max = |p: &[(f64, f64)]| p.iter().map(|q| q.1).fold(f64::NEG_INFINITY, f64::max);
+    let min = |p: &[(f64, f64)]| p.iter().map(|q| q.1).fold(f64::INFINITY, f64::min);
+    assert_eq!(max(&thin), max(&pts));
+    assert_eq!(min(&thin), min(&pts));
+    // Every bucket of the full curve has its min and max in the thinned one.
+    let width = pts[n - 1].0 / columns as f64;
+    for b in (0..columns).step_by(37) {
+        let inside = |p: &&(f64, f64)| ((p.0 / width) as usize).min(columns - 1) == b;
+        let full: Vec<_> = pts.iter().filter(inside).copied().collect();
+        let kept: Vec<_> = thin.iter().filter(inside).copied().collect();
+        assert_eq!(max(&kept), max(&full), "bucket {b}");
+        assert_eq!(min(&kept), min(&full), "bucket {b}");
+    }
+    // Points stay in drawing order.
+    assert!(thin.windows(2).all(|w| w[1].0 >= w[0].0));
+    // Short curves and non-monotone curves (by runs of points) are bounded too.
+    assert_eq!(decimate(&pts[..1000], columns, Scale::Linear), pts[..1000].to_vec());
+    let circle: Vec<(f64, f64)> = (0..100_000).map(|k| ((k as f64 * 1e-3).cos(), (k as f64 * 1e-3).sin())).collect();
+    assert!(decimate(&circle, columns, Scale::Linear).len() <= 2 * columns + 2);
+}
