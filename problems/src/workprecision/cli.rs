@@ -121,14 +121,12 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         return Ok(md);
     }
     if a.per_step {
-        crate::output::create_dir(&cfg.out).map_err(|e| e.to_string())?;
+        let mut out = crate::output::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
         let rows = super::per_step::measure_per_step(&cfg, progress)?;
         let md = super::per_step::per_step_markdown(&rows);
-        let path = cfg.out.join("per-step.md");
-        std::fs::write(&path, &md).map_err(|e| format!("could not write {}: {e}", path.display()))?;
-        let path = cfg.out.join("per-step.json");
-        let json = serde_json::to_string_pretty(&rows).map_err(|e| e.to_string())?;
-        std::fs::write(&path, json).map_err(|e| format!("could not write {}: {e}", path.display()))?;
+        out.write_json("per-step.json", &rows).map_err(|e| e.to_string())?;
+        out.write_bytes("per-step.md", md.as_bytes()).map_err(|e| e.to_string())?;
+        out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }
     let all = run_work_precision(&cfg, progress).map_err(|e| e.to_string())?;
