@@ -33,7 +33,9 @@
 // Stage loops index several parallel arrays (c, a, b, stage values) with one index.
 #![allow(clippy::needless_range_loop)]
 
-use crate::convergence::{check_energy, energy_is_invariant, scaled_update_norm, EnergyAnchor, EnergyCheck};
+use crate::convergence::{
+    check_energy, energy_is_invariant, scaled_update_norm, Contraction, EnergyAnchor, EnergyCheck,
+};
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
 use crate::initial::consistent_acceleration_in;
 use crate::newton::NewtonMatrix;
@@ -44,7 +46,9 @@ use crate::tableau::{ConditionRows, Tableau};
 /// (Jacobian frozen at the starting guess for the whole step).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum NewtonMode {
-    /// Exact Jacobian and a fresh factorization every iteration.
+    /// Exact Jacobian and a fresh factorization at every iterate the
+    /// previous iterate's factors do not already finish (see the stopping
+    /// rule on [`Stepper::step`]).
     Full,
     /// One Jacobian and factorization per step, refreshed at the current
     /// iterate only when the iteration on it grows or contracts too slowly
@@ -155,8 +159,13 @@ pub struct StepResult<const N: usize, const M: usize, const S: usize> {
     pub stage_velocities: [Vector<N>; S],
     /// Stage multipliers `Ψ_i`.
     pub stage_multipliers: [Vector<M>; S],
-    /// Newton iterations (linear solves) used.
+    /// Newton iterations (updates applied to the unknowns).
     pub iterations: usize,
+    /// Newton matrices evaluated and factored (full Newton factors only
+    /// where the previous iterate's factors do not already end the solve;
+    /// simplified Newton once, plus refreshes; none when it reuses an
+    /// earlier step's factors).
+    pub factorizations: usize,
     /// Whether the starting guess came from the previous step.
     pub warm_started: bool,
 }
@@ -388,7 +397,7 @@ where
         }
         let (mut z, warm_started) = self.starting_guess(state, h);
         let carry = self.carry_for(state);
-        self.newton(state, &carry, h, &mut z)?;
+        let factorizations = self.newton(state, &carry, h, &mut z)?;
         let iterations = self.history.len();
         let (v, mu) = split::<N, M, S, D>(&z);
         // The increment is summed on its own and added once; what q₁ cannot
@@ -429,7 +438,14 @@ where
         for p in psi.iter_mut() {
             *p /= h;
         }
-        Ok(StepResult { state: end, stage_velocities: v, stage_multipliers: psi, iterations, warm_started })
+        Ok(StepResult {
+            state: end,
+            stage_velocities: v,
+            stage_multipliers: psi,
+            iterations,
+            factorizations,
+            warm_started,
+        })
     }
 
     /// The starting guess. When this step continues earlier steps of the
@@ -762,13 +778,41 @@ where
         j.fixed_view_mut::<M, N>(D - M, S * (N + M)).copy_from(&jac.end.constraint_v);
     }
 
-    /// Newton's method on `G(z) = 0`; records the iterations in `self.history`.
-    fn newton(&mut self, state: &State<N>, carry: &Vector<N>, h: f64, z: &mut Vector<D>) -> Result<(), StepError> {
+    /// Newton's method on `G(z) = 0`; records the iterations in `self.history`
+    /// and returns the number of factorizations.
+    ///
+    /// # Stopping
+    /// Every update `Δz` is computed with some factors `F` of a Newton
+    /// matrix. With the error `e = z − z*` and the contraction `θ = ‖I − F⁻¹J̄‖`
+    /// of those factors (`J̄` the mean Jacobian between `z` and `z*`),
+    /// `(1 − θ)‖e‖ ≤ ‖Δz‖` and the error left after the update is at most
+    /// `θ/(1 − θ)·‖Δz‖`. So an update within the tolerance ends the solve
+    /// whenever `θ ≤ ½`: the simplified Newton refresh guarantees that bound
+    /// for its frozen factors, and factors of the previous iterate contract
+    /// at `θ = O(‖Δz_prev‖)`.
+    ///
+    /// Full Newton therefore does not factor the Jacobian at a new iterate
+    /// before it has tried the previous iterate's factors on the new residual
+    /// (one evaluation without Jacobians and one back-substitution, the
+    /// simplified-Newton correction of affine-covariant Newton methods): when
+    /// that correction is within the tolerance, the solve ends with it
+    /// applied, having paid the factorization only for iterates that need it.
+    /// Otherwise it is discarded and the iteration continues with a fresh
+    /// Jacobian at the same iterate, exactly as plain Newton would.
+    ///
+    /// Larger updates end the solve only on a contraction rate the iteration
+    /// has earned (see [`Contraction`]): three updates on the same factors,
+    /// because the first ratio on new factors can be far below `θ` (unknowns
+    /// entering linearly, the multipliers, are corrected at once, and the
+    /// first update is mostly theirs).
+    fn newton(&mut self, state: &State<N>, carry: &Vector<N>, h: f64, z: &mut Vector<D>) -> Result<usize, StepError> {
         let t = state.t;
         let opts = self.options;
         let p0 = self.system.momentum(t, &state.q, &state.v);
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
         self.history.clear();
+        // The latest applied update (whatever its factors), for divergence
+        // and stagnation.
         let mut prev_update = f64::NAN;
         let fail_nonfinite =
             |stage, history: &NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(*history) };
@@ -781,8 +825,34 @@ where
         // that was a refresh within this step (simplified Newton only).
         let (mut factored_at, mut refreshed) = (0usize, false);
         let mut max_rate = 0.0f64;
+        let mut factorizations = 0usize;
+        let mut monitor = Contraction::FRESH;
         let result = 'solve: {
             for k in 0..max_iter {
+                if !simplified && k > 0 {
+                    // The previous iterate's factors on the new residual.
+                    let ev = Self::evaluate(&self.system, &self.tableau, state, carry, h, z, None);
+                    let mut g = Self::residual(&self.tableau, &p0, h, z, &ev);
+                    if !g.iter().all(|x| x.is_finite()) {
+                        self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
+                        return Err(fail_nonfinite("residual", &self.history));
+                    }
+                    let residual = g.amax();
+                    self.newton.solve_in_place(&mut g);
+                    let trial = *z - g;
+                    let update = scaled_update_norm(&g, &trial);
+                    let theta = monitor.record(update);
+                    if monitor.converged(update, opts.tolerance) {
+                        *z = trial;
+                        self.history.push(IterationRecord { residual, update, rate: update / prev_update });
+                        break 'solve Ok(());
+                    }
+                    if update <= opts.stagnation_level && theta >= 1.0 {
+                        // Round-off: the correction no longer shrinks and a
+                        // fresh Jacobian cannot make it.
+                        break 'solve Ok(());
+                    }
+                }
                 let fresh = refresh || !simplified;
                 if refresh && k > 0 {
                     refreshed = true;
@@ -798,6 +868,8 @@ where
                 }
                 if fresh {
                     self.assemble_jacobian(h);
+                    factorizations += 1;
+                    monitor = Contraction::FRESH;
                     if let Err(s) = self.newton.factor() {
                         self.history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
                         return Err(if self.newton.matrix().iter().all(|x| x.is_finite()) {
@@ -823,6 +895,7 @@ where
                 *z -= g;
                 let update = scaled_update_norm(&g, z);
                 let rate = update / prev_update;
+                monitor.record(update);
                 self.history.push(IterationRecord { residual, update, rate });
                 if rate.is_finite() {
                     max_rate = max_rate.max(rate);
@@ -842,7 +915,7 @@ where
                     let too_slow = rate.is_nan()
                         || rate > REFRESH_RATE
                         || update * rate.powi(remaining + 1) / (1.0 - rate) > opts.tolerance;
-                    let converged = accepted(update, rate, opts.tolerance);
+                    let converged = monitor.converged(update, opts.tolerance);
                     let round_off = update <= opts.stagnation_level;
                     let first_stale = k == 0 && update.is_finite();
                     if too_slow && !converged && !round_off && !first_stale {
@@ -867,7 +940,7 @@ where
                 if !update.is_finite() {
                     return Err(fail_nonfinite("update", &self.history));
                 }
-                if accepted(update, rate, opts.tolerance) {
+                if monitor.converged(update, opts.tolerance) {
                     break 'solve Ok(());
                 }
                 if k > 0 && rate >= 1.0 {
@@ -883,7 +956,7 @@ where
         if result.is_ok() && simplified && max_rate <= REUSE_RATE {
             self.reusable = Some(h);
         }
-        result
+        result.map(|()| factorizations)
     }
 }
 
@@ -933,17 +1006,6 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize
 
 /// Largest `N·N` whose Newton-matrix blocks are accumulated on the stack.
 const SMALL_BLOCK: usize = 256;
-
-/// Newton's stopping rule: the update itself, or the remaining error
-/// estimated as `θ/(1−θ)·‖Δz‖` from the contraction rate `θ` (NaN before a
-/// rate exists), is within `tolerance`. The estimate is used even for full
-/// Newton: unknowns entering linearly (the multipliers) converge in one
-/// iteration and make the first contraction look much faster than that of
-/// the nonlinear ones, so a quadratic model would stop one iteration early
-/// (measured: |k| ≈ 2e-13).
-fn accepted(update: f64, rate: f64, tolerance: f64) -> bool {
-    update <= tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= tolerance)
-}
 
 /// `acc += coef · x`, entry by entry on contiguous storage (nalgebra's
 /// `zip_apply` on a strided view of the D×D matrix did not vectorize);
