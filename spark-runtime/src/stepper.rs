@@ -1199,7 +1199,7 @@ mod stop_tests {
     /// McLachlan–Perlmutter particles from `v₀ = 0`, Lobatto IIIA-B-D s = 2,
     /// h = 0.1: the first update (mostly the multiplier) is followed by one
     /// 1.8e-7 times smaller, while the frozen Jacobian contracts at 3.5e-3.
-    /// Stopping on that first ratio left q₁ wrong by 4e-12, Ψ by 8e-10 and
+    /// A stop on that first ratio leaves q₁ wrong by 4e-12, Ψ by 8e-10 and
     /// |k(t₁,q₁,v₁)| = 6.5e-14; both modes must match the tight solve.
     #[test]
     fn simplified_newton_does_not_stop_on_a_first_rate() {
@@ -1224,8 +1224,8 @@ mod stop_tests {
     /// iterate: over 50 warm-started steps the skate (Lobatto IIIA-B, h =
     /// 0.1), whose residual after the first update is at round-off, factors
     /// once per step, the particle (Gauss s = 2, h = 0.2) and the robot
-    /// (Gauss s = 2, h = 0.2) about twice (measured with a factorization per
-    /// iteration: 2, 3 and 2.98). The steps equal the tight solve from the
+    /// (Gauss s = 2, h = 0.2) about twice (a factorization per iteration
+    /// costs 2, 3 and 2.98 here). The steps equal the tight solve from the
     /// same states.
     #[test]
     fn full_newton_factors_only_the_iterates_that_need_it() {
@@ -1273,8 +1273,8 @@ mod stop_tests {
     }
 
     /// A cold start from a state that violates the constraint is refused
-    /// (it used to return Ok, the end constraint removing the inconsistent
-    /// velocity with an impulse); consistent states pass even at velocities
+    /// (solving the step would remove the inconsistent velocity with an
+    /// impulse at its end); consistent states pass even at velocities
     /// of 1e6 whose residual is round-off of that size; a step that
     /// continues the previous one is not checked.
     #[test]
