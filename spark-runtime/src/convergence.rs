@@ -150,9 +150,10 @@ where
         let terms: f64 = (0..N).map(|j| (jac.constraint_v[(i, j)] * v[j]).abs()).sum::<f64>() + (k[i] - kv[i]).abs();
         let allowed = tolerance * terms.max(1.0);
         // Written so that a NaN scale fails the test.
-        if !(k[i].abs() <= allowed) {
-            return Err(StepError::InconsistentStart { t, residual: k.amax(), tolerance: allowed });
+        if k[i].abs() <= allowed {
+            continue;
         }
+        return Err(StepError::InconsistentStart { t, residual: k.amax(), tolerance: allowed });
     }
     let kmax = jac.constraint_v.amax();
     let mut perm = [0usize; N];
