@@ -6,7 +6,7 @@
 use problems::registry::{entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
 use problems::simulate::{run, RunError, RunSpec};
 use problems::workprecision::{method_label, method_variants, run_work_precision, Provider, WorkPrecisionConfig};
-use spark_runtime::{ConstraintForm, Method};
+use spark_runtime::{ConstraintForm, Method, NewtonMode, NewtonOptions, HISTORY_CAPACITY};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -84,6 +84,54 @@ fn every_system_steps_with_every_method_family_and_stage_count() {
         }
     }
     assert!(failures.is_empty(), "{} of {} runs failed:\n{}", failures.len(), runs, failures.join("\n"));
+}
+
+/// Newton's stopping rule costs no accuracy: three steps of every registered
+/// system with every family and stage count, at its registered step size
+/// (the paper's for the paper's systems), with full and with simplified
+/// Newton, equal full Newton iterated to the round-off floor (tolerance 0)
+/// to 1e-14 in `|Δx| / max(1, |x|)` at every step, cold and warm-started.
+#[test]
+fn converged_steps_equal_the_tight_solve_in_both_newton_modes() {
+    let tight = NewtonOptions { tolerance: 0.0, max_iterations: HISTORY_CAPACITY, ..NewtonOptions::default() };
+    let distance = |a: &[Vec<f64>], b: &[Vec<f64>]| {
+        a.iter()
+            .zip(b)
+            .flat_map(|(x, y)| x.iter().zip(y).map(|(x, y)| (x - y).abs() / y.abs().max(1.0)))
+            .fold(0.0f64, |m, d| if d.is_nan() { f64::INFINITY } else { m.max(d) })
+    };
+    let (mut failures, mut runs, mut worst) = (Vec::new(), 0, (0.0f64, String::new()));
+    for e in entries() {
+        for (method, s) in all_method_variants() {
+            let base = RunSpec { steps: 3, ..RunSpec::defaults(e.kind, method, s) };
+            let reference = match run(&RunSpec { newton: tight, ..base.clone() }, &|_| {}) {
+                Ok(r) => r,
+                Err(err) => {
+                    failures.push(format!("{} {method} s={s} tight: {err}", e.name));
+                    continue;
+                }
+            };
+            for mode in [NewtonMode::Full, NewtonMode::Simplified] {
+                let spec = RunSpec { newton: NewtonOptions { mode, ..NewtonOptions::default() }, ..base.clone() };
+                match run(&spec, &|_| {}) {
+                    Ok(r) => {
+                        runs += 1;
+                        let d = distance(&r.q, &reference.q).max(distance(&r.v, &reference.v));
+                        let label = format!("{} {method} s={s} {mode:?}", e.name);
+                        if d > worst.0 {
+                            worst = (d, label.clone());
+                        }
+                        if d > 1e-14 {
+                            failures.push(format!("{label}: {d:.3e} from the tight solve"));
+                        }
+                    }
+                    Err(err) => failures.push(format!("{} {method} s={s} {mode:?}: {err}", e.name)),
+                }
+            }
+        }
+    }
+    println!("{runs} runs, largest difference {:.3e} ({})", worst.0, worst.1);
+    assert!(failures.is_empty(), "{} failures:\n{}", failures.len(), failures.join("\n"));
 }
 
 /// The drift `max |g|` of a holonomic constraint imposed at velocity level

@@ -377,6 +377,29 @@ where
         // A run depends on its inputs only: nothing of an earlier run (warm
         // start, energy anchor, round-off carry) reaches its first step.
         self.reset_run();
+        let accepted = match options.consistency {
+            ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
+        };
+        self.set_accepted_start_residual(accepted);
+        let result = self.run_steps(t0, q0, v0, v0c, steps, schedule, options, observer);
+        self.set_accepted_start_residual(0.0);
+        result
+    }
+
+    /// The stepping loop of [`Stepper::integrate`], from the checked initial
+    /// velocity `v0c`.
+    #[allow(clippy::too_many_arguments)]
+    fn run_steps<O: Observer<N, M>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        v0c: Vector<N>,
+        steps: usize,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut O,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
         let every = options.record_every;
         // Reserve for the expected samples up to a bounded size; beyond it the

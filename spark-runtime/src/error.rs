@@ -280,6 +280,46 @@ pub enum StepError {
     /// (checked once, before the first step with these options).
     #[error("{0}")]
     InvalidOption(Box<OptionError>),
+    /// A step that does not continue the stepper's previous step (a cold
+    /// start) begins at a state that violates the constraints:
+    /// `|k_i(t,q,v)|` exceeds `NewtonOptions::consistency_tolerance` times
+    /// the size of the terms of `k_i` (at least 1). Such a step enforces
+    /// `k = 0` at its end at once, an impulse that changes the energy.
+    #[error(
+        "the step from t = {t:.6e} starts cold (not where the stepper's previous step ended) at a state that \
+         violates the constraints: max |k_i(t,q,v)| = {residual:.3e} > {tolerance:.3e} (consistency_tolerance x \
+         the size of the terms of k); project v onto the constraints first with \
+         spark_runtime::consistent_velocity(.., ConsistencyPolicy::Project {{ .. }}) (integrate does this with \
+         RunOptions::consistency), or raise NewtonOptions::consistency_tolerance to accept the state as it is"
+    )]
+    InconsistentStart {
+        /// Start time.
+        t: f64,
+        /// `max_i |k_i(t,q,v)|`.
+        residual: f64,
+        /// The tolerance of the offending row.
+        tolerance: f64,
+    },
+    /// A cold start finds the constraint rows `K = ∂k/∂v` dependent or
+    /// nearly so: the condition number of `K W⁻¹ Kᵀ` (the Schur complement
+    /// of the saddle matrix `[[W, Kᵀ],[K, 0]]`, `W = ∇²_vv L`) exceeds
+    /// `limit`, so the accelerations and multipliers are not determined to
+    /// working precision there and a step would return a meaningless
+    /// constraint force.
+    #[error(
+        "the constraint rows K = dk/dv are dependent at the start of the step from t = {t:.6e}: condition number \
+         of K W^-1 K^T = {condition:.3e} > {limit:.3e} (W = the mass matrix), so the multipliers are not \
+         determined there; start from a configuration where the constraints are independent, or remove the \
+         redundant constraint"
+    )]
+    DependentConstraints {
+        /// Start time.
+        t: f64,
+        /// `κ₁(K W⁻¹ Kᵀ)` (infinite when its factorization failed).
+        condition: f64,
+        /// The largest accepted condition number.
+        limit: f64,
+    },
 }
 
 impl StepError {
@@ -301,7 +341,11 @@ impl StepError {
     pub(crate) fn is_curable(&self) -> bool {
         !matches!(
             self,
-            StepError::InvalidStep { .. } | StepError::InconsistentInitialState { .. } | StepError::InvalidOption(_)
+            StepError::InvalidStep { .. }
+                | StepError::InconsistentInitialState { .. }
+                | StepError::InvalidOption(_)
+                | StepError::InconsistentStart { .. }
+                | StepError::DependentConstraints { .. }
         )
     }
 }

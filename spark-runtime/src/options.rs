@@ -46,6 +46,13 @@ impl NewtonOptions {
                 "1, 2 or 3",
             ));
         }
+        if self.consistency_tolerance.is_nan() || self.consistency_tolerance < 0.0 {
+            return Err(OptionError::float(
+                "NewtonOptions::consistency_tolerance",
+                self.consistency_tolerance,
+                "non-negative (not NaN; infinity accepts any starting state)",
+            ));
+        }
         if let Some(limit) = self.energy_drift_limit {
             if !(limit.is_finite() && limit > 0.0) {
                 return Err(OptionError::float(

@@ -26,6 +26,8 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
         StepError::EnergyDrift { .. } => "EnergyDrift",
         StepError::InconsistentInitialState { .. } => "InconsistentInitialState",
         StepError::InvalidOption(_) => "InvalidOption",
+        StepError::InconsistentStart { .. } => "InconsistentStart",
+        StepError::DependentConstraints { .. } => "DependentConstraints",
     }
 }
 
@@ -627,8 +629,10 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
                 if eps == 0.0 {
                     zero_typed = matches!(
                         e,
-                        IntegrationError::Step { source: StepError::SingularMatrix { .. }, .. }
-                            | IntegrationError::Initial(StepError::SingularMatrix { .. })
+                        IntegrationError::Step {
+                            source: StepError::SingularMatrix { .. } | StepError::DependentConstraints { .. },
+                            ..
+                        } | IntegrationError::Initial(StepError::SingularMatrix { .. })
                     );
                     zero_outcome = format!("ε = 0: {} ({e})", integration_error_kind(&e));
                 }
@@ -645,7 +649,7 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
         format!("cond(1e-4) = {}, cond(1e-6) = {}, ratio {}", sci(conds[2]), sci(conds[3]), sci(ratio)),
     );
     c.check("ill-conditioning reported as a warning", !c.warnings.is_empty(), format!("{} warnings", c.warnings.len()));
-    c.check("ε = 0 (parallel rows) is a typed SingularMatrix error", zero_typed, zero_outcome);
+    c.check("ε = 0 (parallel rows) is a typed SingularMatrix or DependentConstraints error", zero_typed, zero_outcome);
     c.energy = "see per-ε max |E−E0|".into();
     c.figure = Some(Figure {
         title: c.title.clone(),
