@@ -1333,8 +1333,9 @@ mod stop_tests {
         // Scaled by the size of the terms: |k| = 1.2e-10 next to terms of 1e6.
         let fast = State::new(0.0, Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::new(1e6, 0.0, 0.5e6 + 1.2e-10));
         let r = st.step(&fast, 1e-7).unwrap();
-        // Continuing from the end is not checked, even with a tolerance nothing meets.
-        st.options_mut().consistency_tolerance = -1.0;
+        // Continuing from the end is not checked, even with a tolerance only
+        // an exact zero meets.
+        st.options_mut().consistency_tolerance = 0.0;
         assert!(st.step(&r.state, 1e-7).is_ok());
         // A cold start with that tolerance is checked.
         assert!(matches!(st.step(&fast, 1e-7), Err(StepError::InconsistentStart { .. })));
