@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Compile cost of `nonholonomic_system!` (issue 2, "Must show"): McLachlan and
+# Compile cost of `nonholonomic_system!` : McLachlan and
 # Perlmutter's particles for n = 7, 51, 201 are declared in a scratch crate
 # outside the repository that depends on spark-runtime like any user crate
 # (default cargo profiles), which is built with and without the declaration.
@@ -165,7 +165,7 @@ show() { awk -v x="$1" 'BEGIN { split(x, a, ","); printf "%s s (%s s)", a[1], a[
     verdict() { awk -v x="$1" -v y="$2" -v lim="$3" 'BEGIN { split(x, a, ","); split(y, b, ",");
         w = a[1] - b[1]; c = a[2] - b[2];
         printf "%.2f s wall (%.2f s CPU): %s", w, c, (w < lim) ? "met" : ((c < lim) ? "met in CPU time, not in wall time on this loaded machine" : "NOT met") }'; }
-    echo "Aims of issue 2: under 1 s added per paper system — n = $first adds to a release build"
+    echo "Aims: under 1 s added per paper system — n = $first adds to a release build"
     echo "$(verdict "$(field "${RESULT[$first]}" release)" "$base_rel" 1). Under 10 s at n = $last — it adds"
     echo "$(verdict "$(field "${RESULT[$last]}" release)" "$base_rel" 10). Generated operations per source"
     echo "operation (stage_values / stage_jacobians / bundle), flat if counts grow no faster than the expressions:"

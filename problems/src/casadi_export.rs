@@ -6,7 +6,7 @@
 //! differentiates it with CasADi and compares. Nothing here derives anything:
 //! it only evaluates the trait and records what it returned.
 //!
-//! Optional effects (issue 8) travel the same way: for a system with
+//! Optional effects travel the same way: for a system with
 //! `HAS_FORCING`, `HAS_NONIDEAL_FORCE` or `HAS_HOLONOMIC` the source carries
 //! `f`, `N(ψ)` or `g` and every point carries what the effect methods
 //! returned; steps of such systems are taken by the stepper with the effects
@@ -670,7 +670,7 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
     one!("ChaplyginSleigh", ChaplyginSleigh::default());
     one!("DoublePendulum", DoublePendulum::default());
     one!(HANDWRITTEN, handwritten::Rheonomic::default());
-    // Issue 8: systems declared with effects and scenes (scenes are plain
+    // Systems declared with effects and scenes (scenes are plain
     // systems to the exporter: their SOURCE holds the selected effects).
     {
         use crate::scenes::*;

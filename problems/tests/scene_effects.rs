@@ -1,4 +1,4 @@
-//! Force, non-ideal and holonomic effects declared with the macro (issue 8):
+//! Force, non-ideal and holonomic effects declared with the macro:
 //! generated `f`, `N`, their Jacobians and the holonomic residuals against
 //! the hand-written systems of `spark_runtime::effects`, the macro friction
 //! skate's trajectory against the hand-written one, the energy balance

@@ -925,7 +925,7 @@ where
                     let trial = *z - g;
                     let update = scaled_update_norm(&g, &trial);
                     let theta = monitor.record(update);
-                    if monitor.converged(update, opts.tolerance) {
+                    if full_newton_converged(update, update / prev_update, opts.tolerance) {
                         *z = trial;
                         self.history.push(IterationRecord { residual, update, rate: update / prev_update });
                         break 'solve Ok(());
@@ -1023,7 +1023,12 @@ where
                 if !update.is_finite() {
                     return Err(fail_nonfinite("update", &self.history));
                 }
-                if monitor.converged(update, opts.tolerance) {
+                let converged = if simplified {
+                    monitor.converged(update, opts.tolerance)
+                } else {
+                    full_newton_converged(update, rate, opts.tolerance)
+                };
+                if converged {
                     break 'solve Ok(());
                 }
                 if k > 0 && rate >= 1.0 {
@@ -1085,6 +1090,18 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize
     };
     format!("column {column} ({name}): pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}")
         .into_boxed_str()
+}
+
+/// Full Newton's stopping rule: the update itself, or the error left after
+/// it estimated as `θ/(1−θ)·‖Δz‖` from the ratio `θ` of the last two updates,
+/// is within `tolerance`. Each update of full Newton uses a fresh Jacobian, so
+/// the ratio is that of the iteration itself, and it can only overstate the
+/// error left by a quadratically converging one; at stiff steps, where the
+/// updates reach their round-off floor above the tolerance, it stops before
+/// round-off makes them grow. Simplified Newton uses the rate it has earned on
+/// its frozen factors instead ([`Contraction::converged`]).
+fn full_newton_converged(update: f64, rate: f64, tolerance: f64) -> bool {
+    update <= tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= tolerance)
 }
 
 /// Largest `N·N` whose Newton-matrix blocks are accumulated on the stack.

@@ -1,4 +1,4 @@
-//! Systems declared with effects and scenes (issue 8) on the stepper: a
+//! Systems declared with effects and scenes on the stepper: a
 //! holonomic scene against the hand-written system, the vertical rolling disk
 //! against its exact solution, the ball on a turntable against its exact
 //! invariant (constant Ω) and the reference ODE (Ω(t)), and the scenes of

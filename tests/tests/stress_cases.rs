@@ -1,4 +1,4 @@
-//! The stress suite's cases at the quick scale (issue 7): each case's
+//! The stress suite's cases at the quick scale: each case's
 //! criteria must hold. `spark stress --full` runs the lengths the issue asks
 //! for (10⁶ steps, t ∈ [0, 50000]); see docs/stress/report.md.
 

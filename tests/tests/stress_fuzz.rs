@@ -1,4 +1,4 @@
-//! Fuzz harness (issue 7): proptest over the stepper's inputs — system and
+//! Fuzz harness: proptest over the stepper's inputs — system and
 //! its parameters, method and stage count, state (t, q, v) and step size,
 //! drawn from ordinary values mixed with zeros, huge, tiny, NaN and infinite
 //! ones — through `Stepper::step`, the driver `integrate` (with projection of

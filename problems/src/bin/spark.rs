@@ -53,7 +53,7 @@ enum Command {
     ///
     /// Example: spark work-precision --system skate --system driven-skate --out results/work-precision
     WorkPrecision(problems::workprecision::cli::WorkPrecisionArgs),
-    /// Stress suite (issue 7): hard cases with checks, figures and a report.
+    /// Stress suite: hard cases with checks, figures and a report.
     ///
     /// Example: spark stress --full --out docs/stress
     Stress(problems::stress::cli::StressArgs),

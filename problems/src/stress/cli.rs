@@ -6,7 +6,7 @@ use crate::output::OutputDir;
 use crate::progress::Progress;
 use std::path::PathBuf;
 
-/// Run the stress suite (issue 7): hard cases that try to break the
+/// Run the stress suite: hard cases that try to break the
 /// integrators — long runs, chaos, high order near round-off, large steps
 /// with a step-rejection policy, stiffness, near-singular constraints, a
 /// non-reversible system, an exact solution, rheonomic and velocity-nonlinear

@@ -507,7 +507,7 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
             // flat: nothing above the plateau) and from a steady drift (slope 2).
             // The band is wide because a 10-member chaotic ensemble is one
             // realization: initial values moved by 1e-15 … 1e-12 (CHAOS_PERTURB
-            // experiment, session 3) gave slopes 1.05–1.33 (Gauss s=2) and
+            // experiment) gave slopes 1.05–1.33 (Gauss s=2) and
             // 1.13–1.33 (Lobatto IIIA-B s=2), and Gauss's ensemble-mean exponent
             // p (its former criterion, |p − 1| ≤ 0.25) 0.76–1.22 (1.355 in one build). The bounded
             // O(h²) oscillation dominates the ensemble mean for the first

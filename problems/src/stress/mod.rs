@@ -1,4 +1,4 @@
-//! The stress suite (issue 7): hard cases that try to break the SPARK
+//! The stress suite: hard cases that try to break the SPARK
 //! integrators, each measured, judged against a stated criterion, drawn, and
 //! written up in a Markdown report by `spark stress --out DIR`.
 //!
