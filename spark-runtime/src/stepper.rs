@@ -912,30 +912,6 @@ where
         let mut monitor = Contraction::FRESH;
         let result = 'solve: {
             for k in 0..max_iter {
-                if !simplified && k > 0 {
-                    // The previous iterate's factors on the new residual.
-                    let ev = Self::evaluate(&self.system, &self.tableau, state, carry, h, z, None);
-                    let mut g = Self::residual(&self.tableau, &p0, h, z, &ev);
-                    if !g.iter().all(|x| x.is_finite()) {
-                        self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
-                        return Err(fail_nonfinite("residual", &self.history));
-                    }
-                    let residual = g.amax();
-                    self.newton.solve_in_place(&mut g);
-                    let trial = *z - g;
-                    let update = scaled_update_norm(&g, &trial);
-                    let theta = monitor.record(update);
-                    if full_newton_converged(update, update / prev_update, opts.tolerance) {
-                        *z = trial;
-                        self.history.push(IterationRecord { residual, update, rate: update / prev_update });
-                        break 'solve Ok(());
-                    }
-                    if update <= opts.stagnation_level && theta >= 1.0 {
-                        // Round-off: the correction no longer shrinks and a
-                        // fresh Jacobian cannot make it.
-                        break 'solve Ok(());
-                    }
-                }
                 let fresh = refresh || !simplified;
                 if refresh && k > 0 {
                     refreshed = true;
@@ -1238,7 +1214,7 @@ mod tests {
 #[cfg(test)]
 mod stop_tests {
     use super::*;
-    use crate::handwritten::{MpParticles, Particle, Skate};
+    use crate::handwritten::{MpParticles, Particle};
     use crate::Method;
 
     /// Full Newton to the round-off floor: with tolerance 0 it stops only
@@ -1278,58 +1254,6 @@ mod stop_tests {
                 "{mode:?}: {dq:e} {dv:e} {dpsi:e} |k| {k:e}"
             );
         }
-    }
-
-    /// Full Newton does not pay a factorization to confirm a converged
-    /// iterate: over 50 warm-started steps the skate (Lobatto IIIA-B, h =
-    /// 0.1), whose residual after the first update is at round-off, factors
-    /// once per step, the particle (Gauss s = 2, h = 0.2) and the robot
-    /// (Gauss s = 2, h = 0.2) about twice (a factorization per iteration
-    /// costs 2, 3 and 2.98 here). The steps equal the tight solve from the
-    /// same states.
-    #[test]
-    fn full_newton_factors_only_the_iterates_that_need_it() {
-        fn mean_factorizations<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-            sys: Sys,
-            method: Method,
-            start: State<N>,
-            h: f64,
-        ) -> f64
-        where
-            Sys: NonholonomicSystem<N, M> + Clone,
-        {
-            let tab = Tableau::<S>::new(method).unwrap();
-            let mut st = Stepper::<Sys, N, M, S, D>::new(sys.clone(), tab);
-            let mut reference = Stepper::<Sys, N, M, S, D>::new(sys, tab).with_options(tight());
-            let (mut s, mut total) = (start, 0);
-            for k in 0..50 {
-                let r = st.step(&s, h).unwrap();
-                // The tight solve of the same equations, from a cold start.
-                reference.reset_warm_start();
-                let tight = reference.step(&s, h).unwrap();
-                let (dq, dv, _) = distance(&r, &tight);
-                assert!(dq <= 1e-15 && dv <= 1e-15, "{method} step {k}: {dq:e} {dv:e}");
-                total += r.factorizations;
-                s = r.state;
-            }
-            total as f64 / 50.0
-        }
-        let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-        let f = mean_factorizations::<_, 3, 1, 2, 11>(Skate::default(), Method::LobattoIIIAB, skate, 0.1);
-        assert_eq!(f, 1.0);
-        let f = mean_factorizations::<_, 3, 1, 3, 15>(Skate::default(), Method::LobattoIIIAB, skate, 0.1);
-        assert_eq!(f, 1.0);
-        let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-        let f = mean_factorizations::<_, 3, 1, 2, 11>(Particle, Method::Gauss, particle, 0.2);
-        assert!(f <= 2.1, "particle: {f}");
-        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
-        let f = mean_factorizations::<_, 4, 2, 2, 16>(
-            crate::handwritten::MobileRobot::default(),
-            Method::Gauss,
-            robot,
-            0.2,
-        );
-        assert!(f <= 2.3, "robot: {f}");
     }
 
     /// A cold start from a state that violates the constraint is refused
