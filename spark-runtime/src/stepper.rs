@@ -447,14 +447,12 @@ where
     /// with [`StepError::DependentConstraints`].
     ///
     /// Newton stops when an update is within [`NewtonOptions::tolerance`]
-    /// (scaled, `|Δz_i|/(1+|z_i|)`), or when the error left after it,
-    /// estimated from a contraction rate earned over three updates on the
-    /// same factors, is. Full Newton first applies the previous iterate's
-    /// factors to the residual at a new iterate and stops there when that
-    /// correction is within the tolerance, so it factors only the iterates
-    /// that need it (typically one or two per step). A converged step agrees
-    /// with the tightly converged solution of its equations to the tolerance
-    /// in both modes.
+    /// (scaled, `|Δz_i|/(1+|z_i|)`), or when the error left after it is,
+    /// estimated from a contraction rate: for full Newton the ratio of its
+    /// last two updates, for simplified Newton a rate earned over three
+    /// updates on the same frozen factors. A converged step agrees with the
+    /// tightly converged solution of its equations to the tolerance in both
+    /// modes.
     ///
     /// The first step after the Newton options were set or changed checks
     /// them ([`NewtonOptions::validate`]): an out-of-range field is a
