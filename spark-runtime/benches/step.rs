@@ -3,7 +3,9 @@
 //! `problems/benches/spark.rs`). Run with `cargo bench -p spark-runtime --bench step`.
 //!
 //! - `step/<system>/<method>/<mode>`: one warm-started step at h = 0.05,
-//!   full and simplified Newton, default options (energy guard on);
+//!   full Newton, simplified Newton on the exact matrix, and simplified
+//!   Newton on the stage-decoupled matrix (`Simplified-decoupled`), default
+//!   options otherwise (energy guard on);
 //! - `step/<system>/<method>/<mode>/no-guard`: the same with
 //!   `energy_drift_limit: None`, measured in the same run so that the
 //!   guard's cost per step is the difference of two neighbouring lines.
@@ -15,7 +17,7 @@
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use spark_runtime::handwritten::{MobileRobot, MpParticles, Particle, Skate};
-use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
+use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 
 #[repr(C)]
@@ -82,11 +84,16 @@ fn bench_run<Sys, const N: usize, const M: usize, const S: usize, const D: usize
 ) where
     Sys: NonholonomicSystem<N, M> + Clone,
 {
-    for mode in [NewtonMode::Full, NewtonMode::Simplified] {
+    let modes = [
+        (NewtonMode::Full, Jacobian::Exact, "Full"),
+        (NewtonMode::Simplified, Jacobian::Exact, "Simplified"),
+        (NewtonMode::Simplified, Jacobian::StageDecoupled, "Simplified-decoupled"),
+    ];
+    for (mode, jacobian, mode_name) in modes {
         let variants: &[bool] = if guard_pair { &[true, false] } else { &[true] };
         for &guard in variants {
-            let mut opts = NewtonOptions { mode, ..NewtonOptions::default() };
-            let mut label = format!("step/{name}/{method} s={S}/{mode:?}");
+            let mut opts = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
+            let mut label = format!("step/{name}/{method} s={S}/{mode_name}");
             if !guard {
                 opts.energy_drift_limit = None;
                 label.push_str("/no-guard");

@@ -119,6 +119,7 @@
 #![warn(missing_docs)]
 
 mod convergence;
+mod decoupled;
 mod driver;
 pub mod effects;
 mod error;
@@ -147,7 +148,7 @@ pub use rejection::{
     RejectionRunError,
 };
 pub use spark_macros::nonholonomic_system;
-pub use stepper::{NewtonMode, NewtonOptions, State, StepResult, Stepper};
+pub use stepper::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};
 pub use system::{
     ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, StageJacobians, StageValues,
     Structure, SystemSource, TimeDerivatives, Vector,

@@ -154,6 +154,78 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
     }
 }
 
+/// Factors the `n × n` column-major matrix in `lu` in place (`P A = L U`,
+/// partial pivoting over all rows), for sizes known only at run time (the
+/// Schur complement of the stage-decoupled Newton matrix is `S·M` square);
+/// `scale` is scratch of at least `n` entries.
+/// The singularity test is [`factor_in_place`]'s: a pivot below `64 ε`
+/// times its column's largest magnitude.
+pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
+    let lu = &mut lu[..n * n];
+    let scale = &mut scale[..n];
+    for (sk, col) in scale.iter_mut().zip(lu.chunks_exact(n)) {
+        *sk = col.iter().fold(0.0, |m: f64, x| m.max(x.abs()));
+    }
+    for k in 0..n {
+        let col = &lu[k * n..(k + 1) * n];
+        let (mut p, mut best) = (k, col[k].abs());
+        for (r, x) in col.iter().enumerate().skip(k + 1) {
+            if x.abs() > best {
+                (p, best) = (r, x.abs());
+            }
+        }
+        let threshold = 64.0 * f64::EPSILON * scale[k];
+        if best.is_nan() || threshold.is_nan() || best <= threshold {
+            return Err(Singular { column: k, pivot: best });
+        }
+        perm[k] = p;
+        if p != k {
+            for j in 0..n {
+                lu.swap(j * n + k, j * n + p);
+            }
+        }
+        let rpiv = 1.0 / lu[k * n + k];
+        for x in lu[k * n + k + 1..(k + 1) * n].iter_mut() {
+            *x *= rpiv;
+        }
+        let (head, tail) = lu.split_at_mut((k + 1) * n);
+        let lower = &head[k * n + k + 1..(k + 1) * n];
+        for col_j in tail.chunks_exact_mut(n) {
+            let ukj = col_j[k];
+            if ukj != 0.0 {
+                for (x, l) in col_j[k + 1..].iter_mut().zip(lower) {
+                    *x -= l * ukj;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Overwrites `b` with `A⁻¹ b` from the factors of [`factor_runtime`].
+pub(crate) fn solve_runtime(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
+    let lu = &lu[..n * n];
+    let b = &mut b[..n];
+    for (k, &p) in perm[..n].iter().enumerate() {
+        if p != k {
+            b.swap(k, p);
+        }
+    }
+    for j in 0..n {
+        let bj = b[j];
+        for (x, l) in b[j + 1..].iter_mut().zip(&lu[j * n + j + 1..(j + 1) * n]) {
+            *x -= l * bj;
+        }
+    }
+    for j in (0..n).rev() {
+        b[j] /= lu[j * n + j];
+        let bj = b[j];
+        for (x, u) in b[..j].iter_mut().zip(&lu[j * n..j * n + j]) {
+            *x -= u * bj;
+        }
+    }
+}
+
 /// The largest magnitude of each column of a `D × D` column-major matrix.
 #[inline]
 pub(crate) fn column_scales<const D: usize>(a: &[f64]) -> [f64; D] {

@@ -6,7 +6,7 @@
 use crate::driver::RunOptions;
 use crate::error::{OptionError, HISTORY_CAPACITY};
 use crate::initial::ConsistencyPolicy;
-use crate::stepper::NewtonOptions;
+use crate::stepper::{Jacobian, NewtonMode, NewtonOptions};
 
 /// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
 /// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
@@ -16,7 +16,8 @@ impl NewtonOptions {
     /// Checks every field against its allowed range: `tolerance` and
     /// `stagnation_level` finite and non-negative, `max_iterations` in
     /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=3`,
-    /// `energy_drift_limit` (when set) finite and positive.
+    /// `energy_drift_limit` (when set) finite and positive, and no
+    /// [`Jacobian::StageDecoupled`] with [`NewtonMode::Full`].
     pub fn validate(&self) -> Result<(), OptionError> {
         if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
             return Err(OptionError::float(
@@ -52,6 +53,14 @@ impl NewtonOptions {
                 self.consistency_tolerance,
                 "non-negative (not NaN; infinity accepts any starting state)",
             ));
+        }
+        if self.mode == NewtonMode::Full && self.jacobian == Jacobian::StageDecoupled {
+            return Err(OptionError {
+                option: "NewtonOptions::jacobian",
+                value: "StageDecoupled".into(),
+                allowed: "Exact or Auto with NewtonMode::Full (full Newton uses the exact Jacobian; \
+                          choose NewtonMode::Simplified for the stage-decoupled matrix)",
+            });
         }
         if let Some(limit) = self.energy_drift_limit {
             if !(limit.is_finite() && limit > 0.0) {

@@ -1,0 +1,483 @@
+//! The stage-decoupled Newton matrix: the SPARK Jacobian with the couplings
+//! between the velocity unknowns of different stages dropped, solved by
+//! block elimination down to a Schur complement in the multipliers.
+//!
+//! # The approximation
+//! With the unknowns `z = [V | μ | v₁]` and the rows `[stage momentum (S·N) |
+//! p₁ (N) | constraint rows (S·M)]`, the exact Jacobian is
+//! `[[A, B], [C, E]]`: `A` couples the momentum rows to the velocity unknowns
+//! `X = (V₁…V_S, v₁)`, `B` to the multipliers, `C` is the constraint rows'
+//! derivative in `X`, and `E` their derivative in `μ` (zero, or the constant
+//! `±I` of equal-multiplier rows). When `L = T(t,v) − U(t,q)` and the
+//! constraint matrix `K` does not depend on `v` (no forcing, no non-ideal
+//! force), `A = diag(W₁,…,W_S, W₁') + O(h²)`, with `W_i` the mass matrix at
+//! stage `i` and `W₁'` at the end point: stage `i`'s velocity enters another
+//! stage's momentum only through `Q_j = q₀ + hΣa_jk V_k` inside the force
+//! and constraint-force terms, which carry another factor `h`.
+//!
+//! [`DecoupledMatrix`] keeps `B`, `C` and `E` exact and replaces `A` by the
+//! block diagonal `W = diag(W_i)`. Then `W⁻¹B` costs `S+1` solves with
+//! `N × N` factors (one factor shared by every block when the mass matrix
+//! is constant, and kept until it changes), and what is left to factor is
+//! the Schur complement `Σ = E − C W⁻¹ B` on the `S·M` multipliers. The
+//! iteration built on these factors contracts at a rate `O(h²‖W⁻¹∂F/∂q‖)`
+//! for such systems; the stepper watches the rate and falls back to the
+//! exact matrix when it is slow (see [`Jacobian`](crate::Jacobian)).
+//!
+//! # Storage
+//! Every array is allocated once, on the heap, by [`DecoupledMatrix::new`]:
+//! a step allocates nothing, and no `N × N` value goes on the stack.
+
+use crate::linalg::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime, Singular};
+use crate::system::{Matrix, StageJacobians, Vector};
+use crate::tableau::{ConditionRows, Tableau};
+
+/// Factors of the stage-decoupled Newton matrix of an `S`-stage step for a
+/// system with `N` coordinates and `M` constraints.
+#[derive(Clone, Debug)]
+pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize> {
+    /// LU factors of the velocity blocks `W_0 … W_S` (`N × N`, column-major);
+    /// only block 0 when `shared`.
+    w: Box<[f64]>,
+    w_perm: Box<[usize]>,
+    /// All `S + 1` mass matrices of the latest factorization are equal (a
+    /// constant mass matrix): block 0 stands for every block.
+    shared: bool,
+    /// The mass matrix whose factors block 0 holds when `shared` (compared
+    /// bit for bit, so a constant mass matrix is factored once).
+    w_source: Box<[f64]>,
+    w_valid: bool,
+    /// `K = k_v` and `k_q` at the stages (`0..S`), the end point (`S`) and
+    /// the midpoint (`S + 1`), written by the caller before
+    /// [`factor`](Self::factor).
+    pub(crate) constraint_v: Box<[Matrix<M, N>]>,
+    pub(crate) constraint_q: Box<[Matrix<M, N>]>,
+    /// `X[i][l] = W_i⁻¹ B[i][l]` (`N × M`), at `(i·S + l)·N·M`.
+    x: Box<[f64]>,
+    /// `C[r][i]` (`M × N`), at `(r·(S+1) + i)·M·N`, and which are nonzero.
+    c: Box<[f64]>,
+    c_nonzero: Box<[bool]>,
+    /// LU factors of `Σ = E − C X` (`S·M` square) and its scratch.
+    schur: Box<[f64]>,
+    schur_perm: Box<[usize]>,
+    schur_scale: Box<[f64]>,
+    factored: bool,
+}
+
+/// Where a factorization takes the velocity blocks `W_i` from.
+pub(crate) enum Masses<'a, const N: usize, const M: usize> {
+    /// The mass matrices of one full evaluation at the stages and the end
+    /// point.
+    PerPoint { stages: &'a [Box<StageJacobians<N, M>>], end: &'a StageJacobians<N, M> },
+    /// One mass matrix for every block (a constant mass matrix).
+    Constant(&'a Matrix<N, N>),
+    /// The constant mass matrix of the previous factorization, whose factors
+    /// are kept ([`DecoupledMatrix::has_constant_mass`]).
+    Cached,
+}
+
+impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
+    const SM: usize = S * M;
+
+    /// Storage for one factorization (heap, allocated once).
+    pub(crate) fn new() -> Self {
+        let sm = Self::SM;
+        DecoupledMatrix {
+            w: vec![0.0; (S + 1) * N * N].into_boxed_slice(),
+            w_perm: vec![0; (S + 1) * N].into_boxed_slice(),
+            shared: false,
+            w_source: vec![0.0; N * N].into_boxed_slice(),
+            w_valid: false,
+            constraint_v: vec![Matrix::zeros(); S + 2].into_boxed_slice(),
+            constraint_q: vec![Matrix::zeros(); S + 2].into_boxed_slice(),
+            x: vec![0.0; (S + 1) * S * N * M].into_boxed_slice(),
+            c: vec![0.0; S * (S + 1) * M * N].into_boxed_slice(),
+            c_nonzero: vec![false; S * (S + 1)].into_boxed_slice(),
+            schur: vec![0.0; sm * sm].into_boxed_slice(),
+            schur_perm: vec![0; sm].into_boxed_slice(),
+            schur_scale: vec![0.0; sm].into_boxed_slice(),
+            factored: false,
+        }
+    }
+
+    /// Forgets the cached mass-matrix factors (the system may have changed).
+    pub(crate) fn invalidate(&mut self) {
+        self.w_valid = false;
+        self.factored = false;
+    }
+
+    /// Whether the factors of a constant mass matrix are kept, so that
+    /// [`Masses::Cached`] may stand for it.
+    pub(crate) fn has_constant_mass(&self) -> bool {
+        self.w_valid
+    }
+
+    /// Factors the stage-decoupled matrix of a step of size `h`, from the
+    /// constraint Jacobians in `constraint_v` / `constraint_q`, the velocity
+    /// blocks `masses` and, for a non-ideal force, `∂N/∂ψ` at the stages.
+    /// Fails when a mass matrix or the Schur complement is singular (the
+    /// caller then uses the exact matrix).
+    pub(crate) fn factor(
+        &mut self,
+        tab: &Tableau<S>,
+        h: f64,
+        masses: Masses<'_, N, M>,
+        nonideal_psi: Option<&[Matrix<N, M>]>,
+    ) -> Result<(), Singular> {
+        self.factored = false;
+        let nn = N * N;
+        // Velocity blocks W_i.
+        match masses {
+            Masses::Cached if self.w_valid => self.shared = true,
+            Masses::Cached => return Err(Singular { column: 0, pivot: f64::NAN }),
+            Masses::Constant(m0) => self.factor_shared(m0.as_slice())?,
+            Masses::PerPoint { stages, end } => {
+                let mass = |i: usize| if i < S { stages[i].mass.as_slice() } else { end.mass.as_slice() };
+                if (1..=S).all(|i| mass(i) == mass(0)) {
+                    self.factor_shared(mass(0))?;
+                } else {
+                    self.shared = false;
+                    self.w_valid = false;
+                    for i in 0..=S {
+                        let (lu, perm) = (&mut self.w[i * nn..(i + 1) * nn], &mut self.w_perm[i * N..(i + 1) * N]);
+                        Self::factor_block(lu, perm, mass(i))?;
+                    }
+                }
+            }
+        }
+        // X[i][l] = coef_il · W_i⁻¹ (K_lᵀ − ∂N_l/∂ψ), coef = ã_il (b̃_l for i = S).
+        let nm = N * M;
+        for l in 0..S {
+            let mut kt = self.constraint_v[l].transpose();
+            if let Some(np) = nonideal_psi {
+                kt -= &np[l];
+            }
+            if self.shared {
+                for col in kt.as_mut_slice().chunks_exact_mut(N) {
+                    solve_in_place::<N>(&self.w[..nn], &self.w_perm[..N], col);
+                }
+            }
+            for i in 0..=S {
+                let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
+                let at = (i * S + l) * nm;
+                let dst = &mut self.x[at..at + nm];
+                for (d, k) in dst.iter_mut().zip(kt.as_slice()) {
+                    *d = coef * k;
+                }
+                if !self.shared && coef != 0.0 {
+                    for col in dst.chunks_exact_mut(N) {
+                        solve_in_place::<N>(&self.w[i * nn..(i + 1) * nn], &self.w_perm[i * N..(i + 1) * N], col);
+                    }
+                }
+            }
+        }
+        self.write_constraint_blocks(tab, h);
+        // Σ = E − Σ_i C[r][i] X[i][l], block (r, l) of M × M.
+        let sm = Self::SM;
+        self.schur.fill(0.0);
+        if tab.conditions == ConditionRows::EqualMultipliers {
+            for r in 0..S.saturating_sub(1) {
+                for d in 0..M {
+                    self.schur[(r * M + d) * sm + r * M + d] = 1.0;
+                    self.schur[((r + 1) * M + d) * sm + r * M + d] = -1.0;
+                }
+            }
+        }
+        for r in 0..S {
+            for i in 0..=S {
+                if !self.c_nonzero[r * (S + 1) + i] {
+                    continue;
+                }
+                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                for l in 0..S {
+                    let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                    // Column e of block (r, l): −C[r][i] · X[i][l][:, e].
+                    for e in 0..M {
+                        let xe = &x[e * N..(e + 1) * N];
+                        let col = &mut self.schur[(l * M + e) * sm + r * M..(l * M + e) * sm + (r + 1) * M];
+                        for (k, xk) in xe.iter().enumerate() {
+                            if *xk != 0.0 {
+                                for (s, ck) in col.iter_mut().zip(&c[k * M..(k + 1) * M]) {
+                                    *s -= ck * xk;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        factor_runtime(&mut self.schur, sm, &mut self.schur_perm, &mut self.schur_scale)?;
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Factors `mass` as the one block of every stage, unless its factors
+    /// are already kept.
+    fn factor_shared(&mut self, mass: &[f64]) -> Result<(), Singular> {
+        self.shared = true;
+        if !(self.w_valid && &*self.w_source == mass) {
+            self.w_valid = false;
+            Self::factor_block(&mut self.w[..N * N], &mut self.w_perm[..N], mass)?;
+            self.w_source.copy_from_slice(mass);
+            self.w_valid = true;
+        }
+        Ok(())
+    }
+
+    /// LU factors of one `N × N` mass matrix.
+    fn factor_block(lu: &mut [f64], perm: &mut [usize], mass: &[f64]) -> Result<(), Singular> {
+        lu.copy_from_slice(mass);
+        let scale = column_scales::<N>(lu);
+        factor_in_place::<N>(lu, perm, &scale, &[N])
+    }
+
+    /// `C[r][i]`: the constraint rows' derivatives in the velocity unknowns,
+    /// written exactly as the exact Newton matrix has them.
+    fn write_constraint_blocks(&mut self, tab: &Tableau<S>, h: f64) {
+        let mn = M * N;
+        self.c_nonzero.fill(false);
+        let (kv, kq) = (&self.constraint_v, &self.constraint_q);
+        let mut put = |r: usize, i: usize, blk: &Matrix<M, N>| {
+            let at = (r * (S + 1) + i) * mn;
+            self.c[at..at + mn].copy_from_slice(blk.as_slice());
+            self.c_nonzero[r * (S + 1) + i] = true;
+        };
+        match tab.conditions {
+            ConditionRows::Omega => {
+                for r in 0..S.saturating_sub(1) {
+                    for l in 0..S {
+                        let mut blk = tab.omega[r][l] * kv[l];
+                        for m in 0..S {
+                            let c = tab.omega[r][m] * tab.a[m][l];
+                            if c != 0.0 {
+                                blk += (h * c) * kq[m];
+                            }
+                        }
+                        put(r, l, &blk);
+                    }
+                }
+            }
+            ConditionRows::MidpointConstraint => {
+                put(0, 0, &(kv[S + 1] + (0.5 * h) * kq[S + 1]));
+            }
+            ConditionRows::EqualMultipliers => {}
+        }
+        for l in 0..S {
+            put(S - 1, l, &((h * tab.b[l]) * kq[S]));
+        }
+        put(S - 1, S, &kv[S]);
+    }
+
+    /// Overwrites `g` (a residual, rows in the stepper's order) with the
+    /// update `J̃⁻¹ g` in the order of the unknowns `z = [V | μ | v₁]`.
+    /// Leaves `g` unchanged unless [`factor`](Self::factor) succeeded.
+    pub(crate) fn solve_in_place<const D: usize>(&self, g: &mut Vector<D>) {
+        if !self.factored {
+            return;
+        }
+        let (nn, nm, sm) = (N * N, N * M, Self::SM);
+        let base = (S + 1) * N;
+        let mut y = *g;
+        let y = y.as_mut_slice();
+        // y_i = W_i⁻¹ g_i for the S + 1 velocity blocks.
+        for i in 0..=S {
+            let b = if self.shared { 0 } else { i };
+            solve_in_place::<N>(
+                &self.w[b * nn..(b + 1) * nn],
+                &self.w_perm[b * N..(b + 1) * N],
+                &mut y[i * N..(i + 1) * N],
+            );
+        }
+        // Constraint rows: g_c − C y, then Σ⁻¹.
+        let (vel, con) = y.split_at_mut(base);
+        for r in 0..S {
+            for i in 0..=S {
+                if !self.c_nonzero[r * (S + 1) + i] {
+                    continue;
+                }
+                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                let yi = &vel[i * N..(i + 1) * N];
+                let out = &mut con[r * M..(r + 1) * M];
+                for (k, yk) in yi.iter().enumerate() {
+                    for (o, ck) in out.iter_mut().zip(&c[k * M..(k + 1) * M]) {
+                        *o -= ck * yk;
+                    }
+                }
+            }
+        }
+        solve_runtime(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
+        // Velocities: y_i − Σ_l X[i][l] δμ_l, written in the order of z.
+        let g = g.as_mut_slice();
+        for i in 0..=S {
+            let out_at = if i < S { i * N } else { S * (N + M) };
+            let out = &mut g[out_at..out_at + N];
+            out.copy_from_slice(&vel[i * N..(i + 1) * N]);
+            for l in 0..S {
+                let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                for e in 0..M {
+                    let mu = con[l * M + e];
+                    for (o, xk) in out.iter_mut().zip(&x[e * N..(e + 1) * N]) {
+                        *o -= xk * mu;
+                    }
+                }
+            }
+        }
+        g[S * N..S * N + sm].copy_from_slice(&con[..sm]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The stage-decoupled solve against the dense solve of the same matrix,
+    //! and the steps it converges to against tightly converged full Newton.
+
+    // Stage loops index several parallel arrays with one index.
+    #![allow(clippy::needless_range_loop)]
+
+    use crate::effects::{DrivenSkate, FrictionSkate};
+    use crate::handwritten::{General, MobileRobot, MpParticles, Skate};
+    use crate::*;
+
+    const JAC: Jacobian = Jacobian::StageDecoupled;
+    const PROJECT: ConsistencyPolicy = ConsistencyPolicy::Project { tolerance: 0.0 };
+
+    /// A point away from the solution, so every block is exercised.
+    fn probe<const D: usize>() -> Vector<D> {
+        Vector::<D>::from_fn(|i, _| 0.3 + 0.17 * ((i * 7 + 3) % 11) as f64 / 11.0 - 0.1 * (i % 3) as f64)
+    }
+
+    /// The decoupled solve equals nalgebra's LU solve of the dense
+    /// stage-decoupled matrix, with the full and (for a constant mass
+    /// matrix) the lean evaluation of its blocks.
+    fn check_solve<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+        sys: Sys,
+        method: Method,
+        state: State<N>,
+        h: f64,
+    ) where
+        Sys: NonholonomicSystem<N, M>,
+    {
+        let mut st = Stepper::<Sys, N, M, S, D>::new(sys, Tableau::new(method).unwrap());
+        let z = probe::<D>();
+        let lean_too = Sys::STRUCTURE.constant_mass_matrix && !Sys::HAS_NONIDEAL_FORCE;
+        for lean in [false, true].into_iter().filter(|&l| !l || lean_too) {
+            let (g, approx, x) = st.decoupled_solve(&state, h, &z, lean).unwrap();
+            let dense = nalgebra::DMatrix::from_column_slice(D, D, approx.as_slice())
+                .lu()
+                .solve(&nalgebra::DVector::from_column_slice(g.as_slice()))
+                .expect("the dense stage-decoupled matrix is regular");
+            let err = (nalgebra::DVector::from_column_slice(x.as_slice()) - &dense).amax() / dense.amax();
+            let name = Sys::SOURCE.name;
+            assert!(err < 1e-12, "{name} {method} s={S} lean={lean}: decoupled vs dense solve {err:.3e}");
+        }
+    }
+
+    #[test]
+    fn the_schur_complement_solve_equals_the_dense_solve_of_the_same_matrix() {
+        let g = State::new(0.4, Vector::<2>::new(0.3, -0.2), Vector::<2>::new(0.5, 0.1));
+        check_solve::<_, 2, 1, 1, 5>(General::default(), Method::Gauss, g, 0.3);
+        check_solve::<_, 2, 1, 2, 8>(General::default(), Method::Gauss, g, 0.3);
+        check_solve::<_, 2, 1, 3, 11>(General::default(), Method::Gauss, g, 0.3);
+        check_solve::<_, 2, 1, 3, 11>(General::default(), Method::LobattoIIIAB, g, 0.3);
+        check_solve::<_, 2, 1, 4, 14>(General::default(), Method::LobattoIIIABD, g, 0.3);
+        check_solve::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerI, g, 0.3);
+        check_solve::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerII, g, 0.3);
+        check_solve::<_, 2, 1, 2, 8>(General::default(), Method::ModifiedLobattoIIIAB, g, 0.3);
+        check_solve::<_, 2, 1, 2, 8>(General::default(), Method::LobattoIIIBALda, g, 0.3);
+        let r = State::new(0.0, Vector::<4>::new(0.1, 0.2, 0.7, 0.3), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+        check_solve::<_, 4, 2, 2, 16>(MobileRobot::default(), Method::Gauss, r, 0.2);
+        check_solve::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::LobattoIIIAB, r, 0.2);
+        let m = State::new(0.0, Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
+        check_solve::<_, 7, 1, 2, 23>(MpParticles, Method::Gauss, m, 0.1);
+        check_solve::<_, 7, 1, 4, 39>(MpParticles, Method::LobattoIIIABD, m, 0.1);
+        let k = State::new(0.0, Vector::<3>::new(0.1, 0.2, 0.3), Vector::<3>::new(0.4, -0.3, 1.0));
+        check_solve::<_, 3, 1, 2, 11>(Skate::default(), Method::Gauss, k, 0.1);
+        check_solve::<_, 3, 1, 2, 11>(FrictionSkate::default(), Method::Gauss, k, 0.1);
+        check_solve::<_, 3, 1, 3, 15>(DrivenSkate::default(), Method::LobattoIIIAB, k, 0.1);
+    }
+
+    /// Steps from `state` with simplified Newton on the stage-decoupled
+    /// matrix equal tightly converged full Newton steps; returns how many
+    /// steps were left on the exact matrix after the run.
+    fn check_steps<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+        sys: Sys,
+        method: Method,
+        state: State<N>,
+        h: f64,
+        steps: usize,
+    ) -> u32
+    where
+        Sys: NonholonomicSystem<N, M> + Clone,
+    {
+        let tableau = Tableau::new(method).unwrap();
+        let opts = NewtonOptions { mode: NewtonMode::Simplified, jacobian: JAC, ..NewtonOptions::default() };
+        let mut st = Stepper::<Sys, N, M, S, D>::new(sys.clone(), tableau).with_options(opts);
+        let tight =
+            NewtonOptions { tolerance: 0.0, max_iterations: 32, energy_drift_limit: None, ..NewtonOptions::default() };
+        let mut reference = Stepper::<Sys, N, M, S, D>::new(sys, tableau).with_options(tight);
+        let mut s = state;
+        let mut worst = 0.0f64;
+        for _ in 0..steps {
+            let a = st.step(&s, h).unwrap();
+            let b = reference.step(&s, h).unwrap();
+            let scale = |x: f64| 1.0 + x.abs();
+            for (x, y) in a.state.q.iter().zip(b.state.q.iter()).chain(a.state.v.iter().zip(b.state.v.iter())) {
+                worst = worst.max((x - y).abs() / scale(*y));
+            }
+            // The multipliers as the unknowns μ = hΨ they are solved for.
+            for (pa, pb) in a.stage_multipliers.iter().zip(b.stage_multipliers.iter()) {
+                for (x, y) in pa.iter().zip(pb.iter()) {
+                    worst = worst.max(h * (x - y).abs() / scale(h * y));
+                }
+            }
+            // The stepper under test continues its own steps (warm starts);
+            // the reference solves each of them again from the same state.
+            s = a.state;
+        }
+        let name = Sys::SOURCE.name;
+        assert!(worst <= 1e-14, "{name} {method} s={S} h={h}: decoupled vs tight step {worst:.3e}");
+        st.exact_steps_left()
+    }
+
+    #[test]
+    fn decoupled_steps_equal_the_tight_solve() {
+        let m = State::new(0.0, Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
+        let r = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let k = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+        for h in [0.05, 0.2] {
+            assert_eq!(check_steps::<_, 7, 1, 2, 23>(MpParticles, Method::Gauss, m, h, 20), 0);
+            assert_eq!(check_steps::<_, 7, 1, 4, 39>(MpParticles, Method::Gauss, m, h, 20), 0);
+            assert_eq!(check_steps::<_, 7, 1, 3, 31>(MpParticles, Method::LobattoIIIAB, m, h, 20), 0);
+            assert_eq!(check_steps::<_, 7, 1, 3, 31>(MpParticles, Method::LobattoIIIABD, m, h, 20), 0);
+            assert_eq!(check_steps::<_, 4, 2, 2, 16>(MobileRobot::default(), Method::Gauss, r, h, 20), 0);
+            assert_eq!(check_steps::<_, 3, 1, 3, 15>(Skate::default(), Method::LobattoIIIAB, k, h, 20), 0);
+        }
+        check_steps::<_, 3, 1, 2, 11>(FrictionSkate::default(), Method::Gauss, k, 0.1, 20);
+        check_steps::<_, 3, 1, 2, 11>(DrivenSkate::default(), Method::Gauss, k, 0.1, 20);
+        let g = State::new(0.0, Vector::<2>::new(0.3, -0.2), Vector::<2>::new(0.5, 0.0));
+        let g = State { v: consistent_velocity(&General::default(), g.t, &g.q, &g.v, PROJECT).unwrap(), ..g };
+        check_steps::<_, 2, 1, 2, 8>(General::default(), Method::Gauss, g, 0.05, 20);
+        check_steps::<_, 2, 1, 2, 8>(General::default(), Method::ModifiedLobattoIIIAB, g, 0.05, 20);
+    }
+
+    #[test]
+    fn a_slow_decoupled_iteration_falls_back_to_the_exact_matrix() {
+        // At h = 0.6 the dropped couplings h²·∂F/∂q of the
+        // McLachlan–Perlmutter potential are of order one: the
+        // stage-decoupled iteration is too slow to keep.
+        let m = State::new(0.0, Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
+        let left = check_steps::<_, 7, 1, 2, 23>(MpParticles, Method::Gauss, m, 0.6, 3);
+        assert!(left > 0, "the stage-decoupled matrix was kept at a slow rate");
+    }
+
+    #[test]
+    fn full_newton_refuses_the_stage_decoupled_matrix() {
+        let opts = NewtonOptions { jacobian: Jacobian::StageDecoupled, ..NewtonOptions::default() };
+        let err = opts.validate().unwrap_err();
+        assert_eq!(err.option, "NewtonOptions::jacobian");
+        type Skate2 = Stepper![Skate, 2];
+        let mut st = Skate2::new(Skate::default(), Tableau::new(Method::Gauss).unwrap()).with_options(opts);
+        let k = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+        assert!(matches!(st.step(&k, 0.1), Err(StepError::InvalidOption(_))));
+    }
+}
