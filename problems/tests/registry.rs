@@ -6,7 +6,7 @@
 use problems::registry::{entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
 use problems::simulate::{run, RunError, RunSpec};
 use problems::workprecision::{method_label, method_variants, run_work_precision, Provider, WorkPrecisionConfig};
-use spark_runtime::{ConstraintForm, Method, NewtonMode, NewtonOptions, HISTORY_CAPACITY};
+use spark_runtime::{ConstraintForm, Jacobian, Method, NewtonMode, NewtonOptions, HISTORY_CAPACITY};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -88,9 +88,10 @@ fn every_system_steps_with_every_method_family_and_stage_count() {
 
 /// Newton's stopping rule costs no accuracy: three steps of every registered
 /// system with every family and stage count, at its registered step size
-/// (the paper's for the paper's systems), with full and with simplified
-/// Newton, equal full Newton iterated to the round-off floor (tolerance 0)
-/// to 1e-14 in `|Δx| / max(1, |x|)` at every step, cold and warm-started.
+/// (the paper's for the paper's systems), with full Newton and with
+/// simplified Newton on the exact and on the stage-decoupled matrix, equal
+/// full Newton iterated to the round-off floor (tolerance 0) to 1e-14 in
+/// `|Δx| / max(1, |x|)` at every step, cold and warm-started.
 #[test]
 fn converged_steps_equal_the_tight_solve_in_both_newton_modes() {
     let tight = NewtonOptions { tolerance: 0.0, max_iterations: HISTORY_CAPACITY, ..NewtonOptions::default() };
@@ -111,13 +112,18 @@ fn converged_steps_equal_the_tight_solve_in_both_newton_modes() {
                     continue;
                 }
             };
-            for mode in [NewtonMode::Full, NewtonMode::Simplified] {
-                let spec = RunSpec { newton: NewtonOptions { mode, ..NewtonOptions::default() }, ..base.clone() };
+            for (mode, jacobian) in [
+                (NewtonMode::Full, Jacobian::Exact),
+                (NewtonMode::Simplified, Jacobian::Exact),
+                (NewtonMode::Simplified, Jacobian::StageDecoupled),
+            ] {
+                let newton = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
+                let spec = RunSpec { newton, ..base.clone() };
                 match run(&spec, &|_| {}) {
                     Ok(r) => {
                         runs += 1;
                         let d = distance(&r.q, &reference.q).max(distance(&r.v, &reference.v));
-                        let label = format!("{} {method} s={s} {mode:?}", e.name);
+                        let label = format!("{} {method} s={s} {mode:?} {jacobian:?}", e.name);
                         if d > worst.0 {
                             worst = (d, label.clone());
                         }
@@ -125,7 +131,7 @@ fn converged_steps_equal_the_tight_solve_in_both_newton_modes() {
                             failures.push(format!("{label}: {d:.3e} from the tight solve"));
                         }
                     }
-                    Err(err) => failures.push(format!("{} {method} s={s} {mode:?}: {err}", e.name)),
+                    Err(err) => failures.push(format!("{} {method} s={s} {mode:?} {jacobian:?}: {err}", e.name)),
                 }
             }
         }

@@ -161,6 +161,10 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
 /// The singularity test is [`factor_in_place`]'s: a pivot below `64 ε`
 /// times its column's largest magnitude.
 pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
+    if n == 0 {
+        // No multipliers (an unconstrained system): nothing to factor.
+        return Ok(());
+    }
     let lu = &mut lu[..n * n];
     let scale = &mut scale[..n];
     for (sk, col) in scale.iter_mut().zip(lu.chunks_exact(n)) {
@@ -622,6 +626,29 @@ impl<const D: usize> Lu<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn runtime_sized_lu_pivots_refuses_singular_and_accepts_empty() {
+        let a = [0.0, 1.0, 3.0, 2.0, 1.0, 0.0, 1.0, 0.0, 1.0]; // column-major, a₀₀ = 0 needs a swap
+        let (mut lu, mut perm, mut scale) = (a, [0usize; 3], [0.0; 3]);
+        factor_runtime(&mut lu, 3, &mut perm, &mut scale).unwrap();
+        let x = [1.0, -2.0, 0.5];
+        let mut b = [0.0; 3];
+        for (j, xj) in x.iter().enumerate() {
+            for i in 0..3 {
+                b[i] += a[j * 3 + i] * xj;
+            }
+        }
+        solve_runtime(&lu, 3, &perm, &mut b);
+        for (bi, xi) in b.iter().zip(x) {
+            assert!((bi - xi).abs() < 1e-15, "{b:?}");
+        }
+        let mut singular = [1.0, 2.0, 2.0, 4.0];
+        assert!(factor_runtime(&mut singular, 2, &mut perm, &mut scale).is_err());
+        let mut nan = [f64::NAN, 0.0, 0.0, 1.0];
+        assert!(factor_runtime(&mut nan, 2, &mut perm, &mut scale).is_err());
+        assert!(factor_runtime(&mut [], 0, &mut [], &mut []).is_ok());
+    }
 
     #[test]
     fn solves_a_pivoting_system() {

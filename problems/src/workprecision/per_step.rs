@@ -6,8 +6,11 @@
 //! skate `h = 0.1`, robot `h = 0.2`, McLachlan–Perlmutter particles `n = 7`
 //! `h = 0.05`) and each of Gauss `s = 1..4` and Lobatto IIIA-B `s = 2..4`,
 //! the SPARK stepper (generated code, default options) integrates from the
-//! paper's initial values over `[0, 10]` with full and with simplified
-//! Newton, timed by the thread's CPU time (median of repeats); then
+//! paper's initial values over `[0, 10]` with full Newton, with simplified
+//! Newton on the exact Jacobian, and with simplified Newton on the
+//! stage-decoupled matrix (`Jacobian::Auto`, the default of simplified
+//! Newton: stage-decoupled where the structure facts allow it, exact
+//! otherwise), timed by the thread's CPU time (median of repeats); then
 //! `casadi/peers/peers.py --per-step` runs the Newton-LU peer
 //! ([`super::external::CASADI_NEWTON_LU`]) on the same steps, timed by the
 //! same clock. The table gives nanoseconds per step, the Newton iterations of
@@ -20,7 +23,7 @@ use super::{median_time, method_label, Problem, WorkPrecisionConfig};
 use crate::casadi_export::TableauExport;
 use crate::registry::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::{
-    Method, NewtonMode, NewtonOptions, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector,
+    Jacobian, Method, NewtonMode, NewtonOptions, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector,
 };
 use std::fmt::Write as _;
 use std::marker::PhantomData;
@@ -72,8 +75,11 @@ pub struct PerStepRow {
     pub steps: usize,
     /// SPARK, full Newton.
     pub full: SparkRun,
-    /// SPARK, simplified Newton.
+    /// SPARK, simplified Newton on the exact Jacobian.
     pub simplified: SparkRun,
+    /// SPARK, simplified Newton with `Jacobian::Auto` (the stage-decoupled
+    /// matrix where the structure facts allow it).
+    pub decoupled: SparkRun,
     /// The Newton-LU peer (`None` with the reason when it did not run).
     pub peer: Result<PeerStepRun, String>,
 }
@@ -88,21 +94,21 @@ impl PerStepRow {
     }
 }
 
-/// Times `steps` SPARK steps of `(method, S)` in `mode` from the entry's
-/// initial values.
+/// Times `steps` SPARK steps of `(method, S)` with the Newton `mode` and
+/// `jacobian` from the entry's initial values.
 fn spark_run<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     entry: &SystemEntry,
     method: Method,
     h: f64,
     steps: usize,
-    mode: NewtonMode,
+    (mode, jacobian): (NewtonMode, Jacobian),
     cfg: &WorkPrecisionConfig,
 ) -> Result<SparkRun, String>
 where
     Sys: Dispatch<N, M>,
 {
     let tableau = Tableau::<S>::new(method).map_err(|e| e.to_string())?;
-    let opts = NewtonOptions { mode, ..NewtonOptions::default() };
+    let opts = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
     let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
     let (q0, v0) = (Vector::<N>::from_column_slice(entry.q0), Vector::<N>::from_column_slice(entry.v0));
     let quiet = RunOptions {
@@ -139,16 +145,28 @@ struct MethodRuns<'a, Sys> {
     system: PhantomData<Sys>,
 }
 
-type Runs = Result<(SparkRun, SparkRun, TableauExport), String>;
+type Runs = Result<([SparkRun; 3], TableauExport), String>;
+
+/// The three SPARK variants of a row: full Newton, simplified Newton on the
+/// exact Jacobian, simplified Newton with the default `Jacobian::Auto`.
+const VARIANTS: [(NewtonMode, Jacobian); 3] = [
+    (NewtonMode::Full, Jacobian::Exact),
+    (NewtonMode::Simplified, Jacobian::Exact),
+    (NewtonMode::Simplified, Jacobian::Auto),
+];
 
 impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for MethodRuns<'_, Sys> {
     type Output = Runs;
     fn visit<const S: usize, const D: usize>(self) -> Runs {
         let Self { entry, method, h, steps, cfg, .. } = self;
-        let full = spark_run::<Sys, N, M, S, D>(entry, method, h, steps, NewtonMode::Full, cfg)?;
-        let simplified = spark_run::<Sys, N, M, S, D>(entry, method, h, steps, NewtonMode::Simplified, cfg)?;
+        let [full, simplified, decoupled] = VARIANTS;
+        let runs = [
+            spark_run::<Sys, N, M, S, D>(entry, method, h, steps, full, cfg)?,
+            spark_run::<Sys, N, M, S, D>(entry, method, h, steps, simplified, cfg)?,
+            spark_run::<Sys, N, M, S, D>(entry, method, h, steps, decoupled, cfg)?,
+        ];
         let tableau = TableauExport::of(&Tableau::<S>::new(method).map_err(|e| e.to_string())?);
-        Ok((full, simplified, tableau))
+        Ok((runs, tableau))
     }
 }
 
@@ -195,10 +213,10 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
         let mut spark = Vec::new();
         let mut methods = Vec::new();
         for (method, s, r) in runs {
-            let (full, simplified, tableau) = r?;
+            let (runs, tableau) = r?;
             let label = method_label(method, s);
             methods.push(MethodInput { label: label.clone(), tableau, steps: vec![steps] });
-            spark.push((label, full, simplified));
+            spark.push((label, runs));
         }
         let peer: Result<Vec<PeerStepRun>, String> = match &cfg.python {
             None => Err("not run (no Python interpreter configured)".into()),
@@ -209,13 +227,13 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
                     q0: entry.q0.to_vec(),
                     v0: entry.v0.to_vec(),
                     final_time: FINAL_TIME,
-                    q_ref: spark.first().map(|s| s.1.q.clone()).unwrap_or_default(),
-                    v_ref: spark.first().map(|s| s.1.v.clone()).unwrap_or_default(),
+                    q_ref: spark.first().map(|s| s.1[0].q.clone()).unwrap_or_default(),
+                    v_ref: spark.first().map(|s| s.1[0].v.clone()).unwrap_or_default(),
                 };
                 external::run_per_step(python, &cfg.peers_script, &cfg.out, kind, &problem, methods, cfg)
             }
         };
-        for (label, full, simplified) in spark {
+        for (label, [full, simplified, decoupled]) in spark {
             let peer = match &peer {
                 Err(e) => Err(e.clone()),
                 Ok(list) => match list.iter().find(|p| p.method == label && p.steps == steps) {
@@ -224,7 +242,7 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
                     Some(p) => Ok(p.clone()),
                 },
             };
-            rows.push(PerStepRow { system: entry.name, method: label, h, steps, full, simplified, peer });
+            rows.push(PerStepRow { system: entry.name, method: label, h, steps, full, simplified, decoupled, peer });
         }
     }
     if rows.is_empty() {
@@ -243,14 +261,16 @@ pub fn per_step_markdown(rows: &[PerStepRow]) -> String {
     let _ = writeln!(
         s,
         "| system | h | method | Newton-LU peer ns/step | peer evaluations / factorizations per step | \
-         SPARK full ns/step (iterations) | SPARK simplified ns/step (iterations) | peer / full | peer / simplified | \
-         end state, peer − SPARK |"
+         SPARK full ns/step (iterations) | SPARK simplified ns/step (iterations) | \
+         SPARK simplified, stage-decoupled ns/step (iterations) | peer / full | peer / simplified | \
+         peer / stage-decoupled | end state, peer − SPARK |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in rows {
         let full = format!("{} ({:.2})", ns(r.full.time_per_step), r.full.iterations);
         let simplified = format!("{} ({:.2})", ns(r.simplified.time_per_step), r.simplified.iterations);
-        let (peer, counts, rf, rs, diff) = match &r.peer {
+        let decoupled = format!("{} ({:.2})", ns(r.decoupled.time_per_step), r.decoupled.iterations);
+        let (peer, counts, rf, rs, rd, diff) = match &r.peer {
             Ok(p) => {
                 let t = p.cpu_time / r.steps as f64;
                 (
@@ -258,14 +278,15 @@ pub fn per_step_markdown(rows: &[PerStepRow]) -> String {
                     format!("{:.2} / {:.2}", p.evaluations_per_step, p.factorizations_per_step),
                     format!("{:.2}", t / r.full.time_per_step),
                     format!("{:.2}", t / r.simplified.time_per_step),
+                    format!("{:.2}", t / r.decoupled.time_per_step),
                     r.end_state_difference().map_or("–".into(), |d| format!("{d:.1e}")),
                 )
             }
-            Err(e) => (format!("not measured: {e}"), "–".into(), "–".into(), "–".into(), "–".into()),
+            Err(e) => (format!("not measured: {e}"), "–".into(), "–".into(), "–".into(), "–".into(), "–".into()),
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {peer} | {counts} | {full} | {simplified} | {rf} | {rs} | {diff} |",
+            "| {} | {} | {} | {peer} | {counts} | {full} | {simplified} | {decoupled} | {rf} | {rs} | {rd} | {diff} |",
             r.system, r.h, r.method
         );
     }
@@ -285,6 +306,7 @@ mod tests {
         for r in &rows {
             assert_eq!((r.steps, r.h), (100, 0.1));
             assert!(r.full.time_per_step > 0.0 && r.simplified.time_per_step > 0.0, "{r:?}");
+            assert!(r.decoupled.time_per_step > 0.0, "{r:?}");
             assert!(r.full.iterations >= 1.0, "{r:?}");
             assert!(r.peer.as_ref().is_err_and(|e| e.contains("no Python")), "{r:?}");
         }
