@@ -118,6 +118,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod adaptive;
 mod convergence;
 mod driver;
 pub mod effects;
@@ -135,6 +136,10 @@ pub mod tableau;
 #[cfg(test)]
 mod tests;
 
+pub use adaptive::{
+    integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun,
+    EstimateFailure, EstimatedStep,
+};
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
     DEFAULT_MAX_HALVINGS,
