@@ -408,6 +408,7 @@ struct Recorder<const N: usize, const M: usize> {
     run: RunReport,
     e0: Option<f64>,
     every: usize,
+    observe: Observe,
 }
 
 impl<const N: usize, const M: usize> Recorder<N, M> {
@@ -455,6 +456,7 @@ where
         run: RunReport { projected_initial_velocity: v != *v0, ..RunReport::default() },
         e0: None,
         every: options.record_every,
+        observe: options.observe,
     };
     let first = stepper.sample(&state, &options.observe, 0);
     rec.e0 = first.energy;
@@ -542,7 +544,6 @@ fn accept<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize
     stepper: &Stepper<Sys, N, M, S, D>,
     rec: &mut Recorder<N, M>,
     observer: &mut O,
-    observe: &Observe,
     state: &State<N>,
     iterations: usize,
     index: usize,
@@ -554,8 +555,8 @@ fn accept<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize
     rec.run.newton_iterations_total += iterations;
     rec.run.newton_iterations_max = rec.run.newton_iterations_max.max(iterations);
     observer.observe(state, iterations);
-    if last || (rec.every != 0 && index % rec.every == 0) {
-        let s = stepper.sample(state, observe, iterations);
+    if last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
+        let s = stepper.sample(state, &rec.observe, iterations);
         rec.push(s);
     }
 }
@@ -602,6 +603,10 @@ where
             return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
         }
         attempts += 1;
+        // A rejected attempt must not leave the stepper continuing from its
+        // discarded end: the retry from `state` keeps its warm start and the
+        // round-off compensation of `state`.
+        let saved = stepper.continuation();
         let step = stepper.step_with_estimate(&state, dir * this, options.rtol, options.atol);
         match step {
             Ok(est) => {
@@ -617,7 +622,7 @@ where
                     report.accepted += 1;
                     report.smallest_step = report.smallest_step.min(this);
                     report.largest_step = report.largest_step.max(this);
-                    accept(stepper, rec, observer, &options.observe, &next, est.iterations, report.accepted, last);
+                    accept(stepper, rec, observer, &next, est.iterations, report.accepted, last);
                     state = next;
                     if last {
                         return Ok(report);
@@ -635,11 +640,13 @@ where
                     err_prev = err.max(1e-4);
                     rejected_last = false;
                 } else if err.is_finite() {
+                    stepper.restore_continuation(&saved);
                     report.rejected += 1;
                     let factor = (options.safety * err.powf(-1.0 / k)).clamp(options.min_factor, 1.0);
                     h = this * factor;
                     rejected_last = true;
                 } else {
+                    stepper.restore_continuation(&saved);
                     report.rejected += 1;
                     h = this * options.min_factor;
                     rejected_last = true;
@@ -681,6 +688,7 @@ where
 /// methods are accepted ([`is_symmetric`]). `options.max_step`, when set,
 /// bounds every step (it bounds the density from below, which keeps the
 /// rule reversible).
+#[allow(clippy::too_many_arguments)]
 pub fn integrate_reversible<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
     t0: f64,
@@ -808,7 +816,7 @@ where
         let last = h >= remaining;
         let this = if last { remaining } else { h };
         let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
-        if !(this >= floor) {
+        if this.is_nan() || this < floor {
             return Err(AdaptiveError::StepSizeTooSmall {
                 t: state.t,
                 h: this,
@@ -836,7 +844,7 @@ where
         report.accepted += 1;
         report.smallest_step = report.smallest_step.min(this);
         report.largest_step = report.largest_step.max(this);
-        accept(stepper, rec, observer, &options.observe, &next, r.iterations, report.accepted, last);
+        accept(stepper, rec, observer, &next, r.iterations, report.accepted, last);
         state = next;
         if last {
             return Ok(report);

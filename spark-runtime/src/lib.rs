@@ -22,6 +22,10 @@
 //! - [`Stepper::integrate`]: fixed steps or any list of times (either
 //!   direction), observers, a serializable [`Trajectory`] (JSON, CSV) with a
 //!   [`RunReport`].
+//! - [`adaptive`]: tolerance-driven steps ([`integrate_adaptive`]: a
+//!   step-doubling error estimate for every family, PI control with
+//!   rejection) and reversible steps for the symmetric methods
+//!   ([`integrate_reversible`], Hairer–Söderlind).
 //! - [`reference`](mod@crate::reference): an independent high-accuracy integrator of the
 //!   ψ-eliminated equations, for error measurements.
 //!
