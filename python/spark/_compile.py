@@ -75,6 +75,7 @@ crate-type = ["cdylib"]
 [dependencies]
 spark-runtime = {{ path = "{runtime}" }}
 spark-python-core = {{ path = "{core}" }}
+pyo3 = {{ version = "0.27", features = ["abi3-py311", "extension-module"] }}
 
 [workspace]
 
@@ -126,7 +127,7 @@ def compile_system(text: str, *, cache_dir: str | None = None, verbose: bool = F
         manifest, lib = _crate(source, module, name, n, m, text)
         (folder / "Cargo.toml").write_text(manifest)
         (folder / "lib.rs").write_text(lib)
-        lock = source / "python" / "Cargo.lock"
+        lock = source / "Cargo.lock"
         if lock.exists():
             shutil.copyfile(lock, folder / "Cargo.lock")
         target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))

@@ -49,7 +49,7 @@ def test_compiled_system_matches_the_same_declaration_compiled_in_rust(cache):
         skate.ensemble("gauss", 2, 0.1, 50, q0s, v0s).q, registered.ensemble("gauss", 2, 0.1, 50, q0s, v0s).q
     )
     with pytest.raises(spark.SparkError, match="v0 violates the constraints"):
-        skate.integrate("gauss", 2, 0.1, 5, q0=[0, 0, 0], v0=[1.0, 0, 0])
+        skate.integrate("gauss", 2, 0.1, 5, q0=[0, 0, 0], v0=[0, 1.0, 0])
 
 
 def test_cached_module_loads_without_cargo(cache):

@@ -46,6 +46,6 @@ def test_ensemble_errors_name_the_member_and_the_shape():
     with pytest.raises(spark.SparkError, match=r"shape \(members, 3\)"):
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 2)), np.zeros((2, 2)))
     with pytest.raises(spark.SparkError, match="member 1: v0 violates"):
-        spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 3)), np.array([[0, 0, 1.0], [1.0, 0, 0]]))
+        spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 3)), np.array([[0, 0, 1.0], [0, 1.0, 0]]))
     with pytest.raises(spark.SparkError, match="threads"):
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), threads=0)

@@ -77,7 +77,7 @@ def test_errors_are_python_exceptions_with_the_rust_message():
     with pytest.raises(spark.SparkError, match="unknown system `skat`.*did you mean `skate`"):
         spark.system("skat")
     with pytest.raises(spark.SparkError, match="v0 violates the constraints"):
-        spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[1.0, 0.0, 0.0])
+        spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[0.0, 1.0, 0.0])
     with pytest.raises(spark.SparkError, match="has no parameter|bta"):
         spark.integrate("skate", "gauss", 2, 0.1, 10, params={"bta": 1.0})
     with pytest.raises(spark.SparkError, match="unknown method|gaus"):
@@ -89,5 +89,5 @@ def test_errors_are_python_exceptions_with_the_rust_message():
     with pytest.raises(spark.SparkError, match="step size"):
         spark.integrate("skate", "gauss", 2, float("nan"), 10)
     # a projected v0 is accepted
-    run = spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[1.0, 0.0, 0.0], project_v0=True)
+    run = spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[0.0, 1.0, 0.0], project_v0=True)
     assert run.constraint.max() < 1e-12

@@ -16,7 +16,7 @@ use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, ConstraintForm, IntegrationError, Method, NewtonMode, NewtonOptions,
-    NonholonomicSystem, NoObserver, Observe, RunOptions, Schedule, StepError, Stepper, Tableau, Vector,
+    NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, StepError, Stepper, Tableau, Vector,
 };
 
 pub use numpy;
@@ -337,13 +337,10 @@ fn get<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyR
     match d.get_item(key)? {
         None => Ok(None),
         Some(v) if v.is_none() => Ok(None),
-        Some(v) => v
-            .extract::<T>()
-            .map(Some)
-            .map_err(|e| {
-                let e: PyErr = e.into();
-                PyTypeError::new_err(format!("`{key}`: {}", e.value(d.py())))
-            }),
+        Some(v) => v.extract::<T>().map(Some).map_err(|e| {
+            let e: PyErr = e.into();
+            PyTypeError::new_err(format!("`{key}`: {}", e.value(d.py())))
+        }),
     }
 }
 
@@ -550,7 +547,9 @@ macro_rules! export_system {
         }
 
         #[$crate::pyo3::pyfunction]
-        fn info(py: $crate::pyo3::Python<'_>) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'_, $crate::pyo3::types::PyDict>> {
+        fn info(
+            py: $crate::pyo3::Python<'_>,
+        ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'_, $crate::pyo3::types::PyDict>> {
             $crate::system_info::<$ty, $n, $m>(py)
         }
 
