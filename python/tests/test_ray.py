@@ -41,8 +41,8 @@ def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
 
     def cli(j: int):
         args = ["--method", METHOD, "--stages", "2", "--h", repr(H), "--t-end", repr(STEPS * H), "--every",
-                str(EVERY), "--newton", "simplified", "--q0", ",".join(map(repr, q0s[j])), "--v0",
-                ",".join(map(repr, v0s[j]))]
+                str(EVERY), "--newton", "simplified", "--q0", ",".join(repr(float(x)) for x in q0s[j]), "--v0",
+                ",".join(repr(float(x)) for x in v0s[j])]
         c = run_cli(spark_cli, tmp_path / f"cli{j}", "mp7-nh", *args)
         return c["energy"] - c["e0"], c["t"]
 
