@@ -357,12 +357,12 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
     let method: String = required(d, "method")?;
     let method: Method = method.parse().map_err(|e: spark_runtime::TableauError| spark_error(py, e.to_string()))?;
     let newton_mode: String = get(d, "newton")?.unwrap_or_else(|| "full".into());
-    let mut newton = NewtonOptions::default();
-    newton.mode = match newton_mode.to_ascii_lowercase().as_str() {
+    let mode = match newton_mode.to_ascii_lowercase().as_str() {
         "full" => NewtonMode::Full,
         "simplified" => NewtonMode::Simplified,
         other => return Err(spark_error(py, format!("newton = `{other}`: write \"full\" or \"simplified\""))),
     };
+    let mut newton = NewtonOptions { mode, ..NewtonOptions::default() };
     if let Some(tol) = get::<f64>(d, "newton_tol")? {
         if !(tol.is_finite() && tol > 0.0) {
             return Err(spark_error(py, format!("newton_tol = {tol:.3e} must be a positive number")));
