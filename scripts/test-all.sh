@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Runs every test of spark: the Rust workspace (unit, property, compile-fail,
-# integration tests) and the independent CasADi cross-check.
-# On a fresh machine it installs what it needs itself (a local Python venv
-# with the pinned CasADi, see casadi/requirements.txt).
+# integration tests), the independent CasADi cross-check and the Python
+# package (wheel build, clean install, pytest).
+# On a fresh machine it installs what it needs itself (local Python venvs
+# with the pinned CasADi, see casadi/requirements.txt, and the Python test
+# requirements, see python/requirements-test.txt).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -11,3 +13,6 @@ cargo test --workspace --release
 
 echo "==> CasADi cross-check (casadi/run.sh)"
 bash casadi/run.sh
+
+echo "==> Python package (python/run.sh)"
+bash python/run.sh

@@ -510,6 +510,12 @@ registry! {
         // vanishes and the method's Newton matrix is singular.
         q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
     },
+    /// The §8.1 particle in a softened Kepler potential: varying time scales.
+    Orbit {
+        ty: crate::systems::OrbitParticle, n: 3, m: 1, name: "orbit", peers: plain,
+        about: "§8.1 particle in a softened Kepler potential μ/√(x²+y²+ε²): eccentric orbit, time scale varies ≈ 100×",
+        q0: [1.0, 0.0, 0.0], v0: [0.0, 0.3, 0.0], t_end: 10.0, h: 0.002,
+    },
     /// Chaplygin sleigh on an inclined plane: `q`-dependent mass matrix.
     Sleigh {
         ty: crate::systems::ChaplyginSleigh, n: 3, m: 1, name: "sleigh", peers: plain,

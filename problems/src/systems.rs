@@ -186,3 +186,19 @@ nonholonomic_system! {
             + (m1 + m2)*g*l1*cos(theta1) + m2*g*l2*cos(theta2),
     }
 }
+
+nonholonomic_system! {
+    /// The nonholonomic particle of §8.1 in a softened Kepler potential:
+    /// `L = ½|v|² + μ/√(x² + y² + ε²)`, `v₃ − y v₁ = 0`. Conservative, with a
+    /// time scale that varies along the solution: from `(1, 0, 0)` with
+    /// `v = (0, 0.3, 0)` the `(x, y)` motion is close to a Kepler ellipse of
+    /// eccentricity ≈ 0.9, so the local time scale `r^{3/2}` changes by a
+    /// factor ≈ 100 between the farthest and closest points (the system on
+    /// which tolerance-driven stepping pays; see `docs/adaptive.md`).
+    pub struct OrbitParticle {
+        coordinates: [x, y, z],
+        parameters: { mu = 1.0, softening = 0.01 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 + mu/sqrt(x^2 + y^2 + softening^2),
+        constraints: [ dot(z) - y*dot(x) ],
+    }
+}

@@ -5,7 +5,9 @@
 
 use problems::registry::{entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
 use problems::simulate::{run, RunError, RunSpec};
-use problems::workprecision::{method_label, method_variants, run_work_precision, Provider, WorkPrecisionConfig};
+use problems::workprecision::{
+    method_label, method_variants, run_work_precision, Provider, WorkPrecisionConfig, SPARK_ADAPTIVE,
+};
 use spark_runtime::{ConstraintForm, Jacobian, Method, NewtonMode, NewtonOptions, HISTORY_CAPACITY};
 use std::path::PathBuf;
 use std::process::Command;
@@ -302,7 +304,15 @@ fn work_precision_measures_a_system_outside_the_paper() {
     let g: Vec<_> =
         m.points.iter().filter(|p| p.solver == Provider::Generated.label() && p.method == "Gauss s=2").collect();
     assert!(g.len() >= 2 && g[1].error() < g[0].error() / 10.0, "Gauss s=2 errors {g:?}");
-    assert!(m.points.iter().all(|p| p.solver == Provider::Generated.label()), "a peer ran on driven-skate");
+    // The generated stepper with fixed and with tolerance-driven steps; no peer.
+    assert!(
+        m.points.iter().all(|p| p.solver == Provider::Generated.label() || p.solver == SPARK_ADAPTIVE),
+        "a peer ran on driven-skate"
+    );
+    assert!(
+        m.points.iter().any(|p| p.solver == SPARK_ADAPTIVE && p.method == "Gauss s=2" && p.error() < 1e-3),
+        "no adaptive Gauss s=2 point"
+    );
     let missing = m.missing.join("\n");
     for peer in ["num-dual", "DOP853", "CasADi C and SciPy"] {
         assert!(missing.contains(peer), "no reason given for skipping {peer}: {missing}");

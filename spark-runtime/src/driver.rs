@@ -259,7 +259,7 @@ impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Steppe
 where
     Sys: NonholonomicSystem<N, M>,
 {
-    fn sample(&self, state: &State<N>, observe: &Observe, iterations: usize) -> Sample<N, M> {
+    pub(crate) fn sample(&self, state: &State<N>, observe: &Observe, iterations: usize) -> Sample<N, M> {
         let sys = self.system();
         Sample {
             t: state.t,

@@ -625,3 +625,115 @@ impl_system!(
         constraints: &["(+ (- (v y) (* (q x) (v x)) (* (p a) (^ (v x) 2))) (* (p e) (sin t)))"],
     }
 );
+
+/// The nonholonomic particle of §8.1 in a softened Kepler potential instead
+/// of the harmonic one: `L = ½|v|² + μ/√(q₁² + q₂² + ε²)`, `v₃ − q₂v₁ = 0`.
+///
+/// A conservative system (energy is a first integral) whose time scale
+/// varies along the solution: from `q = (1, 0, 0)`, `v = (0, 0.3, 0)` the
+/// `(q₁, q₂)` motion is close to a Kepler ellipse of eccentricity ≈ 0.9, so
+/// the local time scale `r^{3/2}` changes by a factor ≈ 100 between the
+/// closest and farthest points. The softening `ε` keeps the potential
+/// smooth where the constraint force lets the orbit pass near `r = 0`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OrbitParticle {
+    /// Gravitational parameter `μ`.
+    pub mu: f64,
+    /// Softening length `ε`.
+    pub softening: f64,
+}
+
+impl Default for OrbitParticle {
+    fn default() -> Self {
+        OrbitParticle { mu: 1.0, softening: 0.01 }
+    }
+}
+
+impl OrbitParticle {
+    fn params(&self) -> [f64; 2] {
+        [self.mu, self.softening]
+    }
+    fn set_param(&mut self, i: usize, x: f64) {
+        match i {
+            0 => self.mu = x,
+            _ => self.softening = x,
+        }
+    }
+    /// `√(q₁² + q₂² + ε²)`.
+    pub fn radius(&self, q: &Vector<3>) -> f64 {
+        (q[0] * q[0] + q[1] * q[1] + self.softening * self.softening).sqrt()
+    }
+}
+
+impl Derivatives<3, 1> for OrbitParticle {
+    fn l(&self, _: f64, q: &Vector<3>, v: &Vector<3>) -> f64 {
+        0.5 * v.norm_squared() + self.mu / self.radius(q)
+    }
+    fn p(&self, _: f64, _: &Vector<3>, v: &Vector<3>) -> Vector<3> {
+        *v
+    }
+    fn f(&self, _: f64, q: &Vector<3>, _: &Vector<3>) -> Vector<3> {
+        let r3 = self.radius(q).powi(3);
+        Vector::<3>::new(-self.mu * q[0] / r3, -self.mu * q[1] / r3, 0.0)
+    }
+    fn mass(&self, _: f64, _: &Vector<3>, _: &Vector<3>) -> Matrix<3, 3> {
+        Matrix::identity()
+    }
+    fn p_q(&self, _: f64, _: &Vector<3>, _: &Vector<3>) -> Matrix<3, 3> {
+        Matrix::zeros()
+    }
+    fn f_q(&self, _: f64, q: &Vector<3>, _: &Vector<3>) -> Matrix<3, 3> {
+        // ∂(−μ qᵢ/r³)/∂q_j = −μ(δᵢⱼ/r³ − 3qᵢq_j/r⁵), i, j ∈ {1, 2}.
+        let r = self.radius(q);
+        let (r3, r5) = (r.powi(3), r.powi(5));
+        let mut m = Matrix::zeros();
+        for i in 0..2 {
+            for j in 0..2 {
+                let delta = if i == j { 1.0 } else { 0.0 };
+                m[(i, j)] = -self.mu * (delta / r3 - 3.0 * q[i] * q[j] / r5);
+            }
+        }
+        m
+    }
+    fn f_v(&self, _: f64, _: &Vector<3>, _: &Vector<3>) -> Matrix<3, 3> {
+        Matrix::zeros()
+    }
+    fn k(&self, _: f64, q: &Vector<3>, v: &Vector<3>) -> Vector<1> {
+        Vector::<1>::new(v[2] - q[1] * v[0])
+    }
+    fn k_q(&self, _: f64, _: &Vector<3>, v: &Vector<3>) -> Matrix<1, 3> {
+        Matrix::<1, 3>::new(0.0, -v[0], 0.0)
+    }
+    fn k_v(&self, _: f64, q: &Vector<3>, _: &Vector<3>) -> Matrix<1, 3> {
+        Matrix::<1, 3>::new(-q[1], 0.0, 1.0)
+    }
+    fn r_q(&self, _: f64, _: &Vector<3>, _: &Vector<3>, psi: &Vector<1>) -> Matrix<3, 3> {
+        let mut m = Matrix::zeros();
+        m[(0, 1)] = psi[0];
+        m
+    }
+    fn r_v(&self, _: f64, _: &Vector<3>, _: &Vector<3>, _: &Vector<1>) -> Matrix<3, 3> {
+        Matrix::zeros()
+    }
+    fn td(&self, _: f64, _: &Vector<3>, _: &Vector<3>) -> TimeDerivatives<3, 1> {
+        autonomous_td()
+    }
+}
+
+impl_system!(
+    OrbitParticle,
+    3,
+    1,
+    CONSERVATIVE_LINEAR,
+    SystemSource {
+        name: "OrbitParticle",
+        external_force: &[],
+        nonideal_force: &[],
+        holonomic: &[],
+        coordinates: &["x", "y", "z"],
+        parameters: &["mu", "softening"],
+        lagrangian: "(+ (* 0.5 (+ (^ (v x) 2) (^ (v y) 2) (^ (v z) 2))) \
+                     (/ (p mu) (sqrt (+ (^ (q x) 2) (^ (q y) 2) (^ (p softening) 2)))))",
+        constraints: &["(- (v z) (* (q y) (v x)))"],
+    }
+);

@@ -22,6 +22,10 @@
 //! - [`Stepper::integrate`]: fixed steps or any list of times (either
 //!   direction), observers, a serializable [`Trajectory`] (JSON, CSV) with a
 //!   [`RunReport`].
+//! - [`adaptive`]: tolerance-driven steps ([`integrate_adaptive`]: a
+//!   step-doubling error estimate for every family, PI control with
+//!   rejection) and reversible steps for the symmetric methods
+//!   ([`integrate_reversible`], Hairer–Söderlind).
 //! - [`reference`](mod@crate::reference): an independent high-accuracy integrator of the
 //!   ψ-eliminated equations, for error measurements.
 //!
@@ -118,6 +122,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod adaptive;
 mod convergence;
 mod decoupled;
 mod driver;
@@ -136,6 +141,10 @@ pub mod tableau;
 #[cfg(test)]
 mod tests;
 
+pub use adaptive::{
+    integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun,
+    EstimateFailure, EstimatedStep,
+};
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
     DEFAULT_MAX_HALVINGS,

@@ -321,6 +321,15 @@ struct Compensation<const N: usize> {
     carry: Vector<N>,
 }
 
+/// The part of a stepper's state that links a step to the previous one
+/// (see [`Stepper::continuation`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Continuation<const N: usize, const D: usize> {
+    warm: Option<Warm<N, D>>,
+    anchor: Option<EnergyAnchor<N>>,
+    compensation: Option<Compensation<N>>,
+}
+
 /// Everything one residual evaluation produced.
 struct Eval<const N: usize, const M: usize, const S: usize> {
     stages: [StageValues<N, M>; S],
@@ -468,6 +477,23 @@ where
     /// step docs) is kept: it belongs to that state, not to the guess.
     pub fn reset_warm_start(&mut self) {
         self.warm = None;
+        self.reusable = None;
+    }
+
+    /// What the next step takes over from the latest one (warm start,
+    /// energy anchor, round-off compensation), for a driver that tries
+    /// steps it may discard: [`Self::restore_continuation`] puts it back.
+    pub(crate) fn continuation(&self) -> Continuation<N, D> {
+        Continuation { warm: self.warm, anchor: self.anchor, compensation: self.compensation }
+    }
+
+    /// Puts back what [`Self::continuation`] saved. The factorization is
+    /// not part of it (the discarded steps overwrote it), so simplified
+    /// Newton evaluates afresh on the next step.
+    pub(crate) fn restore_continuation(&mut self, saved: &Continuation<N, D>) {
+        self.warm = saved.warm;
+        self.anchor = saved.anchor;
+        self.compensation = saved.compensation;
         self.reusable = None;
     }
 

@@ -50,6 +50,11 @@ pub struct WorkPrecisionArgs {
     /// s = 1..4 and Lobatto IIIA-B s = 2..4 (writes per-step.md, per-step.json).
     #[arg(long, conflicts_with = "scaling")]
     pub per_step: bool,
+    /// Measure the energy over a 10⁶-step run on the `orbit` system with
+    /// fixed, error-controlled and reversible steps instead (writes
+    /// adaptive-energy.md, .json and the figure).
+    #[arg(long, conflicts_with_all = ["scaling", "per_step"])]
+    pub adaptive_energy: bool,
     /// A seconds-long smoke run of every code path (short T, few steps).
     #[arg(long)]
     pub quick: bool,
@@ -117,6 +122,12 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         let md = super::scaling::scaling_markdown(&rows);
         super::report::write_scaling_figure(&rows, &mut out).map_err(|e| e.to_string())?;
         out.write_bytes("scaling.md", md.as_bytes()).map_err(|e| e.to_string())?;
+        out.commit().map_err(|e| e.to_string())?;
+        return Ok(md);
+    }
+    if a.adaptive_energy {
+        let mut out = crate::output::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
+        let md = super::adaptive_energy::run(&mut out, progress)?;
         out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }

@@ -25,6 +25,7 @@
 //! [`per_step`] times SPARK and the Newton-LU peer per step at the paper's
 //! step sizes.
 
+pub mod adaptive_energy;
 pub mod cli;
 pub mod external;
 pub mod per_step;
@@ -39,8 +40,8 @@ use crate::peers::ode;
 use crate::registry::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::reference::{self, ReferenceOptions};
 use spark_runtime::{
-    Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper,
-    Tableau, Vector,
+    integrate_adaptive, AdaptiveOptions, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe,
+    RunOptions, Schedule, State, Stepper, Tableau, Vector,
 };
 use std::marker::PhantomData;
 use std::path::PathBuf;
@@ -67,6 +68,11 @@ impl Provider {
         }
     }
 }
+
+/// Solver label of the generated-code SPARK runs with tolerance-driven
+/// steps ([`spark_runtime::integrate_adaptive`]); their
+/// [`Point::setting`] is `rtol = atol`, [`Point::steps`] the accepted steps.
+pub const SPARK_ADAPTIVE: &str = "SPARK adaptive (generated)";
 
 /// One measured run.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -446,7 +452,67 @@ where
             break;
         }
     }
+    sweep_adaptive(ctx, &mut stepper, &probe, &label, points);
     Ok(used)
+}
+
+/// Sweeps the tolerance-driven driver over the configured tolerances
+/// (`rtol = atol`), stopping like the fixed-step sweep at the error floor
+/// or the run-time limit.
+fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    ctx: &Ctx<'_, N>,
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    probe: &Sys,
+    label: &str,
+    points: &mut Vec<Point>,
+) where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let t1 = ctx.cfg.final_time;
+    let e0 = probe.energy(0.0, &ctx.q0, &ctx.v0);
+    let quiet = AdaptiveOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..AdaptiveOptions::default()
+    };
+    for &tol in &ctx.cfg.tolerances {
+        let options = AdaptiveOptions { rtol: tol, atol: tol, ..quiet };
+        let mut max_e: f64 = 0.0;
+        let mut observer = |s: &State<N>, _: usize| {
+            max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
+        };
+        // The step budget of the fixed-step sweep (three solves per attempt);
+        // a tolerance that needs more, and every tighter one, is not measured.
+        let options = AdaptiveOptions { max_steps: ctx.cfg.max_steps.max(1), ..options };
+        let Ok(run) = integrate_adaptive(stepper, 0.0, &ctx.q0, &ctx.v0, t1, &options, &mut observer) else { break };
+        let Some(end) = run.trajectory.last() else { continue };
+        let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
+        if !(eq.is_finite() && ev.is_finite()) {
+            continue;
+        }
+        let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
+            integrate_adaptive(stepper, 0.0, &ctx.q0, &ctx.v0, t1, &options, &mut NoObserver).is_ok()
+        }) else {
+            continue;
+        };
+        let steps = run.report.accepted;
+        let m = Measured {
+            error_q: eq,
+            error_v: ev,
+            energy: max_e,
+            iterations: run.report.newton_iterations as f64 / run.report.solves.max(1) as f64,
+            wall,
+            cpu,
+            repeats,
+        };
+        let mut p = point(ctx, SPARK_ADAPTIVE, label, S, steps, m);
+        p.setting = tol;
+        let stop = p.error() < ctx.cfg.floor_error || p.time() > ctx.cfg.max_run_time.as_secs_f64();
+        points.push(p);
+        if stop {
+            break;
+        }
+    }
 }
 
 /// The same stepper with num-dual and with finite-difference derivatives,

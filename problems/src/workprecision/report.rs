@@ -293,6 +293,45 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     }
 }
 
+/// Fixed against tolerance-driven steps of the same method (the peer
+/// methods), next to DOP853 and SciPy's solvers on the ψ-eliminated ODE.
+fn adaptive_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
+    let all = curves(&m.points);
+    let mut panels = Vec::new();
+    for &(method, s) in &cfg.peer_methods {
+        let label = super::method_label(method, s);
+        let mut series: Vec<Series> = all
+            .iter()
+            .filter(|((solver, me), _)| *me == label && (solver == SPARK || solver == super::SPARK_ADAPTIVE))
+            .map(|((solver, _), c)| {
+                let name = if solver == SPARK { "fixed steps" } else { "adaptive (rtol = atol)" };
+                Series::new(name, c.iter().map(|p| (p.time(), p.error())).collect())
+            })
+            .collect();
+        for ((solver, me), c) in &all {
+            if *solver == *SCIPY || *solver == *ODE_SOLVERS {
+                series.push(Series::new(format!("{solver}: {me}"), c.iter().map(|p| (p.time(), p.error())).collect()));
+            }
+        }
+        if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
+            panels.push(Panel {
+                title: format!("{label}: fixed and adaptive steps"),
+                x_label: "time per run [s] (thread CPU)".into(),
+                y_label: "global error in q, v at T".into(),
+                x_scale: Scale::Log,
+                y_scale: Scale::Log,
+                series,
+            });
+        }
+    }
+    Figure {
+        title: format!("{}: fixed vs adaptive steps, T = {}", m.problem.system, m.problem.final_time),
+        panels,
+        columns: 2,
+        panel_size: (640, 460),
+    }
+}
+
 /// Stages one system's CSV, figures and Markdown in `out`.
 pub fn write_system(
     m: &SystemMeasurement,
@@ -319,6 +358,10 @@ pub fn write_system(
     if !fig.panels.is_empty() {
         out.render(&fig, &format!("{key}-peers"))?;
     }
+    let fig = adaptive_figure(m, cfg);
+    if !fig.panels.is_empty() {
+        out.render(&fig, &format!("{key}-adaptive"))?;
+    }
     let md = system_markdown(m, cfg);
     out.write_bytes(&format!("{key}.md"), md.as_bytes())?;
     Ok(())
@@ -332,7 +375,8 @@ pub fn system_markdown(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Stri
     let _ = writeln!(s, "### {key} (n = {n}, m = {mm}, T = {})\n", m.problem.final_time);
     let _ = writeln!(
         s,
-        "![error vs time]({key}-error.png)\n![energy error vs time]({key}-energy.png)\n![peers]({key}-peers.png)\n"
+        "![error vs time]({key}-error.png)\n![energy error vs time]({key}-energy.png)\n![peers]({key}-peers.png)\n\
+         ![fixed vs adaptive steps]({key}-adaptive.png)\n"
     );
     let _ = writeln!(s, "{}", cheapest_table(m, &cfg.targets));
     let _ = writeln!(s, "{}", ratio_tables(m, &cfg.targets));

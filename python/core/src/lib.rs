@@ -1,0 +1,585 @@
+//! The generic part of spark's Python bindings: one integration run and one
+//! ensemble for any system type with literal `N`, `M`, `S`, `D`, the
+//! conversion of requests (Python dicts) and results (NumPy arrays), and the
+//! [`export_system!`] macro that turns a declared system into a Python
+//! extension module.
+//!
+//! The `spark` extension module uses it for the registered systems (through
+//! the registry's stage dispatch), and every module built by
+//! `spark.compile` uses it for its one system, so both run the same code.
+
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::IntoPyArray;
+use pyo3::exceptions::PyTypeError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use rayon::prelude::*;
+use spark_runtime::{
+    consistent_velocity, ConsistencyPolicy, ConstraintForm, IntegrationError, Method, NewtonMode, NewtonOptions,
+    NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, StepError, Stepper, Tableau, Vector,
+};
+
+pub use numpy;
+pub use pyo3;
+
+/// Largest `|g(t0, q0)|` accepted for a holonomic constraint (as `spark run`).
+const POSITION_TOLERANCE: f64 = 1e-10;
+
+/// Tolerance of the projection of an inconsistent `v0` (as `spark run --project-v0`).
+const PROJECTION_TOLERANCE: f64 = 1e-12;
+
+/// One integration run, as read from the Python side.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IntegrateRequest {
+    /// The method.
+    pub method: Method,
+    /// Stage count `s`.
+    pub stages: usize,
+    /// Step size.
+    pub h: f64,
+    /// Number of steps.
+    pub steps: usize,
+    /// Initial time.
+    pub t0: f64,
+    /// Initial coordinates (`N` entries).
+    pub q0: Vec<f64>,
+    /// Initial velocities (`N` entries).
+    pub v0: Vec<f64>,
+    /// Parameter overrides.
+    pub parameters: Vec<(String, f64)>,
+    /// Record every this many steps (and always the endpoints).
+    pub every: usize,
+    /// Newton settings.
+    pub newton: NewtonOptions,
+    /// Record the multipliers `ψ` at every sample.
+    pub multipliers: bool,
+    /// Replace an inconsistent `v0` by the nearest consistent one.
+    pub project_v0: bool,
+}
+
+/// An ensemble: the same run from many initial states.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnsembleRequest {
+    /// Everything but the initial states (`q0`, `v0` empty).
+    pub run: IntegrateRequest,
+    /// Initial coordinates, member after member (`members × N`).
+    pub q0s: Vec<f64>,
+    /// Initial velocities, member after member (`members × N`).
+    pub v0s: Vec<f64>,
+    /// Number of members.
+    pub members: usize,
+    /// Worker threads (`None`: rayon's default, all cores or `RAYON_NUM_THREADS`).
+    pub threads: Option<usize>,
+}
+
+/// A recorded run, row-major (`samples × N`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Columns {
+    /// Number of coordinates.
+    pub n: usize,
+    /// Number of constraints.
+    pub m: usize,
+    /// Sample times.
+    pub t: Vec<f64>,
+    /// Coordinates, `samples × N`.
+    pub q: Vec<f64>,
+    /// Velocities, `samples × N`.
+    pub v: Vec<f64>,
+    /// Energy at each sample.
+    pub energy: Vec<f64>,
+    /// `max_i |k_i|` at each sample.
+    pub constraint: Vec<f64>,
+    /// Multipliers `ψ`, `samples × M` (empty unless asked for; NaN where
+    /// the saddle matrix was singular).
+    pub psi: Vec<f64>,
+    /// `max_i |g_i(t, q)|` at each sample (empty without holonomic constraints).
+    pub holonomic: Vec<f64>,
+    /// Energy at the initial state.
+    pub e0: f64,
+    /// Steps taken.
+    pub steps: usize,
+    /// Mean Newton iterations per step.
+    pub newton_iterations_mean: f64,
+    /// Wall time of [`integrate`] itself, in seconds (checks, stepper set-up,
+    /// the steps and the columns): what a Rust caller pays, for measuring
+    /// the overhead of the Python call around it.
+    pub seconds: f64,
+}
+
+/// What went wrong, as the message a Python exception carries.
+pub type Failure = String;
+
+fn vector<const N: usize>(what: &str, x: &[f64]) -> Result<Vector<N>, Failure> {
+    if x.len() != N {
+        return Err(format!("{what} has {} entries but the system has {N} coordinates", x.len()));
+    }
+    if let Some(bad) = x.iter().find(|x| !x.is_finite()) {
+        return Err(format!("{what} has a non-finite entry {bad:.3e}"));
+    }
+    Ok(Vector::<N>::from_column_slice(x))
+}
+
+/// The system with its parameter overrides applied.
+pub fn configured<Sys, const N: usize, const M: usize>(parameters: &[(String, f64)]) -> Result<Sys, Failure>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let mut sys = Sys::default();
+    for (name, value) in parameters {
+        sys.set_parameter(name, *value).map_err(|e| e.to_string())?;
+    }
+    Ok(sys)
+}
+
+fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
+    if !(r.h.is_finite() && r.h != 0.0) {
+        return Err(format!("step size h = {:.3e} must be finite and nonzero", r.h));
+    }
+    if !r.t0.is_finite() {
+        return Err(format!("initial time t0 = {:.3e} must be finite", r.t0));
+    }
+    if r.steps == 0 {
+        return Err("steps must be at least 1".into());
+    }
+    if r.every == 0 {
+        return Err("every must be at least 1 (1 records every step)".into());
+    }
+    let (min, max) = r.method.stage_range();
+    if r.stages < min || r.stages > max {
+        return Err(format!("{} has s = {min}..={max} stages, not s = {}", r.method, r.stages));
+    }
+    Ok(())
+}
+
+/// Integrates one run with stepper type `Stepper<Sys, N, M, S, D>`: the same
+/// steps, options and observations as `spark run` (`problems::simulate::run_with`).
+pub fn integrate<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    r: &IntegrateRequest,
+) -> Result<Columns, Failure>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let start = std::time::Instant::now();
+    check_request(r)?;
+    let q0 = vector::<N>("q0", &r.q0)?;
+    let v0 = vector::<N>("v0", &r.v0)?;
+    let probe: Sys = configured(&r.parameters)?;
+    if Sys::HAS_HOLONOMIC {
+        let residual = probe.holonomic_residual(r.t0, &q0).amax();
+        if residual.is_nan() || residual > POSITION_TOLERANCE {
+            return Err(format!(
+                "q0 violates the holonomic constraint: max |g(t0, q0)| = {residual:.3e} > {POSITION_TOLERANCE:.1e}; \
+                 choose q0 on the constraint"
+            ));
+        }
+    }
+    let consistency = if r.project_v0 {
+        ConsistencyPolicy::Project { tolerance: PROJECTION_TOLERANCE }
+    } else {
+        ConsistencyPolicy::default()
+    };
+    let v0 = consistent_velocity(&probe, r.t0, &q0, &v0, consistency).map_err(|e| match e {
+        StepError::InconsistentInitialState { residual, tolerance } => format!(
+            "v0 violates the constraints: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; give a v0 with \
+             k = 0 or pass project_v0=True to use the nearest consistent one"
+        ),
+        e => format!("initial state: {e}"),
+    })?;
+    let tableau = Tableau::<S>::new(r.method).map_err(|e| e.to_string())?;
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(configured(&r.parameters)?, tableau).with_options(r.newton);
+    let options = RunOptions {
+        observe: Observe { energy: true, constraint_residual: true, multipliers: r.multipliers },
+        record_every: r.every,
+        consistency,
+        ..RunOptions::default()
+    };
+    let traj = stepper
+        .integrate(r.t0, &q0, &v0, Schedule::Fixed { h: r.h, steps: r.steps }, &options, &mut NoObserver)
+        .map_err(|e: IntegrationError| format!("{} s = {}: {e}", r.method, S))?;
+    let samples = &traj.samples;
+    let k = samples.len();
+    let mut out = Columns {
+        n: N,
+        m: M,
+        t: Vec::with_capacity(k),
+        q: Vec::with_capacity(k * N),
+        v: Vec::with_capacity(k * N),
+        energy: Vec::with_capacity(k),
+        constraint: Vec::with_capacity(k),
+        psi: Vec::new(),
+        holonomic: Vec::new(),
+        e0: probe.energy(r.t0, &q0, &v0),
+        steps: traj.report.steps,
+        newton_iterations_mean: traj.report.newton_iterations_mean,
+        seconds: 0.0,
+    };
+    for s in samples {
+        out.t.push(s.t);
+        out.q.extend(s.q.iter());
+        out.v.extend(s.v.iter());
+        out.energy.push(s.energy.unwrap_or(f64::NAN));
+        out.constraint.push(s.constraint_residual.unwrap_or(f64::NAN));
+        if r.multipliers {
+            match &s.multipliers {
+                Some(psi) => out.psi.extend(psi.iter()),
+                None => out.psi.extend(std::iter::repeat_n(f64::NAN, M)),
+            }
+        }
+        if Sys::HAS_HOLONOMIC {
+            out.holonomic.push(probe.holonomic_residual(s.t, &s.q).amax());
+        }
+    }
+    out.seconds = start.elapsed().as_secs_f64();
+    Ok(out)
+}
+
+/// Integrates every member of `r` with its own stepper, in parallel over
+/// members (rayon). Members are independent, so the result of each is bit
+/// for bit what [`integrate`] returns for it alone, whatever the thread count.
+///
+/// The signature does not depend on how members are distributed: a stepper
+/// that advances several members per instruction (SIMD lanes) fits behind it.
+pub fn ensemble<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    r: &EnsembleRequest,
+) -> Result<Vec<Columns>, Failure>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    if r.q0s.len() != r.members * N || r.v0s.len() != r.members * N {
+        return Err(format!(
+            "q0s and v0s must have shape (members, {N}) = ({}, {N}); got {} and {} numbers",
+            r.members,
+            r.q0s.len(),
+            r.v0s.len()
+        ));
+    }
+    let work = || -> Result<Vec<Columns>, Failure> {
+        (0..r.members)
+            .into_par_iter()
+            .map(|j| {
+                let member = IntegrateRequest {
+                    q0: r.q0s[j * N..(j + 1) * N].to_vec(),
+                    v0: r.v0s[j * N..(j + 1) * N].to_vec(),
+                    ..r.run.clone()
+                };
+                integrate::<Sys, N, M, S, D>(&member).map_err(|e| format!("member {j}: {e}"))
+            })
+            .collect()
+    };
+    match r.threads {
+        None => work(),
+        Some(0) => Err("threads must be at least 1".into()),
+        Some(t) => rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .map_err(|e| format!("could not start {t} worker threads: {e}"))?
+            .install(work),
+    }
+}
+
+/// Static facts of a system type for `info()`: name, `N`, `M`, coordinates,
+/// parameters with defaults, structure facts and effects.
+pub fn system_info<'py, Sys, const N: usize, const M: usize>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let d = PyDict::new(py);
+    let src = Sys::SOURCE;
+    d.set_item("type_name", src.name)?;
+    d.set_item("n", N)?;
+    d.set_item("m", M)?;
+    d.set_item("coordinates", src.coordinates.to_vec())?;
+    let params = PyDict::new(py);
+    for (name, value) in src.parameters.iter().zip(Sys::default().parameter_values()) {
+        params.set_item(*name, value)?;
+    }
+    d.set_item("parameters", params)?;
+    let s = Sys::STRUCTURE;
+    let st = PyDict::new(py);
+    st.set_item("lagrangian_autonomous", s.lagrangian_autonomous)?;
+    st.set_item("constraints_autonomous", s.constraints_autonomous)?;
+    st.set_item("constant_mass_matrix", s.constant_mass_matrix)?;
+    st.set_item("separable", s.separable)?;
+    st.set_item(
+        "constraint_form",
+        match s.constraint_form {
+            ConstraintForm::None => "none",
+            ConstraintForm::Linear => "linear",
+            ConstraintForm::Affine => "affine",
+            ConstraintForm::Nonlinear => "nonlinear",
+        },
+    )?;
+    d.set_item("structure", st)?;
+    let fx = PyDict::new(py);
+    fx.set_item("forcing", Sys::HAS_FORCING)?;
+    fx.set_item("nonideal", Sys::HAS_NONIDEAL_FORCE)?;
+    fx.set_item("holonomic", Sys::HAS_HOLONOMIC)?;
+    d.set_item("effects", fx)?;
+    d.set_item("lagrangian", src.lagrangian)?;
+    d.set_item("constraints", src.constraints.to_vec())?;
+    Ok(d)
+}
+
+/// `spark.SparkError` with `message` (the class lives in `spark._native`, so
+/// errors of every compiled module are the same Python class).
+pub fn spark_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
+    let message = message.into();
+    match py.import("spark._native").and_then(|m| m.getattr("SparkError")) {
+        Ok(class) => match class.call1((message.clone(),)) {
+            Ok(instance) => PyErr::from_value(instance),
+            Err(e) => e,
+        },
+        Err(_) => pyo3::exceptions::PyRuntimeError::new_err(message),
+    }
+}
+
+fn get<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<T>> {
+    match d.get_item(key)? {
+        None => Ok(None),
+        Some(v) if v.is_none() => Ok(None),
+        Some(v) => v.extract::<T>().map(Some).map_err(|e| {
+            let e: PyErr = e.into();
+            PyTypeError::new_err(format!("`{key}`: {}", e.value(d.py())))
+        }),
+    }
+}
+
+use pyo3::conversion::FromPyObjectOwned;
+
+fn required<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<T> {
+    get(d, key)?.ok_or_else(|| PyTypeError::new_err(format!("missing `{key}`")))
+}
+
+/// Reads the common fields of a request dict (everything but the initial
+/// states): `method`, `s`, `h`, `steps`, `t0`, `params`, `every`, `newton`,
+/// `newton_tol`, `multipliers`, `project_v0`.
+pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<IntegrateRequest> {
+    let method: String = required(d, "method")?;
+    let method: Method = method.parse().map_err(|e: spark_runtime::TableauError| spark_error(py, e.to_string()))?;
+    let newton_mode: String = get(d, "newton")?.unwrap_or_else(|| "full".into());
+    let mode = match newton_mode.to_ascii_lowercase().as_str() {
+        "full" => NewtonMode::Full,
+        "simplified" => NewtonMode::Simplified,
+        other => return Err(spark_error(py, format!("newton = `{other}`: write \"full\" or \"simplified\""))),
+    };
+    let mut newton = NewtonOptions { mode, ..NewtonOptions::default() };
+    if let Some(tol) = get::<f64>(d, "newton_tol")? {
+        if !(tol.is_finite() && tol > 0.0) {
+            return Err(spark_error(py, format!("newton_tol = {tol:.3e} must be a positive number")));
+        }
+        newton.tolerance = tol;
+        newton.stagnation_level = newton.stagnation_level.max(tol);
+    }
+    let parameters: Vec<(String, f64)> = match d.get_item("params")? {
+        Some(p) if !p.is_none() => {
+            let p = p.cast_into::<PyDict>().map_err(|_| PyTypeError::new_err("`params` must be a dict"))?;
+            let mut v = Vec::new();
+            for (k, x) in p.iter() {
+                let name: String = k.extract()?;
+                let value: f64 = x.extract()?;
+                if !value.is_finite() {
+                    return Err(spark_error(py, format!("parameter `{name}` = {value:.3e} must be finite")));
+                }
+                v.push((name, value));
+            }
+            v
+        }
+        _ => Vec::new(),
+    };
+    let steps: i64 = required(d, "steps")?;
+    let every: i64 = get(d, "every")?.unwrap_or(1);
+    let stages: i64 = required(d, "s")?;
+    if steps < 1 || every < 1 || stages < 1 {
+        return Err(spark_error(py, "steps, every and s must be at least 1"));
+    }
+    Ok(IntegrateRequest {
+        method,
+        stages: stages as usize,
+        h: required(d, "h")?,
+        steps: steps as usize,
+        t0: get(d, "t0")?.unwrap_or(0.0),
+        q0: get(d, "q0")?.unwrap_or_default(),
+        v0: get(d, "v0")?.unwrap_or_default(),
+        parameters,
+        every: every as usize,
+        newton,
+        multipliers: get(d, "multipliers")?.unwrap_or(false),
+        project_v0: get(d, "project_v0")?.unwrap_or(false),
+    })
+}
+
+/// Reads an ensemble request: the common fields plus `q0s`, `v0s` (2-D
+/// arrays or nested lists, one row per member) and `threads`.
+pub fn read_ensemble(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<EnsembleRequest> {
+    let run = read_request(py, d)?;
+    let rows = |key: &str| -> PyResult<Vec<Vec<f64>>> { required(d, key) };
+    let (q0s, v0s) = (rows("q0s")?, rows("v0s")?);
+    if q0s.len() != v0s.len() {
+        return Err(spark_error(py, format!("q0s has {} rows but v0s has {}", q0s.len(), v0s.len())));
+    }
+    if q0s.is_empty() {
+        return Err(spark_error(py, "an ensemble needs at least one member"));
+    }
+    let threads: Option<i64> = get(d, "threads")?;
+    if let Some(t) = threads {
+        if t < 1 {
+            return Err(spark_error(py, "threads must be at least 1"));
+        }
+    }
+    let width = q0s[0].len();
+    if let Some(j) = q0s.iter().chain(v0s.iter()).position(|r| r.len() != width) {
+        return Err(spark_error(py, format!("row {} of q0s/v0s has another length than row 0", j % q0s.len())));
+    }
+    Ok(EnsembleRequest {
+        members: q0s.len(),
+        q0s: q0s.concat(),
+        v0s: v0s.concat(),
+        threads: threads.map(|t| t as usize),
+        run,
+    })
+}
+
+/// One run as a dict of NumPy arrays (`t`, `q`, `v`, `energy`,
+/// `constraint`, `psi`, `holonomic`) and statistics.
+pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let k = c.t.len();
+    let shape2 = |x: Vec<f64>, w: usize| Array2::from_shape_vec((k, w), x).map_err(|e| spark_error(py, e.to_string()));
+    d.set_item("t", Array1::from_vec(c.t).into_pyarray(py))?;
+    d.set_item("q", shape2(c.q, c.n)?.into_pyarray(py))?;
+    d.set_item("v", shape2(c.v, c.n)?.into_pyarray(py))?;
+    d.set_item("energy", Array1::from_vec(c.energy).into_pyarray(py))?;
+    d.set_item("constraint", Array1::from_vec(c.constraint).into_pyarray(py))?;
+    if !c.psi.is_empty() || c.m == 0 {
+        d.set_item("psi", shape2(c.psi, c.m)?.into_pyarray(py))?;
+    }
+    if !c.holonomic.is_empty() {
+        d.set_item("holonomic", Array1::from_vec(c.holonomic).into_pyarray(py))?;
+    }
+    d.set_item("e0", c.e0)?;
+    d.set_item("steps", c.steps)?;
+    d.set_item("newton_iterations_mean", c.newton_iterations_mean)?;
+    d.set_item("rust_seconds", c.seconds)?;
+    Ok(d)
+}
+
+/// An ensemble as a dict: `t` (samples), `q`, `v` (members × samples × N),
+/// `energy`, `constraint` (members × samples), `e0` (members), `steps`.
+pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let members = runs.len();
+    let (k, n) = runs.first().map_or((0, 0), |c| (c.t.len(), c.n));
+    if runs.iter().any(|c| c.t.len() != k) {
+        return Err(spark_error(py, "ensemble members recorded different sample counts"));
+    }
+    let mut q = Vec::with_capacity(members * k * n);
+    let mut v = Vec::with_capacity(members * k * n);
+    let mut energy = Vec::with_capacity(members * k);
+    let mut constraint = Vec::with_capacity(members * k);
+    let mut e0 = Vec::with_capacity(members);
+    let mut iterations = Vec::with_capacity(members);
+    let t = runs.first().map(|c| c.t.clone()).unwrap_or_default();
+    for c in runs {
+        q.extend(c.q);
+        v.extend(c.v);
+        energy.extend(c.energy);
+        constraint.extend(c.constraint);
+        e0.push(c.e0);
+        iterations.push(c.newton_iterations_mean);
+    }
+    let err = |e: numpy::ndarray::ShapeError| spark_error(py, e.to_string());
+    d.set_item("t", Array1::from_vec(t).into_pyarray(py))?;
+    d.set_item("q", Array3::from_shape_vec((members, k, n), q).map_err(err)?.into_pyarray(py))?;
+    d.set_item("v", Array3::from_shape_vec((members, k, n), v).map_err(err)?.into_pyarray(py))?;
+    d.set_item("energy", Array2::from_shape_vec((members, k), energy).map_err(err)?.into_pyarray(py))?;
+    d.set_item("constraint", Array2::from_shape_vec((members, k), constraint).map_err(err)?.into_pyarray(py))?;
+    d.set_item("e0", Array1::from_vec(e0).into_pyarray(py))?;
+    d.set_item("newton_iterations_mean", Array1::from_vec(iterations).into_pyarray(py))?;
+    Ok(d)
+}
+
+/// Runs `work` with the GIL released and turns its failure into `SparkError`.
+pub fn detached<T: Send>(py: Python<'_>, work: impl FnOnce() -> Result<T, Failure> + Send) -> PyResult<T> {
+    py.detach(work).map_err(|e| spark_error(py, e))
+}
+
+/// A list of strings as a Python list (for `names()`).
+pub fn string_list<'py>(py: Python<'py>, items: &[&str]) -> PyResult<Bound<'py, PyList>> {
+    PyList::new(py, items)
+}
+
+/// Declares the Python extension module `$module` for the system type
+/// `$ty` with `N = $n`, `M = $m` (literals): `info()`, `integrate(request)`
+/// and `ensemble(request)`, dispatching the stage count `s = 1..=5` to
+/// literal `S` and `D = S(N+M)+N`. The modules `spark.compile` builds are
+/// this macro applied to one declaration.
+#[macro_export]
+macro_rules! export_system {
+    ($module:ident, $ty:ty, $n:literal, $m:literal) => {
+        mod __spark_dispatch {
+            use super::*;
+            pub fn integrate(r: &$crate::IntegrateRequest) -> ::core::result::Result<$crate::Columns, $crate::Failure> {
+                match r.stages {
+                    1 => $crate::integrate::<$ty, $n, $m, 1, { $n + $m + $n }>(r),
+                    2 => $crate::integrate::<$ty, $n, $m, 2, { 2 * ($n + $m) + $n }>(r),
+                    3 => $crate::integrate::<$ty, $n, $m, 3, { 3 * ($n + $m) + $n }>(r),
+                    4 => $crate::integrate::<$ty, $n, $m, 4, { 4 * ($n + $m) + $n }>(r),
+                    5 => $crate::integrate::<$ty, $n, $m, 5, { 5 * ($n + $m) + $n }>(r),
+                    s => ::core::result::Result::Err(::std::format!(
+                        "s = {s} is not compiled into this module; supported: s = 1..=5"
+                    )),
+                }
+            }
+            pub fn ensemble(
+                r: &$crate::EnsembleRequest,
+            ) -> ::core::result::Result<::std::vec::Vec<$crate::Columns>, $crate::Failure> {
+                match r.run.stages {
+                    1 => $crate::ensemble::<$ty, $n, $m, 1, { $n + $m + $n }>(r),
+                    2 => $crate::ensemble::<$ty, $n, $m, 2, { 2 * ($n + $m) + $n }>(r),
+                    3 => $crate::ensemble::<$ty, $n, $m, 3, { 3 * ($n + $m) + $n }>(r),
+                    4 => $crate::ensemble::<$ty, $n, $m, 4, { 4 * ($n + $m) + $n }>(r),
+                    5 => $crate::ensemble::<$ty, $n, $m, 5, { 5 * ($n + $m) + $n }>(r),
+                    s => ::core::result::Result::Err(::std::format!(
+                        "s = {s} is not compiled into this module; supported: s = 1..=5"
+                    )),
+                }
+            }
+        }
+
+        #[$crate::pyo3::pyfunction]
+        fn info(
+            py: $crate::pyo3::Python<'_>,
+        ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'_, $crate::pyo3::types::PyDict>> {
+            $crate::system_info::<$ty, $n, $m>(py)
+        }
+
+        #[$crate::pyo3::pyfunction]
+        fn integrate<'py>(
+            py: $crate::pyo3::Python<'py>,
+            request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
+        ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
+            let r = $crate::read_request(py, request)?;
+            let c = $crate::detached(py, || __spark_dispatch::integrate(&r))?;
+            $crate::columns_to_py(py, c)
+        }
+
+        #[$crate::pyo3::pyfunction]
+        fn ensemble<'py>(
+            py: $crate::pyo3::Python<'py>,
+            request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
+        ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
+            let r = $crate::read_ensemble(py, request)?;
+            let c = $crate::detached(py, || __spark_dispatch::ensemble(&r))?;
+            $crate::ensemble_to_py(py, c)
+        }
+
+        #[$crate::pyo3::pymodule]
+        fn $module(m: &$crate::pyo3::Bound<'_, $crate::pyo3::types::PyModule>) -> $crate::pyo3::PyResult<()> {
+            use $crate::pyo3::types::PyModuleMethods;
+            m.add_function($crate::pyo3::wrap_pyfunction!(info, m)?)?;
+            m.add_function($crate::pyo3::wrap_pyfunction!(integrate, m)?)?;
+            m.add_function($crate::pyo3::wrap_pyfunction!(ensemble, m)?)?;
+            Ok(())
+        }
+    };
+}

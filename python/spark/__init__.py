@@ -1,0 +1,338 @@
+"""Lagrange–d'Alembert SPARK integrators for nonholonomic systems, from Python.
+
+The integrators are spark's Rust library; this package calls them through a
+native extension module. Every system of the Rust registry (``spark list``)
+is available by name::
+
+    import spark
+    skate = spark.system("skate")
+    run = skate.integrate(method="lobatto-iiia-b", s=3, h=0.1, steps=1000)
+    run.q, run.v, run.energy          # NumPy arrays
+
+A system can also be declared from Python in the DSL of
+``nonholonomic_system!`` with :func:`compile` (needs the Rust toolchain),
+and many initial states integrated at once with :func:`ensemble`.
+Errors are :class:`SparkError` exceptions carrying the Rust message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from . import _native
+from ._native import SparkError
+
+__all__ = [
+    "SparkError",
+    "DslError",
+    "ToolchainError",
+    "System",
+    "Trajectory",
+    "Ensemble",
+    "systems",
+    "system",
+    "methods",
+    "integrate",
+    "ensemble",
+    "compile",
+]
+
+__version__ = _native.version()
+
+
+class DslError(SparkError):
+    """A declaration passed to :func:`compile` is not valid DSL text.
+
+    ``line`` and ``column`` (1-based) point at the offending token of the
+    text; the message is what ``nonholonomic_system!`` says at that token.
+    """
+
+    def __init__(self, message: str, line: int, column: int):
+        super().__init__(f"line {line}, column {column}: {message}")
+        self.message = message
+        self.line = line
+        self.column = column
+
+
+class ToolchainError(SparkError):
+    """:func:`compile` needs cargo (the Rust toolchain) and could not run it."""
+
+
+@dataclass
+class Trajectory:
+    """One integration run: samples in rows.
+
+    ``t`` has shape ``(samples,)``, ``q`` and ``v`` ``(samples, N)``,
+    ``energy`` and ``constraint`` (``max_i |k_i|``) ``(samples,)``; ``psi``
+    (multipliers, ``(samples, M)``) only when asked for; ``holonomic``
+    (``max_i |g_i(t, q)|``) only for systems with holonomic constraints.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    energy: np.ndarray
+    constraint: np.ndarray
+    e0: float
+    steps: int
+    newton_iterations_mean: float
+    psi: np.ndarray | None = None
+    holonomic: np.ndarray | None = None
+    #: Wall time of the Rust integration call inside (set-up, steps, columns).
+    rust_seconds: float = 0.0
+
+    @property
+    def energy_error(self) -> np.ndarray:
+        """``E_k − E0`` at each sample."""
+        return self.energy - self.e0
+
+
+@dataclass
+class Ensemble:
+    """An ensemble of runs: ``t`` ``(samples,)``; ``q``, ``v``
+    ``(members, samples, N)``; ``energy``, ``constraint`` ``(members,
+    samples)``; ``e0`` ``(members,)``."""
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    energy: np.ndarray
+    constraint: np.ndarray
+    e0: np.ndarray
+    newton_iterations_mean: np.ndarray
+
+    @property
+    def energy_error(self) -> np.ndarray:
+        """``E_jk − E_j0``, shape ``(members, samples)``."""
+        return self.energy - self.e0[:, None]
+
+
+def _request(
+    method: str,
+    s: int,
+    h: float,
+    steps: int,
+    t0: float,
+    params: Mapping[str, float] | None,
+    every: int,
+    newton: str,
+    newton_tol: float | None,
+) -> dict[str, Any]:
+    return {
+        "method": method,
+        "s": int(s),
+        "h": float(h),
+        "steps": int(steps),
+        "t0": float(t0),
+        "params": dict(params) if params else None,
+        "every": int(every),
+        "newton": newton,
+        "newton_tol": newton_tol,
+    }
+
+
+def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
+    if steps is not None:
+        return int(steps)
+    if t_end is None:
+        raise SparkError("give steps= or t_end=")
+    ratio = (t_end - t0) / h
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-9 * n:
+        raise SparkError(
+            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is {ratio:.6e} steps of h = {h:.6e}, "
+            "not a whole number; pass steps= instead"
+        )
+    return n
+
+
+class System:
+    """A system: a registered one (:func:`system`) or one built by :func:`compile`.
+
+    Attributes: ``name``, ``type_name``, ``n``, ``m``, ``coordinates``,
+    ``parameters`` (defaults), ``structure`` (facts the macro proved),
+    ``effects``, and for registered systems ``description``, ``q0``,
+    ``v0``, ``h``, ``t_end`` (the defaults of ``spark run``).
+    """
+
+    def __init__(self, info: dict[str, Any], integrate_fn, ensemble_fn):
+        self.info = info
+        self._integrate = integrate_fn
+        self._ensemble = ensemble_fn
+        self.name: str = info.get("name", info["type_name"])
+        self.type_name: str = info["type_name"]
+        self.n: int = info["n"]
+        self.m: int = info["m"]
+        self.coordinates: list[str] = list(info["coordinates"])
+        self.parameters: dict[str, float] = dict(info["parameters"])
+        self.structure: dict[str, Any] = dict(info["structure"])
+        self.effects: dict[str, bool] = dict(info["effects"])
+        self.description: str = info.get("description", "")
+        self.q0: list[float] | None = info.get("q0")
+        self.v0: list[float] | None = info.get("v0")
+        self.h: float | None = info.get("h")
+        self.t_end: float | None = info.get("t_end")
+        #: The DSL text of a system built by :func:`compile` (``None`` for registered ones).
+        self.source: str | None = None
+
+    def __repr__(self) -> str:
+        return f"<spark.System {self.name}: N = {self.n}, M = {self.m}>"
+
+    def integrate(
+        self,
+        method: str = "gauss",
+        s: int = 2,
+        h: float | None = None,
+        steps: int | None = None,
+        *,
+        t_end: float | None = None,
+        t0: float = 0.0,
+        q0: Sequence[float] | None = None,
+        v0: Sequence[float] | None = None,
+        params: Mapping[str, float] | None = None,
+        every: int = 1,
+        newton: str = "full",
+        newton_tol: float | None = None,
+        multipliers: bool = False,
+        project_v0: bool = False,
+    ) -> Trajectory:
+        """Integrates from ``(t0, q0, v0)`` with ``steps`` fixed steps of ``h``.
+
+        ``method`` is one of :func:`methods` (``gauss``, ``lobatto-iiia-b``,
+        ``lobatto-iiia-b-d``, ``euler-1``, ``euler-2``,
+        ``modified-lobatto-iiia-b``, ``lobatto-iiib-a-lda``), ``s`` its stage
+        count. ``q0``, ``v0``, ``h`` and the final time default to the
+        system's (``spark list``). ``every`` records every so many steps
+        (and always the endpoints); ``multipliers=True`` also records ψ.
+        The same steps as ``spark run`` with the same options, bit for bit.
+        Raises :class:`SparkError` with the Rust message on bad input or a
+        failed step.
+        """
+        h = self.h if h is None else h
+        if h is None:
+            raise SparkError("give the step size h=")
+        if steps is None and t_end is None and self.t_end is not None:
+            t_end = t0 + self.t_end
+        req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol)
+        req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
+        req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)
+        req["multipliers"] = bool(multipliers)
+        req["project_v0"] = bool(project_v0)
+        d = self._integrate(req)
+        return Trajectory(
+            t=d["t"],
+            q=d["q"],
+            v=d["v"],
+            energy=d["energy"],
+            constraint=d["constraint"],
+            e0=d["e0"],
+            steps=d["steps"],
+            newton_iterations_mean=d["newton_iterations_mean"],
+            psi=d.get("psi") if multipliers else None,
+            holonomic=d.get("holonomic"),
+            rust_seconds=d["rust_seconds"],
+        )
+
+    def ensemble(
+        self,
+        method: str,
+        s: int,
+        h: float,
+        steps: int,
+        q0s,
+        v0s,
+        params: Mapping[str, float] | None = None,
+        *,
+        t0: float = 0.0,
+        every: int = 1,
+        newton: str = "full",
+        newton_tol: float | None = None,
+        threads: int | None = None,
+    ) -> Ensemble:
+        """Integrates every row of ``q0s``/``v0s`` (shape ``(members, N)``)
+        with the same method, step and parameters, in parallel over members
+        on ``threads`` threads (default: all cores, or ``RAYON_NUM_THREADS``),
+        with the GIL released. Each member is bit for bit what
+        :meth:`integrate` returns for it alone."""
+        q0s = np.ascontiguousarray(q0s, dtype=np.float64)
+        v0s = np.ascontiguousarray(v0s, dtype=np.float64)
+        if q0s.ndim != 2 or v0s.shape != q0s.shape or q0s.shape[1] != self.n:
+            raise SparkError(
+                f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
+            )
+        req = _request(method, s, h, steps, t0, params, every, newton, newton_tol)
+        req["q0s"] = q0s.tolist()
+        req["v0s"] = v0s.tolist()
+        req["threads"] = threads
+        d = self._ensemble(req)
+        return Ensemble(
+            t=d["t"],
+            q=d["q"],
+            v=d["v"],
+            energy=d["energy"],
+            constraint=d["constraint"],
+            e0=d["e0"],
+            newton_iterations_mean=d["newton_iterations_mean"],
+        )
+
+
+def _vector(what: str, x) -> list[float]:
+    if x is None:
+        raise SparkError(f"give {what}=")
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim != 1:
+        raise SparkError(f"{what} must be a vector; got shape {a.shape}")
+    return a.tolist()
+
+
+def systems() -> list[str]:
+    """Every registered system name (the paper's four first), as ``spark list``."""
+    return list(_native.names())
+
+
+def system(name: str) -> System:
+    """The registered system ``name`` (any case; ``-``/``_`` ignored).
+    Unknown names raise :class:`SparkError` with the closest name."""
+    info = _native.system_info_of(name)
+    key = info["name"]
+    return System(info, lambda req: _native.integrate(key, req), lambda req: _native.ensemble(key, req))
+
+
+def methods() -> list[tuple[str, str, int, int]]:
+    """``(key, name, smallest s, largest s)`` of every method."""
+    return list(_native.methods())
+
+
+def _as_system(sys: System | str) -> System:
+    return sys if isinstance(sys, System) else system(sys)
+
+
+def integrate(sys: System | str, method: str = "gauss", s: int = 2, h: float | None = None,
+              steps: int | None = None, **kwargs) -> Trajectory:
+    """``system(sys).integrate(method, s, h, steps, **kwargs)``."""
+    return _as_system(sys).integrate(method, s, h, steps, **kwargs)
+
+
+def ensemble(sys: System | str, method: str, s: int, h: float, steps: int, q0s, v0s,
+             params: Mapping[str, float] | None = None, **kwargs) -> Ensemble:
+    """Integrates many initial states at once (see :meth:`System.ensemble`)."""
+    return _as_system(sys).ensemble(method, s, h, steps, q0s, v0s, params, **kwargs)
+
+
+def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False) -> System:
+    """Builds a system from DSL text (the body of ``nonholonomic_system!``).
+
+    The text is checked by the macro's own parser first (a bad declaration
+    raises :class:`DslError` with line and column, without running cargo),
+    then compiled by cargo into a native module cached under a hash of the
+    text and the spark version (``~/.cache/spark-python`` or
+    ``SPARK_CACHE_DIR``); a second call with the same text loads the cached
+    module. Needs the Rust toolchain (``cargo``) at run time, as CasADi's
+    ``jit`` needs a C compiler; without it raises :class:`ToolchainError`.
+    """
+    from ._compile import compile_system
+
+    return compile_system(text, cache_dir=cache_dir, verbose=verbose)

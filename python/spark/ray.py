@@ -1,0 +1,166 @@
+"""Ensembles beyond one process: members sharded over Ray tasks.
+
+:func:`sweep` splits the members into shards, runs each shard as one Ray
+task that calls the native ensemble stepper (:func:`spark.ensemble`, all of
+the task's threads, GIL released), and gathers the results into one Parquet
+file with one row per member and sample (columns ``member``, ``t``,
+``q_<coordinate>``, ``v_<coordinate>``, ``energy``, ``energy_error``,
+``constraint``).
+
+On one machine ``ray.init()`` starts a local instance. On a cluster, start
+Ray there (``ray start --head`` on one node, ``ray start --address=HEAD:6379``
+on the others) with this package installed in every node's environment, and
+call ``ray.init(address="auto")`` (or pass ``address=`` to :func:`sweep`)
+before the sweep: the same code then spreads the shards over the cluster's
+nodes. The Parquet file is written by the driver process.
+
+Needs ``ray`` and ``pyarrow`` (``pip install spark-nonholonomic[ray]``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+import spark
+
+
+@dataclass
+class SweepReport:
+    """What :func:`sweep` did: the file, the member and shard counts, the
+    wall time of the whole sweep and the time per member."""
+
+    path: str
+    members: int
+    shards: int
+    wall_seconds: float
+
+    @property
+    def seconds_per_member(self) -> float:
+        return self.wall_seconds / self.members
+
+
+def _system(system: "spark.System | str", source: tuple[str, str] | None) -> spark.System:
+    if source is not None:
+        return spark.compile(source[0], cache_dir=source[1])
+    return spark.system(system) if isinstance(system, str) else system
+
+
+def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, first, every, newton, threads):
+    import pyarrow as pa
+
+    sys_ = _system(system_key, source)
+    e = sys_.ensemble(method, s, h, steps, q0s, v0s, params, every=every, newton=newton, threads=threads)
+    members, samples = e.energy.shape
+    cols: dict[str, np.ndarray] = {
+        "member": np.repeat(np.arange(first, first + members, dtype=np.int64), samples),
+        "t": np.tile(e.t, members),
+    }
+    for i, c in enumerate(sys_.coordinates):
+        cols[f"q_{c}"] = e.q[:, :, i].reshape(-1)
+    for i, c in enumerate(sys_.coordinates):
+        cols[f"v_{c}"] = e.v[:, :, i].reshape(-1)
+    cols["energy"] = e.energy.reshape(-1)
+    cols["energy_error"] = e.energy_error.reshape(-1)
+    cols["constraint"] = e.constraint.reshape(-1)
+    return pa.table(cols)
+
+
+def sweep(
+    system: "spark.System | str",
+    method: str,
+    s: int,
+    h: float,
+    steps: int,
+    q0s,
+    v0s,
+    params: Mapping[str, float] | None = None,
+    *,
+    out: str = "sweep.parquet",
+    every: int = 1,
+    newton: str = "full",
+    shards: int | None = None,
+    threads_per_task: int = 1,
+    address: str | None = None,
+) -> SweepReport:
+    """Integrates every row of ``q0s``/``v0s`` on Ray and writes ``out`` (Parquet).
+
+    ``shards`` (default: twice the CPUs Ray reports) tasks each integrate a
+    contiguous block of members with ``threads_per_task`` threads. A system
+    built by :func:`spark.compile` is rebuilt in each worker from its text
+    (loaded from the shared cache on one machine). Ray is started with
+    ``ray.init(address=address)`` unless it is already running. Rows are
+    ordered by member, then time, whatever the shard count, and every
+    member's numbers are those of :func:`spark.integrate` for it alone.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import ray
+
+    q0s = np.ascontiguousarray(q0s, dtype=np.float64)
+    v0s = np.ascontiguousarray(v0s, dtype=np.float64)
+    members = q0s.shape[0]
+    if members == 0 or q0s.shape != v0s.shape:
+        raise spark.SparkError(f"q0s and v0s must have the same shape (members, N); got {q0s.shape}, {v0s.shape}")
+    if threads_per_task < 1:
+        raise spark.SparkError("threads_per_task must be at least 1")
+    if not ray.is_initialized():
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    if shards is None:
+        shards = max(1, 2 * int(ray.cluster_resources().get("CPU", 1)))
+    shards = max(1, min(shards, members))
+    source = None
+    if isinstance(system, spark.System) and system.source is not None:
+        source = (system.source, system.info["cache_dir"])
+    key = system if isinstance(system, str) else system.name
+    task = ray.remote(num_cpus=threads_per_task)(_shard_table)
+    bounds = np.linspace(0, members, shards + 1).round().astype(int)
+    start = time.perf_counter()
+    pending = [
+        task.remote(key, source, method, s, h, steps, q0s[a:b], v0s[a:b], dict(params or {}), int(a), every,
+                    newton, threads_per_task)
+        for a, b in zip(bounds[:-1], bounds[1:])
+        if b > a
+    ]
+    tables = ray.get(pending)
+    pq.write_table(pa.concat_tables(tables), out)
+    wall = time.perf_counter() - start
+    return SweepReport(path=str(out), members=members, shards=len(pending), wall_seconds=wall)
+
+
+def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Fig. 8.4's statistic ``(1/h⁴)·(1/(J+1)) Σ_j (E_jk − E_j0)²`` at each
+    sample time, from a sweep's table (or Parquet path).
+
+    Summed over members in member order and divided as
+    ``problems::paper::ensemble_quantity`` does, so the numbers are the
+    Rust ones bit for bit for the same energies.
+    """
+    import pyarrow.parquet as pq
+
+    if isinstance(table, (str, bytes)) or hasattr(table, "__fspath__"):
+        table = pq.read_table(table, columns=["member", "t", "energy_error"])
+    member = table.column("member").to_numpy()
+    t = table.column("t").to_numpy()
+    err = table.column("energy_error").to_numpy()
+    order = np.lexsort((t, member))
+    member, t, err = member[order], t[order], err[order]
+    ids = np.unique(member)
+    samples = len(member) // len(ids)
+    err = err.reshape(len(ids), samples)
+    acc = np.zeros(samples)
+    for row in err:  # member after member, as the Rust sum
+        acc += row * row
+    h2 = h * h
+    return t[:samples], acc / len(ids) / (h2 * h2)
+
+
+def fig84_members(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Initial values of the §8.4 ensemble with ``count`` members
+    (``problems::simulate::mp7_initial_values``)."""
+    q, v = zip(*(spark._native.mp7_initial_values(j, count - 1) for j in range(count)))
+    return np.array(q), np.array(v)
+

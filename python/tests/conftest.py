@@ -1,0 +1,46 @@
+"""Shared fixtures: the Rust CLI (`spark`) the Python results are compared with."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _target_dir() -> Path:
+    return Path(os.environ.get("CARGO_TARGET_DIR") or REPO / "target")
+
+
+@pytest.fixture(scope="session")
+def spark_cli() -> Path:
+    """The release `spark` binary, built by cargo if it is missing (never skipped)."""
+    exe = Path(os.environ.get("SPARK_CLI") or _target_dir() / "release" / "spark")
+    if not exe.exists():
+        subprocess.run(
+            ["cargo", "build", "--release", "-p", "problems", "--bin", "spark"], cwd=REPO, check=True
+        )
+    assert exe.exists(), f"{exe} missing after cargo build"
+    return exe
+
+
+def run_cli(exe: Path, out: Path, system: str, *args: str) -> dict[str, np.ndarray]:
+    """Runs `spark run SYSTEM ARGS --out OUT --no-plot` and reads its CSV and report.json."""
+    subprocess.run(
+        [str(exe), "run", system, *args, "--out", str(out), "--no-plot"],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
+    (csv_path,) = [p for p in out.iterdir() if p.suffix == ".csv"]
+    with open(csv_path, newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    cols = {name: np.array([float(r[i]) for r in body]) for i, name in enumerate(header)}
+    cols["e0"] = json.loads((out / "report.json").read_text())["stats"]["e0"]
+    return cols

@@ -1,0 +1,104 @@
+"""`spark.compile`: DSL text from Python, checked by the macro's parser, built
+by cargo into a cached native module."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import spark
+from conftest import REPO
+
+
+def declaration(type_name: str) -> str:
+    """The body of the `nonholonomic_system!` block declaring `type_name` in
+    problems/src/systems.rs: the text the Rust registry was compiled from."""
+    source = (REPO / "problems" / "src" / "systems.rs").read_text()
+    for block in source.split("nonholonomic_system! {\n")[1:]:
+        body = block.split("\n}\n")[0]
+        if f"pub struct {type_name} {{" in body:
+            return body
+    raise AssertionError(f"{type_name} not found")
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("spark-cache")
+
+
+def test_compiled_system_matches_the_same_declaration_compiled_in_rust(cache):
+    skate = spark.compile(declaration("Skate"), cache_dir=str(cache))
+    registered = spark.system("skate")
+    assert (skate.name, skate.n, skate.m, skate.coordinates) == ("Skate", 3, 1, registered.coordinates)
+    assert skate.parameters == registered.parameters
+    assert skate.structure == registered.structure
+    for method, s in (("gauss", 2), ("lobatto-iiia-b", 3), ("lobatto-iiia-b-d", 4)):
+        kw = dict(q0=[0.0, 0.0, 0.0], v0=[0.0, 0.0, 1.0], params={"g": 9.81}, multipliers=True)
+        a = skate.integrate(method, s, 0.1, 300, **kw)
+        b = registered.integrate(method, s, 0.1, 300, **kw)
+        for field in ("t", "q", "v", "energy", "constraint", "psi"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=f"{method} {field}")
+    q0s, v0s = np.zeros((3, 3)), np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 0, 0.5]])
+    np.testing.assert_array_equal(
+        skate.ensemble("gauss", 2, 0.1, 50, q0s, v0s).q, registered.ensemble("gauss", 2, 0.1, 50, q0s, v0s).q
+    )
+    with pytest.raises(spark.SparkError, match="v0 violates the constraints"):
+        skate.integrate("gauss", 2, 0.1, 5, q0=[0, 0, 0], v0=[0, 1.0, 0])
+
+
+def test_cached_module_loads_without_cargo(cache):
+    """A second process with no cargo on PATH loads the module built above."""
+    script = textwrap.dedent(
+        f"""
+        import spark, sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_compile import declaration
+        s = spark.compile(declaration("Skate"), cache_dir={str(cache)!r})
+        print(s.integrate("gauss", 2, 0.1, 10, q0=[0, 0, 0], v0=[0, 0, 1]).q[-1, 2])
+        """
+    )
+    env = dict(os.environ, PATH="/nonexistent")
+    env.pop("CARGO", None)
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert float(done.stdout) > 0.9
+
+
+BAD = """
+pub struct Bad {
+    coordinates: [x, y],
+    lagrangian: dot(x)^2/2 + dot(y)^2/2 - abs(x),
+}
+"""
+
+
+def test_bad_dsl_raises_with_line_and_column(tmp_path):
+    with pytest.raises(spark.DslError) as info:
+        spark.compile(BAD, cache_dir=str(tmp_path))
+    e = info.value
+    assert (e.line, e.column) == (4, 43), str(e)
+    assert "abs" in e.message
+    assert not any(tmp_path.iterdir()), "a bad declaration must not reach cargo"
+    with pytest.raises(spark.DslError) as info:
+        spark.compile("pub struct P {\n    coordinates: [x],\n    lagrangian: dot(x)^2 + ,\n}", cache_dir=str(tmp_path))
+    assert info.value.line == 3
+    with pytest.raises(spark.DslError) as info:
+        spark.compile("pub struct P { coordinates: [x], lagrangian: dot(x)^2 \"", cache_dir=str(tmp_path))
+    assert info.value.line == 1
+
+
+def test_missing_toolchain_raises_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    monkeypatch.delenv("CARGO", raising=False)
+    text = declaration("NonholonomicParticle")
+    with pytest.raises(spark.ToolchainError, match=r"needs the Rust toolchain \(cargo\).*rustup"):
+        spark.compile(text, cache_dir=str(tmp_path / "cache"))
+    monkeypatch.setenv("CARGO", str(tmp_path / "no-such-cargo"))
+    with pytest.raises(spark.ToolchainError, match="is not an executable"):
+        spark.compile(text, cache_dir=str(tmp_path / "cache"))

@@ -1,0 +1,51 @@
+"""The ensemble stepper: members equal single runs bit for bit, whatever the
+thread count; shapes and errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import spark
+
+
+def _members(k: int):
+    qs, vs = zip(*(spark._native.mp7_initial_values(j, k - 1) for j in range(k)))
+    return np.array(qs), np.array(vs)
+
+
+def test_members_equal_single_runs_for_any_thread_count():
+    q0s, v0s = _members(6)
+    runs = [
+        spark.ensemble("mp7-nh", "lobatto-iiia-b", 2, 0.05, 400, q0s, v0s, every=10, newton="simplified", threads=t)
+        for t in (1, 2)
+    ]
+    for e in runs:
+        assert e.q.shape == (6, 41, 7) and e.energy.shape == (6, 41) and e.t.shape == (41,)
+    for field in ("q", "v", "energy", "constraint", "e0"):
+        np.testing.assert_array_equal(getattr(runs[0], field), getattr(runs[1], field))
+    for j in (0, 3, 5):
+        one = spark.integrate("mp7-nh", "lobatto-iiia-b", 2, 0.05, 400, q0=q0s[j], v0=v0s[j], every=10,
+                              newton="simplified")
+        np.testing.assert_array_equal(runs[0].q[j], one.q)
+        np.testing.assert_array_equal(runs[0].energy[j], one.energy)
+        assert runs[0].e0[j] == one.e0
+
+
+def test_parameters_apply_to_every_member():
+    q0s = np.zeros((2, 3))
+    v0s = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])
+    a = spark.ensemble("skate", "gauss", 2, 0.1, 50, q0s, v0s, {"g": 1.0})
+    b = spark.ensemble("skate", "gauss", 2, 0.1, 50, q0s, v0s, {"g": 9.81})
+    assert not np.array_equal(a.q, b.q)
+    one = spark.integrate("skate", "gauss", 2, 0.1, 50, q0=q0s[1], v0=v0s[1], params={"g": 9.81})
+    np.testing.assert_array_equal(b.q[1], one.q)
+
+
+def test_ensemble_errors_name_the_member_and_the_shape():
+    with pytest.raises(spark.SparkError, match=r"shape \(members, 3\)"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 2)), np.zeros((2, 2)))
+    with pytest.raises(spark.SparkError, match="member 1: v0 violates"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 3)), np.array([[0, 0, 1.0], [0, 1.0, 0]]))
+    with pytest.raises(spark.SparkError, match="threads"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), threads=0)

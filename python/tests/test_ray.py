@@ -1,0 +1,75 @@
+"""The Ray sweep on a local Ray instance: the 1000-member Fig. 8.4 statistic
+equals the one computed from the Rust CLI's runs of the same members."""
+
+from __future__ import annotations
+
+import concurrent.futures
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import ray
+
+import spark
+import spark.ray as sray
+from conftest import run_cli
+
+H, STEPS, EVERY, MEMBERS = 0.05, 100, 10, 1000
+METHOD = "lobatto-iiia-b"
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
+    q0s, v0s = sray.fig84_members(MEMBERS)
+    out = tmp_path / "fig84.parquet"
+    report = sray.sweep("mp7-nh", METHOD, 2, H, STEPS, q0s, v0s, out=str(out), every=EVERY, newton="simplified",
+                        shards=8)
+    assert report.members == MEMBERS and report.shards == 8
+    table = pq.read_table(out)
+    samples = STEPS // EVERY + 1
+    assert table.num_rows == MEMBERS * samples
+    assert table.column_names[:3] == ["member", "t", "q_q1"]
+    assert table.column_names[-3:] == ["energy", "energy_error", "constraint"]
+    t, stat = sray.ensemble_statistic(str(out), H)
+
+    def cli(j: int):
+        args = ["--method", METHOD, "--stages", "2", "--h", repr(H), "--t-end", repr(STEPS * H), "--every",
+                str(EVERY), "--newton", "simplified", "--q0", ",".join(repr(float(x)) for x in q0s[j]), "--v0",
+                ",".join(repr(float(x)) for x in v0s[j])]
+        c = run_cli(spark_cli, tmp_path / f"cli{j}", "mp7-nh", *args)
+        return c["energy"] - c["e0"], c["t"]
+
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(cli, range(MEMBERS)))
+    errors = np.array([r[0] for r in results])
+    np.testing.assert_array_equal(t, results[0][1])
+    acc = np.zeros(samples)
+    for row in errors:
+        acc += row * row
+    expected = acc / MEMBERS / (H * H * (H * H))
+    np.testing.assert_array_equal(stat, expected)
+    # and every member's energy error, row by row
+    err = table.column("energy_error").to_numpy().reshape(MEMBERS, samples)
+    np.testing.assert_array_equal(err, errors)
+    assert stat[-1] > 0
+
+
+def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
+    from test_compile import declaration
+
+    monkeypatch.setenv("SPARK_CACHE_DIR", str(tmp_path / "cache"))
+    skate = spark.compile(declaration("Skate"))
+    q0s = np.zeros((4, 3))
+    v0s = np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 0, 0.5], [0, 0, 1.5]])
+    out = tmp_path / "skate.parquet"
+    sray.sweep(skate, "gauss", 2, 0.1, 20, q0s, v0s, out=str(out), shards=2)
+    x = pq.read_table(out).column("q_x").to_numpy().reshape(4, 21)
+    ref = spark.ensemble("skate", "gauss", 2, 0.1, 20, q0s, v0s)
+    np.testing.assert_array_equal(x, ref.q[:, :, 0])

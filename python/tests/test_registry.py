@@ -1,0 +1,93 @@
+"""Registered systems from Python: facts, errors, and bit-for-bit agreement
+with the Rust CLI (`spark run`) on the paper's four experiments."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import spark
+from conftest import run_cli
+
+
+def test_every_registered_system_is_listed_with_its_facts():
+    names = spark.systems()
+    assert names[:4] == ["particle", "skate", "robot", "mp7"]
+    assert len(names) >= 34
+    skate = spark.system("Skate")
+    assert (skate.name, skate.n, skate.m) == ("skate", 3, 1)
+    assert skate.coordinates == ["x", "y", "theta"]
+    assert set(skate.parameters) == {"m", "inertia", "g", "beta"}
+    assert skate.structure["constraint_form"] == "linear"
+    assert skate.effects == {"forcing": False, "nonideal": False, "holonomic": False}
+    assert spark.system("rod-pendulum").effects["holonomic"]
+    keys = [m[0] for m in spark.methods()]
+    assert "lobatto-iiib-a-lda" in keys and "gauss" in keys
+
+
+def _same(py_run: spark.Trajectory, cli: dict[str, np.ndarray], coordinates: list[str]) -> None:
+    np.testing.assert_array_equal(py_run.t, cli["t"])
+    for i, c in enumerate(coordinates):
+        np.testing.assert_array_equal(py_run.q[:, i], cli[f"q_{c}"], err_msg=f"q_{c}")
+        np.testing.assert_array_equal(py_run.v[:, i], cli[f"v_{c}"], err_msg=f"v_{c}")
+    np.testing.assert_array_equal(py_run.energy, cli["energy"])
+    np.testing.assert_array_equal(py_run.constraint, cli["constraint_residual"])
+    assert py_run.e0 == cli["e0"]
+
+
+# The paper's experiments (Figs. 8.1–8.3 over the paper's intervals; Fig. 8.4
+# two members of its ensemble over a fiftieth of its interval, both readings
+# of the constraint, all three methods, simplified Newton as `spark paper`).
+PAPER = (
+    [("particle", "gauss", s, 0.2, 1250, None, "full") for s in (1, 2, 3)]
+    + [("skate", "lobatto-iiia-b", s, 0.1, 1000, None, "full") for s in (2, 3, 4)]
+    + [("robot", "lobatto-iiia-b-d", s, 0.2, 750, None, "full") for s in (2, 3, 4)]
+    + [
+        (sys, method, 2, 0.05, 20_000, j, "simplified")
+        for sys in ("mp7-nh", "mp7")
+        for method in ("lobatto-iiia-b", "modified-lobatto-iiia-b", "lobatto-iiib-a-lda")
+        for j in (0, 9)
+    ]
+)
+
+
+@pytest.mark.parametrize("system,method,s,h,steps,member,newton", PAPER)
+def test_paper_experiments_match_the_cli_bit_for_bit(spark_cli, tmp_path, system, method, s, h, steps, member, newton):
+    sys = spark.system(system)
+    every = 1 if member is None else 100
+    q0, v0 = (sys.q0, sys.v0) if member is None else spark._native.mp7_initial_values(member, 9)
+    args = ["--method", method, "--stages", str(s), "--h", str(h), "--t-end", str(steps * h), "--every", str(every),
+            "--newton", newton, "--q0", ",".join(map(repr, q0)), "--v0", ",".join(map(repr, v0))]
+    cli = run_cli(spark_cli, tmp_path / "out", system, *args)
+    run = sys.integrate(method, s, h, steps, q0=q0, v0=v0, every=every, newton=newton)
+    assert run.steps == steps
+    _same(run, cli, sys.coordinates)
+
+
+def test_multipliers_and_holonomic_drift_on_request():
+    run = spark.integrate("skate", "gauss", 2, 0.1, 20, multipliers=True)
+    assert run.psi.shape == (21, 1) and np.all(np.isfinite(run.psi))
+    assert run.holonomic is None
+    assert spark.integrate("skate", "gauss", 2, 0.1, 20).psi is None
+    pend = spark.integrate("rod-pendulum", "gauss", 2, 0.05, 40)
+    assert pend.holonomic.shape == (41,) and pend.holonomic.max() < 1e-6
+
+
+def test_errors_are_python_exceptions_with_the_rust_message():
+    with pytest.raises(spark.SparkError, match="unknown system `skat`.*did you mean `skate`"):
+        spark.system("skat")
+    with pytest.raises(spark.SparkError, match="v0 violates the constraints"):
+        spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[0.0, 1.0, 0.0])
+    with pytest.raises(spark.SparkError, match="has no parameter|bta"):
+        spark.integrate("skate", "gauss", 2, 0.1, 10, params={"bta": 1.0})
+    with pytest.raises(spark.SparkError, match="unknown method|gaus"):
+        spark.integrate("skate", "gaus", 2, 0.1, 10)
+    with pytest.raises(spark.SparkError, match="s = 9"):
+        spark.integrate("skate", "gauss", 9, 0.1, 10)
+    with pytest.raises(spark.SparkError, match="q0 has 2 entries"):
+        spark.integrate("skate", "gauss", 2, 0.1, 10, q0=[0.0, 0.0])
+    with pytest.raises(spark.SparkError, match="step size"):
+        spark.integrate("skate", "gauss", 2, float("nan"), 10)
+    # a projected v0 is accepted
+    run = spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[0.0, 1.0, 0.0], project_v0=True)
+    assert run.constraint.max() < 1e-12

@@ -1,0 +1,860 @@
+//! Tolerance-driven stepping: a local error estimate for every coefficient
+//! family, a PI step-size controller with `rtol`/`atol`, and a reversible
+//! (symmetric) step-size rule for the symmetric methods.
+//!
+//! # The error estimate: step doubling
+//! Every family is covered by one estimate that needs nothing of the
+//! tableau but its order `p` ([`Method::order`](crate::Method::order)): a
+//! step of size `h` is taken once whole (`y_h`) and once as two steps of
+//! size `h/2` (`y_{h/2}`). With local error `C h^{p+1}` per step, the two
+//! half steps err by `2C(h/2)^{p+1}` and `y_h − y_{h/2} ≈ C h^{p+1}(1 − 2^{−p})`,
+//! so
+//!
+//! ```text
+//! err ≈ (y_h − y_{h/2}) / (2^p − 1)
+//! ```
+//!
+//! estimates the local error of `y_{h/2}`, the solution that is kept
+//! (Richardson extrapolation is not applied: the kept state is a plain
+//! result of the method, so the constraint `k(t, q, v) = 0` holds there to
+//! Newton's tolerance and a symmetric method stays symmetric). An embedded
+//! lower-order solution from the same stages would be cheaper, but it
+//! estimates the error of the lower-order formula, which is orders of
+//! magnitude above the error of a `2s`-order Gauss step and so cannot track
+//! it. Step doubling costs three step solves per accepted step (1.5 times
+//! the fixed-step cost of the same accepted states). The estimate is
+//! measured in the RMS norm over `(q, v)` with weights
+//! `atol + rtol·max(|y₀ᵢ|, |y₁ᵢ|)`.
+//!
+//! # The controller
+//! [`integrate_adaptive`] accepts a step when the scaled error `err ≤ 1`
+//! and proposes the next step by the PI rule of Gustafsson (Hairer–Wanner,
+//! *Solving ODEs II*, §IV.2) with `k = p + 1`:
+//!
+//! ```text
+//! h_new = h · clamp(safety · err^{−0.7/k} · err_prev^{0.4/k}, min_factor, max_factor)
+//! ```
+//!
+//! (no growth right after a rejection). A rejected step is retried with
+//! `h · max(min_factor, safety · err^{−1/k})`; a step whose Newton solve
+//! fails is retried with a quarter of its size. Below
+//! [`AdaptiveOptions::min_step`] the run stops with
+//! [`AdaptiveError::StepSizeTooSmall`].
+//!
+//! # The reversible rule
+//! [`integrate_reversible`] takes the step sizes from a user step density
+//! `σ(t, q, v)` (steps per unit time; e.g. `r^{−3/2}` for an orbit) by the
+//! explicit symmetric rule of Hairer & Söderlind (*Explicit, time
+//! reversible, adaptive step size control*, SIAM J. Sci. Comput. 26, 2005):
+//! with the time transformation `dt/dτ = 1/ρ` and `ρ' = G(y) = σ̇(y)/σ(y)`,
+//!
+//! ```text
+//! ρ_{n+1/2} = ρ_{n−1/2} + ε G(y_n),     y_{n+1} = Φ_{ε/ρ_{n+1/2}}(y_n),
+//! ```
+//!
+//! a map `(y_n, ρ_{n−1/2}) ↦ (y_{n+1}, ρ_{n+1/2})` that is reversible
+//! whenever the step `Φ` is symmetric and `σ` is even in `v`. `G` is the
+//! time derivative of `ln σ` along the flow, by a central difference of `σ`
+//! in the direction `(1, v, a)` with the consistent acceleration `a`. The
+//! scale `ε` follows from the tolerance: the first step size is chosen by
+//! the error estimate above (`err` between ½ and 1), and `ε = h₀ σ(y₀)`.
+//! Long runs then keep the bounded energy error of fixed steps, which the
+//! error-controlled steps of [`integrate_adaptive`] lose (their step
+//! sequence is not symmetric, so the energy error drifts).
+//!
+//! Neither driver touches the fixed-step path: a run of
+//! [`Stepper::integrate`] does exactly what it does without this module.
+
+use crate::driver::{Observe, Observer, RunReport, Sample, Trajectory};
+use crate::error::{OptionError, Sci, StepError};
+use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+use crate::stepper::{State, Stepper};
+use crate::system::{NonholonomicSystem, Vector};
+use crate::tableau::Method;
+
+/// Options of a tolerance-driven run.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AdaptiveOptions {
+    /// Relative tolerance of the local error (per component of `(q, v)`).
+    pub rtol: f64,
+    /// Absolute tolerance of the local error (per component of `(q, v)`).
+    pub atol: f64,
+    /// Magnitude of the first step tried; `None` estimates it from the
+    /// initial velocity and acceleration.
+    pub initial_step: Option<f64>,
+    /// Largest step magnitude; `None`: the whole interval.
+    pub max_step: Option<f64>,
+    /// Smallest step magnitude before the run gives up (the resolution of
+    /// `t` is a floor in any case).
+    pub min_step: f64,
+    /// Safety factor of the step-size proposals, in `(0, 1]`.
+    pub safety: f64,
+    /// Smallest factor by which one proposal shrinks the step, in `(0, 1)`.
+    pub min_factor: f64,
+    /// Largest factor by which one proposal grows the step, `> 1`.
+    pub max_factor: f64,
+    /// Largest number of step attempts (accepted and rejected).
+    pub max_steps: usize,
+    /// Record every `record_every`-th accepted step (and always the first
+    /// and last point); `0` records only the endpoints.
+    pub record_every: usize,
+    /// What to record.
+    pub observe: Observe,
+    /// How to treat an inconsistent initial velocity.
+    pub consistency: ConsistencyPolicy,
+}
+
+impl Default for AdaptiveOptions {
+    fn default() -> Self {
+        AdaptiveOptions {
+            rtol: 1e-6,
+            atol: 1e-6,
+            initial_step: None,
+            max_step: None,
+            min_step: 0.0,
+            safety: 0.9,
+            min_factor: 0.2,
+            max_factor: 5.0,
+            max_steps: 10_000_000,
+            record_every: 1,
+            observe: Observe::default(),
+            consistency: ConsistencyPolicy::default(),
+        }
+    }
+}
+
+impl AdaptiveOptions {
+    /// Checks every field against its allowed range.
+    pub fn validate(&self) -> Result<(), OptionError> {
+        // rtol, atol ≥ 0 with one of them positive; below 1e-15 relative the
+        // estimate is round-off, so such a tolerance cannot be met.
+        if !(self.rtol.is_finite() && self.rtol >= 0.0) {
+            return Err(OptionError::float("AdaptiveOptions::rtol", self.rtol, "finite and non-negative"));
+        }
+        if !(self.atol.is_finite() && self.atol >= 0.0) {
+            return Err(OptionError::float("AdaptiveOptions::atol", self.atol, "finite and non-negative"));
+        }
+        if self.rtol == 0.0 && self.atol == 0.0 {
+            return Err(OptionError::float("AdaptiveOptions::atol", self.atol, "positive when rtol is 0"));
+        }
+        if self.rtol > 0.0 && self.rtol < 1e-15 {
+            return Err(OptionError::float(
+                "AdaptiveOptions::rtol",
+                self.rtol,
+                "0 or at least 1e-15 (round-off in double precision)",
+            ));
+        }
+        if let Some(h) = self.initial_step {
+            if !(h.is_finite() && h > 0.0) {
+                return Err(OptionError::float(
+                    "AdaptiveOptions::initial_step",
+                    h,
+                    "finite and positive (a magnitude; None estimates it)",
+                ));
+            }
+        }
+        if let Some(h) = self.max_step {
+            if h.is_nan() || h <= 0.0 {
+                return Err(OptionError::float("AdaptiveOptions::max_step", h, "positive (None: no limit)"));
+            }
+        }
+        if !(self.min_step.is_finite() && self.min_step >= 0.0) {
+            return Err(OptionError::float("AdaptiveOptions::min_step", self.min_step, "finite and non-negative"));
+        }
+        if let Some(h) = self.max_step {
+            if h < self.min_step {
+                return Err(OptionError::float("AdaptiveOptions::max_step", h, "at least AdaptiveOptions::min_step"));
+            }
+        }
+        if !(self.safety > 0.0 && self.safety <= 1.0) {
+            return Err(OptionError::float("AdaptiveOptions::safety", self.safety, "in (0, 1]"));
+        }
+        if !(self.min_factor > 0.0 && self.min_factor < 1.0) {
+            return Err(OptionError::float("AdaptiveOptions::min_factor", self.min_factor, "in (0, 1)"));
+        }
+        if !(self.max_factor > 1.0 && self.max_factor.is_finite()) {
+            return Err(OptionError::float("AdaptiveOptions::max_factor", self.max_factor, "finite and above 1"));
+        }
+        if self.max_steps == 0 {
+            return Err(OptionError::integer("AdaptiveOptions::max_steps", 0, "at least 1"));
+        }
+        self.consistency.validate()
+    }
+}
+
+/// One step with its error estimate (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimatedStep<const N: usize> {
+    /// The state after the two half steps (the one a run keeps).
+    pub state: State<N>,
+    /// The estimated local error of `state.q`: `(q_h − q_{h/2})/(2^p − 1)`.
+    pub error_q: Vector<N>,
+    /// The estimated local error of `state.v`.
+    pub error_v: Vector<N>,
+    /// The error in the weighted RMS norm (`≤ 1` meets the tolerance).
+    pub scaled_error: f64,
+    /// Newton iterations of the three solves.
+    pub iterations: usize,
+}
+
+/// The weighted RMS norm of `(eq, ev)` with weights `atol + rtol·max(|a|, |b|)`.
+fn scaled_norm<const N: usize>(
+    eq: &Vector<N>,
+    ev: &Vector<N>,
+    a: &State<N>,
+    b: &State<N>,
+    rtol: f64,
+    atol: f64,
+) -> f64 {
+    let mut sum = 0.0;
+    for i in 0..N {
+        let wq = atol + rtol * a.q[i].abs().max(b.q[i].abs());
+        let wv = atol + rtol * a.v[i].abs().max(b.v[i].abs());
+        sum += (eq[i] / wq).powi(2) + (ev[i] / wv).powi(2);
+    }
+    (sum / (2 * N).max(1) as f64).sqrt()
+}
+
+/// Which solve of a step with estimate failed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EstimateFailure {
+    /// Step solves that succeeded before the failure.
+    pub solves: usize,
+    /// Newton iterations of those solves.
+    pub iterations: usize,
+    /// The failure.
+    pub error: StepError,
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// One step of size `h` from `state` with its local error estimate by
+    /// step doubling (module docs): the whole step, then two half steps from
+    /// `state`. The stepper continues from the half steps' end (a following
+    /// step from `result.state` is warm-started), as if only they had been
+    /// taken. On failure the stepper continues from `state` again.
+    pub fn step_with_estimate(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        rtol: f64,
+        atol: f64,
+    ) -> Result<EstimatedStep<N>, EstimateFailure> {
+        let saved = self.continuation();
+        let mut iterations = 0;
+        let mut solves = 0;
+        let fail = |this: &mut Self, solves: usize, iterations: usize, error: StepError| {
+            this.restore_continuation(&saved);
+            EstimateFailure { solves, iterations, error }
+        };
+        let whole = match self.step(state, h) {
+            Ok(r) => r.state,
+            Err(e) => return Err(fail(self, solves, iterations, e)),
+        };
+        iterations += self.last_history().len();
+        solves += 1;
+        self.restore_continuation(&saved);
+        let half = 0.5 * h;
+        let mid = match self.step(state, half) {
+            Ok(r) => r.state,
+            Err(e) => return Err(fail(self, solves, iterations, e)),
+        };
+        iterations += self.last_history().len();
+        solves += 1;
+        let end = match self.step(&mid, h - half) {
+            Ok(r) => r.state,
+            Err(e) => return Err(fail(self, solves, iterations, e)),
+        };
+        iterations += self.last_history().len();
+        let p = self.tableau().method.order(S) as i32;
+        let denominator = 2f64.powi(p) - 1.0;
+        let error_q = (whole.q - end.q) / denominator;
+        let error_v = (whole.v - end.v) / denominator;
+        let scaled_error = scaled_norm(&error_q, &error_v, state, &end, rtol, atol);
+        Ok(EstimatedStep { state: end, error_q, error_v, scaled_error, iterations })
+    }
+}
+
+/// Statistics of a tolerance-driven run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AdaptiveReport {
+    /// Accepted steps.
+    pub accepted: usize,
+    /// Steps rejected because the error estimate exceeded the tolerance.
+    pub rejected: usize,
+    /// Steps rejected because a Newton solve failed.
+    pub newton_failures: usize,
+    /// Step solves, successful or not (the cost: three per attempt with an
+    /// estimate, one per step of a reversible run).
+    pub solves: usize,
+    /// Newton iterations over all solves.
+    pub newton_iterations: usize,
+    /// Smallest accepted step magnitude.
+    pub smallest_step: f64,
+    /// Largest accepted step magnitude.
+    pub largest_step: f64,
+    /// The scale `ε` of a reversible run's step sizes `h = ε/ρ` (0 otherwise).
+    pub epsilon: f64,
+}
+
+/// A tolerance-driven run: the trajectory at the accepted steps (its
+/// [`RunReport`] counts accepted steps and their Newton iterations) and the
+/// controller's statistics.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AdaptiveRun<const N: usize, const M: usize> {
+    /// The recorded points.
+    pub trajectory: Trajectory<N, M>,
+    /// The controller's statistics.
+    pub report: AdaptiveReport,
+}
+
+/// A tolerance-driven run failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum AdaptiveError {
+    /// An option is out of range (checked before any step).
+    #[error("{0}")]
+    InvalidOption(OptionError),
+    /// The interval is unusable.
+    #[error("invalid interval t0 = {}, t_end = {}: {reason}", Sci(*t0), Sci(*t_end))]
+    InvalidInterval {
+        /// Start.
+        t0: f64,
+        /// End.
+        t_end: f64,
+        /// What is wrong.
+        reason: &'static str,
+    },
+    /// The initial state was rejected or could not be projected.
+    #[error("initial state: {0}")]
+    Initial(#[source] StepError),
+    /// A failure no smaller step can cure (e.g. a non-finite state).
+    #[error("step from t = {} failed: {source}", Sci(*t))]
+    Step {
+        /// Where.
+        t: f64,
+        /// Why.
+        source: StepError,
+        /// Statistics up to the failure.
+        partial: Box<AdaptiveReport>,
+    },
+    /// The controller asked for a step below the smallest allowed one.
+    #[error(
+        "step from t = {} needs h = {} below the smallest step {} (error estimate {} of the tolerance{}); \
+         loosen rtol/atol, lower AdaptiveOptions::min_step, or check the system for a singularity",
+        Sci(*t),
+        Sci(*h),
+        Sci(*min_step),
+        Sci(*scaled_error),
+        last_newton.as_ref().map(|e| format!("; last Newton failure: {e}")).unwrap_or_default()
+    )]
+    StepSizeTooSmall {
+        /// Where.
+        t: f64,
+        /// The step proposed.
+        h: f64,
+        /// The floor (`min_step`, or the resolution of `t`).
+        min_step: f64,
+        /// The last scaled error estimate (∞ after a Newton failure).
+        scaled_error: f64,
+        /// The last Newton failure, if the last attempt failed in Newton.
+        last_newton: Option<Box<StepError>>,
+        /// Statistics up to the failure.
+        partial: Box<AdaptiveReport>,
+    },
+    /// `max_steps` attempts did not reach the final time.
+    #[error(
+        "{attempts} step attempts reached t = {} of t_end = {}; raise AdaptiveOptions::max_steps or loosen the tolerance",
+        Sci(*t),
+        Sci(*t_end)
+    )]
+    TooManySteps {
+        /// Attempts made.
+        attempts: usize,
+        /// Time reached.
+        t: f64,
+        /// Requested end.
+        t_end: f64,
+        /// Statistics up to the failure.
+        partial: Box<AdaptiveReport>,
+    },
+    /// The reversible rule needs a positive, finite step density.
+    #[error("the step density σ = {} at t = {} is not finite and positive", Sci(*sigma), Sci(*t))]
+    InvalidDensity {
+        /// Where.
+        t: f64,
+        /// The value.
+        sigma: f64,
+    },
+    /// The reversible rule needs a symmetric method.
+    #[error(
+        "{method} is not symmetric; reversible stepping needs Gauss, Lobatto IIIA-B or the Lobatto IIIB-A LDA method"
+    )]
+    NotSymmetric {
+        /// The method of the stepper.
+        method: Method,
+    },
+}
+
+/// Whether the method's step is symmetric (`Φ_{−h} = Φ_h^{−1}`).
+pub fn is_symmetric(method: Method) -> bool {
+    matches!(method, Method::Gauss | Method::LobattoIIIAB | Method::LobattoIIIBALda)
+}
+
+/// Records samples and tracks the run's energy and constraint figures.
+struct Recorder<const N: usize, const M: usize> {
+    samples: Vec<Sample<N, M>>,
+    run: RunReport,
+    e0: Option<f64>,
+    every: usize,
+    observe: Observe,
+}
+
+impl<const N: usize, const M: usize> Recorder<N, M> {
+    fn push(&mut self, s: Sample<N, M>) {
+        if let Some(r) = s.constraint_residual {
+            self.run.max_constraint_residual = self.run.max_constraint_residual.max(r);
+        }
+        if let (Some(e), Some(e0)) = (s.energy, self.e0) {
+            self.run.max_energy_error = self.run.max_energy_error.max((e - e0).abs());
+        }
+        self.samples.push(s);
+    }
+}
+
+/// Checks options and interval, projects `v₀` and prepares the stepper.
+#[allow(clippy::type_complexity)]
+fn start<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    options: &AdaptiveOptions,
+) -> Result<(State<N>, Recorder<N, M>), AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    options.validate().map_err(AdaptiveError::InvalidOption)?;
+    stepper.options().validate().map_err(AdaptiveError::InvalidOption)?;
+    if !t0.is_finite() || !t_end.is_finite() {
+        return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "times must be finite" });
+    }
+    if t0 == t_end {
+        return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "t_end must differ from t0" });
+    }
+    let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;
+    stepper.reset_run();
+    let accepted = match options.consistency {
+        ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
+    };
+    stepper.set_accepted_start_residual(accepted);
+    let state = State::new(t0, *q0, v);
+    let mut rec = Recorder {
+        samples: Vec::new(),
+        run: RunReport { projected_initial_velocity: v != *v0, ..RunReport::default() },
+        e0: None,
+        every: options.record_every,
+        observe: options.observe,
+    };
+    let first = stepper.sample(&state, &options.observe, 0);
+    rec.e0 = first.energy;
+    rec.push(first);
+    Ok((state, rec))
+}
+
+/// The first step magnitude when none is given (Hairer–Nørsett–Wanner,
+/// *Solving ODEs I*, §II.4): `0.01·‖y₀‖/‖y₀'‖` in the weighted norm, with
+/// `y₀' = (v₀, a₀)` from the consistent acceleration.
+fn initial_step<Sys, const N: usize, const M: usize>(sys: &Sys, state: &State<N>, options: &AdaptiveOptions) -> f64
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let a0 = consistent_acceleration(sys, state.t, &state.q, &state.v).map_or(Vector::zeros(), |(a, _)| a);
+    let d0 = scaled_norm(&state.q, &state.v, state, state, options.rtol, options.atol);
+    let d1 = scaled_norm(&state.v, &a0, state, state, options.rtol, options.atol);
+    if d0 < 1e-5 || d1 < 1e-5 || !d1.is_finite() {
+        1e-6
+    } else {
+        0.01 * d0 / d1
+    }
+}
+
+/// The resolution of `t` near `t`: a step below it does not advance time.
+fn resolution(t: f64) -> f64 {
+    16.0 * f64::EPSILON * t.abs().max(f64::MIN_POSITIVE)
+}
+
+/// Integrates from `(t₀, q₀, v₀)` to `t_end` (either direction) with step
+/// sizes chosen by the PI controller on the step-doubling error estimate
+/// (module docs), landing exactly on `t_end`. `observer` sees every
+/// accepted step with its Newton iterations (of the three solves).
+///
+/// Every run starts afresh (as [`Stepper::integrate`]); the options are
+/// checked first ([`AdaptiveOptions::validate`]).
+pub fn integrate_adaptive<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    options: &AdaptiveOptions,
+    observer: &mut O,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+{
+    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options)?;
+    let result = adaptive_loop(stepper, state, t_end, options, &mut rec, observer);
+    stepper.set_accepted_start_residual(0.0);
+    let report = result?;
+    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
+}
+
+fn finish<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &Stepper<Sys, N, M, S, D>,
+    mut rec: Recorder<N, M>,
+    report: AdaptiveReport,
+) -> AdaptiveRun<N, M>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    rec.run.steps = report.accepted;
+    if rec.run.steps > 0 {
+        rec.run.newton_iterations_mean = rec.run.newton_iterations_total as f64 / rec.run.steps as f64;
+    }
+    let source = Sys::SOURCE;
+    AdaptiveRun {
+        trajectory: Trajectory {
+            system: source.name.to_string(),
+            coordinates: source.coordinates.iter().map(|c| c.to_string()).collect(),
+            method: stepper.tableau().method,
+            stages: S,
+            samples: rec.samples,
+            report: rec.run,
+        },
+        report,
+    }
+}
+
+/// Records one accepted step.
+fn accept<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &Stepper<Sys, N, M, S, D>,
+    rec: &mut Recorder<N, M>,
+    observer: &mut O,
+    state: &State<N>,
+    iterations: usize,
+    index: usize,
+    last: bool,
+) where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+{
+    rec.run.newton_iterations_total += iterations;
+    rec.run.newton_iterations_max = rec.run.newton_iterations_max.max(iterations);
+    observer.observe(state, iterations);
+    if last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
+        let s = stepper.sample(state, &rec.observe, iterations);
+        rec.push(s);
+    }
+}
+
+fn adaptive_loop<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    mut state: State<N>,
+    t_end: f64,
+    options: &AdaptiveOptions,
+    rec: &mut Recorder<N, M>,
+    observer: &mut O,
+) -> Result<AdaptiveReport, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+{
+    let dir = (t_end - state.t).signum();
+    let span = (t_end - state.t).abs();
+    let max_step = options.max_step.unwrap_or(span).min(span);
+    let k = (stepper.tableau().method.order(S) + 1) as f64;
+    let (alpha, beta) = (0.7 / k, 0.4 / k);
+    let mut report = AdaptiveReport { smallest_step: f64::INFINITY, ..AdaptiveReport::default() };
+    let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), &state, options)).min(max_step);
+    let mut err_prev = 1.0f64;
+    let mut rejected_last = false;
+    let mut attempts = 0usize;
+    loop {
+        let remaining = (t_end - state.t).abs();
+        // Land on t_end; stretch a step that would leave a sliver behind.
+        let last = h >= remaining || remaining - h < 0.01 * h;
+        let this = if last { remaining } else { h };
+        let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
+        if this < floor {
+            return Err(AdaptiveError::StepSizeTooSmall {
+                t: state.t,
+                h: this,
+                min_step: floor,
+                scaled_error: f64::INFINITY,
+                last_newton: None,
+                partial: Box::new(report),
+            });
+        }
+        if attempts >= options.max_steps {
+            return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
+        }
+        attempts += 1;
+        // A rejected attempt must not leave the stepper continuing from its
+        // discarded end: the retry from `state` keeps its warm start and the
+        // round-off compensation of `state`.
+        let saved = stepper.continuation();
+        let step = stepper.step_with_estimate(&state, dir * this, options.rtol, options.atol);
+        match step {
+            Ok(est) => {
+                report.solves += 3;
+                report.newton_iterations += est.iterations;
+                let err = est.scaled_error;
+                if err <= 1.0 {
+                    let mut next = est.state;
+                    if last {
+                        next.t = t_end;
+                        stepper.retarget_warm_start(&next);
+                    }
+                    report.accepted += 1;
+                    report.smallest_step = report.smallest_step.min(this);
+                    report.largest_step = report.largest_step.max(this);
+                    accept(stepper, rec, observer, &next, est.iterations, report.accepted, last);
+                    state = next;
+                    if last {
+                        return Ok(report);
+                    }
+                    let mut factor = if err == 0.0 {
+                        options.max_factor
+                    } else {
+                        options.safety * err.powf(-alpha) * err_prev.powf(beta)
+                    };
+                    factor = factor.clamp(options.min_factor, options.max_factor);
+                    if rejected_last {
+                        factor = factor.min(1.0);
+                    }
+                    h = (this * factor).min(max_step);
+                    err_prev = err.max(1e-4);
+                    rejected_last = false;
+                } else if err.is_finite() {
+                    stepper.restore_continuation(&saved);
+                    report.rejected += 1;
+                    let factor = (options.safety * err.powf(-1.0 / k)).clamp(options.min_factor, 1.0);
+                    h = this * factor;
+                    rejected_last = true;
+                } else {
+                    stepper.restore_continuation(&saved);
+                    report.rejected += 1;
+                    h = this * options.min_factor;
+                    rejected_last = true;
+                }
+            }
+            Err(f) => {
+                report.solves += f.solves + 1;
+                report.newton_iterations += f.iterations + f.error.history().map_or(0, |h| h.len());
+                if !f.error.is_curable() {
+                    return Err(AdaptiveError::Step { t: state.t, source: f.error, partial: Box::new(report) });
+                }
+                report.newton_failures += 1;
+                stepper.reset_warm_start();
+                h = 0.25 * this;
+                rejected_last = true;
+                let floor = options.min_step.max(resolution(state.t));
+                if h < floor {
+                    return Err(AdaptiveError::StepSizeTooSmall {
+                        t: state.t,
+                        h,
+                        min_step: floor,
+                        scaled_error: f64::INFINITY,
+                        last_newton: Some(Box::new(f.error)),
+                        partial: Box::new(report),
+                    });
+                }
+            }
+        }
+    }
+}
+
+/// Integrates from `(t₀, q₀, v₀)` to `t_end` (either direction) with the
+/// reversible step-size rule of Hairer & Söderlind (module docs) for the
+/// step density `density(t, q, v) > 0` (steps per unit time, up to the
+/// scale `ε`; it should be even in `v` for reversibility). `ε` comes from
+/// the tolerances of `options` at the initial state; the step sizes are not
+/// error-controlled afterwards. The last step is shortened to land on
+/// `t_end` (the only step outside the symmetric rule). Only the symmetric
+/// methods are accepted ([`is_symmetric`]). `options.max_step`, when set,
+/// bounds every step (it bounds the density from below, which keeps the
+/// rule reversible).
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_reversible<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    density: F,
+    options: &AdaptiveOptions,
+    observer: &mut O,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
+{
+    let method = stepper.tableau().method;
+    if !is_symmetric(method) {
+        return Err(AdaptiveError::NotSymmetric { method });
+    }
+    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options)?;
+    let result = reversible_loop(stepper, state, t_end, &density, options, &mut rec, observer);
+    stepper.set_accepted_start_residual(0.0);
+    let report = result?;
+    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
+}
+
+/// `σ(y)` and `G(y) = σ̇(y)/σ(y)`, the derivative along the flow by a central
+/// difference in the direction `(1, v, a)`.
+fn density_and_rate<Sys, F, const N: usize, const M: usize>(
+    sys: &Sys,
+    density: &F,
+    state: &State<N>,
+) -> Result<(f64, f64), AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
+{
+    let sigma = density(state.t, &state.q, &state.v);
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(AdaptiveError::InvalidDensity { t: state.t, sigma });
+    }
+    let a = consistent_acceleration(sys, state.t, &state.q, &state.v).map_or(Vector::zeros(), |(a, _)| a);
+    // A time increment of 1e-5 of the local time scale 1/σ: the central
+    // difference errs by O(δ²) relative, far below what the rule needs.
+    let delta = 1e-5 / sigma;
+    let plus = density(state.t + delta, &(state.q + delta * state.v), &(state.v + delta * a));
+    let minus = density(state.t - delta, &(state.q - delta * state.v), &(state.v - delta * a));
+    let rate = (plus - minus) / (2.0 * delta * sigma);
+    if !rate.is_finite() {
+        return Err(AdaptiveError::InvalidDensity { t: state.t, sigma: if plus.is_finite() { minus } else { plus } });
+    }
+    Ok((sigma, rate))
+}
+
+fn reversible_loop<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    mut state: State<N>,
+    t_end: f64,
+    density: &F,
+    options: &AdaptiveOptions,
+    rec: &mut Recorder<N, M>,
+    observer: &mut O,
+) -> Result<AdaptiveReport, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
+{
+    let dir = (t_end - state.t).signum();
+    let span = (t_end - state.t).abs();
+    let max_step = options.max_step.unwrap_or(span).min(span);
+    let k = (stepper.tableau().method.order(S) + 1) as f64;
+    let mut report = AdaptiveReport { smallest_step: f64::INFINITY, ..AdaptiveReport::default() };
+    // ε from the tolerance: the first step size whose error estimate lies
+    // between ½ and 1 of the tolerance (a few estimates, none kept).
+    let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), &state, options)).min(max_step);
+    for _ in 0..30 {
+        let floor = options.min_step.max(resolution(state.t));
+        if h < floor {
+            return Err(AdaptiveError::StepSizeTooSmall {
+                t: state.t,
+                h,
+                min_step: floor,
+                scaled_error: f64::INFINITY,
+                last_newton: None,
+                partial: Box::new(report),
+            });
+        }
+        match stepper.step_with_estimate(&state, dir * h, options.rtol, options.atol) {
+            Ok(est) => {
+                report.solves += 3;
+                report.newton_iterations += est.iterations;
+                let err = est.scaled_error;
+                if err > 1.0 {
+                    h *= (options.safety * err.powf(-1.0 / k)).clamp(options.min_factor, 1.0);
+                } else if err < 0.5 && h < max_step {
+                    let grow = if err == 0.0 { options.max_factor } else { options.safety * err.powf(-1.0 / k) };
+                    h = (h * grow.clamp(1.0, options.max_factor)).min(max_step);
+                } else {
+                    break;
+                }
+            }
+            Err(f) => {
+                report.solves += f.solves + 1;
+                if !f.error.is_curable() {
+                    return Err(AdaptiveError::Step { t: state.t, source: f.error, partial: Box::new(report) });
+                }
+                report.newton_failures += 1;
+                h *= 0.25;
+            }
+        }
+        stepper.reset_run();
+    }
+    stepper.reset_run();
+    let (sigma0, g0) = density_and_rate(stepper.system(), density, &state)?;
+    let epsilon = h * sigma0;
+    report.epsilon = epsilon;
+    // Lower bound of ρ that keeps every step within max_step.
+    let rho_min = epsilon / max_step;
+    let mut rho = sigma0 + 0.5 * epsilon * dir * g0;
+    let mut attempts = 0usize;
+    loop {
+        let h = epsilon / rho.max(rho_min);
+        let remaining = (t_end - state.t).abs();
+        let last = h >= remaining;
+        let this = if last { remaining } else { h };
+        let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
+        if this.is_nan() || this < floor {
+            return Err(AdaptiveError::StepSizeTooSmall {
+                t: state.t,
+                h: this,
+                min_step: floor,
+                scaled_error: f64::NAN,
+                last_newton: None,
+                partial: Box::new(report),
+            });
+        }
+        if attempts >= options.max_steps {
+            return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
+        }
+        attempts += 1;
+        report.solves += 1;
+        let r = stepper.step(&state, dir * this).map_err(|source| {
+            let partial = Box::new(report);
+            AdaptiveError::Step { t: state.t, source, partial }
+        })?;
+        report.newton_iterations += r.iterations;
+        let mut next = r.state;
+        if last {
+            next.t = t_end;
+            stepper.retarget_warm_start(&next);
+        }
+        report.accepted += 1;
+        report.smallest_step = report.smallest_step.min(this);
+        report.largest_step = report.largest_step.max(this);
+        accept(stepper, rec, observer, &next, r.iterations, report.accepted, last);
+        state = next;
+        if last {
+            return Ok(report);
+        }
+        // The reversed run walks t backwards, so G changes sign with dir.
+        let (_, g) = density_and_rate(stepper.system(), density, &state)?;
+        rho += epsilon * dir * g;
+    }
+}
+
+#[cfg(test)]
+#[path = "adaptive_tests.rs"]
+mod tests;

@@ -1,0 +1,282 @@
+//! Tests of the error estimate, the PI controller and the reversible rule.
+
+use crate::adaptive::*;
+use crate::handwritten::{MobileRobot, MpParticles, OrbitParticle, Particle, Skate};
+use crate::reference::{integrate as reference, ReferenceOptions};
+use crate::*;
+
+type V<const N: usize> = Vector<N>;
+
+/// Largest and smallest ratio estimate/true local error over the step sizes
+/// whose true error lies well above round-off, and how many there were.
+fn estimate_ratios<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    sys: Sys,
+    method: Method,
+    state: State<N>,
+    hs: &[f64],
+) -> (f64, f64, usize)
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let mut st = Stepper::<Sys, N, M, S, D>::new(sys.clone(), Tableau::new(method).unwrap());
+    let (mut lo, mut hi, mut used) = (f64::INFINITY, 0.0f64, 0);
+    for &h in hs {
+        st.reset_run();
+        // A step size beyond the method's reach (Newton or the energy
+        // guard fails) has no local error to compare.
+        let Ok(est) = st.step_with_estimate(&state, h, 1e-6, 1e-6) else { continue };
+        let exact = reference(&sys, state.t, &state.q, &state.v, state.t + h, &ReferenceOptions::default()).unwrap();
+        let (dq, dv) = (est.state.q - exact.q[0], est.state.v - exact.v[0]);
+        let truth = (dq.norm_squared() + dv.norm_squared()).sqrt();
+        let estimate = (est.error_q.norm_squared() + est.error_v.norm_squared()).sqrt();
+        // Above 1e-10 the reference (≈ 1e-14) and Newton (≈ 1e-15) errors
+        // are negligible against the local error being measured.
+        if truth > 1e-10 && truth < 1e-2 {
+            let r = estimate / truth;
+            lo = lo.min(r);
+            hi = hi.max(r);
+            used += 1;
+        }
+    }
+    (lo, hi, used)
+}
+
+macro_rules! every_family {
+    ($sys:expr, $n:literal, $m:literal, $state:expr, $hs:expr, $out:ident) => {{
+        let s = $state;
+        let mut one = |name: String, (lo, hi, used): (f64, f64, usize)| {
+            let ok = used >= 2 && lo >= 0.1 && hi <= 10.0;
+            $out.push((ok, format!("{name}: estimate/true local error in [{lo:.3}, {hi:.3}] over {used} step sizes")));
+        };
+        let sys = $sys;
+        let label = |m: Method, s: usize| format!("{} {m} s={s}", stringify!($sys));
+        one(
+            label(Method::Gauss, 1),
+            estimate_ratios::<_, $n, $m, 1, { 1 * ($n + $m) + $n }>(sys.clone(), Method::Gauss, s, $hs),
+        );
+        one(
+            label(Method::Gauss, 2),
+            estimate_ratios::<_, $n, $m, 2, { 2 * ($n + $m) + $n }>(sys.clone(), Method::Gauss, s, $hs),
+        );
+        one(
+            label(Method::Gauss, 3),
+            estimate_ratios::<_, $n, $m, 3, { 3 * ($n + $m) + $n }>(sys.clone(), Method::Gauss, s, $hs),
+        );
+        for method in
+            [Method::LobattoIIIAB, Method::LobattoIIIABD, Method::ModifiedLobattoIIIAB, Method::LobattoIIIBALda]
+        {
+            one(label(method, 2), estimate_ratios::<_, $n, $m, 2, { 2 * ($n + $m) + $n }>(sys.clone(), method, s, $hs));
+        }
+        for method in [Method::LobattoIIIAB, Method::LobattoIIIABD] {
+            one(label(method, 3), estimate_ratios::<_, $n, $m, 3, { 3 * ($n + $m) + $n }>(sys.clone(), method, s, $hs));
+        }
+        for method in [Method::SymplecticEulerI, Method::SymplecticEulerII] {
+            one(label(method, 1), estimate_ratios::<_, $n, $m, 1, { 1 * ($n + $m) + $n }>(sys.clone(), method, s, $hs));
+        }
+    }};
+}
+
+const HS: [f64; 6] = [0.8, 0.4, 0.2, 0.1, 0.05, 0.025];
+
+#[test]
+fn step_doubling_estimate_tracks_the_true_local_error_within_a_factor_10() {
+    let mut out = Vec::new();
+    every_family!(Particle, 3, 1, State::new(0.0, V::<3>::new(1.0, 0.0, 0.0), V::<3>::new(0.0, 1.0, 0.0)), &HS, out);
+    every_family!(Skate::default(), 3, 1, State::new(0.0, V::<3>::zeros(), V::<3>::new(0.0, 0.0, 1.0)), &HS, out);
+    every_family!(
+        MobileRobot::default(),
+        4,
+        2,
+        State::new(0.0, V::<4>::zeros(), V::<4>::new(1.0, 0.0, 0.5, 1.0)),
+        &HS,
+        out
+    );
+    let mq = V::<7>::from_row_slice(&[0.8, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+    let mv = V::<7>::from_row_slice(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    every_family!(MpParticles, 7, 1, State::new(0.0, mq, mv), &HS, out);
+    // The orbit at its farthest point and near its closest one.
+    every_family!(
+        OrbitParticle::default(),
+        3,
+        1,
+        State::new(0.0, V::<3>::new(1.0, 0.0, 0.0), V::<3>::new(0.0, 0.3, 0.0)),
+        &HS,
+        out
+    );
+    for (_, line) in &out {
+        println!("{line}");
+    }
+    let bad: Vec<&str> = out.iter().filter(|(ok, _)| !ok).map(|(_, l)| l.as_str()).collect();
+    assert!(bad.is_empty(), "at least 2 step sizes with the ratio in [0.1, 10] needed:\n{}", bad.join("\n"));
+}
+
+fn orbit() -> (OrbitParticle, State<3>) {
+    (OrbitParticle::default(), State::new(0.0, V::<3>::new(1.0, 0.0, 0.0), V::<3>::new(0.0, 0.3, 0.0)))
+}
+
+fn orbit_run(tol: f64, t_end: f64) -> (AdaptiveRun<3, 1>, f64) {
+    let (sys, s) = orbit();
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let options = AdaptiveOptions { rtol: tol, atol: tol, record_every: 0, ..AdaptiveOptions::default() };
+    let run = integrate_adaptive(&mut st, s.t, &s.q, &s.v, t_end, &options, &mut NoObserver).unwrap();
+    let exact = reference(&sys, s.t, &s.q, &s.v, t_end, &ReferenceOptions::default()).unwrap();
+    let last = run.trajectory.last().unwrap();
+    assert_eq!(last.t, t_end);
+    let err = ((last.q - exact.q[0]).norm_squared() + (last.v - exact.v[0]).norm_squared()).sqrt();
+    (run, err)
+}
+
+#[test]
+fn controller_error_follows_the_tolerance_and_steps_follow_the_time_scale() {
+    let (loose, e_loose) = orbit_run(1e-5, 3.0);
+    let (tight, e_tight) = orbit_run(1e-8, 3.0);
+    println!("tol 1e-5: error {e_loose:.3e}, {:?}", loose.report);
+    println!("tol 1e-8: error {e_tight:.3e}, {:?}", tight.report);
+    // Three decades of tolerance buy about two decades of global error
+    // (order 4: `tol^{4/5}` per unit time, amplified by the close passes).
+    assert!(e_tight < e_loose / 50.0, "error {e_tight:.3e} at 1e-8 vs {e_loose:.3e} at 1e-5");
+    // The orbit's time scale varies by ≈ 100: so do the accepted steps.
+    for r in [&loose.report, &tight.report] {
+        assert!(r.largest_step > 20.0 * r.smallest_step, "{r:?}");
+        assert!(r.rejected > 0, "{r:?}");
+        if r.newton_failures == 0 {
+            assert_eq!(r.solves, 3 * (r.accepted + r.rejected));
+        }
+    }
+}
+
+#[test]
+fn adaptive_steps_beat_fixed_steps_of_equal_cost_on_the_orbit() {
+    let t_end = 3.0;
+    let (run, e_adaptive) = orbit_run(1e-8, t_end);
+    let (sys, s) = orbit();
+    let solves = run.report.solves;
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let options = RunOptions { record_every: 0, ..RunOptions::default() };
+    let traj = st
+        .integrate(
+            s.t,
+            &s.q,
+            &s.v,
+            Schedule::Fixed { h: t_end / solves as f64, steps: solves },
+            &options,
+            &mut NoObserver,
+        )
+        .unwrap();
+    let exact = reference(&sys, s.t, &s.q, &s.v, t_end, &ReferenceOptions::default()).unwrap();
+    let last = traj.last().unwrap();
+    let e_fixed = ((last.q - exact.q[0]).norm_squared() + (last.v - exact.v[0]).norm_squared()).sqrt();
+    println!("{solves} solves: adaptive error {e_adaptive:.3e}, fixed error {e_fixed:.3e}");
+    assert!(e_fixed > 10.0 * e_adaptive, "fixed {e_fixed:.3e} vs adaptive {e_adaptive:.3e} at {solves} solves");
+}
+
+#[test]
+fn adaptive_run_integrates_backward_and_reports_its_failures() {
+    let (sys, s) = orbit();
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let o = AdaptiveOptions { rtol: 1e-8, atol: 1e-8, ..AdaptiveOptions::default() };
+    let fwd = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 1.0, &o, &mut NoObserver).unwrap();
+    let end = fwd.trajectory.last().unwrap();
+    let back = integrate_adaptive(&mut st, end.t, &end.q, &end.v, 0.0, &o, &mut NoObserver).unwrap();
+    let start = back.trajectory.last().unwrap();
+    assert_eq!(start.t, 0.0);
+    assert!((start.q - s.q).amax() < 1e-5 && (start.v - s.v).amax() < 1e-5, "{start:?}");
+    assert_eq!(fwd.trajectory.samples.len(), fwd.report.accepted + 1);
+    let few = AdaptiveOptions { max_steps: 3, ..o };
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &few, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 3, .. }), "{err}");
+    let floor = AdaptiveOptions { min_step: 0.5, initial_step: Some(1.0), ..o };
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &floor, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::StepSizeTooSmall { .. }), "{err}");
+    assert!(err.to_string().contains("loosen rtol/atol"), "{err}");
+}
+
+#[test]
+fn every_adaptive_option_is_checked_before_any_step() {
+    let (sys, s) = orbit();
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let d = AdaptiveOptions::default();
+    let cases: Vec<(AdaptiveOptions, &str)> = vec![
+        (AdaptiveOptions { rtol: f64::NAN, ..d }, "AdaptiveOptions::rtol"),
+        (AdaptiveOptions { rtol: 1e-17, ..d }, "AdaptiveOptions::rtol"),
+        (AdaptiveOptions { atol: -1.0, ..d }, "AdaptiveOptions::atol"),
+        (AdaptiveOptions { atol: 0.0, rtol: 0.0, ..d }, "AdaptiveOptions::atol"),
+        (AdaptiveOptions { initial_step: Some(0.0), ..d }, "AdaptiveOptions::initial_step"),
+        (AdaptiveOptions { initial_step: Some(f64::INFINITY), ..d }, "AdaptiveOptions::initial_step"),
+        (AdaptiveOptions { max_step: Some(f64::NAN), ..d }, "AdaptiveOptions::max_step"),
+        (AdaptiveOptions { max_step: Some(1e-3), min_step: 1e-2, ..d }, "AdaptiveOptions::max_step"),
+        (AdaptiveOptions { min_step: -1.0, ..d }, "AdaptiveOptions::min_step"),
+        (AdaptiveOptions { safety: 0.0, ..d }, "AdaptiveOptions::safety"),
+        (AdaptiveOptions { safety: 1.5, ..d }, "AdaptiveOptions::safety"),
+        (AdaptiveOptions { min_factor: 1.0, ..d }, "AdaptiveOptions::min_factor"),
+        (AdaptiveOptions { max_factor: 1.0, ..d }, "AdaptiveOptions::max_factor"),
+        (AdaptiveOptions { max_factor: f64::INFINITY, ..d }, "AdaptiveOptions::max_factor"),
+        (AdaptiveOptions { max_steps: 0, ..d }, "AdaptiveOptions::max_steps"),
+        (AdaptiveOptions { consistency: ConsistencyPolicy::Error { tolerance: f64::NAN }, ..d }, "ConsistencyPolicy"),
+    ];
+    for (o, name) in cases {
+        let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 1.0, &o, &mut NoObserver).unwrap_err();
+        assert!(matches!(err, AdaptiveError::InvalidOption(_)) && err.to_string().contains(name), "{name}: {err}");
+        let err = integrate_reversible(&mut st, s.t, &s.q, &s.v, 1.0, |_, _, _| 1.0, &o, &mut NoObserver).unwrap_err();
+        assert!(matches!(err, AdaptiveError::InvalidOption(_)), "{name}: {err}");
+    }
+    for t_end in [0.0, f64::NAN, f64::INFINITY] {
+        let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, t_end, &d, &mut NoObserver).unwrap_err();
+        assert!(matches!(err, AdaptiveError::InvalidInterval { .. }), "{err}");
+    }
+    let bad_v = V::<3>::new(0.0, 0.3, 1.0);
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &bad_v, 1.0, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::Initial(_)), "{err}");
+    let err = integrate_reversible(&mut st, s.t, &s.q, &s.v, 1.0, |_, _, _| -1.0, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::InvalidDensity { .. }), "{err}");
+    let mut euler: Stepper![OrbitParticle, 1] = Stepper::new(sys, Tableau::new(Method::SymplecticEulerI).unwrap());
+    let err = integrate_reversible(&mut euler, s.t, &s.q, &s.v, 1.0, |_, _, _| 1.0, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::NotSymmetric { .. }), "{err}");
+}
+
+#[test]
+fn a_step_with_estimate_continues_like_the_half_steps_it_keeps() {
+    let (sys, s) = orbit();
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let est = st.step_with_estimate(&s, 0.1, 1e-8, 1e-8).unwrap();
+    assert!(st.is_warm_for(&est.state));
+    // The kept state is the two half steps, bit for bit.
+    let mut plain: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let mid = plain.step(&s, 0.05).unwrap().state;
+    let end = plain.step(&mid, 0.05).unwrap().state;
+    assert_eq!(end, est.state);
+    // A failed attempt leaves the stepper continuing from where it was.
+    let next = st.step_with_estimate(&est.state, 1e6, 1e-8, 1e-8);
+    assert!(next.is_err());
+    assert!(st.is_warm_for(&est.state));
+}
+
+/// `σ = r^{−3/2}`: the orbit's local time scale.
+fn orbit_density(q: &V<3>) -> f64 {
+    OrbitParticle::default().radius(q).powf(-1.5)
+}
+
+#[test]
+fn reversible_steps_keep_the_energy_error_bounded() {
+    let (sys, s) = orbit();
+    let tol = 1e-6;
+    let o = AdaptiveOptions { rtol: tol, atol: tol, record_every: 1, ..AdaptiveOptions::default() };
+    let energy_error = |traj: &Trajectory<3, 1>, upto: f64| -> f64 {
+        let e0 = traj.samples[0].energy.unwrap();
+        traj.samples.iter().filter(|p| p.t <= upto).map(|p| (p.energy.unwrap() - e0).abs()).fold(0.0, f64::max)
+    };
+    let (t1, t2) = (25.0, 200.0);
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let rev =
+        integrate_reversible(&mut st, s.t, &s.q, &s.v, t2, |_, q, _| orbit_density(q), &o, &mut NoObserver).unwrap();
+    let ada = integrate_adaptive(&mut st, s.t, &s.q, &s.v, t2, &o, &mut NoObserver).unwrap();
+    let (r1, r2) = (energy_error(&rev.trajectory, t1), energy_error(&rev.trajectory, t2));
+    let (a1, a2) = (energy_error(&ada.trajectory, t1), energy_error(&ada.trajectory, t2));
+    println!("reversible: |ΔE| {r1:.3e} to t = {t1}, {r2:.3e} to t = {t2}; {:?}", rev.report);
+    println!("controlled: |ΔE| {a1:.3e} to t = {t1}, {a2:.3e} to t = {t2}; {:?}", ada.report);
+    assert!(r2 < 2.0 * r1, "reversible energy error grows: {r1:.3e} → {r2:.3e}");
+    // The error-controlled step sequence is not symmetric: its energy error
+    // drifts (about linearly in t).
+    assert!(a2 > 4.0 * a1, "controlled energy error {a1:.3e} → {a2:.3e}");
+    assert!(rev.report.largest_step > 20.0 * rev.report.smallest_step, "{:?}", rev.report);
+}
