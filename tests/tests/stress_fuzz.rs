@@ -278,7 +278,7 @@ fn bounded_steps(x: &Extended) -> usize {
     // A step count beyond a few dozen is only exercised where the run cannot
     // get far: a step size whose accumulated time overflows, or a record
     // interval that makes the reserve arithmetic extreme.
-    if x.steps > 64 && !(x.base.h.abs() > 1e290 || !x.base.h.is_finite()) {
+    if x.steps > 64 && x.base.h.is_finite() && x.base.h.abs() <= 1e290 {
         x.steps % 64
     } else {
         x.steps
