@@ -302,13 +302,11 @@ where
     Sys: NonholonomicSystem<N, M>,
 {
     Sample {
-            t: state.t,
+        t: state.t,
         q: state.q,
         v: state.v,
         energy: observe.energy.then(|| sys.energy(state.t, &state.q, &state.v)),
-        constraint_residual: observe
-            .constraint_residual
-            .then(|| sys.constraint(state.t, &state.q, &state.v).amax()),
+        constraint_residual: observe.constraint_residual.then(|| sys.constraint(state.t, &state.q, &state.v).amax()),
         multipliers: if observe.multipliers {
             consistent_acceleration(sys, state.t, &state.q, &state.v).map(|(_, psi)| psi)
         } else {

@@ -137,15 +137,15 @@ pub mod tableau;
 #[cfg(test)]
 mod tests;
 
+pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
     DEFAULT_MAX_HALVINGS,
 };
-pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{
-    Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents, SystemEvents, EVENT_SUBINTERVALS,
-    EVENT_TIME_TOLERANCE,
+    Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents, SystemEvents,
+    EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use options::MAX_HALVINGS;

@@ -99,10 +99,8 @@ fn check_system<Sys, const N: usize, const M: usize, const D: usize>(
 where
     Sys: NonholonomicSystem<N, M> + Clone,
 {
-    let specs: Vec<EventSpec> = gs
-        .iter()
-        .map(|_| EventSpec { name: "g", direction: Direction::Both, terminal: false, source: "" })
-        .collect();
+    let specs: Vec<EventSpec> =
+        gs.iter().map(|_| EventSpec { name: "g", direction: Direction::Both, terminal: false, source: "" }).collect();
     let gradient = |i: usize, t: f64, q: &Vector<N>, v: &Vector<N>| gs[i].gradient(t, q, v);
     let events = RuntimeEvents { specs: &specs, gradient: &gradient };
     let mut st = Stepper::<Sys, N, M, 4, D>::new(sys.clone(), Tableau::new(Method::Gauss).unwrap());

@@ -76,7 +76,9 @@ mod tests;
 
 pub use locate::{find_declaration, LocateError};
 
-use crate::spec::{Constant, ConstraintSpec, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec};
+use crate::spec::{
+    Constant, ConstraintSpec, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec,
+};
 use expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
 use names::{list, nearest, reserved_reason};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
@@ -669,7 +671,10 @@ fn parse_events(group: &Group, scope: &Scope<'_>) -> Result<Vec<EventDecl>, Spec
                 return err(second.span(), format!("expected `:` after event `{id}`: write e.g. {example}"))
             }
             [first, ..] => {
-                return err(first.span(), format!("expected an event name, found {}; write e.g. {example}", describe(first)))
+                return err(
+                    first.span(),
+                    format!("expected an event name, found {}; write e.g. {example}", describe(first)),
+                )
             }
         };
         if out.iter().any(|e| e.name.name == ident.to_string()) {
@@ -684,7 +689,7 @@ fn parse_events(group: &Group, scope: &Scope<'_>) -> Result<Vec<EventDecl>, Spec
 /// `expr [terminal]`), named `ident`.
 pub(crate) fn parse_event(ident: &Ident, value: &[TokenTree], scope: &Scope<'_>) -> Result<EventDecl, SpecError> {
     let mut value = value;
-        let name = ident.to_string();
+    let name = ident.to_string();
     if let Some(reason) = reserved_reason(&name) {
         return err(ident.span(), format!("{reason}; choose another name for this event"));
     }

@@ -441,7 +441,9 @@ fn parse_scenes(
                     if spec.events.iter().any(|e| e.name.name == decl.name.name) {
                         return err(
                             id.span(),
-                            format!("scene `{name}` already has an event `{key}` from the base declaration; rename one"),
+                            format!(
+                                "scene `{name}` already has an event `{key}` from the base declaration; rename one"
+                            ),
                         );
                     }
                     spec.events.push(decl.clone());
