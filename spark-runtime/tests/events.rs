@@ -376,7 +376,7 @@ nonholonomic_system! {
 
 #[test]
 fn dsl_events_have_exact_derivatives_and_stop_terminal_runs() {
-    assert!(<Ball as NonholonomicSystem<2, 1>>::HAS_EVENTS);
+    const { assert!(<Ball as NonholonomicSystem<2, 1>>::HAS_EVENTS) };
     let specs = <Ball as NonholonomicSystem<2, 1>>::EVENTS;
     let names: Vec<&str> = specs.iter().map(|s| s.name).collect();
     assert_eq!(names, ["ground", "apex", "crossing_half", "timed"]);

@@ -677,7 +677,7 @@ fn parse_events(group: &Group, scope: &Scope<'_>) -> Result<Vec<EventDecl>, Spec
                 )
             }
         };
-        if out.iter().any(|e| e.name.name == ident.to_string()) {
+        if out.iter().any(|e| *ident == e.name.name) {
             return err(ident.span(), format!("event `{ident}` is declared twice; give each event its own name"));
         }
         out.push(parse_event(ident, value, scope)?);
