@@ -148,3 +148,110 @@ fn dense_output_orders_on_the_paper_systems() {
     println!("{}", rows.join("\n"));
     assert!(failures.is_empty(), "dense-output orders below the documented ones:\n{}", failures.join("\n"));
 }
+
+/// Records every dense step's ends and a midpoint sample.
+struct Dense {
+    steps: Vec<(State<3>, State<3>, State<3>)>,
+}
+
+impl spark_runtime::Observer<3, 1> for Dense {
+    const DENSE: bool = true;
+    fn observe(&mut self, _: &State<3>, _: usize) {}
+    fn observe_dense<const S: usize>(&mut self, step: &spark_runtime::DenseStep<'_, 3, S>) {
+        let mid = 0.5 * (step.start.t + step.end.t);
+        self.steps.push((step.state_at(step.start.t), step.state_at(step.end.t), step.state_at(mid)));
+    }
+}
+
+#[test]
+fn sampled_schedules_keep_h_and_agree_with_the_grid() {
+    let start = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    let mut st = Stepper::<Particle, 3, 1, 2, 11>::new(Particle, Tableau::new(Method::Gauss).unwrap());
+    let fixed = st
+        .integrate(
+            0.0,
+            &start.q,
+            &start.v,
+            Schedule::Fixed { h: 0.1, steps: 10 },
+            &RunOptions::default(),
+            &mut NoObserver,
+        )
+        .unwrap();
+    // Grid times sampled through the dense output are the grid states, bit for bit.
+    let times: Vec<f64> = (1..=10).map(|k| k as f64 * 0.1).collect();
+    let sampled = st
+        .integrate(
+            0.0,
+            &start.q,
+            &start.v,
+            Schedule::Sampled { h: 0.1, times: &times },
+            &RunOptions::default(),
+            &mut NoObserver,
+        )
+        .unwrap();
+    assert_eq!(sampled.report.steps, 10);
+    for (a, b) in fixed.samples.iter().zip(&sampled.samples) {
+        assert_eq!((a.t, a.q, a.v), (b.t, b.q, b.v));
+    }
+    // Off-grid times do not change the steps: the run takes ⌈0.95/0.1⌉ = 10 steps of 0.1.
+    let off = [0.05, 0.33, 0.95];
+    let traj = st
+        .integrate(
+            0.0,
+            &start.q,
+            &start.v,
+            Schedule::Sampled { h: 0.1, times: &off },
+            &RunOptions::default(),
+            &mut NoObserver,
+        )
+        .unwrap();
+    assert_eq!(traj.report.steps, 10);
+    let got: Vec<f64> = traj.samples.iter().map(|s| s.t).collect();
+    assert_eq!(got, [0.0, 0.05, 0.33, 0.95]);
+    // Backward.
+    let back = [-0.05, -0.25];
+    let traj = st
+        .integrate(
+            0.0,
+            &start.q,
+            &start.v,
+            Schedule::Sampled { h: -0.1, times: &back },
+            &RunOptions::default(),
+            &mut NoObserver,
+        )
+        .unwrap();
+    assert_eq!(traj.report.steps, 3);
+    assert_eq!(traj.samples.len(), 3);
+    // Unusable schedules are errors, not panics.
+    for (h, times) in [(0.1, &[0.3, 0.2][..]), (0.1, &[-0.1][..]), (0.0, &[0.1][..]), (0.1, &[f64::NAN][..])] {
+        let r = st.integrate(
+            0.0,
+            &start.q,
+            &start.v,
+            Schedule::Sampled { h, times },
+            &RunOptions::default(),
+            &mut NoObserver,
+        );
+        assert!(matches!(r, Err(spark_runtime::IntegrationError::InvalidSchedule(_))), "h = {h}, times = {times:?}");
+    }
+}
+
+#[test]
+fn dense_observers_see_every_step_continuously() {
+    let start = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    for method in [Method::Gauss, Method::LobattoIIIAB] {
+        let mut st = Stepper::<Particle, 3, 1, 2, 11>::new(Particle, Tableau::new(method).unwrap());
+        let mut obs = Dense { steps: Vec::new() };
+        let traj = st
+            .integrate(0.0, &start.q, &start.v, Schedule::Fixed { h: 0.2, steps: 5 }, &RunOptions::default(), &mut obs)
+            .unwrap();
+        assert_eq!(obs.steps.len(), 5);
+        for (k, (a, b, mid)) in obs.steps.iter().enumerate() {
+            let (s0, s1) = (&traj.samples[k], &traj.samples[k + 1]);
+            assert_eq!((a.q, a.v), (s0.q, s0.v), "{method}: start of step {k}");
+            assert_eq!((b.q, b.v), (s1.q, s1.v), "{method}: end of step {k}");
+            // The midpoint lies between, close to both ends' average.
+            assert!((mid.q - 0.5 * (a.q + b.q)).amax() < 0.05, "{method}: midpoint of step {k}");
+        }
+    }
+}
