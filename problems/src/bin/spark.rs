@@ -513,8 +513,7 @@ fn section_command(a: SectionArgs) -> Result<(), String> {
         return Err(format!("--members must lie in 1..={}, got {}", problems::section::MAX_SECTION_MEMBERS, a.members));
     }
     let steps = step_count(t0, t_end, h)?;
-    let mut newton = spark_runtime::NewtonOptions::default();
-    newton.mode = a.newton.into();
+    let newton = spark_runtime::NewtonOptions { mode: a.newton.into(), ..spark_runtime::NewtonOptions::default() };
     let spec = SectionSpec {
         system: entry.kind,
         event: a.event.clone(),
@@ -529,6 +528,13 @@ fn section_command(a: SectionArgs) -> Result<(), String> {
     };
     let mut out = OutputDir::open(&a.out).map_err(|e| e.to_string())?;
     let section = run_section(&spec).map_err(|e| e.to_string())?;
+    if section.points.is_empty() {
+        return Err(format!(
+            "no member crossed `{}` ({} = 0, {:?}) by t = {t_end:.6e}: there is no crossing of the event to plot; \
+             integrate longer with --t-end, or choose another event",
+            section.event, section.source, section.direction
+        ));
+    }
     write_section(&section, &spec, (x, y), &mut out).map_err(|e| e.to_string())?;
     let files = out.commit().map_err(|e| e.to_string())?;
     println!(
