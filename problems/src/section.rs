@@ -168,7 +168,7 @@ pub enum SectionError {
     Invalid(String),
     /// The setting of the runs is rejected (parameters, method, stages).
     #[error(transparent)]
-    Run(#[from] RunError),
+    Run(Box<RunError>),
     /// One member's integration failed.
     #[error("member {member} (q0 = {q0:?}, v0 = {v0:?}): {source}")]
     Member {
@@ -179,8 +179,14 @@ pub enum SectionError {
         /// Its initial velocities.
         v0: Vec<f64>,
         /// What went wrong.
-        source: RunError,
+        source: Box<RunError>,
     },
+}
+
+impl From<RunError> for SectionError {
+    fn from(e: RunError) -> Self {
+        SectionError::Run(Box::new(e))
+    }
 }
 
 /// The events `kind` declares.
@@ -314,7 +320,7 @@ pub fn run_section(spec: &SectionSpec) -> Result<Section, SectionError> {
                 member,
                 q0: q0.clone(),
                 v0: v0.clone(),
-                source,
+                source: Box::new(source),
             })
         })
         .collect();

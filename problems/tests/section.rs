@@ -62,9 +62,9 @@ fn check_section<Sys: NonholonomicSystem<N, M> + Default, const N: usize, const 
     assert!(rows > 0, "{system}: no section points");
     let mut seen = vec![0usize; members];
     let mut last_t = vec![f64::NEG_INFINITY; members];
-    for r in 0..rows {
-        let member = cols[0][r] as usize;
-        assert!(member < members && cols[0][r] == member as f64, "row {r}: member {}", cols[0][r]);
+    for (r, &m) in cols[0].iter().enumerate() {
+        let member = m as usize;
+        assert!(member < members && m == member as f64, "row {r}: member {m}");
         let t = cols[1][r];
         assert!(t > last_t[member], "row {r}: times of member {member} not increasing");
         last_t[member] = t;
