@@ -84,7 +84,9 @@ def check_system(entry: Dict, perturb_path: Optional[str], corrupt: Optional[str
     if corrupt is not None:
         result.structure_notes.append(f"CORRUPTED: CasADi's {corrupt} is x(1+{PERTURBATION:g})+{PERTURBATION:g}")
     comparisons = compare.output_map(system)
-    result.effects = [e for e, on in (("f", system.f), ("N", system.N), ("g", system.g)) if on is not None]
+    result.effects = [
+        e for e, on in (("f", system.f), ("N", system.N), ("g", system.g), ("events", system.events)) if on is not None
+    ]
     casadi_values = []
     for index, point in enumerate(points):
         val = system.evaluate(point["t"], point["q"], point["v"], params, point["psi"])
@@ -254,7 +256,8 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
         "## Derivatives: worst error per system",
         "",
         "Effects: `f` external force, `N` non-ideal constraint force (with `∂N/∂ψ`), `g` holonomic "
-        "constraints (residuals compared, and `k_i = ∂g_i/∂t + ∂g_i/∂q·v` checked on each holonomic row).",
+        "constraints (residuals compared, and `k_i = ∂g_i/∂t + ∂g_i/∂q·v` checked on each holonomic row), "
+        "`events` declared event functions (`event_value`, and `event_gradient`: the value, `∂g/∂t`, `∂g/∂q`, `∂g/∂v`).",
         "",
         "| system | n | m | effects | points (skipped) | worst error | in | normwise rel. | structure | verdict |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -361,14 +364,16 @@ def run(args) -> int:
     # --perturb force / nonideal: CasADi's f or N is corrupted, and only the
     # systems whose source declares that effect are checked (derivatives and
     # steps); both kinds of comparison must then fail.
-    corrupt = args.perturb if args.perturb in ("force", "nonideal") else None
-    effect_field = {"force": "external_force", "nonideal": "nonideal_force"}.get(args.perturb or "")
+    # --perturb event corrupts CasADi's event functions the same way; events
+    # do not enter a step, so only the derivatives are compared.
+    corrupt = args.perturb if args.perturb in ("force", "nonideal", "event") else None
+    effect_field = {"force": "external_force", "nonideal": "nonideal_force", "event": "events"}.get(args.perturb or "")
     selected = [e for e in doc["systems"] if effect_field is None or e["source"].get(effect_field)]
     if effect_field is not None and not selected:
         raise InputError(f"--perturb {args.perturb}: no exported system declares `{effect_field}`")
     if effect_field is not None:
         print(f"corrupted: {len(selected)} systems declare `{effect_field}`")
-    do_derivatives = args.perturb in (None, "derivative", "force", "nonideal")
+    do_derivatives = args.perturb in (None, "derivative", "force", "nonideal", "event")
     do_steps = args.perturb in (None, "step", "force", "nonideal")
     passed = failed = 0
     system_results: List[compare.SystemResult] = []
@@ -438,9 +443,10 @@ def main() -> int:
     parser.add_argument("--report", help="Markdown report to write (not written when perturbing)")
     parser.add_argument(
         "--perturb",
-        choices=["derivative", "step", "force", "nonideal"],
-        help="deliberately corrupt one exported value (derivative, step) or CasADi's own f or N "
-        "(force, nonideal: only systems with that effect are checked) by 1e-10; the check must then fail (exit 1)",
+        choices=["derivative", "step", "force", "nonideal", "event"],
+        help="deliberately corrupt one exported value (derivative, step) or CasADi's own f, N or event "
+        "functions (force, nonideal, event: only systems with that effect are checked) by 1e-10; "
+        "the check must then fail (exit 1)",
     )
     parser.add_argument(
         "--perturb-path",

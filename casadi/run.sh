@@ -105,5 +105,21 @@ for what in force nonideal; do
         fail "the corrupted $what was NOT caught (exit $rc, derivative failures $d of ${k:-?} systems, step failures $s of $total_s)."
     fi
 done
-echo "casadi cross-check: every comparison agrees; all four corrupted values were caught"
-echo "casadi: $((passed + 4)) passed, 0 failed"
+# A corrupted event function (CasADi's g_i changed by 1e-10 on every system
+# that declares events) must be caught by the value and derivative
+# comparisons of every such system.
+echo "==> negative test: --perturb event must fail in the derivatives of every system with events"
+set +e
+"$PY" casadi/crosscheck.py --input "$OUT/export.json" --perturb event >"$OUT/perturb-event.log" 2>&1
+rc=$?
+set -e
+d=$(grep -c -E '^\[FAIL\] derivatives' "$OUT/perturb-event.log" || true)
+k=$(sed -n -E 's/^corrupted: ([0-9]+) systems declare .*/\1/p' "$OUT/perturb-event.log")
+if [[ $rc -eq 1 && -n "$k" && $d -eq $k ]]; then
+    echo "    caught (exit 1): all $d system(s) with events"
+else
+    cat "$OUT/perturb-event.log" >&2
+    fail "the corrupted event function was NOT caught (exit $rc, derivative failures $d of ${k:-?} systems)."
+fi
+echo "casadi cross-check: every comparison agrees; all five corrupted values were caught"
+echo "casadi: $((passed + 5)) passed, 0 failed"

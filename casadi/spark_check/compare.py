@@ -70,10 +70,19 @@ NONIDEAL_MAP: List[Tuple[str, str]] = [
     ("nonideal_force.jacobians.psi", "nonideal_force_psi"),
 ]
 HOLONOMIC_MAP: List[Tuple[str, str]] = [("holonomic_residual", "holonomic_residual")]
+EVENT_MAP: List[Tuple[str, str]] = [
+    ("events.value", "event_value"),
+    ("events.gradient.value", "event_value"),
+    ("events.gradient.t", "event_t"),
+    ("events.gradient.q", "event_q"),
+    ("events.gradient.v", "event_v"),
+]
 # Not a Rust output: CasADi's k_i against ∂g_i/∂t + ∂g_i/∂q·v from the source's g.
 HOLONOMIC_IDENTITY = "holonomic k = ġ"
 # Every comparison any system may have (the report's per-function table).
-ALL_PATHS: List[str] = [p for p, _ in OUTPUT_MAP + FORCE_MAP + NONIDEAL_MAP + HOLONOMIC_MAP] + [HOLONOMIC_IDENTITY]
+ALL_PATHS: List[str] = [p for p, _ in OUTPUT_MAP + FORCE_MAP + NONIDEAL_MAP + HOLONOMIC_MAP + EVENT_MAP] + [
+    HOLONOMIC_IDENTITY
+]
 
 
 def output_map(system: CasadiSystem) -> List[Tuple[str, str]]:
@@ -85,6 +94,8 @@ def output_map(system: CasadiSystem) -> List[Tuple[str, str]]:
         out += NONIDEAL_MAP
     if system.g is not None:
         out += HOLONOMIC_MAP
+    if system.events is not None:
+        out += EVENT_MAP
     return out
 
 
@@ -96,6 +107,7 @@ def check_effect_flags(system: CasadiSystem, effects: Dict, result: "SystemResul
         ("forcing", "HAS_FORCING", system.f is not None, "external_force"),
         ("nonideal", "HAS_NONIDEAL_FORCE", system.N is not None, "nonideal_force"),
         ("holonomic", "HAS_HOLONOMIC", system.g is not None, "holonomic"),
+        ("events", "HAS_EVENTS", system.events is not None, "events"),
     ):
         claimed = bool(effects.get(flag, False))
         if claimed != present:

@@ -45,6 +45,9 @@ class CasadiSystem:
             force_texts: List[str] = list(source.get("external_force", []))
             nonideal_texts: List[str] = list(source.get("nonideal_force", []))
             holonomic_texts: List[str] = list(source.get("holonomic", []))
+            # Declared events g(t,q,v): name, direction, terminal, function.
+            event_texts: List[str] = [str(e["function"]) for e in source.get("events", [])]
+            self.event_names: List[str] = [str(e["name"]) for e in source.get("events", [])]
         except KeyError as err:
             raise SourceError(f"source is missing field {err}") from None
         n, m, n_p = len(self.coordinates), len(constraint_texts), len(self.parameters)
@@ -77,10 +80,11 @@ class CasadiSystem:
             fs = [sexpr.translate(text, env) for text in force_texts]
             ns = [sexpr.translate(text, env_psi) for text in nonideal_texts]
             gs = [sexpr.translate(text, env) for text in holonomic_texts]
+            es = [sexpr.translate(text, env) for text in event_texts]
         except sexpr.SexprError as err:
             raise SourceError(f"{self.name}: {err}") from None
         self.k = ca.vertcat(*ks) if ks else ca.SX(0, 1)
-        if corrupt not in (None, "force", "nonideal"):
+        if corrupt not in (None, "force", "nonideal", "event"):
             raise SourceError(f"unknown corruption {corrupt!r}")
         bump = (lambda x: x * (1 + corruption) + corruption)
         #: External force f(t,q,v) (``None`` when the source has none).
@@ -90,6 +94,8 @@ class CasadiSystem:
         #: Position-level constraints g(t,q) (``None`` when absent); rows whose
         #: source is the literal ``0`` are genuinely nonholonomic.
         self.g = ca.vertcat(*gs) if gs else None
+        #: Event functions g_i(t,q,v), one row per declared event (``None`` when none).
+        self.events = ca.vertcat(*[bump(x) if corrupt == "event" else x for x in es]) if es else None
         self.holonomic_rows = [i for i, text in enumerate(holonomic_texts) if text.strip() != "0"]
         if self.g is not None and ca.depends_on(self.g, ca.vertcat(self.v, self.psi)):
             raise SourceError(f"{self.name}: a holonomic constraint g(t,q) depends on a velocity")
@@ -143,6 +149,13 @@ class CasadiSystem:
             rows = self.holonomic_rows
             self.sym["holonomic_g_dot"] = g_dot[rows] if rows else ca.SX(0, 1)
             self.sym["holonomic_k"] = self.k[rows] if rows else ca.SX(0, 1)
+        if self.events is not None:
+            # The event functions and their derivatives, as `event_value` and
+            # `event_gradient` return them.
+            self.sym["event_value"] = self.events
+            self.sym["event_t"] = ca.jacobian(self.events, t)
+            self.sym["event_q"] = ca.jacobian(self.events, q)
+            self.sym["event_v"] = ca.jacobian(self.events, v)
         # Quantities the structure-fact check needs.
         mass = self.sym["mass_matrix"]
         self.sym["mass_matrix_dtqv"] = ca.jacobian(ca.vec(mass), ca.vertcat(t, q, v))

@@ -55,6 +55,27 @@ pub struct SourceExport {
     pub nonideal_force: Vec<String>,
     /// Holonomic constraints `g_1..g_M`, `"0"` for nonholonomic rows (empty when absent).
     pub holonomic: Vec<String>,
+    /// Declared events `g(t, q, v)`, in index order (empty when none).
+    pub events: Vec<EventSourceExport>,
+}
+
+/// One declared event: its name, which crossings count, and its function.
+#[derive(Clone, Debug, Serialize)]
+pub struct EventSourceExport {
+    /// The event's name.
+    pub name: String,
+    /// `Rising`, `Falling` or `Both`.
+    pub direction: spark_runtime::Direction,
+    /// Whether its first crossing ends a run.
+    pub terminal: bool,
+    /// The event function as an S-expression.
+    pub function: String,
+}
+
+impl From<&spark_runtime::EventSpec> for EventSourceExport {
+    fn from(e: &spark_runtime::EventSpec) -> Self {
+        Self { name: e.name.to_owned(), direction: e.direction, terminal: e.terminal, function: e.source.to_owned() }
+    }
 }
 
 impl From<&SystemSource> for SourceExport {
@@ -68,7 +89,15 @@ impl From<&SystemSource> for SourceExport {
             external_force: s.external_force.iter().map(|c| (*c).to_owned()).collect(),
             nonideal_force: s.nonideal_force.iter().map(|c| (*c).to_owned()).collect(),
             holonomic: s.holonomic.iter().map(|c| (*c).to_owned()).collect(),
+            events: Vec::new(),
         }
+    }
+}
+
+impl SourceExport {
+    /// The source of `S` with its declared events.
+    pub fn of<S: NonholonomicSystem<N, M>, const N: usize, const M: usize>() -> Self {
+        Self { events: S::EVENTS.iter().map(EventSourceExport::from).collect(), ..Self::from(&S::SOURCE) }
     }
 }
 
@@ -109,12 +138,19 @@ pub struct EffectsExport {
     pub nonideal: bool,
     /// `HAS_HOLONOMIC`.
     pub holonomic: bool,
+    /// `HAS_EVENTS`.
+    pub events: bool,
 }
 
 impl EffectsExport {
     /// The flags of `S`.
     pub fn of<S: NonholonomicSystem<N, M>, const N: usize, const M: usize>() -> Self {
-        Self { forcing: S::HAS_FORCING, nonideal: S::HAS_NONIDEAL_FORCE, holonomic: S::HAS_HOLONOMIC }
+        Self {
+            forcing: S::HAS_FORCING,
+            nonideal: S::HAS_NONIDEAL_FORCE,
+            holonomic: S::HAS_HOLONOMIC,
+            events: S::HAS_EVENTS,
+        }
     }
 }
 
@@ -171,6 +207,32 @@ pub struct Outputs {
     /// `holonomic_residual(t, q)` (only with `HAS_HOLONOMIC`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub holonomic_residual: Option<Vec<f64>>,
+    /// `event_value` and `event_gradient` of every declared event (only
+    /// with `HAS_EVENTS`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub events: Option<EventsExport>,
+}
+
+/// The declared events at one point, one row per event.
+#[derive(Clone, Debug, Serialize)]
+pub struct EventsExport {
+    /// `event_value(i, t, q, v)`.
+    pub value: Vec<f64>,
+    /// `event_gradient(i, t, q, v)`.
+    pub gradient: EventGradientExport,
+}
+
+/// [`spark_runtime::EventGradient`] of every event, stacked.
+#[derive(Clone, Debug, Serialize)]
+pub struct EventGradientExport {
+    /// `g_i`.
+    pub value: Vec<f64>,
+    /// `∂g_i/∂t`.
+    pub t: Vec<f64>,
+    /// `∂g_i/∂q` (one row per event).
+    pub q: Vec<Vec<f64>>,
+    /// `∂g_i/∂v` (one row per event).
+    pub v: Vec<Vec<f64>>,
 }
 
 /// The external force: the plain method's value and the fused Jacobians.
@@ -475,6 +537,18 @@ where
         }
     });
     let holonomic_residual = S::HAS_HOLONOMIC.then(|| vec_of(&system.holonomic_residual(t, q)));
+    let events = S::HAS_EVENTS.then(|| {
+        let gradients: Vec<_> = (0..S::EVENTS.len()).map(|i| system.event_gradient(i, t, q, v)).collect();
+        EventsExport {
+            value: (0..S::EVENTS.len()).map(|i| system.event_value(i, t, q, v)).collect(),
+            gradient: EventGradientExport {
+                value: gradients.iter().map(|g| g.value).collect(),
+                t: gradients.iter().map(|g| g.t).collect(),
+                q: gradients.iter().map(|g| vec_of(&g.q)).collect(),
+                v: gradients.iter().map(|g| vec_of(&g.v)).collect(),
+            },
+        }
+    });
     Outputs {
         lagrangian: system.lagrangian(t, q, v),
         energy: system.energy(t, q, v),
@@ -505,6 +579,7 @@ where
         external_force,
         nonideal_force,
         holonomic_residual,
+        events,
     }
 }
 
@@ -557,7 +632,7 @@ where
         name: name.to_owned(),
         n: N,
         m: M,
-        source: SourceExport::from(&S::SOURCE),
+        source: SourceExport::of::<S, N, M>(),
         parameter_values: system.parameter_values(),
         structure: S::STRUCTURE,
         operations: S::OPERATIONS,

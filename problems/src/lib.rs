@@ -8,6 +8,7 @@ pub mod plot;
 pub mod progress;
 pub mod registry;
 pub mod scenes;
+pub mod section;
 pub mod simulate;
 pub mod stress;
 pub mod systems;

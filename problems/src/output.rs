@@ -18,7 +18,7 @@
 //!   place; its temporary files are removed by the next run that opens the
 //!   folder (or when the value is dropped without a commit).
 
-use crate::plot::{render_files, Figure, Panel, PlotError, Scale, Series};
+use crate::plot::{render_files, render_scatter_files, Figure, Panel, PlotError, Scale, Scatter, Series};
 use crate::simulate::RunResult;
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -235,6 +235,28 @@ impl OutputDir {
         let svg_name = format!("{stem}.svg");
         let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
         let result = render_files(fig, &png, &svg).map_err(OutputError::from).and_then(|()| {
+            for p in [&png, &svg] {
+                File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
+            }
+            Ok(())
+        });
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&png);
+            let _ = std::fs::remove_file(&svg);
+            return Err(e);
+        }
+        let png = self.staged(png, &png_name);
+        let svg = self.staged(svg, &svg_name);
+        Ok(vec![png, svg])
+    }
+
+    /// Stages the scatter plot `fig` as `<stem>.png` and `<stem>.svg`;
+    /// returns both final paths.
+    pub fn render_scatter(&mut self, fig: &Scatter, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
+        let png_name = format!("{stem}.png");
+        let svg_name = format!("{stem}.svg");
+        let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
+        let result = render_scatter_files(fig, &png, &svg).map_err(OutputError::from).and_then(|()| {
             for p in [&png, &svg] {
                 File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
             }

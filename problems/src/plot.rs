@@ -388,6 +388,101 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
     Ok(())
 }
 
+/// A scatter plot: one set of axes, each series drawn as dots (no lines),
+/// for point sets such as Poincaré sections.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scatter {
+    /// Title across the top.
+    pub title: String,
+    /// Horizontal axis label.
+    pub x_label: String,
+    /// Vertical axis label.
+    pub y_label: String,
+    /// The point sets (one colour each; the legend shows at most
+    /// [`SCATTER_LEGEND_ENTRIES`] of them).
+    pub series: Vec<Series>,
+    /// Pixel size of the plot.
+    pub size: (u32, u32),
+}
+
+/// Series named in a scatter plot's legend; later ones are drawn unnamed.
+pub const SCATTER_LEGEND_ENTRIES: usize = 12;
+
+/// Draws `fig` into the files `png` and `svg`, every finite point as a dot
+/// (points are not thinned: a section has as many dots as crossings).
+/// Commands write scatter plots through
+/// [`crate::output::OutputDir::render_scatter`].
+pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(), PlotError> {
+    ensure_font()?;
+    {
+        let root = BitMapBackend::new(png, fig.size).into_drawing_area();
+        draw_scatter(fig, &root).map_err(|m| draw_error(png, m))?;
+        root.present().map_err(|e| draw_error(png, e.to_string()))?;
+    }
+    {
+        let root = SVGBackend::new(svg, fig.size).into_drawing_area();
+        draw_scatter(fig, &root).map_err(|m| draw_error(svg, m))?;
+        root.present().map_err(|e| draw_error(svg, e.to_string()))?;
+    }
+    Ok(())
+}
+
+fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let data: Vec<Vec<(f64, f64)>> =
+        fig.series.iter().map(|s| visible(&s.points, Scale::Linear, Scale::Linear)).collect();
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    for &(x, y) in data.iter().flatten() {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if !x0.is_finite() {
+        return Err(PlotError::Empty { figure: fig.title.clone(), panel: fig.title.clone(), hint: "" }.to_string());
+    }
+    let (x0, x1) = range(x0, x1, Scale::Linear);
+    let (y0, y1) = range(y0, y1, Scale::Linear);
+    let (x_span, y_span) = (x1 - x0, y1 - y0);
+    let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    let mut chart = ChartBuilder::on(root)
+        .caption(&fig.title, (FONT, 20))
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size(84)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc(&fig.x_label)
+        .y_desc(&fig.y_label)
+        .x_label_formatter(&|v| tick_label(*v, x_span))
+        .y_label_formatter(&|v| tick_label(*v, y_span))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 15))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(e)?;
+    for (k, (series, pts)) in fig.series.iter().zip(data.iter()).enumerate() {
+        let color = COLORS[k % COLORS.len()];
+        let drawn =
+            chart.draw_series(pts.iter().map(|&p| Circle::new(p, 1, ShapeStyle::from(&color).filled()))).map_err(e)?;
+        if k < SCATTER_LEGEND_ENTRIES {
+            drawn.label(series.label.clone()).legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+        }
+    }
+    let corner = emptiest_corner(&data, (x0, x1, Scale::Linear), (y0, y1, Scale::Linear));
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.4))
+        .position(corner)
+        .draw()
+        .map_err(e)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

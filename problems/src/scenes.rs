@@ -56,6 +56,9 @@ nonholonomic_system! {
     /// `φ`, radius `R`; `L = ½m(ẋ² + ẏ²) + ½I θ̇² + ½J φ̇²`, rolling without
     /// slipping `ẋ = R cos θ φ̇`, `ẏ = R sin θ φ̇`. Exact solution: `θ̇`, `φ̇`
     /// constant, `x = x₀ + (Rφ̇/θ̇)(sin θ − sin θ₀)`, `y = y₀ − (Rφ̇/θ̇)(cos θ − cos θ₀)`.
+    ///
+    /// Event `revolution`: `sin φ` rising through 0, once per turn of the
+    /// wheel (`spark section vertical-disk --event revolution`).
     pub struct VerticalDisk {
         coordinates: [x, y, theta, phi],
         parameters: { m = 1.0, inertia = 0.25, inertia_roll = 0.5, radius = 1.0 },
@@ -64,6 +67,7 @@ nonholonomic_system! {
             dot(x) - radius*cos(theta)*dot(phi),
             dot(y) - radius*sin(theta)*dot(phi),
         ],
+        events: { revolution: rising(sin(phi)) },
     }
 }
 

@@ -441,8 +441,19 @@ where
     };
     let start = Instant::now();
     let cpu_start = thread_cpu_time();
+    // A run records states, not events: the events a system declares are
+    // located by `spark section` (crate::section), so runs of the same system
+    // cost the same with or without declared events.
     let traj = stepper
-        .integrate(spec.t0, &q0, &v0, Schedule::Fixed { h: spec.h, steps: spec.steps }, &options, &mut observer)
+        .integrate_with_events(
+            spec.t0,
+            &q0,
+            &v0,
+            Schedule::Fixed { h: spec.h, steps: spec.steps },
+            &options,
+            &mut observer,
+            &spark_runtime::NoEvents,
+        )
         .map_err(|source| RunError::Integration { system: key, method: spec.method, stages: S, source })?;
     let wall_time = start.elapsed();
     let cpu_time = match (cpu_start, thread_cpu_time()) {

@@ -76,12 +76,16 @@ nonholonomic_system! {
     /// Hamiltonian system on a level set of `φ(q) = q₁ + ½(q₅² + q₆² + q₇²)`.
     /// See [`McLachlanPerlmutter7Nonholonomic`] for the nonholonomic reading
     /// and `docs/stress/chaos.md` for what this changes in Fig. 8.4.
+    ///
+    /// Event `section`: `q₂` rising through 0, the Poincaré section of
+    /// `spark section mp7 --event section`.
     pub struct McLachlanPerlmutter7 {
         coordinates: [q1, q2, q3, q4, q5, q6, q7],
         lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
             - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
                + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
         constraints: [ dot(q1) + q5*dot(q5) + q6*dot(q6) + q7*dot(q7) ],
+        events: { section: rising(q2) },
     }
 }
 
@@ -96,12 +100,15 @@ nonholonomic_system! {
     /// paper's initial states `v₀ = (0, sin(jπ/18), 0, …, 0)` satisfy it with
     /// energy 3.06. With it the three methods of Fig. 8.4 show the random
     /// walk of the energy error that the paper reports (`docs/stress/chaos.md`).
+    ///
+    /// Event `section`: `q₂` rising through 0, as for [`McLachlanPerlmutter7`].
     pub struct McLachlanPerlmutter7Nonholonomic {
         coordinates: [q1, q2, q3, q4, q5, q6, q7],
         lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
             - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
                + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
         constraints: [ dot(q1) + q2*dot(q5) + q3*dot(q6) + q4*dot(q7) ],
+        events: { section: rising(q2) },
     }
 }
 
@@ -160,6 +167,9 @@ nonholonomic_system! {
     ///      + m g sin α (x + a cos θ)`,
     /// constraint `−sin(θ) v₁ + cos(θ) v₂ = 0` (no sideways slip). The mass
     /// matrix depends on `θ`; `∂(∇_v L)/∂q` and `∂(∇_q L)/∂v` are nonzero.
+    ///
+    /// Event `turn`: `θ̇` falling through 0, the turning points of the
+    /// heading (`spark section sleigh --event turn`).
     pub struct ChaplyginSleigh {
         coordinates: [x, y, theta],
         parameters: { m = 1.0, inertia = 0.5, a = 0.5, g = 1.0, alpha = pi/6 },
@@ -167,6 +177,7 @@ nonholonomic_system! {
                          + 2*a*dot(theta)*(-dot(x)*sin(theta) + dot(y)*cos(theta)))
             + inertia/2*dot(theta)^2 + m*g*sin(alpha)*(x + a*cos(theta)),
         constraints: [ -sin(theta)*dot(x) + cos(theta)*dot(y) ],
+        events: { turn: falling(dot(theta)) },
     }
 }
 

@@ -37,7 +37,17 @@ use proc_macro::TokenStream;
 ///              | "constraints"     ":" "[" (expr),* ","? "]"                  optional; none or [] = unconstrained
 ///              | "forces"          ":" "{" (coordinate ":" expr),* ","? "}"   external force f(t,q,v); absent = 0
 ///              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"   non-ideal constraint force N(t,q,v,ψ)
+///              | "events"          ":" "{" (name ":" event),* ","? "}"        zeros of g(t,q,v) the driver locates
+/// event       := ("rising" | "falling" | "crossing")? "(" expr ")" "terminal"?  or  expr "terminal"?
 /// ```
+///
+/// An event is a smooth function `g(t,q,v)` (no multipliers); the generated
+/// type gets `HAS_EVENTS = true`, `EVENTS` (name, direction, terminal, source
+/// text) and `event_value`/`event_gradient` (`g`, `∂g/∂t`, `∂g/∂q`, `∂g/∂v`).
+/// `rising` counts crossings from negative to non-negative, `falling` the
+/// reverse, `crossing` or no keyword both; `terminal` ends `integrate` at the
+/// first counted crossing (see `spark_runtime::events`). An `event(…)`
+/// effect declares an event that a scene selects by name.
 ///
 /// Sections may come in any order, each at most once. Expressions use
 /// `+ - * /`, unary minus, `^` for powers (integer or real exponents),
@@ -93,6 +103,7 @@ use proc_macro::TokenStream;
 ///          | "holonomic"  "(" expr ")"   g(t,q) = 0, imposed at velocity level as k = g_t + g_q·v
 ///          | "force"    "{" (coordinate ":" expr),* "}"   external force f(t,q,v), absent components 0
 ///          | "nonideal" "{" (coordinate ":" expr),* "}"   non-ideal constraint force N(t,q,v,ψ)
+///          | "event"    "(" event ")"                  an event (see `events` above), in the scenes that list it
 /// ```
 ///
 /// Several `force` effects in a scene add up component by component (so do

@@ -2,10 +2,12 @@
 //! any spacing), observers (energy, constraint residual, multipliers, or a
 //! user callback), a serializable [`Trajectory`] and a per-run [`RunReport`].
 
+use crate::dense::{DenseBasis, DenseStep};
 use crate::error::{OptionError, Sci, StepError};
+use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 use crate::options::MAX_HALVINGS;
-use crate::stepper::{State, Stepper};
+use crate::stepper::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
 
@@ -22,6 +24,19 @@ pub enum Schedule<'a> {
     /// Step from `t₀` to each of these times in turn (each step is
     /// `t_{k+1} − t_k`; any nonzero spacing and either direction).
     Times(&'a [f64]),
+    /// Fixed steps of size `h` from `t₀` until the last of `times` is
+    /// reached, with samples at `times` taken from the dense output
+    /// ([`DenseStep`]): the step size never changes to land on an output
+    /// time. `times` are strictly monotone in the direction of `h`, the
+    /// first one not before `t₀`; the samples are the initial point and
+    /// these times (`record_every` does not apply). The last step may end
+    /// beyond the last time.
+    Sampled {
+        /// Step size.
+        h: f64,
+        /// Output times.
+        times: &'a [f64],
+    },
 }
 
 /// Which quantities the driver records at each output point.
@@ -126,6 +141,12 @@ pub struct RunReport {
     pub max_energy_error: f64,
     /// Whether `v₀` was projected onto the constraints.
     pub projected_initial_velocity: bool,
+    /// Events located (see [`Trajectory::events`]).
+    #[serde(default)]
+    pub events: usize,
+    /// The terminal event that ended the run, by index, if any.
+    #[serde(default)]
+    pub terminal_event: Option<usize>,
 }
 
 /// A recorded solution with its provenance; serializes to JSON (serde) and CSV.
@@ -143,6 +164,9 @@ pub struct Trajectory<const N: usize, const M: usize> {
     pub samples: Vec<Sample<N, M>>,
     /// Run statistics.
     pub report: RunReport,
+    /// The located events in time order (empty for systems without events).
+    #[serde(default = "Vec::new")]
+    pub events: Vec<EventRecord<N>>,
 }
 
 /// An integration run failed.
@@ -184,13 +208,25 @@ struct StepCounts<const N: usize> {
     rejected: usize,
     /// Retries from the cold guess.
     cold_retries: usize,
+    /// The per-sub-step callback asked to stop (a terminal event).
+    stopped: bool,
 }
 
 /// Receives every accepted step (not only recorded ones).
 pub trait Observer<const N: usize, const M: usize> {
+    /// The observer wants the continuous extension of every accepted
+    /// (sub-)step ([`observe_dense`](Self::observe_dense)). When `false`
+    /// (the default) the driver builds none for it.
+    const DENSE: bool = false;
     /// Called after each accepted step with the new state and the Newton
     /// iteration count.
     fn observe(&mut self, state: &State<N>, iterations: usize);
+    /// Called with the continuous extension of each accepted (sub-)step,
+    /// before [`observe`](Self::observe), when [`DENSE`](Self::DENSE) is
+    /// true: sample it anywhere in the step with [`DenseStep::state_at`].
+    fn observe_dense<const S: usize>(&mut self, step: &DenseStep<'_, N, S>) {
+        let _ = step;
+    }
 }
 
 /// An observer that does nothing.
@@ -255,27 +291,37 @@ impl<const N: usize, const M: usize> Trajectory<N, M> {
     }
 }
 
+/// The recorded point at `state`.
+fn sample_of<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    state: &State<N>,
+    observe: &Observe,
+    iterations: usize,
+) -> Sample<N, M>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    Sample {
+        t: state.t,
+        q: state.q,
+        v: state.v,
+        energy: observe.energy.then(|| sys.energy(state.t, &state.q, &state.v)),
+        constraint_residual: observe.constraint_residual.then(|| sys.constraint(state.t, &state.q, &state.v).amax()),
+        multipliers: if observe.multipliers {
+            consistent_acceleration(sys, state.t, &state.q, &state.v).map(|(_, psi)| psi)
+        } else {
+            None
+        },
+        newton_iterations: iterations,
+    }
+}
+
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
 where
     Sys: NonholonomicSystem<N, M>,
 {
     pub(crate) fn sample(&self, state: &State<N>, observe: &Observe, iterations: usize) -> Sample<N, M> {
-        let sys = self.system();
-        Sample {
-            t: state.t,
-            q: state.q,
-            v: state.v,
-            energy: observe.energy.then(|| sys.energy(state.t, &state.q, &state.v)),
-            constraint_residual: observe
-                .constraint_residual
-                .then(|| sys.constraint(state.t, &state.q, &state.v).amax()),
-            multipliers: if observe.multipliers {
-                consistent_acceleration(sys, state.t, &state.q, &state.v).map(|(_, psi)| psi)
-            } else {
-                None
-            },
-            newton_iterations: iterations,
-        }
+        sample_of(self.system(), state, observe, iterations)
     }
 
     /// One step of size `h` from `state`. A warm-started attempt that fails
@@ -283,7 +329,21 @@ where
     /// replaced by two half steps, at most `max_halvings` levels deep and
     /// only while half of it still changes `t`. Iterative, with the pending
     /// sub-steps in a fixed array: no recursion, no heap.
-    fn robust_step(&mut self, state: &State<N>, h: f64, max_halvings: u32) -> Result<StepCounts<N>, StepError> {
+    ///
+    /// `on_step(system, start, end, h, result)` sees every accepted
+    /// sub-step (the last one with its end time pinned to `t_target`); when
+    /// it returns `true` the step stops there.
+    fn robust_step<F>(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        max_halvings: u32,
+        on_step: &mut F,
+    ) -> Result<StepCounts<N>, StepError>
+    where
+        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+    {
         let max_halvings = max_halvings.min(MAX_HALVINGS);
         // Sub-steps still to take, the next one last, with their halving
         // level. A failure replaces its entry by its two halves one level
@@ -292,7 +352,7 @@ where
         let mut pending = [(0.0f64, 0u32); MAX_HALVINGS as usize + 1];
         pending[0] = (h, 0);
         let mut len = 1;
-        let mut out = StepCounts { state: *state, iterations: 0, rejected: 0, cold_retries: 0 };
+        let mut out = StepCounts { state: *state, iterations: 0, rejected: 0, cold_retries: 0, stopped: false };
         while len > 0 {
             let (sub, level) = pending[len - 1];
             let warm = self.is_warm_for(&out.state);
@@ -306,9 +366,18 @@ where
             };
             match result {
                 Ok(r) => {
+                    len -= 1;
+                    let mut end = r.state;
+                    if len == 0 {
+                        end.t = t_target;
+                    }
+                    let stop = on_step(self.system(), &out.state, &end, sub, &r);
                     out.state = r.state;
                     out.iterations += r.iterations;
-                    len -= 1;
+                    if stop {
+                        out.stopped = true;
+                        return Ok(out);
+                    }
                 }
                 Err(e) if !e.is_curable() || level >= max_halvings => return Err(e),
                 Err(e) => {
@@ -329,7 +398,10 @@ where
 
     /// Integrates from `(t₀, q₀, v₀)` over `schedule`, checking (or projecting)
     /// the initial velocity first, recording samples per `options` and
-    /// calling `observer` after every accepted step.
+    /// calling `observer` after every accepted step. The events the system
+    /// declares ([`NonholonomicSystem::EVENTS`]) are located in every step
+    /// and reported in [`Trajectory::events`]; a terminal one ends the run
+    /// at its time (see [`events`](crate::events)).
     ///
     /// The run and Newton options are checked first
     /// ([`RunOptions::validate`], [`NewtonOptions::validate`](crate::NewtonOptions::validate));
@@ -349,6 +421,27 @@ where
         schedule: Schedule<'_>,
         options: &RunOptions,
         observer: &mut O,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        if Sys::HAS_EVENTS {
+            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &SystemEvents::<M>)
+        } else {
+            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &NoEvents)
+        }
+    }
+
+    /// [`integrate`](Self::integrate) locating the events of `events`
+    /// instead of the system's own (e.g. [`RuntimeEvents`](crate::RuntimeEvents)
+    /// given at run time, or [`NoEvents`] to ignore the declared ones).
+    #[allow(clippy::too_many_arguments)]
+    pub fn integrate_with_events<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut O,
+        events: &E,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         options.validate().map_err(IntegrationError::InvalidOption)?;
         self.options().validate().map_err(IntegrationError::InvalidOption)?;
@@ -371,6 +464,26 @@ where
                 }
                 ts.len()
             }
+            Schedule::Sampled { h, times } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if times.iter().any(|t| !t.is_finite()) {
+                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
+                }
+                if times.first().is_some_and(|&t| (t - t0) * h < 0.0)
+                    || times.windows(2).any(|w| (w[1] - w[0]) * h <= 0.0)
+                {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "sampled output times must be strictly monotone in the direction of h, from t0 on",
+                    ));
+                }
+                let span = times.last().map_or(0.0, |&t| (t - t0) / h);
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the last time"));
+                }
+                span.ceil() as usize
+            }
         };
         let v0c =
             consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
@@ -381,7 +494,7 @@ where
             ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
         };
         self.set_accepted_start_residual(accepted);
-        let result = self.run_steps(t0, q0, v0, v0c, steps, schedule, options, observer);
+        let result = self.run_steps(t0, q0, v0, v0c, steps, schedule, options, observer, events);
         self.set_accepted_start_residual(0.0);
         result
     }
@@ -389,7 +502,7 @@ where
     /// The stepping loop of [`Stepper::integrate`], from the checked initial
     /// velocity `v0c`.
     #[allow(clippy::too_many_arguments)]
-    fn run_steps<O: Observer<N, M>>(
+    fn run_steps<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
         &mut self,
         t0: f64,
         q0: &Vector<N>,
@@ -399,12 +512,20 @@ where
         schedule: Schedule<'_>,
         options: &RunOptions,
         observer: &mut O,
+        events: &E,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
         let every = options.record_every;
+        let sampled = match schedule {
+            Schedule::Sampled { times, .. } => Some(times),
+            _ => None,
+        };
         // Reserve for the expected samples up to a bounded size; beyond it the
         // storage grows as samples arrive (amortized, only when recording).
-        let expected = steps.checked_div(every).map_or(2, |n| n.saturating_add(2));
+        let expected = match sampled {
+            Some(times) => times.len() + 1,
+            None => steps.checked_div(every).map_or(2, |n| n.saturating_add(2)),
+        };
         let bound = (RESERVE_BYTES / std::mem::size_of::<Sample<N, M>>().max(1)).max(2);
         let mut samples = Vec::with_capacity(expected.min(bound));
         let mut state = State { t: t0, q: *q0, v: v0c };
@@ -420,14 +541,81 @@ where
         };
         track(&first, &mut report);
         samples.push(first);
+        // Dense output and events: nothing of this runs (the branches are on
+        // constants) for a system without events, an observer without dense
+        // output and a schedule that is not `Sampled`.
+        let specs = events.specs();
+        let dense = O::DENSE || !specs.is_empty() || sampled.is_some();
+        let basis = DenseBasis::new(self.tableau());
+        let mut located: Vec<EventRecord<N>> = Vec::new();
+        let mut crossings: Vec<Crossing> = Vec::with_capacity(specs.len());
+        let mut previous: Vec<f64> = specs
+            .iter()
+            .enumerate()
+            .map(|(i, _)| events.value(self.system(), i, state.t, &state.q, &state.v))
+            .collect();
+        let mut next_time = 0usize;
+        let mut terminal: Option<State<N>> = None;
         for k in 0..steps {
             let (h, t_target) = match schedule {
-                Schedule::Fixed { h, .. } => (h, t0 + (k + 1) as f64 * h),
+                Schedule::Fixed { h, .. } | Schedule::Sampled { h, .. } => (h, t0 + (k + 1) as f64 * h),
                 Schedule::Times(ts) => (ts[k] - state.t, ts[k]),
             };
             let warm_before = self.is_warm_for(&state);
+            let step_iterations = &mut 0usize;
+            let mut on_step = |sys: &Sys, start: &State<N>, end: &State<N>, sub: f64, r: &StepResult<N, M, S>| {
+                if !dense {
+                    return false;
+                }
+                *step_iterations += r.iterations;
+                let piece = DenseStep::new(&basis, start, end, sub, r);
+                if O::DENSE {
+                    observer.observe_dense(&piece);
+                }
+                let mut stop_at = None;
+                if !specs.is_empty() {
+                    crossings.clear();
+                    find_crossings(events, sys, &piece, &mut previous, &mut crossings);
+                    for c in crossings.iter() {
+                        let at = piece.state_at(c.t);
+                        let spec = &specs[c.index];
+                        located.push(EventRecord {
+                            index: c.index,
+                            name: spec.name.to_string(),
+                            rising: c.rising,
+                            t: c.t,
+                            q: at.q,
+                            v: at.v,
+                            residual: events.value(sys, c.index, at.t, &at.q, &at.v),
+                            step: k,
+                        });
+                        if spec.terminal {
+                            stop_at = Some(at);
+                            break;
+                        }
+                    }
+                }
+                if let Some(times) = sampled {
+                    let forward = sub > 0.0;
+                    let limit = stop_at.map_or(end.t, |s| s.t);
+                    while let Some(&t) = times.get(next_time) {
+                        if (forward && t > limit) || (!forward && t < limit) {
+                            break;
+                        }
+                        let s = sample_of(sys, &piece.state_at(t), &options.observe, *step_iterations);
+                        track(&s, &mut report);
+                        samples.push(s);
+                        next_time += 1;
+                    }
+                }
+                if stop_at.is_some() {
+                    terminal = stop_at;
+                    return true;
+                }
+                false
+            };
             let counts = self
-                .robust_step(&state, h, options.max_halvings)
+                .robust_step(&state, h, t_target, options.max_halvings, &mut on_step)
                 .map_err(|source| IntegrationError::Step { index: k, t: state.t, source, partial: Box::new(report) })?;
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
@@ -440,9 +628,20 @@ where
             report.cold_retries += counts.cold_retries;
             report.newton_iterations_total += iters;
             report.newton_iterations_max = report.newton_iterations_max.max(iters);
+            if let Some(at) = terminal {
+                observer.observe(&at, iters);
+                report.terminal_event = located.last().map(|e| e.index);
+                if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
+                    let s = self.sample(&at, &options.observe, iters);
+                    track(&s, &mut report);
+                    samples.push(s);
+                }
+                state = at;
+                break;
+            }
             observer.observe(&next, iters);
             let last = k + 1 == steps;
-            if last || (every != 0 && (k + 1) % every == 0) {
+            if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
                 let s = self.sample(&next, &options.observe, iters);
                 track(&s, &mut report);
                 samples.push(s);
@@ -450,6 +649,8 @@ where
             state = next;
             self.retarget_warm_start(&state);
         }
+        let _ = state;
+        report.events = located.len();
         if report.steps > 0 {
             report.newton_iterations_mean = report.newton_iterations_total as f64 / report.steps as f64;
         }
@@ -461,6 +662,51 @@ where
             stages: S,
             samples,
             report,
+            events: located,
         })
     }
+}
+
+/// Appends the crossings of `piece` (each located, in time order) to
+/// `crossings`, updating each event's last value in `previous`.
+fn find_crossings<Sys, E, const N: usize, const S: usize>(
+    events: &E,
+    sys: &Sys,
+    piece: &DenseStep<'_, N, S>,
+    previous: &mut [f64],
+    crossings: &mut Vec<Crossing>,
+) where
+    E: EventFunctions<Sys, N> + ?Sized,
+{
+    let specs = events.specs();
+    let (ta, tb) = (piece.start.t, piece.end.t);
+    for (index, spec) in specs.iter().enumerate() {
+        let mut a = (ta, previous[index]);
+        for k in 1..=EVENT_SUBINTERVALS {
+            let (t, at) = if k == EVENT_SUBINTERVALS {
+                (tb, piece.end)
+            } else {
+                let t = ta + (tb - ta) * (k as f64 / EVENT_SUBINTERVALS as f64);
+                (t, piece.state_at(t))
+            };
+            let b = (t, events.value(sys, index, t, &at.q, &at.v));
+            let crossed = a.1 != 0.0 && (b.1 == 0.0 || (a.1 < 0.0) != (b.1 < 0.0)) && !b.1.is_nan();
+            let rising = a.1 < 0.0;
+            if crossed && spec.direction.accepts(rising) {
+                let t = locate(events, sys, index, piece, a, b);
+                crossings.push(Crossing { index, rising, t });
+            }
+            a = b;
+        }
+        previous[index] = a.1;
+    }
+    let forward = tb > ta;
+    crossings.sort_by(|x, y| {
+        let order = x.t.total_cmp(&y.t);
+        if forward {
+            order
+        } else {
+            order.reverse()
+        }
+    });
 }

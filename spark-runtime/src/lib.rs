@@ -125,9 +125,11 @@
 pub mod adaptive;
 mod convergence;
 mod decoupled;
+pub mod dense;
 mod driver;
 pub mod effects;
 mod error;
+pub mod events;
 pub mod handwritten;
 mod initial;
 mod linalg;
@@ -145,11 +147,16 @@ pub use adaptive::{
     integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun,
     EstimateFailure, EstimatedStep,
 };
+pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
     DEFAULT_MAX_HALVINGS,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
+pub use events::{
+    Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents, SystemEvents,
+    EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
+};
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use options::MAX_HALVINGS;
 pub use rejection::{

@@ -378,6 +378,23 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         jacobians.constraint_force_v += nj.v;
         *psi_jacobian = nj.psi;
     }
+    /// The system declares events ([`EVENTS`](Self::EVENTS)): zeros of
+    /// functions `g(t,q,v)` the driver locates on the dense output. When
+    /// `false` the driver never evaluates an event function or the dense
+    /// output for them (the branch is on a constant).
+    const HAS_EVENTS: bool = false;
+    /// The event declarations, in index order (empty by default).
+    const EVENTS: &'static [crate::events::EventSpec] = &[];
+    /// The value `g_index(t,q,v)` of event `index`. Zero by default.
+    fn event_value(&self, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64 {
+        let _ = (index, t, q, v);
+        0.0
+    }
+    /// `g_index` with `∂g/∂t`, `∂g/∂q`, `∂g/∂v`. Zero by default.
+    fn event_gradient(&self, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> crate::events::EventGradient<N> {
+        let _ = (index, t, q, v);
+        crate::events::EventGradient::zeros()
+    }
     /// Position-level residuals for drift reporting: entry `i` is `g_i(t,q)`
     /// when constraint `i` is `k_i = ∂g_i/∂t + ∂g_i/∂q · v` of a holonomic
     /// constraint `g_i = 0`, and `0` for a genuinely nonholonomic one.

@@ -239,6 +239,57 @@ struct EffectBodies {
     holonomic: Option<TokenStream>,
 }
 
+/// `HAS_EVENTS`, `EVENTS`, `event_value` and `event_gradient` of a
+/// declaration with events: one match arm per event, each with its own
+/// statements (an event's value never pays for another's).
+fn event_items(gen: &mut Gen, spec: &SystemSpec) -> TokenStream {
+    let (rt, n) = (gen.rt.clone(), gen.n.clone());
+    let sig = quote!(&self, index: usize, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>);
+    let (mut value_arms, mut gradient_arms, mut specs) = (Vec::new(), Vec::new(), Vec::new());
+    for (e, decl) in spec.events.iter().enumerate() {
+        let index = Literal::usize_unsuffixed(e);
+        let md = &*gen.model;
+        let (node, node_t) = (md.events[e], md.events_t[e]);
+        let (gq, gv) = (md.events_q[e].clone(), md.events_v[e].clone());
+        let (value, _) = gen.body("event_value", vec![(Target::Let(format_ident!("event")), node)], &[], false);
+        value_arms.push(quote!(#index => { #value event }));
+        let outs = [gen.vector("event_q", &gq, &n), gen.vector("event_v", &gv, &n)];
+        let lets = vec![(Target::Let(format_ident!("event")), node), (Target::Let(format_ident!("event_t")), node_t)];
+        let (gradient, _) = gen.body("event_gradient", lets, &outs, false);
+        gradient_arms.push(quote!(#index => {
+            #gradient
+            #rt::EventGradient { value: event, t: event_t, q: event_q, v: event_v }
+        }));
+        let name = &decl.name.name;
+        let direction = match decl.direction {
+            crate::spec::EventDirection::Rising => quote!(#rt::Direction::Rising),
+            crate::spec::EventDirection::Falling => quote!(#rt::Direction::Falling),
+            crate::spec::EventDirection::Both => quote!(#rt::Direction::Both),
+        };
+        let terminal = decl.terminal;
+        let source = sexpr(spec, &decl.expr);
+        specs.push(quote!(#rt::EventSpec { name: #name, direction: #direction, terminal: #terminal, source: #source }));
+    }
+    quote! {
+        const HAS_EVENTS: bool = true;
+        const EVENTS: &'static [#rt::EventSpec] = &[#(#specs),*];
+
+        fn event_value(#sig) -> f64 {
+            match index {
+                #(#value_arms)*
+                _ => 0.0,
+            }
+        }
+
+        fn event_gradient(#sig) -> #rt::EventGradient<#n> {
+            match index {
+                #(#gradient_arms)*
+                _ => #rt::EventGradient::zeros(),
+            }
+        }
+    }
+}
+
 /// The statements of the bundle CasADi is compared with (see
 /// [`Operations::bundle`]), for review of what the count covers.
 pub fn bundle_code(model: &mut Model, params: &[Ident]) -> (TokenStream, usize) {
@@ -525,6 +576,9 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> Result<(TokenStre
                 holonomic
             }
         });
+    }
+    if !spec.events.is_empty() {
+        effect_items.extend(event_items(&mut gen, spec));
     }
     let helpers = std::mem::take(&mut gen.helpers);
 

@@ -25,7 +25,9 @@ pub mod spec;
 
 pub use codegen::Operations;
 pub use model::{ConstraintForm, Structure};
-pub use spec::{BinOp, Constant, ConstraintSpec, Func, Named, Parameter, SpecError, SrcExpr, SystemSpec};
+pub use spec::{
+    BinOp, Constant, ConstraintSpec, EventDecl, EventDirection, Func, Named, Parameter, SpecError, SrcExpr, SystemSpec,
+};
 
 use proc_macro2::TokenStream;
 

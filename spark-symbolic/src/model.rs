@@ -105,6 +105,14 @@ pub struct Model {
     /// Position-level residuals `g_i(t,q)` (zero for constraints not declared
     /// holonomic); empty when no constraint is.
     pub holonomic: Vec<NodeId>,
+    /// Event functions `g_e(t,q,v)`, one per declared event.
+    pub events: Vec<NodeId>,
+    /// `∂g_e/∂t`.
+    pub events_t: Vec<NodeId>,
+    /// `∂g_e/∂q` (one row per event).
+    pub events_q: NodeMatrix,
+    /// `∂g_e/∂v`.
+    pub events_v: NodeMatrix,
 }
 
 fn gradient(g: &mut Graph, d: &mut Differentiator, f: NodeId, vars: &[Var]) -> Vec<NodeId> {
@@ -541,6 +549,13 @@ impl Model {
                 holonomic.push(node);
             }
         }
+        let mut events = Vec::with_capacity(spec.events.len());
+        for e in &spec.events {
+            events.push(lower.lower(&mut g, &e.expr)?);
+        }
+        let events_t: Vec<NodeId> = events.iter().map(|&x| d.diff(&mut g, x, Var::Time)).collect();
+        let events_q = jacobian(&mut g, &mut d, &events, &qs);
+        let events_v = jacobian(&mut g, &mut d, &events, &vs);
         Ok(Model {
             graph: g,
             n,
@@ -572,6 +587,10 @@ impl Model {
             nonideal_force_v,
             nonideal_force_psi,
             holonomic,
+            events,
+            events_t,
+            events_q,
+            events_v,
         })
     }
 }

@@ -193,6 +193,31 @@ pub struct ConstraintSpec {
     pub position: Option<SrcExpr>,
 }
 
+/// Which zero crossings of an event function count (mirrors
+/// `spark_runtime::Direction`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EventDirection {
+    /// From negative to non-negative (`rising(expr)`).
+    Rising,
+    /// From positive to non-positive (`falling(expr)`).
+    Falling,
+    /// Both (`expr` or `crossing(expr)`).
+    Both,
+}
+
+/// One event `name: [rising|falling|crossing](g(t,q,v)) [terminal]`.
+#[derive(Clone, Debug)]
+pub struct EventDecl {
+    /// Name and declaration site.
+    pub name: Named,
+    /// `g(t,q,v)`.
+    pub expr: SrcExpr,
+    /// Which crossings count.
+    pub direction: EventDirection,
+    /// Whether the first crossing ends the run.
+    pub terminal: bool,
+}
+
 /// A whole declaration.
 #[derive(Clone, Debug)]
 pub struct SystemSpec {
@@ -220,6 +245,8 @@ pub struct SystemSpec {
     /// entry per coordinate (`None` = zero component); may use
     /// [`SrcExpr::Multiplier`].
     pub nonideal_force: Vec<Option<SrcExpr>>,
+    /// Events `g(t,q,v)` whose zeros the driver locates; empty when none.
+    pub events: Vec<EventDecl>,
     /// Path under which generated code finds the runtime
     /// (`::spark_runtime` unless the caller says otherwise).
     pub runtime_path: TokenStream,

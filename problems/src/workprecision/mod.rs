@@ -372,7 +372,11 @@ where
         ..RunOptions::default()
     };
     let schedule = Schedule::Fixed { h, steps };
-    let traj = stepper.integrate(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut observer).ok()?;
+    // Timed without event location, like the peers: declared events are
+    // for `spark section`.
+    let traj = stepper
+        .integrate_with_events(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut observer, &spark_runtime::NoEvents)
+        .ok()?;
     let end = traj.last()?;
     let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
     if !(eq.is_finite() && ev.is_finite()) {
@@ -380,7 +384,9 @@ where
     }
     let iterations = traj.report.newton_iterations_mean;
     let (wall, cpu, repeats) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-        stepper.integrate(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut NoObserver).is_ok()
+        stepper
+            .integrate_with_events(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
+            .is_ok()
     })?;
     Some(Measured { error_q: eq, error_v: ev, energy: max_e, iterations, wall, cpu, repeats })
 }

@@ -118,12 +118,16 @@ where
     };
     let schedule = Schedule::Fixed { h, steps };
     let label = method_label(method, S);
+    // Timed without event location, like the peers: declared events are
+    // for `spark section`.
     let traj = stepper
-        .integrate(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver)
+        .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
         .map_err(|e| format!("{} {label}: {e}", entry.name))?;
     let end = traj.last().ok_or_else(|| format!("{} {label}: the run recorded no end state", entry.name))?;
     let (_, cpu, repeats) = median_time(cfg.repeats, cfg.min_timing, || {
-        stepper.integrate(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver).is_ok()
+        stepper
+            .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
+            .is_ok()
     })
     .ok_or_else(|| format!("{} {label}: a timed repeat failed", entry.name))?;
     Ok(SparkRun {

@@ -76,13 +76,19 @@ where
         ..RunOptions::default()
     };
     let schedule = Schedule::Fixed { h, steps };
-    let traj = stepper.integrate(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver).ok()?;
+    // Timed without event location, like the peers: declared events are
+    // for `spark section`.
+    let traj = stepper
+        .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
+        .ok()?;
     let iterations = traj.report.newton_iterations_mean;
     let mut times = Vec::new();
     let start = Instant::now();
     while times.len() < repeats.max(1) || (start.elapsed() < Duration::from_millis(50) && times.len() < 200) {
         let c = super::thread_cpu_time();
-        stepper.integrate(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver).ok()?;
+        stepper
+            .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
+            .ok()?;
         times.push((super::thread_cpu_time() - c) / steps as f64);
     }
     times.sort_by(f64::total_cmp);

@@ -17,6 +17,9 @@
 //!              | "constraints" ":" "[" (expr),* ","? "]"                   optional; empty = none
 //!              | "forces"      ":" "{" (coordinate ":" expr),* ","? "}"    external force f(t,q,v)
 //!              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"  non-ideal force N(t,q,v,ψ)
+//!              | "events"      ":" "{" (name ":" event),* ","? "}"       zeros of g(t,q,v) to locate
+//! event       := ("rising" | "falling" | "crossing")? "(" expr ")" "terminal"?
+//!              | expr "terminal"?                                      (crossing in both directions)
 //! expr        := sum
 //! sum         := product (("+" | "-") product)*          left-associative
 //! product     := unary (("*" | "/") unary)*              left-associative
@@ -42,6 +45,14 @@
 //! `nonideal` effects, see [`scenes`]) may use `psi[j]`, the multiplier of
 //! constraint `j` (0-based), parsed as `"psi" "[" integer "]"`.
 //!
+//! An event `name: falling(y) terminal` is a function `g(t,q,v)` (no
+//! multipliers) whose zeros the integration driver locates on the dense
+//! output: `rising` counts crossings from negative to non-negative,
+//! `falling` the reverse, `crossing` (or no keyword) both; `terminal` ends
+//! the run at the first counted crossing. Event names are distinct from each
+//! other (they live in their own namespace, apart from coordinates and
+//! parameters).
+//!
 //! ```text
 //! nonholonomic_system! {
 //!     /// Skate on an inclined plane
@@ -65,19 +76,21 @@ mod tests;
 
 pub use locate::{find_declaration, LocateError};
 
-use crate::spec::{Constant, ConstraintSpec, Named, Parameter, SpecError, SrcExpr, SystemSpec};
+use crate::spec::{
+    Constant, ConstraintSpec, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec,
+};
 use expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
 use names::{list, nearest, reserved_reason};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 use quote::quote;
 
 /// The section names [`parse`] reads, in the order the documentation lists them.
-pub const SECTIONS: [&str; 7] =
-    ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces"];
+pub const SECTIONS: [&str; 8] =
+    ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces", "events"];
 
 /// Every section name a declaration may use: [`SECTIONS`] and the optional
 /// `effects` and `scenes` that [`scenes::parse_with_scenes`] reads.
-pub const ALL_SECTIONS: [&str; 9] = [
+pub const ALL_SECTIONS: [&str; 10] = [
     "coordinates",
     "parameters",
     "constants",
@@ -85,6 +98,7 @@ pub const ALL_SECTIONS: [&str; 9] = [
     "constraints",
     "forces",
     "nonideal_forces",
+    "events",
     "effects",
     "scenes",
 ];
@@ -257,6 +271,7 @@ struct Sections {
     constraints: Option<(Span, Vec<TokenTree>)>,
     forces: Option<(Span, Vec<TokenTree>)>,
     nonideal_forces: Option<(Span, Vec<TokenTree>)>,
+    events: Option<(Span, Vec<TokenTree>)>,
     /// Section names in source order (decides which duplicate name is "second").
     order: Vec<&'static str>,
 }
@@ -335,6 +350,7 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
             "lagrangian" => &mut s.lagrangian,
             "forces" => &mut s.forces,
             "nonideal_forces" => &mut s.nonideal_forces,
+            "events" => &mut s.events,
             _ => &mut s.constraints,
         };
         if slot.is_some() {
@@ -357,6 +373,7 @@ fn section_example(kind: &str) -> &'static str {
         "nonideal_forces" => {
             "write e.g. `nonideal_forces: { x: -mu*psi[0]*cos(theta) }` (`psi[j]`: multiplier of constraint j)"
         }
+        "events" => "write e.g. `events: { impact: falling(y) terminal, lap: rising(theta - pi) }`",
         _ => "write e.g. `constraints: [ dot(y) - x*dot(z) ]`, or `constraints: []` for none",
     }
 }
@@ -603,6 +620,12 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
         nonideal_force = forces::parse_force_block(&group, &scope, "the non-ideal force", &example)?;
     }
 
+    let mut events = Vec::new();
+    if let Some((span, value)) = s.events.as_ref() {
+        let group = single_group("events", *span, value, Delimiter::Brace)?;
+        events = parse_events(&group, &scope)?;
+    }
+
     let mut attrs = attrs;
     if parameters.iter().any(|p| p.name.name.chars().any(char::is_uppercase)) {
         // Physics names parameters `I`, `M`, `R`; they become fields, which
@@ -620,8 +643,95 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
         constraints,
         external_force,
         nonideal_force,
+        events,
         runtime_path,
     })
+}
+
+/// The entries `name: [rising|falling|crossing](expr) [terminal]` of an
+/// `events` section.
+fn parse_events(group: &Group, scope: &Scope<'_>) -> Result<Vec<EventDecl>, SpecError> {
+    let toks: Vec<TokenTree> = group.stream().into_iter().collect();
+    let example = "`events: { impact: falling(y) terminal }`";
+    let pieces = split_commas(&toks);
+    if pieces.is_empty() {
+        return err(group.span(), format!("`events` is empty; write e.g. {example}, or remove the section"));
+    }
+    let mut out: Vec<EventDecl> = Vec::new();
+    for (piece, comma) in pieces {
+        let (ident, value) = match piece.as_slice() {
+            [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
+            [TokenTree::Ident(id), TokenTree::Punct(p), value @ ..] if p.as_char() == ':' => {
+                if value.is_empty() {
+                    return err(p.span(), format!("event `{id}` has no function: write an expression after `:`"));
+                }
+                (id, value)
+            }
+            [TokenTree::Ident(id), second, ..] => {
+                return err(second.span(), format!("expected `:` after event `{id}`: write e.g. {example}"))
+            }
+            [first, ..] => {
+                return err(
+                    first.span(),
+                    format!("expected an event name, found {}; write e.g. {example}", describe(first)),
+                )
+            }
+        };
+        if out.iter().any(|e| *ident == e.name.name) {
+            return err(ident.span(), format!("event `{ident}` is declared twice; give each event its own name"));
+        }
+        out.push(parse_event(ident, value, scope)?);
+    }
+    Ok(out)
+}
+
+/// One event's value `[rising|falling|crossing](expr) [terminal]` (or a bare
+/// `expr [terminal]`), named `ident`.
+pub(crate) fn parse_event(ident: &Ident, value: &[TokenTree], scope: &Scope<'_>) -> Result<EventDecl, SpecError> {
+    let mut value = value;
+    let name = ident.to_string();
+    if let Some(reason) = reserved_reason(&name) {
+        return err(ident.span(), format!("{reason}; choose another name for this event"));
+    }
+    let mut terminal = false;
+    if let [rest @ .., TokenTree::Ident(last)] = value {
+        if last == "terminal" {
+            if rest.is_empty() {
+                return err(last.span(), format!("event `{name}` has no function before `terminal`"));
+            }
+            terminal = true;
+            value = rest;
+        }
+    }
+    let mut direction = EventDirection::Both;
+    let mut inner: Vec<TokenTree> = value.to_vec();
+    if let [TokenTree::Ident(kw), TokenTree::Group(g)] = value {
+        let kind = kw.to_string();
+        let known = match kind.as_str() {
+            "rising" => Some(EventDirection::Rising),
+            "falling" => Some(EventDirection::Falling),
+            "crossing" => Some(EventDirection::Both),
+            _ => None,
+        };
+        if let Some(d) = known {
+            if g.delimiter() != Delimiter::Parenthesis {
+                return err(g.span(), format!("write `{kind}(expression)` with parentheses"));
+            }
+            direction = d;
+            inner = g.stream().into_iter().collect();
+            if inner.is_empty() {
+                return err(g.span(), format!("`{kind}()` is empty: write the event function inside"));
+            }
+        }
+    }
+    if let Some(TokenTree::Ident(id)) = inner.last() {
+        if id == "terminal" {
+            return err(id.span(), "`terminal` comes last, after the event function: `name: falling(y) terminal`");
+        }
+    }
+    let what = format!("event `{name}`");
+    let expr = parse_expression(&inner, scope, &what, ident.span())?;
+    Ok(EventDecl { name: Named { name, span: ident.span() }, expr, direction, terminal })
 }
 
 /// Evaluates a constant [`SrcExpr`] (numbers, `pi`, functions and constants

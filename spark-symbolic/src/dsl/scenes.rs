@@ -13,6 +13,7 @@
 //!          | "holonomic"  "(" expr ")"     g(t,q) = 0, imposed as k = g_t + g_q v (g kept for drift)
 //!          | "force"    "{" (coordinate ":" expr),* "}"   external force f(t,q,v); absent = 0
 //!          | "nonideal" "{" (coordinate ":" expr),* "}"   non-ideal constraint force N(t,q,v,ψ)
+//!          | "event"    "(" event ")"                  an event located by the driver (see `dsl` docs)
 //! scenes  := "scenes" ":" "{" (Name "=" "[" name,* "]"),* ","? "}"
 //! ```
 //!
@@ -32,7 +33,7 @@ use crate::spec::{BinOp, ConstraintSpec, Func, SpecError, SrcExpr, SystemSpec};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 
 /// The effect kinds, as written.
-pub const EFFECT_KINDS: [&str; 5] = ["potential", "constraint", "holonomic", "force", "nonideal"];
+pub const EFFECT_KINDS: [&str; 6] = ["potential", "constraint", "holonomic", "force", "nonideal", "event"];
 
 fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
@@ -54,6 +55,8 @@ enum Effect {
     /// Non-ideal constraint force components; multipliers of constraint
     /// effects carry provisional indices until a scene orders them.
     Nonideal(Vec<Option<SrcExpr>>),
+    /// An event, named like the effect.
+    Event(crate::spec::EventDecl),
 }
 
 /// The base declaration and one [`SystemSpec`] per scene, or `None` when
@@ -255,6 +258,7 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<(Ident, Effect)
                 let example = format!("`{name}: force {{ {}: … }}`", base.coordinates[0].name);
                 Effect::Force(parse_force_block(args, &scope, &format!("force `{name}`"), &example)?)
             }
+            "event" => Effect::Event(super::parse_event(name, &arg_tokens, &scope)?),
             "nonideal" => {
                 let scope = Scope { multipliers: Multipliers::Allowed { base: m_base, named: &named }, ..scope };
                 let example = format!("`{name}: nonideal {{ {}: … }}`", base.coordinates[0].name);
@@ -289,6 +293,9 @@ fn check_lowerable(base: &SystemSpec, multipliers: usize, effects: &[(Ident, Eff
         match effect {
             Effect::Potential(e) | Effect::Constraint(e, _) | Effect::Holonomic { g: e, .. } => {
                 lower.lower(&mut graph, e)?;
+            }
+            Effect::Event(decl) => {
+                lower.lower(&mut graph, &decl.expr)?;
             }
             Effect::Force(components) | Effect::Nonideal(components) => {
                 for e in components.iter().flatten() {
@@ -430,6 +437,17 @@ fn parse_scenes(
                 }
                 Effect::Force(f) => spec.external_force = add_forces(std::mem::take(&mut spec.external_force), f),
                 Effect::Nonideal(f) => nonideal.push((key.clone(), f)),
+                Effect::Event(decl) => {
+                    if spec.events.iter().any(|e| e.name.name == decl.name.name) {
+                        return err(
+                            id.span(),
+                            format!(
+                                "scene `{name}` already has an event `{key}` from the base declaration; rename one"
+                            ),
+                        );
+                    }
+                    spec.events.push(decl.clone());
+                }
             }
             chosen.push(key);
         }

@@ -67,6 +67,7 @@ pub fn spec(name: &str, coords: &[&str], params: &[(&str, f64)], l: SrcExpr, ks:
         constraints: ks.into_iter().map(|expr| ConstraintSpec { expr, span: sp(), position: None }).collect(),
         external_force: Vec::new(),
         nonideal_force: Vec::new(),
+        events: Vec::new(),
         runtime_path: quote::quote!(::spark_runtime),
     }
 }

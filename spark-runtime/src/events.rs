@@ -1,0 +1,245 @@
+//! Events: zeros of scalar functions `g(t, q, v)` located on the dense output
+//! of each accepted step.
+//!
+//! A system declares its events in the DSL (`events: { name: expr, … }`,
+//! see [`nonholonomic_system!`](crate::nonholonomic_system)), which generates
+//! [`NonholonomicSystem::HAS_EVENTS`], [`NonholonomicSystem::EVENTS`],
+//! [`NonholonomicSystem::event_value`] and
+//! [`NonholonomicSystem::event_gradient`]; a run can also take events given
+//! at run time ([`EventFunctions`], [`Stepper::integrate_with_events`](crate::Stepper::integrate_with_events)).
+//!
+//! # Detection and location
+//! After each accepted step the driver compares the sign of every event
+//! function at `EVENT_SUBINTERVALS + 1` equally spaced points of the step
+//! (the ends are the step's own states; the inner points come from the dense
+//! output, [`DenseStep`]). A sign change on a subinterval `(a, b]` — or a
+//! value exactly zero at `b` after a nonzero value at `a` — is a crossing;
+//! its direction is rising when the function was negative before. A
+//! crossing whose direction the event asks for is located by Newton's method
+//! on `t ↦ g(t, q(t), v(t))` along the interpolant, with the derivative
+//! `g_t + g_q·q̇ + g_v·v̇`, kept inside the bracket by bisection: any Newton
+//! iterate outside the bracket, or a bracket that does not halve in two
+//! iterations, is replaced by the midpoint. Location stops when the bracket
+//! or the Newton update is below [`EVENT_TIME_TOLERANCE`]`·max(1, |t|)`.
+//!
+//! The subintervals of consecutive steps share their end points and the
+//! value at a step's end is carried into the next step unchanged, so a zero
+//! at a step boundary is reported once, by the step that ends there, and a
+//! sign change between two evaluated points is never lost. Two crossings of
+//! the same function closer together than a subinterval cancel and are not
+//! seen (the usual limit of sign-based detection). Crossings of one step are
+//! reported in time order; a terminal event ends the run at its time, with
+//! the interpolated state there.
+
+use crate::dense::DenseStep;
+use crate::system::{NonholonomicSystem, Vector};
+
+/// Sign checks per step: the step is split into this many equal subintervals.
+pub const EVENT_SUBINTERVALS: usize = 4;
+
+/// Relative tolerance in `t` of an event location (`tol·max(1, |t|)`).
+pub const EVENT_TIME_TOLERANCE: f64 = 1e-14;
+
+/// Which zero crossings of an event function count.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum Direction {
+    /// From negative to non-negative.
+    Rising,
+    /// From positive to non-positive.
+    Falling,
+    /// Both.
+    Both,
+}
+
+impl Direction {
+    /// Whether a crossing with `rising` (true: − to +) counts.
+    pub const fn accepts(self, rising: bool) -> bool {
+        match self {
+            Direction::Rising => rising,
+            Direction::Falling => !rising,
+            Direction::Both => true,
+        }
+    }
+}
+
+/// Declaration of one event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct EventSpec {
+    /// Its name.
+    pub name: &'static str,
+    /// Which crossings count.
+    pub direction: Direction,
+    /// Whether the first crossing ends the run (`false`: crossings are
+    /// counted and reported).
+    pub terminal: bool,
+    /// The event function in the neutral text form of
+    /// [`SystemSource`](crate::SystemSource) (empty for run-time events).
+    pub source: &'static str,
+}
+
+/// An event function and its first derivatives at one point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EventGradient<const N: usize> {
+    /// `g(t, q, v)`.
+    pub value: f64,
+    /// `∂g/∂t`.
+    pub t: f64,
+    /// `∂g/∂q`.
+    pub q: Vector<N>,
+    /// `∂g/∂v`.
+    pub v: Vector<N>,
+}
+
+impl<const N: usize> EventGradient<N> {
+    /// All zero.
+    pub fn zeros() -> Self {
+        EventGradient { value: 0.0, t: 0.0, q: Vector::zeros(), v: Vector::zeros() }
+    }
+}
+
+/// A set of event functions evaluated for a system `Sys`.
+pub trait EventFunctions<Sys, const N: usize> {
+    /// The declarations, in index order.
+    fn specs(&self) -> &[EventSpec];
+    /// `g_index(t, q, v)`.
+    fn value(&self, system: &Sys, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64;
+    /// `g_index` with its derivatives.
+    fn gradient(&self, system: &Sys, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N>;
+}
+
+/// The events a system with `M` constraints declares ([`NonholonomicSystem::EVENTS`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SystemEvents<const M: usize>;
+
+impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> EventFunctions<Sys, N> for SystemEvents<M> {
+    fn specs(&self) -> &[EventSpec] {
+        Sys::EVENTS
+    }
+    fn value(&self, system: &Sys, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64 {
+        system.event_value(index, t, q, v)
+    }
+    fn gradient(&self, system: &Sys, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N> {
+        system.event_gradient(index, t, q, v)
+    }
+}
+
+/// No events (what a system without events runs with).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoEvents;
+
+impl<Sys, const N: usize> EventFunctions<Sys, N> for NoEvents {
+    fn specs(&self) -> &[EventSpec] {
+        &[]
+    }
+    fn value(&self, _: &Sys, _: usize, _: f64, _: &Vector<N>, _: &Vector<N>) -> f64 {
+        0.0
+    }
+    fn gradient(&self, _: &Sys, _: usize, _: f64, _: &Vector<N>, _: &Vector<N>) -> EventGradient<N> {
+        EventGradient::zeros()
+    }
+}
+
+/// Events given at run time: declarations with a function for the value and
+/// one for the value with its derivatives.
+pub struct RuntimeEvents<'a, const N: usize> {
+    /// The declarations.
+    pub specs: &'a [EventSpec],
+    /// `(index, t, q, v) ↦ g_index(t, q, v)` with its derivatives.
+    pub gradient: &'a dyn Fn(usize, f64, &Vector<N>, &Vector<N>) -> EventGradient<N>,
+}
+
+impl<Sys, const N: usize> EventFunctions<Sys, N> for RuntimeEvents<'_, N> {
+    fn specs(&self) -> &[EventSpec] {
+        self.specs
+    }
+    fn value(&self, _: &Sys, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64 {
+        (self.gradient)(index, t, q, v).value
+    }
+    fn gradient(&self, _: &Sys, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N> {
+        (self.gradient)(index, t, q, v)
+    }
+}
+
+/// One located event.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EventRecord<const N: usize> {
+    /// Index of the event in its declarations.
+    pub index: usize,
+    /// Its name.
+    pub name: String,
+    /// Whether the function rose through zero (`false`: fell).
+    pub rising: bool,
+    /// Time of the zero.
+    pub t: f64,
+    /// Coordinates there (dense output).
+    pub q: Vector<N>,
+    /// Velocities there (dense output).
+    pub v: Vector<N>,
+    /// The event function's value there (after location; `≈ 0`).
+    pub residual: f64,
+    /// Index of the accepted step in which it was found (0-based).
+    pub step: usize,
+}
+
+/// A crossing found inside one step, before it is turned into a record.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Crossing {
+    pub(crate) index: usize,
+    pub(crate) rising: bool,
+    pub(crate) t: f64,
+}
+
+/// Locates the zero of event `index` on `(a, b]` (values `ga`, `gb` of
+/// opposite sign, or `gb = 0`) along the dense output of `step`.
+pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, const S: usize>(
+    events: &E,
+    system: &Sys,
+    index: usize,
+    step: &DenseStep<'_, N, S>,
+    (a, ga): (f64, f64),
+    (b, gb): (f64, f64),
+) -> f64 {
+    if gb == 0.0 {
+        return b;
+    }
+    // Bracket [lo, hi] in increasing t with the sign at lo.
+    let (mut lo, mut hi, g_lo) = if a < b { (a, b, ga) } else { (b, a, gb) };
+    let negative_at_lo = g_lo < 0.0;
+    // Secant start.
+    let mut t = a - ga * (b - a) / (gb - ga);
+    if !(t > lo && t < hi) {
+        t = 0.5 * (lo + hi);
+    }
+    // Bracket widths of the previous two iterations: Newton is trusted while
+    // the bracket at least halves every two iterations.
+    let mut widths = [hi - lo; 2];
+    for _ in 0..200 {
+        let tol = EVENT_TIME_TOLERANCE * t.abs().max(1.0);
+        let value = step.value_at(t);
+        let g = events.gradient(system, index, t, &value.state.q, &value.state.v);
+        if g.value == 0.0 {
+            return t;
+        }
+        if (g.value < 0.0) == negative_at_lo {
+            lo = t;
+        } else {
+            hi = t;
+        }
+        if hi - lo <= tol {
+            return 0.5 * (lo + hi);
+        }
+        let stalled = hi - lo > 0.5 * widths[0];
+        widths = [widths[1], hi - lo];
+        let slope = g.t + g.q.dot(&value.q_dot) + g.v.dot(&value.v_dot);
+        let newton = t - g.value / slope;
+        if newton.is_finite() && newton > lo && newton < hi && !stalled {
+            if (newton - t).abs() <= tol {
+                return newton;
+            }
+            t = newton;
+        } else {
+            t = 0.5 * (lo + hi);
+        }
+    }
+    t
+}

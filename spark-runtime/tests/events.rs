@@ -1,0 +1,426 @@
+//! Events located on the dense output.
+//!
+//! - Accuracy: on five systems (the paper's particle, skate, mobile robot,
+//!   McLachlan–Perlmutter particles, and a system with a time-dependent,
+//!   velocity-nonlinear constraint) every located event time agrees to
+//!   ≤ 1e-12 with an independent bracket: bisection in `t` on the event
+//!   function along the reference integrator (extrapolation at 1e-14), which
+//!   shares nothing with the SPARK step or its dense output.
+//! - An event exactly at a step boundary is reported once.
+//! - Several events in one step come in time order; directions filter.
+//! - A terminal event ends the run exactly at its time.
+//! - Events declared in the DSL are generated with exact derivatives and
+//!   stop `integrate` when terminal; a scene selects its events.
+
+use spark_runtime::handwritten::{General, MobileRobot, MpParticles, Particle, Skate};
+use spark_runtime::reference::{integrate, integrate_at, ReferenceOptions};
+use spark_runtime::{
+    nonholonomic_system, Direction, EventGradient, EventSpec, Method, NoEvents, NoObserver, NonholonomicSystem,
+    RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
+};
+
+/// `g(t,q,v) = w·q + u·v + a·t + b + κ q₀²`, with its gradient.
+#[derive(Clone, Copy)]
+struct Affine<const N: usize> {
+    w: [f64; N],
+    u: [f64; N],
+    a: f64,
+    b: f64,
+    kappa: f64,
+}
+
+impl<const N: usize> Affine<N> {
+    fn gradient(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N> {
+        let w = Vector::<N>::from_row_slice(&self.w);
+        let u = Vector::<N>::from_row_slice(&self.u);
+        let value = w.dot(q) + u.dot(v) + self.a * t + self.b + self.kappa * q[0] * q[0];
+        let mut gq = w;
+        gq[0] += 2.0 * self.kappa * q[0];
+        EventGradient { value, t: self.a, q: gq, v: u }
+    }
+}
+
+/// The first zero of `g` after `t0` along the reference solution, by a scan
+/// every `scan` and bisection to the resolution of `t`.
+fn reference_zero<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    start: &State<N>,
+    g: &Affine<N>,
+    t_end: f64,
+    scan: f64,
+    after: f64,
+) -> Option<f64>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let opts = ReferenceOptions::default();
+    let count = ((t_end - start.t) / scan).ceil() as usize;
+    let times: Vec<f64> = (1..=count).map(|k| start.t + k as f64 * scan).collect();
+    let r = integrate_at(sys, start.t, &start.q, &start.v, &times, &opts).unwrap();
+    let mut a = *start;
+    let mut ga = g.gradient(a.t, &a.q, &a.v).value;
+    for (k, &t) in times.iter().enumerate() {
+        let gb = g.gradient(t, &r.q[k], &r.v[k]).value;
+        if t > after && (ga < 0.0) != (gb < 0.0) && a.t >= after - scan {
+            // Bisection from the left end, integrating the reference each time.
+            let (mut lo, mut hi) = (a.t, t);
+            let left = a;
+            while hi - lo > 1e-15 * hi.abs().max(1.0) {
+                let mid = 0.5 * (lo + hi);
+                if mid <= lo || mid >= hi {
+                    break;
+                }
+                let s = integrate(sys, left.t, &left.q, &left.v, mid, &opts).unwrap();
+                let gm = g.gradient(mid, &s.q[0], &s.v[0]).value;
+                if (gm < 0.0) == (ga < 0.0) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            return Some(0.5 * (lo + hi));
+        }
+        a = State::new(t, r.q[k], r.v[k]);
+        ga = gb;
+    }
+    None
+}
+
+/// Runs Gauss s = 4 with `h` over `[t0, t_end]` with the events `gs` and
+/// checks every located event against the reference bracket. Returns the
+/// largest difference and the number of events.
+fn check_system<Sys, const N: usize, const M: usize, const D: usize>(
+    sys: Sys,
+    start: State<N>,
+    gs: &[Affine<N>],
+    h: f64,
+    t_end: f64,
+) -> (f64, usize)
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let specs: Vec<EventSpec> =
+        gs.iter().map(|_| EventSpec { name: "g", direction: Direction::Both, terminal: false, source: "" }).collect();
+    let gradient = |i: usize, t: f64, q: &Vector<N>, v: &Vector<N>| gs[i].gradient(t, q, v);
+    let events = RuntimeEvents { specs: &specs, gradient: &gradient };
+    let mut st = Stepper::<Sys, N, M, 4, D>::new(sys.clone(), Tableau::new(Method::Gauss).unwrap());
+    let steps = ((t_end - start.t) / h).round() as usize;
+    let traj = st
+        .integrate_with_events(
+            start.t,
+            &start.q,
+            &start.v,
+            Schedule::Fixed { h, steps },
+            &RunOptions::default(),
+            &mut NoObserver,
+            &events,
+        )
+        .unwrap();
+    assert!(!traj.events.is_empty(), "{}: no events", Sys::SOURCE.name);
+    let mut worst = 0.0f64;
+    let mut last_t = f64::NEG_INFINITY;
+    for e in &traj.events {
+        assert!(e.t >= last_t, "events out of time order");
+        last_t = e.t;
+        assert!(e.residual.abs() < 1e-11, "{}: |g| = {:.1e} at the event", Sys::SOURCE.name, e.residual);
+        // The reference zero of the same function nearest to the located one.
+        let z = reference_zero::<Sys, N, M>(&sys, &start, &gs[e.index], e.t + 0.05, 0.01, e.t - 0.02)
+            .unwrap_or_else(|| panic!("{}: no reference zero near t = {}", Sys::SOURCE.name, e.t));
+        worst = worst.max((z - e.t).abs());
+        assert!(
+            (z - e.t).abs() <= 1e-12,
+            "{} event {} at t = {:.15}: reference bracket {:.15} (|Δt| = {:.1e})",
+            Sys::SOURCE.name,
+            e.index,
+            e.t,
+            z,
+            (z - e.t).abs()
+        );
+    }
+    println!("{:12} {} events, max |Δt| vs reference bracket {worst:.1e}", Sys::SOURCE.name, traj.events.len());
+    (worst, traj.events.len())
+}
+
+#[test]
+fn events_agree_with_an_independent_bracket_on_five_systems() {
+    let h = 0.01;
+    let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    check_system::<_, 3, 1, { 4 * 4 + 3 }>(
+        Particle,
+        particle,
+        &[
+            Affine { w: [1.0, 0.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.3, kappa: 0.0 },
+            Affine { w: [0.0; 3], u: [0.0, 1.0, 0.0], a: 0.0, b: 0.0, kappa: 0.0 },
+        ],
+        h,
+        4.0,
+    );
+    let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    check_system::<_, 3, 1, { 4 * 4 + 3 }>(
+        Skate::default(),
+        skate,
+        &[
+            Affine { w: [0.0, 0.0, 1.0], u: [0.0; 3], a: 0.0, b: -2.0, kappa: 0.0 },
+            Affine { w: [0.0; 3], u: [1.0, 0.0, 0.0], a: 0.0, b: -0.2, kappa: 1.0 },
+        ],
+        h,
+        4.0,
+    );
+    let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+    check_system::<_, 4, 2, { 4 * 6 + 4 }>(
+        MobileRobot::default(),
+        robot,
+        &[
+            Affine { w: [0.0, 1.0, 0.0, 0.0], u: [0.0; 4], a: 0.0, b: -0.4, kappa: 0.0 },
+            Affine { w: [0.0; 4], u: [0.0, 0.0, 0.0, 1.0], a: 0.0, b: -0.5, kappa: 0.0 },
+        ],
+        h,
+        4.0,
+    );
+    let mp = State::new(
+        0.0,
+        Vector::<7>::from_row_slice(&[0.8, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),
+        Vector::<7>::from_row_slice(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0]),
+    );
+    check_system::<_, 7, 1, { 4 * 8 + 7 }>(
+        MpParticles,
+        mp,
+        &[
+            Affine { w: [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], u: [0.0; 7], a: 0.0, b: 0.0, kappa: 0.0 },
+            Affine { w: [0.0; 7], u: [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0], a: 0.0, b: 0.0, kappa: 0.0 },
+        ],
+        h,
+        4.0,
+    );
+    // Time-dependent constraint v₂ − q₁v₁ − a v₁² + e sin t = 0, and an event
+    // function that depends on t explicitly.
+    let g = General::default();
+    let v1 = 0.8;
+    let (q0, q1) = (0.3, -0.2);
+    let general = State::new(0.0, Vector::<2>::new(q0, q1), Vector::<2>::new(v1, q0 * v1 + g.a * v1 * v1));
+    check_system::<_, 2, 1, { 4 * 3 + 2 }>(
+        g,
+        general,
+        &[
+            Affine { w: [1.0, 0.0], u: [0.0; 2], a: 0.0, b: 0.0, kappa: 0.0 },
+            Affine { w: [0.0, 1.0], u: [0.0, 0.5], a: 0.1, b: 0.05, kappa: 0.5 },
+        ],
+        h,
+        4.0,
+    );
+}
+
+fn time_event<const N: usize>(target: f64) -> impl Fn(usize, f64, &Vector<N>, &Vector<N>) -> EventGradient<N> {
+    move |_, t, _, _| EventGradient { value: t - target, t: 1.0, q: Vector::zeros(), v: Vector::zeros() }
+}
+
+fn particle_stepper() -> Stepper<Particle, 3, 1, 2, 11> {
+    Stepper::new(Particle, Tableau::new(Method::Gauss).unwrap())
+}
+
+fn particle_start() -> State<3> {
+    State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0))
+}
+
+#[test]
+fn an_event_at_a_step_boundary_is_reported_once() {
+    let s0 = particle_start();
+    for (name, direction) in [("rising", Direction::Rising), ("both", Direction::Both)] {
+        let specs = [EventSpec { name, direction, terminal: false, source: "" }];
+        let g = time_event::<3>(0.5);
+        let events = RuntimeEvents { specs: &specs, gradient: &g };
+        let traj = particle_stepper()
+            .integrate_with_events(
+                0.0,
+                &s0.q,
+                &s0.v,
+                Schedule::Fixed { h: 0.125, steps: 8 },
+                &RunOptions::default(),
+                &mut NoObserver,
+                &events,
+            )
+            .unwrap();
+        assert_eq!(traj.events.len(), 1, "{name}: {:?}", traj.events);
+        assert_eq!(traj.events[0].t, 0.5);
+        assert_eq!(traj.events[0].step, 3);
+        assert!(traj.events[0].rising);
+    }
+    // A zero within round-off of a grid point (the sign flips just after it).
+    let specs = [EventSpec { name: "near", direction: Direction::Both, terminal: false, source: "" }];
+    let g = time_event::<3>(0.5 + 1e-16);
+    let events = RuntimeEvents { specs: &specs, gradient: &g };
+    let traj = particle_stepper()
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h: 0.125, steps: 8 },
+            &RunOptions::default(),
+            &mut NoObserver,
+            &events,
+        )
+        .unwrap();
+    assert_eq!(traj.events.len(), 1, "{:?}", traj.events);
+    assert!((traj.events[0].t - 0.5).abs() <= 1e-15);
+}
+
+#[test]
+fn several_events_in_one_step_come_in_time_order_and_directions_filter() {
+    let s0 = particle_start();
+    let specs = [
+        EventSpec { name: "late", direction: Direction::Both, terminal: false, source: "" },
+        EventSpec { name: "early", direction: Direction::Both, terminal: false, source: "" },
+        EventSpec { name: "falling-only", direction: Direction::Falling, terminal: false, source: "" },
+        EventSpec { name: "rising-only", direction: Direction::Rising, terminal: false, source: "" },
+    ];
+    let targets = [0.31, 0.27, 0.29, 0.3];
+    let g = |i: usize, t: f64, _: &Vector<3>, _: &Vector<3>| EventGradient {
+        value: t - targets[i],
+        t: 1.0,
+        q: Vector::zeros(),
+        v: Vector::zeros(),
+    };
+    let events = RuntimeEvents { specs: &specs, gradient: &g };
+    let traj = particle_stepper()
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h: 0.5, steps: 2 },
+            &RunOptions::default(),
+            &mut NoObserver,
+            &events,
+        )
+        .unwrap();
+    let names: Vec<&str> = traj.events.iter().map(|e| e.name.as_str()).collect();
+    assert_eq!(names, ["early", "rising-only", "late"]);
+    for e in &traj.events {
+        assert!((e.t - targets[e.index]).abs() <= 1e-15, "{} at {}", e.name, e.t);
+    }
+    assert_eq!(traj.report.events, 3);
+}
+
+#[test]
+fn a_terminal_event_ends_the_run_exactly_there() {
+    let s0 = particle_start();
+    // y = q₁ first falls through 0.5 after its maximum; terminal.
+    let specs = [
+        EventSpec { name: "count", direction: Direction::Both, terminal: false, source: "" },
+        EventSpec { name: "stop", direction: Direction::Falling, terminal: true, source: "" },
+    ];
+    let g = |i: usize, t: f64, q: &Vector<3>, _: &Vector<3>| {
+        if i == 0 {
+            EventGradient { value: t - 0.1, t: 1.0, q: Vector::zeros(), v: Vector::zeros() }
+        } else {
+            EventGradient { value: q[1] - 0.5, t: 0.0, q: Vector::<3>::new(0.0, 1.0, 0.0), v: Vector::zeros() }
+        }
+    };
+    let events = RuntimeEvents { specs: &specs, gradient: &g };
+    let mut st = particle_stepper();
+    let mut seen = Vec::new();
+    let mut observer = |s: &State<3>, _: usize| seen.push(s.t);
+    let traj = st
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h: 0.1, steps: 100 },
+            &RunOptions::default(),
+            &mut observer,
+            &events,
+        )
+        .unwrap();
+    let stop = traj.events.last().unwrap();
+    assert_eq!(stop.name, "stop");
+    assert!(!stop.rising);
+    assert_eq!(traj.report.terminal_event, Some(1));
+    let last = traj.samples.last().unwrap();
+    assert_eq!(last.t, stop.t, "the run ends at the event time");
+    assert_eq!(last.q, stop.q);
+    assert!((last.q[1] - 0.5).abs() < 1e-12);
+    assert!(traj.report.steps < 100);
+    assert_eq!(*seen.last().unwrap(), stop.t);
+    assert_eq!(traj.events.iter().filter(|e| e.name == "count").count(), 1);
+    // A system without events runs as before: no events, no terminal.
+    let plain = particle_stepper()
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h: 0.1, steps: 10 },
+            &RunOptions::default(),
+            &mut NoObserver,
+            &NoEvents,
+        )
+        .unwrap();
+    assert!(plain.events.is_empty() && plain.report.terminal_event.is_none());
+}
+
+nonholonomic_system! {
+    /// A ball on a vertical line with gravity; events on its height.
+    pub struct Ball {
+        coordinates: [y, x],
+        parameters: { g = 9.81 },
+        lagrangian: dot(y)^2/2 + dot(x)^2/2 - g*y,
+        constraints: [ dot(x) - y ],
+        events: {
+            ground: falling(y) terminal,
+            apex: falling(dot(y)),
+            crossing_half: y - 0.5 + 0*t,
+            timed: rising(t*x - 0.2*y^2),
+        },
+        effects: { late: event(rising(t - 0.25)) },
+        scenes: { Plain = [], Late = [late] },
+    }
+}
+
+#[test]
+fn dsl_events_have_exact_derivatives_and_stop_terminal_runs() {
+    const { assert!(<Ball as NonholonomicSystem<2, 1>>::HAS_EVENTS) };
+    let specs = <Ball as NonholonomicSystem<2, 1>>::EVENTS;
+    let names: Vec<&str> = specs.iter().map(|s| s.name).collect();
+    assert_eq!(names, ["ground", "apex", "crossing_half", "timed"]);
+    assert_eq!(specs[0].direction, Direction::Falling);
+    assert!(specs[0].terminal);
+    assert_eq!(specs[2].direction, Direction::Both);
+    assert!(!specs[2].source.is_empty());
+    // Derivatives against central differences.
+    let ball = Ball::default();
+    let (t, q, v) = (0.7, Vector::<2>::new(0.9, -0.3), Vector::<2>::new(-1.1, 0.4));
+    for i in 0..specs.len() {
+        let g = ball.event_gradient(i, t, &q, &v);
+        assert_eq!(g.value, ball.event_value(i, t, &q, &v));
+        let d = 1e-6;
+        let fd_t = (ball.event_value(i, t + d, &q, &v) - ball.event_value(i, t - d, &q, &v)) / (2.0 * d);
+        assert!((fd_t - g.t).abs() < 1e-8, "event {i} g_t {} vs {fd_t}", g.t);
+        for k in 0..2 {
+            let e = Vector::<2>::from_fn(|r, _| if r == k { d } else { 0.0 });
+            let fq = (ball.event_value(i, t, &(q + e), &v) - ball.event_value(i, t, &(q - e), &v)) / (2.0 * d);
+            let fv = (ball.event_value(i, t, &q, &(v + e)) - ball.event_value(i, t, &q, &(v - e))) / (2.0 * d);
+            assert!((fq - g.q[k]).abs() < 1e-8 && (fv - g.v[k]).abs() < 1e-8, "event {i} component {k}");
+        }
+    }
+    // Thrown up from y = 1: apex, then y = 0.5 falling, then the ground (terminal).
+    let mut st: spark_runtime::Stepper![Ball, 3] = Stepper::new(ball, Tableau::new(Method::Gauss).unwrap());
+    let (q0, v0) = (Vector::<2>::new(1.0, 0.0), Vector::<2>::new(2.0, 1.0));
+    let traj = st
+        .integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.05, steps: 200 }, &RunOptions::default(), &mut NoObserver)
+        .unwrap();
+    let seq: Vec<&str> = traj.events.iter().map(|e| e.name.as_str()).collect();
+    assert!(seq.contains(&"apex") && seq.contains(&"crossing_half"), "{seq:?}");
+    assert_eq!(*seq.last().unwrap(), "ground");
+    // With the constraint, the motion in y is free fall: y(t) = 1 + 2t − g t²/2.
+    let g = 9.81;
+    let ground = (2.0 + (4.0f64 + 2.0 * g).sqrt()) / g;
+    let stop = traj.events.last().unwrap();
+    assert!((stop.t - ground).abs() < 1e-12, "ground at {} vs {ground}", stop.t);
+    assert_eq!(traj.samples.last().unwrap().t, stop.t);
+    let apex = traj.events.iter().find(|e| e.name == "apex").unwrap();
+    assert!((apex.t - 2.0 / g).abs() < 1e-12);
+    // Scenes: `Plain` has the base events only, `Late` adds its own.
+    assert_eq!(<Plain as NonholonomicSystem<2, 1>>::EVENTS.len(), 4);
+    let late = <Late as NonholonomicSystem<2, 1>>::EVENTS;
+    assert_eq!(late.len(), 5);
+    assert_eq!(late[4].name, "late");
+    assert_eq!(late[4].direction, Direction::Rising);
+}
