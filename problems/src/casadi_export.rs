@@ -744,6 +744,7 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, String> {
     one!("AppellHamel", AppellHamel::default());
     one!("ChaplyginSleigh", ChaplyginSleigh::default());
     one!("DoublePendulum", DoublePendulum::default());
+    one!("OrbitParticle", OrbitParticle::default());
     one!(HANDWRITTEN, handwritten::Rheonomic::default());
     // Systems declared with effects and scenes (scenes are plain
     // systems to the exporter: their SOURCE holds the selected effects).
@@ -896,6 +897,16 @@ pub fn export_all_steps() -> Result<Vec<StepExport>, String> {
         0.0,
         V::<2>::new(0.5, -0.3),
         V::<2>::new(0.2, 0.1),
+        0.05
+    );
+    casadi_steps_for!(
+        out,
+        "OrbitParticle",
+        OrbitParticle,
+        OrbitParticle::default(),
+        0.0,
+        V::<3>::new(1.0, 0.2, 0.0),
+        V::<3>::new(0.1, 1.0, 0.02),
         0.05
     );
     casadi_steps_for!(

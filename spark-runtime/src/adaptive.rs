@@ -534,6 +534,9 @@ where
             stages: S,
             samples: rec.samples,
             report: rec.run,
+            // Adaptive runs do not locate events (use `integrate_with_events`
+            // on fixed steps for that).
+            events: Vec::new(),
         },
         report,
     }
