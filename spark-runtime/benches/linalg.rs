@@ -1,6 +1,6 @@
 //! The Newton linear algebra of one step, old kernel vs new, side by side.
 //!
-//! `old` is a verbatim copy of the session-2 kernel (right-looking LU on
+//! `old` is a verbatim copy of the earlier scalar kernel (right-looking LU on
 //! column-major slices with block pivot ranges and physical row swaps, as it
 //! was in `linalg.rs`/`newton.rs` before the padded kernel); `new` is
 //! [`NewtonMatrix::factor`] + [`NewtonMatrix::solve_in_place`]. Matrices are
@@ -17,7 +17,7 @@ use spark_runtime::newton::NewtonMatrix;
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 
-/// The session-2 kernel, copied unchanged (only made free-standing).
+/// The earlier scalar kernel, copied unchanged (only made free-standing).
 mod old {
     #[inline]
     pub fn factor_in_place<const D: usize>(
@@ -186,7 +186,7 @@ mod old {
         }
     }
 
-    /// The session-2 `NewtonMatrix::factor`/`solve_in_place` bodies.
+    /// The earlier `NewtonMatrix::factor`/`solve_in_place` bodies.
     pub struct OldNewton<const D: usize> {
         pub jacobian: Box<[f64]>,
         lu: Box<[f64]>,

@@ -14,7 +14,7 @@
 //! swap-free [`PaddedLu`] (AVX2+FMA intrinsics, `PADDED_MIN ≤ D ≤
 //! PADDED_MAX`), which is 1.2–1.3× faster at the Newton matrices of the
 //! paper's systems (D = 19..47); both are benchmarked side by side against
-//! the session-2 kernel in `benches/linalg.rs`.
+//! the unpadded scalar kernel kept in `benches/linalg.rs`.
 
 use crate::system::{Matrix, Vector};
 
