@@ -103,6 +103,33 @@ impl Method {
         }
     }
 
+    /// The key that names the method on the command line, in CSV and JSON
+    /// files and in Python, e.g. `"lobatto-iiia-b"`; [`str::parse`] reads it back.
+    pub const fn key(self) -> &'static str {
+        match self {
+            Method::Gauss => "gauss",
+            Method::LobattoIIIAB => "lobatto-iiia-b",
+            Method::LobattoIIIABD => "lobatto-iiia-b-d",
+            Method::SymplecticEulerI => "euler-1",
+            Method::SymplecticEulerII => "euler-2",
+            Method::ModifiedLobattoIIIAB => "modified-lobatto-iiia-b",
+            Method::LobattoIIIBALda => "lobatto-iiib-a-lda",
+        }
+    }
+
+    /// A short label for tables and figure legends, e.g. `Gauss s=3`,
+    /// `Lobatto IIIA-B-D s=2`, `Euler I`; methods with one stage count carry
+    /// no `s`.
+    pub fn label(self, s: usize) -> String {
+        match self {
+            Method::SymplecticEulerI => "Euler I".into(),
+            Method::SymplecticEulerII => "Euler II".into(),
+            Method::LobattoIIIBALda => "LDA (McLachlan-Perlmutter)".into(),
+            Method::ModifiedLobattoIIIAB => "modified Lobatto IIIA-B".into(),
+            m => format!("{} s={s}", m.name()),
+        }
+    }
+
     /// The stage counts this method supports, as an inclusive range.
     pub const fn stage_range(self) -> (usize, usize) {
         match self {
@@ -705,6 +732,16 @@ mod tests {
         let ratio = gaps[0] / gaps[1];
         assert!(gaps[1] > 1e-6, "the midpoint reading should differ visibly: {:.3e}", gaps[1]);
         assert!((6.0..10.0).contains(&ratio), "gap ratio {ratio:.3e} for h → h/2 should be ≈ 8 (O(h³))");
+    }
+
+    #[test]
+    fn every_key_parses_back_to_its_method() {
+        for m in Method::ALL {
+            assert_eq!(m.key().parse::<Method>().unwrap(), m);
+            assert_eq!(m.key().to_ascii_uppercase().parse::<Method>().unwrap(), m);
+        }
+        let keys: std::collections::HashSet<_> = Method::ALL.iter().map(|m| m.key()).collect();
+        assert_eq!(keys.len(), Method::ALL.len());
     }
 
     #[test]
