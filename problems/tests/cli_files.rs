@@ -4,6 +4,7 @@
 //! computation, and output sizes stay bounded.
 
 use std::collections::BTreeMap;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -76,15 +77,25 @@ fn an_interrupted_run_leaves_the_previous_results_intact() {
     // A second run with another step size, interrupted in its write phase
     // (as soon as anything in the folder changes).
     let all_before = snapshot(&dir, true);
-    let mut child = spark()
+    let mut child = spark();
+    child
         .args(base)
         .args(["--h", "0.02", "--out"])
         .arg(&dir)
         .env(PAUSE_ENV, "60000")
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+        .stderr(Stdio::null());
+    // A shell that starts this test in the background ignores SIGINT, and
+    // the child would inherit that; give the run the disposition an
+    // interactive Ctrl-C meets.
+    // SAFETY: `signal` is async-signal-safe, the only call between fork and exec.
+    unsafe {
+        child.pre_exec(|| {
+            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            Ok(())
+        });
+    }
+    let mut child = child.spawn().unwrap();
     wait_until(&mut child, "writing", || snapshot(&dir, true) != all_before);
     let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(kill.success());
