@@ -68,7 +68,7 @@
 use crate::driver::{Observe, Observer, RunReport, Sample, Trajectory};
 use crate::error::{OptionError, Sci, StepError};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
-use crate::stepper::{State, Stepper};
+use crate::step::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
 

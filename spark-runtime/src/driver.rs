@@ -7,7 +7,7 @@ use crate::error::{OptionError, Sci, StepError};
 use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 use crate::options::MAX_HALVINGS;
-use crate::stepper::{State, StepResult, Stepper};
+use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
 

@@ -6,7 +6,7 @@
 //! is checked against finite differences on them) and for generated scenes.
 
 use crate::handwritten::Skate;
-use crate::stepper::{State, StepResult};
+use crate::step::{State, StepResult};
 use crate::system::{
     ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, StageJacobians, StageValues,
     Structure, SystemSource, TimeDerivatives, Vector,

@@ -123,7 +123,6 @@
 #![warn(missing_docs)]
 
 pub mod adaptive;
-mod convergence;
 mod decoupled;
 pub mod dense;
 mod driver;
@@ -137,7 +136,7 @@ pub mod newton;
 mod options;
 pub mod reference;
 pub mod rejection;
-mod stepper;
+mod step;
 pub mod system;
 pub mod tableau;
 #[cfg(test)]
@@ -164,7 +163,7 @@ pub use rejection::{
     RejectionRunError,
 };
 pub use spark_macros::nonholonomic_system;
-pub use stepper::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};
+pub use step::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};
 pub use system::{
     ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, StageJacobians, StageValues,
     Structure, SystemSource, TimeDerivatives, Vector,

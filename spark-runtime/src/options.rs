@@ -6,7 +6,7 @@
 use crate::driver::RunOptions;
 use crate::error::{OptionError, HISTORY_CAPACITY};
 use crate::initial::ConsistencyPolicy;
-use crate::stepper::{Jacobian, NewtonMode, NewtonOptions};
+use crate::step::{Jacobian, NewtonMode, NewtonOptions};
 
 /// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
 /// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
