@@ -123,7 +123,6 @@
 #![warn(missing_docs)]
 
 pub mod adaptive;
-mod decoupled;
 pub mod dense;
 mod driver;
 pub mod effects;
@@ -132,7 +131,6 @@ pub mod events;
 pub mod handwritten;
 mod initial;
 mod linalg;
-pub mod newton;
 mod options;
 pub mod reference;
 pub mod rejection;
@@ -157,6 +155,7 @@ pub use events::{
     EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 pub use options::MAX_HALVINGS;
 pub use rejection::{
     integrate_with_rejection, step_with_rejection, ProtectedStep, RejectionError, RejectionPolicy, RejectionReport,
@@ -189,6 +188,13 @@ macro_rules! Stepper {
             { ($s) * (<$sys>::N + <$sys>::M) + <$sys>::N },
         >
     };
+}
+
+/// The Newton matrix under its earlier path; [`NewtonMatrix`] is the one
+/// public path.
+#[doc(hidden)]
+pub mod newton {
+    pub use crate::linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 }
 
 #[doc(hidden)]

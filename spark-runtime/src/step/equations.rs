@@ -8,8 +8,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::Stepper;
-use crate::decoupled::Masses;
-use crate::newton::NewtonMatrix;
+use crate::linalg::decoupled::Masses;
+use crate::linalg::newton_matrix::NewtonMatrix;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 use crate::State;

@@ -51,9 +51,9 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use convergence::scaled_update_norm;
 
-use crate::decoupled::DecoupledMatrix;
 use crate::error::{NewtonHistory, StepError};
-use crate::newton::NewtonMatrix;
+use crate::linalg::decoupled::DecoupledMatrix;
+use crate::linalg::newton_matrix::NewtonMatrix;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
 use cold_start::check_cold_start;

@@ -28,7 +28,7 @@
 //! Every array is allocated once, on the heap, by [`DecoupledMatrix::new`]:
 //! a step allocates nothing, and no `N × N` value goes on the stack.
 
-use crate::linalg::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime, Singular};
+use super::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime, Singular};
 use crate::system::{Matrix, StageJacobians, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 

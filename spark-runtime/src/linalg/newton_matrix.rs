@@ -32,7 +32,7 @@
 //! `8·D²` bytes overflowed a 2 MiB rayon worker stack from `D ≈ 250` on;
 //! boxed, the stepper's own size is `O(S·D)` whatever `D`.
 
-use crate::linalg::{column_scales, factor_in_place, solve_in_place, PaddedLu};
+use super::{column_scales, factor_in_place, solve_in_place, PaddedLu};
 use crate::system::{Matrix, Vector};
 use nalgebra::{Const, MatrixView, MatrixViewMut};
 
