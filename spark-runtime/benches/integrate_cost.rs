@@ -11,7 +11,7 @@
 
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use spark_runtime::handwritten::{MobileRobot, Particle, Skate};
+use spark_runtime::fixtures::paper::{MobileRobot, Particle, Skate};
 use spark_runtime::{Method, NoObserver, NonholonomicSystem, RunOptions, Schedule, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 

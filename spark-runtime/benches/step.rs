@@ -16,7 +16,7 @@
 
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use spark_runtime::handwritten::{MobileRobot, MpParticles, Particle, Skate};
+use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 

@@ -5,7 +5,7 @@
 // Stage loops index several parallel arrays (c, a, b, stage values) with one index.
 #![allow(clippy::needless_range_loop)]
 
-use crate::handwritten::{General, MobileRobot, MpParticles, Particle, Skate};
+use crate::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use crate::*;
 use nalgebra::{DMatrix, DVector};
 

@@ -334,8 +334,8 @@ mod tests {
     // Stage loops index several parallel arrays with one index.
     #![allow(clippy::needless_range_loop)]
 
-    use crate::effects::{DrivenSkate, FrictionSkate};
-    use crate::handwritten::{General, MobileRobot, MpParticles, Skate};
+    use crate::fixtures::effects::{DrivenSkate, FrictionSkate};
+    use crate::fixtures::paper::{General, MobileRobot, MpParticles, Skate};
     use crate::*;
 
     const JAC: Jacobian = Jacobian::StageDecoupled;

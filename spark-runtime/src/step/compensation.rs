@@ -52,7 +52,7 @@ pub(super) fn two_sum_error<const N: usize>(a: &Vector<N>, b: &Vector<N>, s: &Ve
 #[cfg(test)]
 mod drift_tests {
     use super::*;
-    use crate::handwritten::Skate;
+    use crate::fixtures::paper::Skate;
     use crate::{Method, NewtonOptions, NoObserver, Observe, RunOptions, Schedule, Tableau};
 
     /// The skate from `q = 0`, `v = (0, 0, 1)` (β = π/2, unit parameters):

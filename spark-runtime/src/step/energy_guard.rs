@@ -97,7 +97,7 @@ mod tests {
     /// part): on the particle (`ω = √2`) its map is unstable for `ω·h > 2`.
     #[test]
     fn energy_guard_refuses_an_unstable_map_and_nothing_else() {
-        use crate::handwritten::Particle;
+        use crate::fixtures::paper::Particle;
         use crate::{Method, NewtonOptions, StepError, Stepper, Tableau};
         let start = State::new(0.0, Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::zeros());
         let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();

@@ -410,7 +410,7 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::handwritten::{MobileRobot, Particle};
+    use crate::fixtures::paper::{MobileRobot, Particle};
     use crate::Method;
     use crate::{NonholonomicSystem, Tableau};
 
@@ -494,7 +494,7 @@ mod tests {
 #[cfg(test)]
 mod stop_tests {
     use super::*;
-    use crate::handwritten::{MpParticles, Particle};
+    use crate::fixtures::paper::{MpParticles, Particle};
     use crate::Method;
     use crate::{StepResult, Tableau};
 
