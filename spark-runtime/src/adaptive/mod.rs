@@ -547,21 +547,10 @@ where
     if rec.run.steps > 0 {
         rec.run.newton_iterations_mean = rec.run.newton_iterations_total as f64 / rec.run.steps as f64;
     }
-    let source = Sys::SOURCE;
-    AdaptiveRun {
-        trajectory: Trajectory {
-            system: source.name.to_string(),
-            coordinates: source.coordinates.iter().map(|c| c.to_string()).collect(),
-            method: stepper.tableau().method,
-            stages: S,
-            samples: rec.samples,
-            report: rec.run,
-            // Adaptive runs do not locate events (use `integrate_with_events`
-            // on fixed steps for that).
-            events: Vec::new(),
-        },
-        report,
-    }
+    // Adaptive runs do not locate events (use `integrate_with_events` on
+    // fixed steps for that).
+    let method = stepper.tableau().method;
+    AdaptiveRun { trajectory: Trajectory::of::<Sys>(method, S, rec.samples, rec.run, Vec::new()), report }
 }
 
 /// Accepts a step of magnitude `this` that ended at `end` (the last step
