@@ -52,8 +52,6 @@ impl<const N: usize, const D: usize> Warm<N, D> {
     }
 }
 
-/// An `S`-stage SPARK integrator for a system with `N` coordinates and `M`
-
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
 where
     Sys: NonholonomicSystem<N, M>,

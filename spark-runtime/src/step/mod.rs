@@ -100,6 +100,8 @@ pub struct StepResult<const N: usize, const M: usize, const S: usize> {
     pub warm_started: bool,
 }
 
+/// An `S`-stage SPARK integrator for a system with `N` coordinates and `M`
+/// constraints; `D` must equal `S(N+M)+N` (see the module docs). Name the
 /// type with [`Stepper!`](crate::Stepper!) to have `D` computed for you.
 ///
 /// A step allocates nothing on the heap: the Newton matrix, its factors and
