@@ -16,7 +16,7 @@
 //!   step ([`NewtonMode::Simplified`]); starting guesses extrapolated from
 //!   previous steps; typed [`StepError`]s with the iteration history; no heap
 //!   allocation per step. Name the type with [`Stepper!`] (it computes the
-//!   Newton dimension `D = s(n+m)+n`, see the `stepper` module docs for why
+//!   Newton dimension `D = s(n+m)+n`, see the `step` module docs for why
 //!   `D` is a parameter).
 //! - [`consistent_velocity`]: check or project `v₀` (kinetic-energy metric).
 //! - [`Stepper::integrate`]: fixed steps or any list of times (either
@@ -28,6 +28,10 @@
 //!   ([`integrate_reversible`], Hairer–Söderlind).
 //! - [`reference`](mod@crate::reference): an independent high-accuracy integrator of the
 //!   ψ-eliminated equations, for error measurements.
+//! - [`diagnostics`]: the drift of holonomic constraints and the work of
+//!   the external and non-ideal forces over a step.
+//! - [`NewtonMatrix`]: the Newton matrix of a step, public so that benches
+//!   can time its factorization and solve alone.
 //!
 //! # Example
 //! The nonholonomic particle of the paper's §8.1, written by hand
@@ -190,24 +194,24 @@ macro_rules! Stepper {
     };
 }
 
-/// The paper's hand-written systems under their earlier path;
-/// [`fixtures::paper`] is the one public path.
+/// An alias of [`fixtures::paper`](crate::fixtures::paper) for code that names the hand-written
+/// paper systems by this path.
 #[doc(hidden)]
 pub mod handwritten {
     pub use crate::fixtures::paper::*;
 }
 
-/// The hand-written systems with effects and their diagnostics under their
-/// earlier path; [`fixtures::effects`] and [`diagnostics`] are the public
-/// paths.
+/// An alias of [`fixtures::effects`](crate::fixtures::effects) and of
+/// [`holonomic_drift`](crate::diagnostics::holonomic_drift) and
+/// [`effect_work`](crate::diagnostics::effect_work) for code that names them by this path.
 #[doc(hidden)]
 pub mod effects {
     pub use crate::diagnostics::{effect_work, holonomic_drift};
     pub use crate::fixtures::effects::*;
 }
 
-/// The Newton matrix under its earlier path; [`NewtonMatrix`] is the one
-/// public path.
+/// An alias of [`NewtonMatrix`](crate::NewtonMatrix) and its factorization types for code that
+/// names them by this path.
 #[doc(hidden)]
 pub mod newton {
     pub use crate::linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};

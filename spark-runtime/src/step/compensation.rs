@@ -13,9 +13,10 @@ use crate::State;
 /// Why: with `h` far below `|q|`, the rounding of `q₀ + Δq` has the same
 /// sign over long stretches of steps (the increments change slowly), so it
 /// accumulates linearly. Measured on the skate (Lobatto IIIA-B s = 3,
-/// T = 10) before this and the separate summation of `Δq`: global error
-/// ≈ 4e-16 per step, 5e-11 after 131072 steps; with both ≈ 2e-15 to 5e-15
-/// at any step count (`examples/skate_drift.rs`).
+/// T = 10): without the compensation and the separate summation of `Δq`
+/// the global error grows ≈ 4e-16 per step, to 5e-11 after 131072 steps;
+/// with both it stays ≈ 2e-15 to 5e-15 at any step count
+/// (`examples/skate_drift.rs`).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Compensation<const N: usize> {
     /// The end of the step whose round-off `carry` holds.
@@ -65,9 +66,10 @@ mod drift_tests {
 
     /// 32768 steps of Lobatto IIIA-B s = 3 over T = 10 (truncation error
     /// ≈ 3e-16): the global error must stay at the round-off level of a
-    /// random walk, `ε·√n·max|q|` ≈ 4e-13. Before the increment was summed on
-    /// its own and compensated, the rounding of `q₀ + hΣb_jV_j` accumulated
-    /// linearly: 1.2e-11 here (measured 1.8e-15 / 1.6e-15 after).
+    /// random walk, `ε·√n·max|q|` ≈ 4e-13. Without the separate summation
+    /// of the increment and its compensation, the rounding of
+    /// `q₀ + hΣb_jV_j` accumulates linearly: 1.2e-11 here (measured
+    /// 1.8e-15 / 1.6e-15 with them).
     #[test]
     fn long_fixed_step_runs_do_not_drift() {
         let (t_end, steps) = (10.0, 32768);

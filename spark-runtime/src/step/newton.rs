@@ -34,7 +34,7 @@ pub enum Jacobian {
     /// between the velocity unknowns of different stages dropped and each
     /// stage's own velocity block replaced by its mass matrix, eliminated down
     /// to an `S·M × S·M` Schur complement in the multipliers (see
-    /// `spark_runtime::decoupled` in the docs of the crate source). The step
+    /// `linalg/decoupled.rs` in the crate source). The step
     /// switches to [`Jacobian::Exact`] when the iteration contracts slower
     /// than 1/8 per update or the decoupled matrix is singular, and stays on
     /// the exact matrix for the next 32 steps.
