@@ -6,7 +6,6 @@ use crate::dense::{DenseBasis, DenseStep};
 use crate::error::{OptionError, Sci, StepError};
 use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
-use crate::options::MAX_HALVINGS;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
@@ -75,6 +74,10 @@ pub struct RunOptions {
     /// halving happens only where the run would otherwise fail.
     pub max_halvings: u32,
 }
+
+/// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
+/// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
+pub const MAX_HALVINGS: u32 = 60;
 
 /// The default [`RunOptions::max_halvings`]: a step that Newton cannot solve
 /// is covered by at most 16 sub-steps before the run reports the failure.

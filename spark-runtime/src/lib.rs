@@ -151,7 +151,7 @@ pub use adaptive::{
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
     IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
-    DEFAULT_MAX_HALVINGS,
+    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{
@@ -160,7 +160,6 @@ pub use events::{
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
-pub use options::MAX_HALVINGS;
 pub use rejection::{
     integrate_with_rejection, step_with_rejection, ProtectedStep, RejectionError, RejectionPolicy, RejectionReport,
     RejectionRunError,

@@ -26,6 +26,8 @@ mod padded_lu;
 pub(crate) use lu::{factor_in_place, factor_runtime, solve_in_place, solve_runtime, Lu};
 pub(crate) use padded_lu::PaddedLu;
 
+use crate::system::Vector;
+
 /// A pivot that is zero or negligible relative to its column's magnitude.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Singular {
@@ -41,6 +43,24 @@ pub(crate) fn column_scales<const D: usize>(a: &[f64]) -> [f64; D] {
         *sk = col.iter().fold(0.0, |m: f64, x| m.max(x.abs()));
     }
     s
+}
+
+/// `max_i |Δz_i| / (1 + |z_i|)`, NaN as soon as any component is NaN.
+///
+/// `f64::max` returns the other operand when one is NaN, so a fold with it
+/// would hide a NaN update and a solve could look converged; here a NaN
+/// (or infinite) update is reported by the caller at the iteration where it
+/// appears.
+pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
+    let mut norm = 0.0f64;
+    for (d, x) in update.iter().zip(z.iter()) {
+        let r = d.abs() / (1.0 + x.abs());
+        if r.is_nan() {
+            return f64::NAN;
+        }
+        norm = norm.max(r);
+    }
+    norm
 }
 
 /// Whether this CPU has AVX2 and FMA (the detection is cached by std): the
@@ -71,5 +91,26 @@ mod test_matrices {
         let a = nalgebra::DMatrix::from_column_slice(D, D, a.as_slice());
         let x = a.lu().solve(&nalgebra::DVector::from_column_slice(b.as_slice())).expect("nalgebra: singular");
         Vector::<D>::from_column_slice(x.as_slice())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::system::Vector;
+
+    #[test]
+    fn update_norm_propagates_nan_wherever_it_is() {
+        let z = Vector::<3>::new(1.0, -3.0, 0.0);
+        for i in 0..3 {
+            let mut d = Vector::<3>::new(1e-3, 2e-3, 4e-3);
+            d[i] = f64::NAN;
+            assert!(scaled_update_norm(&d, &z).is_nan(), "NaN at {i} hidden");
+        }
+        let d = Vector::<3>::new(1e-3, -8e-3, 4e-3);
+        assert_eq!(scaled_update_norm(&d, &z), 4e-3);
+        let mut inf = d;
+        inf[1] = f64::INFINITY;
+        assert_eq!(scaled_update_norm(&inf, &z), f64::INFINITY);
     }
 }

@@ -1,25 +1,6 @@
-//! Newton's stopping rule: the scaled update norm (which must see NaN),
-//! the contraction monitor of simplified Newton and full Newton's rule.
-
-use crate::system::Vector;
-
-/// `max_i |Δz_i| / (1 + |z_i|)`, NaN as soon as any component is NaN.
-///
-/// `f64::max` returns the other operand when one is NaN, so a fold with it
-/// would hide a NaN update and a solve could look converged; here a NaN
-/// (or infinite) update is reported by the caller at the iteration where it
-/// appears.
-pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
-    let mut norm = 0.0f64;
-    for (d, x) in update.iter().zip(z.iter()) {
-        let r = d.abs() / (1.0 + x.abs());
-        if r.is_nan() {
-            return f64::NAN;
-        }
-        norm = norm.max(r);
-    }
-    norm
-}
+//! Newton's stopping rule: the contraction monitor of simplified Newton
+//! and full Newton's rule, on the scaled update norms of
+//! [`scaled_update_norm`](crate::linalg::scaled_update_norm).
 
 /// What the updates computed with one set of Newton factors tell about
 /// their contraction, and the stopping rule built on it.
@@ -112,24 +93,4 @@ impl Contraction {
 /// its frozen factors instead ([`Contraction::converged`]).
 pub(super) fn full_newton_converged(update: f64, rate: f64, tolerance: f64) -> bool {
     update <= tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= tolerance)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn update_norm_propagates_nan_wherever_it_is() {
-        let z = Vector::<3>::new(1.0, -3.0, 0.0);
-        for i in 0..3 {
-            let mut d = Vector::<3>::new(1e-3, 2e-3, 4e-3);
-            d[i] = f64::NAN;
-            assert!(scaled_update_norm(&d, &z).is_nan(), "NaN at {i} hidden");
-        }
-        let d = Vector::<3>::new(1e-3, -8e-3, 4e-3);
-        assert_eq!(scaled_update_norm(&d, &z), 4e-3);
-        let mut inf = d;
-        inf[1] = f64::INFINITY;
-        assert_eq!(scaled_update_norm(&inf, &z), f64::INFINITY);
-    }
 }

@@ -49,8 +49,6 @@ mod newton;
 
 pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
-pub(crate) use convergence::scaled_update_norm;
-
 use crate::error::{NewtonHistory, StepError};
 use crate::linalg::decoupled::DecoupledMatrix;
 use crate::linalg::newton_matrix::NewtonMatrix;

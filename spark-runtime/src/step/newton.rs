@@ -3,9 +3,10 @@
 //! simplified Newton matrix and its fall-back from the stage-decoupled to
 //! the exact matrix, and the typed errors it ends with.
 
-use super::convergence::{full_newton_converged, scaled_update_norm, Contraction};
+use super::convergence::{full_newton_converged, Contraction};
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
+use crate::linalg::scaled_update_norm;
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
 
