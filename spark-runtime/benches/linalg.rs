@@ -12,8 +12,8 @@
 //! `cargo bench -p spark-runtime --bench linalg`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use spark_runtime::handwritten::{MobileRobot, MpParticles, Particle, Skate};
-use spark_runtime::newton::NewtonMatrix;
+use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
+use spark_runtime::NewtonMatrix;
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 

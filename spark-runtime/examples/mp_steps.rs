@@ -2,7 +2,7 @@
 //! SPARK method (paper §8.4 settings) for profiling:
 //! `cargo run --release --example mp_steps -- [steps] [full|simplified]`.
 
-use spark_runtime::handwritten::MpParticles;
+use spark_runtime::fixtures::paper::MpParticles;
 use spark_runtime::{Method, NewtonMode, NewtonOptions, State, Stepper, Tableau, Vector};
 
 fn main() {

@@ -5,7 +5,7 @@
 //! the closed form.
 //! `cargo run --release --example skate_drift -- [gauss] [steps...]`.
 
-use spark_runtime::handwritten::Skate;
+use spark_runtime::fixtures::paper::Skate;
 use spark_runtime::reference::{integrate, ReferenceOptions};
 use spark_runtime::{Method, NewtonOptions, State, Stepper, Tableau, Vector};
 

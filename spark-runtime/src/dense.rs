@@ -22,7 +22,7 @@
 //! `O(s²)` flops plus `O(s·n)` for the combination, and nothing is computed
 //! for a run that does not sample between grid points.
 
-use crate::stepper::{State, StepResult};
+use crate::step::{State, StepResult};
 use crate::system::Vector;
 use crate::tableau::{Tableau, MAX_STAGES};
 

@@ -6,8 +6,7 @@ use crate::dense::{DenseBasis, DenseStep};
 use crate::error::{OptionError, Sci, StepError};
 use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
-use crate::options::MAX_HALVINGS;
-use crate::stepper::{State, StepResult, Stepper};
+use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
 
@@ -75,6 +74,10 @@ pub struct RunOptions {
     /// halving happens only where the run would otherwise fail.
     pub max_halvings: u32,
 }
+
+/// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
+/// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
+pub const MAX_HALVINGS: u32 = 60;
 
 /// The default [`RunOptions::max_halvings`]: a step that Newton cannot solve
 /// is covered by at most 16 sub-steps before the run reports the failure.
@@ -244,6 +247,27 @@ impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> 
 }
 
 impl<const N: usize, const M: usize> Trajectory<N, M> {
+    /// A trajectory of `Sys` (its name and coordinate names from the
+    /// system's source) taken with `method` of `stages` stages.
+    pub(crate) fn of<Sys: NonholonomicSystem<N, M>>(
+        method: Method,
+        stages: usize,
+        samples: Vec<Sample<N, M>>,
+        report: RunReport,
+        events: Vec<EventRecord<N>>,
+    ) -> Self {
+        let source = Sys::SOURCE;
+        Trajectory {
+            system: source.name.to_string(),
+            coordinates: source.coordinates.iter().map(|c| c.to_string()).collect(),
+            method,
+            stages,
+            samples,
+            report,
+            events,
+        }
+    }
+
     /// The last recorded state.
     pub fn last(&self) -> Option<State<N>> {
         self.samples.last().map(|s| State { t: s.t, q: s.q, v: s.v })
@@ -289,6 +313,38 @@ impl<const N: usize, const M: usize> Trajectory<N, M> {
     pub fn to_json_string(&self) -> Result<String, serde_json::Error> {
         serde_json::to_string_pretty(self)
     }
+}
+
+impl RunReport {
+    /// Counts one scheduled step taken as `counts`; `warm_before`: whether
+    /// its first attempt was warm-started.
+    fn count<const N: usize>(&mut self, counts: &StepCounts<N>, warm_before: bool) {
+        if !warm_before || counts.rejected > 0 || counts.cold_retries > 0 {
+            self.cold_starts += 1;
+        }
+        self.steps += 1;
+        self.rejected_steps += counts.rejected;
+        self.cold_retries += counts.cold_retries;
+        self.newton_iterations_total += counts.iterations;
+        self.newton_iterations_max = self.newton_iterations_max.max(counts.iterations);
+    }
+}
+
+/// Storage for the samples of a run of `steps` steps recording every
+/// `every`-th (or at the `sampled` times): reserved for the expected samples
+/// up to a bounded size; beyond it the storage grows as samples arrive
+/// (amortized, only when recording).
+fn sample_storage<const N: usize, const M: usize>(
+    sampled: Option<&[f64]>,
+    steps: usize,
+    every: usize,
+) -> Vec<Sample<N, M>> {
+    let expected = match sampled {
+        Some(times) => times.len() + 1,
+        None => steps.checked_div(every).map_or(2, |n| n.saturating_add(2)),
+    };
+    let bound = (RESERVE_BYTES / std::mem::size_of::<Sample<N, M>>().max(1)).max(2);
+    Vec::with_capacity(expected.min(bound))
 }
 
 /// The recorded point at `state`.
@@ -520,14 +576,7 @@ where
             Schedule::Sampled { times, .. } => Some(times),
             _ => None,
         };
-        // Reserve for the expected samples up to a bounded size; beyond it the
-        // storage grows as samples arrive (amortized, only when recording).
-        let expected = match sampled {
-            Some(times) => times.len() + 1,
-            None => steps.checked_div(every).map_or(2, |n| n.saturating_add(2)),
-        };
-        let bound = (RESERVE_BYTES / std::mem::size_of::<Sample<N, M>>().max(1)).max(2);
-        let mut samples = Vec::with_capacity(expected.min(bound));
+        let mut samples = sample_storage::<N, M>(sampled, steps, every);
         let mut state = State { t: t0, q: *q0, v: v0c };
         let first = self.sample(&state, &options.observe, 0);
         let e0 = first.energy;
@@ -620,14 +669,7 @@ where
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
-            if !warm_before || counts.rejected > 0 || counts.cold_retries > 0 {
-                report.cold_starts += 1;
-            }
-            report.steps += 1;
-            report.rejected_steps += counts.rejected;
-            report.cold_retries += counts.cold_retries;
-            report.newton_iterations_total += iters;
-            report.newton_iterations_max = report.newton_iterations_max.max(iters);
+            report.count(&counts, warm_before);
             if let Some(at) = terminal {
                 observer.observe(&at, iters);
                 report.terminal_event = located.last().map(|e| e.index);
@@ -654,16 +696,7 @@ where
         if report.steps > 0 {
             report.newton_iterations_mean = report.newton_iterations_total as f64 / report.steps as f64;
         }
-        let source = Sys::SOURCE;
-        Ok(Trajectory {
-            system: source.name.to_string(),
-            coordinates: source.coordinates.iter().map(|c| c.to_string()).collect(),
-            method: self.tableau().method,
-            stages: S,
-            samples,
-            report,
-            events: located,
-        })
+        Ok(Trajectory::of::<Sys>(self.tableau().method, S, samples, report, located))
     }
 }
 

@@ -34,68 +34,13 @@
 use crate::dense::DenseStep;
 use crate::system::{NonholonomicSystem, Vector};
 
+pub use crate::system::{Direction, EventGradient, EventSpec};
+
 /// Sign checks per step: the step is split into this many equal subintervals.
 pub const EVENT_SUBINTERVALS: usize = 4;
 
 /// Relative tolerance in `t` of an event location (`tol·max(1, |t|)`).
 pub const EVENT_TIME_TOLERANCE: f64 = 1e-14;
-
-/// Which zero crossings of an event function count.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-pub enum Direction {
-    /// From negative to non-negative.
-    Rising,
-    /// From positive to non-positive.
-    Falling,
-    /// Both.
-    Both,
-}
-
-impl Direction {
-    /// Whether a crossing with `rising` (true: − to +) counts.
-    pub const fn accepts(self, rising: bool) -> bool {
-        match self {
-            Direction::Rising => rising,
-            Direction::Falling => !rising,
-            Direction::Both => true,
-        }
-    }
-}
-
-/// Declaration of one event.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct EventSpec {
-    /// Its name.
-    pub name: &'static str,
-    /// Which crossings count.
-    pub direction: Direction,
-    /// Whether the first crossing ends the run (`false`: crossings are
-    /// counted and reported).
-    pub terminal: bool,
-    /// The event function in the neutral text form of
-    /// [`SystemSource`](crate::SystemSource) (empty for run-time events).
-    pub source: &'static str,
-}
-
-/// An event function and its first derivatives at one point.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct EventGradient<const N: usize> {
-    /// `g(t, q, v)`.
-    pub value: f64,
-    /// `∂g/∂t`.
-    pub t: f64,
-    /// `∂g/∂q`.
-    pub q: Vector<N>,
-    /// `∂g/∂v`.
-    pub v: Vector<N>,
-}
-
-impl<const N: usize> EventGradient<N> {
-    /// All zero.
-    pub fn zeros() -> Self {
-        EventGradient { value: 0.0, t: 0.0, q: Vector::zeros(), v: Vector::zeros() }
-    }
-}
 
 /// A set of event functions evaluated for a system `Sys`.
 pub trait EventFunctions<Sys, const N: usize> {

@@ -432,7 +432,7 @@ where
         };
         v -= dv;
         lambda -= dl;
-        let upd = crate::convergence::scaled_update_norm(&dv, &v);
+        let upd = crate::linalg::scaled_update_norm(&dv, &v);
         let rate = upd / prev;
         history.push(IterationRecord { residual: res, update: upd, rate });
         if !upd.is_finite() {

@@ -3,14 +3,10 @@
 //! [`OptionError`] naming it and its allowed range, not as a failure of the
 //! initial state or of the discrete map that it would otherwise cause.
 
-use crate::driver::RunOptions;
+use crate::driver::{RunOptions, MAX_HALVINGS};
 use crate::error::{OptionError, HISTORY_CAPACITY};
 use crate::initial::ConsistencyPolicy;
-use crate::stepper::{Jacobian, NewtonMode, NewtonOptions};
-
-/// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
-/// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
-pub const MAX_HALVINGS: u32 = 60;
+use crate::step::{Jacobian, NewtonMode, NewtonOptions};
 
 impl NewtonOptions {
     /// Checks every field against its allowed range: `tolerance` and

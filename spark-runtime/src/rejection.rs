@@ -17,7 +17,7 @@
 
 use crate::error::{Sci, StepError};
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
-use crate::stepper::{State, Stepper};
+use crate::step::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 
 /// How far a step may be cut down and when it grows back.

@@ -384,16 +384,16 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     /// output for them (the branch is on a constant).
     const HAS_EVENTS: bool = false;
     /// The event declarations, in index order (empty by default).
-    const EVENTS: &'static [crate::events::EventSpec] = &[];
+    const EVENTS: &'static [EventSpec] = &[];
     /// The value `g_index(t,q,v)` of event `index`. Zero by default.
     fn event_value(&self, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> f64 {
         let _ = (index, t, q, v);
         0.0
     }
     /// `g_index` with `∂g/∂t`, `∂g/∂q`, `∂g/∂v`. Zero by default.
-    fn event_gradient(&self, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> crate::events::EventGradient<N> {
+    fn event_gradient(&self, index: usize, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N> {
         let _ = (index, t, q, v);
-        crate::events::EventGradient::zeros()
+        EventGradient::zeros()
     }
     /// Position-level residuals for drift reporting: entry `i` is `g_i(t,q)`
     /// when constraint `i` is `k_i = ∂g_i/∂t + ∂g_i/∂q · v` of a holonomic
@@ -415,4 +415,62 @@ pub struct NonidealJacobians<const N: usize, const M: usize> {
     pub v: Matrix<N, N>,
     /// `∂N/∂ψ`.
     pub psi: Matrix<N, M>,
+}
+
+/// Which zero crossings of an event function count (the declaration of
+/// events is part of a system; [`events`](crate::events) locates them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum Direction {
+    /// From negative to non-negative.
+    Rising,
+    /// From positive to non-positive.
+    Falling,
+    /// Both.
+    Both,
+}
+
+impl Direction {
+    /// Whether a crossing with `rising` (true: − to +) counts.
+    pub const fn accepts(self, rising: bool) -> bool {
+        match self {
+            Direction::Rising => rising,
+            Direction::Falling => !rising,
+            Direction::Both => true,
+        }
+    }
+}
+
+/// Declaration of one event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct EventSpec {
+    /// Its name.
+    pub name: &'static str,
+    /// Which crossings count.
+    pub direction: Direction,
+    /// Whether the first crossing ends the run (`false`: crossings are
+    /// counted and reported).
+    pub terminal: bool,
+    /// The event function in the neutral text form of
+    /// [`SystemSource`](crate::SystemSource) (empty for run-time events).
+    pub source: &'static str,
+}
+
+/// An event function and its first derivatives at one point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EventGradient<const N: usize> {
+    /// `g(t, q, v)`.
+    pub value: f64,
+    /// `∂g/∂t`.
+    pub t: f64,
+    /// `∂g/∂q`.
+    pub q: Vector<N>,
+    /// `∂g/∂v`.
+    pub v: Vector<N>,
+}
+
+impl<const N: usize> EventGradient<N> {
+    /// All zero.
+    pub fn zeros() -> Self {
+        EventGradient { value: 0.0, t: 0.0, q: Vector::zeros(), v: Vector::zeros() }
+    }
 }

@@ -5,7 +5,7 @@
 // Stage loops index several parallel arrays (c, a, b, stage values) with one index.
 #![allow(clippy::needless_range_loop)]
 
-use crate::handwritten::{General, MobileRobot, MpParticles, Particle, Skate};
+use crate::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use crate::*;
 use nalgebra::{DMatrix, DVector};
 
@@ -16,6 +16,32 @@ fn tab<const S: usize>(m: Method) -> Tableau<S> {
 }
 
 // ---------------------------------------------------------------- Jacobian
+
+/// Unknowns `z` away from the solution, so every block of the Newton
+/// matrix is exercised (shared with the stage-decoupled matrix's tests).
+pub(crate) fn probe<const D: usize>() -> Vector<D> {
+    Vector::<D>::from_fn(|i, _| 0.3 + 0.17 * ((i * 7 + 3) % 11) as f64 / 11.0 - 0.1 * (i % 3) as f64)
+}
+
+/// Calls `$check::<_, 2, 1, S, D>(General::default(), method, $state, $h)`
+/// for every coefficient family on the general test system, at the stage
+/// counts the derivative tests use.
+macro_rules! on_general_for_every_family {
+    ($check:ident, $state:expr, $h:expr) => {{
+        use $crate::fixtures::paper::General;
+        use $crate::Method;
+        $check::<_, 2, 1, 1, 5>(General::default(), Method::Gauss, $state, $h);
+        $check::<_, 2, 1, 2, 8>(General::default(), Method::Gauss, $state, $h);
+        $check::<_, 2, 1, 3, 11>(General::default(), Method::Gauss, $state, $h);
+        $check::<_, 2, 1, 3, 11>(General::default(), Method::LobattoIIIAB, $state, $h);
+        $check::<_, 2, 1, 4, 14>(General::default(), Method::LobattoIIIABD, $state, $h);
+        $check::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerI, $state, $h);
+        $check::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerII, $state, $h);
+        $check::<_, 2, 1, 2, 8>(General::default(), Method::ModifiedLobattoIIIAB, $state, $h);
+        $check::<_, 2, 1, 2, 8>(General::default(), Method::LobattoIIIBALda, $state, $h);
+    }};
+}
+pub(crate) use on_general_for_every_family;
 
 /// Exact Newton Jacobian against central differences of the residual at a
 /// point away from the solution (shared with the effects tests).
@@ -28,8 +54,7 @@ pub(crate) fn check_jacobian<Sys, const N: usize, const M: usize, const S: usize
     Sys: NonholonomicSystem<N, M>,
 {
     let mut st = Stepper::<Sys, N, M, S, D>::new(sys, tab(method));
-    // A point away from the solution, so every block is exercised.
-    let z = Vector::<D>::from_fn(|i, _| 0.3 + 0.17 * ((i * 7 + 3) % 11) as f64 / 11.0 - 0.1 * (i % 3) as f64);
+    let z = probe::<D>();
     let (_, jac) = st.residual_and_jacobian(&state, h, &z);
     let mut worst: f64 = 0.0;
     for col in 0..D {
@@ -48,15 +73,7 @@ pub(crate) fn check_jacobian<Sys, const N: usize, const M: usize, const S: usize
 #[test]
 fn exact_jacobian_matches_finite_differences() {
     let g = State::new(0.4, V::<2>::new(0.3, -0.2), V::<2>::new(0.5, 0.1));
-    check_jacobian::<_, 2, 1, 1, 5>(General::default(), Method::Gauss, g, 0.3);
-    check_jacobian::<_, 2, 1, 2, 8>(General::default(), Method::Gauss, g, 0.3);
-    check_jacobian::<_, 2, 1, 3, 11>(General::default(), Method::Gauss, g, 0.3);
-    check_jacobian::<_, 2, 1, 3, 11>(General::default(), Method::LobattoIIIAB, g, 0.3);
-    check_jacobian::<_, 2, 1, 4, 14>(General::default(), Method::LobattoIIIABD, g, 0.3);
-    check_jacobian::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerI, g, 0.3);
-    check_jacobian::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerII, g, 0.3);
-    check_jacobian::<_, 2, 1, 2, 8>(General::default(), Method::ModifiedLobattoIIIAB, g, 0.3);
-    check_jacobian::<_, 2, 1, 2, 8>(General::default(), Method::LobattoIIIBALda, g, 0.3);
+    on_general_for_every_family!(check_jacobian, g, 0.3);
     let r = State::new(0.0, V::<4>::new(0.1, 0.2, 0.7, 0.3), V::<4>::new(1.0, 0.0, 0.5, 1.0));
     check_jacobian::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::LobattoIIIABD, r, -0.2);
     let s = State::new(0.0, V::<3>::new(0.1, 0.2, 0.7), V::<3>::new(0.3, 0.1, 1.0));

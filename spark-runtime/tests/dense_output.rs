@@ -14,7 +14,7 @@
 //! and the test requires every measured order to be at least its bound minus
 //! 0.3 (the printed table is the one in the docs).
 
-use spark_runtime::handwritten::{MobileRobot, MpParticles, Particle, Skate};
+use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{Method, NoObserver, NonholonomicSystem, RunOptions, Schedule, State, Stepper, Tableau, Vector};
 

@@ -6,7 +6,7 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use spark_runtime::handwritten::{MobileRobot, Skate};
+use spark_runtime::fixtures::paper::{MobileRobot, Skate};
 use spark_runtime::{
     nonholonomic_system, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NoObserver, NonholonomicSystem,
     ProtectedStep, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,

@@ -12,7 +12,7 @@
 //! - Events declared in the DSL are generated with exact derivatives and
 //!   stop `integrate` when terminal; a scene selects its events.
 
-use spark_runtime::handwritten::{General, MobileRobot, MpParticles, Particle, Skate};
+use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::reference::{integrate, integrate_at, ReferenceOptions};
 use spark_runtime::{
     nonholonomic_system, Direction, EventGradient, EventSpec, Method, NoEvents, NoObserver, NonholonomicSystem,

@@ -1,244 +1,9 @@
-//! Dense LU factorization with partial pivoting on column-major slices: the
-//! linear algebra under the Newton matrix ([`crate::newton`]) and the
-//! consistent-acceleration solves ([`crate::initial`]).
-//!
-//! Pivots may be confined to row blocks ("block pivoting"): column `k` looks
-//! for its pivot only in rows `k..end`, where `end` is the end of the block
-//! holding `k`. With the SPARK unknowns ordered so that each block of
-//! columns meets a block of rows whose diagonal block is invertible, this is
-//! block elimination (a Schur complement) done in place, and the structural
-//! zeros it preserves are skipped by the `u_kj == 0` test of the update.
-//!
-//! Two kernels: the row-swapping [`factor_in_place`] (any `D`; compiled
-//! for AVX2+FMA when `D > PADDED_MAX` and the CPU has them) and the padded,
-//! swap-free [`PaddedLu`] (AVX2+FMA intrinsics, `PADDED_MIN ≤ D ≤
-//! PADDED_MAX`), which is 1.2–1.3× faster at the Newton matrices of the
-//! paper's systems (D = 19..47); both are benchmarked side by side against
-//! the unpadded scalar kernel kept in `benches/linalg.rs`.
+//! The padded, swap-free LU kernel [`PaddedLu`] of the small Newton
+//! matrices (`PADDED_MIN ≤ D ≤ PADDED_MAX`), written with AVX2+FMA
+//! intrinsics. Every `unsafe` of the kernel is here, behind [`PaddedLu`]:
+//! holding one proves the CPU check.
 
-use crate::system::{Matrix, Vector};
-
-/// A pivot that is zero or negligible relative to its column's magnitude.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Singular {
-    pub(crate) column: usize,
-    pub(crate) pivot: f64,
-}
-
-/// Factors the `D × D` column-major matrix in `lu` in place (`P A = L U`),
-/// recording the row interchanges in `perm`. Column `k` pivots among rows
-/// `k..e` where `e` is the first entry of `block_ends` above `k` (the last
-/// entry must be `D`). A pivot below `64 ε · scale[k]` counts as singular:
-/// column scales differ by orders of magnitude in the SPARK matrix, so a
-/// global threshold would be wrong.
-///
-/// Right-looking, column by column, on slices so the inner loops are
-/// bounds-check free and vectorize; `D` is a constant so the loop bounds are
-/// known after monomorphization. For `D > PADDED_MAX` on a CPU with AVX2
-/// and FMA the same code runs compiled for those (fused `a − l u`, so the
-/// last bits differ from the plain build): 1.25–1.35× at D = 101..197.
-#[inline]
-pub(crate) fn factor_in_place<const D: usize>(
-    lu: &mut [f64],
-    perm: &mut [usize],
-    scale: &[f64; D],
-    block_ends: &[usize],
-) -> Result<(), Singular> {
-    #[cfg(target_arch = "x86_64")]
-    if D > PADDED_MAX && x86::available() {
-        // SAFETY: the CPU has AVX2 and FMA (checked just above).
-        return unsafe { x86::factor_in_place_fma::<D>(lu, perm, scale, block_ends) };
-    }
-    factor_in_place_body::<D, false>(lu, perm, scale, block_ends)
-}
-
-/// [`factor_in_place`]'s body; `FMA` fuses the update's multiply-subtract.
-#[inline(always)]
-fn factor_in_place_body<const D: usize, const FMA: bool>(
-    lu: &mut [f64],
-    perm: &mut [usize],
-    scale: &[f64; D],
-    block_ends: &[usize],
-) -> Result<(), Singular> {
-    let lu = &mut lu[..D * D];
-    let perm = &mut perm[..D];
-    let mut block = 0;
-    for k in 0..D {
-        while block_ends[block] <= k {
-            block += 1;
-        }
-        let end = block_ends[block].min(D);
-        let col_k = &lu[k * D..(k + 1) * D];
-        let mut p = k;
-        let mut best = col_k[k].abs();
-        for (i, x) in col_k[..end].iter().enumerate().skip(k + 1) {
-            if x.abs() > best {
-                best = x.abs();
-                p = i;
-            }
-        }
-        perm[k] = p;
-        // Written to be true for NaN pivots too.
-        if best.is_nan() || best <= 64.0 * f64::EPSILON * scale[k] {
-            return Err(Singular { column: k, pivot: best });
-        }
-        if p != k {
-            for j in 0..D {
-                lu.swap(j * D + k, j * D + p);
-            }
-        }
-        let (left, right) = lu.split_at_mut((k + 1) * D);
-        let col_k = &mut left[k * D..];
-        let inv = 1.0 / col_k[k];
-        for x in &mut col_k[k + 1..] {
-            *x *= inv;
-        }
-        let lower = &col_k[k + 1..];
-        for col_j in right.chunks_exact_mut(D) {
-            let ukj = col_j[k];
-            if ukj != 0.0 {
-                for (x, l) in col_j[k + 1..].iter_mut().zip(lower) {
-                    *x = if FMA { (-l).mul_add(ukj, *x) } else { *x - l * ukj };
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-/// Overwrites `b` with `A⁻¹ b` from the factors of [`factor_in_place`]
-/// (compiled for AVX2 and FMA under the same condition).
-#[inline]
-pub(crate) fn solve_in_place<const D: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
-    #[cfg(target_arch = "x86_64")]
-    if D > PADDED_MAX && x86::available() {
-        // SAFETY: the CPU has AVX2 and FMA (checked just above).
-        return unsafe { x86::solve_in_place_fma::<D>(lu, perm, b) };
-    }
-    solve_in_place_body::<D, false>(lu, perm, b)
-}
-
-/// [`solve_in_place`]'s body; `FMA` fuses the multiply-subtracts.
-#[inline(always)]
-fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
-    let lu = &lu[..D * D];
-    let b = &mut b[..D];
-    for (k, &p) in perm[..D].iter().enumerate() {
-        if p != k {
-            b.swap(k, p);
-        }
-    }
-    // No zero-skipping here: for the small D of a step the branch costs
-    // more than the multiply-adds it saves (measured: 80 → ns per solve at D = 11).
-    for j in 0..D {
-        let bj = b[j];
-        let col = &lu[j * D + j + 1..(j + 1) * D];
-        for (x, l) in b[j + 1..].iter_mut().zip(col) {
-            *x = if FMA { (-l).mul_add(bj, *x) } else { *x - l * bj };
-        }
-    }
-    // Reciprocals first: independent divisions that overlap the forward
-    // sweep, leaving a multiply instead of a division on the back
-    // substitution's dependency chain.
-    let mut rdiag = [0.0; D];
-    for (j, r) in rdiag.iter_mut().enumerate() {
-        *r = 1.0 / lu[j * D + j];
-    }
-    for j in (0..D).rev() {
-        b[j] *= rdiag[j];
-        let bj = b[j];
-        let col = &lu[j * D..j * D + j];
-        for (x, u) in b[..j].iter_mut().zip(col) {
-            *x = if FMA { (-u).mul_add(bj, *x) } else { *x - u * bj };
-        }
-    }
-}
-
-/// Factors the `n × n` column-major matrix in `lu` in place (`P A = L U`,
-/// partial pivoting over all rows), for sizes known only at run time (the
-/// Schur complement of the stage-decoupled Newton matrix is `S·M` square);
-/// `scale` is scratch of at least `n` entries.
-/// The singularity test is [`factor_in_place`]'s: a pivot below `64 ε`
-/// times its column's largest magnitude.
-pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
-    if n == 0 {
-        // No multipliers (an unconstrained system): nothing to factor.
-        return Ok(());
-    }
-    let lu = &mut lu[..n * n];
-    let scale = &mut scale[..n];
-    for (sk, col) in scale.iter_mut().zip(lu.chunks_exact(n)) {
-        *sk = col.iter().fold(0.0, |m: f64, x| m.max(x.abs()));
-    }
-    for k in 0..n {
-        let col = &lu[k * n..(k + 1) * n];
-        let (mut p, mut best) = (k, col[k].abs());
-        for (r, x) in col.iter().enumerate().skip(k + 1) {
-            if x.abs() > best {
-                (p, best) = (r, x.abs());
-            }
-        }
-        let threshold = 64.0 * f64::EPSILON * scale[k];
-        if best.is_nan() || threshold.is_nan() || best <= threshold {
-            return Err(Singular { column: k, pivot: best });
-        }
-        perm[k] = p;
-        if p != k {
-            for j in 0..n {
-                lu.swap(j * n + k, j * n + p);
-            }
-        }
-        let rpiv = 1.0 / lu[k * n + k];
-        for x in lu[k * n + k + 1..(k + 1) * n].iter_mut() {
-            *x *= rpiv;
-        }
-        let (head, tail) = lu.split_at_mut((k + 1) * n);
-        let lower = &head[k * n + k + 1..(k + 1) * n];
-        for col_j in tail.chunks_exact_mut(n) {
-            let ukj = col_j[k];
-            if ukj != 0.0 {
-                for (x, l) in col_j[k + 1..].iter_mut().zip(lower) {
-                    *x -= l * ukj;
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-/// Overwrites `b` with `A⁻¹ b` from the factors of [`factor_runtime`].
-pub(crate) fn solve_runtime(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
-    let lu = &lu[..n * n];
-    let b = &mut b[..n];
-    for (k, &p) in perm[..n].iter().enumerate() {
-        if p != k {
-            b.swap(k, p);
-        }
-    }
-    for j in 0..n {
-        let bj = b[j];
-        for (x, l) in b[j + 1..].iter_mut().zip(&lu[j * n + j + 1..(j + 1) * n]) {
-            *x -= l * bj;
-        }
-    }
-    for j in (0..n).rev() {
-        b[j] /= lu[j * n + j];
-        let bj = b[j];
-        for (x, u) in b[..j].iter_mut().zip(&lu[j * n..j * n + j]) {
-            *x -= u * bj;
-        }
-    }
-}
-
-/// The largest magnitude of each column of a `D × D` column-major matrix.
-#[inline]
-pub(crate) fn column_scales<const D: usize>(a: &[f64]) -> [f64; D] {
-    let mut s = [0.0; D];
-    for (sk, col) in s.iter_mut().zip(a[..D * D].chunks_exact(D)) {
-        *sk = col.iter().fold(0.0, |m: f64, x| m.max(x.abs()));
-    }
-    s
-}
+use super::Singular;
 
 /// Rows per lane of the padded kernel (columns are padded to whole lanes
 /// and lane-aligned; a cache line).
@@ -306,7 +71,7 @@ impl<const D: usize> PaddedLu<D> {
     /// [`solve`](Self::solve) sound.
     pub(crate) fn new() -> Option<Self> {
         #[cfg(target_arch = "x86_64")]
-        if (PADDED_MIN..=PADDED_MAX).contains(&D) && x86::available() {
+        if (PADDED_MIN..=PADDED_MAX).contains(&D) && super::avx2_fma_available() {
             let n = D * Self::DP / LANE;
             return Some(PaddedLu {
                 u: vec![Lane::default(); n].into_boxed_slice(),
@@ -367,8 +132,8 @@ fn flat_mut(lanes: &mut [Lane]) -> &mut [f64] {
     unsafe { std::slice::from_raw_parts_mut(lanes.as_mut_ptr().cast::<f64>(), lanes.len() * LANE) }
 }
 
-/// The kernels compiled for AVX2 and FMA, chosen at run time: without a
-/// global `target-cpu` rustc targets SSE2. The padded kernel is written with
+/// The padded kernel compiled for AVX2 and FMA, chosen at run time: without
+/// a global `target-cpu` rustc targets SSE2. It is written with
 /// intrinsics (four `f64` per vector): left to itself, LLVM fully unrolls
 /// its constant-length loops and then keeps most of them scalar.
 /// (AVX-512 intrinsics would need Rust 1.89; the workspace declares 1.80.)
@@ -378,30 +143,6 @@ mod x86 {
     use std::arch::x86_64::*;
 
     const W: usize = 4;
-
-    /// Whether this CPU has AVX2 and FMA (the detection is cached by std).
-    pub(super) fn available() -> bool {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-
-    /// # Safety
-    /// AVX2 and FMA must be available.
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn factor_in_place_fma<const D: usize>(
-        lu: &mut [f64],
-        perm: &mut [usize],
-        scale: &[f64; D],
-        block_ends: &[usize],
-    ) -> Result<(), Singular> {
-        super::factor_in_place_body::<D, true>(lu, perm, scale, block_ends)
-    }
-
-    /// # Safety
-    /// AVX2 and FMA must be available.
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn solve_in_place_fma<const D: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
-        super::solve_in_place_body::<D, true>(lu, perm, b)
-    }
 
     /// `x[i]` in every lane, read as the whole aligned vector holding it (the
     /// vectors were just stored whole; a scalar load of one entry would miss
@@ -597,116 +338,12 @@ mod x86 {
     }
 }
 
-/// An LU factorization `P A = L U` of a small fixed-size matrix, stored in
-/// place on the stack (partial pivoting over all rows).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Lu<const D: usize> {
-    lu: Matrix<D, D>,
-    perm: [usize; D],
-}
-
-impl<const D: usize> Lu<D> {
-    pub(crate) fn new() -> Self {
-        Lu { lu: Matrix::<D, D>::zeros(), perm: [0; D] }
-    }
-
-    /// Factors `a` (see [`factor_in_place`] for the singularity test).
-    pub(crate) fn factor(&mut self, a: &Matrix<D, D>) -> Result<(), Singular> {
-        self.lu.copy_from(a);
-        let scale = column_scales::<D>(a.as_slice());
-        factor_in_place::<D>(self.lu.as_mut_slice(), &mut self.perm, &scale, &[D])
-    }
-
-    /// Overwrites `b` with `A⁻¹ b`.
-    pub(crate) fn solve_in_place(&self, b: &mut Vector<D>) {
-        solve_in_place::<D>(self.lu.as_slice(), &self.perm, b.as_mut_slice());
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn runtime_sized_lu_pivots_refuses_singular_and_accepts_empty() {
-        let a = [0.0, 1.0, 3.0, 2.0, 1.0, 0.0, 1.0, 0.0, 1.0]; // column-major, a₀₀ = 0 needs a swap
-        let (mut lu, mut perm, mut scale) = (a, [0usize; 3], [0.0; 3]);
-        factor_runtime(&mut lu, 3, &mut perm, &mut scale).unwrap();
-        let x = [1.0, -2.0, 0.5];
-        let mut b = [0.0; 3];
-        for (j, xj) in x.iter().enumerate() {
-            for i in 0..3 {
-                b[i] += a[j * 3 + i] * xj;
-            }
-        }
-        solve_runtime(&lu, 3, &perm, &mut b);
-        for (bi, xi) in b.iter().zip(x) {
-            assert!((bi - xi).abs() < 1e-15, "{b:?}");
-        }
-        let mut singular = [1.0, 2.0, 2.0, 4.0];
-        assert!(factor_runtime(&mut singular, 2, &mut perm, &mut scale).is_err());
-        let mut nan = [f64::NAN, 0.0, 0.0, 1.0];
-        assert!(factor_runtime(&mut nan, 2, &mut perm, &mut scale).is_err());
-        assert!(factor_runtime(&mut [], 0, &mut [], &mut []).is_ok());
-    }
-
-    #[test]
-    fn solves_a_pivoting_system() {
-        let a = Matrix::<3, 3>::new(0.0, 2.0, 1.0, 1.0, 1.0, 0.0, 3.0, 0.0, 1.0);
-        let x = Vector::<3>::new(1.0, -2.0, 0.5);
-        let mut b = a * x;
-        let mut lu = Lu::new();
-        lu.factor(&a).unwrap();
-        lu.solve_in_place(&mut b);
-        assert!((b - x).amax() < 1e-15);
-    }
-
-    #[test]
-    fn detects_singularity() {
-        let a = Matrix::<2, 2>::new(1.0, 2.0, 2.0, 4.0);
-        assert!(Lu::new().factor(&a).is_err());
-        let nan = Matrix::<2, 2>::new(f64::NAN, 0.0, 0.0, 1.0);
-        assert!(Lu::new().factor(&nan).is_err());
-    }
-
-    #[test]
-    fn block_pivoting_stays_inside_its_blocks() {
-        // Column 0 would pivot on row 2 with full pivoting; confined to the
-        // first block (rows 0..2) it must pivot on row 1.
-        let a = Matrix::<3, 3>::new(0.5, 1.0, 0.0, 1.0, 0.0, 1.0, 4.0, 1.0, 1.0);
-        let x = Vector::<3>::new(0.25, -1.0, 2.0);
-        let mut lu = a;
-        let mut perm = [0; 3];
-        let scale = column_scales::<3>(a.as_slice());
-        factor_in_place::<3>(lu.as_mut_slice(), &mut perm, &scale, &[2, 3]).unwrap();
-        assert_eq!(perm[0], 1);
-        let mut b = a * x;
-        solve_in_place::<3>(lu.as_slice(), &perm, b.as_mut_slice());
-        assert!((b - x).amax() < 1e-15);
-        // A singular leading block is reported even though A is regular.
-        let a = Matrix::<3, 3>::new(1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 0.0, 1.0, 1.0);
-        let mut lu = a;
-        let scale = column_scales::<3>(a.as_slice());
-        assert!(factor_in_place::<3>(lu.as_mut_slice(), &mut perm, &scale, &[2, 3]).is_err());
-    }
-
-    /// A deterministic random matrix (xorshift), entries in `[−1, 1)`.
-    fn random_matrix<const D: usize>(seed: u64) -> Matrix<D, D> {
-        let mut x = seed | 1;
-        Matrix::<D, D>::from_fn(|_, _| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        })
-    }
-
-    /// nalgebra's LU solve (dynamic sizes: its static LU needs typenum sizes).
-    fn nalgebra_solve<const D: usize>(a: &Matrix<D, D>, b: &Vector<D>) -> Vector<D> {
-        let a = nalgebra::DMatrix::from_column_slice(D, D, a.as_slice());
-        let x = a.lu().solve(&nalgebra::DVector::from_column_slice(b.as_slice())).expect("nalgebra: singular");
-        Vector::<D>::from_column_slice(x.as_slice())
-    }
+    use crate::linalg::test_matrices::{nalgebra_solve, random_matrix};
+    use crate::linalg::{column_scales, factor_in_place, solve_in_place};
+    use crate::system::{Matrix, Vector};
 
     /// Padded factor + solve of `a x = b`, columns in natural order.
     fn padded_solve<const D: usize>(a: &Matrix<D, D>, b: &Vector<D>, ends: &[usize]) -> Result<Vector<D>, Singular> {
@@ -877,24 +514,5 @@ mod tests {
             lu.solve(y.as_mut_slice());
             assert!((y - x).amax() < 1e-11 * x.amax(), "seed {seed}: {}", (y - x).amax());
         }
-    }
-
-    #[test]
-    fn fma_build_of_the_swapping_kernel_solves() {
-        // D > PADDED_MAX takes the FMA build where available.
-        const D: usize = 70;
-        let mut a = random_matrix::<D>(11);
-        for i in 0..D {
-            a[(i, i)] += 1.0;
-        }
-        let x = Vector::<D>::from_fn(|i, _| (i as f64 * 0.3).cos());
-        let b = a * x;
-        let mut lu = a;
-        let mut perm = [0; D];
-        factor_in_place::<D>(lu.as_mut_slice(), &mut perm, &column_scales::<D>(a.as_slice()), &[D]).unwrap();
-        let mut y = b;
-        solve_in_place::<D>(lu.as_slice(), &perm, y.as_mut_slice());
-        let reference = nalgebra_solve(&a, &b);
-        assert!((y - reference).amax() < 1e-10 * reference.amax(), "{}", (y - reference).amax());
     }
 }

@@ -32,7 +32,7 @@
 //! `8·D²` bytes overflowed a 2 MiB rayon worker stack from `D ≈ 250` on;
 //! boxed, the stepper's own size is `O(S·D)` whatever `D`.
 
-use crate::linalg::{column_scales, factor_in_place, solve_in_place, PaddedLu};
+use super::{column_scales, factor_in_place, solve_in_place, PaddedLu};
 use crate::system::{Matrix, Vector};
 use nalgebra::{Const, MatrixView, MatrixViewMut};
 
@@ -264,7 +264,7 @@ mod tests {
 
     #[test]
     fn stepper_matrices_take_the_structured_path() {
-        use crate::handwritten::{MobileRobot, Skate};
+        use crate::fixtures::paper::{MobileRobot, Skate};
         use crate::{Method, State, Stepper, Tableau};
         let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
         for m in [Method::Gauss, Method::LobattoIIIAB, Method::LobattoIIIABD] {
@@ -286,7 +286,7 @@ mod tests {
 
     #[test]
     fn reused_factorization_reaches_the_same_solution() {
-        use crate::handwritten::Skate;
+        use crate::fixtures::paper::Skate;
         use crate::{Method, NewtonMode, NewtonOptions, State, Stepper, Tableau};
         let start = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
         let tab = Tableau::new(Method::Gauss).unwrap();
@@ -331,7 +331,7 @@ mod tests {
 
     #[test]
     fn every_paper_size_solves_like_nalgebra() {
-        use crate::handwritten::{MobileRobot, MpParticles, Particle, Skate};
+        use crate::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
         use crate::{Method, State};
         let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
         let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));

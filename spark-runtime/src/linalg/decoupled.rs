@@ -28,7 +28,7 @@
 //! Every array is allocated once, on the heap, by [`DecoupledMatrix::new`]:
 //! a step allocates nothing, and no `N × N` value goes on the stack.
 
-use crate::linalg::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime, Singular};
+use super::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime, Singular};
 use crate::system::{Matrix, StageJacobians, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 
@@ -334,17 +334,13 @@ mod tests {
     // Stage loops index several parallel arrays with one index.
     #![allow(clippy::needless_range_loop)]
 
-    use crate::effects::{DrivenSkate, FrictionSkate};
-    use crate::handwritten::{General, MobileRobot, MpParticles, Skate};
+    use crate::fixtures::effects::{DrivenSkate, FrictionSkate};
+    use crate::fixtures::paper::{General, MobileRobot, MpParticles, Skate};
+    use crate::tests::{on_general_for_every_family, probe};
     use crate::*;
 
     const JAC: Jacobian = Jacobian::StageDecoupled;
     const PROJECT: ConsistencyPolicy = ConsistencyPolicy::Project { tolerance: 0.0 };
-
-    /// A point away from the solution, so every block is exercised.
-    fn probe<const D: usize>() -> Vector<D> {
-        Vector::<D>::from_fn(|i, _| 0.3 + 0.17 * ((i * 7 + 3) % 11) as f64 / 11.0 - 0.1 * (i % 3) as f64)
-    }
 
     /// The decoupled solve equals nalgebra's LU solve of the dense
     /// stage-decoupled matrix, with the full and (for a constant mass
@@ -375,15 +371,7 @@ mod tests {
     #[test]
     fn the_schur_complement_solve_equals_the_dense_solve_of_the_same_matrix() {
         let g = State::new(0.4, Vector::<2>::new(0.3, -0.2), Vector::<2>::new(0.5, 0.1));
-        check_solve::<_, 2, 1, 1, 5>(General::default(), Method::Gauss, g, 0.3);
-        check_solve::<_, 2, 1, 2, 8>(General::default(), Method::Gauss, g, 0.3);
-        check_solve::<_, 2, 1, 3, 11>(General::default(), Method::Gauss, g, 0.3);
-        check_solve::<_, 2, 1, 3, 11>(General::default(), Method::LobattoIIIAB, g, 0.3);
-        check_solve::<_, 2, 1, 4, 14>(General::default(), Method::LobattoIIIABD, g, 0.3);
-        check_solve::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerI, g, 0.3);
-        check_solve::<_, 2, 1, 1, 5>(General::default(), Method::SymplecticEulerII, g, 0.3);
-        check_solve::<_, 2, 1, 2, 8>(General::default(), Method::ModifiedLobattoIIIAB, g, 0.3);
-        check_solve::<_, 2, 1, 2, 8>(General::default(), Method::LobattoIIIBALda, g, 0.3);
+        on_general_for_every_family!(check_solve, g, 0.3);
         let r = State::new(0.0, Vector::<4>::new(0.1, 0.2, 0.7, 0.3), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
         check_solve::<_, 4, 2, 2, 16>(MobileRobot::default(), Method::Gauss, r, 0.2);
         check_solve::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::LobattoIIIAB, r, 0.2);

@@ -65,10 +65,16 @@
 //! Neither driver touches the fixed-step path: a run of
 //! [`Stepper::integrate`] does exactly what it does without this module.
 
+mod reversible;
+#[cfg(test)]
+mod tests;
+
+pub use reversible::integrate_reversible;
+
 use crate::driver::{Observe, Observer, RunReport, Sample, Trajectory};
 use crate::error::{OptionError, Sci, StepError};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
-use crate::stepper::{State, Stepper};
+use crate::step::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
 
@@ -397,6 +403,22 @@ pub enum AdaptiveError {
     },
 }
 
+impl AdaptiveError {
+    /// A step of magnitude `h` from `t` below the smallest allowed one,
+    /// with the error estimate and the Newton failure that asked for it.
+    fn too_small(
+        t: f64,
+        h: f64,
+        min_step: f64,
+        scaled_error: f64,
+        last_newton: Option<StepError>,
+        report: AdaptiveReport,
+    ) -> Self {
+        let (last_newton, partial) = (last_newton.map(Box::new), Box::new(report));
+        AdaptiveError::StepSizeTooSmall { t, h, min_step, scaled_error, last_newton, partial }
+    }
+}
+
 /// Whether the method's step is symmetric (`Φ_{−h} = Φ_h^{−1}`).
 pub fn is_symmetric(method: Method) -> bool {
     matches!(method, Method::Gauss | Method::LobattoIIIAB | Method::LobattoIIIBALda)
@@ -525,43 +547,48 @@ where
     if rec.run.steps > 0 {
         rec.run.newton_iterations_mean = rec.run.newton_iterations_total as f64 / rec.run.steps as f64;
     }
-    let source = Sys::SOURCE;
-    AdaptiveRun {
-        trajectory: Trajectory {
-            system: source.name.to_string(),
-            coordinates: source.coordinates.iter().map(|c| c.to_string()).collect(),
-            method: stepper.tableau().method,
-            stages: S,
-            samples: rec.samples,
-            report: rec.run,
-            // Adaptive runs do not locate events (use `integrate_with_events`
-            // on fixed steps for that).
-            events: Vec::new(),
-        },
-        report,
-    }
+    // Adaptive runs do not locate events (use `integrate_with_events` on
+    // fixed steps for that).
+    let method = stepper.tableau().method;
+    AdaptiveRun { trajectory: Trajectory::of::<Sys>(method, S, rec.samples, rec.run, Vec::new()), report }
 }
 
-/// Records one accepted step.
+/// Accepts a step of magnitude `this` that ended at `end` (the last step
+/// lands exactly on `t_end`): counts it in `report`, records and observes
+/// it, and returns the state the next step starts from.
+#[allow(clippy::too_many_arguments)]
 fn accept<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
-    stepper: &Stepper<Sys, N, M, S, D>,
+    stepper: &mut Stepper<Sys, N, M, S, D>,
     rec: &mut Recorder<N, M>,
     observer: &mut O,
-    state: &State<N>,
+    report: &mut AdaptiveReport,
+    end: State<N>,
+    this: f64,
+    t_end: f64,
     iterations: usize,
-    index: usize,
     last: bool,
-) where
+) -> State<N>
+where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
+    let mut state = end;
+    if last {
+        state.t = t_end;
+        stepper.retarget_warm_start(&state);
+    }
+    report.accepted += 1;
+    report.smallest_step = report.smallest_step.min(this);
+    report.largest_step = report.largest_step.max(this);
+    let index = report.accepted;
     rec.run.newton_iterations_total += iterations;
     rec.run.newton_iterations_max = rec.run.newton_iterations_max.max(iterations);
-    observer.observe(state, iterations);
+    observer.observe(&state, iterations);
     if last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
-        let s = stepper.sample(state, &rec.observe, iterations);
+        let s = stepper.sample(&state, &rec.observe, iterations);
         rec.push(s);
     }
+    state
 }
 
 fn adaptive_loop<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
@@ -593,14 +620,7 @@ where
         let this = if last { remaining } else { h };
         let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
         if this < floor {
-            return Err(AdaptiveError::StepSizeTooSmall {
-                t: state.t,
-                h: this,
-                min_step: floor,
-                scaled_error: f64::INFINITY,
-                last_newton: None,
-                partial: Box::new(report),
-            });
+            return Err(AdaptiveError::too_small(state.t, this, floor, f64::INFINITY, None, report));
         }
         if attempts >= options.max_steps {
             return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
@@ -617,16 +637,7 @@ where
                 report.newton_iterations += est.iterations;
                 let err = est.scaled_error;
                 if err <= 1.0 {
-                    let mut next = est.state;
-                    if last {
-                        next.t = t_end;
-                        stepper.retarget_warm_start(&next);
-                    }
-                    report.accepted += 1;
-                    report.smallest_step = report.smallest_step.min(this);
-                    report.largest_step = report.largest_step.max(this);
-                    accept(stepper, rec, observer, &next, est.iterations, report.accepted, last);
-                    state = next;
+                    state = accept(stepper, rec, observer, &mut report, est.state, this, t_end, est.iterations, last);
                     if last {
                         return Ok(report);
                     }
@@ -667,197 +678,9 @@ where
                 rejected_last = true;
                 let floor = options.min_step.max(resolution(state.t));
                 if h < floor {
-                    return Err(AdaptiveError::StepSizeTooSmall {
-                        t: state.t,
-                        h,
-                        min_step: floor,
-                        scaled_error: f64::INFINITY,
-                        last_newton: Some(Box::new(f.error)),
-                        partial: Box::new(report),
-                    });
+                    return Err(AdaptiveError::too_small(state.t, h, floor, f64::INFINITY, Some(f.error), report));
                 }
             }
         }
     }
 }
-
-/// Integrates from `(t₀, q₀, v₀)` to `t_end` (either direction) with the
-/// reversible step-size rule of Hairer & Söderlind (module docs) for the
-/// step density `density(t, q, v) > 0` (steps per unit time, up to the
-/// scale `ε`; it should be even in `v` for reversibility). `ε` comes from
-/// the tolerances of `options` at the initial state; the step sizes are not
-/// error-controlled afterwards. The last step is shortened to land on
-/// `t_end` (the only step outside the symmetric rule). Only the symmetric
-/// methods are accepted ([`is_symmetric`]). `options.max_step`, when set,
-/// bounds every step (it bounds the density from below, which keeps the
-/// rule reversible).
-#[allow(clippy::too_many_arguments)]
-pub fn integrate_reversible<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
-    stepper: &mut Stepper<Sys, N, M, S, D>,
-    t0: f64,
-    q0: &Vector<N>,
-    v0: &Vector<N>,
-    t_end: f64,
-    density: F,
-    options: &AdaptiveOptions,
-    observer: &mut O,
-) -> Result<AdaptiveRun<N, M>, AdaptiveError>
-where
-    Sys: NonholonomicSystem<N, M>,
-    O: Observer<N, M>,
-    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
-{
-    let method = stepper.tableau().method;
-    if !is_symmetric(method) {
-        return Err(AdaptiveError::NotSymmetric { method });
-    }
-    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options)?;
-    let result = reversible_loop(stepper, state, t_end, &density, options, &mut rec, observer);
-    stepper.set_accepted_start_residual(0.0);
-    let report = result?;
-    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
-}
-
-/// `σ(y)` and `G(y) = σ̇(y)/σ(y)`, the derivative along the flow by a central
-/// difference in the direction `(1, v, a)`.
-fn density_and_rate<Sys, F, const N: usize, const M: usize>(
-    sys: &Sys,
-    density: &F,
-    state: &State<N>,
-) -> Result<(f64, f64), AdaptiveError>
-where
-    Sys: NonholonomicSystem<N, M>,
-    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
-{
-    let sigma = density(state.t, &state.q, &state.v);
-    if !(sigma.is_finite() && sigma > 0.0) {
-        return Err(AdaptiveError::InvalidDensity { t: state.t, sigma });
-    }
-    let a = consistent_acceleration(sys, state.t, &state.q, &state.v).map_or(Vector::zeros(), |(a, _)| a);
-    // A time increment of 1e-5 of the local time scale 1/σ: the central
-    // difference errs by O(δ²) relative, far below what the rule needs.
-    let delta = 1e-5 / sigma;
-    let plus = density(state.t + delta, &(state.q + delta * state.v), &(state.v + delta * a));
-    let minus = density(state.t - delta, &(state.q - delta * state.v), &(state.v - delta * a));
-    let rate = (plus - minus) / (2.0 * delta * sigma);
-    if !rate.is_finite() {
-        return Err(AdaptiveError::InvalidDensity { t: state.t, sigma: if plus.is_finite() { minus } else { plus } });
-    }
-    Ok((sigma, rate))
-}
-
-fn reversible_loop<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
-    stepper: &mut Stepper<Sys, N, M, S, D>,
-    mut state: State<N>,
-    t_end: f64,
-    density: &F,
-    options: &AdaptiveOptions,
-    rec: &mut Recorder<N, M>,
-    observer: &mut O,
-) -> Result<AdaptiveReport, AdaptiveError>
-where
-    Sys: NonholonomicSystem<N, M>,
-    O: Observer<N, M>,
-    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
-{
-    let dir = (t_end - state.t).signum();
-    let span = (t_end - state.t).abs();
-    let max_step = options.max_step.unwrap_or(span).min(span);
-    let k = (stepper.tableau().method.order(S) + 1) as f64;
-    let mut report = AdaptiveReport { smallest_step: f64::INFINITY, ..AdaptiveReport::default() };
-    // ε from the tolerance: the first step size whose error estimate lies
-    // between ½ and 1 of the tolerance (a few estimates, none kept).
-    let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), &state, options)).min(max_step);
-    for _ in 0..30 {
-        let floor = options.min_step.max(resolution(state.t));
-        if h < floor {
-            return Err(AdaptiveError::StepSizeTooSmall {
-                t: state.t,
-                h,
-                min_step: floor,
-                scaled_error: f64::INFINITY,
-                last_newton: None,
-                partial: Box::new(report),
-            });
-        }
-        match stepper.step_with_estimate(&state, dir * h, options.rtol, options.atol) {
-            Ok(est) => {
-                report.solves += 3;
-                report.newton_iterations += est.iterations;
-                let err = est.scaled_error;
-                if err > 1.0 {
-                    h *= (options.safety * err.powf(-1.0 / k)).clamp(options.min_factor, 1.0);
-                } else if err < 0.5 && h < max_step {
-                    let grow = if err == 0.0 { options.max_factor } else { options.safety * err.powf(-1.0 / k) };
-                    h = (h * grow.clamp(1.0, options.max_factor)).min(max_step);
-                } else {
-                    break;
-                }
-            }
-            Err(f) => {
-                report.solves += f.solves + 1;
-                if !f.error.is_curable() {
-                    return Err(AdaptiveError::Step { t: state.t, source: f.error, partial: Box::new(report) });
-                }
-                report.newton_failures += 1;
-                h *= 0.25;
-            }
-        }
-        stepper.reset_run();
-    }
-    stepper.reset_run();
-    let (sigma0, g0) = density_and_rate(stepper.system(), density, &state)?;
-    let epsilon = h * sigma0;
-    report.epsilon = epsilon;
-    // Lower bound of ρ that keeps every step within max_step.
-    let rho_min = epsilon / max_step;
-    let mut rho = sigma0 + 0.5 * epsilon * dir * g0;
-    let mut attempts = 0usize;
-    loop {
-        let h = epsilon / rho.max(rho_min);
-        let remaining = (t_end - state.t).abs();
-        let last = h >= remaining;
-        let this = if last { remaining } else { h };
-        let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
-        if this.is_nan() || this < floor {
-            return Err(AdaptiveError::StepSizeTooSmall {
-                t: state.t,
-                h: this,
-                min_step: floor,
-                scaled_error: f64::NAN,
-                last_newton: None,
-                partial: Box::new(report),
-            });
-        }
-        if attempts >= options.max_steps {
-            return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
-        }
-        attempts += 1;
-        report.solves += 1;
-        let r = stepper.step(&state, dir * this).map_err(|source| {
-            let partial = Box::new(report);
-            AdaptiveError::Step { t: state.t, source, partial }
-        })?;
-        report.newton_iterations += r.iterations;
-        let mut next = r.state;
-        if last {
-            next.t = t_end;
-            stepper.retarget_warm_start(&next);
-        }
-        report.accepted += 1;
-        report.smallest_step = report.smallest_step.min(this);
-        report.largest_step = report.largest_step.max(this);
-        accept(stepper, rec, observer, &next, r.iterations, report.accepted, last);
-        state = next;
-        if last {
-            return Ok(report);
-        }
-        // The reversed run walks t backwards, so G changes sign with dir.
-        let (_, g) = density_and_rate(stepper.system(), density, &state)?;
-        rho += epsilon * dir * g;
-    }
-}
-
-#[cfg(test)]
-#[path = "adaptive_tests.rs"]
-mod tests;

@@ -1,7 +1,7 @@
 //! Tests of the error estimate, the PI controller and the reversible rule.
 
 use crate::adaptive::*;
-use crate::handwritten::{MobileRobot, MpParticles, OrbitParticle, Particle, Skate};
+use crate::fixtures::paper::{MobileRobot, MpParticles, OrbitParticle, Particle, Skate};
 use crate::reference::{integrate as reference, ReferenceOptions};
 use crate::*;
 

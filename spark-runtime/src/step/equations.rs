@@ -1,0 +1,468 @@
+//! The equations of one SPARK step, paper eq. (6.1): the stage points of
+//! the unknowns `z` (`evaluate`), the residual `G(z)` and the
+//! Newton matrices — the exact Jacobian `∂G/∂z` and the factors of the
+//! stage-decoupled matrix. The row layout is in the docs of the `step`
+//! module.
+
+// Stage loops index several parallel arrays (c, a, b, stage values) with one index.
+#![allow(clippy::needless_range_loop)]
+
+use super::Stepper;
+use crate::linalg::decoupled::Masses;
+use crate::linalg::newton_matrix::NewtonMatrix;
+use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
+use crate::tableau::{ConditionRows, Tableau};
+use crate::State;
+
+/// Everything one residual evaluation produced.
+pub(super) struct Eval<const N: usize, const M: usize, const S: usize> {
+    pub(super) stages: [StageValues<N, M>; S],
+    pub(super) end: StageValues<N, M>,
+    pub(super) mid: Option<StageValues<N, M>>,
+}
+
+/// Jacobians of one evaluation (only for full-Jacobian iterations).
+/// Every `StageJacobians` is its own heap allocation made zeroed by
+/// [`StageJacobians::boxed_zeros`] and written in place by
+/// `stage_jacobians_into`, so neither building nor filling one puts its
+/// `≈ 48·N²` bytes on the stack (n = 65, s = 2 overflowed a 2 MiB thread when
+/// the stage arrays were built before boxing; n ≈ 120 did when the system
+/// returned them by value).
+#[derive(Clone, Debug)]
+pub(super) struct EvalJac<const N: usize, const M: usize, const S: usize> {
+    pub(super) stages: Box<[Box<StageJacobians<N, M>>]>,
+    pub(super) end: Box<StageJacobians<N, M>>,
+    pub(super) mid: Option<Box<StageJacobians<N, M>>>,
+    /// `∂N/∂ψ` at the stages (only written when `Sys::HAS_NONIDEAL_FORCE`).
+    pub(super) nonideal_psi: Box<[Matrix<N, M>]>,
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// The Newton matrix of a step of size `h` from `state`, evaluated and
+    /// assembled at the step's starting guess, with that guess's residual.
+    ///
+    /// For benchmarks and diagnostics of the linear algebra alone: time
+    /// [`NewtonMatrix::factor`] and [`NewtonMatrix::solve_in_place`] on a
+    /// clone. The stepper's warm start is left as it was.
+    pub fn newton_matrix(&mut self, state: &State<N>, h: f64) -> (&NewtonMatrix<N, M, S, D>, Vector<D>) {
+        let (z, _) = self.starting_guess(state, h);
+        let p0 = self.system.momentum(state.t, &state.q, &state.v);
+        let carry = self.carry_for(state);
+        let ev = Self::evaluate(&self.system, &self.tableau, state, &carry, h, &z, Some(&mut *self.work));
+        let g = Self::residual(&self.tableau, &p0, h, &z, &ev);
+        self.assemble_jacobian(h);
+        self.reusable = None;
+        (&self.newton, g)
+    }
+
+    /// Evaluates the stage points of `z`, optionally with Jacobians.
+    pub(super) fn evaluate(
+        system: &Sys,
+        tab: &Tableau<S>,
+        state: &State<N>,
+        carry: &Vector<N>,
+        h: f64,
+        z: &Vector<D>,
+        jac: Option<&mut EvalJac<N, M, S>>,
+    ) -> Eval<N, M, S> {
+        let (v, mu) = split::<N, M, S, D>(z);
+        let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
+        let zero_m = Vector::<M>::zeros();
+        let mut ev = Eval { stages: [StageValues::zeros(); S], end: StageValues::zeros(), mid: None };
+        let q1 = state.q + increment(carry, h, &tab.b, &v);
+        let t1 = state.t + h;
+        let mid_point = || {
+            let tm = state.t + 0.5 * h;
+            (tm, state.q + (carry + (0.5 * h) * v[0]))
+        };
+        let stage_q = |i: usize| state.q + increment(carry, h, &tab.a[i], &v);
+        match jac {
+            Some(jac) => {
+                for i in 0..S {
+                    let psi = mu[i] / h;
+                    let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
+                    // In place, into the heap work storage: no N×N value on the stack.
+                    let (vals, jac_i) = (&mut ev.stages[i], &mut *jac.stages[i]);
+                    system.stage_jacobians_into(ti, &qi, &v[i], &psi, vals, jac_i);
+                    if Sys::HAS_FORCING {
+                        system.add_external_force_jacobians(ti, &qi, &v[i], vals, jac_i);
+                    }
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        let psi_jac = &mut jac.nonideal_psi[i];
+                        system.add_nonideal_force_jacobians(ti, &qi, &v[i], &psi, vals, jac_i, psi_jac);
+                    }
+                }
+                system.stage_jacobians_into(t1, &q1, &v1, &zero_m, &mut ev.end, &mut jac.end);
+                if tab.conditions == ConditionRows::MidpointConstraint {
+                    let (tm, qm) = mid_point();
+                    let mj = jac.mid.get_or_insert_with(StageJacobians::boxed_zeros);
+                    let mv = ev.mid.insert(StageValues::zeros());
+                    system.stage_jacobians_into(tm, &qm, &v[0], &zero_m, mv, mj);
+                }
+            }
+            None => {
+                for i in 0..S {
+                    let psi = mu[i] / h;
+                    let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
+                    ev.stages[i] = system.stage_values(ti, &qi, &v[i], &psi);
+                    if Sys::HAS_FORCING {
+                        ev.stages[i].force += system.external_force(ti, &qi, &v[i]);
+                    }
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        ev.stages[i].constraint_force += system.nonideal_force(ti, &qi, &v[i], &psi);
+                    }
+                }
+                ev.end = system.stage_values(t1, &q1, &v1, &zero_m);
+                if tab.conditions == ConditionRows::MidpointConstraint {
+                    let (tm, qm) = mid_point();
+                    ev.mid = Some(system.stage_values(tm, &qm, &v[0], &zero_m));
+                }
+            }
+        }
+        ev
+    }
+
+    /// The SPARK residual `G(z)` (see the module docs for the row layout).
+    pub(super) fn residual(tab: &Tableau<S>, p0: &Vector<N>, h: f64, z: &Vector<D>, ev: &Eval<N, M, S>) -> Vector<D> {
+        let mut g = Vector::<D>::zeros();
+        let mut row = |i: usize, weights_hat: &[f64; S], weights_tilde: &[f64; S], momentum: &Vector<N>| {
+            let mut r = momentum - p0;
+            for j in 0..S {
+                if weights_hat[j] != 0.0 {
+                    r -= (h * weights_hat[j]) * ev.stages[j].force;
+                }
+                if weights_tilde[j] != 0.0 {
+                    r -= (h * weights_tilde[j]) * ev.stages[j].constraint_force;
+                }
+            }
+            g.fixed_rows_mut::<N>(i * N).copy_from(&r);
+        };
+        for i in 0..S {
+            row(i, &tab.a_hat[i], &tab.a_tilde[i], &ev.stages[i].momentum);
+        }
+        row(S, &tab.b_hat, &tab.b_tilde, &ev.end.momentum);
+        let base = S * N + N;
+        match tab.conditions {
+            ConditionRows::Omega => {
+                for r in 0..S.saturating_sub(1) {
+                    let mut k = Vector::<M>::zeros();
+                    for j in 0..S {
+                        k += tab.omega[r][j] * ev.stages[j].constraint;
+                    }
+                    g.fixed_rows_mut::<M>(base + r * M).copy_from(&k);
+                }
+            }
+            ConditionRows::MidpointConstraint => {
+                if let Some(mid) = &ev.mid {
+                    g.fixed_rows_mut::<M>(base).copy_from(&mid.constraint);
+                }
+            }
+            ConditionRows::EqualMultipliers => {
+                for r in 0..S.saturating_sub(1) {
+                    let d = z.fixed_rows::<M>(S * N + r * M) - z.fixed_rows::<M>(S * N + (r + 1) * M);
+                    g.fixed_rows_mut::<M>(base + r * M).copy_from(&d);
+                }
+            }
+        }
+        g.fixed_rows_mut::<M>(D - M).copy_from(&ev.end.constraint);
+        g
+    }
+
+    /// The exact Jacobian `∂G/∂z`, skipping blocks the structure facts prove zero.
+    pub(super) fn assemble_jacobian(&mut self, h: f64) {
+        let jac = &self.work;
+        let tab = self.tableau;
+        let st = Sys::STRUCTURE;
+        // L = T(v) − U(q): ∂P/∂q = 0 and ∂F/∂v = 0 (unless a force f(t,q,v)
+        // is added to F).
+        let separable = st.separable && !Sys::HAS_FORCING;
+        // K independent of v and no non-ideal force: ∂R/∂v = 0.
+        let k_velocity_free = st.constraint_matrix_velocity_free() && !Sys::HAS_NONIDEAL_FORCE;
+        if !self.pattern_written {
+            // Which blocks are written below depends only on the tableau and
+            // the structure facts, both fixed for this stepper: the structural
+            // zeros and the constant entries are written once, and every later
+            // assembly overwrites exactly the blocks that change (zeroing the
+            // whole D×D matrix per iteration cost more than the blocks).
+            self.newton.clear();
+            if tab.conditions == ConditionRows::EqualMultipliers {
+                let mut j = self.newton.matrix_mut();
+                let base = S * N + N;
+                for r in 0..S.saturating_sub(1) {
+                    for d in 0..M {
+                        j[(base + r * M + d, S * N + r * M + d)] = 1.0;
+                        j[(base + r * M + d, S * N + (r + 1) * M + d)] = -1.0;
+                    }
+                }
+            }
+            self.pattern_written = true;
+        }
+        let mut j = self.newton.matrix_mut();
+        let h2 = h * h;
+        // Momentum rows: stage rows i < S use (a_i, â_i, ã_i); the p₁ row uses
+        // (b, b̂, b̃) with its momentum evaluated at the end point. Each block
+        // is accumulated in a contiguous local N×N matrix and stored once
+        // (nalgebra's `zip_apply` on the strided D×D view went entry by entry:
+        // ≈ 12 % of all instructions of an mp7 Gauss s = 4 step). Every entry
+        // sees the same operations in the same order as before, so the matrix
+        // is bit for bit the same.
+        for i in 0..=S {
+            let (a_row, ah_row, at_row) =
+                if i < S { (&tab.a[i], &tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b, &tab.b_hat, &tab.b_tilde) };
+            let pq = if i < S { &jac.stages[i].momentum_q } else { &jac.end.momentum_q };
+            for l in 0..S {
+                // Small blocks accumulate in a fixed 2 KiB stack array: LLVM sees
+                // that it aliases nothing and vectorizes the axpys (measured: the
+                // heap scratch alone gave back the ≈ 5 % a step had gained at
+                // N ≤ 7). Larger blocks use the heap scratch, so a step's stack
+                // stays independent of N.
+                let mut local = [0.0f64; SMALL_BLOCK];
+                let blk: &mut [f64] = if N * N <= SMALL_BLOCK { &mut local[..N * N] } else { &mut self.block[..N * N] };
+                if i == l {
+                    blk.copy_from_slice(jac.stages[l].mass.as_slice());
+                } else {
+                    blk.fill(0.0);
+                }
+                if !separable {
+                    if a_row[l] != 0.0 {
+                        axpy(blk, h * a_row[l], pq);
+                    }
+                    if ah_row[l] != 0.0 {
+                        axpy(blk, -h * ah_row[l], &jac.stages[l].force_v);
+                    }
+                }
+                if !k_velocity_free && at_row[l] != 0.0 {
+                    axpy(blk, -h * at_row[l], &jac.stages[l].constraint_force_v);
+                }
+                for m in 0..S {
+                    let aml = tab.a[m][l];
+                    if aml == 0.0 {
+                        continue;
+                    }
+                    if ah_row[m] != 0.0 {
+                        axpy(blk, -h2 * ah_row[m] * aml, &jac.stages[m].force_q);
+                    }
+                    if at_row[m] != 0.0 {
+                        axpy(blk, -h2 * at_row[m] * aml, &jac.stages[m].constraint_force_q);
+                    }
+                }
+                for c in 0..N {
+                    j.fixed_view_mut::<N, 1>(i * N, l * N + c).as_mut_slice().copy_from_slice(&blk[c * N..(c + 1) * N]);
+                }
+                // ∂(−h ã_il R_l)/∂μ_l = ã_il K_lᵀ (R_l = −K_lᵀ μ_l / h);
+                // with N(ψ = μ/h) also −ã_il ∂N_l/∂ψ.
+                if at_row[l] != 0.0 {
+                    let mut kt = j.fixed_view_mut::<N, M>(i * N, S * N + l * M);
+                    kt.tr_copy_from(&jac.stages[l].constraint_v);
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        kt -= &jac.nonideal_psi[l];
+                    }
+                    kt *= at_row[l];
+                }
+            }
+        }
+        // ∂p₁/∂v₁.
+        j.fixed_view_mut::<N, N>(S * N, S * (N + M)).copy_from(&jac.end.mass);
+        let base = S * N + N;
+        match tab.conditions {
+            ConditionRows::Omega => {
+                for r in 0..S.saturating_sub(1) {
+                    for l in 0..S {
+                        let mut blk = tab.omega[r][l] * jac.stages[l].constraint_v;
+                        for m in 0..S {
+                            let c = tab.omega[r][m] * tab.a[m][l];
+                            if c != 0.0 {
+                                blk += (h * c) * jac.stages[m].constraint_q;
+                            }
+                        }
+                        j.fixed_view_mut::<M, N>(base + r * M, l * N).copy_from(&blk);
+                    }
+                }
+            }
+            ConditionRows::MidpointConstraint => {
+                if let Some(mj) = &jac.mid {
+                    let blk = mj.constraint_v + (0.5 * h) * mj.constraint_q;
+                    j.fixed_view_mut::<M, N>(base, 0).copy_from(&blk);
+                }
+            }
+            // Constant ±1 entries, written with the structural zeros.
+            ConditionRows::EqualMultipliers => {}
+        }
+        for l in 0..S {
+            j.fixed_view_mut::<M, N>(D - M, l * N).copy_from(&((h * tab.b[l]) * jac.end.constraint_q));
+        }
+        j.fixed_view_mut::<M, N>(D - M, S * (N + M)).copy_from(&jac.end.constraint_v);
+    }
+
+    /// Factors the stage-decoupled matrix at `z`. `lean`: the latest
+    /// evaluation computed no stage Jacobians, so the constraint Jacobians
+    /// are evaluated here (and the constant mass matrix once, while its
+    /// factors are not kept); otherwise they are copied from `self.work`.
+    pub(super) fn factor_decoupled(
+        &mut self,
+        state: &State<N>,
+        carry: &Vector<N>,
+        h: f64,
+        z: &Vector<D>,
+        lean: bool,
+    ) -> Result<(), crate::linalg::Singular> {
+        let tab = &self.tableau;
+        let dec = &mut self.decoupled;
+        let work = &mut *self.work;
+        if !lean {
+            for i in 0..S {
+                dec.constraint_v[i] = work.stages[i].constraint_v;
+                dec.constraint_q[i] = work.stages[i].constraint_q;
+            }
+            dec.constraint_v[S] = work.end.constraint_v;
+            dec.constraint_q[S] = work.end.constraint_q;
+            if let Some(mj) = &work.mid {
+                dec.constraint_v[S + 1] = mj.constraint_v;
+                dec.constraint_q[S + 1] = mj.constraint_q;
+            }
+            let masses = Masses::PerPoint { stages: &work.stages, end: &work.end };
+            let nonideal = Sys::HAS_NONIDEAL_FORCE.then_some(&work.nonideal_psi[..]);
+            return dec.factor(tab, h, masses, nonideal);
+        }
+        let (v, _) = split::<N, M, S, D>(z);
+        let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
+        let sys = &self.system;
+        for i in 0..S {
+            let (ti, qi) = (state.t + tab.c[i] * h, state.q + increment(carry, h, &tab.a[i], &v));
+            dec.constraint_v[i] = sys.constraint_v(ti, &qi, &v[i]);
+            dec.constraint_q[i] = sys.constraint_q(ti, &qi, &v[i]);
+        }
+        let (t1, q1) = (state.t + h, state.q + increment(carry, h, &tab.b, &v));
+        dec.constraint_v[S] = sys.constraint_v(t1, &q1, &v1);
+        dec.constraint_q[S] = sys.constraint_q(t1, &q1, &v1);
+        if tab.conditions == ConditionRows::MidpointConstraint {
+            let (tm, qm) = (state.t + 0.5 * h, state.q + (carry + (0.5 * h) * v[0]));
+            dec.constraint_v[S + 1] = sys.constraint_v(tm, &qm, &v[0]);
+            dec.constraint_q[S + 1] = sys.constraint_q(tm, &qm, &v[0]);
+        }
+        if dec.has_constant_mass() {
+            return dec.factor(tab, h, Masses::Cached, None);
+        }
+        // The mass matrix is constant: one evaluation into the heap work
+        // storage (no N×N value on the stack) gives it for every block.
+        let mut vals = StageValues::zeros();
+        sys.stage_jacobians_into(t1, &q1, &v1, &Vector::zeros(), &mut vals, &mut work.end);
+        dec.factor(tab, h, Masses::Constant(&work.end.mass), None)
+    }
+}
+
+#[cfg(test)]
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// The residual and the assembled Jacobian at `z` (for derivative tests).
+    pub(crate) fn residual_and_jacobian(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        z: &Vector<D>,
+    ) -> (Vector<D>, Matrix<D, D>) {
+        let p0 = self.system.momentum(state.t, &state.q, &state.v);
+        let carry = self.carry_for(state);
+        let ev = Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Some(&mut *self.work));
+        let g = Self::residual(&self.tableau, &p0, h, z, &ev);
+        self.assemble_jacobian(h);
+        (g, self.newton.matrix().into_owned())
+    }
+
+    /// For the stage-decoupled matrix's tests: the residual `g` at `z`, the
+    /// stage-decoupled matrix written out densely from the exact Jacobian
+    /// (velocity blocks between different stages zeroed, each stage's own
+    /// velocity block replaced by its mass matrix), and the solve of `g` by
+    /// [`DecoupledMatrix`] (`lean`: from the constraint Jacobians alone).
+    pub(crate) fn decoupled_solve(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        z: &Vector<D>,
+        lean: bool,
+    ) -> Result<(Vector<D>, Matrix<D, D>, Vector<D>), crate::linalg::Singular> {
+        let (g, mut approx) = self.residual_and_jacobian(state, h, z);
+        for i in 0..=S {
+            for l in 0..=S {
+                let col = if l < S { l * N } else { S * (N + M) };
+                let mass = match (i == l, i < S) {
+                    (false, _) => Matrix::<N, N>::zeros(),
+                    (true, true) => self.work.stages[i].mass,
+                    (true, false) => self.work.end.mass,
+                };
+                approx.fixed_view_mut::<N, N>(i * N, col).copy_from(&mass);
+            }
+        }
+        if lean {
+            self.decoupled.invalidate();
+        }
+        let carry = self.carry_for(state);
+        self.factor_decoupled(state, &carry, h, z, lean)?;
+        let mut x = g;
+        self.decoupled.solve_in_place(&mut x);
+        Ok((g, approx, x))
+    }
+
+    /// Steps left on the exact matrix after the stage-decoupled one failed.
+    pub(crate) fn exact_steps_left(&self) -> u32 {
+        self.exact_steps_left
+    }
+
+    /// The residual at `z`.
+    pub(crate) fn residual_at(&self, state: &State<N>, h: f64, z: &Vector<D>) -> Vector<D> {
+        let p0 = self.system.momentum(state.t, &state.q, &state.v);
+        let ev = Self::evaluate(&self.system, &self.tableau, state, &self.carry_for(state), h, z, None);
+        Self::residual(&self.tableau, &p0, h, z, &ev)
+    }
+}
+
+/// Largest `N·N` whose Newton-matrix blocks are accumulated on the stack.
+const SMALL_BLOCK: usize = 256;
+
+/// `acc += coef · x`, entry by entry on contiguous storage (nalgebra's
+/// `zip_apply` on a strided view of the D×D matrix did not vectorize);
+/// `acc` is an `N·N` block scratch (column-major).
+#[inline(always)]
+fn axpy<const N: usize>(acc: &mut [f64], coef: f64, x: &Matrix<N, N>) {
+    for (a, x) in acc[..N * N].iter_mut().zip(x.as_slice()) {
+        *a += coef * x;
+    }
+}
+
+/// `carry + Σ_j (h c_j) V_j`: the increment of `q` summed on its own (at
+/// the size of `hV`), so that adding it to `q₀` rounds once at the size of
+/// `q` instead of once per stage — those `S` roundings of nearly the same
+/// increments every step were the systematic part of the drift.
+#[inline(always)]
+pub(super) fn increment<const N: usize, const S: usize>(
+    carry: &Vector<N>,
+    h: f64,
+    c: &[f64; S],
+    v: &[Vector<N>; S],
+) -> Vector<N> {
+    let mut d = *carry;
+    for j in 0..S {
+        if c[j] != 0.0 {
+            d += (h * c[j]) * v[j];
+        }
+    }
+    d
+}
+
+/// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
+pub(super) fn split<const N: usize, const M: usize, const S: usize, const D: usize>(
+    z: &Vector<D>,
+) -> ([Vector<N>; S], [Vector<M>; S]) {
+    let mut v = [Vector::<N>::zeros(); S];
+    let mut mu = [Vector::<M>::zeros(); S];
+    for i in 0..S {
+        v[i] = z.fixed_rows::<N>(i * N).into_owned();
+        mu[i] = z.fixed_rows::<M>(S * N + i * M).into_owned();
+    }
+    (v, mu)
+}

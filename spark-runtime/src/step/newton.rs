@@ -1,0 +1,580 @@
+//! Newton's method on the step's equations: the options ([`NewtonMode`],
+//! [`Jacobian`], [`NewtonOptions`]), the iteration with its refreshes of a
+//! simplified Newton matrix and its fall-back from the stage-decoupled to
+//! the exact matrix, and the typed errors it ends with.
+
+use super::convergence::{full_newton_converged, Contraction};
+use super::Stepper;
+use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
+use crate::linalg::scaled_update_norm;
+use crate::system::{NonholonomicSystem, Vector};
+use crate::State;
+
+/// Full Newton (Jacobian re-evaluated every iteration) or simplified Newton
+/// (Jacobian frozen at the starting guess for the whole step).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum NewtonMode {
+    /// The exact Jacobian, evaluated and factored at every iterate.
+    Full,
+    /// One Newton matrix and factorization per step, refreshed at the
+    /// current iterate only when the iteration on it grows or contracts too
+    /// slowly (rate above 0.5, or too slow to reach the tolerance within the
+    /// iteration limit) — large steps, stiff systems. Which matrix — the
+    /// exact Jacobian or the stage-decoupled one — is
+    /// [`NewtonOptions::jacobian`].
+    Simplified,
+}
+
+/// Which Newton matrix simplified Newton factors (full Newton always uses
+/// the exact Jacobian: that is what makes it full Newton).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum Jacobian {
+    /// The exact Jacobian `∂G/∂z`, factored densely (`D × D`).
+    Exact,
+    /// The stage-decoupled matrix: the exact Jacobian with the couplings
+    /// between the velocity unknowns of different stages dropped and each
+    /// stage's own velocity block replaced by its mass matrix, eliminated down
+    /// to an `S·M × S·M` Schur complement in the multipliers (see
+    /// `linalg/decoupled.rs` in the crate source). The step
+    /// switches to [`Jacobian::Exact`] when the iteration contracts slower
+    /// than 1/8 per update or the decoupled matrix is singular, and stays on
+    /// the exact matrix for the next 32 steps.
+    StageDecoupled,
+    /// [`Jacobian::StageDecoupled`] when the structure facts make the dropped
+    /// couplings `O(h²)` — `L = T(t,v) − U(t,q)` (separable), `K`
+    /// independent of `v`, no forcing and no non-ideal constraint force —
+    /// and [`Jacobian::Exact`] otherwise.
+    #[default]
+    Auto,
+}
+
+/// Newton solver settings.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NewtonOptions {
+    /// Full or simplified Newton.
+    pub mode: NewtonMode,
+    /// Target for the estimated remaining error of the scaled unknowns
+    /// (`|Δz_i| / (1 + |z_i|)`); default `16 ε ≈ 3.6e-15`.
+    pub tolerance: f64,
+    /// Updates below this level that stop contracting are round-off
+    /// stagnation and are accepted; above it they count as divergence.
+    pub stagnation_level: f64,
+    /// Iteration limit (at most [`HISTORY_CAPACITY`]).
+    pub max_iterations: usize,
+    /// Extrapolate the starting guess from the previous step's stages when
+    /// the new step continues it; otherwise start from the consistent
+    /// acceleration at `(t₀, q₀, v₀)`.
+    pub warm_start: bool,
+    /// Degree (1..=3) of the polynomial extrapolating the solutions of
+    /// previous equal steps to the next starting guess.
+    pub extrapolation_degree: usize,
+    /// Energy guard: when the structure facts make `E` a first integral
+    /// (autonomous `L`, constraints absent or linear homogeneous in `v` —
+    /// `k = K(t,q)v` may depend on `t` — and no external or non-ideal
+    /// force), refuse with
+    /// [`StepError::EnergyDrift`] a step that leaves `|E − E₀|` above this
+    /// multiple of `|E₀| + |p₀·v₀|`, `E₀` taken where the chain of continued
+    /// steps began. A sanity bound against unstable discrete maps (stiff
+    /// modes beyond a method's stability range), not an accuracy control;
+    /// `None` turns it off. Default `Some(1.0)`.
+    #[serde(default = "default_energy_drift_limit")]
+    pub energy_drift_limit: Option<f64>,
+    /// Simplified Newton only: start a step that continues the previous one
+    /// (same `h`, warm start) from the previous step's factorization instead
+    /// of a fresh Jacobian, as long as it contracts well (rate ≤ 0.2 over
+    /// the previous step; refreshed within a step like any simplified
+    /// Newton Jacobian, see [`NewtonMode::Simplified`]).
+    /// The converged solution is the same (to the tolerance); it trades one
+    /// Jacobian + factorization per step for more, cheaper iterations. Off by
+    /// default: measured on the skate and MP particles (Gauss s = 2, h = 0.05)
+    /// an earlier step's factors contract at rate ≈ 0.1, so a step needs ≈ 7
+    /// iterations instead of 2 and costs more than a fresh factorization.
+    #[serde(default = "default_reuse")]
+    pub reuse_factorization: bool,
+    /// A step that starts cold — at a state that is not where the
+    /// stepper's previous step ended — refuses with
+    /// [`StepError::InconsistentStart`] a state whose constraint residual
+    /// `|k_i(t,q,v)|` exceeds this multiple of the size of the terms of `k_i`
+    /// (`Σ_j |K_ij v_j|` plus the velocity-free part, at least 1), and with
+    /// [`StepError::DependentConstraints`] one where the constraint rows are
+    /// dependent. Default `1e-12`, the default tolerance of
+    /// [`ConsistencyPolicy`](crate::ConsistencyPolicy); continuing steps
+    /// start where a step ended and skip both checks.
+    #[serde(default = "default_consistency_tolerance")]
+    pub consistency_tolerance: f64,
+    /// Simplified Newton only: which Newton matrix to factor (default
+    /// [`Jacobian::Auto`]). The converged step is the same to the tolerance
+    /// whichever matrix the iteration uses; [`Jacobian::StageDecoupled`]
+    /// with [`NewtonMode::Full`] is refused as an invalid option.
+    #[serde(default)]
+    pub jacobian: Jacobian,
+}
+
+fn default_energy_drift_limit() -> Option<f64> {
+    Some(1.0)
+}
+
+fn default_reuse() -> bool {
+    false
+}
+
+fn default_consistency_tolerance() -> f64 {
+    1e-12
+}
+
+/// Largest contraction rate of a step with which simplified Newton keeps
+/// its factorization for the next step.
+const REUSE_RATE: f64 = 0.2;
+/// Contraction rate above which an iteration on factors from an earlier
+/// iterate (simplified Newton) triggers a fresh Jacobian.
+const REFRESH_RATE: f64 = 0.5;
+/// Contraction rate above which the stage-decoupled matrix gives way to the
+/// exact one: a refresh cannot speed it up (the couplings it drops set the
+/// rate), and at 1/8 per update it still needs no more iterations than the
+/// exact matrix's factorization costs.
+const DECOUPLED_RATE: f64 = 0.125;
+/// Steps a stepper stays on the exact matrix after the stage-decoupled one
+/// was slow or singular (the next steps are much like this one).
+const EXACT_AFTER_DECOUPLED_FAILS: u32 = 32;
+
+impl Default for NewtonOptions {
+    fn default() -> Self {
+        NewtonOptions {
+            mode: NewtonMode::Full,
+            tolerance: 16.0 * f64::EPSILON,
+            stagnation_level: 1e-12,
+            max_iterations: 20,
+            warm_start: true,
+            extrapolation_degree: 2,
+            reuse_factorization: default_reuse(),
+            energy_drift_limit: default_energy_drift_limit(),
+            consistency_tolerance: default_consistency_tolerance(),
+            jacobian: Jacobian::Auto,
+        }
+    }
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// Which matrix simplified Newton factors: the stage-decoupled one where
+    /// the options and structure facts ask for it (the caller also waits out
+    /// `EXACT_AFTER_DECOUPLED_FAILS` steps after it was slow or singular).
+    fn wants_decoupled(&self) -> bool {
+        self.options.mode == NewtonMode::Simplified
+            && match self.options.jacobian {
+                Jacobian::Exact => false,
+                Jacobian::StageDecoupled => true,
+                Jacobian::Auto => Self::DECOUPLES,
+            }
+    }
+
+    /// Assembles and factors the exact Jacobian at the latest evaluation; a
+    /// failure is recorded in the history with the iteration's `residual`
+    /// and returned as a singular (or non-finite) Newton matrix.
+    fn factor_exact(&mut self, t: f64, h: f64, residual: f64) -> Result<(), StepError> {
+        self.assemble_jacobian(h);
+        let Err(s) = self.newton.factor() else { return Ok(()) };
+        self.history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
+        Err(if self.newton.matrix().iter().all(|x| x.is_finite()) {
+            StepError::SingularMatrix {
+                t,
+                h,
+                detail: singular_detail::<N, M, S>(s.column, s.pivot, self.newton.matrix().column(s.column).amax()),
+                history: Box::new(self.history),
+            }
+        } else {
+            StepError::NonFinite { t, h, stage: "Jacobian", history: Box::new(self.history) }
+        })
+    }
+
+    /// The residual at `z` (evaluated with the stage Jacobians when
+    /// `full_jacobians`) and its largest magnitude; a non-finite residual is
+    /// recorded in the history and returned as an error.
+    fn iteration_residual(
+        &mut self,
+        state: &State<N>,
+        carry: &Vector<N>,
+        p0: &Vector<N>,
+        h: f64,
+        z: &Vector<D>,
+        full_jacobians: bool,
+    ) -> Result<(Vector<D>, f64), StepError> {
+        let work = full_jacobians.then_some(&mut *self.work);
+        let ev = Self::evaluate(&self.system, &self.tableau, state, carry, h, z, work);
+        let g = Self::residual(&self.tableau, p0, h, z, &ev);
+        if !g.iter().all(|x| x.is_finite()) {
+            self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
+            return Err(StepError::NonFinite { t: state.t, h, stage: "residual", history: Box::new(self.history) });
+        }
+        Ok((g, g.amax()))
+    }
+
+    /// Newton's method on `G(z) = 0`; records the iterations in `self.history`
+    /// and returns the number of factorizations.
+    ///
+    /// # Stopping
+    /// Every update `Δz` is computed with some factors `F` of a Newton
+    /// matrix. With the error `e = z − z*` and the contraction `θ = ‖I − F⁻¹J̄‖`
+    /// of those factors (`J̄` the mean Jacobian between `z` and `z*`),
+    /// `(1 − θ)‖e‖ ≤ ‖Δz‖` and the error left after the update is at most
+    /// `θ/(1 − θ)·‖Δz‖`. So an update within the tolerance ends the solve
+    /// whenever `θ ≤ ½`: the simplified Newton refresh guarantees that bound
+    /// for its frozen factors, and full Newton's fresh factors contract at
+    /// `θ = O(‖Δz_prev‖)`.
+    ///
+    /// Simplified Newton factors the exact Jacobian or the stage-decoupled
+    /// matrix ([`Jacobian`]); the latter gives way to the exact one when the
+    /// rate it sustains over two updates exceeds `DECOUPLED_RATE`, when its
+    /// updates grow, or when it cannot reach the tolerance within the
+    /// iteration limit.
+    ///
+    /// Larger updates end the solve only on a contraction rate the iteration
+    /// has earned (see [`Contraction`]): three updates on the same factors,
+    /// because the first ratio on new factors can be far below `θ` (unknowns
+    /// entering linearly, the multipliers, are corrected at once, and the
+    /// first update is mostly theirs).
+    pub(super) fn newton(
+        &mut self,
+        state: &State<N>,
+        carry: &Vector<N>,
+        h: f64,
+        z: &mut Vector<D>,
+    ) -> Result<usize, StepError> {
+        let t = state.t;
+        let opts = self.options;
+        let p0 = self.system.momentum(t, &state.q, &state.v);
+        let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
+        self.history.clear();
+        // The latest applied update (whatever its factors), for divergence
+        // and stagnation.
+        let mut prev_update = f64::NAN;
+        let fail_nonfinite =
+            |stage, history: &NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(*history) };
+        let simplified = opts.mode == NewtonMode::Simplified;
+        let mut decoupled = self.wants_decoupled() && self.exact_steps_left == 0;
+        self.exact_steps_left = self.exact_steps_left.saturating_sub(1);
+        // `stale`: the factors of this step's matrix come from an earlier step.
+        let stale =
+            simplified && opts.reuse_factorization && self.reusable == Some((h, decoupled)) && self.is_warm_for(state);
+        self.reusable = None;
+        let mut refresh = !stale;
+        // Iteration at which the current factors were computed, and whether
+        // that was a refresh within this step (simplified Newton only).
+        let (mut factored_at, mut refreshed) = (0usize, false);
+        let mut max_rate = 0.0f64;
+        let mut factorizations = 0usize;
+        let mut monitor = Contraction::FRESH;
+        let result = 'solve: {
+            for k in 0..max_iter {
+                let fresh = refresh || !simplified;
+                if refresh && k > 0 {
+                    refreshed = true;
+                }
+                refresh = false;
+                // A lean decoupled refresh needs only the constraint Jacobians
+                // (below), not the stage Jacobians of a full evaluation.
+                let lean = fresh && decoupled && Self::LEAN_DECOUPLED;
+                let full_jacobians = fresh && !lean;
+                let (mut g, residual) = self.iteration_residual(state, carry, &p0, h, z, full_jacobians)?;
+                if fresh {
+                    factorizations += 1;
+                    monitor = Contraction::FRESH;
+                    factored_at = k;
+                    if decoupled && self.factor_decoupled(state, carry, h, z, lean).is_err() {
+                        decoupled = false;
+                        self.exact_steps_left = EXACT_AFTER_DECOUPLED_FAILS;
+                    }
+                }
+                if fresh && !decoupled {
+                    self.factor_exact(t, h, residual)?;
+                }
+                if decoupled {
+                    self.decoupled.solve_in_place(&mut g);
+                } else {
+                    self.newton.solve_in_place(&mut g);
+                }
+                // Only iterations on factors from an earlier iterate may be undone.
+                let z_before = if fresh { None } else { Some(*z) };
+                *z -= g;
+                let update = scaled_update_norm(&g, z);
+                let rate = update / prev_update;
+                monitor.record(update);
+                self.history.push(IterationRecord { residual, update, rate });
+                if rate.is_finite() {
+                    max_rate = max_rate.max(rate);
+                }
+                if let Some(z_before) = z_before {
+                    // Factors from an earlier iterate (this step's frozen
+                    // Jacobian, or an earlier step's) that grow, contract slower
+                    // than REFRESH_RATE, or too slowly to reach the tolerance
+                    // within the iteration limit: take a fresh Jacobian at the
+                    // last good iterate (the standard remedy of simplified
+                    // Newton) instead of crawling into MaxIterations or reporting
+                    // a divergence full Newton would not have. Not when this
+                    // iteration is accepted below anyway, nor at round-off level
+                    // (no Jacobian helps there), nor on the first iteration of an
+                    // earlier step's factors (no rate yet).
+                    let remaining = (max_iter - 1 - k) as i32;
+                    let too_slow = too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance);
+                    let converged = monitor.converged(update, opts.tolerance);
+                    let round_off = update <= opts.stagnation_level;
+                    let first_stale = k == 0 && update.is_finite();
+                    if too_slow && !converged && !round_off && !first_stale {
+                        let growing = rate.is_nan() || rate >= 1.0;
+                        if decoupled {
+                            // The dropped couplings are not small at this
+                            // step: continue with the exact matrix from the
+                            // last good iterate.
+                            decoupled = false;
+                            self.exact_steps_left = EXACT_AFTER_DECOUPLED_FAILS;
+                            if growing {
+                                *z = z_before;
+                            }
+                            refresh = true;
+                            prev_update = f64::NAN;
+                            continue;
+                        }
+                        if growing && refreshed && factored_at + 1 == k {
+                            // Even a Jacobian refreshed at the previous iterate did
+                            // not contract: give up as full Newton would.
+                            return Err(if update.is_finite() {
+                                StepError::Diverged { t, h, history: Box::new(self.history) }
+                            } else {
+                                fail_nonfinite("update", &self.history)
+                            });
+                        }
+                        if growing {
+                            *z = z_before;
+                        }
+                        refresh = true;
+                        prev_update = f64::NAN;
+                        continue;
+                    }
+                }
+                if !update.is_finite() {
+                    return Err(fail_nonfinite("update", &self.history));
+                }
+                let converged = if simplified {
+                    monitor.converged(update, opts.tolerance)
+                } else {
+                    full_newton_converged(update, rate, opts.tolerance)
+                };
+                if converged {
+                    break 'solve Ok(());
+                }
+                if k > 0 && rate >= 1.0 {
+                    if update <= opts.stagnation_level {
+                        break 'solve Ok(());
+                    }
+                    return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
+                }
+                prev_update = update;
+            }
+            Err(StepError::MaxIterations { t, h, history: Box::new(self.history) })
+        };
+        if result.is_ok() && simplified && max_rate <= REUSE_RATE {
+            self.reusable = Some((h, decoupled));
+        }
+        result.map(|()| factorizations)
+    }
+}
+
+/// Whether an iteration on factors from an earlier iterate is too slow to
+/// keep: it grows, contracts slower than its limit, or too slowly to reach
+/// `tolerance` within the `remaining` iterations. The stage-decoupled matrix
+/// is judged on the rate it keeps to over two updates (one ratio says
+/// little) against `DECOUPLED_RATE`, and gives way to the exact matrix: a
+/// refresh of it cannot change the rate its dropped couplings set.
+fn too_slow(monitor: &Contraction, decoupled: bool, update: f64, rate: f64, remaining: i32, tolerance: f64) -> bool {
+    let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
+    rate.is_nan() || rate >= 1.0 || judged > limit || update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance
+}
+
+/// Describes a failed pivot: the column, its unknown of `z` (1-based stage
+/// and component as in the paper: `V_i[d]`, `hΨ_i[d]` or `v1[d]`), the pivot
+/// and the column's largest magnitude `scale`.
+fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize, pivot: f64, scale: f64) -> Box<str> {
+    let name = if column < S * N {
+        format!("V_{}[{}]", column / N + 1, column % N + 1)
+    } else if column < S * (N + M) {
+        let c = column - S * N;
+        format!("hΨ_{}[{}]", c / M + 1, c % M + 1)
+    } else {
+        format!("v1[{}]", column - S * (N + M) + 1)
+    };
+    format!("column {column} ({name}): pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}")
+        .into_boxed_str()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures::paper::{MobileRobot, Particle};
+    use crate::Method;
+    use crate::{NonholonomicSystem, Tableau};
+
+    /// Runs `steps` steps of size `h`; the states, or the first error.
+    fn run<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+        st: &mut Stepper<Sys, N, M, S, D>,
+        start: State<N>,
+        h: f64,
+        steps: usize,
+    ) -> Result<(State<N>, bool), StepError>
+    where
+        Sys: NonholonomicSystem<N, M>,
+    {
+        let mut s = start;
+        let mut refreshed = false;
+        for _ in 0..steps {
+            s = st.step(&s, h)?.state;
+            // A refresh restarts the rate: NaN after the first iteration.
+            refreshed |= st.last_history().iterations().iter().skip(1).any(|r| r.rate.is_nan());
+        }
+        Ok((s, refreshed))
+    }
+
+    /// Large steps where the Jacobian frozen at the starting guess contracts
+    /// too slowly: the robot at h = 1 (Gauss s = 2) diverged at its seventh
+    /// step, the particle at h = 0.7 ran into the iteration limit at its
+    /// fourth, while full Newton solves both. Refreshing the Jacobian at the
+    /// current iterate reaches full Newton's solution.
+    #[test]
+    fn simplified_newton_refreshes_a_slow_jacobian() {
+        let simplified = NewtonOptions { mode: NewtonMode::Simplified, energy_drift_limit: None, ..Default::default() };
+        let full = NewtonOptions { mode: NewtonMode::Full, ..simplified };
+        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let mut a = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(full);
+        let mut b = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(simplified);
+        let (ra, _) = run(&mut a, robot, 1.0, 20).expect("full Newton");
+        let (rb, refreshed) = run(&mut b, robot, 1.0, 20).expect("simplified Newton with refresh");
+        assert!(refreshed, "the robot at h = 1 must need a refresh");
+        assert!((ra.q - rb.q).amax() < 1e-10 && (ra.v - rb.v).amax() < 1e-10, "{ra:?} vs {rb:?}");
+
+        let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+        let mut a = Stepper::<_, 3, 1, 2, 11>::new(Particle, tab).with_options(full);
+        let mut b = Stepper::<_, 3, 1, 2, 11>::new(Particle, tab).with_options(simplified);
+        let (ra, _) = run(&mut a, particle, 0.7, 20).expect("full Newton");
+        let (rb, refreshed) = run(&mut b, particle, 0.7, 20).expect("simplified Newton with refresh");
+        assert!(refreshed, "the particle at h = 0.7 must need a refresh");
+        assert!((ra.q - rb.q).amax() < 1e-10 && (ra.v - rb.v).amax() < 1e-10, "{ra:?} vs {rb:?}");
+    }
+
+    /// A step whose equations even refreshed Jacobians cannot solve is still
+    /// a typed divergence with its history, not an endless refresh.
+    #[test]
+    fn hopeless_simplified_steps_still_diverge() {
+        let simplified = NewtonOptions { mode: NewtonMode::Simplified, energy_drift_limit: None, ..Default::default() };
+        let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let mut st = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(simplified);
+        let err = run(&mut st, robot, 2.0, 20).expect_err("h = 2 is beyond Newton's reach here");
+        let StepError::Diverged { history, .. } = &err else { panic!("{err}") };
+        assert!(history.len() < NewtonOptions::default().max_iterations, "{err}");
+        assert_eq!(format!("{:?}", st.last_history()), format!("{history:?}"));
+    }
+
+    /// Normal steps never refresh: one Jacobian per step, on the exact and
+    /// on the stage-decoupled matrix.
+    #[test]
+    fn paper_steps_keep_one_jacobian_per_step() {
+        for jacobian in [Jacobian::Exact, Jacobian::StageDecoupled] {
+            let simplified = NewtonOptions { mode: NewtonMode::Simplified, jacobian, ..Default::default() };
+            let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+            let tab = Tableau::<3>::new(Method::LobattoIIIAB).unwrap();
+            let mut st = Stepper::<_, 4, 2, 3, 22>::new(MobileRobot::default(), tab).with_options(simplified);
+            let (_, refreshed) = run(&mut st, robot, 0.2, 50).unwrap();
+            assert!(!refreshed, "{jacobian:?}");
+        }
+    }
+}
+
+/// The stopping rule and the checks of a cold start.
+#[cfg(test)]
+mod stop_tests {
+    use super::*;
+    use crate::fixtures::paper::{MpParticles, Particle};
+    use crate::Method;
+    use crate::{StepResult, Tableau};
+
+    /// Full Newton to the round-off floor: with tolerance 0 it stops only
+    /// where the updates stop shrinking.
+    fn tight() -> NewtonOptions {
+        NewtonOptions { tolerance: 0.0, max_iterations: HISTORY_CAPACITY, ..NewtonOptions::default() }
+    }
+
+    /// Largest difference of the states and multipliers of two steps.
+    fn distance<const N: usize, const M: usize, const S: usize>(
+        a: &StepResult<N, M, S>,
+        b: &StepResult<N, M, S>,
+    ) -> (f64, f64, f64) {
+        let psi = (0..S).map(|i| (a.stage_multipliers[i] - b.stage_multipliers[i]).amax()).fold(0.0, f64::max);
+        ((a.state.q - b.state.q).amax(), (a.state.v - b.state.v).amax(), psi)
+    }
+
+    /// McLachlan–Perlmutter particles from `v₀ = 0`, Lobatto IIIA-B-D s = 2,
+    /// h = 0.1: the first update (mostly the multiplier) is followed by one
+    /// 1.8e-7 times smaller, while the frozen Jacobian contracts at 3.5e-3.
+    /// A stop on that first ratio leaves q₁ wrong by 4e-12, Ψ by 8e-10 and
+    /// |k(t₁,q₁,v₁)| = 6.5e-14; both modes must match the tight solve.
+    #[test]
+    fn simplified_newton_does_not_stop_on_a_first_rate() {
+        let q0 = Vector::<7>::from_column_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+        let start = State::new(0.0, q0, Vector::<7>::zeros());
+        let tab = Tableau::<2>::new(Method::LobattoIIIABD).unwrap();
+        let step =
+            |opts| Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tab).with_options(opts).step(&start, 0.1).unwrap();
+        let reference = step(tight());
+        for (mode, jacobian) in [(NewtonMode::Full, Jacobian::Auto), (NewtonMode::Simplified, Jacobian::Exact)] {
+            let r = step(NewtonOptions { mode, jacobian, ..NewtonOptions::default() });
+            let (dq, dv, dpsi) = distance(&r, &reference);
+            let k = MpParticles.constraint(r.state.t, &r.state.q, &r.state.v).amax();
+            assert!(
+                dq <= 1e-15 && dv <= 1e-15 && dpsi <= 1e-14 && k <= 1e-16,
+                "{mode:?}: {dq:e} {dv:e} {dpsi:e} |k| {k:e}"
+            );
+        }
+        // The stage-decoupled matrix contracts linearly (rate ≈ 1e-2 here),
+        // so its last update is not far below the tolerance: it ends within
+        // the tolerance 16ε of the tight solve in q, v and the unknowns
+        // μ = hΨ, not orders of magnitude below it.
+        let opts =
+            NewtonOptions { mode: NewtonMode::Simplified, jacobian: Jacobian::StageDecoupled, ..Default::default() };
+        let r = step(opts);
+        let (dq, dv, dpsi) = distance(&r, &reference);
+        let k = MpParticles.constraint(r.state.t, &r.state.q, &r.state.v).amax();
+        let tol = opts.tolerance;
+        assert!(
+            dq <= tol && dv <= tol && 0.1 * dpsi <= tol && k <= 1e-16,
+            "decoupled: {dq:e} {dv:e} {dpsi:e} |k| {k:e}"
+        );
+    }
+
+    /// A cold start from a state that violates the constraint is refused
+    /// (solving the step would remove the inconsistent velocity with an
+    /// impulse at its end); consistent states pass even at velocities
+    /// of 1e6 whose residual is round-off of that size; a step that
+    /// continues the previous one is not checked.
+    #[test]
+    fn cold_start_refuses_an_inconsistent_state() {
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let mut st = Stepper::<_, 3, 1, 2, 11>::new(Particle, tab);
+        // k = v₃ − q₂v₁ = 0.5.
+        let bad = State::new(0.0, Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::new(1.0, 0.0, 1.0));
+        let err = st.step(&bad, 0.1).unwrap_err();
+        let StepError::InconsistentStart { residual, tolerance, .. } = err else { panic!("{err}") };
+        assert!(residual == 0.5 && tolerance == 1e-12 * 1.5, "{err}");
+        assert!(err.to_string().contains("consistent_velocity"), "{err}");
+        // Scaled by the size of the terms: |k| = 1.2e-10 next to terms of 1e6.
+        let fast = State::new(0.0, Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::new(1e6, 0.0, 0.5e6 + 1.2e-10));
+        let r = st.step(&fast, 1e-7).unwrap();
+        // Continuing from the end is not checked, even with a tolerance only
+        // an exact zero meets.
+        st.options_mut().consistency_tolerance = 0.0;
+        assert!(st.step(&r.state, 1e-7).is_ok());
+        // A cold start with that tolerance is checked.
+        assert!(matches!(st.step(&fast, 1e-7), Err(StepError::InconsistentStart { .. })));
+    }
+}
