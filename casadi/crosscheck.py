@@ -148,7 +148,7 @@ class StepResult:
 def tableau_error(method: Dict) -> Optional[float]:
     """Largest difference between the exported coefficients and Python's own construction."""
     s = int(method["stages"])
-    exp = tableaux.expected(method["name"], s)
+    exp = tableaux.expected(method["key"], s)
     if exp is None:
         return None
     c, a, a_hat, a_tilde, b = exp
@@ -181,13 +181,13 @@ def check_step(
         built[name] = CasadiSystem(systems[name]["source"], corrupt, PERTURBATION)
     system = built[name]
     method = step["method"]
-    result = StepResult(name, method["name"], int(method["stages"]))
+    result = StepResult(name, method["key"], int(method["stages"]))
     try:
         sol = solve_step(
             system, systems[name]["parameter_values"], method, float(step["t0"]), float(step["h"]), step["q0"], step["v0"]
         )
     except StepSetupError as err:
-        raise InputError(f"step {name} / {method['name']}: {err}") from None
+        raise InputError(f"step {name} / {method['key']}: {err}") from None
     rust = {k: np.asarray(step[k], dtype=float) for k in ("q1", "v1", "psi")}
     if perturb:
         rust["v1"] = rust["v1"].copy()
@@ -201,14 +201,14 @@ def check_step(
         # g(t1, q1): drift of the holonomic constraints after the step, Rust's
         # `holonomic_residual` at its q1 against CasADi's g at CasADi's q1.
         if step.get("holonomic_residual") is None:
-            raise InputError(f"step {name} / {method['name']}: the source declares g but no residual was exported")
+            raise InputError(f"step {name} / {method['key']}: the source declares g but no residual was exported")
         rust["g1"] = np.asarray(step["holonomic_residual"], dtype=float)
         ours["g1"] = sol.holonomic_residual
     if corrupt is not None:
         result.note = f"CORRUPTED {corrupt}"
     for key in rust:
         result.errors[key] = compare.errors(rust[key], ours[key])[0]
-    if method["name"].lower().startswith("lobatto iiib-a lda") and lda_applicable(system):
+    if method["key"] == "lobatto-iiib-a-lda" and lda_applicable(system):
         # Also against the paper's own statement of the method (7.3), not its SPARK rewriting.
         q1, v1, psi = solve_lda(
             system, systems[name]["parameter_values"], float(step["t0"]), float(step["h"]), step["q0"], step["v0"]

@@ -37,8 +37,8 @@ sys.path.insert(0, str(HERE))
 import newton_lu  # noqa: E402
 from spark_check.system import CasadiSystem  # noqa: E402
 
-SYSTEMS = ("NonholonomicParticle", "Skate", "MobileRobot", "McLachlanPerlmutter7")
-METHODS = {("Gauss", 1), ("Gauss", 2), ("Gauss", 3), ("Lobatto IIIA-B", 2), ("Lobatto IIIA-B", 3)}
+SYSTEMS = ("particle", "skate", "robot", "mp7")
+METHODS = {("gauss", 1), ("gauss", 2), ("gauss", 3), ("lobatto-iiia-b", 2), ("lobatto-iiia-b", 3)}
 AGREEMENT = 1e-13
 
 
@@ -56,14 +56,14 @@ class NewtonLuPeer(unittest.TestCase):
         cls.systems = {s["name"]: s for s in doc["systems"]}
         cls.steps = [
             st for st in doc["steps"]
-            if st["system"] in SYSTEMS and (st["method"]["name"], int(st["method"]["stages"])) in METHODS
+            if st["system"] in SYSTEMS and (st["method"]["key"], int(st["method"]["stages"])) in METHODS
         ]
         cls.tmp = tempfile.TemporaryDirectory(prefix="newton-lu-test-")
         cls.cases = []
         for st in cls.steps:
             entry = cls.systems[st["system"]]
             system = CasadiSystem(entry["source"])
-            label = f'{st["system"]} {st["method"]["name"]} s={st["method"]["stages"]}'
+            label = f'{st["system"]} {st["method"]["key"]} s={st["method"]["stages"]}'
             exe = newton_lu.build(system, st["method"], Path(cls.tmp.name), label)
             cls.cases.append((label, st, entry, system, exe))
 
@@ -72,7 +72,7 @@ class NewtonLuPeer(unittest.TestCase):
         cls.tmp.cleanup()
 
     def test_every_system_and_method_is_covered(self):
-        covered = {(st["system"], st["method"]["name"], int(st["method"]["stages"])) for st in self.steps}
+        covered = {(st["system"], st["method"]["key"], int(st["method"]["stages"])) for st in self.steps}
         want = {(sy, name, s) for sy in SYSTEMS for name, s in METHODS}
         self.assertEqual(covered, want)
 

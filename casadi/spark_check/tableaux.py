@@ -92,27 +92,28 @@ def lobatto(s: int) -> Dict[str, np.ndarray]:
     return {"c": c, "b": b, "iiia": iiia, "iiib": iiib, "iiic": iiic, "iiic_star": iiic_star, "iiid": iiid}
 
 
-def expected(method_name: str, s: int):
-    """``(c, A, Â, Ã, b)`` of a method as named by the Rust runtime, or None if unknown here.
+def expected(key: str, s: int):
+    """``(c, A, Â, Ã, b)`` of a method named by its key, or None if unknown here.
 
-    The names are those of ``Method::name`` in ``spark-runtime``.
+    The keys are those of ``Method::key`` in ``spark-runtime`` (``gauss``,
+    ``lobatto-iiia-b``, ``lobatto-iiia-b-d``, ``euler-1``, ``euler-2``,
+    ``modified-lobatto-iiia-b``, ``lobatto-iiib-a-lda``).
     """
-    key = method_name.lower()
     one = np.ones(1)
-    if key.startswith("gauss"):
+    if key == "gauss":
         g = gauss(s)
         return g["c"], g["a"], g["a"], g["a"], g["b"]
-    if key.startswith("symplectic euler ii") and s == 1:
+    if key == "euler-2" and s == 1:
         return one, one.reshape(1, 1), np.zeros((1, 1)), np.zeros((1, 1)), one
-    if key.startswith("symplectic euler i") and s == 1:
+    if key == "euler-1" and s == 1:
         return np.zeros(1), np.zeros((1, 1)), one.reshape(1, 1), one.reshape(1, 1), one
-    if key.startswith("lobatto iiib-a lda"):
+    if key == "lobatto-iiib-a-lda":
         lo = lobatto(s)
         return lo["c"], lo["iiib"], lo["iiia"], lo["iiia"], lo["b"]
-    if "lobatto iiia-b-d" in key:
+    if key == "lobatto-iiia-b-d":
         lo = lobatto(s)
         return lo["c"], lo["iiia"], lo["iiib"], lo["iiid"], lo["b"]
-    if "lobatto iiia-b" in key:
+    if key in ("lobatto-iiia-b", "modified-lobatto-iiia-b"):
         lo = lobatto(s)
         return lo["c"], lo["iiia"], lo["iiib"], lo["iiib"], lo["b"]
     return None

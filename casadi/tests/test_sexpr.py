@@ -153,9 +153,9 @@ class Steps(unittest.TestCase):
     }
 
     @staticmethod
-    def method(name, s, c, a, a_hat, a_tilde, b, conditions):
+    def method(key, s, c, a, a_hat, a_tilde, b, conditions):
         rows = lambda m: np.asarray(m, float).tolist()  # noqa: E731
-        return {"name": name, "stages": s, "c": list(c), "a": rows(a), "a_hat": rows(a_hat), "a_tilde": rows(a_tilde),
+        return {"key": key, "stages": s, "c": list(c), "a": rows(a), "a_hat": rows(a_hat), "a_tilde": rows(a_tilde),
                 "b": list(b), "b_hat": list(b), "b_tilde": list(b), "conditions": conditions}
 
     def test_lda_as_spark_equals_eq_7_3(self):
@@ -164,7 +164,7 @@ class Steps(unittest.TestCase):
         system = CasadiSystem(self.PARTICLE)
         self.assertTrue(lda_applicable(system))
         lo = tableaux.lobatto(2)
-        m = self.method("Lobatto IIIB-A LDA", 2, lo["c"], lo["iiib"], lo["iiia"], lo["iiia"], lo["b"],
+        m = self.method("lobatto-iiib-a-lda", 2, lo["c"], lo["iiib"], lo["iiia"], lo["iiia"], lo["b"],
                         [{"kind": "multiplier_difference", "i": 0, "j": 1}])
         q0, v0 = [1.0, 0.2, 0.0], [0.0, 1.0, 0.2]
         spark = solve_step(system, [], m, 0.0, 0.1, q0, v0)
@@ -181,10 +181,10 @@ class Steps(unittest.TestCase):
         q0, v0 = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
         for s in (1, 2):
             g = tableaux.gauss(s)
-            m = self.method("Gauss", s, g["c"], g["a"], g["a"], g["a"], g["b"],
+            m = self.method("gauss", s, g["c"], g["a"], g["a"], g["a"], g["b"],
                             [{"kind": "weights", "omega": list(g["b"] * g["c"] ** i)} for i in range(s - 1)])
             ref = tableaux.gauss(3)
-            mref = self.method("Gauss", 3, ref["c"], ref["a"], ref["a"], ref["a"], ref["b"],
+            mref = self.method("gauss", 3, ref["c"], ref["a"], ref["a"], ref["a"], ref["b"],
                                [{"kind": "weights", "omega": list(ref["b"] * ref["c"] ** i)} for i in range(2)])
             errs = []
             for h in (0.2, 0.1):
@@ -261,7 +261,7 @@ class Effects(unittest.TestCase):
             return e * (math.cos(w * t) + c / (2 * w) * math.sin(w * t))
 
         g = tableaux.gauss(2)
-        m = Steps.method("Gauss", 2, g["c"], g["a"], g["a"], g["a"], g["b"],
+        m = Steps.method("gauss", 2, g["c"], g["a"], g["a"], g["a"], g["b"],
                          [{"kind": "weights", "omega": list(g["b"])}])
         errs = [abs(solve_step(system, [c], m, 0.0, h, [1.0], [0.0]).q1[0] - exact(h)) for h in (0.4, 0.2)]
         self.assertGreater(math.log2(errs[0] / errs[1]), 4.5)
@@ -277,7 +277,7 @@ class Effects(unittest.TestCase):
                 "constraints": ["(- (v z) (* (q y) (v x)))"]}
         push = ["(cos (q x))", "(* 0.3 (v y))", "t"]
         g = tableaux.gauss(2)
-        m = Steps.method("Gauss", 2, g["c"], g["a"], g["a"], g["a"], g["b"],
+        m = Steps.method("gauss", 2, g["c"], g["a"], g["a"], g["a"], g["b"],
                          [{"kind": "weights", "omega": list(g["b"])}])
         a = solve_step(CasadiSystem(dict(base, external_force=push)), [], m, 0.1, 0.1, [1, 0.2, 0], [0, 1, 0.2])
         b = solve_step(CasadiSystem(dict(base, nonideal_force=push)), [], m, 0.1, 0.1, [1, 0.2, 0], [0, 1, 0.2])

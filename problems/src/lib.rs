@@ -1,6 +1,8 @@
 //! The paper's systems and the `spark` command-line program.
 pub mod analysis;
-pub mod casadi_export;
+pub mod crosscheck;
+/// [`crosscheck`] under the path `workprecision` imports it by.
+pub use crosscheck as casadi_export;
 pub mod output;
 pub mod paper;
 pub mod peers;

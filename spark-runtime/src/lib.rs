@@ -170,7 +170,9 @@ pub use system::{
     ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, StageJacobians, StageValues,
     Structure, SystemSource, TimeDerivatives, Vector,
 };
-pub use tableau::{CoefficientFamily, ConditionRows, Method, Tableau, TableauError, MAX_STAGES};
+pub use tableau::{
+    CoefficientFamily, ConditionEquation, ConditionRows, Method, Tableau, TableauError, TableauTable, MAX_STAGES,
+};
 
 /// Names the [`Stepper`](struct@crate::Stepper) type of system `Sys` with `s` stages, computing the
 /// Newton dimension `D = s(N+M)+N` from the inherent constants `Sys::N` and

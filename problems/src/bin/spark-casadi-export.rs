@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use problems::casadi_export::{self, Document};
+use problems::crosscheck::Document;
 
 /// Export sample points and SPARK steps for the CasADi cross-check.
 #[derive(Parser, Debug)]
@@ -23,12 +23,7 @@ struct Args {
 }
 
 fn run(args: &Args) -> Result<(), String> {
-    let document = Document {
-        format: casadi_export::FORMAT,
-        seed: args.seed,
-        systems: casadi_export::export_all_systems(args.seed).map_err(|e| format!("exporting systems: {e}"))?,
-        steps: casadi_export::export_all_steps().map_err(|e| format!("exporting SPARK steps: {e}"))?,
-    };
+    let document = Document::export(args.seed).map_err(|e| format!("exporting: {e}"))?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }

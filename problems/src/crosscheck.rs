@@ -1,0 +1,580 @@
+//! Export for the independent CasADi cross-check (`casadi/`): seeded sample
+//! points with every output of [`NonholonomicSystem`], plus the system's
+//! neutral source text and parameter values, and one whole SPARK step per
+//! (system, method), as JSON with round-trip floats.
+//!
+//! The Python side rebuilds each system from the source text alone,
+//! differentiates it with CasADi and compares. Nothing here derives anything:
+//! it only evaluates the trait and the stepper and records what they returned.
+//!
+//! Which systems are checked comes from the catalogue: every
+//! [`registry::entries`] entry, under its command-line name, with its default
+//! parameters, initial state and step size, visited through
+//! [`registry::visit_system`] and stepped through [`Dispatch::with_stages`].
+//! The systems checked but not offered by `spark` are the one list
+//! [`visit_extras`]. A new catalogue entry is therefore cross-checked without
+//! a change here.
+//!
+//! Optional effects travel the same way: for a system with
+//! `HAS_FORCING`, `HAS_NONIDEAL_FORCE` or `HAS_HOLONOMIC` the source carries
+//! `f`, `N(ψ)` or `g` and every point carries what the effect methods
+//! returned; steps of such systems are taken by the stepper with the effects
+//! folded in, and carry the holonomic residual after the step.
+
+use serde::Serialize;
+use spark_runtime::{
+    consistent_velocity, ConsistencyPolicy, Method, NonholonomicSystem, State, StepError, Stepper, SystemError,
+    Tableau, TableauError, TableauTable, Vector,
+};
+
+use crate::registry::{self, Dispatch, DispatchError, StageVisitor, SystemEntry, SystemVisitor};
+
+pub mod handwritten;
+mod sample;
+mod wire;
+
+pub use sample::{export_system, SplitMix64, CLASSES};
+pub use wire::*;
+
+/// [`TableauTable`] under the name `workprecision` imports it by.
+pub use spark_runtime::TableauTable as TableauExport;
+
+/// Format tag of the JSON document; the Python side refuses other versions.
+pub const FORMAT: &str = "spark-casadi/1";
+
+/// Largest stage count the step export takes: every method with every
+/// stage count from its smallest up to this one.
+pub const MAX_CHECKED_STAGES: usize = 3;
+
+/// The whole document the exporter writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct Document {
+    /// Always [`FORMAT`].
+    pub format: &'static str,
+    /// Seed the sample points were drawn with.
+    pub seed: u64,
+    /// One entry per system (and one more per system with parameters, with
+    /// the parameters varied).
+    pub systems: Vec<SystemExport>,
+    /// Whole-step results, one per (system, method, stage count).
+    pub steps: Vec<StepExport>,
+}
+
+impl Document {
+    /// Every system and step of the cross-check, with sample points drawn
+    /// from `seed`.
+    pub fn export(seed: u64) -> Result<Self, CrosscheckError> {
+        Ok(Self { format: FORMAT, seed, systems: export_all_systems(seed)?, steps: export_all_steps()? })
+    }
+}
+
+/// Why the export failed; every message names the system (and the method).
+#[derive(Debug, thiserror::Error)]
+pub enum CrosscheckError {
+    /// A system rejected a parameter its own source declares.
+    #[error("{system}: setting a varied parameter: {source}")]
+    Parameter {
+        /// The system's name in the export.
+        system: String,
+        /// What the system said.
+        source: SystemError,
+    },
+    /// A case's initial state does not have `N` entries.
+    #[error("{system}: the initial state has {q} coordinates and {v} velocities; the system has N = {n}")]
+    StateLength {
+        /// The system's name in the export.
+        system: String,
+        /// Length of `q0`.
+        q: usize,
+        /// Length of `v0`.
+        v: usize,
+        /// `N`.
+        n: usize,
+    },
+    /// The initial velocity could not be projected onto the constraints.
+    #[error("{system}: projecting v0 onto the constraints: {source}")]
+    Projection {
+        /// The system's name in the export.
+        system: String,
+        /// What the projection said.
+        source: StepError,
+    },
+    /// The stepper failed on the exported step.
+    #[error("{system}, {method} s={stages}: {source}")]
+    Step {
+        /// The system's name in the export.
+        system: String,
+        /// The method's key.
+        method: &'static str,
+        /// The stage count.
+        stages: usize,
+        /// What the stepper said.
+        source: StepError,
+    },
+    /// The method does not exist with this stage count.
+    #[error("{system}: {source}")]
+    Tableau {
+        /// The system's name in the export.
+        system: String,
+        /// What the tableau said.
+        source: TableauError,
+    },
+    /// The stage count is not compiled into the dispatch.
+    #[error("{system}, {method}: {source}")]
+    Dispatch {
+        /// The system's name in the export.
+        system: String,
+        /// The method's key.
+        method: &'static str,
+        /// What the dispatch said.
+        source: DispatchError,
+    },
+    /// Several steps failed (one line each).
+    #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
+    Several(Vec<CrosscheckError>),
+}
+
+/// One system as the cross-check sees it: its name in the export and the
+/// state its steps start from. Its parameters are those of `Default`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Case {
+    /// Name in the export (the command-line name for catalogue systems).
+    pub name: &'static str,
+    /// Initial time.
+    pub t0: f64,
+    /// Initial coordinates.
+    pub q0: &'static [f64],
+    /// Initial velocities (projected onto the constraints before the step).
+    pub v0: &'static [f64],
+    /// Step size.
+    pub h: f64,
+}
+
+impl From<&SystemEntry> for Case {
+    fn from(e: &SystemEntry) -> Self {
+        Self { name: e.name, t0: e.t0, q0: e.q0, v0: e.v0, h: e.h }
+    }
+}
+
+impl Case {
+    /// `(q0, v0)` as vectors, or an error if either does not have `N` entries.
+    fn state<const N: usize>(&self) -> Result<(Vector<N>, Vector<N>), CrosscheckError> {
+        if self.q0.len() != N || self.v0.len() != N {
+            let (q, v) = (self.q0.len(), self.v0.len());
+            return Err(CrosscheckError::StateLength { system: self.name.to_owned(), q, v, n: N });
+        }
+        Ok((Vector::<N>::from_column_slice(self.q0), Vector::<N>::from_column_slice(self.v0)))
+    }
+}
+
+/// Work generic in the type of one checked system.
+///
+/// `Host` lends its stage dispatch ([`Dispatch::with_stages`]): the
+/// stepper's unknown count `D = S(N + M) + N` depends on `N`, `M` and `S`
+/// alone, so any catalogue type of the same shape maps a run-time stage count
+/// to the right `(S, D)` for `Sys`. For catalogue systems `Host` is `Sys`.
+pub trait CaseVisitor {
+    /// Does the work for `Sys`.
+    fn visit<Sys, Host, const N: usize, const M: usize>(&mut self, case: &Case) -> Result<(), CrosscheckError>
+    where
+        Sys: NonholonomicSystem<N, M> + Default + Clone,
+        Host: Dispatch<N, M>;
+}
+
+/// Calls `visitor` for every catalogue entry, then for [`visit_extras`].
+pub fn visit_cases<V: CaseVisitor>(visitor: &mut V) -> Result<(), CrosscheckError> {
+    struct Catalogue<'a, V>(&'a mut V);
+    impl<V: CaseVisitor> SystemVisitor for Catalogue<'_, V> {
+        type Output = Result<(), CrosscheckError>;
+        fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+            self,
+            entry: &'static SystemEntry,
+        ) -> Self::Output {
+            self.0.visit::<Sys, Sys, N, M>(&Case::from(entry))
+        }
+    }
+    for entry in registry::entries() {
+        registry::visit_system(entry.kind, Catalogue(&mut *visitor))?;
+    }
+    visit_extras(visitor)
+}
+
+/// The hand-written [`handwritten::Rheonomic`]: explicit time dependence of
+/// `L` and `k`, a non-separable `L` and a constraint nonlinear in `v`, with
+/// derivatives worked out by hand (the checker checked against code that
+/// owes nothing to the macro). Starts at `t0 ≠ 0` so that the time
+/// dependence enters the step.
+pub const RHEONOMIC: Case = Case { name: "rheonomic-hand", t0: 0.1, q0: &[0.3, -0.2], v0: &[0.5, 0.1], h: 0.05 };
+
+/// The scene [`crate::scenes::AppellHamelSprung`]: the cord constraint
+/// (nonlinear in `v`) with a horizontal spring, so that the motion is not
+/// polynomial in `t`. Starts on the cone `ż² = a²(ẋ² + ẏ²)`, falling.
+pub const APPELL_HAMEL_SPRUNG: Case =
+    Case { name: "appell-hamel-sprung", t0: 0.0, q0: &[0.1, 0.2, 0.3], v0: &[0.8, 0.6, -0.5], h: 0.1 };
+
+/// The systems the cross-check covers that `spark` does not offer on its
+/// command line: [`RHEONOMIC`] and [`APPELL_HAMEL_SPRUNG`]. Each borrows the
+/// stage dispatch of a catalogue type of its shape (see [`CaseVisitor`]).
+pub fn visit_extras<V: CaseVisitor>(visitor: &mut V) -> Result<(), CrosscheckError> {
+    visitor.visit::<handwritten::Rheonomic, crate::scenes::RodPendulum, 2, 1>(&RHEONOMIC)?;
+    visitor.visit::<crate::scenes::AppellHamelSprung, crate::scenes::AppellHamelCord, 3, 1>(&APPELL_HAMEL_SPRUNG)
+}
+
+/// Every (method, stage count) the step export takes: each method from its
+/// smallest stage count up to [`MAX_CHECKED_STAGES`] (Gauss s = 1..3,
+/// Lobatto IIIA-B and IIIA-B-D s = 2..3, symplectic Euler I and II, modified
+/// Lobatto IIIA-B and McLachlan–Perlmutter's LDA).
+pub fn checked_methods() -> Vec<(Method, usize)> {
+    Method::ALL
+        .into_iter()
+        .flat_map(|m| {
+            let (min, max) = m.stage_range();
+            (min..=max.min(MAX_CHECKED_STAGES)).map(move |s| (m, s))
+        })
+        .collect()
+}
+
+/// Every system the cross-check covers ([`visit_cases`]), exported with
+/// `seed`: once with its default parameters and again with every parameter
+/// moved off its default, so that special values (β = π/2, unit masses) hide
+/// nothing and `set_parameter` is exercised.
+pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, CrosscheckError> {
+    struct Samples {
+        seed: u64,
+        out: Vec<SystemExport>,
+    }
+    impl CaseVisitor for Samples {
+        fn visit<Sys, Host, const N: usize, const M: usize>(&mut self, case: &Case) -> Result<(), CrosscheckError>
+        where
+            Sys: NonholonomicSystem<N, M> + Default + Clone,
+            Host: Dispatch<N, M>,
+        {
+            let system = Sys::default();
+            self.out.push(export_system::<Sys, N, M>(case.name, &system, sample::system_seed(self.seed, case.name)));
+            let label = format!("{} (varied parameters)", case.name);
+            let varied_seed = sample::system_seed(self.seed, &label);
+            let varied = sample::with_varied_parameters::<Sys, N, M>(&system, varied_seed)
+                .map_err(|source| CrosscheckError::Parameter { system: case.name.to_owned(), source })?;
+            if let Some(varied) = varied {
+                self.out.push(export_system::<Sys, N, M>(&label, &varied, varied_seed));
+            }
+            Ok(())
+        }
+    }
+    let mut samples = Samples { seed, out: Vec::new() };
+    visit_cases(&mut samples)?;
+    Ok(samples.out)
+}
+
+/// One SPARK step per system ([`visit_cases`]) and method
+/// ([`checked_methods`]), from the system's initial state and step size.
+/// Every failure is reported, not only the first.
+pub fn export_all_steps() -> Result<Vec<StepExport>, CrosscheckError> {
+    #[derive(Default)]
+    struct Steps {
+        out: Vec<StepExport>,
+        errors: Vec<CrosscheckError>,
+    }
+    impl CaseVisitor for Steps {
+        fn visit<Sys, Host, const N: usize, const M: usize>(&mut self, case: &Case) -> Result<(), CrosscheckError>
+        where
+            Sys: NonholonomicSystem<N, M> + Default + Clone,
+            Host: Dispatch<N, M>,
+        {
+            let (q0, v0) = case.state::<N>()?;
+            let system = Sys::default();
+            for (method, stages) in checked_methods() {
+                let step = TakeStep { case, system: &system, method, q0: &q0, v0: &v0 };
+                let result = Host::with_stages(stages, step).map_err(|source| CrosscheckError::Dispatch {
+                    system: case.name.to_owned(),
+                    method: method.key(),
+                    source,
+                });
+                match result.and_then(|r| r) {
+                    Ok(step) => self.out.push(step),
+                    Err(e) => self.errors.push(e),
+                }
+            }
+            Ok(())
+        }
+    }
+    let mut steps = Steps::default();
+    visit_cases(&mut steps)?;
+    match steps.errors.len() {
+        0 => Ok(steps.out),
+        1 => Err(steps.errors.remove(0)),
+        _ => Err(CrosscheckError::Several(steps.errors)),
+    }
+}
+
+/// One step of `method` from a case's initial state, generic in the stage
+/// count (a [`StageVisitor`] for any host of the system's shape).
+struct TakeStep<'a, Sys, const N: usize> {
+    case: &'a Case,
+    system: &'a Sys,
+    method: Method,
+    q0: &'a Vector<N>,
+    v0: &'a Vector<N>,
+}
+
+impl<Host, Sys, const N: usize, const M: usize> StageVisitor<Host, N, M> for TakeStep<'_, Sys, N>
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    type Output = Result<StepExport, CrosscheckError>;
+    fn visit<const S: usize, const D: usize>(self) -> Self::Output {
+        let c = self.case;
+        export_step::<Sys, N, M, S, D>(c.name, self.system, self.method, c.t0, self.q0, self.v0, c.h)
+    }
+}
+
+/// One SPARK step of `method` with `S` stages (`D = S(N+M)+N`, see
+/// [`Stepper`]) from `(t0, q0, v0)`, with the stepper's default Newton
+/// options and a cold start. `v0` is first made consistent (projected onto
+/// `k(t0, q0, ·) = 0`) so that the step starts where the stepper expects.
+#[allow(clippy::too_many_arguments)]
+pub fn export_step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    name: &str,
+    system: &Sys,
+    method: Method,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    h: f64,
+) -> Result<StepExport, CrosscheckError>
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let tableau =
+        Tableau::<S>::new(method).map_err(|source| CrosscheckError::Tableau { system: name.to_owned(), source })?;
+    let v0 = consistent_velocity(system, t0, q0, v0, ConsistencyPolicy::Project { tolerance: 0.0 })
+        .map_err(|source| CrosscheckError::Projection { system: name.to_owned(), source })?;
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(system.clone(), tableau);
+    let r = stepper.step(&State::new(t0, *q0, v0), h).map_err(|source| CrosscheckError::Step {
+        system: name.to_owned(),
+        method: method.key(),
+        stages: S,
+        source,
+    })?;
+    use sample::vec_of;
+    Ok(StepExport {
+        system: name.to_owned(),
+        method: TableauTable::of(&tableau),
+        t0,
+        h,
+        q0: vec_of(q0),
+        v0: vec_of(&v0),
+        q1: vec_of(&r.state.q),
+        v1: vec_of(&r.state.v),
+        psi: r.stage_multipliers.iter().map(vec_of).collect(),
+        stage_velocities: r.stage_velocities.iter().map(vec_of).collect(),
+        holonomic_residual: Sys::HAS_HOLONOMIC.then(|| vec_of(&system.holonomic_residual(r.state.t, &r.state.q))),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Names declared with `nonholonomic_system!` in `systems.rs`.
+    fn declared_systems() -> Vec<String> {
+        let text = include_str!("systems.rs");
+        let mut names = Vec::new();
+        for chunk in text.split("nonholonomic_system! {").skip(1) {
+            let after = chunk.split("struct").nth(1).expect("a struct in every invocation");
+            let name: String = after.trim_start().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+            names.push(name);
+        }
+        names
+    }
+
+    /// The type names (`SystemSource::name`) of every exported system.
+    fn exported_types() -> Vec<String> {
+        export_all_systems(1).unwrap().into_iter().map(|s| s.source.name).collect()
+    }
+
+    #[test]
+    fn every_declared_system_is_exported() {
+        let exported = exported_types();
+        let declared = declared_systems();
+        assert!(declared.len() >= 8, "found only {declared:?}");
+        for name in &declared {
+            assert!(exported.contains(name), "{name} is declared in systems.rs but not exported for CasADi");
+        }
+    }
+
+    /// Scene names declared in `scenes.rs` (`scenes: { A = [..], B = [..] }`)
+    /// and the structs declared there.
+    fn declared_scene_types() -> Vec<String> {
+        let text = include_str!("scenes.rs");
+        let mut names = Vec::new();
+        for chunk in text.split("nonholonomic_system! {").skip(1) {
+            let body = chunk.split("\n}").next().unwrap_or("");
+            if let Some(scenes) = body.split("scenes: {").nth(1) {
+                let list = scenes.split('}').next().unwrap_or("");
+                for entry in list.split(']') {
+                    if let Some((name, _)) = entry.split_once('=') {
+                        let name = name.trim().trim_start_matches(',').trim();
+                        if !name.is_empty() {
+                            names.push(name.to_owned());
+                        }
+                    }
+                }
+            } else {
+                let after = body.split("struct").nth(1).expect("a struct in every invocation");
+                names.push(after.trim_start().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect());
+            }
+        }
+        names
+    }
+
+    #[test]
+    fn every_scene_is_exported() {
+        let exported = exported_types();
+        let declared = declared_scene_types();
+        assert!(declared.len() >= 16, "found only {declared:?}");
+        for name in &declared {
+            assert!(exported.contains(name), "{name} is declared in scenes.rs but not exported for CasADi");
+        }
+    }
+
+    #[test]
+    fn every_system_takes_every_step() {
+        let systems = export_all_systems(1).unwrap().iter().filter(|s| !s.name.contains("varied")).count();
+        let steps = export_all_steps().expect("all steps succeed");
+        // Gauss 1..3, IIIA-B 2..3, IIIA-B-D 2..3, Euler I, II, modified Lobatto, LDA.
+        assert_eq!(checked_methods().len(), 11);
+        assert_eq!(steps.len(), 11 * systems);
+        for st in &steps {
+            assert_eq!(st.psi.len(), st.method.stages);
+            assert_eq!(st.method.conditions.len(), st.method.stages - 1);
+        }
+    }
+
+    #[test]
+    fn effect_systems_export_their_effects_and_flags_match_sources() {
+        let systems = export_all_systems(1).unwrap();
+        for s in &systems {
+            assert_eq!(s.effects.forcing, !s.source.external_force.is_empty(), "{}", s.name);
+            assert_eq!(s.effects.nonideal, !s.source.nonideal_force.is_empty(), "{}", s.name);
+            assert_eq!(s.effects.holonomic, !s.source.holonomic.is_empty(), "{}", s.name);
+            for p in &s.points {
+                assert_eq!(p.outputs.external_force.is_some(), s.effects.forcing);
+                assert_eq!(p.outputs.nonideal_force.is_some(), s.effects.nonideal);
+                assert_eq!(p.outputs.holonomic_residual.is_some(), s.effects.holonomic);
+            }
+        }
+        let by = |name: &str| systems.iter().find(|s| s.name == name).expect(name);
+        assert!(by("driven-skate").effects.forcing);
+        let friction = by("friction-skate");
+        assert!(friction.effects.nonideal);
+        assert!(friction.source.nonideal_force[0].contains("(psi 0)"));
+        let n = friction.points[0].outputs.nonideal_force.as_ref().unwrap();
+        assert_eq!((n.jacobians.psi.len(), n.jacobians.psi[0].len()), (3, 1));
+        assert!(by("rod-pendulum-hand").effects.holonomic);
+        let steps = export_all_steps().unwrap();
+        for st in steps.iter().filter(|st| st.system == "rod-pendulum-hand") {
+            let g = st.holonomic_residual.as_ref().expect("holonomic residual after the step");
+            assert!(g[0].abs() < 1e-2, "{}: drift {:.3e}", st.method.label, g[0]);
+        }
+    }
+
+    /// Export names of the systems with their default parameters, in order.
+    fn exported_names() -> Vec<String> {
+        export_all_systems(1).unwrap().into_iter().map(|s| s.name).filter(|n| !n.contains("varied")).collect()
+    }
+
+    #[test]
+    fn every_catalogue_entry_is_exported_under_its_command_line_name() {
+        let exported = exported_names();
+        let mut expected: Vec<String> = crate::registry::entries().iter().map(|e| e.name.to_owned()).collect();
+        expected.extend(["rheonomic-hand", "appell-hamel-sprung"].map(String::from));
+        assert_eq!(exported, expected);
+    }
+
+    #[test]
+    fn steps_start_from_the_catalogue_state_and_step_size() {
+        let steps = export_all_steps().unwrap();
+        for e in crate::registry::entries() {
+            let mine: Vec<_> = steps.iter().filter(|st| st.system == e.name).collect();
+            assert_eq!(mine.len(), 11, "{}: steps", e.name);
+            for st in mine {
+                assert_eq!((st.t0, st.h, st.q0.as_slice()), (e.t0, e.h, e.q0), "{}", e.name);
+                // v0 is projected onto the constraints; the catalogue's is consistent.
+                for (got, want) in st.v0.iter().zip(e.v0) {
+                    assert!(
+                        (got - want).abs() <= 1e-12 * want.abs().max(1.0),
+                        "{}: v0 {got:.3e} vs {want:.3e}",
+                        e.name
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn extras_take_every_step_from_their_own_state() {
+        let steps = export_all_steps().unwrap();
+        for case in [RHEONOMIC, APPELL_HAMEL_SPRUNG] {
+            let mine: Vec<_> = steps.iter().filter(|st| st.system == case.name).collect();
+            let taken: Vec<_> = mine.iter().map(|st| (st.method.key, st.method.stages)).collect();
+            let want: Vec<_> = checked_methods().into_iter().map(|(m, s)| (m.key(), s)).collect();
+            assert_eq!(taken, want, "{}", case.name);
+            assert!(mine.iter().all(|st| st.t0 == case.t0 && st.q0 == case.q0 && st.h == case.h));
+        }
+    }
+
+    #[test]
+    fn a_case_with_a_wrong_state_length_is_an_error() {
+        let case = Case { q0: &[0.0], ..RHEONOMIC };
+        let err = case.state::<2>().unwrap_err();
+        assert!(matches!(err, CrosscheckError::StateLength { q: 1, v: 2, n: 2, .. }), "{err}");
+        assert!(err.to_string().starts_with("rheonomic-hand: "), "{err}");
+    }
+
+    #[test]
+    fn steps_carry_the_method_key_and_label() {
+        let steps = export_all_steps().unwrap();
+        let json = serde_json::to_value(&steps[0]).unwrap();
+        assert_eq!(json["method"]["key"], "gauss");
+        assert_eq!(json["method"]["label"], "Gauss s=1");
+        assert!(json["method"].get("name").is_none());
+    }
+
+    #[test]
+    fn splitmix_is_reproducible_and_in_range() {
+        let mut a = SplitMix64::new(7);
+        let mut b = SplitMix64::new(7);
+        for _ in 0..1000 {
+            let x = a.symmetric();
+            assert_eq!(x, b.symmetric());
+            assert!((-1.0..1.0).contains(&x));
+        }
+    }
+
+    #[test]
+    fn export_records_every_point_of_a_finite_system() {
+        let sys = handwritten::Rheonomic::default();
+        let e = export_system("rheonomic", &sys, 1);
+        let expected: usize = CLASSES.iter().map(|c| c.2).sum();
+        assert_eq!(e.points.len() + e.skipped_points, expected);
+        assert_eq!(e.skipped_points, 0);
+        assert_eq!(e.points[0].outputs.constraint_v.len(), 1);
+        assert_eq!(e.points[0].outputs.constraint_v[0].len(), 2);
+    }
+
+    #[test]
+    fn floats_round_trip_through_json() {
+        let sys = handwritten::Rheonomic::default();
+        let e = export_system("rheonomic", &sys, 3);
+        let text = serde_json::to_string(&e).unwrap();
+        let back: serde_json::Value = serde_json::from_str(&text).unwrap();
+        for (i, p) in e.points.iter().enumerate() {
+            let bp = &back["points"][i];
+            assert_eq!(bp["outputs"]["lagrangian"].as_f64().unwrap().to_bits(), p.outputs.lagrangian.to_bits());
+            for (j, x) in p.q.iter().enumerate() {
+                assert_eq!(bp["q"][j].as_f64().unwrap().to_bits(), x.to_bits());
+            }
+        }
+    }
+}
