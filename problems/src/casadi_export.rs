@@ -1043,7 +1043,7 @@ mod tests {
 
     /// Names declared with `nonholonomic_system!` in `systems.rs`.
     fn declared_systems() -> Vec<String> {
-        let text = include_str!("systems.rs");
+        let text = include_str!("systems/paper.rs");
         let mut names = Vec::new();
         for chunk in text.split("nonholonomic_system! {").skip(1) {
             let after = chunk.split("struct").nth(1).expect("a struct in every invocation");
@@ -1066,7 +1066,7 @@ mod tests {
     /// Scene names declared in `scenes.rs` (`scenes: { A = [..], B = [..] }`)
     /// and the structs declared there.
     fn declared_scene_types() -> Vec<String> {
-        let text = include_str!("scenes.rs");
+        let text = include_str!("systems/scenes.rs");
         let mut names = Vec::new();
         for chunk in text.split("nonholonomic_system! {").skip(1) {
             let body = chunk.split("\n}").next().unwrap_or("");

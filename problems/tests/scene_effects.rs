@@ -6,7 +6,7 @@
 //! order, and a constraint nonlinear in `v` declared as an effect (Chetaev's
 //! `K = ∂k/∂v`) against the reference integrator.
 
-use problems::scenes::{
+use problems::systems::scenes::{
     AppellHamelCord, AppellHamelSprung, BodyRailed, BodyTethered, RodPendulum, SkateOnBlade, SkateWithFriction,
     SleighDamped, SleighDriven, SleighDrivenDamped, SleighDrivenDampedByHand, SleighFree,
 };

@@ -1,5 +1,5 @@
 //! What accuracy costs in time: work-precision sweeps of every SPARK method
-//! on any registered system ([`crate::registry`]), with peers measured in the
+//! on any registered system ([`crate::catalog`]), with peers measured in the
 //! same run.
 //!
 //! For one system this module integrates from its registered (for the
@@ -26,18 +26,18 @@
 //! step sizes.
 
 pub mod adaptive_energy;
-pub mod cli;
 pub mod external;
 pub mod per_step;
 pub mod report;
 pub mod scaling;
-pub mod scaling_systems;
 
 use crate::casadi_export::TableauExport;
-use crate::peers::dual::{AutoDiff, DualTwin};
+use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::peers::dual::{visit_twin, AutoDiff, DualTwin, TwinVisitor};
 use crate::peers::finite_difference::FiniteDifference;
 use crate::peers::ode;
-use crate::registry::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::report::clock::thread_cpu_seconds;
+use crate::report::stats::median;
 use spark_runtime::reference::{self, ReferenceOptions};
 use spark_runtime::{
     integrate_adaptive, AdaptiveOptions, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe,
@@ -214,17 +214,6 @@ pub fn method_variants() -> Vec<(Method, usize)> {
     v
 }
 
-/// A short label such as `Gauss s=3`, `Lobatto IIIA-B-D s=2`, `Euler I`, `LDA`.
-pub fn method_label(method: Method, s: usize) -> String {
-    match method {
-        Method::SymplecticEulerI => "Euler I".into(),
-        Method::SymplecticEulerII => "Euler II".into(),
-        Method::LobattoIIIBALda => "LDA (McLachlan-Perlmutter)".into(),
-        Method::ModifiedLobattoIIIAB => "modified Lobatto IIIA-B".into(),
-        m => format!("{} s={s}", m.name()),
-    }
-}
-
 /// Errors of a work-precision run.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkPrecisionError {
@@ -241,10 +230,10 @@ pub enum WorkPrecisionError {
     Tableau(#[from] spark_runtime::TableauError),
     /// Output could not be written.
     #[error(transparent)]
-    Output(#[from] crate::output::OutputError),
+    Output(#[from] crate::report::files::OutputError),
     /// A figure could not be drawn.
     #[error(transparent)]
-    Plot(#[from] crate::plot::PlotError),
+    Plot(#[from] crate::report::plot::PlotError),
     /// The external peers failed.
     #[error("external peers (CasADi C, SciPy): {0}")]
     External(String),
@@ -289,39 +278,17 @@ fn errors<const N: usize>(q: &Vector<N>, v: &Vector<N>, q_ref: &Vector<N>, v_ref
     ((q - q_ref).amax(), (v - v_ref).amax())
 }
 
-/// CPU time consumed by the calling thread, in seconds.
-pub fn thread_cpu_time() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: clock_gettime writes one timespec through a valid pointer.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        f64::NAN
-    }
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Medians of the wall and thread-CPU times of `run`, repeated `repeats`
 /// times or until `min_total` has been spent (at most 1000 times).
 fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, f64, usize)> {
     let (mut wall, mut cpu) = (Vec::new(), Vec::new());
     let start = Instant::now();
     while wall.len() < repeats.max(1) || (start.elapsed() < min_total && wall.len() < 1000) {
-        let (t, c) = (Instant::now(), thread_cpu_time());
+        let (t, c) = (Instant::now(), thread_cpu_seconds());
         if !run() {
             return None;
         }
-        cpu.push(thread_cpu_time() - c);
+        cpu.push(thread_cpu_seconds() - c);
         wall.push(t.elapsed().as_secs_f64());
     }
     let n = wall.len();
@@ -443,7 +410,7 @@ where
     Sys: NonholonomicSystem<N, M> + Default,
 {
     let tableau = Tableau::<S>::new(method)?;
-    let label = method_label(method, S);
+    let label = method.label(S);
     let opts = NewtonOptions { mode: ctx.cfg.newton, ..NewtonOptions::default() };
     let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
     let probe = Sys::default();
@@ -533,7 +500,7 @@ where
     Sys: NonholonomicSystem<N, M> + DualTwin<N, M> + Default + Clone,
 {
     let tableau = Tableau::<S>::new(method)?;
-    let label = method_label(method, S);
+    let label = method.label(S);
     let twin = <Sys as DualTwin<N, M>>::Twin::default();
     let opts = NewtonOptions { mode: ctx.cfg.newton, ..NewtonOptions::default() };
     let mut ad = Stepper::<AutoDiff<_>, N, M, S, D>::new(AutoDiff(twin), tableau).with_options(opts);
@@ -552,7 +519,7 @@ where
     Ok(())
 }
 
-/// One `(method, S)` sweep of `Sys` through the registry's stage dispatch;
+/// One `(method, S)` sweep of `Sys` through the catalogue's stage dispatch;
 /// `PEERS` adds the num-dual and finite-difference runs (only for types
 /// with a num-dual twin, see [`SweepWithPeers`]).
 struct Sweep<'c, 'p, Sys, const N: usize> {
@@ -619,13 +586,13 @@ where
     }
 }
 
-/// Sweeps one `(method, s)` of one system; the registry's stage dispatch
+/// Sweeps one `(method, s)` of one system; the catalogue's stage dispatch
 /// underneath picks the monomorphized stepper.
 type SweepFn<'f, const N: usize> =
     dyn Fn(&Ctx<'_, N>, Method, usize, bool, &mut Vec<Point>) -> Result<(), WorkPrecisionError> + 'f;
 
 /// The stage dispatch error as a work-precision error.
-fn not_compiled(e: crate::registry::DispatchError) -> WorkPrecisionError {
+fn not_compiled(e: crate::catalog::DispatchError) -> WorkPrecisionError {
     WorkPrecisionError::Invalid(e.to_string())
 }
 
@@ -652,7 +619,7 @@ where
     let mut points = Vec::new();
     let mut missing = Vec::new();
     for (method, s) in method_variants() {
-        progress(&format!("{key}: {}", method_label(method, s)));
+        progress(&format!("{key}: {}", method.label(s)));
         let peers = twin && cfg.peer_methods.contains(&(method, s));
         sweep(&ctx, method, s, peers, &mut points)?;
     }
@@ -682,7 +649,7 @@ where
     Ok(SystemMeasurement { problem, points, missing, operations: Sys::OPERATIONS, dimensions: (N, M) })
 }
 
-/// The per-system half of [`measure`], through the registry.
+/// The per-system half of [`measure`], through the catalogue.
 struct MeasureVisitor<'a> {
     cfg: &'a WorkPrecisionConfig,
     progress: &'a dyn Fn(&str),
@@ -699,7 +666,11 @@ impl SystemVisitor for MeasureVisitor<'_> {
         };
         measure_system::<Sys, N, M, Y>(entry, self.cfg, self.progress, &sweep, false)
     }
-    fn visit_twin<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
+}
+
+impl TwinVisitor for MeasureVisitor<'_> {
+    type Output = Result<SystemMeasurement, WorkPrecisionError>;
+    fn visit<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
         self,
         entry: &'static SystemEntry,
     ) -> Self::Output {
@@ -739,7 +710,12 @@ pub fn measure(
     cfg: &WorkPrecisionConfig,
     progress: &dyn Fn(&str),
 ) -> Result<SystemMeasurement, WorkPrecisionError> {
-    let mut m = visit_system(kind, MeasureVisitor { cfg, progress })?;
+    // The paper's systems have num-dual twins and run the same-stepper
+    // peers; the others run SPARK and DOP853 only.
+    let mut m = match visit_twin(kind, MeasureVisitor { cfg, progress }) {
+        Ok(m) => m?,
+        Err(visitor) => visit_system(kind, visitor)?,
+    };
     if !kind.entry().paper {
         m.missing.push(format!(
             "CasADi C and SciPy: the external peers exist only for the paper's systems (particle, skate, robot, \
@@ -783,7 +759,7 @@ pub fn run_work_precision(
     }
     // Created and locked before measuring; the files appear together at the
     // end, the summary last.
-    let mut out = crate::output::OutputDir::open(&cfg.out)?;
+    let mut out = crate::report::files::OutputDir::open(&cfg.out)?;
     let mut all = Vec::new();
     for &kind in &cfg.systems {
         let m = measure(kind, cfg, progress)?;
@@ -824,7 +800,7 @@ mod tests {
         let all = run_work_precision(&cfg, &|_| {}).unwrap();
         let m = &all[0];
         for (method, s) in method_variants() {
-            let label = method_label(method, s);
+            let label = method.label(s);
             assert!(
                 m.points.iter().any(|p| p.solver == Provider::Generated.label() && p.method == label),
                 "no point for {label}"

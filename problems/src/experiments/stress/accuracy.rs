@@ -3,10 +3,11 @@
 //! solution over long times, and rheonomic affine / velocity-nonlinear
 //! constraints against the independent Gragg–Bulirsch–Stoer reference.
 
-use super::systems::{rolling_disk_exact, RollingDisk};
-use super::{log_points, run_fixed, sci, thin, CaseReport, Scale, StressError};
-use crate::analysis::fit_power;
-use crate::plot::{Figure, Panel, Scale as Axis, Series};
+use super::{run_fixed, CaseReport, Scale, StressError};
+use crate::report::format::{log_points, sci, thin};
+use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
+use crate::report::stats::fit_power;
+use crate::systems::stress::{rolling_disk_exact, RollingDisk};
 use crate::systems::{AppellHamel, NonholonomicParticle, TurntableSkate};
 use spark_runtime::reference::{integrate as reference, ReferenceOptions};
 use spark_runtime::{Method, NonholonomicSystem, Stepper, Tableau, Vector};

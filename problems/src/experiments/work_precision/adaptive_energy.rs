@@ -3,8 +3,8 @@
 //! ([`crate::systems::OrbitParticle`]) with Gauss s = 2, a fixed run of 10⁶
 //! steps and the two tolerance-driven runs over the same time span.
 
-use crate::output::OutputDir;
-use crate::plot::{Figure, Panel, Scale, Series};
+use crate::report::files::OutputDir;
+use crate::report::plot::{Figure, Panel, Scale, Series};
 use crate::systems::OrbitParticle;
 use spark_runtime::{
     integrate_adaptive, integrate_reversible, AdaptiveOptions, Method, NonholonomicSystem, Observe, RunOptions,
@@ -15,7 +15,7 @@ use std::time::Instant;
 
 /// Fixed steps of the long run.
 pub const FIXED_STEPS: usize = 1_000_000;
-/// Fixed step size (the registry's default for `orbit`).
+/// Fixed step size (the catalogue's default for `orbit`).
 pub const FIXED_H: f64 = 0.002;
 /// `rtol = atol` of the tolerance-driven runs.
 pub const TOLERANCE: f64 = 1e-8;

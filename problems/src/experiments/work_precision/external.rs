@@ -11,7 +11,7 @@
 
 use super::{Point, Problem, SystemMeasurement, WorkPrecisionConfig};
 use crate::casadi_export::TableauExport;
-use crate::simulate::SystemKind;
+use crate::catalog::SystemKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -47,7 +47,7 @@ struct Input<'a> {
 /// One peer method: its label, tableau and the step counts to run.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MethodInput {
-    /// Label as in [`super::method_label`].
+    /// Label ([`Method::label`]).
     pub label: String,
     /// The coefficients.
     pub tableau: TableauExport,
@@ -94,7 +94,7 @@ pub fn run(
         .iter()
         .zip(&cfg.peer_methods)
         .map(|(t, &(method, s))| {
-            let label = super::method_label(method, s);
+            let label = method.label(s);
             let mut steps: Vec<usize> = m
                 .points
                 .iter()

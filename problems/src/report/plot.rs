@@ -14,7 +14,7 @@ use std::sync::OnceLock;
 
 /// The font family name every chart uses.
 const FONT: &str = "sans-serif";
-static FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+static FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
 /// Series with more points than this are drawn with thin lines.
 const DENSE: usize = 300;
@@ -125,7 +125,7 @@ fn ensure_font() -> Result<(), PlotError> {
 
 /// Draws `fig` into the files `png` and `svg` (the formats follow the
 /// extensions). Commands write figures through
-/// [`crate::output::OutputDir::render`], which calls this with temporary
+/// [`crate::report::files::OutputDir::render`], which calls this with temporary
 /// paths and renames them into place.
 pub fn render_files(fig: &Figure, png: &Path, svg: &Path) -> Result<(), PlotError> {
     ensure_font()?;
@@ -411,7 +411,7 @@ pub const SCATTER_LEGEND_ENTRIES: usize = 12;
 /// Draws `fig` into the files `png` and `svg`, every finite point as a dot
 /// (points are not thinned: a section has as many dots as crossings).
 /// Commands write scatter plots through
-/// [`crate::output::OutputDir::render_scatter`].
+/// [`crate::report::files::OutputDir::render_scatter`].
 pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(), PlotError> {
     ensure_font()?;
     {

@@ -18,7 +18,7 @@
 //! | `summary.md`, `summary.json` | per figure and method: max `|E − E0|`, max constraint residual, steps, time, drift or growth fit |
 //!
 //! The folder is locked for the whole run and the files appear together at
-//! its end, summaries last ([`crate::output::OutputDir`]).
+//! its end, summaries last ([`crate::report::files::OutputDir`]).
 //!
 //! Fig. 8.4 runs two systems. §8.4 prints the constraint as
 //! `v1 + Σ_{i=m+2}^{n} q_i v_i = 0`, which is holonomic (it is
@@ -30,11 +30,14 @@
 //! bottom row is the printed constraint over a twentieth of it
 //! ([`PaperConfig::fig84_printed_t_end`]). Evidence: `docs/stress/chaos.md`.
 
-use crate::analysis::{energy_drift, fit_power, Drift, PowerFit};
-use crate::output::OutputDir;
-use crate::plot::{Figure, Panel, PlotError, Scale, Series};
-use crate::progress::Progress;
-use crate::simulate::{mp7_initial_values, run, RunError, RunResult, RunSpec, SystemKind};
+use crate::catalog::SystemKind;
+use crate::report::files::OutputDir;
+use crate::report::format::{sci_digits, short};
+use crate::report::plot::{Figure, Panel, PlotError, Scale, Series};
+use crate::report::progress::Progress;
+use crate::report::stats::{energy_drift, ensemble_quantity, fit_power, log_bin_means, Drift, PowerFit};
+use crate::run::{run, RunError, RunResult, RunSpec};
+use crate::systems::mp7_initial_values;
 use rayon::prelude::*;
 use spark_runtime::{Method, NewtonMode, NewtonOptions};
 use std::path::PathBuf;
@@ -119,7 +122,7 @@ pub enum PaperError {
     },
     /// Writing a table failed.
     #[error(transparent)]
-    Output(#[from] crate::output::OutputError),
+    Output(#[from] crate::report::files::OutputError),
     /// Drawing a figure failed.
     #[error(transparent)]
     Plot(#[from] PlotError),
@@ -375,22 +378,9 @@ pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, 
     Ok(report)
 }
 
-fn method_label(r: &RunResult) -> String {
-    format!("{} s={}", r.method, r.stages)
-}
-
 /// Column name for a run in the figure tables, e.g. `gauss_s2`.
 fn column_key(r: &RunResult) -> String {
-    let m = match r.method {
-        Method::Gauss => "gauss",
-        Method::LobattoIIIAB => "lobatto_iiia_b",
-        Method::LobattoIIIABD => "lobatto_iiia_b_d",
-        Method::SymplecticEulerI => "euler_1",
-        Method::SymplecticEulerII => "euler_2",
-        Method::ModifiedLobattoIIIAB => "modified_lobatto_iiia_b",
-        Method::LobattoIIIBALda => "lobatto_iiib_a_lda",
-    };
-    format!("{m}_s{}", r.stages)
+    format!("{}_s{}", r.method.key().replace('-', "_"), r.stages)
 }
 
 fn energy_error(r: &RunResult) -> Vec<f64> {
@@ -401,7 +391,7 @@ fn single_row(job: &Job, r: &RunResult) -> SummaryRow {
     SummaryRow {
         figure: FIGURES[job.figure],
         system: r.system,
-        method: method_label(r),
+        method: r.method.label(r.stages),
         initial_values: job.variant.to_string(),
         h: r.h,
         t_end: r.t.last().copied().unwrap_or(0.0),
@@ -445,7 +435,9 @@ fn energy_figure(f: usize, sel: &[(&Job, &RunResult)]) -> (Figure, Vec<(String, 
         0 => (
             format!("Fig. 8.1  Energy error of Gauss SPARK, nonholonomic particle, h = {h}, t ∈ [0, {t_end}]"),
             sel.iter()
-                .map(|(_, r)| energy_panel(format!("Gauss SPARK s = {}", r.stages), vec![curve(r, method_label(r))]))
+                .map(|(_, r)| {
+                    energy_panel(format!("Gauss SPARK s = {}", r.stages), vec![curve(r, r.method.label(r.stages))])
+                })
                 .collect(),
             1,
         ),
@@ -455,7 +447,10 @@ fn energy_figure(f: usize, sel: &[(&Job, &RunResult)]) -> (Figure, Vec<(String, 
             ),
             sel.iter()
                 .map(|(_, r)| {
-                    energy_panel(format!("Lobatto IIIA-B SPARK s = {}", r.stages), vec![curve(r, method_label(r))])
+                    energy_panel(
+                        format!("Lobatto IIIA-B SPARK s = {}", r.stages),
+                        vec![curve(r, r.method.label(r.stages))],
+                    )
                 })
                 .collect(),
             1,
@@ -468,13 +463,13 @@ fn energy_figure(f: usize, sel: &[(&Job, &RunResult)]) -> (Figure, Vec<(String, 
                 let paper: Vec<Series> = sel
                     .iter()
                     .filter(|(j, r)| j.variant == PAPER_V0 && r.stages == s)
-                    .map(|(_, r)| curve(r, method_label(r)))
+                    .map(|(_, r)| curve(r, r.method.label(r.stages)))
                     .collect();
                 panels.push(energy_panel(format!("Lobatto IIIA-B-D SPARK s = {s}, v0 = (1, 0, 0, 1) (paper)"), paper));
                 let turning: Vec<Series> = sel
                     .iter()
                     .filter(|(j, r)| j.variant == TURNING_V0 && r.stages == s)
-                    .map(|(_, r)| curve(r, method_label(r)))
+                    .map(|(_, r)| curve(r, r.method.label(r.stages)))
                     .collect();
                 panels.push(energy_panel(format!("s = {s}, v0 = (1, 0, 0.5, 1): IIIA-B vs IIIA-B-D"), turning));
             }
@@ -518,18 +513,21 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)], out: &mut OutputDir)
             }
             let key = column_key(runs[0]);
             growth.push(GrowthFit {
-                method: method_label(runs[0]),
+                method: runs[0].method.label(runs[0].stages),
                 constraint: reading,
                 fit: fit_power(&t, &quantity, cfg.fig84_fit_from, 200),
                 late_fit: fit_power(&t, &quantity, t_end / 10.0, 200),
             });
-            series.push(Series::new(method_label(runs[0]), t.iter().copied().zip(quantity.iter().copied()).collect()));
+            series.push(Series::new(
+                runs[0].method.label(runs[0].stages),
+                t.iter().copied().zip(quantity.iter().copied()).collect(),
+            ));
             table.push((format!("scaled_mean_square_energy_error_{key}"), quantity));
             let wall: Duration = runs.iter().map(|r| r.stats.wall_time).sum();
             rows.push(SummaryRow {
                 figure: FIGURES[3],
                 system: runs[0].system,
-                method: method_label(runs[0]),
+                method: runs[0].method.label(runs[0].stages),
                 initial_values: format!("{} members on E0 = 3.06", runs.len()),
                 h,
                 t_end,
@@ -599,42 +597,6 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)], out: &mut OutputDir)
 /// Bins of the log–log panel of Fig. 8.4.
 const LOG_BINS: usize = 40;
 
-/// Means of `(x, y)` over `bins` bins evenly spaced in `log x` (points with
-/// `x ≤ 0` are skipped; empty bins give no point).
-fn log_bin_means(points: &[(f64, f64)], bins: usize) -> Vec<(f64, f64)> {
-    let pts: Vec<(f64, f64)> = points.iter().copied().filter(|p| p.0 > 0.0).collect();
-    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return Vec::new() };
-    let (l0, l1) = (first.0.ln(), last.0.ln());
-    let width = ((l1 - l0) / bins.max(1) as f64).max(f64::MIN_POSITIVE);
-    let mut sums = vec![(0.0, 0.0, 0usize); bins.max(1)];
-    for &(x, y) in &pts {
-        let k = (((x.ln() - l0) / width) as usize).min(sums.len() - 1);
-        sums[k].0 += x;
-        sums[k].1 += y;
-        sums[k].2 += 1;
-    }
-    sums.into_iter().filter(|s| s.2 > 0).map(|(x, y, n)| (x / n as f64, y / n as f64)).collect()
-}
-
-/// `(1/h⁴)·(1/(J+1)) Σ_j (E_jk − E_j0)²` at each common sample `k`.
-pub fn ensemble_quantity(runs: &[&RunResult], h: f64) -> Vec<f64> {
-    let samples = runs.iter().map(|r| r.energy.len()).min().unwrap_or(0);
-    let h4 = h.powi(4);
-    (0..samples)
-        .map(|k| runs.iter().map(|r| (r.energy[k] - r.stats.e0).powi(2)).sum::<f64>() / runs.len() as f64 / h4)
-        .collect()
-}
-
-/// A number without accumulated rounding noise (`12.600000000000001` → `12.6`).
-fn short(x: f64) -> String {
-    let s = format!("{x:.9}");
-    s.trim_end_matches('0').trim_end_matches('.').to_string()
-}
-
-fn sci(x: f64) -> String {
-    format!("{x:.2e}")
-}
-
 /// The summary as Markdown: the table, Fig. 8.4's fits and the conventions.
 pub fn summary_markdown(report: &PaperReport, cfg: &PaperConfig) -> String {
     let mut s = String::new();
@@ -654,7 +616,10 @@ pub fn summary_markdown(report: &PaperReport, cfg: &PaperConfig) -> String {
     s.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for r in &report.rows {
         let (slope, frac) = match r.drift {
-            Some(d) => (format!("{} ± {}", sci(d.slope), sci(d.slope_std_error)), format!("{:.3}", d.drift_fraction)),
+            Some(d) => (
+                format!("{} ± {}", sci_digits(d.slope, 2), sci_digits(d.slope_std_error, 2)),
+                format!("{:.3}", d.drift_fraction),
+            ),
             None => ("—".into(), "—".into()),
         };
         s.push_str(&format!(
@@ -666,8 +631,8 @@ pub fn summary_markdown(report: &PaperReport, cfg: &PaperConfig) -> String {
             r.h,
             short(r.t_end),
             r.steps,
-            sci(r.max_energy_error),
-            sci(r.max_constraint_residual),
+            sci_digits(r.max_energy_error, 2),
+            sci_digits(r.max_constraint_residual, 2),
             slope,
             frac,
             r.run_seconds,
@@ -691,7 +656,7 @@ pub fn summary_markdown(report: &PaperReport, cfg: &PaperConfig) -> String {
             g.constraint.formula(),
             g.method,
             fmt(g.fit),
-            g.fit.map_or("—".into(), |f| sci(f.coefficient)),
+            g.fit.map_or("—".into(), |f| sci_digits(f.coefficient, 2)),
             fmt(g.late_fit),
             g.fit.map_or(0, |f| f.points)
         ));

@@ -8,7 +8,7 @@
 //! chaos), [`accuracy`] (high order near round-off, the exact rolling disk,
 //! rheonomic/affine/nonlinear constraints against the reference solver) and
 //! [`robustness`] (large steps, stiffness, near-singular constraints, a
-//! non-reversible system, bad input); the extra systems in [`systems`].
+//! non-reversible system, bad input); the extra systems in [`crate::systems::stress`].
 //!
 //! A case never aborts the suite: a failed run becomes a failed criterion
 //! whose reason is the typed error's message. Only infrastructure (a
@@ -17,13 +17,14 @@
 //! has run, so a failure leaves nothing half-written in the output folder.
 
 pub mod accuracy;
-pub mod cli;
 pub mod long_runs;
 pub mod robustness;
-pub mod systems;
 
-use crate::output::{OutputDir, OutputError};
-use crate::plot::{Figure, PlotError};
+/// The suite's systems, declared in [`crate::systems::stress`].
+pub use crate::systems::stress as systems;
+
+use crate::report::files::{OutputDir, OutputError};
+use crate::report::plot::{Figure, PlotError};
 use spark_runtime::{
     IntegrationError, NewtonOptions, NonholonomicSystem, Observe, RunOptions, RunReport, Schedule, State, Stepper,
     TableauError, Vector,
@@ -227,7 +228,7 @@ pub fn run_all(scale: Scale, only: &[String], progress: &dyn Fn(&str)) -> Result
 
 /// Writes `report.md`, `summary.json` and each case's figure (`<key>.png`,
 /// `<key>.svg`) into `out` (created and locked, files renamed into place
-/// together; see [`crate::output::OutputDir`]); returns the paths written.
+/// together; see [`crate::report::files::OutputDir`]); returns the paths written.
 pub fn write_report(report: &StressReport, out: &Path) -> Result<Vec<PathBuf>, StressError> {
     let mut dir = OutputDir::open(out)?;
     stage_report(report, &mut dir)?;
@@ -397,25 +398,6 @@ pub fn newton() -> NewtonOptions {
     NewtonOptions::default()
 }
 
-/// `(x, max(|y|, floor))` points for log axes.
-pub fn log_points(x: &[f64], y: &[f64], floor: f64) -> Vec<(f64, f64)> {
-    x.iter().zip(y).filter(|(_, y)| y.is_finite()).map(|(&x, &y)| (x, y.abs().max(floor))).collect()
-}
-
-/// Keeps at most `max` roughly evenly spaced points (figures need no more).
-pub fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
-    if points.len() <= max || max < 2 {
-        return points;
-    }
-    let stride = points.len().div_ceil(max);
-    let last = *points.last().expect("non-empty");
-    let mut out: Vec<(f64, f64)> = points.into_iter().step_by(stride).collect();
-    if out.last() != Some(&last) {
-        out.push(last);
-    }
-    out
-}
-
 /// Builds the stepper type for `$sys` with `$s` stages (computing `D`).
 #[macro_export]
 #[doc(hidden)]
@@ -426,9 +408,4 @@ macro_rules! stress_stepper {
             spark_runtime::Tableau::<$s>::new($method)?,
         )
     };
-}
-
-/// Formats a float in short scientific notation.
-pub fn sci(x: f64) -> String {
-    format!("{x:.3e}")
 }

@@ -11,14 +11,15 @@
 //!
 //! Members: for the McLachlan–Perlmutter particles (both readings of §8.4)
 //! member `j` of `J` is the paper's initial state `j` of the ensemble with
-//! `J` members ([`crate::simulate::mp7_initial_values`]), all on the energy
+//! `J` members ([`crate::systems::mp7_initial_values`]), all on the energy
 //! level 3.06. For every other system member `j` starts from the registered
 //! `(q0, v0)` with `v0` scaled by `1 + j/J` (the constraints, linear in `v`
 //! for the systems that declare section events, stay satisfied; otherwise
 //! the scaled velocity is projected onto them).
 
-use crate::registry::{did_you_mean, nearest, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
-use crate::simulate::{check_parameters, mp7_initial_values, RunError};
+use crate::catalog::{did_you_mean, nearest, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::run::{check_parameters, RunError};
+use crate::systems::mp7_initial_values;
 use rayon::prelude::*;
 use spark_runtime::{
     ConsistencyPolicy, Direction, EventFunctions, EventGradient, EventSpec, IntegrationError, Method, NewtonOptions,
@@ -201,7 +202,7 @@ pub fn declared_events(kind: SystemKind) -> &'static [EventSpec] {
             Sys::EVENTS
         }
     }
-    crate::registry::visit_system(kind, Events)
+    crate::catalog::visit_system(kind, Events)
 }
 
 /// The registered systems that declare at least one event.
@@ -316,7 +317,7 @@ pub fn run_section(spec: &SectionSpec) -> Result<Section, SectionError> {
         .enumerate()
         .map(|(member, (q0, v0))| {
             let visitor = MemberRun { spec, index, member, q0, v0 };
-            crate::registry::visit_system(spec.system, visitor).map_err(|source| SectionError::Member {
+            crate::catalog::visit_system(spec.system, visitor).map_err(|source| SectionError::Member {
                 member,
                 q0: q0.clone(),
                 v0: v0.clone(),
@@ -450,9 +451,9 @@ pub fn write_section(
     section: &Section,
     spec: &SectionSpec,
     axes: (Axis, Axis),
-    out: &mut crate::output::OutputDir,
-) -> Result<Vec<std::path::PathBuf>, crate::output::OutputError> {
-    use crate::plot::{Scatter, Series};
+    out: &mut crate::report::files::OutputDir,
+) -> Result<Vec<std::path::PathBuf>, crate::report::files::OutputError> {
+    use crate::report::plot::{Scatter, Series};
     let stem = format!("{}_{}", section.system, section.event);
     let n = section.coordinates.len();
     let mut names = vec!["member".to_string(), "t".to_string()];
@@ -461,7 +462,7 @@ pub fn write_section(
     names.push("event_value".into());
     let p = &section.points;
     if p.is_empty() {
-        return Err(crate::output::OutputError::from(crate::plot::PlotError::Empty {
+        return Err(crate::report::files::OutputError::from(crate::report::plot::PlotError::Empty {
             figure: stem.clone(),
             panel: "section".into(),
             hint: " (no crossing of the event: integrate longer with --t-end, or choose another event)",

@@ -19,9 +19,9 @@
 //! so this is round-off accumulated over the run).
 
 use super::external::{self, MethodInput, PeerStepRun};
-use super::{median_time, method_label, Problem, WorkPrecisionConfig};
+use super::{median_time, Problem, WorkPrecisionConfig};
 use crate::casadi_export::TableauExport;
-use crate::registry::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::{
     Jacobian, Method, NewtonMode, NewtonOptions, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector,
 };
@@ -117,7 +117,7 @@ where
         ..RunOptions::default()
     };
     let schedule = Schedule::Fixed { h, steps };
-    let label = method_label(method, S);
+    let label = method.label(S);
     // Timed without event location, like the peers: declared events are
     // for `spark section`.
     let traj = stepper
@@ -174,7 +174,7 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
     }
 }
 
-/// Every method of one system through the registry's dispatch.
+/// Every method of one system through the catalogue's dispatch.
 struct SystemRuns<'a> {
     h: f64,
     steps: usize,
@@ -218,7 +218,7 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
         let mut methods = Vec::new();
         for (method, s, r) in runs {
             let (runs, tableau) = r?;
-            let label = method_label(method, s);
+            let label = method.label(s);
             methods.push(MethodInput { label: label.clone(), tableau, steps: vec![steps] });
             spark.push((label, runs));
         }

@@ -1,8 +1,8 @@
 //! The `spark work-precision` subcommand's arguments and driver (the binary
 //! only forwards to [`run`] and prints what it returns).
 
-use super::{run_work_precision, WorkPrecisionConfig};
-use crate::registry::SystemKind;
+use crate::catalog::SystemKind;
+use crate::experiments::work_precision::{run_work_precision, WorkPrecisionConfig};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -117,34 +117,35 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         cfg.max_run_time = Duration::from_millis(50);
     }
     if a.scaling {
-        let mut out = crate::output::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
-        let rows = super::scaling::measure_scaling(cfg.repeats)?;
-        let md = super::scaling::scaling_markdown(&rows);
-        super::report::write_scaling_figure(&rows, &mut out).map_err(|e| e.to_string())?;
+        let mut out = crate::report::files::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
+        let rows = crate::experiments::work_precision::scaling::measure_scaling(cfg.repeats)?;
+        let md = crate::experiments::work_precision::scaling::scaling_markdown(&rows);
+        crate::experiments::work_precision::scaling::write_scaling_figure(&rows, &mut out)
+            .map_err(|e| e.to_string())?;
         out.write_bytes("scaling.md", md.as_bytes()).map_err(|e| e.to_string())?;
         out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }
     if a.adaptive_energy {
-        let mut out = crate::output::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
-        let md = super::adaptive_energy::run(&mut out, progress)?;
+        let mut out = crate::report::files::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
+        let md = crate::experiments::work_precision::adaptive_energy::run(&mut out, progress)?;
         out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }
     if a.per_step {
-        let mut out = crate::output::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
-        let rows = super::per_step::measure_per_step(&cfg, progress)?;
-        let md = super::per_step::per_step_markdown(&rows);
+        let mut out = crate::report::files::OutputDir::open(&cfg.out).map_err(|e| e.to_string())?;
+        let rows = crate::experiments::work_precision::per_step::measure_per_step(&cfg, progress)?;
+        let md = crate::experiments::work_precision::per_step::per_step_markdown(&rows);
         out.write_json("per-step.json", &rows).map_err(|e| e.to_string())?;
         out.write_bytes("per-step.md", md.as_bytes()).map_err(|e| e.to_string())?;
         out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }
     let all = run_work_precision(&cfg, progress).map_err(|e| e.to_string())?;
-    let mut s = super::report::overall_ratio_table(&all, &cfg);
+    let mut s = crate::experiments::work_precision::report::overall_ratio_table(&all, &cfg);
     for m in &all {
         s.push_str(&format!("\n{}: cheapest method per target error\n", m.problem.system));
-        s.push_str(&super::report::cheapest_table(m, &cfg.targets));
+        s.push_str(&crate::experiments::work_precision::report::cheapest_table(m, &cfg.targets));
         for miss in &m.missing {
             s.push_str(&format!("not measured: {miss}\n"));
         }

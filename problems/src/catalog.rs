@@ -2,7 +2,7 @@
 //! dispatch from run-time choices (system, stage count) to the
 //! monomorphized code.
 //!
-//! Each entry is declared once in the [`registry!`] list at the bottom of this
+//! Each entry is declared once in the [`catalog!`] list at the bottom of this
 //! file: the type, `N`, `M`, the command-line name, a one-line description, a
 //! consistent default initial state and a default step and final time.
 //! Everything else (structure facts, effects, coordinates, parameters,
@@ -19,7 +19,6 @@
 //!   list, maps a run-time stage count to [`StageVisitor::visit`] with
 //!   literal `S` and `D`. `spark run` and `spark work-precision` share it.
 
-use crate::peers::dual::DualTwin;
 use spark_runtime::{NonholonomicSystem, OperationCounts, Structure};
 
 /// Largest stage count compiled into the dispatch. Every family reaches its
@@ -49,7 +48,7 @@ pub trait StageVisitor<Sys, const N: usize, const M: usize> {
 }
 
 /// The stage-count dispatch of one registered type (implemented by the
-/// [`registry!`] list; do not implement it by hand).
+/// [`catalog!`] list; do not implement it by hand).
 pub trait Dispatch<const N: usize, const M: usize>: Registered<N, M> {
     /// Calls `visitor.visit::<S, D>()` for `S = stages`, or says which stage
     /// counts are compiled in.
@@ -66,14 +65,6 @@ pub trait SystemVisitor: Sized {
         self,
         entry: &'static SystemEntry,
     ) -> Self::Output;
-    /// Called instead of [`visit`](Self::visit) for the systems that have a
-    /// hand-written num-dual twin (the paper's four); by default the same.
-    fn visit_twin<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
-        self,
-        entry: &'static SystemEntry,
-    ) -> Self::Output {
-        self.visit::<Sys, N, M, Y>(entry)
-    }
 }
 
 /// A stage count outside the compiled range.
@@ -129,7 +120,7 @@ pub struct SystemEntry {
     pub name: &'static str,
     /// The type's name ([`spark_runtime::SystemSource::name`]).
     pub type_name: &'static str,
-    /// The type's path, as written in the registry.
+    /// The type's path, as written in the catalogue.
     pub path: &'static str,
     /// One-line description.
     pub description: &'static str,
@@ -202,9 +193,9 @@ pub struct SystemInfo {
 }
 
 impl SystemKind {
-    /// The registry entry.
+    /// The catalogue entry.
     pub fn entry(self) -> &'static SystemEntry {
-        &REGISTRY[self as usize]
+        &CATALOG[self as usize]
     }
     /// The command-line name.
     pub fn key(self) -> &'static str {
@@ -221,7 +212,7 @@ impl SystemKind {
     }
 }
 
-/// A name that is not in the registry.
+/// A name that is not in the catalogue.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("unknown system `{name}`{}; known: {known} (see `spark list`)", did_you_mean(.suggestion))]
 pub struct LookupError {
@@ -274,116 +265,39 @@ pub fn nearest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) ->
 /// names (the hand-written `RodPendulum` is `rod-pendulum-hand`).
 pub fn lookup(name: &str) -> Result<&'static SystemEntry, LookupError> {
     let key = normalize(name);
-    REGISTRY
+    CATALOG
         .iter()
         .find(|e| normalize(e.name) == key)
-        .or_else(|| REGISTRY.iter().find(|e| normalize(e.type_name) == key))
+        .or_else(|| CATALOG.iter().find(|e| normalize(e.type_name) == key))
         .ok_or_else(|| {
             let suggestion = if key.is_empty() {
                 None
             } else {
-                nearest(name, REGISTRY.iter().map(|e| e.name))
-                    .or_else(|| REGISTRY.iter().find(|e| normalize(e.name).contains(&key)).map(|e| e.name))
+                nearest(name, CATALOG.iter().map(|e| e.name))
+                    .or_else(|| CATALOG.iter().find(|e| normalize(e.name).contains(&key)).map(|e| e.name))
             };
             LookupError { name: name.to_string(), suggestion, known: names().join(", ") }
         })
 }
 
-/// Every registered command-line name, in registry order.
+/// Every registered command-line name, in catalogue order.
 pub fn names() -> Vec<&'static str> {
-    REGISTRY.iter().map(|e| e.name).collect()
+    CATALOG.iter().map(|e| e.name).collect()
 }
 
-/// Every registry entry, in order (the paper's first).
+/// Every catalogue entry, in order (the paper's first).
 pub fn entries() -> &'static [SystemEntry] {
-    &REGISTRY
+    &CATALOG
 }
 
-/// How `k` depends on `t` and `v`, in a few words (`none`, `linear`,
-/// `affine`, `nonlinear`, with `, t` when rheonomic).
-fn constraint_text(e: &SystemEntry) -> String {
-    use spark_runtime::ConstraintForm;
-    let form = match e.structure.constraint_form {
-        ConstraintForm::None => "none",
-        ConstraintForm::Linear => "linear",
-        ConstraintForm::Affine => "affine",
-        ConstraintForm::Nonlinear => "nonlinear",
-    };
-    if e.structure.constraints_autonomous || e.m == 0 {
-        form.to_string()
-    } else {
-        format!("{form}, k(t)")
-    }
-}
-
-/// The table `spark list` prints: one row per system with `N`, `M`, the
-/// constraint form, structure facts and effects, then a description, the
-/// parameters with defaults and the default initial state of each.
-pub fn list_table() -> String {
-    use std::fmt::Write;
-    let mut s = String::new();
-    let w = entries().iter().map(|e| e.name.len()).max().unwrap_or(4);
-    let _ = writeln!(
-        s,
-        "{:<w$} {:>2} {:>2}  {:<13} {:<4} {:<5} {:<4} {:<20} {:>5}  paper",
-        "name", "N", "M", "constraints", "L(t)", "mass", "sep.", "effects", "ops"
-    );
-    for e in entries() {
-        let line = format!(
-            "{:<w$} {:>2} {:>2}  {:<13} {:<4} {:<5} {:<4} {:<20} {:>5}  {}",
-            e.name,
-            e.n,
-            e.m,
-            constraint_text(e),
-            if e.structure.lagrangian_autonomous { "no" } else { "yes" },
-            if e.structure.constant_mass_matrix { "const" } else { "q,v" },
-            if e.structure.separable { "yes" } else { "no" },
-            e.effects_text(),
-            if e.operations.stage_jacobians == 0 {
-                "hand".to_string()
-            } else {
-                e.operations.stage_jacobians.to_string()
-            },
-            if e.paper { "yes" } else { "" },
-        );
-        let _ = writeln!(s, "{}", line.trim_end());
-    }
-    let _ = writeln!(
-        s,
-        "\n(L(t): Lagrangian depends on t; mass: ∇²_vv L constant or not; sep.: L = T(v) − U(q); \
-         ops: operations of the generated stage_jacobians, `hand` for hand-written types)\n"
-    );
-    for e in entries() {
-        let _ = writeln!(s, "{} — {} ({})", e.name, e.description, e.path);
-        let _ = writeln!(s, "    coordinates [{}]", e.coordinates.join(", "));
-        let params = e.default_parameters();
-        if !params.is_empty() {
-            let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {v}")).collect();
-            let _ = writeln!(s, "    parameters: {}", p.join(", "));
-        }
-        let _ = writeln!(
-            s,
-            "    defaults: t0 = {}, q0 = {:?}, v0 = {:?}, h = {}, t_end = {}",
-            e.t0, e.q0, e.v0, e.h, e.t_end
-        );
-    }
-    s
-}
-
-/// Every entry with its parameter defaults, for `spark list --json`.
-pub fn list_json() -> serde_json::Value {
-    let infos: Vec<SystemInfo> = SystemKind::ALL.iter().map(|k| k.info()).collect();
-    serde_json::json!({ "systems": infos, "max_stages": MAX_DISPATCH_STAGES })
-}
-
-/// Declares the registry: the [`SystemKind`] enum, the static entries,
+/// Declares the catalogue: the [`SystemKind`] enum, the static entries,
 /// [`visit_system`] and the [`Dispatch`] impls. One block per system:
 ///
 /// ```text
 /// Variant { ty: path::Type, n: N, m: M, name: "cli-name", peers: paper|plain,
 ///     about: "one line", q0: [..], v0: [..], t_end: T, h: H },
 /// ```
-macro_rules! registry {
+macro_rules! catalog {
     ($(
         $(#[$doc:meta])*
         $variant:ident {
@@ -398,11 +312,11 @@ macro_rules! registry {
         }
 
         impl SystemKind {
-            /// Every system, in registry order (the paper's four first).
+            /// Every system, in catalogue order (the paper's four first).
             pub const ALL: &'static [SystemKind] = &[$(SystemKind::$variant),*];
         }
 
-        static REGISTRY: [SystemEntry; SystemKind::ALL.len()] = [$(
+        static CATALOG: [SystemEntry; SystemKind::ALL.len()] = [$(
             SystemEntry {
                 kind: SystemKind::$variant,
                 name: $name,
@@ -420,7 +334,7 @@ macro_rules! registry {
                 coordinates: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.coordinates,
                 parameter_names: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.parameters,
                 operations: <$ty as NonholonomicSystem<$n, $m>>::OPERATIONS,
-                paper: registry!(@paper $peers),
+                paper: catalog!(@paper $peers),
                 t0: 0.0,
                 q0: &[$($q0 as f64),*],
                 v0: &[$($v0 as f64),*],
@@ -432,7 +346,7 @@ macro_rules! registry {
         /// Calls `visitor` with the concrete type of `kind`.
         pub fn visit_system<V: SystemVisitor>(kind: SystemKind, visitor: V) -> V::Output {
             match kind {
-                $( SystemKind::$variant => registry!(@visit $peers, $ty, $n, $m, visitor, kind), )*
+                $( SystemKind::$variant => visitor.visit::<$ty, $n, $m, { 2 * $n }>(kind.entry()), )*
             }
         }
 
@@ -456,15 +370,9 @@ macro_rules! registry {
     };
     (@paper paper) => { true };
     (@paper plain) => { false };
-    (@visit paper, $ty:ty, $n:literal, $m:literal, $v:ident, $kind:ident) => {
-        $v.visit_twin::<$ty, $n, $m, { 2 * $n }>($kind.entry())
-    };
-    (@visit plain, $ty:ty, $n:literal, $m:literal, $v:ident, $kind:ident) => {
-        $v.visit::<$ty, $n, $m, { 2 * $n }>($kind.entry())
-    };
 }
 
-registry! {
+catalog! {
     /// Nonholonomic particle (paper §8.1).
     Particle {
         ty: crate::systems::NonholonomicParticle, n: 3, m: 1, name: "particle", peers: paper,

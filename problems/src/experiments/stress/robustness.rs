@@ -2,13 +2,14 @@
 //! rejection policy), a stiff spring on the skate, nearly parallel
 //! constraint rows, a non-reversible oscillator, and bad input.
 
-use super::long_runs::drift_test;
-use super::systems::{
+use super::{run_fixed, CaseReport, RunData, Scale, StressError};
+use crate::report::format::{log_points, sci, thin};
+use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
+use crate::report::stats::drift_test;
+use crate::systems::stress::{
     contact_oscillator_initial, near_parallel_exact, ContactOscillator, NearParallel, NonReversibleContactOscillator,
     NonReversibleOscillator, StiffSkate,
 };
-use super::{log_points, run_fixed, sci, thin, CaseReport, RunData, Scale, StressError};
-use crate::plot::{Figure, Panel, Scale as Axis, Series};
 use crate::systems::{McLachlanPerlmutter7, Skate};
 use spark_runtime::{
     integrate_with_rejection, IntegrationError, Method, NonholonomicSystem, RejectionError, RejectionPolicy,
@@ -89,7 +90,7 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
         ),
     );
     let sys = McLachlanPerlmutter7::default();
-    let (q0v, v0v) = crate::simulate::mp7_initial_values(0, 9);
+    let (q0v, v0v) = crate::systems::mp7_initial_values(0, 9);
     let (q0, v0) = (Vector::<7>::from_column_slice(&q0v), Vector::<7>::from_column_slice(&v0v));
     let e0 = sys.energy(0.0, &q0, &v0);
     let mut pairs = Vec::new();

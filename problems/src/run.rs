@@ -2,11 +2,11 @@
 //! step, interval, parameters and initial values.
 //!
 //! The systems, their defaults and the dispatch from run-time `(system, s)`
-//! to the const-generic [`Stepper`] live in [`crate::registry`]; this module
+//! to the const-generic [`Stepper`] live in [`crate::catalog`]; this module
 //! only says what one run does for a given stepper type ([`run_with`]).
 
-use crate::registry::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemVisitor};
-pub use crate::registry::{SystemInfo, SystemKind, MAX_DISPATCH_STAGES};
+use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::report::clock::thread_cpu_time;
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NonholonomicSystem, Observe,
     RunOptions, Schedule, Stepper, Tableau, TableauError, Vector,
@@ -21,31 +21,16 @@ pub fn paper_initial_values(kind: SystemKind) -> (Vec<f64>, Vec<f64>) {
     (e.q0.to_vec(), e.v0.to_vec())
 }
 
-/// Initial values `j` of the §8.4 ensemble with `J + 1` members:
-/// `q = (α_j, 0.6, 0.4, 0.2, 1, 1, 1)`, `v = (0, β_j, 0, 0, 0, 0, 0)` with
-/// `α_j = cos(jπ/(2J))`, `β_j = sin(jπ/(2J))`.
-///
-/// The paper prints six velocity entries `(0, β_j, 0, 0, 0, 0)` for `n = 7`.
-/// Reading them as `v = (0, β_j, 0, 0, 0, 0, 0)` is the consistent choice:
-/// the constraint `v1 + q5 v5 + q6 v6 + q7 v7 = 0` holds, and
-/// `E = β_j²/2 + (α_j² + 3.56 + 1 + 0.56)/2 = 3.06` for every `j`, as the
-/// paper states.
-pub fn mp7_initial_values(j: usize, big_j: usize) -> (Vec<f64>, Vec<f64>) {
-    let theta = if big_j == 0 { 0.0 } else { j as f64 * std::f64::consts::PI / (2.0 * big_j as f64) };
-    let (alpha, beta) = (theta.cos(), theta.sin());
-    (vec![alpha, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], vec![0.0, beta, 0.0, 0.0, 0.0, 0.0, 0.0])
-}
-
 /// Errors of a run; each says what to change.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
-    /// The system name is not in the registry.
+    /// The system name is not in the catalogue.
     #[error(transparent)]
     UnknownSystem(#[from] LookupError),
     /// A parameter name the system does not have.
     #[error(
         "system `{system}` has no parameter `{name}`{}; its parameters: {known} (see `spark list`)",
-        crate::registry::did_you_mean(.suggestion)
+        crate::catalog::did_you_mean(.suggestion)
     )]
     UnknownParameter {
         /// The system.
@@ -246,8 +231,8 @@ pub struct RunStats {
     /// Wall-clock time of the integration.
     #[serde(serialize_with = "seconds")]
     pub wall_time: Duration,
-    /// CPU time of the integrating thread (Linux `/proc/thread-self/schedstat`;
-    /// `None` where unavailable). Unlike the wall time it does not grow when
+    /// CPU time of the integrating thread ([`thread_cpu_time`]; `None`
+    /// where unavailable). Unlike the wall time it does not grow when
     /// other processes compete for the cores.
     #[serde(serialize_with = "maybe_seconds")]
     pub cpu_time: Option<Duration>,
@@ -258,14 +243,6 @@ fn maybe_seconds<S: serde::Serializer>(d: &Option<Duration>, s: S) -> Result<S::
         Some(d) => s.serialize_f64(d.as_secs_f64()),
         None => s.serialize_none(),
     }
-}
-
-/// CPU time consumed so far by the calling thread, from the first field of
-/// `/proc/thread-self/schedstat` (nanoseconds on the CPU).
-fn thread_cpu_time() -> Option<Duration> {
-    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    let ns: u64 = text.split_whitespace().next()?.parse().ok()?;
-    Some(Duration::from_nanos(ns))
 }
 
 fn seconds<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
@@ -293,10 +270,10 @@ pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
     }
     let entry = spec.system.entry();
     check_parameters(entry, &spec.parameters)?;
-    crate::registry::visit_system(spec.system, RunSystem { spec, tick })
+    crate::catalog::visit_system(spec.system, RunSystem { spec, tick })
 }
 
-/// Looks `name` up in the registry and runs it with its defaults (the
+/// Looks `name` up in the catalogue and runs it with its defaults (the
 /// shortest way to integrate a system by name).
 pub fn run_by_name(name: &str, method: Method, stages: usize) -> Result<RunResult, RunError> {
     let kind = lookup(name)?.kind;
@@ -442,7 +419,7 @@ where
     let start = Instant::now();
     let cpu_start = thread_cpu_time();
     // A run records states, not events: the events a system declares are
-    // located by `spark section` (crate::section), so runs of the same system
+    // located by `spark section` (crate::experiments::section), so runs of the same system
     // cost the same with or without declared events.
     let traj = stepper
         .integrate_with_events(

@@ -2,8 +2,10 @@
 //! error" and peer-ratio tables as Markdown, and the figures.
 
 use super::{Point, Provider, SystemMeasurement, WorkPrecisionConfig, WorkPrecisionError};
-use crate::output::OutputDir;
-use crate::plot::{Figure, Panel, Scale, Series};
+use crate::report::files::OutputDir;
+use crate::report::format::duration;
+use crate::report::plot::{Figure, Panel, Scale, Series};
+use crate::report::stats::positive_median;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
@@ -69,17 +71,6 @@ fn steps_at(curve: &[&Point], target: f64) -> Option<usize> {
     curve.iter().filter(|p| p.error() <= target).min_by(|a, b| a.time().total_cmp(&b.time())).map(|p| p.steps)
 }
 
-/// Median of positive finite values.
-pub fn median(mut v: Vec<f64>) -> Option<f64> {
-    v.retain(|x| x.is_finite() && *x > 0.0);
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] * v[n / 2]).sqrt() })
-}
-
 /// Per-step time ratios `peer / SPARK` at the same method and step count
 /// (so at equal accuracy: the same stepper solves the same equations), over
 /// the points with error below `1e-2` (out of the pre-asymptotic range).
@@ -92,7 +83,7 @@ pub fn per_step_ratios(points: &[Point], peer: &str) -> BTreeMap<String, (f64, u
             by_method.entry(p.method.clone()).or_default().push(p.time_per_step / g.time_per_step);
         }
     }
-    by_method.into_iter().filter_map(|(m, r)| median(r.clone()).map(|x| (m, (x, r.len())))).collect()
+    by_method.into_iter().filter_map(|(m, r)| positive_median(r.clone()).map(|x| (m, (x, r.len())))).collect()
 }
 
 /// `time(peer) / time(best SPARK)` to reach each target, for each peer curve.
@@ -116,21 +107,6 @@ pub fn equal_error_ratios(points: &[Point], targets: &[f64]) -> Vec<(String, Vec
     out
 }
 
-/// A duration in engineering units.
-pub fn duration(seconds: f64) -> String {
-    if !seconds.is_finite() {
-        "–".into()
-    } else if seconds < 1e-6 {
-        format!("{:.0} ns", seconds * 1e9)
-    } else if seconds < 1e-3 {
-        format!("{:.1} µs", seconds * 1e6)
-    } else if seconds < 1.0 {
-        format!("{:.2} ms", seconds * 1e3)
-    } else {
-        format!("{seconds:.2} s")
-    }
-}
-
 /// Stages every point as the CSV file `name` in `out`.
 pub fn write_points_csv(points: &[Point], out: &mut OutputDir, name: &str) -> Result<(), WorkPrecisionError> {
     out.write_with(name, |w| {
@@ -139,7 +115,7 @@ pub fn write_points_csv(points: &[Point], out: &mut OutputDir, name: &str) -> Re
             w.serialize(p)?;
         }
         w.flush()?;
-        Ok::<(), crate::output::WriteFailure>(())
+        Ok::<(), crate::report::files::WriteFailure>(())
     })?;
     Ok(())
 }
@@ -240,7 +216,7 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     let all = curves(&m.points);
     let mut panels = Vec::new();
     for &(method, s) in &cfg.peer_methods {
-        let label = super::method_label(method, s);
+        let label = method.label(s);
         let series: Vec<Series> = all
             .iter()
             .filter(|((_, me), _)| *me == label)
@@ -299,7 +275,7 @@ fn adaptive_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     let all = curves(&m.points);
     let mut panels = Vec::new();
     for &(method, s) in &cfg.peer_methods {
-        let label = super::method_label(method, s);
+        let label = method.label(s);
         let mut series: Vec<Series> = all
             .iter()
             .filter(|((solver, me), _)| *me == label && (solver == SPARK || solver == super::SPARK_ADAPTIVE))
@@ -437,41 +413,6 @@ pub fn overall_ratio_table(all: &[SystemMeasurement], cfg: &WorkPrecisionConfig)
         }
     }
     s
-}
-
-/// Time per step and stepper size against `n` (log–log), staged in `out` as
-/// `scaling.png` and `scaling.svg`.
-pub fn write_scaling_figure(
-    rows: &[super::scaling::ScalingRow],
-    out: &mut OutputDir,
-) -> Result<(), WorkPrecisionError> {
-    let panel = |title: &str, y_label: &str, f: &dyn Fn(&super::scaling::ScalingRow) -> f64| Panel {
-        title: title.into(),
-        x_label: "n (coordinates)".into(),
-        y_label: y_label.into(),
-        x_scale: Scale::Log,
-        y_scale: Scale::Log,
-        series: [2, 5]
-            .iter()
-            .map(|&st| {
-                let pts = rows.iter().filter(|r| r.stages == st).map(|r| (r.n as f64, f(r))).collect();
-                Series::new(format!("Gauss s={st}"), pts)
-            })
-            .collect(),
-    };
-    let fig = Figure {
-        title: "McLachlan–Perlmutter particles: cost against size".into(),
-        panels: vec![
-            panel("time per step (full Newton)", "seconds", &|r| r.time_per_step),
-            panel("time per step (simplified Newton)", "seconds", &|r| r.time_per_step_simplified),
-            panel("stepper value + heap", "bytes", &|r| (r.stepper_bytes + r.heap_bytes) as f64),
-            panel("arithmetic rate", "GFLOP/s (estimated)", &|r| r.gflops),
-        ],
-        columns: 2,
-        panel_size: (520, 420),
-    };
-    out.render(&fig, "scaling")?;
-    Ok(())
 }
 
 #[cfg(test)]

@@ -8,9 +8,9 @@
 //! `K = ∂k/∂v`. Parameter defaults are the values the paper uses.
 //!
 //! To see what the macro generates for one of them (and its operation count):
-//! `cargo run -p spark-symbolic --example expand -- problems/src/systems.rs Skate`.
+//! `cargo run -p spark-symbolic --example expand -- problems/src/systems/paper.rs Skate`.
 
-use spark_runtime::nonholonomic_system;
+use spark_runtime::{nonholonomic_system, Vector};
 
 nonholonomic_system! {
     /// The nonholonomic particle (paper §8.1; Cortés, Bloch; `n = 3`, `m = 1`).
@@ -212,4 +212,63 @@ nonholonomic_system! {
         lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 + mu/sqrt(x^2 + y^2 + softening^2),
         constraints: [ dot(z) - y*dot(x) ],
     }
+}
+
+/// Initial values `j` of the §8.4 ensemble with `J + 1` members:
+/// `q = (α_j, 0.6, 0.4, 0.2, 1, 1, 1)`, `v = (0, β_j, 0, 0, 0, 0, 0)` with
+/// `α_j = cos(jπ/(2J))`, `β_j = sin(jπ/(2J))`.
+///
+/// The paper prints six velocity entries `(0, β_j, 0, 0, 0, 0)` for `n = 7`.
+/// Reading them as `v = (0, β_j, 0, 0, 0, 0, 0)` is the consistent choice:
+/// the constraint `v1 + q5 v5 + q6 v6 + q7 v7 = 0` holds, and
+/// `E = β_j²/2 + (α_j² + 3.56 + 1 + 0.56)/2 = 3.06` for every `j`, as the
+/// paper states.
+pub fn mp7_initial_values(j: usize, big_j: usize) -> (Vec<f64>, Vec<f64>) {
+    let theta = if big_j == 0 { 0.0 } else { j as f64 * std::f64::consts::PI / (2.0 * big_j as f64) };
+    let (alpha, beta) = (theta.cos(), theta.sin());
+    (vec![alpha, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], vec![0.0, beta, 0.0, 0.0, 0.0, 0.0, 0.0])
+}
+
+/// `φ(q) = q1 + ½(q5² + q6² + q7²)`: the constraint of §8.4 as printed,
+/// `v1 + q5 v5 + q6 v6 + q7 v7 = 0`, is `dφ/dt = 0`.
+pub fn mp7_phi(q: &[f64]) -> f64 {
+    q[0] + 0.5 * (q[4] * q[4] + q[5] * q[5] + q[6] * q[6])
+}
+
+/// One RATTLE step for the holonomic constraint `φ(q) = φ(q0)` of
+/// [`McLachlanPerlmutter7`], written independently of the SPARK stepper:
+/// `v½ = v0 − (h/2)(∇U(q0) + λ∇φ(q0))`, `q1 = q0 + h v½` with `φ(q1) = φ(q0)`
+/// (a quadratic in `λ`, solved by Newton), then
+/// `v1 = v½ − (h/2)(∇U(q1) + μ∇φ(q1))` with `∇φ(q1)·v1 = 0`.
+pub fn mp7_rattle(q0: &Vector<7>, v0: &Vector<7>, h: f64) -> (Vector<7>, Vector<7>) {
+    let grad_u = |q: &Vector<7>| {
+        let mut g = *q;
+        g[1] += q[1] * q[4] * q[4];
+        g[2] += q[2] * q[5] * q[5];
+        g[3] += q[3] * q[6] * q[6];
+        g[4] += q[4] * (q[5] * q[5] + q[1] * q[1]);
+        g[5] += q[5] * (q[4] * q[4] + q[2] * q[2]);
+        g[6] += q[6] * q[3] * q[3];
+        g
+    };
+    let grad_phi = |q: &Vector<7>| Vector::<7>::from_column_slice(&[1.0, 0.0, 0.0, 0.0, q[4], q[5], q[6]]);
+    let phi = |q: &Vector<7>| mp7_phi(q.as_slice());
+    let a = v0 - 0.5 * h * grad_u(q0);
+    let g0 = grad_phi(q0);
+    let mut lambda = 0.0;
+    for _ in 0..50 {
+        let q1 = q0 + h * (a - 0.5 * h * lambda * g0);
+        let slope = grad_phi(&q1).dot(&(-0.5 * h * h * g0));
+        let d = (phi(&q1) - phi(q0)) / slope;
+        lambda -= d;
+        if d.abs() <= 1e-16 * (1.0 + lambda.abs()) {
+            break;
+        }
+    }
+    let half = a - 0.5 * h * lambda * g0;
+    let q1 = q0 + h * half;
+    let g1 = grad_phi(&q1);
+    let w = half - 0.5 * h * grad_u(&q1);
+    let mu = g1.dot(&w) / g1.dot(&g1);
+    (q1, w - mu * g1)
 }

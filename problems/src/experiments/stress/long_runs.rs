@@ -4,62 +4,16 @@
 //! nonholonomic reading of the constraint and stays bounded with the
 //! constraint as printed (holonomic; Lobatto IIIA-B is RATTLE there).
 
-use super::{log_points, newton, run_fixed, sci, thin, CaseReport, RunData, Scale, StressError};
-use crate::analysis::{energy_drift, fit_line, fit_power};
-use crate::plot::{Figure, Panel, Scale as Axis, Series};
-use crate::simulate::mp7_initial_values;
+use super::{newton, run_fixed, CaseReport, RunData, Scale, StressError};
+use crate::report::format::{log_points, sci, thin};
+use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
+use crate::report::stats::{
+    drift_test, energy_structure_function, fit_line, fit_power, structure_plateau, structure_slope, window_mean,
+};
+use crate::systems::{mp7_initial_values, mp7_phi, mp7_rattle};
 use crate::systems::{McLachlanPerlmutter7, McLachlanPerlmutter7Nonholonomic, NonholonomicParticle, Skate};
 use rayon::prelude::*;
 use spark_runtime::{Method, State, Vector};
-
-/// Slope of `|E − E₀|` against `t` judged two ways: ordinary least squares
-/// over all samples (its standard error assumes independent samples, which
-/// the oscillating error is not, so it is too small), and least squares
-/// through `blocks` block means (an honest standard error for correlated
-/// samples).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct DriftTest {
-    /// OLS slope of `|E − E₀|`.
-    pub slope: f64,
-    /// Its (optimistic) standard error.
-    pub slope_std_error: f64,
-    /// Slope through the block means.
-    pub block_slope: f64,
-    /// Its standard error.
-    pub block_std_error: f64,
-    /// `|slope|·(t_end − t₀) / max|E − E₀|` (the share of the error band a
-    /// linear drift would explain; from [`energy_drift`]).
-    pub drift_fraction: f64,
-}
-
-impl DriftTest {
-    /// No drift: the block slope is within 3 standard errors of zero, or a
-    /// linear drift explains under 5 % of the error band.
-    pub fn no_drift(&self) -> bool {
-        self.block_slope.abs() <= 3.0 * self.block_std_error || self.drift_fraction < 0.05
-    }
-}
-
-/// Tests `|E − E₀|(t)` for a linear drift (see [`DriftTest`]).
-pub fn drift_test(t: &[f64], error: &[f64], blocks: usize) -> Option<DriftTest> {
-    let abs: Vec<f64> = error.iter().map(|e| e.abs()).collect();
-    let ols = fit_line(t, &abs)?;
-    let d = energy_drift(t, &abs)?;
-    let per = (t.len() / blocks.max(2)).max(1);
-    let (bt, be): (Vec<f64>, Vec<f64>) = t
-        .chunks(per)
-        .zip(abs.chunks(per))
-        .map(|(a, b)| (a.iter().sum::<f64>() / a.len() as f64, b.iter().sum::<f64>() / b.len() as f64))
-        .unzip();
-    let blk = fit_line(&bt, &be)?;
-    Some(DriftTest {
-        slope: ols.slope,
-        slope_std_error: ols.slope_std_error,
-        block_slope: blk.slope,
-        block_std_error: blk.slope_std_error,
-        drift_fraction: d.drift_fraction,
-    })
-}
 
 /// 10⁶ steps (quick: 2·10⁴) of Gauss s = 2 and Lobatto IIIA-B s = 3 with
 /// `h = 0.1` on the particle and the skate (paper initial values).
@@ -138,7 +92,7 @@ pub fn long_time(scale: Scale) -> Result<CaseReport, StressError> {
     let mut panels = Vec::new();
     let mut residual_series = Vec::new();
     for (&(sys, method, s), r) in jobs.iter().zip(&results) {
-        let label = format!("{sys}, {} s={s}", method.name());
+        let label = format!("{sys}, {}", method.label(s));
         match r {
             Err(e) => {
                 c.errors.push(format!("{label}: {e}"));
@@ -220,101 +174,6 @@ pub fn long_time(scale: Scale) -> Result<CaseReport, StressError> {
     Ok(c)
 }
 
-/// `φ(q) = q1 + ½(q5² + q6² + q7²)`: the constraint of §8.4 as printed,
-/// `v1 + q5 v5 + q6 v6 + q7 v7 = 0`, is `dφ/dt = 0`.
-pub fn mp7_phi(q: &[f64]) -> f64 {
-    q[0] + 0.5 * (q[4] * q[4] + q[5] * q[5] + q[6] * q[6])
-}
-
-/// One RATTLE step for the holonomic constraint `φ(q) = φ(q0)` of
-/// [`McLachlanPerlmutter7`], written independently of the SPARK stepper:
-/// `v½ = v0 − (h/2)(∇U(q0) + λ∇φ(q0))`, `q1 = q0 + h v½` with `φ(q1) = φ(q0)`
-/// (a quadratic in `λ`, solved by Newton), then
-/// `v1 = v½ − (h/2)(∇U(q1) + μ∇φ(q1))` with `∇φ(q1)·v1 = 0`.
-pub fn mp7_rattle(q0: &Vector<7>, v0: &Vector<7>, h: f64) -> (Vector<7>, Vector<7>) {
-    let grad_u = |q: &Vector<7>| {
-        let mut g = *q;
-        g[1] += q[1] * q[4] * q[4];
-        g[2] += q[2] * q[5] * q[5];
-        g[3] += q[3] * q[6] * q[6];
-        g[4] += q[4] * (q[5] * q[5] + q[1] * q[1]);
-        g[5] += q[5] * (q[4] * q[4] + q[2] * q[2]);
-        g[6] += q[6] * q[3] * q[3];
-        g
-    };
-    let grad_phi = |q: &Vector<7>| Vector::<7>::from_column_slice(&[1.0, 0.0, 0.0, 0.0, q[4], q[5], q[6]]);
-    let phi = |q: &Vector<7>| mp7_phi(q.as_slice());
-    let a = v0 - 0.5 * h * grad_u(q0);
-    let g0 = grad_phi(q0);
-    let mut lambda = 0.0;
-    for _ in 0..50 {
-        let q1 = q0 + h * (a - 0.5 * h * lambda * g0);
-        let slope = grad_phi(&q1).dot(&(-0.5 * h * h * g0));
-        let d = (phi(&q1) - phi(q0)) / slope;
-        lambda -= d;
-        if d.abs() <= 1e-16 * (1.0 + lambda.abs()) {
-            break;
-        }
-    }
-    let half = a - 0.5 * h * lambda * g0;
-    let q1 = q0 + h * half;
-    let g1 = grad_phi(&q1);
-    let w = half - 0.5 * h * grad_u(&q1);
-    let mu = g1.dot(&w) / g1.dot(&g1);
-    (q1, w - mu * g1)
-}
-
-/// Structure function of ensemble energy errors sampled every `dt`:
-/// `S(Δ) = (1/h⁴)·mean_{j,k} (e_j[k + l] − e_j[k])²` for the lags
-/// `Δ = l·dt`, `l = 1, 2, 4, …` (up to half the series). Averaging over every
-/// start time uses the whole run, so it is much less noisy than the ensemble
-/// mean at one time: a random walk gives `S(Δ) ≈ 2σ² + DΔ`, a bounded
-/// error a plateau `S(Δ) → 2σ²`. Returns `(Δ, S(Δ))` pairs.
-pub fn energy_structure_function(members: &[&[f64]], dt: f64, h: f64) -> Vec<(f64, f64)> {
-    let len = members.iter().map(|e| e.len()).min().unwrap_or(0);
-    let h4 = h.powi(4);
-    (0..)
-        .map(|k| 1usize << k)
-        .take_while(|&l| l < len / 2)
-        .map(|l| {
-            let (mut sum, mut n) = (0.0, 0usize);
-            for e in members {
-                for (late, early) in e[l..len].iter().zip(&e[..len - l]) {
-                    sum += (late - early).powi(2);
-                    n += 1;
-                }
-            }
-            (l as f64 * dt, sum / n.max(1) as f64 / h4)
-        })
-        .collect()
-}
-
-/// The plateau of a structure function: its largest value over the lags
-/// `Δ ≤ plateau_until` (the bounded `O(h²)` oscillation decorrelates within a
-/// few time units, so these lags measure `2σ²`).
-pub fn structure_plateau(sf: &[(f64, f64)], plateau_until: f64) -> f64 {
-    sf.iter().filter(|(d, _)| *d <= plateau_until).map(|(_, s)| *s).fold(0.0, f64::max)
-}
-
-/// Log–log slope of `S(Δ) − plateau` over the `last` largest lags of a
-/// structure function (see [`structure_plateau`]): ≈ 1 for a random walk;
-/// `None` for a bounded error, when fewer than three of those lags rise above
-/// the plateau.
-pub fn structure_slope(sf: &[(f64, f64)], plateau_until: f64, last: usize) -> Option<crate::analysis::LineFit> {
-    let base = structure_plateau(sf, plateau_until);
-    let (x, y): (Vec<f64>, Vec<f64>) = sf
-        .iter()
-        .skip(sf.len().saturating_sub(last))
-        .filter(|(d, s)| *d > plateau_until && *s > base)
-        .map(|(d, s)| (d.ln(), (s - base).ln()))
-        .unzip();
-    // Two points always give a line; a slope needs a third to mean anything.
-    if x.len() < 3 {
-        return None;
-    }
-    fit_line(&x, &y)
-}
-
 /// Lags up to this (time units) measure the plateau of the structure function.
 const PLATEAU_UNTIL: f64 = 50.0;
 
@@ -332,12 +191,6 @@ struct Ensemble {
     t: Vec<f64>,
     measure: Vec<f64>,
     max_phi: f64,
-}
-
-/// Mean of `y` over the samples with `lo ≤ t ≤ hi`.
-fn window_mean(t: &[f64], y: &[f64], lo: f64, hi: f64) -> f64 {
-    let v: Vec<f64> = t.iter().zip(y).filter(|(t, _)| **t >= lo && **t <= hi).map(|(_, y)| *y).collect();
-    v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
 /// `(1/h⁴)·mean_j (E_jk − E_j0)²` over the paper's 10 initial values of the
@@ -468,7 +321,7 @@ pub fn chaos(scale: Scale) -> Result<CaseReport, StressError> {
         let early_mean = window_mean(&e.t, &e.measure, 0.05 * t_end, 0.15 * t_end);
         let late_mean = window_mean(&e.t, &e.measure, 0.9 * t_end, t_end);
         let growth = late_mean / early_mean;
-        let show = |f: Option<crate::analysis::PowerFit>| {
+        let show = |f: Option<crate::report::stats::PowerFit>| {
             f.map_or("—".to_string(), |f| format!("{:.3} ± {:.3}", f.exponent, f.exponent_std_error))
         };
         c.metric(format!("{label}: exponent p on t ≥ {fit_from}"), show(fit));

@@ -1,9 +1,9 @@
 //! The `spark stress` subcommand: its arguments and what it does (run the
 //! cases, write the report, return a short summary for the terminal).
 
-use super::{markdown_summary, run_all, stage_report, Scale, CASES};
-use crate::output::OutputDir;
-use crate::progress::Progress;
+use crate::experiments::stress::{markdown_summary, run_all, stage_report, Scale, CASES};
+use crate::report::files::OutputDir;
+use crate::report::progress::Progress;
 use std::path::PathBuf;
 
 /// Run the stress suite: hard cases that try to break the

@@ -18,8 +18,8 @@
 //!   place; its temporary files are removed by the next run that opens the
 //!   folder (or when the value is dropped without a commit).
 
-use crate::plot::{render_files, render_scatter_files, Figure, Panel, PlotError, Scale, Scatter, Series};
-use crate::simulate::RunResult;
+use crate::report::plot::{render_files, render_scatter_files, Figure, Panel, PlotError, Scale, Scatter, Series};
+use crate::run::RunResult;
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};

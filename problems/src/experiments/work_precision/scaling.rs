@@ -14,7 +14,12 @@
 //! ([`WORKER_STACK`]), which the old stack-allocated matrices overflowed from
 //! `D ≈ 250` on and the by-value stage Jacobians from `n ≈ 90`.
 
-use super::scaling_systems::{
+use super::WorkPrecisionError;
+use crate::report::clock::thread_cpu_seconds;
+use crate::report::files::OutputDir;
+use crate::report::format::duration;
+use crate::report::plot::{Figure, Panel, Scale, Series};
+use crate::systems::scaling::{
     McLachlanPerlmutter129, McLachlanPerlmutter17, McLachlanPerlmutter33, McLachlanPerlmutter5, McLachlanPerlmutter65,
     McLachlanPerlmutter9,
 };
@@ -85,11 +90,11 @@ where
     let mut times = Vec::new();
     let start = Instant::now();
     while times.len() < repeats.max(1) || (start.elapsed() < Duration::from_millis(50) && times.len() < 200) {
-        let c = super::thread_cpu_time();
+        let c = thread_cpu_seconds();
         stepper
             .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
             .ok()?;
-        times.push((super::thread_cpu_time() - c) / steps as f64);
+        times.push((thread_cpu_seconds() - c) / steps as f64);
     }
     times.sort_by(f64::total_cmp);
     Some((times[times.len() / 2], iterations))
@@ -166,13 +171,48 @@ pub fn scaling_markdown(rows: &[ScalingRow]) -> String {
             r.stepper_bytes as f64 / 1024.0,
             r.heap_bytes as f64 / 1024.0,
             r.jacobian_operations,
-            super::report::duration(r.time_per_step),
+            duration(r.time_per_step),
             r.newton_iterations,
-            super::report::duration(r.time_per_step_simplified),
+            duration(r.time_per_step_simplified),
             r.newton_iterations_simplified,
             r.flops_per_step,
             r.gflops
         ));
     }
     s
+}
+
+/// Time per step and stepper size against `n` (log–log), staged in `out` as
+/// `scaling.png` and `scaling.svg`.
+pub fn write_scaling_figure(
+    rows: &[super::scaling::ScalingRow],
+    out: &mut OutputDir,
+) -> Result<(), WorkPrecisionError> {
+    let panel = |title: &str, y_label: &str, f: &dyn Fn(&super::scaling::ScalingRow) -> f64| Panel {
+        title: title.into(),
+        x_label: "n (coordinates)".into(),
+        y_label: y_label.into(),
+        x_scale: Scale::Log,
+        y_scale: Scale::Log,
+        series: [2, 5]
+            .iter()
+            .map(|&st| {
+                let pts = rows.iter().filter(|r| r.stages == st).map(|r| (r.n as f64, f(r))).collect();
+                Series::new(format!("Gauss s={st}"), pts)
+            })
+            .collect(),
+    };
+    let fig = Figure {
+        title: "McLachlan–Perlmutter particles: cost against size".into(),
+        panels: vec![
+            panel("time per step (full Newton)", "seconds", &|r| r.time_per_step),
+            panel("time per step (simplified Newton)", "seconds", &|r| r.time_per_step_simplified),
+            panel("stepper value + heap", "bytes", &|r| (r.stepper_bytes + r.heap_bytes) as f64),
+            panel("arithmetic rate", "GFLOP/s (estimated)", &|r| r.gflops),
+        ],
+        columns: 2,
+        panel_size: (520, 420),
+    };
+    out.render(&fig, "scaling")?;
+    Ok(())
 }
