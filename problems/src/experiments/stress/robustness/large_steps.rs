@@ -1,0 +1,179 @@
+//! The large-steps case: where Newton stops converging, with and without
+//! the rejection policy.
+
+use super::{failed_index, integration_error_kind, is_newton_failure, rejection_error_kind};
+use crate::experiments::stress::{run_fixed, CaseReport, RunData, Scale, StressError};
+use crate::report::format::sci;
+use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
+use crate::systems::McLachlanPerlmutter7;
+use spark_runtime::{
+    integrate_with_rejection, IntegrationError, Method, NonholonomicSystem, RejectionError, RejectionPolicy,
+    RejectionReport, RejectionRunError, State, Vector,
+};
+
+/// One plain and one protected run of the same problem.
+struct Pair {
+    plain: Result<RunData, IntegrationError>,
+    protected: Result<(State<7>, RejectionReport), RejectionRunError>,
+}
+
+/// McLachlan–Perlmutter particles (quartic coupling) with Gauss s = 2 and
+/// `h` doubled from 0.1 to 12.8 over t ∈ [0, 51.2].
+pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
+    let t_end = 51.2;
+    let hs: Vec<f64> = (0..8).map(|k| 0.1 * f64::from(1u32 << k)).collect();
+    let policy = RejectionPolicy::default();
+    let mut c = CaseReport::new(
+        "large_steps",
+        "Large steps: where Newton stops converging",
+        format!(
+            "McLachlan–Perlmutter particles (j = 0 of the paper's ensemble: q0 = (1, 0.6, 0.4, 0.2, 1, 1, 1), \
+             v0 = 0, E = 3.06), Gauss SPARK s = 2, full Newton, t ∈ [0, {t_end}], h = {hs:?}. Each h is run plainly \
+             (the driver, no retries) and under the rejection policy (halve on failure down to |h|·2^-{} or {:e}, \
+             double back after {} successes, then restore h).",
+            policy.max_halvings, policy.min_step, policy.regrow_after
+        ),
+    );
+    let sys = McLachlanPerlmutter7::default();
+    let (q0v, v0v) = crate::systems::mp7_initial_values(0, 9);
+    let (q0, v0) = (Vector::<7>::from_column_slice(&q0v), Vector::<7>::from_column_slice(&v0v));
+    let e0 = sys.energy(0.0, &q0, &v0);
+    let mut pairs = Vec::new();
+    for &h in &hs {
+        let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys);
+        let n = (t_end / h).round() as usize;
+        let plain = run_fixed(&mut st, &q0, &v0, h, n, 1, 0);
+        let protected = integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h, &policy, &mut |_| {});
+        pairs.push(Pair { plain, protected });
+    }
+    let mut plain_fail = Vec::new();
+    let mut rescued = Vec::new();
+    let mut all_typed = true;
+    let (mut ok_pts, mut prot_pts, mut rej_pts) = (Vec::new(), Vec::new(), Vec::new());
+    for (&h, p) in hs.iter().zip(&pairs) {
+        let plain_desc = match &p.plain {
+            Ok(d) => {
+                c.absorb(d);
+                let finite = d.max_energy_error.is_finite() && d.max_residual <= 1e-10;
+                if !finite {
+                    all_typed = false;
+                }
+                ok_pts.push((h, d.max_energy_error.max(1e-17)));
+                format!("completes: max |E−E0| {}, max |k| {}", sci(d.max_energy_error), sci(d.max_residual))
+            }
+            Err(e) => {
+                plain_fail.push(h);
+                if !is_newton_failure(e) {
+                    all_typed = false;
+                }
+                c.errors.push(format!("plain, h = {h}: {e}"));
+                format!("fails: {} at step {}", integration_error_kind(e), failed_index(e))
+            }
+        };
+        let prot_desc = match &p.protected {
+            Ok((s, r)) => {
+                c.rejections += r.rejections;
+                let de = (sys.energy(s.t, &s.q, &s.v) - e0).abs();
+                let k = sys.constraint(s.t, &s.q, &s.v).amax();
+                c.worst_residual = c.worst_residual.max(k);
+                if p.plain.is_err() {
+                    rescued.push(h);
+                }
+                prot_pts.push((h, de.max(1e-17)));
+                rej_pts.push((h, r.rejections as f64));
+                format!(
+                    "completes: {} rejections in {} nominal steps, smallest sub-step {}, final |E−E0| {}, |k| {}",
+                    r.rejections,
+                    r.steps,
+                    sci(r.smallest_step),
+                    sci(de),
+                    sci(k)
+                )
+            }
+            Err(e) => {
+                if !matches!(e.source, RejectionError::Floor { .. }) {
+                    all_typed = false;
+                }
+                c.errors.push(format!("protected, h = {h}: {e}"));
+                format!(
+                    "fails: {} in nominal step {} ({} rejections before)",
+                    rejection_error_kind(e),
+                    e.index,
+                    e.partial.rejections
+                )
+            }
+        };
+        c.metric(format!("h = {h}: plain"), plain_desc);
+        c.metric(format!("h = {h}: with rejection"), prot_desc);
+    }
+    c.check(
+        "every plain failure is a typed Newton failure (Diverged/MaxIterations/SingularMatrix/NonFinite) with its reason",
+        all_typed,
+        format!("plain runs failed at h = {plain_fail:?}; messages listed below"),
+    );
+    c.check(
+        "Newton stops converging somewhere in the sweep (the sweep reaches the limit)",
+        !plain_fail.is_empty(),
+        match plain_fail.first() {
+            Some(h) => format!("first plain failure at h = {h}"),
+            None => "no plain run failed".into(),
+        },
+    );
+    c.check(
+        "the rejection policy carries at least one failing run through",
+        !rescued.is_empty(),
+        format!("rescued at h = {rescued:?}"),
+    );
+    // A policy allowed a single halving cannot rescue the largest step: the
+    // protected run must then stop with a typed Floor error naming the floor
+    // and the last Newton failure.
+    let tight = RejectionPolicy { max_halvings: 1, ..policy };
+    let h_max = *hs.last().unwrap_or(&12.8);
+    let mut st = crate::stress_stepper!(McLachlanPerlmutter7, 2, Method::Gauss, sys);
+    match integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h_max, &tight, &mut |_| {}) {
+        Ok(_) => c.check(
+            format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
+            false,
+            "the run completed",
+        ),
+        Err(e) => {
+            c.errors.push(format!("protected, h = {h_max}, max_halvings = 1: {e}"));
+            c.check(
+                format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
+                matches!(e.source, RejectionError::Floor { .. }),
+                format!("{}: {e}", rejection_error_kind(&e)),
+            );
+        }
+    }
+    c.energy = match plain_fail.first() {
+        Some(h) => format!("plain runs fail from h = {h}; per-h energy errors in the metrics"),
+        None => "no plain run failed; per-h energy errors in the metrics".into(),
+    };
+    c.figure = Some(Figure {
+        title: c.title.clone(),
+        panels: vec![
+            Panel {
+                title: "energy error (plain: max over run; protected: at t_end)".into(),
+                x_label: "h".into(),
+                y_label: "|E − E0|".into(),
+                x_scale: Axis::Log,
+                y_scale: Axis::Log,
+                series: vec![Series::new("plain (completed runs)", ok_pts), Series::new("with rejection", prot_pts)],
+            },
+            Panel {
+                title: "rejections of the protected run (0 drawn at 0.5)".into(),
+                x_label: "h".into(),
+                y_label: "rejections".into(),
+                x_scale: Axis::Log,
+                y_scale: Axis::Log,
+                series: vec![Series::new(
+                    "rejections",
+                    rej_pts.into_iter().map(|(h, r)| (h, if r > 0.0 { r } else { 0.5 })).collect(),
+                )],
+            },
+        ],
+        columns: 2,
+        panel_size: (600, 420),
+    });
+    Ok(c)
+}
