@@ -121,6 +121,37 @@ const STIFF_METHODS: [StiffMethod; 6] = [
     ("Lobatto IIIA-B-D s=2", stiff_run::<2, 11>, stiff_step_radius::<2, 11>, Method::LobattoIIIABD),
 ];
 
+/// What the sweep over methods and `ω·h` found.
+struct Sweep {
+    /// Per method: `(ω·h, max |E − E0|/E0)` of the completed runs and
+    /// `(ω·h, |ρ − 1|)` of the step map.
+    energy_series: Vec<Series>,
+    radius_series: Vec<Series>,
+    /// Every refusal is typed; every completed run stays within the guard.
+    typed: bool,
+    bounded: bool,
+    /// Gauss s=2 completes cleanly up to ω·h = 100, and how it ends at 10³.
+    gauss2_low_ok: bool,
+    gauss2_top: Option<String>,
+    /// The methods that handle and that refuse ω·h = 10³.
+    handles: Vec<String>,
+    refuses: Vec<String>,
+}
+
+/// Gauss s = 2 at ω·h = 10³ looked at closely: the step map's radius in
+/// three settings, and the run with the energy guard off.
+struct Diagnosis {
+    /// ρ at ω·h = 10³ with θ̇ = 1 and θ̇ = 0, and at ω·h = 100.
+    rho2: f64,
+    rho2_still: f64,
+    rho2_100: f64,
+    /// Energy growth per step and most Newton iterations of the unguarded run.
+    growth: f64,
+    newton_max: usize,
+    /// `E/E0` of the unguarded run and the model `ρ^(2n)`.
+    curves: Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)>,
+}
+
 /// The skate with a spring of frequency `ω`, `ω·h` from 0.1 to 10³ (and
 /// 10⁴), six methods; the step map's spectral radius explains what each does.
 pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
@@ -139,123 +170,34 @@ pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
     );
     let v0 = Vector::<3>::new(1.0, 0.0, 1.0);
     let defaults = crate::experiments::stress::newton();
-    let mut energy_series = Vec::new();
-    let mut radius_series = Vec::new();
-    let mut typed = true;
-    let mut bounded = true;
-    let mut gauss2_low_ok = true;
-    let mut gauss2_top: Option<String> = None;
-    let mut handles = Vec::new();
-    let mut refuses = Vec::new();
-    for (label, run, radius, method) in STIFF_METHODS {
-        let mut e_pts = Vec::new();
-        let mut r_pts = Vec::new();
-        for &w in &omegas {
-            let wh = w * h;
-            let rho = radius(method, wh, h, 1.0);
-            if let Some(r) = rho {
-                r_pts.push((wh, (r - 1.0).abs().max(1e-16)));
-            }
-            let (outcome, data) = run(method, w, &v0, defaults)?;
-            if let Some(d) = &data {
-                c.absorb(d);
-            }
-            let rho_s = rho.map_or("step failed".into(), |r| format!("{r:.6}"));
-            let desc = match &outcome {
-                StiffOutcome::Completed { rel, residual, newton } => {
-                    bounded &= *rel <= 3.0;
-                    e_pts.push((wh, rel.max(1e-17)));
-                    if wh == 1000.0 {
-                        handles.push(format!("{label} (max |E−E0|/E0 {})", sci(*rel)));
-                    }
-                    if label == "Gauss s=2" && wh <= 100.0 {
-                        gauss2_low_ok &= *residual <= 1e-12 && *rel <= 1.0;
-                    }
-                    format!(
-                        "completes: max |E−E0|/E0 {}, max |k| {}, mean Newton {newton:.2}; step-map ρ = {rho_s}",
-                        sci(*rel),
-                        sci(*residual)
-                    )
-                }
-                StiffOutcome::Refused { kind, at, message, typed: t } => {
-                    typed &= *t;
-                    c.errors.push(format!("{label}, ω·h = {wh}: {message}"));
-                    if wh == 1000.0 {
-                        refuses.push(format!("{label} ({kind})"));
-                    }
-                    if label == "Gauss s=2" && wh == 1000.0 {
-                        gauss2_top = Some(format!("{kind} at step {at}"));
-                    }
-                    if label == "Gauss s=2" && wh <= 100.0 {
-                        gauss2_low_ok = false;
-                    }
-                    format!("refuses: {kind} at step {at}; step-map ρ = {rho_s}")
-                }
-            };
-            c.metric(format!("{label}, ω·h = {wh}"), desc);
-        }
-        energy_series.push(Series::new(label, e_pts));
-        radius_series.push(Series::new(label, r_pts));
-    }
+    let sweep = stiff_sweep(&mut c, &omegas, &v0, defaults)?;
     c.check(
         "Gauss s=2, ω·h ≤ 100: completes, constraint residual ≤ 1e-12, |E − E0|/E0 ≤ 1",
-        gauss2_low_ok,
+        sweep.gauss2_low_ok,
         "see metrics",
     );
     c.check(
         "every run either completes within the guard's bound (|E − E0| ≤ 3·E0) or refuses with a typed error",
-        typed && bounded,
+        sweep.typed && sweep.bounded,
         format!("{} typed refusals", c.errors.len()),
     );
-    // The diagnosis of the failure the last session reported.
-    let rho2 = stiff_step_radius::<2, 11>(Method::Gauss, 1000.0, h, 1.0).unwrap_or(f64::NAN);
-    let rho2_still = stiff_step_radius::<2, 11>(Method::Gauss, 1000.0, h, 0.0).unwrap_or(f64::NAN);
-    let rho2_100 = stiff_step_radius::<2, 11>(Method::Gauss, 100.0, h, 1.0).unwrap_or(f64::NAN);
-    c.metric(
-        "Gauss s=2 step-map ρ at ω·h = 10³, θ̇ = 1 / θ̇ = 0 / ω·h = 100",
-        format!("{rho2:.6} / {rho2_still:.6} / {rho2_100:.6}"),
-    );
-    let off = spark_runtime::NewtonOptions { energy_drift_limit: None, ..defaults };
-    let (unguarded, data) = stiff_run::<2, 11>(Method::Gauss, 1000.0 / h, &v0, off)?;
-    let mut growth = f64::NAN;
-    let mut newton_max = 0;
-    let mut extra = None;
-    if let (StiffOutcome::Completed { rel, residual, .. }, Some(d)) = (&unguarded, &data) {
-        // Energy growth per step over the second half (the dominant mode has
-        // taken over): E ∝ ρ^{2n}.
-        let e0 = 1.0;
-        let n = d.energy_error.len();
-        let (a, b) = (n / 2, n - 1);
-        let (ea, eb) = (d.energy_error[a] + e0, d.energy_error[b] + e0);
-        growth = (eb / ea).powf(1.0 / (b - a) as f64);
-        newton_max = d.report.newton_iterations_max;
-        c.metric(
-            "Gauss s=2, ω·h = 10³, guard off",
-            format!(
-                "completes without the guard: max |E−E0|/E0 {}, max |k| {}, Newton ≤ {} iterations per step, energy \
-                 growth per step {growth:.4} = ρ^{:.3}",
-                sci(*rel),
-                sci(*residual),
-                newton_max,
-                growth.ln() / rho2.ln()
-            ),
-        );
-        let pts: Vec<(f64, f64)> =
-            d.t.iter().zip(&d.energy_error).map(|(&t, &e)| (t, (e + e0).abs().max(1e-17))).collect();
-        let model: Vec<(f64, f64)> = d.t.iter().map(|&t| (t, rho2.powf(2.0 * t / h))).collect();
-        extra = Some((pts, model));
-    }
+    let d = stiff_diagnosis(&mut c, &v0, defaults)?;
     c.check(
         "Gauss s=2, ω·h = 10³: not returned as success (typed error)",
-        gauss2_top.is_some(),
-        match &gauss2_top {
+        sweep.gauss2_top.is_some(),
+        match &sweep.gauss2_top {
             Some(s) => format!(
-                "refused: {s}. Diagnosis: Newton converges (≤ {newton_max} iterations, residual at round-off; the step \
+                "refused: {s}. Diagnosis: Newton converges (≤ {} iterations, residual at round-off; the step \
                  equations are linear in (V, Ψ, v1) once θ̇ = V₃ is fixed, so the root is unique: no spurious root, no \
-                 wrong basin); the SPARK map itself is unstable: ρ = {rho2:.4} per step (→ e^(θ̇h) = {:.4} as ω·h → ∞), \
-                 energy ×{growth:.3} per step with the guard off (= ρ²). With θ̇ = 0 (fixed constraint direction, \
-                 energy a quadratic invariant of a linear problem) ρ = {rho2_still:.6}; at ω·h = 100, ρ = {rho2_100:.6}",
-                (h * 1.0f64).exp()
+                 wrong basin); the SPARK map itself is unstable: ρ = {:.4} per step (→ e^(θ̇h) = {:.4} as ω·h → ∞), \
+                 energy ×{:.3} per step with the guard off (= ρ²). With θ̇ = 0 (fixed constraint direction, \
+                 energy a quadratic invariant of a linear problem) ρ = {:.6}; at ω·h = 100, ρ = {:.6}",
+                d.newton_max,
+                d.rho2,
+                (h * 1.0f64).exp(),
+                d.growth,
+                d.rho2_still,
+                d.rho2_100
             ),
             None => "returned success".into(),
         },
@@ -270,10 +212,137 @@ pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
         StiffOutcome::Refused { kind, .. } => (false, format!("refused: {kind}")),
     };
     c.check("control: Gauss s=2, ω·h = 10³, θ̇ = 0: energy conserved (|E − E0|/E0 ≤ 1e-6)", ok, detail);
-    c.metric("methods that handle ω·h = 10³", if handles.is_empty() { "none".into() } else { handles.join(", ") });
-    c.metric("methods that refuse ω·h = 10³", if refuses.is_empty() { "none".into() } else { refuses.join(", ") });
-    c.check("every failure is typed", typed, format!("{} failures", c.errors.len()));
+    let list = |v: &[String]| if v.is_empty() { "none".into() } else { v.join(", ") };
+    c.metric("methods that handle ω·h = 10³", list(&sweep.handles));
+    c.metric("methods that refuse ω·h = 10³", list(&sweep.refuses));
+    c.check("every failure is typed", sweep.typed, format!("{} failures", c.errors.len()));
     c.energy = "completed runs per ω·h in the metrics; unstable maps refused by the energy guard".into();
+    c.figure = Some(stiff_figure(&c.title, sweep, d.curves));
+    Ok(c)
+}
+
+/// Runs every method at every `ω` (with its step-map radius) and records a
+/// metric per run.
+fn stiff_sweep(
+    c: &mut CaseReport,
+    omegas: &[f64],
+    v0: &Vector<3>,
+    defaults: spark_runtime::NewtonOptions,
+) -> Result<Sweep, StressError> {
+    let h = STIFF_H;
+    let mut t = Sweep {
+        energy_series: Vec::new(),
+        radius_series: Vec::new(),
+        typed: true,
+        bounded: true,
+        gauss2_low_ok: true,
+        gauss2_top: None,
+        handles: Vec::new(),
+        refuses: Vec::new(),
+    };
+    for (label, run, radius, method) in STIFF_METHODS {
+        let mut e_pts = Vec::new();
+        let mut r_pts = Vec::new();
+        for &w in omegas {
+            let wh = w * h;
+            let rho = radius(method, wh, h, 1.0);
+            if let Some(r) = rho {
+                r_pts.push((wh, (r - 1.0).abs().max(1e-16)));
+            }
+            let (outcome, data) = run(method, w, v0, defaults)?;
+            if let Some(d) = &data {
+                c.absorb(d);
+            }
+            let rho_s = rho.map_or("step failed".into(), |r| format!("{r:.6}"));
+            let desc = match &outcome {
+                StiffOutcome::Completed { rel, residual, newton } => {
+                    t.bounded &= *rel <= 3.0;
+                    e_pts.push((wh, rel.max(1e-17)));
+                    if wh == 1000.0 {
+                        t.handles.push(format!("{label} (max |E−E0|/E0 {})", sci(*rel)));
+                    }
+                    if label == "Gauss s=2" && wh <= 100.0 {
+                        t.gauss2_low_ok &= *residual <= 1e-12 && *rel <= 1.0;
+                    }
+                    format!(
+                        "completes: max |E−E0|/E0 {}, max |k| {}, mean Newton {newton:.2}; step-map ρ = {rho_s}",
+                        sci(*rel),
+                        sci(*residual)
+                    )
+                }
+                StiffOutcome::Refused { kind, at, message, typed } => {
+                    t.typed &= *typed;
+                    c.errors.push(format!("{label}, ω·h = {wh}: {message}"));
+                    if wh == 1000.0 {
+                        t.refuses.push(format!("{label} ({kind})"));
+                    }
+                    if label == "Gauss s=2" && wh == 1000.0 {
+                        t.gauss2_top = Some(format!("{kind} at step {at}"));
+                    }
+                    if label == "Gauss s=2" && wh <= 100.0 {
+                        t.gauss2_low_ok = false;
+                    }
+                    format!("refuses: {kind} at step {at}; step-map ρ = {rho_s}")
+                }
+            };
+            c.metric(format!("{label}, ω·h = {wh}"), desc);
+        }
+        t.energy_series.push(Series::new(label, e_pts));
+        t.radius_series.push(Series::new(label, r_pts));
+    }
+    Ok(t)
+}
+
+/// Why Gauss s = 2 refuses ω·h = 10³: the step map's radius there (with and
+/// without turning, and at ω·h = 100) and the same run with the energy guard
+/// off, whose energy grows like `ρ^(2n)`.
+fn stiff_diagnosis(
+    c: &mut CaseReport,
+    v0: &Vector<3>,
+    defaults: spark_runtime::NewtonOptions,
+) -> Result<Diagnosis, StressError> {
+    let h = STIFF_H;
+    let rho2 = stiff_step_radius::<2, 11>(Method::Gauss, 1000.0, h, 1.0).unwrap_or(f64::NAN);
+    let rho2_still = stiff_step_radius::<2, 11>(Method::Gauss, 1000.0, h, 0.0).unwrap_or(f64::NAN);
+    let rho2_100 = stiff_step_radius::<2, 11>(Method::Gauss, 100.0, h, 1.0).unwrap_or(f64::NAN);
+    c.metric(
+        "Gauss s=2 step-map ρ at ω·h = 10³, θ̇ = 1 / θ̇ = 0 / ω·h = 100",
+        format!("{rho2:.6} / {rho2_still:.6} / {rho2_100:.6}"),
+    );
+    let off = spark_runtime::NewtonOptions { energy_drift_limit: None, ..defaults };
+    let (unguarded, data) = stiff_run::<2, 11>(Method::Gauss, 1000.0 / h, v0, off)?;
+    let mut d = Diagnosis { rho2, rho2_still, rho2_100, growth: f64::NAN, newton_max: 0, curves: None };
+    if let (StiffOutcome::Completed { rel, residual, .. }, Some(run)) = (&unguarded, &data) {
+        // Energy growth per step over the second half (the dominant mode has
+        // taken over): E ∝ ρ^{2n}.
+        let e0 = 1.0;
+        let n = run.energy_error.len();
+        let (a, b) = (n / 2, n - 1);
+        let (ea, eb) = (run.energy_error[a] + e0, run.energy_error[b] + e0);
+        d.growth = (eb / ea).powf(1.0 / (b - a) as f64);
+        d.newton_max = run.report.newton_iterations_max;
+        c.metric(
+            "Gauss s=2, ω·h = 10³, guard off",
+            format!(
+                "completes without the guard: max |E−E0|/E0 {}, max |k| {}, Newton ≤ {} iterations per step, energy \
+                 growth per step {:.4} = ρ^{:.3}",
+                sci(*rel),
+                sci(*residual),
+                d.newton_max,
+                d.growth,
+                d.growth.ln() / rho2.ln()
+            ),
+        );
+        let pts: Vec<(f64, f64)> =
+            run.t.iter().zip(&run.energy_error).map(|(&t, &e)| (t, (e + e0).abs().max(1e-17))).collect();
+        let model: Vec<(f64, f64)> = run.t.iter().map(|&t| (t, rho2.powf(2.0 * t / h))).collect();
+        d.curves = Some((pts, model));
+    }
+    Ok(d)
+}
+
+/// Energy errors and step-map radii against `ω·h`, and the unguarded run.
+fn stiff_figure(title: &str, sweep: Sweep, curves: Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)>) -> Figure {
     let mut panels = vec![
         Panel {
             title: "completed runs: max relative energy error over t ∈ [0, 20] (refused runs absent)".into(),
@@ -281,7 +350,7 @@ pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
             y_label: "|E − E0| / E0".into(),
             x_scale: Axis::Log,
             y_scale: Axis::Log,
-            series: energy_series,
+            series: sweep.energy_series,
         },
         Panel {
             title: "one-step map in the turning frame: |ρ − 1| (exact flow: 0; floor 1e-16)".into(),
@@ -289,10 +358,10 @@ pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
             y_label: "|ρ − 1|".into(),
             x_scale: Axis::Log,
             y_scale: Axis::Log,
-            series: radius_series,
+            series: sweep.radius_series,
         },
     ];
-    if let Some((pts, model)) = extra {
+    if let Some((pts, model)) = curves {
         let mut model = Series::new("ρ^(2n), ρ from the step map", model);
         model.dashed = true;
         panels.push(Panel {
@@ -304,6 +373,5 @@ pub fn stiff_spring(_scale: Scale) -> Result<CaseReport, StressError> {
             series: vec![Series::new("E/E0", pts), model],
         });
     }
-    c.figure = Some(Figure { title: c.title.clone(), panels, columns: 3, panel_size: (560, 440) });
-    Ok(c)
+    Figure { title: title.to_string(), panels, columns: 3, panel_size: (560, 440) }
 }
