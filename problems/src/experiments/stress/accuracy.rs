@@ -182,9 +182,17 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
         (
             "Gauss s=2",
             4.0,
-            run_fixed(&mut crate::stress_stepper!(RollingDisk, 2, Method::Gauss, disk()), &q0, &v0, h, steps, every, 0),
             run_fixed(
-                &mut crate::stress_stepper!(RollingDisk, 2, Method::Gauss, disk()),
+                &mut <Stepper![RollingDisk, 2]>::new(disk(), Tableau::new(Method::Gauss)?),
+                &q0,
+                &v0,
+                h,
+                steps,
+                every,
+                0,
+            ),
+            run_fixed(
+                &mut <Stepper![RollingDisk, 2]>::new(disk(), Tableau::new(Method::Gauss)?),
                 &q0,
                 &v0,
                 h / 2.0,
@@ -197,7 +205,7 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
             "Lobatto IIIA-B s=3",
             4.0,
             run_fixed(
-                &mut crate::stress_stepper!(RollingDisk, 3, Method::LobattoIIIAB, disk()),
+                &mut <Stepper![RollingDisk, 3]>::new(disk(), Tableau::new(Method::LobattoIIIAB)?),
                 &q0,
                 &v0,
                 h,
@@ -206,7 +214,7 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
                 0,
             ),
             run_fixed(
-                &mut crate::stress_stepper!(RollingDisk, 3, Method::LobattoIIIAB, disk()),
+                &mut <Stepper![RollingDisk, 3]>::new(disk(), Tableau::new(Method::LobattoIIIAB)?),
                 &q0,
                 &v0,
                 h / 2.0,

@@ -397,15 +397,3 @@ where
 pub fn newton() -> NewtonOptions {
     NewtonOptions::default()
 }
-
-/// Builds the stepper type for `$sys` with `$s` stages (computing `D`).
-#[macro_export]
-#[doc(hidden)]
-macro_rules! stress_stepper {
-    ($sys:ty, $s:literal, $method:expr, $system:expr) => {
-        spark_runtime::Stepper::<$sys, { <$sys>::N }, { <$sys>::M }, $s, { $s * (<$sys>::N + <$sys>::M) + <$sys>::N }>::new(
-            $system,
-            spark_runtime::Tableau::<$s>::new($method)?,
-        )
-    };
-}

@@ -30,22 +30,20 @@ pub mod external;
 pub mod per_step;
 pub mod report;
 pub mod scaling;
+mod sweep;
 
 use crate::casadi_export::TableauExport;
-use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
-use crate::peers::dual::{visit_twin, AutoDiff, DualTwin, TwinVisitor};
-use crate::peers::finite_difference::FiniteDifference;
-use crate::peers::ode;
-use crate::report::clock::thread_cpu_seconds;
-use crate::report::stats::median;
-use spark_runtime::reference::{self, ReferenceOptions};
-use spark_runtime::{
-    integrate_adaptive, AdaptiveOptions, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe,
-    RunOptions, Schedule, State, Stepper, Tableau, Vector,
+use crate::catalog::{
+    visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor, MAX_DISPATCH_STAGES,
 };
+use crate::peers::dual::{visit_twin, DualTwin, TwinVisitor};
+use crate::systems::NonholonomicParticle;
+use spark_runtime::reference::{self, ReferenceOptions};
+use spark_runtime::{Method, NewtonMode, NonholonomicSystem, Tableau, TableauError, Vector};
 use std::marker::PhantomData;
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+use sweep::{sweep_dop853, Ctx, Sweep, SweepWithPeers};
 
 /// Which derivative code drives the SPARK stepper.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
@@ -203,15 +201,17 @@ impl WorkPrecisionConfig {
     }
 }
 
-/// Every method family and stage count the sweep covers.
+/// Every method family the sweep covers, with each of its stage counts up
+/// to [`MAX_DISPATCH_STAGES`].
 pub fn method_variants() -> Vec<(Method, usize)> {
-    let mut v: Vec<(Method, usize)> = (1..=5).map(|s| (Method::Gauss, s)).collect();
-    v.extend((2..=5).map(|s| (Method::LobattoIIIAB, s)));
-    v.extend((2..=5).map(|s| (Method::LobattoIIIABD, s)));
-    v.push((Method::SymplecticEulerI, 1));
-    v.push((Method::SymplecticEulerII, 1));
-    v.push((Method::LobattoIIIBALda, 2));
-    v
+    use Method::*;
+    [Gauss, LobattoIIIAB, LobattoIIIABD, SymplecticEulerI, SymplecticEulerII, LobattoIIIBALda]
+        .into_iter()
+        .flat_map(|m| {
+            let (lo, hi) = m.stage_range();
+            (lo..=hi.min(MAX_DISPATCH_STAGES)).map(move |s| (m, s))
+        })
+        .collect()
 }
 
 /// Errors of a work-precision run.
@@ -272,318 +272,6 @@ pub struct SystemMeasurement {
     pub operations: spark_runtime::OperationCounts,
     /// `N`, `M`.
     pub dimensions: (usize, usize),
-}
-
-fn errors<const N: usize>(q: &Vector<N>, v: &Vector<N>, q_ref: &Vector<N>, v_ref: &Vector<N>) -> (f64, f64) {
-    ((q - q_ref).amax(), (v - v_ref).amax())
-}
-
-/// Medians of the wall and thread-CPU times of `run`, repeated `repeats`
-/// times or until `min_total` has been spent (at most 1000 times).
-fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, f64, usize)> {
-    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
-    let start = Instant::now();
-    while wall.len() < repeats.max(1) || (start.elapsed() < min_total && wall.len() < 1000) {
-        let (t, c) = (Instant::now(), thread_cpu_seconds());
-        if !run() {
-            return None;
-        }
-        cpu.push(thread_cpu_seconds() - c);
-        wall.push(t.elapsed().as_secs_f64());
-    }
-    let n = wall.len();
-    Some((median(wall), median(cpu), n))
-}
-
-/// The context of one system's sweep.
-struct Ctx<'a, const N: usize> {
-    cfg: &'a WorkPrecisionConfig,
-    key: &'static str,
-    q0: Vector<N>,
-    v0: Vector<N>,
-    q_ref: Vector<N>,
-    v_ref: Vector<N>,
-}
-
-/// What one timed stepper run measured.
-struct Measured {
-    error_q: f64,
-    error_v: f64,
-    energy: f64,
-    iterations: f64,
-    wall: f64,
-    cpu: f64,
-    repeats: usize,
-}
-
-/// Runs `steps` steps of `stepper` once with energy observation (the
-/// measured point's errors) and then times it; `None` if Newton failed.
-fn measure_stepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    ctx: &Ctx<'_, N>,
-    stepper: &mut Stepper<Sys, N, M, S, D>,
-    probe: &Sys,
-    steps: usize,
-) -> Option<Measured>
-where
-    Sys: NonholonomicSystem<N, M>,
-{
-    let h = ctx.cfg.final_time / steps as f64;
-    let e0 = probe.energy(0.0, &ctx.q0, &ctx.v0);
-    let mut max_e: f64 = 0.0;
-    let mut observer = |s: &State<N>, _: usize| {
-        max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
-    };
-    let quiet = RunOptions {
-        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
-        record_every: 0,
-        ..RunOptions::default()
-    };
-    let schedule = Schedule::Fixed { h, steps };
-    // Timed without event location, like the peers: declared events are
-    // for `spark section`.
-    let traj = stepper
-        .integrate_with_events(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut observer, &spark_runtime::NoEvents)
-        .ok()?;
-    let end = traj.last()?;
-    let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
-    if !(eq.is_finite() && ev.is_finite()) {
-        return None;
-    }
-    let iterations = traj.report.newton_iterations_mean;
-    let (wall, cpu, repeats) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-        stepper
-            .integrate_with_events(0.0, &ctx.q0, &ctx.v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
-            .is_ok()
-    })?;
-    Some(Measured { error_q: eq, error_v: ev, energy: max_e, iterations, wall, cpu, repeats })
-}
-
-/// Step counts `n₀·2^k` up to the configured maximum.
-fn step_counts(cfg: &WorkPrecisionConfig) -> Vec<usize> {
-    let mut v = Vec::new();
-    let mut n = cfg.min_steps.max(1);
-    while n <= cfg.max_steps {
-        v.push(n);
-        n *= 2;
-    }
-    v
-}
-
-/// Builds a [`Point`] from one measured run.
-fn point<const N: usize>(
-    ctx: &Ctx<'_, N>,
-    solver: &str,
-    label: &str,
-    stages: usize,
-    steps: usize,
-    m: Measured,
-) -> Point {
-    let mut p = Point {
-        system: ctx.key.to_string(),
-        solver: solver.to_string(),
-        method: label.to_string(),
-        stages,
-        setting: ctx.cfg.final_time / steps as f64,
-        steps,
-        error_q: m.error_q,
-        error_v: m.error_v,
-        energy_error: m.energy,
-        wall_time: m.wall,
-        cpu_time: m.cpu,
-        time_per_step: 0.0,
-        newton_iterations: m.iterations,
-        repeats: m.repeats,
-    };
-    p.time_per_step = p.time() / steps as f64;
-    p
-}
-
-/// Sweeps one `(method, S)` with the generated code over the step counts
-/// and returns the step counts it measured (the peers reuse them, so they
-/// run at equal accuracy).
-fn sweep_generated<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    ctx: &Ctx<'_, N>,
-    method: Method,
-    points: &mut Vec<Point>,
-) -> Result<Vec<usize>, WorkPrecisionError>
-where
-    Sys: NonholonomicSystem<N, M> + Default,
-{
-    let tableau = Tableau::<S>::new(method)?;
-    let label = method.label(S);
-    let opts = NewtonOptions { mode: ctx.cfg.newton, ..NewtonOptions::default() };
-    let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
-    let probe = Sys::default();
-    let mut used = Vec::new();
-    for steps in step_counts(ctx.cfg) {
-        let Some(m) = measure_stepper(ctx, &mut stepper, &probe, steps) else { continue };
-        let p = point(ctx, Provider::Generated.label(), &label, S, steps, m);
-        used.push(steps);
-        let stop = p.error() < ctx.cfg.floor_error || p.time() > ctx.cfg.max_run_time.as_secs_f64();
-        points.push(p);
-        if stop {
-            break;
-        }
-    }
-    sweep_adaptive(ctx, &mut stepper, &probe, &label, points);
-    Ok(used)
-}
-
-/// Sweeps the tolerance-driven driver over the configured tolerances
-/// (`rtol = atol`), stopping like the fixed-step sweep at the error floor
-/// or the run-time limit.
-fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    ctx: &Ctx<'_, N>,
-    stepper: &mut Stepper<Sys, N, M, S, D>,
-    probe: &Sys,
-    label: &str,
-    points: &mut Vec<Point>,
-) where
-    Sys: NonholonomicSystem<N, M>,
-{
-    let t1 = ctx.cfg.final_time;
-    let e0 = probe.energy(0.0, &ctx.q0, &ctx.v0);
-    let quiet = AdaptiveOptions {
-        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
-        record_every: 0,
-        ..AdaptiveOptions::default()
-    };
-    for &tol in &ctx.cfg.tolerances {
-        let options = AdaptiveOptions { rtol: tol, atol: tol, ..quiet };
-        let mut max_e: f64 = 0.0;
-        let mut observer = |s: &State<N>, _: usize| {
-            max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
-        };
-        // The step budget of the fixed-step sweep (three solves per attempt);
-        // a tolerance that needs more, and every tighter one, is not measured.
-        let options = AdaptiveOptions { max_steps: ctx.cfg.max_steps.max(1), ..options };
-        let Ok(run) = integrate_adaptive(stepper, 0.0, &ctx.q0, &ctx.v0, t1, &options, &mut observer) else { break };
-        let Some(end) = run.trajectory.last() else { continue };
-        let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
-        if !(eq.is_finite() && ev.is_finite()) {
-            continue;
-        }
-        let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-            integrate_adaptive(stepper, 0.0, &ctx.q0, &ctx.v0, t1, &options, &mut NoObserver).is_ok()
-        }) else {
-            continue;
-        };
-        let steps = run.report.accepted;
-        let m = Measured {
-            error_q: eq,
-            error_v: ev,
-            energy: max_e,
-            iterations: run.report.newton_iterations as f64 / run.report.solves.max(1) as f64,
-            wall,
-            cpu,
-            repeats,
-        };
-        let mut p = point(ctx, SPARK_ADAPTIVE, label, S, steps, m);
-        p.setting = tol;
-        let stop = p.error() < ctx.cfg.floor_error || p.time() > ctx.cfg.max_run_time.as_secs_f64();
-        points.push(p);
-        if stop {
-            break;
-        }
-    }
-}
-
-/// The same stepper with num-dual and with finite-difference derivatives,
-/// at the step counts the generated sweep used.
-fn sweep_peers<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    ctx: &Ctx<'_, N>,
-    method: Method,
-    used: &[usize],
-    points: &mut Vec<Point>,
-) -> Result<(), WorkPrecisionError>
-where
-    Sys: NonholonomicSystem<N, M> + DualTwin<N, M> + Default + Clone,
-{
-    let tableau = Tableau::<S>::new(method)?;
-    let label = method.label(S);
-    let twin = <Sys as DualTwin<N, M>>::Twin::default();
-    let opts = NewtonOptions { mode: ctx.cfg.newton, ..NewtonOptions::default() };
-    let mut ad = Stepper::<AutoDiff<_>, N, M, S, D>::new(AutoDiff(twin), tableau).with_options(opts);
-    let ad_probe = AutoDiff(<Sys as DualTwin<N, M>>::Twin::default());
-    let mut fd =
-        Stepper::<FiniteDifference<Sys>, N, M, S, D>::new(FiniteDifference(Sys::default()), tableau).with_options(opts);
-    let fd_probe = FiniteDifference(Sys::default());
-    for &steps in used {
-        if let Some(m) = measure_stepper(ctx, &mut ad, &ad_probe, steps) {
-            points.push(point(ctx, Provider::NumDual.label(), &label, S, steps, m));
-        }
-        if let Some(m) = measure_stepper(ctx, &mut fd, &fd_probe, steps) {
-            points.push(point(ctx, Provider::FiniteDifference.label(), &label, S, steps, m));
-        }
-    }
-    Ok(())
-}
-
-/// One `(method, S)` sweep of `Sys` through the catalogue's stage dispatch;
-/// `PEERS` adds the num-dual and finite-difference runs (only for types
-/// with a num-dual twin, see [`SweepWithPeers`]).
-struct Sweep<'c, 'p, Sys, const N: usize> {
-    ctx: &'c Ctx<'c, N>,
-    method: Method,
-    points: &'p mut Vec<Point>,
-    system: PhantomData<Sys>,
-}
-
-impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for Sweep<'_, '_, Sys, N> {
-    type Output = Result<(), WorkPrecisionError>;
-    fn visit<const S: usize, const D: usize>(self) -> Self::Output {
-        sweep_generated::<Sys, N, M, S, D>(self.ctx, self.method, self.points).map(|_| ())
-    }
-}
-
-/// [`Sweep`] plus the same-stepper peers.
-struct SweepWithPeers<'c, 'p, Sys, const N: usize>(Sweep<'c, 'p, Sys, N>);
-
-impl<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M>
-    for SweepWithPeers<'_, '_, Sys, N>
-{
-    type Output = Result<(), WorkPrecisionError>;
-    fn visit<const S: usize, const D: usize>(self) -> Self::Output {
-        let Sweep { ctx, method, points, .. } = self.0;
-        let used = sweep_generated::<Sys, N, M, S, D>(ctx, method, points)?;
-        sweep_peers::<Sys, N, M, S, D>(ctx, method, &used, points)
-    }
-}
-
-/// Sweeps DOP853 (`ode_solvers`) over the configured tolerances.
-fn sweep_dop853<Sys, const N: usize, const M: usize, const Y: usize>(ctx: &Ctx<'_, N>, points: &mut Vec<Point>)
-where
-    Sys: NonholonomicSystem<N, M> + Default,
-{
-    let sys = Sys::default();
-    let t1 = ctx.cfg.final_time;
-    for &tol in &ctx.cfg.tolerances {
-        let Ok(run) = ode::dop853::<Sys, N, M, Y>(&sys, 0.0, &ctx.q0, &ctx.v0, t1, tol, tol) else { continue };
-        let (eq, ev) = errors(&run.q, &run.v, &ctx.q_ref, &ctx.v_ref);
-        let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-            ode::dop853::<Sys, N, M, Y>(&sys, 0.0, &ctx.q0, &ctx.v0, t1, tol, tol).is_ok()
-        }) else {
-            continue;
-        };
-        let mut p = Point {
-            system: ctx.key.to_string(),
-            solver: "ode_solvers (Rust)".into(),
-            method: "DOP853".into(),
-            stages: 0,
-            setting: tol,
-            steps: run.steps,
-            error_q: eq,
-            error_v: ev,
-            energy_error: f64::NAN,
-            wall_time: wall,
-            cpu_time: cpu,
-            time_per_step: 0.0,
-            newton_iterations: f64::NAN,
-            repeats,
-        };
-        p.time_per_step = p.time() / run.steps.max(1) as f64;
-        points.push(p);
-    }
 }
 
 /// Sweeps one `(method, s)` of one system; the catalogue's stage dispatch
@@ -688,19 +376,20 @@ impl TwinVisitor for MeasureVisitor<'_> {
 
 /// Tableau exports of the peer methods (for the CasADi step).
 fn peer_tableaux(cfg: &WorkPrecisionConfig) -> Result<Vec<TableauExport>, WorkPrecisionError> {
-    let mut out = Vec::new();
-    for &(method, s) in &cfg.peer_methods {
-        let t = match s {
-            1 => TableauExport::of(&Tableau::<1>::new(method)?),
-            2 => TableauExport::of(&Tableau::<2>::new(method)?),
-            3 => TableauExport::of(&Tableau::<3>::new(method)?),
-            4 => TableauExport::of(&Tableau::<4>::new(method)?),
-            5 => TableauExport::of(&Tableau::<5>::new(method)?),
-            _ => return Err(WorkPrecisionError::Invalid(format!("peer method with s = {s}"))),
-        };
-        out.push(t);
+    /// The tableau of one method with `S` stages.
+    struct Export(Method);
+    impl StageVisitor<NonholonomicParticle, 3, 1> for Export {
+        type Output = Result<TableauExport, TableauError>;
+        fn visit<const S: usize, const D: usize>(self) -> Self::Output {
+            Ok(TableauExport::of(&Tableau::<S>::new(self.0)?))
+        }
     }
-    Ok(out)
+    // Any catalogued type carries the stage dispatch; the tableau does not
+    // depend on the system.
+    cfg.peer_methods
+        .iter()
+        .map(|&(method, s)| Ok(NonholonomicParticle::with_stages(s, Export(method)).map_err(not_compiled)??))
+        .collect()
 }
 
 /// Measures one system with every Rust solver and, when configured, the
@@ -773,6 +462,7 @@ pub fn run_work_precision(
 
 #[cfg(test)]
 mod tests {
+    use super::sweep::median_time;
     use super::*;
 
     #[test]

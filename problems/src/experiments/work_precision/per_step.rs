@@ -19,7 +19,8 @@
 //! so this is round-off accumulated over the run).
 
 use super::external::{self, MethodInput, PeerStepRun};
-use super::{median_time, Problem, WorkPrecisionConfig};
+use super::sweep::median_time;
+use super::{Problem, WorkPrecisionConfig};
 use crate::casadi_export::TableauExport;
 use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::{

@@ -5,7 +5,7 @@ use crate::experiments::stress::{run_fixed, CaseReport, Scale, StressError};
 use crate::report::format::sci;
 use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
 use crate::systems::stress::{near_parallel_exact, NearParallel};
-use spark_runtime::{IntegrationError, Method, NonholonomicSystem, StepError, Vector};
+use spark_runtime::{IntegrationError, Method, NonholonomicSystem, StepError, Stepper, Tableau, Vector};
 
 /// 2-norm condition number of `[[∇²_vv L, Kᵀ],[K, 0]]` at `(t, q, v)` (from
 /// the singular values; infinite when the smallest is zero).
@@ -69,7 +69,7 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
         if eps > 0.0 {
             cond_pts.push((eps, cond.min(1e300)));
         }
-        let mut st = crate::stress_stepper!(NearParallel, 2, Method::Gauss, sys);
+        let mut st = <Stepper![NearParallel, 2]>::new(sys, Tableau::new(Method::Gauss)?);
         let desc = match run_fixed(&mut st, &q0, &v0, h, n, 1, 0) {
             Ok(d) => {
                 c.absorb(&d);
