@@ -4,10 +4,9 @@
 
 use super::{parse_method, parse_params, step_count, Format, Newton};
 use crate::catalog::lookup;
-use crate::report::files::{
-    json_trajectory_bytes, run_figure, write_run_csv, write_run_json, OutputDir, OutputError, MAX_JSON_TRAJECTORY_BYTES,
-};
+use crate::report::files::{OutputDir, OutputError};
 use crate::report::progress::Progress;
+use crate::run::files::{json_trajectory_bytes, run_figure, write_run_csv, write_run_json, MAX_JSON_TRAJECTORY_BYTES};
 use crate::run::{run, run_report, RunError, RunSpec};
 use clap::Args;
 use spark_runtime::ConsistencyPolicy;

@@ -407,6 +407,31 @@ pub fn visit_twin<V: TwinVisitor>(kind: SystemKind, visitor: V) -> Result<V::Out
 mod tests {
     use super::*;
 
+    /// The twin dispatch covers exactly the catalogue's paper systems (the
+    /// ones with the CasADi C and SciPy peers), each with its own type.
+    #[test]
+    fn twins_are_the_catalogues_paper_systems() {
+        struct TypeName;
+        impl TwinVisitor for TypeName {
+            type Output = (&'static str, usize, usize);
+            fn visit<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
+                self,
+                _: &'static SystemEntry,
+            ) -> Self::Output {
+                (Sys::SOURCE.name, N, M)
+            }
+        }
+        for e in crate::catalog::entries() {
+            match visit_twin(e.kind, TypeName) {
+                Ok(got) => {
+                    assert!(e.paper, "{} has a num-dual twin but is not marked as a paper system", e.name);
+                    assert_eq!(got, (e.type_name, e.n, e.m), "{}", e.name);
+                }
+                Err(_) => assert!(!e.paper, "{} is a paper system without a num-dual twin", e.name),
+            }
+        }
+    }
+
     /// Every output of the dual adapter equals the generated code's at a
     /// generic point (ψ ≠ 0, v off the constraint).
     fn agrees<Sys, const N: usize, const M: usize>(sys: Sys)

@@ -2,8 +2,6 @@
 //! fits, the drift test of an energy error, medians, the structure function
 //! of an ensemble's energy errors and the §8.4 ensemble statistic.
 
-use crate::run::RunResult;
-
 /// A least-squares straight line `y ≈ intercept + slope·x`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct LineFit {
@@ -265,12 +263,13 @@ pub fn log_bin_means(points: &[(f64, f64)], bins: usize) -> Vec<(f64, f64)> {
     sums.into_iter().filter(|s| s.2 > 0).map(|(x, y, n)| (x / n as f64, y / n as f64)).collect()
 }
 
-/// `(1/h⁴)·(1/(J+1)) Σ_j (E_jk − E_j0)²` at each common sample `k`.
-pub fn ensemble_quantity(runs: &[&RunResult], h: f64) -> Vec<f64> {
-    let samples = runs.iter().map(|r| r.energy.len()).min().unwrap_or(0);
+/// `(1/h⁴)·(1/(J+1)) Σ_j (E_jk − E_j0)²` at each common sample `k` of the
+/// members' energies `E_j·` (each with its initial energy `E_j0`).
+pub fn ensemble_quantity(members: &[(&[f64], f64)], h: f64) -> Vec<f64> {
+    let samples = members.iter().map(|(e, _)| e.len()).min().unwrap_or(0);
     let h4 = h.powi(4);
     (0..samples)
-        .map(|k| runs.iter().map(|r| (r.energy[k] - r.stats.e0).powi(2)).sum::<f64>() / runs.len() as f64 / h4)
+        .map(|k| members.iter().map(|(e, e0)| (e[k] - e0).powi(2)).sum::<f64>() / members.len() as f64 / h4)
         .collect()
 }
 

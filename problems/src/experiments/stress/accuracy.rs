@@ -22,16 +22,13 @@ type RefSweep = Result<Vec<(f64, f64, f64)>, String>;
 const HIGH_ORDER_T: f64 = 5.0;
 
 /// Error `max(|q − q_ref|∞, |v − v_ref|∞)` at `t = HIGH_ORDER_T` of the
-/// particle for each number of steps, or the typed error's text.
+/// particle, integrated by `st`, for each number of steps, or the typed
+/// error's text.
 fn particle_sweep<const S: usize, const D: usize>(
-    method: Method,
-    counts: &[usize],
-    q_ref: &Vector<3>,
-    v_ref: &Vector<3>,
+    mut st: Stepper<NonholonomicParticle, 3, 1, S, D>,
+    (counts, q_ref, v_ref): (&[usize], &Vector<3>, &Vector<3>),
 ) -> Result<Sweep, StressError> {
     let (q0, v0) = (Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    let mut st =
-        Stepper::<NonholonomicParticle, 3, 1, S, D>::new(NonholonomicParticle::default(), Tableau::new(method)?);
     Ok(counts
         .iter()
         .map(|&n| {
@@ -70,13 +67,39 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
     };
     let (qr, vr) = (refsol.q[0], refsol.v[0]);
     let counts: Vec<usize> = (3..=11).map(|k| 1usize << k).collect();
+    let target = (counts.as_slice(), &qr, &vr);
+    let (particle, gauss, lobatto) = (NonholonomicParticle::default, Method::Gauss, Method::LobattoIIIAB);
     let sweeps = [
-        ("Gauss s=6", 12, particle_sweep::<6, 27>(Method::Gauss, &counts, &qr, &vr)?),
-        ("Gauss s=7", 14, particle_sweep::<7, 31>(Method::Gauss, &counts, &qr, &vr)?),
-        ("Gauss s=8", 16, particle_sweep::<8, 35>(Method::Gauss, &counts, &qr, &vr)?),
-        ("Lobatto IIIA-B s=6", 10, particle_sweep::<6, 27>(Method::LobattoIIIAB, &counts, &qr, &vr)?),
-        ("Lobatto IIIA-B s=7", 12, particle_sweep::<7, 31>(Method::LobattoIIIAB, &counts, &qr, &vr)?),
-        ("Lobatto IIIA-B s=8", 14, particle_sweep::<8, 35>(Method::LobattoIIIAB, &counts, &qr, &vr)?),
+        (
+            "Gauss s=6",
+            12,
+            particle_sweep(<Stepper![NonholonomicParticle, 6]>::new(particle(), Tableau::new(gauss)?), target)?,
+        ),
+        (
+            "Gauss s=7",
+            14,
+            particle_sweep(<Stepper![NonholonomicParticle, 7]>::new(particle(), Tableau::new(gauss)?), target)?,
+        ),
+        (
+            "Gauss s=8",
+            16,
+            particle_sweep(<Stepper![NonholonomicParticle, 8]>::new(particle(), Tableau::new(gauss)?), target)?,
+        ),
+        (
+            "Lobatto IIIA-B s=6",
+            10,
+            particle_sweep(<Stepper![NonholonomicParticle, 6]>::new(particle(), Tableau::new(lobatto)?), target)?,
+        ),
+        (
+            "Lobatto IIIA-B s=7",
+            12,
+            particle_sweep(<Stepper![NonholonomicParticle, 7]>::new(particle(), Tableau::new(lobatto)?), target)?,
+        ),
+        (
+            "Lobatto IIIA-B s=8",
+            14,
+            particle_sweep(<Stepper![NonholonomicParticle, 8]>::new(particle(), Tableau::new(lobatto)?), target)?,
+        ),
     ];
     let mut series = Vec::new();
     for (label, order, sweep) in &sweeps {
@@ -294,8 +317,7 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
 
 /// Errors at `t_end` of one system for `h, h/2, h/4` against the reference.
 fn reference_sweep<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    sys: Sys,
-    method: Method,
+    mut st: Stepper<Sys, N, M, S, D>,
     q0: &Vector<N>,
     v0: &Vector<N>,
     t_end: f64,
@@ -304,11 +326,10 @@ fn reference_sweep<Sys, const N: usize, const M: usize, const S: usize, const D:
 where
     Sys: NonholonomicSystem<N, M> + Clone,
 {
-    let refsol = match reference::<_, N, M>(&sys, 0.0, q0, v0, t_end, &ReferenceOptions::default()) {
+    let refsol = match reference::<_, N, M>(st.system(), 0.0, q0, v0, t_end, &ReferenceOptions::default()) {
         Ok(r) => r,
         Err(e) => return Ok(Err(format!("reference: {e}"))),
     };
-    let mut st = Stepper::<Sys, N, M, S, D>::new(sys, Tableau::new(method)?);
     let mut out = Vec::new();
     for &h in hs {
         let n = (t_end / h).round() as usize;
@@ -350,22 +371,46 @@ pub fn against_reference(_scale: Scale) -> Result<CaseReport, StressError> {
         (
             "turntable, Gauss s=3",
             6.0,
-            reference_sweep::<_, 3, 1, 3, 15>(TurntableSkate::default(), Method::Gauss, &tq, &tv, t_end, &hs)?,
+            reference_sweep(
+                <Stepper![TurntableSkate, 3]>::new(TurntableSkate::default(), Tableau::new(Method::Gauss)?),
+                &tq,
+                &tv,
+                t_end,
+                &hs,
+            )?,
         ),
         (
             "turntable, Lobatto IIIA-B s=3",
             4.0,
-            reference_sweep::<_, 3, 1, 3, 15>(TurntableSkate::default(), Method::LobattoIIIAB, &tq, &tv, t_end, &hs)?,
+            reference_sweep(
+                <Stepper![TurntableSkate, 3]>::new(TurntableSkate::default(), Tableau::new(Method::LobattoIIIAB)?),
+                &tq,
+                &tv,
+                t_end,
+                &hs,
+            )?,
         ),
         (
             "Appell–Hamel, Gauss s=3",
             6.0,
-            reference_sweep::<_, 3, 1, 3, 15>(AppellHamel::default(), Method::Gauss, &aq, &av, t_end, &hs)?,
+            reference_sweep(
+                <Stepper![AppellHamel, 3]>::new(AppellHamel::default(), Tableau::new(Method::Gauss)?),
+                &aq,
+                &av,
+                t_end,
+                &hs,
+            )?,
         ),
         (
             "Appell–Hamel, Lobatto IIIA-B s=3",
             4.0,
-            reference_sweep::<_, 3, 1, 3, 15>(AppellHamel::default(), Method::LobattoIIIAB, &aq, &av, t_end, &hs)?,
+            reference_sweep(
+                <Stepper![AppellHamel, 3]>::new(AppellHamel::default(), Tableau::new(Method::LobattoIIIAB)?),
+                &aq,
+                &av,
+                t_end,
+                &hs,
+            )?,
         ),
     ];
     let mut series = Vec::new();

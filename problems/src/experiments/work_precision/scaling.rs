@@ -14,6 +14,7 @@
 //! ([`WORKER_STACK`]), which the old stack-allocated matrices overflowed from
 //! `D ≈ 250` on and the by-value stage Jacobians from `n ≈ 90`.
 
+use super::sweep::unobserved;
 use super::WorkPrecisionError;
 use crate::report::clock::thread_cpu_seconds;
 use crate::report::files::OutputDir;
@@ -24,8 +25,7 @@ use crate::systems::scaling::{
     McLachlanPerlmutter9,
 };
 use spark_runtime::{
-    Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, Stepper, Tableau,
-    Vector,
+    Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Schedule, Stepper, Tableau, Vector,
 };
 use std::time::{Duration, Instant};
 
@@ -75,11 +75,7 @@ where
     let q0 = Vector::<N>::from_fn(|i, _| 0.5 + 0.3 * ((i + 1) as f64).sin());
     let v0 = Vector::<N>::zeros();
     let (h, steps) = (0.01, 200);
-    let quiet = RunOptions {
-        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
-        record_every: 0,
-        ..RunOptions::default()
-    };
+    let quiet = unobserved();
     let schedule = Schedule::Fixed { h, steps };
     // Timed without event location, like the peers: declared events are
     // for `spark section`.

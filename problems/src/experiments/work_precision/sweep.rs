@@ -52,6 +52,15 @@ pub(super) struct Ctx<'a, const N: usize> {
     pub(super) v_ref: Vector<N>,
 }
 
+/// Run options of a timed run: no observation, nothing recorded.
+pub(super) fn unobserved() -> RunOptions {
+    RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    }
+}
+
 /// What one timed stepper run measured.
 pub(super) struct Measured {
     pub(super) error_q: f64,
@@ -80,11 +89,7 @@ where
     let mut observer = |s: &State<N>, _: usize| {
         max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
     };
-    let quiet = RunOptions {
-        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
-        record_every: 0,
-        ..RunOptions::default()
-    };
+    let quiet = unobserved();
     let schedule = Schedule::Fixed { h, steps };
     // Timed without event location, like the peers: declared events are
     // for `spark section`.

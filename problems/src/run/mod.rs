@@ -4,6 +4,9 @@
 //! The systems, their defaults and the dispatch from run-time `(system, s)`
 //! to the const-generic [`Stepper`] live in [`crate::catalog`]; this module
 //! only says what one run does for a given stepper type ([`run_with`]).
+//! [`files`] writes a run's trajectory and figure.
+
+pub mod files;
 
 use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::thread_cpu_time;
