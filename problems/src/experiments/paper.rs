@@ -507,8 +507,8 @@ fn figure_84(cfg: &PaperConfig, sel: &[(&Job, &RunResult)], out: &mut OutputDir)
             members_of.sort_by_key(|m| m.0);
             let runs: Vec<&RunResult> = members_of.iter().map(|m| m.1).collect();
             debug_assert!(runs.iter().all(|r| r.method == method));
-            let members: Vec<(&[f64], f64)> = runs.iter().map(|r| (r.energy.as_slice(), r.stats.e0)).collect();
-            let quantity = ensemble_quantity(&members, h);
+            let energies: Vec<(&[f64], f64)> = runs.iter().map(|r| (r.energy.as_slice(), r.stats.e0)).collect();
+            let quantity = ensemble_quantity(&energies, h);
             for (j, r) in &members_of {
                 members.push((format!("{}_member{j}", column_key(r)), energy_error(r)));
             }

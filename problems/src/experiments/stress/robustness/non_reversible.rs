@@ -26,7 +26,7 @@ fn nr_run<Sys, const S: usize, const D: usize>(
     steps: usize,
 ) -> Result<Result<RunData, String>, StressError>
 where
-    Sys: NonholonomicSystem<3, 1>,
+    Sys: NonholonomicSystem<3, 1> + Clone,
 {
     // The case shows how far the energy of a non-reversible system drifts,
     // so the energy guard (which would refuse a drift beyond 100 %) is off.

@@ -138,6 +138,9 @@ struct Sweep {
     refuses: Vec<String>,
 }
 
+/// Two curves `(t, y)`: a run's `E/E0` and a model of it.
+type Curves = (Vec<(f64, f64)>, Vec<(f64, f64)>);
+
 /// Gauss s = 2 at ω·h = 10³ looked at closely: the step map's radius in
 /// three settings, and the run with the energy guard off.
 struct Diagnosis {
@@ -149,7 +152,7 @@ struct Diagnosis {
     growth: f64,
     newton_max: usize,
     /// `E/E0` of the unguarded run and the model `ρ^(2n)`.
-    curves: Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)>,
+    curves: Option<Curves>,
 }
 
 /// The skate with a spring of frequency `ω`, `ω·h` from 0.1 to 10³ (and
@@ -342,7 +345,7 @@ fn stiff_diagnosis(
 }
 
 /// Energy errors and step-map radii against `ω·h`, and the unguarded run.
-fn stiff_figure(title: &str, sweep: Sweep, curves: Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)>) -> Figure {
+fn stiff_figure(title: &str, sweep: Sweep, curves: Option<Curves>) -> Figure {
     let mut panels = vec![
         Panel {
             title: "completed runs: max relative energy error over t ∈ [0, 20] (refused runs absent)".into(),
