@@ -105,7 +105,7 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
     write_section(&section, &spec, (x, y), &mut out).map_err(|e| e.to_string())?;
     let files = out.commit().map_err(|e| e.to_string())?;
     let mut text = format!(
-        "{} {} ({}):  {} crossings of {} = 0 in {} member(s) to t = {t_end}, max |g| = {:.3e}\n",
+        "{} {} ({}): {} crossings of {} = 0 in {} member(s) to t = {t_end}, max |g| = {:.3e}\n",
         entry.name,
         section.event,
         method.name(),
