@@ -177,7 +177,7 @@ fn lookup_ignores_case_and_separators_and_suggests_near_misses() {
     assert_eq!(lookup("McLachlanPerlmutter7").unwrap().name, "mp7");
     // A name beats a type name: the scene is `rod-pendulum`, the
     // hand-written type of the same name `rod-pendulum-hand`.
-    assert_eq!(lookup("RodPendulum").unwrap().path, "crate::systems::scenes::RodPendulum");
+    assert_eq!(lookup("RodPendulum").unwrap().path, "crate::scenes::RodPendulum");
     let err = lookup("skat").unwrap_err();
     assert_eq!(err.suggestion, Some("skate"));
     let text = err.to_string();
