@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
-"""Writes problems/src/workprecision/scaling_systems.rs: McLachlan-Perlmutter
+"""Writes problems/src/systems/scaling.rs: McLachlan-Perlmutter
 particles for n = 2m+1 in {5, 9, 17, 33, 65, 129}, declared with nonholonomic_system!.
 
 U = 1/2 (sum q_i^2 + q_{m+2}^2 q_{m+3}^2 + sum_{i=1..m} q_{1+i}^2 q_{m+1+i}^2),
 k = v_1 + sum_{i=1..m} q_{m+1+i} v_{m+1+i}  (for m = 3 the paper's n = 7 system).
 
-Usage: python3 docs/performance/gen_mp_systems.py > problems/src/workprecision/scaling_systems.rs
+Usage: python3 docs/performance/gen_mp_systems.py > problems/src/systems/scaling.rs
 """
 
 SIZES = [5, 9, 17, 33, 65, 129]

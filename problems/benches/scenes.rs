@@ -1,4 +1,4 @@
-//! Time per SPARK step for each scene of `problems::scenes::Body`, `Sleigh`
+//! Time per SPARK step for each scene of `problems::systems::scenes::Body`, `Sleigh`
 //! (drive and damping forces) and `IceSkate` (dry friction as a non-ideal
 //! force), and for the same systems declared by hand
 //! (`BodySkatingByHand` = scene `BodySkating`, `SleighDrivenDampedByHand` =
@@ -7,7 +7,7 @@
 //! `cargo bench -p problems --bench scenes`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use problems::scenes::{
+use problems::systems::scenes::{
     BodyFree, BodyRailed, BodySkating, BodySkatingByHand, BodySprung, BodyTethered, SkateOnBlade, SkateWithFriction,
     SleighDamped, SleighDriven, SleighDrivenDamped, SleighDrivenDampedByHand, SleighFree,
 };

@@ -22,12 +22,13 @@
 
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use problems::catalog::SystemKind;
 use problems::peers::dual::{AutoDiff, DualTwin};
 use problems::peers::finite_difference::FiniteDifference;
 use problems::peers::ode;
-use problems::simulate::{paper_initial_values, SystemKind};
+use problems::report::clock::thread_cpu_seconds;
+use problems::run::paper_initial_values;
 use problems::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
-use problems::workprecision::{method_label, thread_cpu_time};
 use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 
@@ -38,10 +39,10 @@ impl Measurement for ThreadCpu {
     type Intermediate = f64;
     type Value = Duration;
     fn start(&self) -> f64 {
-        thread_cpu_time()
+        thread_cpu_seconds()
     }
     fn end(&self, start: f64) -> Duration {
-        Duration::from_secs_f64((thread_cpu_time() - start).max(0.0))
+        Duration::from_secs_f64((thread_cpu_seconds() - start).max(0.0))
     }
     fn add(&self, a: &Duration, b: &Duration) -> Duration {
         *a + *b
@@ -73,7 +74,7 @@ fn step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
 ) where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let label = format!("{}/{}", kind.key(), method_label(method, S));
+    let label = format!("{}/{}", kind.key(), method.label(S));
     let s0 = start::<N>(kind);
     let mut runs = vec![("step", NewtonMode::Full, true), ("step-simplified", NewtonMode::Simplified, true)];
     if guard_pair {

@@ -29,9 +29,9 @@
 //! steppers directly (full Newton, tolerance 16ε unless stated).
 
 use nalgebra::SVector;
-use problems::analysis::fit_power;
-use problems::simulate::mp7_initial_values;
-use problems::stress::long_runs::{energy_structure_function, mp7_phi, mp7_rattle, structure_slope};
+use problems::report::stats::fit_power;
+use problems::report::stats::{energy_structure_function, structure_slope};
+use problems::systems::{mp7_initial_values, mp7_phi, mp7_rattle};
 use problems::systems::{McLachlanPerlmutter7, McLachlanPerlmutter7Nonholonomic as Mp7Nonholonomic};
 use rayon::prelude::*;
 use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau};
@@ -339,7 +339,7 @@ fn reverse() {
 /// statistic at one time. A random walk gives `S(Δ) ≈ 2σ² + DΔ` (growing
 /// linearly), a bounded error `S(Δ) → 2σ²` (flat).
 fn structure(path: &str) {
-    let (header, cols) = match problems::output::read_columns(std::path::Path::new(path)) {
+    let (header, cols) = match problems::report::files::read_columns(std::path::Path::new(path)) {
         Ok(x) => x,
         Err(e) => {
             eprintln!("{e}");

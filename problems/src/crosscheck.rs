@@ -8,9 +8,9 @@
 //! it only evaluates the trait and the stepper and records what they returned.
 //!
 //! Which systems are checked comes from the catalogue: every
-//! [`registry::entries`] entry, under its command-line name, with its default
+//! [`catalog::entries`] entry, under its command-line name, with its default
 //! parameters, initial state and step size, visited through
-//! [`registry::visit_system`] and stepped through [`Dispatch::with_stages`].
+//! [`catalog::visit_system`] and stepped through [`Dispatch::with_stages`].
 //! The systems checked but not offered by `spark` are the one list
 //! [`visit_extras`]. A new catalogue entry is therefore cross-checked without
 //! a change here.
@@ -27,7 +27,7 @@ use spark_runtime::{
     Tableau, TableauError, TableauTable, Vector,
 };
 
-use crate::registry::{self, Dispatch, DispatchError, StageVisitor, SystemEntry, SystemVisitor};
+use crate::catalog::{self, Dispatch, DispatchError, StageVisitor, SystemEntry, SystemVisitor};
 
 pub mod handwritten;
 mod sample;
@@ -35,9 +35,6 @@ mod wire;
 
 pub use sample::{export_system, SplitMix64, CLASSES};
 pub use wire::*;
-
-/// [`TableauTable`] under the name `workprecision` imports it by.
-pub use spark_runtime::TableauTable as TableauExport;
 
 /// Format tag of the JSON document; the Python side refuses other versions.
 pub const FORMAT: &str = "spark-casadi/1";
@@ -193,8 +190,8 @@ pub fn visit_cases<V: CaseVisitor>(visitor: &mut V) -> Result<(), CrosscheckErro
             self.0.visit::<Sys, Sys, N, M>(&Case::from(entry))
         }
     }
-    for entry in registry::entries() {
-        registry::visit_system(entry.kind, Catalogue(&mut *visitor))?;
+    for entry in catalog::entries() {
+        catalog::visit_system(entry.kind, Catalogue(&mut *visitor))?;
     }
     visit_extras(visitor)
 }
@@ -206,7 +203,7 @@ pub fn visit_cases<V: CaseVisitor>(visitor: &mut V) -> Result<(), CrosscheckErro
 /// dependence enters the step.
 pub const RHEONOMIC: Case = Case { name: "rheonomic-hand", t0: 0.1, q0: &[0.3, -0.2], v0: &[0.5, 0.1], h: 0.05 };
 
-/// The scene [`crate::scenes::AppellHamelSprung`]: the cord constraint
+/// The scene [`crate::systems::scenes::AppellHamelSprung`]: the cord constraint
 /// (nonlinear in `v`) with a horizontal spring, so that the motion is not
 /// polynomial in `t`. Starts on the cone `ż² = a²(ẋ² + ẏ²)`, falling.
 pub const APPELL_HAMEL_SPRUNG: Case =
@@ -216,8 +213,10 @@ pub const APPELL_HAMEL_SPRUNG: Case =
 /// command line: [`RHEONOMIC`] and [`APPELL_HAMEL_SPRUNG`]. Each borrows the
 /// stage dispatch of a catalogue type of its shape (see [`CaseVisitor`]).
 pub fn visit_extras<V: CaseVisitor>(visitor: &mut V) -> Result<(), CrosscheckError> {
-    visitor.visit::<handwritten::Rheonomic, crate::scenes::RodPendulum, 2, 1>(&RHEONOMIC)?;
-    visitor.visit::<crate::scenes::AppellHamelSprung, crate::scenes::AppellHamelCord, 3, 1>(&APPELL_HAMEL_SPRUNG)
+    visitor.visit::<handwritten::Rheonomic, crate::systems::scenes::RodPendulum, 2, 1>(&RHEONOMIC)?;
+    visitor.visit::<crate::systems::scenes::AppellHamelSprung, crate::systems::scenes::AppellHamelCord, 3, 1>(
+        &APPELL_HAMEL_SPRUNG,
+    )
 }
 
 /// Every (method, stage count) the step export takes: each method from its
@@ -378,7 +377,7 @@ mod tests {
 
     /// Names declared with `nonholonomic_system!` in `systems.rs`.
     fn declared_systems() -> Vec<String> {
-        let text = include_str!("systems.rs");
+        let text = include_str!("systems/paper.rs");
         let mut names = Vec::new();
         for chunk in text.split("nonholonomic_system! {").skip(1) {
             let after = chunk.split("struct").nth(1).expect("a struct in every invocation");
@@ -406,7 +405,7 @@ mod tests {
     /// Scene names declared in `scenes.rs` (`scenes: { A = [..], B = [..] }`)
     /// and the structs declared there.
     fn declared_scene_types() -> Vec<String> {
-        let text = include_str!("scenes.rs");
+        let text = include_str!("systems/scenes.rs");
         let mut names = Vec::new();
         for chunk in text.split("nonholonomic_system! {").skip(1) {
             let body = chunk.split("\n}").next().unwrap_or("");
@@ -487,7 +486,7 @@ mod tests {
     #[test]
     fn every_catalogue_entry_is_exported_under_its_command_line_name() {
         let exported = exported_names();
-        let mut expected: Vec<String> = crate::registry::entries().iter().map(|e| e.name.to_owned()).collect();
+        let mut expected: Vec<String> = crate::catalog::entries().iter().map(|e| e.name.to_owned()).collect();
         expected.extend(["rheonomic-hand", "appell-hamel-sprung"].map(String::from));
         assert_eq!(exported, expected);
     }
@@ -495,7 +494,7 @@ mod tests {
     #[test]
     fn steps_start_from_the_catalogue_state_and_step_size() {
         let steps = export_all_steps().unwrap();
-        for e in crate::registry::entries() {
+        for e in crate::catalog::entries() {
             let mine: Vec<_> = steps.iter().filter(|st| st.system == e.name).collect();
             assert_eq!(mine.len(), 11, "{}: steps", e.name);
             for st in mine {

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-/// The test-only pause (`problems::output::TEST_PAUSE_ENV`), spelled out so
+/// The test-only pause (`problems::report::files::TEST_PAUSE_ENV`), spelled out so
 /// that this file also builds against code without the hook.
 const PAUSE_ENV: &str = "SPARK_TEST_PAUSE_AFTER_FIRST_FILE_MS";
 

@@ -2,8 +2,8 @@
 //! only after the commit, leftovers of killed runs cleaned; and the
 //! decimation that bounds the size of figures.
 
-use problems::output::{OutputDir, OutputError, LOCK_FILE, TEMP_PREFIX};
-use problems::plot::{decimate, Scale};
+use problems::report::files::{OutputDir, OutputError, LOCK_FILE, TEMP_PREFIX};
+use problems::report::plot::{decimate, Scale};
 use std::path::Path;
 
 fn visible_files(dir: &Path) -> Vec<String> {

@@ -2,10 +2,10 @@
 //! scaled down): every file is written, and the numbers behind the figures
 //! agree with a direct computation that drives the stepper by hand.
 
-use problems::output::read_columns;
-use problems::paper::{run_paper, PaperConfig, PaperReport};
-use problems::progress::Progress;
-use problems::simulate::mp7_initial_values;
+use problems::experiments::paper::{run_paper, PaperConfig, PaperReport};
+use problems::report::files::read_columns;
+use problems::report::progress::Progress;
+use problems::systems::mp7_initial_values;
 use problems::systems::{McLachlanPerlmutter7, McLachlanPerlmutter7Nonholonomic, NonholonomicParticle, Skate};
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::path::{Path, PathBuf};

@@ -3,11 +3,11 @@
 //! looked up forgivingly with useful errors, `spark run` works end to end,
 //! and work-precision measures a system that is not in the paper.
 
-use problems::registry::{entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
-use problems::simulate::{run, RunError, RunSpec};
-use problems::workprecision::{
-    method_label, method_variants, run_work_precision, Provider, WorkPrecisionConfig, SPARK_ADAPTIVE,
+use problems::catalog::{entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
+use problems::experiments::work_precision::{
+    method_variants, run_work_precision, Provider, WorkPrecisionConfig, SPARK_ADAPTIVE,
 };
+use problems::run::{run, RunError, RunSpec};
 use spark_runtime::{ConstraintForm, Jacobian, Method, NewtonMode, NewtonOptions, HISTORY_CAPACITY};
 use std::path::PathBuf;
 use std::process::Command;
@@ -177,7 +177,7 @@ fn lookup_ignores_case_and_separators_and_suggests_near_misses() {
     assert_eq!(lookup("McLachlanPerlmutter7").unwrap().name, "mp7");
     // A name beats a type name: the scene is `rod-pendulum`, the
     // hand-written type of the same name `rod-pendulum-hand`.
-    assert_eq!(lookup("RodPendulum").unwrap().path, "crate::scenes::RodPendulum");
+    assert_eq!(lookup("RodPendulum").unwrap().path, "crate::systems::scenes::RodPendulum");
     let err = lookup("skat").unwrap_err();
     assert_eq!(err.suggestion, Some("skate"));
     let text = err.to_string();
@@ -293,7 +293,7 @@ fn work_precision_measures_a_system_outside_the_paper() {
     let m = &all[0];
     assert_eq!(m.problem.system, "driven-skate");
     for (method, s) in method_variants() {
-        let label = method_label(method, s);
+        let label = method.label(s);
         assert!(
             m.points.iter().any(|p| p.solver == Provider::Generated.label() && p.method == label),
             "no point for {label}"

@@ -1,17 +1,18 @@
 //! Force, non-ideal and holonomic effects declared with the macro:
 //! generated `f`, `N`, their Jacobians and the holonomic residuals against
-//! the hand-written systems of `spark_runtime::effects`, the macro friction
+//! the hand-written systems of `spark_runtime::fixtures::effects`, the macro friction
 //! skate's trajectory against the hand-written one, the energy balance
 //! `E(T) − E(0) = ∫ fᵀv dt` of the driven/damped sleigh at the method's
 //! order, and a constraint nonlinear in `v` declared as an effect (Chetaev's
 //! `K = ∂k/∂v`) against the reference integrator.
 
-use problems::scenes::{
+use problems::systems::scenes::{
     AppellHamelCord, AppellHamelSprung, BodyRailed, BodyTethered, RodPendulum, SkateOnBlade, SkateWithFriction,
     SleighDamped, SleighDriven, SleighDrivenDamped, SleighDrivenDampedByHand, SleighFree,
 };
-use spark_runtime::effects::{holonomic_drift, DrivenSkate, FrictionSkate, RodPendulum as HandRod};
-use spark_runtime::handwritten::Skate;
+use spark_runtime::diagnostics::holonomic_drift;
+use spark_runtime::fixtures::effects::{DrivenSkate, FrictionSkate, RodPendulum as HandRod};
+use spark_runtime::fixtures::paper::Skate;
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{Matrix, Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 
@@ -119,7 +120,7 @@ where
     let (mut states, mut work, mut x) = (vec![start], 0.0, start);
     for _ in 0..steps {
         let r = st.step(&x, h).unwrap();
-        work += spark_runtime::effects::effect_work(&sys, &tab, &x, h, &r);
+        work += spark_runtime::diagnostics::effect_work(&sys, &tab, &x, h, &r);
         x = r.state;
         states.push(x);
     }

@@ -4,9 +4,9 @@
 //! from their documented initial states, and every unusable input is
 //! refused with a message that names what to change.
 
-use problems::output::read_columns;
-use problems::section::{member_initial_values, SectionSpec};
-use problems::simulate::SystemKind;
+use problems::catalog::SystemKind;
+use problems::experiments::section::{member_initial_values, SectionSpec};
+use problems::report::files::read_columns;
 use spark_runtime::{Method, NewtonOptions, NonholonomicSystem, Vector};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -96,7 +96,8 @@ fn section_points_of_the_mp_particles_lie_on_the_event_surface() {
 #[test]
 fn section_points_of_the_sleigh_and_the_rolling_disk_lie_on_the_event_surface() {
     check_section::<problems::systems::ChaplyginSleigh, 3, 1>("sleigh", "turn", 2, "20", false);
-    let rows = check_section::<problems::scenes::VerticalDisk, 4, 2>("vertical-disk", "revolution", 2, "40", true);
+    let rows =
+        check_section::<problems::systems::scenes::VerticalDisk, 4, 2>("vertical-disk", "revolution", 2, "40", true);
     // The wheel turns at φ̇ = 1 and 1.5 for the two members: sin φ rises
     // through 0 at t = 2πk/φ̇, 6 and 9 times in t ≤ 40.
     assert_eq!(rows, 6 + 9);
@@ -127,10 +128,10 @@ fn a_section_run_in_the_library_matches_the_cli_contract() {
         parameters: Vec::new(),
         newton: NewtonOptions::default(),
     };
-    let e = problems::section::run_section(&spec).unwrap_err().to_string();
+    let e = problems::experiments::section::run_section(&spec).unwrap_err().to_string();
     assert!(e.contains("no event `nope`") && e.contains("section"), "{e}");
     let spec = SectionSpec { event: "section".into(), members: 0, ..spec };
-    let e = problems::section::run_section(&spec).unwrap_err().to_string();
+    let e = problems::experiments::section::run_section(&spec).unwrap_err().to_string();
     assert!(e.contains("--members"), "{e}");
 }
 

@@ -136,7 +136,7 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     sample time, from a sweep's table (or Parquet path).
 
     Summed over members in member order and divided as
-    ``problems::paper::ensemble_quantity`` does, so the numbers are the
+    ``problems::report::stats::ensemble_quantity`` does, so the numbers are the
     Rust ones bit for bit for the same energies.
     """
     import pyarrow.parquet as pq
@@ -160,7 +160,7 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
 
 def fig84_members(count: int) -> tuple[np.ndarray, np.ndarray]:
     """Initial values of the §8.4 ensemble with ``count`` members
-    (``problems::simulate::mp7_initial_values``)."""
+    (``problems::systems::mp7_initial_values``)."""
     q, v = zip(*(spark._native.mp7_initial_values(j, count - 1) for j in range(count)))
     return np.array(q), np.array(v)
 

@@ -6,7 +6,7 @@
 //! builds (`spark-python-core`), and the DSL check that `spark.compile` runs
 //! before it calls cargo.
 
-use problems::registry::{
+use problems::catalog::{
     entries, lookup, visit_system, Dispatch, StageVisitor, SystemEntry, SystemVisitor, MAX_DISPATCH_STAGES,
 };
 use pyo3::prelude::*;
@@ -72,7 +72,7 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
 /// Every registered system name, in registry order (the paper's first).
 #[pyfunction]
 fn names() -> Vec<&'static str> {
-    problems::registry::names()
+    problems::catalog::names()
 }
 
 /// Facts about the registered system `name`: description, `N`, `M`,
@@ -159,10 +159,10 @@ fn methods() -> Vec<(String, String, usize, usize)> {
 }
 
 /// Initial values of member `j` of the §8.4 ensemble with `big_j + 1`
-/// members (`problems::simulate::mp7_initial_values`).
+/// members (`problems::systems::mp7_initial_values`).
 #[pyfunction]
 fn mp7_initial_values(j: usize, big_j: usize) -> (Vec<f64>, Vec<f64>) {
-    problems::simulate::mp7_initial_values(j, big_j)
+    problems::systems::mp7_initial_values(j, big_j)
 }
 
 /// Where a span starts, 1-based line and column.

@@ -18,8 +18,8 @@ from conftest import REPO
 
 def declaration(type_name: str) -> str:
     """The body of the `nonholonomic_system!` block declaring `type_name` in
-    problems/src/systems.rs: the text the Rust registry was compiled from."""
-    source = (REPO / "problems" / "src" / "systems.rs").read_text()
+    problems/src/systems/paper.rs: the text the Rust registry was compiled from."""
+    source = (REPO / "problems" / "src" / "systems" / "paper.rs").read_text()
     for block in source.split("nonholonomic_system! {\n")[1:]:
         body = block.split("\n}\n")[0]
         if f"pub struct {type_name} {{" in body:

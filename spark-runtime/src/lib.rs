@@ -195,29 +195,6 @@ macro_rules! Stepper {
     };
 }
 
-/// An alias of [`fixtures::paper`](crate::fixtures::paper) for code that names the hand-written
-/// paper systems by this path.
-#[doc(hidden)]
-pub mod handwritten {
-    pub use crate::fixtures::paper::*;
-}
-
-/// An alias of [`fixtures::effects`](crate::fixtures::effects) and of
-/// [`holonomic_drift`](crate::diagnostics::holonomic_drift) and
-/// [`effect_work`](crate::diagnostics::effect_work) for code that names them by this path.
-#[doc(hidden)]
-pub mod effects {
-    pub use crate::diagnostics::{effect_work, holonomic_drift};
-    pub use crate::fixtures::effects::*;
-}
-
-/// An alias of [`NewtonMatrix`](crate::NewtonMatrix) and its factorization types for code that
-/// names them by this path.
-#[doc(hidden)]
-pub mod newton {
-    pub use crate::linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
-}
-
 #[doc(hidden)]
 pub mod __private {
     //! Re-exports for generated code; not a public API.

@@ -2,8 +2,8 @@
 //! its operation counts, without compiling anything:
 //!
 //! ```text
-//! cargo run -p spark-symbolic --example expand -- problems/src/systems.rs Skate
-//! cargo run -p spark-symbolic --example expand -- problems/src/systems.rs Skate --counts
+//! cargo run -p spark-symbolic --example expand -- problems/src/systems/paper.rs Skate
+//! cargo run -p spark-symbolic --example expand -- problems/src/systems/paper.rs Skate --counts
 //! ```
 //!
 //! The first argument is a Rust file, the second the name of the struct a

@@ -3,7 +3,7 @@
 //! named on the command line), without compiling anything:
 //!
 //! ```text
-//! cargo run -p spark-symbolic --example scene_ops -- problems/src/scenes.rs Body Sleigh IceSkate SleighDrivenDampedByHand
+//! cargo run -p spark-symbolic --example scene_ops -- problems/src/systems/scenes.rs Body Sleigh IceSkate SleighDrivenDampedByHand
 //! ```
 //!
 //! Columns: `M`, whether `L` and `k` are autonomous, the operation counts of

@@ -19,8 +19,8 @@
 //! `add_external_force_jacobians`, `add_nonideal_force_jacobians`) give
 //! exactly the by-value results whatever the destination held before.
 
-use problems::scenes::{SkateWithFriction, SleighDrivenDampedByHand};
-use problems::workprecision::scaling_systems::McLachlanPerlmutter129;
+use problems::systems::scaling::McLachlanPerlmutter129;
+use problems::systems::scenes::{SkateWithFriction, SleighDrivenDampedByHand};
 use spark_runtime::reference::{self, ReferenceOptions};
 use spark_runtime::{
     consistent_acceleration, consistent_velocity, ConsistencyPolicy, ConstraintForm, Matrix, Method, NoObserver,

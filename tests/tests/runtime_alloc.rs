@@ -5,7 +5,7 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use spark_runtime::handwritten::{General, MobileRobot, MpParticles, Skate};
+use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Skate};
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem,
     RunOptions, Schedule, State, Stepper, Tableau, Vector,

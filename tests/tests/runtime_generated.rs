@@ -9,7 +9,7 @@ use problems::systems::{
     AppellHamel, ChaplyginSleigh, DoublePendulum, McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate,
     TurntableSkate,
 };
-use spark_runtime::handwritten;
+use spark_runtime::fixtures::paper;
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, Method, NonholonomicSystem, State, Stepper, Tableau, Vector,
@@ -53,22 +53,22 @@ fn generated_and_hand_written_paper_systems_agree() {
     for m in [Method::Gauss, Method::LobattoIIIABD] {
         let d = max_diff(
             &trajectory::<_, 3, 1, 3, 15>(NonholonomicParticle::default(), m, &p0, 0.2, 200),
-            &trajectory::<_, 3, 1, 3, 15>(handwritten::Particle, m, &p0, 0.2, 200),
+            &trajectory::<_, 3, 1, 3, 15>(paper::Particle, m, &p0, 0.2, 200),
         );
         report.push(("particle", m, d));
         let d = max_diff(
             &trajectory::<_, 3, 1, 3, 15>(Skate::default(), m, &s0, 0.1, 200),
-            &trajectory::<_, 3, 1, 3, 15>(handwritten::Skate::default(), m, &s0, 0.1, 200),
+            &trajectory::<_, 3, 1, 3, 15>(paper::Skate::default(), m, &s0, 0.1, 200),
         );
         report.push(("skate", m, d));
         let d = max_diff(
             &trajectory::<_, 4, 2, 3, 22>(MobileRobot::default(), m, &r0, 0.2, 200),
-            &trajectory::<_, 4, 2, 3, 22>(handwritten::MobileRobot::default(), m, &r0, 0.2, 200),
+            &trajectory::<_, 4, 2, 3, 22>(paper::MobileRobot::default(), m, &r0, 0.2, 200),
         );
         report.push(("robot", m, d));
         let d = max_diff(
             &trajectory::<_, 7, 1, 2, 23>(McLachlanPerlmutter7::default(), m, &m0, 0.05, 200),
-            &trajectory::<_, 7, 1, 2, 23>(handwritten::MpParticles, m, &m0, 0.05, 200),
+            &trajectory::<_, 7, 1, 2, 23>(paper::MpParticles, m, &m0, 0.05, 200),
         );
         report.push(("MP particles", m, d));
     }

@@ -4,7 +4,7 @@
 //! in q and in v, within ±0.2, on the nonholonomic particle, the skate and
 //! the mobile robot started with a turning rate, v₀ = (1, 0, 0.5, 1).
 
-use spark_runtime::handwritten::{MobileRobot, Particle, Skate};
+use spark_runtime::fixtures::paper::{MobileRobot, Particle, Skate};
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 

@@ -3,7 +3,7 @@
 //! residual stays ≤ 1e-14 after every step, the energy error stays bounded;
 //! and symmetric methods retrace their steps while the Euler methods do not.
 
-use spark_runtime::handwritten::{MobileRobot, MpParticles, Particle, Skate};
+use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::{
     Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, RunReport, Schedule, State, Stepper,
     Tableau, Vector,

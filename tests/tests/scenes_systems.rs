@@ -4,8 +4,8 @@
 //! invariant (constant Ω) and the reference ODE (Ω(t)), and the scenes of
 //! `Body` (constraint count, energy).
 
-use problems::scenes::{BallOnTurntable, BodyRailed, BodySkating, BodySprung, RodPendulum, VerticalDisk};
-use spark_runtime::effects::RodPendulum as HandRod;
+use problems::systems::scenes::{BallOnTurntable, BodyRailed, BodySkating, BodySprung, RodPendulum, VerticalDisk};
+use spark_runtime::fixtures::effects::RodPendulum as HandRod;
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 
@@ -136,7 +136,7 @@ fn body_scenes_carry_only_their_constraints_and_conserve_what_they_should() {
 
 #[test]
 fn a_scene_has_the_operation_counts_of_its_hand_declaration() {
-    use problems::scenes::{body_scene_table, BodySkatingByHand};
+    use problems::systems::scenes::{body_scene_table, BodySkatingByHand};
     assert_eq!(BodySkating::OPERATIONS, BodySkatingByHand::OPERATIONS);
     let table = body_scene_table();
     let jac: Vec<usize> = table.iter().map(|r| r.3.stage_jacobians).collect();

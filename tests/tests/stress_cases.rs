@@ -2,7 +2,7 @@
 //! criteria must hold. `spark stress --full` runs the lengths the issue asks
 //! for (10⁶ steps, t ∈ [0, 50000]); see docs/stress/report.md.
 
-use problems::stress::{self, markdown, CaseReport, Scale, StressReport};
+use problems::experiments::stress::{self, markdown, CaseReport, Scale, StressReport};
 
 fn run(f: stress::CaseFn) -> CaseReport {
     f(Scale::Quick).expect("suite infrastructure")

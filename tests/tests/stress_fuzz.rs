@@ -12,7 +12,7 @@
 //! run: `FUZZ_CASES=200000 cargo test --release -p spark-tests --test stress_fuzz`
 //! (documented in docs/stress/README.md with its outcome).
 
-use problems::stress::systems::{NearParallel, NonReversibleOscillator, RollingDisk, StiffSkate};
+use problems::systems::stress::{NearParallel, NonReversibleOscillator, RollingDisk, StiffSkate};
 use problems::systems::{
     AppellHamel, DoublePendulum, McLachlanPerlmutter7, NonholonomicParticle, Skate, TurntableSkate,
 };
@@ -357,7 +357,7 @@ macro_rules! by_stages_extended {
 }
 
 fn dispatch_extended(x: &Extended) {
-    use problems::workprecision::scaling_systems::{McLachlanPerlmutter17, McLachlanPerlmutter33};
+    use problems::systems::scaling::{McLachlanPerlmutter17, McLachlanPerlmutter33};
     match (x.large, x.base.system) {
         (Some(17), _) => by_stages_extended!(McLachlanPerlmutter17, McLachlanPerlmutter17::default(), x),
         (Some(_), _) => by_stages_extended!(McLachlanPerlmutter33, McLachlanPerlmutter33::default(), x),

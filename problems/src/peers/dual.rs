@@ -13,6 +13,7 @@
 //! The adapter copies the structure facts of the generated twin, so the
 //! stepper does exactly the same work; only the derivative code differs.
 
+use crate::catalog::{Dispatch, SystemEntry, SystemKind};
 use crate::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
 use nalgebra::{Const, SVector};
 use num_dual::{gradient, hessian, jacobian, partial_hessian, Dual2Vec, DualNum, DualVec, HyperDualVec};
@@ -378,9 +379,58 @@ impl DualTwin<7, 1> for McLachlanPerlmutter7 {
     type Twin = DualMp7;
 }
 
+/// Work generic in a system type that has a num-dual twin.
+pub trait TwinVisitor: Sized {
+    /// What the work returns.
+    type Output;
+    /// Does the work for `Sys` (see [`crate::catalog::SystemVisitor`]).
+    fn visit<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
+        self,
+        entry: &'static SystemEntry,
+    ) -> Self::Output;
+}
+
+/// Calls `visitor` with the concrete type of `kind` when it has a num-dual
+/// twin (the paper's four systems); gives the visitor back otherwise.
+pub fn visit_twin<V: TwinVisitor>(kind: SystemKind, visitor: V) -> Result<V::Output, V> {
+    let entry = kind.entry();
+    Ok(match kind {
+        SystemKind::Particle => visitor.visit::<NonholonomicParticle, 3, 1, 6>(entry),
+        SystemKind::Skate => visitor.visit::<Skate, 3, 1, 6>(entry),
+        SystemKind::Robot => visitor.visit::<MobileRobot, 4, 2, 8>(entry),
+        SystemKind::McLachlanPerlmutter7 => visitor.visit::<McLachlanPerlmutter7, 7, 1, 14>(entry),
+        _ => return Err(visitor),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The twin dispatch covers exactly the catalogue's paper systems (the
+    /// ones with the CasADi C and SciPy peers), each with its own type.
+    #[test]
+    fn twins_are_the_catalogues_paper_systems() {
+        struct TypeName;
+        impl TwinVisitor for TypeName {
+            type Output = (&'static str, usize, usize);
+            fn visit<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
+                self,
+                _: &'static SystemEntry,
+            ) -> Self::Output {
+                (Sys::SOURCE.name, N, M)
+            }
+        }
+        for e in crate::catalog::entries() {
+            match visit_twin(e.kind, TypeName) {
+                Ok(got) => {
+                    assert!(e.paper, "{} has a num-dual twin but is not marked as a paper system", e.name);
+                    assert_eq!(got, (e.type_name, e.n, e.m), "{}", e.name);
+                }
+                Err(_) => assert!(!e.paper, "{} is a paper system without a num-dual twin", e.name),
+            }
+        }
+    }
 
     /// Every output of the dual adapter equals the generated code's at a
     /// generic point (ψ ≠ 0, v off the constraint).

@@ -152,7 +152,7 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
 }
 
 /// Integrates one run with stepper type `Stepper<Sys, N, M, S, D>`: the same
-/// steps, options and observations as `spark run` (`problems::simulate::run_with`).
+/// steps, options and observations as `spark run` (`problems::run::run_with`).
 pub fn integrate<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     r: &IntegrateRequest,
 ) -> Result<Columns, Failure>

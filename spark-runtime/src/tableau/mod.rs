@@ -710,7 +710,7 @@ mod tests {
     #[test]
     fn lobatto_iiib_a_lda_outside_its_class_takes_the_documented_step() {
         let (t0, h): (f64, f64) = (0.7, 0.1);
-        let general = crate::handwritten::General::default();
+        let general = crate::fixtures::paper::General::default();
         let (q0, v0) = (Vector::<2>::new(0.3, -0.2), Vector::<2>::new(0.5, 0.0));
         let v0 = Vector::<2>::new(v0[0], v0[1] + (q0[0] * v0[0] + 0.1 * v0[0] * v0[0] - 0.05 * t0.sin()));
         let (q, v) = stepper_lda_step::<_, 2, 1, 8>(general, t0, &q0, &v0, h);

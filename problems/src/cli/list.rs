@@ -1,0 +1,120 @@
+//! `spark list`: the catalogue as a table or as JSON.
+
+use crate::catalog::{entries, SystemEntry, SystemInfo, SystemKind, MAX_DISPATCH_STAGES};
+use clap::Args;
+use spark_runtime::Method;
+
+/// How `k` depends on `t` and `v`, in a few words (`none`, `linear`,
+/// `affine`, `nonlinear`, with `, t` when rheonomic).
+fn constraint_text(e: &SystemEntry) -> String {
+    use spark_runtime::ConstraintForm;
+    let form = match e.structure.constraint_form {
+        ConstraintForm::None => "none",
+        ConstraintForm::Linear => "linear",
+        ConstraintForm::Affine => "affine",
+        ConstraintForm::Nonlinear => "nonlinear",
+    };
+    if e.structure.constraints_autonomous || e.m == 0 {
+        form.to_string()
+    } else {
+        format!("{form}, k(t)")
+    }
+}
+
+/// The table `spark list` prints: one row per system with `N`, `M`, the
+/// constraint form, structure facts and effects, then a description, the
+/// parameters with defaults and the default initial state of each.
+pub fn list_table() -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let w = entries().iter().map(|e| e.name.len()).max().unwrap_or(4);
+    let _ = writeln!(
+        s,
+        "{:<w$} {:>2} {:>2}  {:<13} {:<4} {:<5} {:<4} {:<20} {:>5}  paper",
+        "name", "N", "M", "constraints", "L(t)", "mass", "sep.", "effects", "ops"
+    );
+    for e in entries() {
+        let line = format!(
+            "{:<w$} {:>2} {:>2}  {:<13} {:<4} {:<5} {:<4} {:<20} {:>5}  {}",
+            e.name,
+            e.n,
+            e.m,
+            constraint_text(e),
+            if e.structure.lagrangian_autonomous { "no" } else { "yes" },
+            if e.structure.constant_mass_matrix { "const" } else { "q,v" },
+            if e.structure.separable { "yes" } else { "no" },
+            e.effects_text(),
+            if e.operations.stage_jacobians == 0 {
+                "hand".to_string()
+            } else {
+                e.operations.stage_jacobians.to_string()
+            },
+            if e.paper { "yes" } else { "" },
+        );
+        let _ = writeln!(s, "{}", line.trim_end());
+    }
+    let _ = writeln!(
+        s,
+        "\n(L(t): Lagrangian depends on t; mass: ∇²_vv L constant or not; sep.: L = T(v) − U(q); \
+         ops: operations of the generated stage_jacobians, `hand` for hand-written types)\n"
+    );
+    for e in entries() {
+        let _ = writeln!(s, "{} — {} ({})", e.name, e.description, e.path);
+        let _ = writeln!(s, "    coordinates [{}]", e.coordinates.join(", "));
+        let params = e.default_parameters();
+        if !params.is_empty() {
+            let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {v}")).collect();
+            let _ = writeln!(s, "    parameters: {}", p.join(", "));
+        }
+        let _ = writeln!(
+            s,
+            "    defaults: t0 = {}, q0 = {:?}, v0 = {:?}, h = {}, t_end = {}",
+            e.t0, e.q0, e.v0, e.h, e.t_end
+        );
+    }
+    s
+}
+
+/// Every entry with its parameter defaults, for `spark list --json`.
+pub fn list_json() -> serde_json::Value {
+    let infos: Vec<SystemInfo> = SystemKind::ALL.iter().map(|k| k.info()).collect();
+    serde_json::json!({ "systems": infos, "max_stages": MAX_DISPATCH_STAGES })
+}
+
+#[derive(Args, Debug)]
+/// Arguments of `spark list`.
+pub struct ListArgs {
+    /// Print the systems as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `spark list`: the systems and the methods, as a table or as JSON.
+pub fn list(a: ListArgs) -> Result<String, String> {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    if a.json {
+        let text = serde_json::to_string_pretty(&list_json()).map_err(|e| e.to_string())?;
+        return Ok(text + "\n");
+    }
+    let _ = writeln!(s, "Systems (use the name with `spark run NAME` or `--system NAME`):\n");
+    s.push_str(&list_table());
+    let _ = writeln!(s, "\nMethods (use the name with --method, the stage count with --stages):\n");
+    for m in Method::ALL {
+        let key = m.key();
+        let (lo, hi) = m.stage_range();
+        let hi = hi.min(MAX_DISPATCH_STAGES);
+        let stages = if lo == hi { format!("s = {lo}") } else { format!("s = {lo}..{hi}") };
+        let order = if lo == hi { format!("order {}", m.order(lo)) } else { "order ".to_string() + &order_formula(m) };
+        let _ = writeln!(s, "  {key:<24} {:<42} {stages:<10} {order}", m.name());
+    }
+    Ok(s)
+}
+
+/// The order of `m` as a formula in `s`.
+fn order_formula(m: Method) -> String {
+    match m {
+        Method::Gauss => "2s".into(),
+        _ => "2s − 2".into(),
+    }
+}

@@ -1,0 +1,177 @@
+//! The `spark` command line: the arguments of every subcommand and what each
+//! does. Each subcommand returns the text to print (the binary prints it),
+//! so nothing here writes to standard output; progress bars go to standard
+//! error.
+//!
+//! [`Cli`] and [`Command`] are the grammar, [`run`] the dispatch; the
+//! subcommands live in [`list`], [`run`](mod@run), [`paper`], [`section`],
+//! [`stress`] and [`work_precision`].
+
+pub mod list;
+pub mod paper;
+pub mod run;
+pub mod section;
+pub mod stress;
+pub mod work_precision;
+
+use crate::catalog::nearest;
+use clap::{Parser, Subcommand, ValueEnum};
+use spark_runtime::{Method, NewtonMode};
+
+/// Lagrange–d'Alembert SPARK integrators for nonholonomic mechanical systems.
+///
+/// Start with `spark list` to see what is available, `spark run skate`
+/// to integrate one system, or `spark paper` to reproduce every figure and
+/// table of the paper's §8 (L. O. Jay, "Lagrange–d'Alembert SPARK integrators
+/// for nonholonomic Lagrangian systems") into the folder `results/`.
+#[derive(Parser, Debug)]
+#[command(name = "spark", version, about, long_about, propagate_version = true)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Show the systems (name, N, M, structure, effects, parameters, default
+    /// initial state) and integration methods this program knows.
+    List(list::ListArgs),
+    /// Integrate one system with one method; write the trajectory (CSV and/or
+    /// JSON), a report (report.md, report.json: energy error, constraint
+    /// residual, holonomic drift, Newton iterations) and a plot (PNG + SVG).
+    ///
+    /// Example: spark run robot --method lobatto-iiia-b-d --stages 3 --h 0.2 --t-end 150 --out results/robot
+    Run(run::RunArgs),
+    /// Reproduce the paper's experiments (Figs. 8.1–8.4): figures as PNG and
+    /// SVG, the numbers behind each figure as CSV, and a summary table
+    /// (printed, and written as summary.md / summary.json).
+    ///
+    /// The full run integrates 3 methods × 10 initial values × 10⁶ steps for
+    /// Fig. 8.4; it uses every CPU core (set RAYON_NUM_THREADS to limit).
+    Paper(paper::PaperArgs),
+    /// Work-precision diagrams: global error and energy error vs wall time for
+    /// every method and stage count on any registered system (default: the
+    /// paper's four), with peers (num-dual, finite differences, ode_solvers,
+    /// CasADi-generated C, SciPy; the paper-only ones skipped elsewhere)
+    /// measured in the same run.
+    ///
+    /// Example: spark work-precision --system skate --system driven-skate --out results/work-precision
+    WorkPrecision(work_precision::WorkPrecisionArgs),
+    /// Poincaré section: integrate an ensemble (in parallel) and record the
+    /// states where it crosses one of the system's declared events; writes
+    /// the points (CSV), a scatter figure (PNG + SVG) and section.json.
+    ///
+    /// Example: spark section mp7-nh --event section --members 10 --t-end 500 --out results/section
+    Section(section::SectionArgs),
+    /// Stress suite: hard cases with checks, figures and a report.
+    ///
+    /// Example: spark stress --full --out docs/stress
+    Stress(stress::StressArgs),
+}
+
+/// Trajectory file format of `spark run`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum Format {
+    /// CSV only.
+    Csv,
+    /// JSON only.
+    Json,
+    /// CSV and JSON.
+    Both,
+}
+
+/// The Newton iteration flag.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum Newton {
+    /// Exact Jacobian every iteration.
+    Full,
+    /// One Jacobian per step (faster; same tolerance).
+    Simplified,
+}
+
+impl From<Newton> for NewtonMode {
+    fn from(n: Newton) -> Self {
+        match n {
+            Newton::Full => NewtonMode::Full,
+            Newton::Simplified => NewtonMode::Simplified,
+        }
+    }
+}
+
+/// Runs the subcommand `cli` names and returns the text to print;
+/// `progress` receives the work-precision study's progress lines.
+pub fn run(cli: Cli, progress: &dyn Fn(&str)) -> Result<String, String> {
+    match cli.command {
+        Command::List(args) => list::list(args),
+        Command::Run(args) => run::run_command(args),
+        Command::Paper(args) => paper::paper_command(args),
+        Command::WorkPrecision(args) => work_precision::run(args, progress),
+        Command::Section(args) => section::section_command(args),
+        Command::Stress(args) => stress::run(args),
+    }
+}
+
+/// The method named `name` (its [`Method::key`] or an alias), or an error
+/// with the nearest key.
+pub fn parse_method(name: &str) -> Result<Method, String> {
+    name.parse().map_err(|e: spark_runtime::TableauError| match nearest(name, Method::ALL.iter().map(|m| m.key())) {
+        Some(s) => format!("{e} (did you mean `{s}`?)"),
+        None => e.to_string(),
+    })
+}
+
+/// The `--param NAME=VALUE` flags as `(name, value)` pairs.
+pub fn parse_params(params: &[String]) -> Result<Vec<(String, f64)>, String> {
+    params
+        .iter()
+        .map(|p| {
+            let (name, value) =
+                p.split_once('=').ok_or_else(|| format!("--param `{p}`: write NAME=VALUE, e.g. --param beta=0.5"))?;
+            let v: f64 = value.trim().parse().map_err(|_| format!("--param `{p}`: `{value}` is not a number"))?;
+            if !v.is_finite() {
+                return Err(format!("--param `{p}`: the value must be a finite number"));
+            }
+            Ok((name.trim().to_string(), v))
+        })
+        .collect()
+}
+
+/// Relative tolerance within which `(t_end − t0)/h` counts as a whole number
+/// of steps (round-off of the division, e.g. 150/0.2 = 749.999…).
+pub const WHOLE_STEPS_TOLERANCE: f64 = 1e-9;
+
+/// Most steps `spark run` takes: 2⁵³, beyond which step counts and the times
+/// `t0 + k·h` are no longer exact in `f64`.
+pub const MAX_STEPS: f64 = 9_007_199_254_740_992.0;
+
+/// The number of steps from `t0` to `t_end` with step `h`, or an error naming
+/// the flags when the interval is not a whole number of steps (the run would
+/// end elsewhere than asked) or too many steps.
+pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
+    let ratio = (t_end - t0) / h;
+    if ratio.is_nan() || ratio > MAX_STEPS {
+        return Err(format!(
+            "(t_end − t0)/h = {ratio:.3e} steps is more than 2^53 = {MAX_STEPS:.3e}, the most a run can count; \
+             raise --h or shorten the interval --t0 … --t-end"
+        ));
+    }
+    let steps = ratio.round();
+    if steps < 1.0 {
+        return Err(format!(
+            "the interval from t0 = {t0:.6e} to --t-end {t_end:.6e} is shorter than one step of --h {h:.6e}; \
+             use a later --t-end or a smaller --h"
+        ));
+    }
+    if (ratio - steps).abs() > WHOLE_STEPS_TOLERANCE * steps {
+        let (below, above) = (ratio.floor().max(1.0), ratio.ceil());
+        return Err(format!(
+            "the interval from t0 = {t0:.6e} to --t-end {t_end:.6e} is {ratio:.6e} steps of --h {h:.6e}, not a whole \
+             number; use --t-end {:.6e} or {:.6e}, or --h {:.6e} ({above:.0} steps)",
+            t0 + below * h,
+            t0 + above * h,
+            (t_end - t0) / above,
+        ));
+    }
+    Ok(steps as usize)
+}

@@ -1,0 +1,226 @@
+//! `spark run`: one integration of one system, its trajectory files, figure
+//! and report. Runs whose recorded samples would not fit are refused before
+//! they start.
+
+use super::{parse_method, parse_params, step_count, Format, Newton};
+use crate::catalog::lookup;
+use crate::report::files::{OutputDir, OutputError};
+use crate::report::progress::Progress;
+use crate::run::files::{json_trajectory_bytes, run_figure, write_run_csv, write_run_json, MAX_JSON_TRAJECTORY_BYTES};
+use crate::run::{run, run_report, RunError, RunSpec};
+use clap::Args;
+use spark_runtime::ConsistencyPolicy;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+/// Arguments of `spark run`.
+pub struct RunArgs {
+    /// System to integrate, by name or type name, any case (see `spark list`).
+    #[arg(value_name = "SYSTEM", required_unless_present = "system_flag")]
+    pub system: Option<String>,
+    /// The system, as a flag (same as the positional argument).
+    #[arg(long = "system", short = 'y', conflicts_with = "system")]
+    pub system_flag: Option<String>,
+    /// Method: gauss, lobatto-iiia-b, lobatto-iiia-b-d, euler-1, euler-2,
+    /// modified-lobatto-iiia-b or lobatto-iiib-a-lda.
+    #[arg(long, short, default_value = "gauss")]
+    pub method: String,
+    /// Number of stages s.
+    #[arg(long, short, default_value_t = 2)]
+    pub stages: usize,
+    /// Step size h (default: the system's, see `spark list`).
+    #[arg(long = "h", visible_alias = "step", allow_hyphen_values = true)]
+    pub h: Option<f64>,
+    /// Final time (default: the system's). The interval t_end − t0 must be
+    /// a whole number of steps of h (up to round-off); otherwise the run is
+    /// refused with the nearest t_end and h that are.
+    #[arg(long, short, allow_hyphen_values = true)]
+    pub t_end: Option<f64>,
+    /// Initial time (default: the system's, 0).
+    #[arg(long, allow_hyphen_values = true)]
+    pub t0: Option<f64>,
+    /// Initial coordinates, comma-separated (default: the system's; the
+    /// paper's for its systems).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub q0: Option<Vec<f64>>,
+    /// Initial velocities, comma-separated; must satisfy the constraints
+    /// (default: the system's).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub v0: Option<Vec<f64>>,
+    /// Set a system parameter, e.g. --param beta=0.5 (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Record every this many steps (and always the endpoints). Runs whose
+    /// recorded samples would not fit in memory (at most 4 GiB, or half the
+    /// available memory), or whose JSON trajectory would exceed 64 MiB, are
+    /// refused before they start, with the --every that fits.
+    #[arg(long, default_value_t = 1)]
+    pub every: usize,
+    /// Trajectory file format.
+    #[arg(long, value_enum, default_value_t = Format::Csv)]
+    pub format: Format,
+    /// Output folder. It is created and locked before the run starts (a
+    /// second run on the same folder is refused); the files appear together
+    /// when the run has finished, so an interrupted run leaves the previous
+    /// results in place.
+    #[arg(long, short, default_value = "results/run")]
+    pub out: PathBuf,
+    /// Newton iteration.
+    #[arg(long, value_enum, default_value_t = Newton::Full)]
+    pub newton: Newton,
+    /// Skip the plot.
+    #[arg(long)]
+    pub no_plot: bool,
+    /// Replace an initial velocity that violates the constraints by the
+    /// closest one that satisfies them (in the kinetic-energy metric)
+    /// instead of stopping with an error.
+    #[arg(long)]
+    pub project_v0: bool,
+}
+
+/// Fixed cap on the memory the recorded trajectory of `spark run` may take
+/// (samples in the stepper's record, the result columns and the figure's
+/// curves): 4 GiB, lowered to half the available memory when the system
+/// reports it.
+const MAX_TRAJECTORY_MEMORY: u64 = 4 << 30;
+
+/// Half of `MemAvailable` from /proc/meminfo, when the system reports it.
+fn half_available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib.saturating_mul(1024) / 2)
+}
+
+/// Refuses runs whose recorded trajectory would not fit in memory, or whose
+/// JSON trajectory would be unreasonably large, before any computation.
+fn check_output_size(
+    samples: u64,
+    n: usize,
+    m: usize,
+    holonomic: bool,
+    format: Format,
+    every: usize,
+) -> Result<(), String> {
+    // Per sample: the stepper's record (t, q, v, energy, residual,
+    // multipliers, iterations), the result columns, and the figure's points.
+    let per_sample = 8 * (1 + 2 * n as u64 + 4 + m as u64 + 2) + 8 * (2 * n as u64 + 4) + 16 * (2 * n as u64 + 3);
+    let bytes = samples.saturating_mul(per_sample);
+    let limit = half_available_memory().map_or(MAX_TRAJECTORY_MEMORY, |a| a.min(MAX_TRAJECTORY_MEMORY));
+    let thin = |limit_samples: u64| (samples / limit_samples.max(1) + 1).saturating_mul(every as u64);
+    if bytes > limit {
+        return Err(format!(
+            "the run records {samples:.3e} samples ({:.3e} bytes in memory), more than the limit of {:.3e} bytes; \
+             record fewer with --every {} or more, raise --h, or shorten --t-end",
+            bytes as f64,
+            limit as f64,
+            thin(limit / per_sample),
+            samples = samples as f64,
+        ));
+    }
+    if matches!(format, Format::Json | Format::Both) {
+        let json = json_trajectory_bytes(samples, n, holonomic);
+        if json > MAX_JSON_TRAJECTORY_BYTES {
+            let per = json_trajectory_bytes(1, n, holonomic);
+            return Err(format!(
+                "the JSON trajectory would take about {:.3e} bytes, more than the limit of {:.3e}; write it as CSV \
+                 (--format csv) or record fewer samples with --every {} or more",
+                json as f64,
+                MAX_JSON_TRAJECTORY_BYTES as f64,
+                thin(MAX_JSON_TRAJECTORY_BYTES / per),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Every entry of `--q0` / `--v0` must be finite.
+fn check_finite(flag: &str, values: &[f64]) -> Result<(), String> {
+    match values.iter().position(|x| !x.is_finite()) {
+        Some(i) => Err(format!("{flag}: entry {} is {}, not a finite number", i + 1, values[i])),
+        None => Ok(()),
+    }
+}
+
+/// `spark run`: one integration, its files and its report.
+pub fn run_command(a: RunArgs) -> Result<String, String> {
+    let name = a.system.as_deref().or(a.system_flag.as_deref()).ok_or("name a system (see `spark list`)")?;
+    let entry = lookup(name).map_err(|e| e.to_string())?;
+    let method = parse_method(&a.method)?;
+    let h = a.h.unwrap_or(entry.h);
+    let t0 = a.t0.unwrap_or(entry.t0);
+    if !(h.is_finite() && h > 0.0) {
+        return Err(format!("--h must be a positive number, got {h:.3e}"));
+    }
+    if !t0.is_finite() {
+        return Err(format!("--t0 must be a finite number, got {t0:.3e}"));
+    }
+    let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
+    if !(t_end.is_finite() && t_end > t0) {
+        return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));
+    }
+    if a.stages == 0 {
+        return Err("--stages must be at least 1".into());
+    }
+    if a.every == 0 {
+        return Err("--every must be at least 1 (1 records every step)".into());
+    }
+    let steps = step_count(t0, t_end, h)?;
+    let samples = (steps / a.every) as u64 + 2;
+    check_output_size(samples, entry.n, entry.m, entry.effects.holonomic, a.format, a.every)?;
+    let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
+    spec.t0 = t0;
+    for (flag, what, given) in [("--q0", "q0", &a.q0), ("--v0", "v0", &a.v0)] {
+        let Some(x) = given else { continue };
+        if x.len() != entry.n {
+            let coordinates = entry.coordinates.join(", ");
+            let (got, expected, system) = (x.len(), entry.n, entry.name);
+            return Err(RunError::Dimension { what, system, got, expected, coordinates }.to_string());
+        }
+        check_finite(flag, x)?;
+    }
+    if let Some(q0) = a.q0 {
+        spec.q0 = q0;
+    }
+    if let Some(v0) = a.v0 {
+        spec.v0 = v0;
+    }
+    spec.parameters = parse_params(&a.params)?;
+    spec.record_every = a.every;
+    spec.newton.mode = a.newton.into();
+    if a.project_v0 {
+        spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
+    }
+    // The folder is created and locked before the run, so an unwritable or
+    // busy --out is reported at once.
+    let mut out = OutputDir::open(&a.out).map_err(|e| e.to_string())?;
+    let progress = Progress::on_terminal();
+    let bar = progress.bar(&format!("{} {} s={}", entry.name, method, a.stages), steps as u64);
+    let result = run(&spec, &|n| bar.inc(n)).map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
+    let stem = format!("{}_{}_s{}", entry.name, method.key(), a.stages);
+    let e = |e: OutputError| e.to_string();
+    if matches!(a.format, Format::Csv | Format::Both) {
+        write_run_csv(&result, &mut out, &format!("{stem}.csv")).map_err(e)?;
+    }
+    if matches!(a.format, Format::Json | Format::Both) {
+        write_run_json(&result, &mut out, &format!("{stem}.json")).map_err(e)?;
+    }
+    if !a.no_plot {
+        out.render(&run_figure(&result), &stem).map_err(e)?;
+    }
+    // The reports come last: they describe the files above.
+    let report = run_report(&result, &spec);
+    out.write_bytes("report.md", report.as_bytes()).map_err(e)?;
+    let summary = serde_json::json!({
+        "system": entry.name, "type": entry.type_name, "method": method.name(), "stages": a.stages,
+        "h": h, "t0": t0, "q0": spec.q0, "v0": spec.v0, "parameters": spec.parameters, "stats": result.stats,
+    });
+    out.write_json("report.json", &summary).map_err(e)?;
+    let files = out.commit().map_err(e)?;
+    let mut text = report;
+    for f in files {
+        text.push_str(&format!("wrote {}\n", f.display()));
+    }
+    Ok(text)
+}

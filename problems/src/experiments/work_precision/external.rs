@@ -1,0 +1,216 @@
+//! The peers that live outside Rust: the SPARK step written in CasADi and
+//! generated to C in two variants — CasADi's own Newton iteration with its QR
+//! solve (`CasADi C (Newton-QR)`), and the residual with its dense Jacobian
+//! solved by a hand-written partial-pivoting LU Newton (`CasADi C
+//! (Newton-LU)`) — both `gcc -O3 -march=native` and timed by a C driver, and
+//! SciPy `solve_ivp` (DOP853, Radau) on the ψ-eliminated ODE. All run in
+//! `casadi/peers/peers.py`; this module hands it the problem (source text,
+//! parameters, initial values, the Rust reference end state, tableaux and
+//! step counts) as JSON and reads its measured points back as CSV, so every
+//! peer's error is measured against the same reference in the same run.
+
+use super::{Point, Problem, SystemMeasurement, WorkPrecisionConfig};
+use crate::catalog::SystemKind;
+use spark_runtime::TableauTable;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Solver label of the CasADi-generated Newton iteration with CasADi's QR solve.
+pub const CASADI_NEWTON_QR: &str = "CasADi C (Newton-QR)";
+/// Solver label of the CasADi-generated residual and dense Jacobian with a
+/// hand-written LU Newton.
+pub const CASADI_NEWTON_LU: &str = "CasADi C (Newton-LU)";
+
+#[derive(serde::Serialize)]
+struct Input<'a> {
+    system: &'a str,
+    name: &'a str,
+    coordinates: Vec<String>,
+    parameters: Vec<String>,
+    parameter_values: Vec<f64>,
+    lagrangian: &'a str,
+    constraints: Vec<String>,
+    q0: &'a [f64],
+    v0: &'a [f64],
+    final_time: f64,
+    q_ref: &'a [f64],
+    v_ref: &'a [f64],
+    /// One entry per peer method: its tableau and the step counts SPARK used.
+    methods: Vec<MethodInput>,
+    tolerances: &'a [f64],
+    repeats: usize,
+    /// Smallest total CPU time of the timed repeats of one point, seconds.
+    min_timing: f64,
+    max_run_time: f64,
+}
+
+/// One peer method: its label, tableau and the step counts to run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MethodInput {
+    /// Label ([`Method::label`]).
+    pub label: String,
+    /// The coefficients.
+    pub tableau: TableauTable,
+    /// Step counts over `[0, T]`.
+    pub steps: Vec<usize>,
+}
+
+/// What `peers.py --per-step` measured for one method with the Newton-LU peer.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PeerStepRun {
+    /// Method label.
+    pub method: String,
+    /// Steps over `[0, T]`.
+    pub steps: usize,
+    /// Whether some step's Newton did not meet the stop rule.
+    pub failed: bool,
+    /// Timed repeats.
+    pub repeats: usize,
+    /// Median wall time of one run, seconds.
+    pub wall_time: f64,
+    /// Median thread CPU time of one run, seconds.
+    pub cpu_time: f64,
+    /// Residual evaluations per step.
+    pub evaluations_per_step: f64,
+    /// Jacobian evaluations and LU factorizations per step (Newton iterations).
+    pub factorizations_per_step: f64,
+    /// End coordinates.
+    pub q: Vec<f64>,
+    /// End velocities.
+    pub v: Vec<f64>,
+}
+
+/// Runs the external peers for one measured system and returns their points.
+pub fn run(
+    python: &Path,
+    script: &Path,
+    out: &Path,
+    kind: SystemKind,
+    m: &SystemMeasurement,
+    tableaux: &[TableauTable],
+    cfg: &WorkPrecisionConfig,
+) -> Result<Vec<Point>, String> {
+    let methods = tableaux
+        .iter()
+        .zip(&cfg.peer_methods)
+        .map(|(t, &(method, s))| {
+            let label = method.label(s);
+            let mut steps: Vec<usize> = m
+                .points
+                .iter()
+                .filter(|p| p.solver == super::report::SPARK && p.method == label)
+                .map(|p| p.steps)
+                .collect();
+            steps.sort_unstable();
+            MethodInput { label, tableau: t.clone(), steps }
+        })
+        .collect();
+    let dir = out.join("external");
+    let output_path = dir.join(format!("{}-points.csv", kind.key()));
+    run_script(python, script, &dir, kind, &m.problem, methods, cfg, &output_path, &[])?;
+    let mut reader = csv::Reader::from_path(&output_path).map_err(|e| format!("{}: {e}", output_path.display()))?;
+    reader.deserialize::<Point>().collect::<Result<Vec<_>, _>>().map_err(|e| format!("{}: {e}", output_path.display()))
+}
+
+/// Runs only the Newton-LU peer (`peers.py --per-step`) on `problem`, each
+/// method at its step counts, and returns what it measured. `problem`'s
+/// reference end state is not used.
+pub fn run_per_step(
+    python: &Path,
+    script: &Path,
+    out: &Path,
+    kind: SystemKind,
+    problem: &Problem,
+    methods: Vec<MethodInput>,
+    cfg: &WorkPrecisionConfig,
+) -> Result<Vec<PeerStepRun>, String> {
+    let dir = out.join("per-step");
+    let output_path = dir.join(format!("{}-newton-lu.json", kind.key()));
+    run_script(python, script, &dir, kind, problem, methods, cfg, &output_path, &["--per-step"])?;
+    let text = std::fs::read_to_string(&output_path).map_err(|e| format!("{}: {e}", output_path.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", output_path.display()))
+}
+
+/// Writes the problem as JSON into `dir` and runs the peer script on it;
+/// the script writes `output`.
+#[allow(clippy::too_many_arguments)]
+fn run_script(
+    python: &Path,
+    script: &Path,
+    dir: &Path,
+    kind: SystemKind,
+    problem: &Problem,
+    methods: Vec<MethodInput>,
+    cfg: &WorkPrecisionConfig,
+    output: &Path,
+    extra: &[&str],
+) -> Result<(), String> {
+    if !python.exists() {
+        return Err(format!(
+            "Python interpreter {} not found; create it with `bash casadi/peers/setup.sh`",
+            python.display()
+        ));
+    }
+    if !script.exists() {
+        return Err(format!("peer script {} not found (run from the repository root)", script.display()));
+    }
+    let info = kind.info();
+    let source = source_of(kind);
+    let input = Input {
+        system: kind.key(),
+        name: source.name,
+        coordinates: source.coordinates.iter().map(|s| s.to_string()).collect(),
+        parameters: source.parameters.iter().map(|s| s.to_string()).collect(),
+        parameter_values: info.parameters.iter().map(|p| p.1).collect(),
+        lagrangian: source.lagrangian,
+        constraints: source.constraints.iter().map(|s| s.to_string()).collect(),
+        q0: &problem.q0,
+        v0: &problem.v0,
+        final_time: problem.final_time,
+        q_ref: &problem.q_ref,
+        v_ref: &problem.v_ref,
+        methods,
+        tolerances: &cfg.tolerances,
+        repeats: cfg.repeats,
+        min_timing: cfg.min_timing.as_secs_f64(),
+        max_run_time: cfg.max_run_time.as_secs_f64(),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| format!("could not create {}: {e}", dir.display()))?;
+    let input_path = dir.join(format!("{}-input.json", kind.key()));
+    let text = serde_json::to_string_pretty(&input).map_err(|e| e.to_string())?;
+    std::fs::write(&input_path, text).map_err(|e| format!("could not write {}: {e}", input_path.display()))?;
+    let build: PathBuf = dir.join(format!("{}-build", kind.key()));
+    let result = Command::new(python)
+        .arg(script)
+        .arg("--input")
+        .arg(&input_path)
+        .arg("--output")
+        .arg(output)
+        .arg("--build")
+        .arg(build)
+        .args(extra)
+        .output()
+        .map_err(|e| format!("could not start {}: {e}", python.display()))?;
+    if !result.status.success() {
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        let tail: Vec<&str> = stderr.lines().rev().take(12).collect();
+        return Err(format!(
+            "{} exited with {}: {}",
+            script.display(),
+            result.status,
+            tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+        ));
+    }
+    Ok(())
+}
+
+fn source_of(kind: SystemKind) -> spark_runtime::SystemSource {
+    use crate::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
+    use spark_runtime::NonholonomicSystem;
+    match kind {
+        SystemKind::Skate => <Skate as NonholonomicSystem<3, 1>>::SOURCE,
+        SystemKind::Robot => <MobileRobot as NonholonomicSystem<4, 2>>::SOURCE,
+        SystemKind::McLachlanPerlmutter7 => <McLachlanPerlmutter7 as NonholonomicSystem<7, 1>>::SOURCE,
+        _ => <NonholonomicParticle as NonholonomicSystem<3, 1>>::SOURCE,
+    }
+}

@@ -1,0 +1,324 @@
+//! Time per step at the paper's step sizes, SPARK against the Newton-LU
+//! CasADi peer, measured side by side in one run (`spark work-precision
+//! --per-step`).
+//!
+//! For each of the paper's systems at its step size (particle `h = 0.2`,
+//! skate `h = 0.1`, robot `h = 0.2`, McLachlan–Perlmutter particles `n = 7`
+//! `h = 0.05`) and each of Gauss `s = 1..4` and Lobatto IIIA-B `s = 2..4`,
+//! the SPARK stepper (generated code, default options) integrates from the
+//! paper's initial values over `[0, 10]` with full Newton, with simplified
+//! Newton on the exact Jacobian, and with simplified Newton on the
+//! stage-decoupled matrix (`Jacobian::Auto`, the default of simplified
+//! Newton: stage-decoupled where the structure facts allow it, exact
+//! otherwise), timed by the thread's CPU time (median of repeats); then
+//! `casadi/peers/peers.py --per-step` runs the Newton-LU peer
+//! ([`super::external::CASADI_NEWTON_LU`]) on the same steps, timed by the
+//! same clock. The table gives nanoseconds per step, the Newton iterations of
+//! each, the peer's residual evaluations and factorizations per step, and how
+//! far the peer's end state is from SPARK's (both solve the same equations,
+//! so this is round-off accumulated over the run).
+
+use super::external::{self, MethodInput, PeerStepRun};
+use super::sweep::median_time;
+use super::{Problem, WorkPrecisionConfig};
+use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use spark_runtime::TableauTable;
+use spark_runtime::{
+    Jacobian, Method, NewtonMode, NewtonOptions, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector,
+};
+use std::fmt::Write as _;
+use std::marker::PhantomData;
+
+/// The final time of every per-step run.
+pub const FINAL_TIME: f64 = 10.0;
+
+/// The paper's systems with the step sizes of its §8 experiments.
+pub const PAPER_STEP_SIZES: [(SystemKind, f64); 4] = [
+    (SystemKind::Particle, 0.2),
+    (SystemKind::Skate, 0.1),
+    (SystemKind::Robot, 0.2),
+    (SystemKind::McLachlanPerlmutter7, 0.05),
+];
+
+/// The methods of the table: Gauss `s = 1..4`, Lobatto IIIA-B `s = 2..4`.
+pub fn per_step_methods() -> Vec<(Method, usize)> {
+    let mut v: Vec<(Method, usize)> = (1..=4).map(|s| (Method::Gauss, s)).collect();
+    v.extend((2..=4).map(|s| (Method::LobattoIIIAB, s)));
+    v
+}
+
+/// One SPARK run of the table.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SparkRun {
+    /// Median thread CPU time per step, seconds.
+    pub time_per_step: f64,
+    /// Mean Newton iterations per step.
+    pub iterations: f64,
+    /// Timed repeats.
+    pub repeats: usize,
+    /// End coordinates.
+    pub q: Vec<f64>,
+    /// End velocities.
+    pub v: Vec<f64>,
+}
+
+/// One row of the table: a system, a method, SPARK in both Newton modes and
+/// the Newton-LU peer.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PerStepRow {
+    /// System key.
+    pub system: &'static str,
+    /// Method label.
+    pub method: String,
+    /// Step size.
+    pub h: f64,
+    /// Steps over `[0, T]`.
+    pub steps: usize,
+    /// SPARK, full Newton.
+    pub full: SparkRun,
+    /// SPARK, simplified Newton on the exact Jacobian.
+    pub simplified: SparkRun,
+    /// SPARK, simplified Newton with `Jacobian::Auto` (the stage-decoupled
+    /// matrix where the structure facts allow it).
+    pub decoupled: SparkRun,
+    /// The Newton-LU peer (`None` with the reason when it did not run).
+    pub peer: Result<PeerStepRun, String>,
+}
+
+impl PerStepRow {
+    /// Largest difference between the peer's and SPARK full Newton's end
+    /// state (`q` and `v`).
+    pub fn end_state_difference(&self) -> Option<f64> {
+        let p = self.peer.as_ref().ok()?;
+        let d = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        Some(d(&p.q, &self.full.q).max(d(&p.v, &self.full.v)))
+    }
+}
+
+/// Times `steps` SPARK steps of `(method, S)` with the Newton `mode` and
+/// `jacobian` from the entry's initial values.
+fn spark_run<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    entry: &SystemEntry,
+    method: Method,
+    h: f64,
+    steps: usize,
+    (mode, jacobian): (NewtonMode, Jacobian),
+    cfg: &WorkPrecisionConfig,
+) -> Result<SparkRun, String>
+where
+    Sys: Dispatch<N, M>,
+{
+    let tableau = Tableau::<S>::new(method).map_err(|e| e.to_string())?;
+    let opts = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
+    let (q0, v0) = (Vector::<N>::from_column_slice(entry.q0), Vector::<N>::from_column_slice(entry.v0));
+    let quiet = RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let schedule = Schedule::Fixed { h, steps };
+    let label = method.label(S);
+    // Timed without event location, like the peers: declared events are
+    // for `spark section`.
+    let traj = stepper
+        .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
+        .map_err(|e| format!("{} {label}: {e}", entry.name))?;
+    let end = traj.last().ok_or_else(|| format!("{} {label}: the run recorded no end state", entry.name))?;
+    let (_, cpu, repeats) = median_time(cfg.repeats, cfg.min_timing, || {
+        stepper
+            .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
+            .is_ok()
+    })
+    .ok_or_else(|| format!("{} {label}: a timed repeat failed", entry.name))?;
+    Ok(SparkRun {
+        time_per_step: cpu / steps as f64,
+        iterations: traj.report.newton_iterations_mean,
+        repeats,
+        q: end.q.iter().copied().collect(),
+        v: end.v.iter().copied().collect(),
+    })
+}
+
+/// Both Newton modes of one `(method, S)`, and its tableau for the peer.
+struct MethodRuns<'a, Sys> {
+    entry: &'a SystemEntry,
+    method: Method,
+    h: f64,
+    steps: usize,
+    cfg: &'a WorkPrecisionConfig,
+    system: PhantomData<Sys>,
+}
+
+type Runs = Result<([SparkRun; 3], TableauTable), String>;
+
+/// The three SPARK variants of a row: full Newton, simplified Newton on the
+/// exact Jacobian, simplified Newton with the default `Jacobian::Auto`.
+const VARIANTS: [(NewtonMode, Jacobian); 3] = [
+    (NewtonMode::Full, Jacobian::Exact),
+    (NewtonMode::Simplified, Jacobian::Exact),
+    (NewtonMode::Simplified, Jacobian::Auto),
+];
+
+impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for MethodRuns<'_, Sys> {
+    type Output = Runs;
+    fn visit<const S: usize, const D: usize>(self) -> Runs {
+        let Self { entry, method, h, steps, cfg, .. } = self;
+        let [full, simplified, decoupled] = VARIANTS;
+        let runs = [
+            spark_run::<Sys, N, M, S, D>(entry, method, h, steps, full, cfg)?,
+            spark_run::<Sys, N, M, S, D>(entry, method, h, steps, simplified, cfg)?,
+            spark_run::<Sys, N, M, S, D>(entry, method, h, steps, decoupled, cfg)?,
+        ];
+        let tableau = TableauTable::of(&Tableau::<S>::new(method).map_err(|e| e.to_string())?);
+        Ok((runs, tableau))
+    }
+}
+
+/// Every method of one system through the catalogue's dispatch.
+struct SystemRuns<'a> {
+    h: f64,
+    steps: usize,
+    cfg: &'a WorkPrecisionConfig,
+}
+
+impl SystemVisitor for SystemRuns<'_> {
+    type Output = Result<Vec<(Method, usize, Runs)>, String>;
+    fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+        self,
+        entry: &'static SystemEntry,
+    ) -> Self::Output {
+        per_step_methods()
+            .into_iter()
+            .map(|(method, s)| {
+                let runs = MethodRuns::<Sys> {
+                    entry,
+                    method,
+                    h: self.h,
+                    steps: self.steps,
+                    cfg: self.cfg,
+                    system: PhantomData,
+                };
+                let out = Sys::with_stages(s, runs).map_err(|e| e.to_string())?;
+                Ok((method, s, out))
+            })
+            .collect()
+    }
+}
+
+/// Measures the table: every system of [`PAPER_STEP_SIZES`] that `cfg`
+/// selects, SPARK first, then the peer (when `cfg.python` is set).
+pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> Result<Vec<PerStepRow>, String> {
+    let mut rows = Vec::new();
+    for &(kind, h) in PAPER_STEP_SIZES.iter().filter(|(k, _)| cfg.systems.contains(k)) {
+        let entry = kind.entry();
+        let steps = (FINAL_TIME / h).round() as usize;
+        progress(&format!("{}: SPARK, h = {h}", entry.name));
+        let runs = visit_system(kind, SystemRuns { h, steps, cfg })?;
+        let mut spark = Vec::new();
+        let mut methods = Vec::new();
+        for (method, s, r) in runs {
+            let (runs, tableau) = r?;
+            let label = method.label(s);
+            methods.push(MethodInput { label: label.clone(), tableau, steps: vec![steps] });
+            spark.push((label, runs));
+        }
+        let peer: Result<Vec<PeerStepRun>, String> = match &cfg.python {
+            None => Err("not run (no Python interpreter configured)".into()),
+            Some(python) => {
+                progress(&format!("{}: {}", entry.name, external::CASADI_NEWTON_LU));
+                let problem = Problem {
+                    system: entry.name,
+                    q0: entry.q0.to_vec(),
+                    v0: entry.v0.to_vec(),
+                    final_time: FINAL_TIME,
+                    q_ref: spark.first().map(|s| s.1[0].q.clone()).unwrap_or_default(),
+                    v_ref: spark.first().map(|s| s.1[0].v.clone()).unwrap_or_default(),
+                };
+                external::run_per_step(python, &cfg.peers_script, &cfg.out, kind, &problem, methods, cfg)
+            }
+        };
+        for (label, [full, simplified, decoupled]) in spark {
+            let peer = match &peer {
+                Err(e) => Err(e.clone()),
+                Ok(list) => match list.iter().find(|p| p.method == label && p.steps == steps) {
+                    None => Err(format!("the peer returned no run of {label}")),
+                    Some(p) if p.failed => Err(format!("the peer's Newton did not meet its stop rule on {label}")),
+                    Some(p) => Ok(p.clone()),
+                },
+            };
+            rows.push(PerStepRow { system: entry.name, method: label, h, steps, full, simplified, decoupled, peer });
+        }
+    }
+    if rows.is_empty() {
+        return Err("--per-step measures the paper's systems (particle, skate, robot, mp7); none selected".into());
+    }
+    Ok(rows)
+}
+
+fn ns(seconds: f64) -> String {
+    format!("{:.0}", seconds * 1e9)
+}
+
+/// The table as Markdown.
+pub fn per_step_markdown(rows: &[PerStepRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| system | h | method | Newton-LU peer ns/step | peer evaluations / factorizations per step | \
+         SPARK full ns/step (iterations) | SPARK simplified ns/step (iterations) | \
+         SPARK simplified, stage-decoupled ns/step (iterations) | peer / full | peer / simplified | \
+         peer / stage-decoupled | end state, peer − SPARK |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        let full = format!("{} ({:.2})", ns(r.full.time_per_step), r.full.iterations);
+        let simplified = format!("{} ({:.2})", ns(r.simplified.time_per_step), r.simplified.iterations);
+        let decoupled = format!("{} ({:.2})", ns(r.decoupled.time_per_step), r.decoupled.iterations);
+        let (peer, counts, rf, rs, rd, diff) = match &r.peer {
+            Ok(p) => {
+                let t = p.cpu_time / r.steps as f64;
+                (
+                    ns(t),
+                    format!("{:.2} / {:.2}", p.evaluations_per_step, p.factorizations_per_step),
+                    format!("{:.2}", t / r.full.time_per_step),
+                    format!("{:.2}", t / r.simplified.time_per_step),
+                    format!("{:.2}", t / r.decoupled.time_per_step),
+                    r.end_state_difference().map_or("–".into(), |d| format!("{d:.1e}")),
+                )
+            }
+            Err(e) => (format!("not measured: {e}"), "–".into(), "–".into(), "–".into(), "–".into(), "–".into()),
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {peer} | {counts} | {full} | {simplified} | {decoupled} | {rf} | {rs} | {rd} | {diff} |",
+            r.system, r.h, r.method
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn per_step_table_measures_spark_and_reports_a_missing_peer() {
+        let mut cfg = WorkPrecisionConfig::quick(std::env::temp_dir().join("spark-per-step-unused"));
+        cfg.systems = vec![SystemKind::Skate];
+        let rows = measure_per_step(&cfg, &|_| {}).unwrap();
+        assert_eq!(rows.len(), per_step_methods().len());
+        for r in &rows {
+            assert_eq!((r.steps, r.h), (100, 0.1));
+            assert!(r.full.time_per_step > 0.0 && r.simplified.time_per_step > 0.0, "{r:?}");
+            assert!(r.decoupled.time_per_step > 0.0, "{r:?}");
+            assert!(r.full.iterations >= 1.0, "{r:?}");
+            assert!(r.peer.as_ref().is_err_and(|e| e.contains("no Python")), "{r:?}");
+        }
+        let md = per_step_markdown(&rows);
+        assert!(md.contains("| skate | 0.1 | Gauss s=2 |"), "{md}");
+        assert!(md.contains("not measured"), "{md}");
+        cfg.systems = vec![SystemKind::Sleigh];
+        assert!(measure_per_step(&cfg, &|_| {}).is_err());
+    }
+}

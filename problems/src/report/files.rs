@@ -1,0 +1,449 @@
+//! Output folders and the files in them: column tables (CSV) behind the
+//! figures, JSON, Markdown and the rendered figures.
+//!
+//! Every file goes through an [`OutputDir`], which makes a folder's results
+//! all-or-nothing:
+//! - [`OutputDir::open`] creates the folder and takes an exclusive lock on it
+//!   (`.spark-lock`, an advisory `flock` held for the life of the value), so
+//!   two runs never write into one folder at once; the second is refused
+//!   with a message naming the lock and the process holding it. Callers open
+//!   the folder before any computation, so an unwritable folder is reported
+//!   at once.
+//! - Each file is written to a hidden temporary name in the same folder
+//!   (`.spark-tmp-…`, same extension) and flushed to disk; nothing under a
+//!   final name changes while the files are written.
+//! - [`OutputDir::commit`] renames the temporary files to their final names,
+//!   in the order they were written (reports last), in one short burst.
+//!   An interrupted run therefore leaves the previous complete results in
+//!   place; its temporary files are removed by the next run that opens the
+//!   folder (or when the value is dropped without a commit).
+
+use crate::report::plot::{render_files, render_scatter_files, Figure, PlotError, Scatter};
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+/// Name of the lock file inside an output folder.
+pub const LOCK_FILE: &str = ".spark-lock";
+
+/// Prefix of the temporary files inside an output folder.
+pub const TEMP_PREFIX: &str = ".spark-tmp-";
+
+/// Test-only hook: when this environment variable holds a number of
+/// milliseconds, [`OutputDir`] sleeps that long after writing its first
+/// temporary file, so that tests can interrupt a run in its write phase.
+/// It is not a user setting and is not documented in `--help`.
+pub const TEST_PAUSE_ENV: &str = "SPARK_TEST_PAUSE_AFTER_FIRST_FILE_MS";
+
+/// Errors while writing output files.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// A file or directory could not be created or written.
+    #[error("cannot write {path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// CSV encoding failed.
+    #[error("cannot write CSV {path}: {source}")]
+    Csv {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: csv::Error,
+    },
+    /// JSON encoding failed.
+    #[error("cannot write JSON {path}: {source}")]
+    Json {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: serde_json::Error,
+    },
+    /// Another run holds the output folder's lock.
+    #[error(
+        "output folder {dir} is in use by another spark run ({holder}; lock file {lock}): wait for it to \
+         finish or choose another --out"
+    )]
+    Locked {
+        /// The output folder.
+        dir: PathBuf,
+        /// The lock file.
+        lock: PathBuf,
+        /// What the other run wrote into the lock file (process id and command line).
+        holder: String,
+    },
+    /// A figure could not be drawn.
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    /// Columns of a table differ in length.
+    #[error("table {path}: column `{column}` has {got} rows, expected {expected}")]
+    Ragged {
+        /// The path.
+        path: PathBuf,
+        /// The offending column.
+        column: String,
+        /// Its length.
+        got: usize,
+        /// The first column's length.
+        expected: usize,
+    },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Io { path: path.to_path_buf(), source }
+}
+
+/// Creates `dir` and its parents.
+pub fn create_dir(dir: &Path) -> Result<(), OutputError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))
+}
+
+/// An output folder held exclusively by this process; see the module
+/// documentation for the guarantees.
+#[derive(Debug)]
+pub struct OutputDir {
+    dir: PathBuf,
+    /// Keeps the `flock` (released when the file is closed, also when the
+    /// process is killed).
+    _lock: File,
+    /// `(temporary, final)` paths written and not yet renamed, in order.
+    staged: Vec<(PathBuf, PathBuf)>,
+    /// Test hook ([`TEST_PAUSE_ENV`]): pause after the first staged file.
+    pause: Option<std::time::Duration>,
+}
+
+impl OutputDir {
+    /// Creates `dir` (and its parents), takes its lock and removes temporary
+    /// files that an interrupted run left behind.
+    pub fn open(dir: &Path) -> Result<OutputDir, OutputError> {
+        create_dir(dir)?;
+        let lock_path = dir.join(LOCK_FILE);
+        let mut lock = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&lock_path)
+            .map_err(io(&lock_path))?;
+        if !try_lock_exclusive(&lock).map_err(io(&lock_path))? {
+            let mut holder = String::new();
+            let _ = lock.read_to_string(&mut holder);
+            let holder = holder.trim();
+            let holder = if holder.is_empty() { "process unknown".to_string() } else { holder.to_string() };
+            return Err(OutputError::Locked { dir: dir.to_path_buf(), lock: lock_path, holder });
+        }
+        let command: Vec<String> = std::env::args().collect();
+        let note = format!("pid {}: {}", std::process::id(), command.join(" "));
+        lock.set_len(0)
+            .and_then(|()| lock.seek(SeekFrom::Start(0)))
+            .and_then(|_| lock.write_all(note.as_bytes()))
+            .map_err(io(&lock_path))?;
+        // The lock is ours, so any temporary file here belongs to a run that
+        // ended without committing.
+        let entries = std::fs::read_dir(dir).map_err(io(dir))?;
+        for entry in entries.flatten() {
+            if entry.file_name().to_string_lossy().starts_with(TEMP_PREFIX) {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+        let pause = std::env::var(TEST_PAUSE_ENV)
+            .ok()
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map(std::time::Duration::from_millis);
+        Ok(OutputDir { dir: dir.to_path_buf(), _lock: lock, staged: Vec::new(), pause })
+    }
+
+    /// The folder.
+    pub fn path(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The final path of the file `name` in this folder.
+    pub fn join(&self, name: impl AsRef<Path>) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// A fresh temporary path for the file `name`, with the same extension
+    /// (plotters picks the image format from it).
+    fn temp_path(&self, name: &str) -> PathBuf {
+        let seq = self.staged.len();
+        self.dir.join(format!("{TEMP_PREFIX}{}-{seq}-{name}", std::process::id()))
+    }
+
+    /// Records a written temporary file; runs the test pause after the first.
+    fn staged(&mut self, temp: PathBuf, name: &str) -> PathBuf {
+        let path = self.dir.join(name);
+        self.staged.push((temp, path.clone()));
+        if self.staged.len() == 1 {
+            if let Some(pause) = self.pause {
+                std::thread::sleep(pause);
+            }
+        }
+        path
+    }
+
+    /// Writes the file `name` through `write` into a temporary file and
+    /// stages it; returns the final path (written at [`OutputDir::commit`]).
+    pub fn write_with<E>(
+        &mut self,
+        name: &str,
+        write: impl FnOnce(&mut dyn Write) -> Result<(), E>,
+    ) -> Result<PathBuf, OutputError>
+    where
+        E: Into<WriteFailure>,
+    {
+        let temp = self.temp_path(name);
+        let result = (|| {
+            let file = OpenOptions::new().write(true).create_new(true).open(&temp).map_err(io(&temp))?;
+            let mut w = BufWriter::new(file);
+            write(&mut w).map_err(|e| e.into().into_output(&self.dir.join(name)))?;
+            let file = w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
+            file.sync_all().map_err(io(&temp))
+        })();
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&temp);
+            return Err(e);
+        }
+        Ok(self.staged(temp, name))
+    }
+
+    /// Stages `bytes` as the file `name`.
+    pub fn write_bytes(&mut self, name: &str, bytes: &[u8]) -> Result<PathBuf, OutputError> {
+        self.write_with(name, |w| w.write_all(bytes))
+    }
+
+    /// Stages `value` as pretty JSON in the file `name`.
+    pub fn write_json<T: serde::Serialize + ?Sized>(&mut self, name: &str, value: &T) -> Result<PathBuf, OutputError> {
+        self.write_with(name, |w| serde_json::to_writer_pretty(w, value))
+    }
+
+    /// Stages named columns of equal length as the CSV file `name` (see
+    /// [`write_columns`]).
+    pub fn write_columns(&mut self, name: &str, columns: &[(&str, &[f64])]) -> Result<PathBuf, OutputError> {
+        let path = self.dir.join(name);
+        check_columns(&path, columns)?;
+        self.write_with(name, |w| write_columns_to(w, columns))
+    }
+
+    /// Stages `fig` as `<stem>.png` and `<stem>.svg`; returns both final paths.
+    pub fn render(&mut self, fig: &Figure, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
+        let png_name = format!("{stem}.png");
+        let svg_name = format!("{stem}.svg");
+        let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
+        let result = render_files(fig, &png, &svg).map_err(OutputError::from).and_then(|()| {
+            for p in [&png, &svg] {
+                File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
+            }
+            Ok(())
+        });
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&png);
+            let _ = std::fs::remove_file(&svg);
+            return Err(e);
+        }
+        let png = self.staged(png, &png_name);
+        let svg = self.staged(svg, &svg_name);
+        Ok(vec![png, svg])
+    }
+
+    /// Stages the scatter plot `fig` as `<stem>.png` and `<stem>.svg`;
+    /// returns both final paths.
+    pub fn render_scatter(&mut self, fig: &Scatter, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
+        let png_name = format!("{stem}.png");
+        let svg_name = format!("{stem}.svg");
+        let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
+        let result = render_scatter_files(fig, &png, &svg).map_err(OutputError::from).and_then(|()| {
+            for p in [&png, &svg] {
+                File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
+            }
+            Ok(())
+        });
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&png);
+            let _ = std::fs::remove_file(&svg);
+            return Err(e);
+        }
+        let png = self.staged(png, &png_name);
+        let svg = self.staged(svg, &svg_name);
+        Ok(vec![png, svg])
+    }
+
+    /// Renames every staged file to its final name, in the order staged, and
+    /// returns the final paths. Files staged later (the reports) appear last.
+    pub fn commit(mut self) -> Result<Vec<PathBuf>, OutputError> {
+        let staged = std::mem::take(&mut self.staged);
+        let mut done = Vec::with_capacity(staged.len());
+        let mut pending = staged.into_iter();
+        for (temp, path) in pending.by_ref() {
+            if let Err(source) = std::fs::rename(&temp, &path) {
+                let _ = std::fs::remove_file(&temp);
+                for (t, _) in pending {
+                    let _ = std::fs::remove_file(t);
+                }
+                return Err(OutputError::Io { path, source });
+            }
+            done.push(path);
+        }
+        // Make the renames durable (best effort: not every file system
+        // supports syncing a directory).
+        if let Ok(d) = File::open(&self.dir) {
+            let _ = d.sync_all();
+        }
+        Ok(done)
+    }
+}
+
+impl Drop for OutputDir {
+    /// Removes the temporary files of an uncommitted folder.
+    fn drop(&mut self) {
+        for (temp, _) in &self.staged {
+            let _ = std::fs::remove_file(temp);
+        }
+    }
+}
+
+/// Takes an exclusive advisory lock on `file` without waiting; `false` when
+/// another open file description holds it.
+fn try_lock_exclusive(file: &File) -> std::io::Result<bool> {
+    use std::os::unix::io::AsRawFd;
+    // SAFETY: `flock` only reads the descriptor number, which `file` keeps open.
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if rc == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}
+
+/// What a file-writing closure of [`OutputDir::write_with`] may fail with.
+#[derive(Debug)]
+pub enum WriteFailure {
+    /// An I/O error.
+    Io(std::io::Error),
+    /// A CSV encoding error.
+    Csv(csv::Error),
+    /// A JSON encoding error.
+    Json(serde_json::Error),
+}
+
+impl WriteFailure {
+    fn into_output(self, path: &Path) -> OutputError {
+        let path = path.to_path_buf();
+        match self {
+            WriteFailure::Io(source) => OutputError::Io { path, source },
+            WriteFailure::Csv(source) => OutputError::Csv { path, source },
+            WriteFailure::Json(source) => OutputError::Json { path, source },
+        }
+    }
+}
+
+impl From<std::io::Error> for WriteFailure {
+    fn from(e: std::io::Error) -> Self {
+        WriteFailure::Io(e)
+    }
+}
+
+impl From<csv::Error> for WriteFailure {
+    fn from(e: csv::Error) -> Self {
+        WriteFailure::Csv(e)
+    }
+}
+
+impl From<serde_json::Error> for WriteFailure {
+    fn from(e: serde_json::Error) -> Self {
+        WriteFailure::Json(e)
+    }
+}
+
+fn check_columns(path: &Path, columns: &[(&str, &[f64])]) -> Result<(), OutputError> {
+    let rows = columns.first().map_or(0, |c| c.1.len());
+    for (name, col) in columns {
+        if col.len() != rows {
+            return Err(OutputError::Ragged {
+                path: path.into(),
+                column: name.to_string(),
+                got: col.len(),
+                expected: rows,
+            });
+        }
+    }
+    Ok(())
+}
+
+fn write_columns_to(w: &mut dyn Write, columns: &[(&str, &[f64])]) -> Result<(), csv::Error> {
+    let rows = columns.first().map_or(0, |c| c.1.len());
+    let mut w = csv::Writer::from_writer(w);
+    w.write_record(columns.iter().map(|c| c.0))?;
+    for r in 0..rows {
+        w.write_record(columns.iter().map(|c| format!("{:?}", c.1[r])))?;
+    }
+    w.flush()?;
+    Ok(())
+}
+
+/// Writes named columns of equal length as CSV (numbers in shortest
+/// round-trip form, so reading them back gives the same `f64`), replacing
+/// `path` atomically. Holds no folder lock: inside a command, use
+/// [`OutputDir::write_columns`].
+pub fn write_columns(path: &Path, columns: &[(&str, &[f64])]) -> Result<(), OutputError> {
+    check_columns(path, columns)?;
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let temp = dir.join(format!("{TEMP_PREFIX}{}-single-{name}", std::process::id()));
+    let result = (|| {
+        let file = OpenOptions::new().write(true).create_new(true).open(&temp).map_err(io(&temp))?;
+        let mut w = BufWriter::new(file);
+        write_columns_to(&mut w, columns).map_err(|source| OutputError::Csv { path: path.to_path_buf(), source })?;
+        let file = w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
+        file.sync_all().map_err(io(&temp))?;
+        std::fs::rename(&temp, path).map_err(io(path))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    result
+}
+
+/// Reads a CSV written by [`write_columns`] back as `(header, columns)`.
+pub fn read_columns(path: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>), OutputError> {
+    let csv_err = |source| OutputError::Csv { path: path.to_path_buf(), source };
+    let mut r = csv::Reader::from_path(path).map_err(csv_err)?;
+    let header: Vec<String> = r.headers().map_err(csv_err)?.iter().map(str::to_string).collect();
+    let mut cols = vec![Vec::new(); header.len()];
+    for rec in r.records() {
+        let rec = rec.map_err(csv_err)?;
+        for (c, field) in cols.iter_mut().zip(rec.iter()) {
+            c.push(field.trim().parse::<f64>().unwrap_or(f64::NAN));
+        }
+    }
+    Ok((header, cols))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn columns_round_trip_exactly() {
+        let dir = std::env::temp_dir().join(format!("spark-out-{}", std::process::id()));
+        create_dir(&dir).unwrap();
+        let p = dir.join("c.csv");
+        let a = [0.1, 1.0 / 3.0, -2.5e-17];
+        let b = [1.0, f64::MIN_POSITIVE, 7.0];
+        write_columns(&p, &[("a", &a), ("b", &b)]).unwrap();
+        let (h, cols) = read_columns(&p).unwrap();
+        assert_eq!(h, vec!["a", "b"]);
+        assert_eq!(cols[0], a.to_vec());
+        assert_eq!(cols[1], b.to_vec());
+        let bad = write_columns(&p, &[("a", &a), ("b", &b[..2])]);
+        assert!(matches!(bad, Err(OutputError::Ragged { .. })));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

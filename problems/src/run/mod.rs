@@ -1,0 +1,520 @@
+//! One integration run chosen at run time: which system, method, stage count,
+//! step, interval, parameters and initial values.
+//!
+//! The systems, their defaults and the dispatch from run-time `(system, s)`
+//! to the const-generic [`Stepper`] live in [`crate::catalog`]; this module
+//! only says what one run does for a given stepper type ([`run_with`]).
+//! [`files`] writes a run's trajectory and figure.
+
+pub mod files;
+
+use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::report::clock::thread_cpu_time;
+use spark_runtime::{
+    consistent_velocity, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NonholonomicSystem, Observe,
+    RunOptions, Schedule, Stepper, Tableau, TableauError, Vector,
+};
+use std::time::{Duration, Instant};
+
+/// The registered default initial values of `kind` (the paper's for its four
+/// systems; for `mp7` the member `j = 0` of the §8.4 ensemble, see
+/// [`mp7_initial_values`]).
+pub fn paper_initial_values(kind: SystemKind) -> (Vec<f64>, Vec<f64>) {
+    let e = kind.entry();
+    (e.q0.to_vec(), e.v0.to_vec())
+}
+
+/// Errors of a run; each says what to change.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The system name is not in the catalogue.
+    #[error(transparent)]
+    UnknownSystem(#[from] LookupError),
+    /// A parameter name the system does not have.
+    #[error(
+        "system `{system}` has no parameter `{name}`{}; its parameters: {known} (see `spark list`)",
+        crate::catalog::did_you_mean(.suggestion)
+    )]
+    UnknownParameter {
+        /// The system.
+        system: &'static str,
+        /// The name given.
+        name: String,
+        /// The closest parameter name, if one is close.
+        suggestion: Option<&'static str>,
+        /// The system's parameters, comma-separated.
+        known: String,
+    },
+    /// `q0` violates a holonomic constraint `g(t0, q0) = 0`.
+    #[error(
+        "q0 violates the holonomic constraint of `{system}`: max |g(t0, q0)| = {residual:.3e} > {tolerance:.1e}; \
+         choose q0 on the constraint (default q0 = {default:?})"
+    )]
+    InconsistentPositions {
+        /// The system.
+        system: &'static str,
+        /// `max_i |g_i(t0, q0)|`.
+        residual: f64,
+        /// The tolerance.
+        tolerance: f64,
+        /// The registered default `q0`.
+        default: &'static [f64],
+    },
+    /// `v0` violates the constraints and projection was not asked for.
+    #[error(
+        "v0 violates the constraints of `{system}`: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; \
+         give a v0 with k = 0 or pass --project-v0 to use the nearest consistent one (default v0 = {default:?})"
+    )]
+    InconsistentVelocities {
+        /// The system.
+        system: &'static str,
+        /// `max_i |k_i(t0, q0, v0)|`.
+        residual: f64,
+        /// The tolerance.
+        tolerance: f64,
+        /// The registered default `v0`.
+        default: &'static [f64],
+    },
+    /// The method does not exist with this stage count.
+    #[error(transparent)]
+    Tableau(#[from] TableauError),
+    /// The stage count is beyond what the command line instantiates.
+    #[error("{method} with s = {stages} is not compiled into this program; supported: s = 1..={max}")]
+    StagesNotCompiled {
+        /// The method.
+        method: Method,
+        /// The stage count asked for.
+        stages: usize,
+        /// Largest compiled stage count.
+        max: usize,
+    },
+    /// An initial vector has the wrong length.
+    #[error("{what} has {got} entries but system `{system}` has {expected} coordinates ({coordinates})")]
+    Dimension {
+        /// `q0` or `v0`.
+        what: &'static str,
+        /// The system.
+        system: &'static str,
+        /// Entries given.
+        got: usize,
+        /// Entries needed.
+        expected: usize,
+        /// The coordinate names, comma-separated.
+        coordinates: String,
+    },
+    /// A parameter was rejected by the system.
+    #[error(transparent)]
+    Parameter(#[from] spark_runtime::SystemError),
+    /// The step size or step count is unusable.
+    #[error("invalid run: {0}")]
+    Invalid(String),
+    /// The integration failed.
+    #[error("{system} with {method} s = {stages}: {source}")]
+    Integration {
+        /// System key.
+        system: &'static str,
+        /// The method.
+        method: Method,
+        /// Stage count.
+        stages: usize,
+        /// What went wrong.
+        source: IntegrationError,
+    },
+}
+
+/// What to integrate and what to record.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunSpec {
+    /// The system.
+    pub system: SystemKind,
+    /// Parameter overrides `(name, value)`; others keep their defaults.
+    pub parameters: Vec<(String, f64)>,
+    /// The method.
+    pub method: Method,
+    /// Stage count `s`.
+    pub stages: usize,
+    /// Step size.
+    pub h: f64,
+    /// Number of steps (the final time is `t0 + steps·h`).
+    pub steps: usize,
+    /// Initial time.
+    pub t0: f64,
+    /// Initial coordinates.
+    pub q0: Vec<f64>,
+    /// Initial velocities (must satisfy the constraints to 1e-12).
+    pub v0: Vec<f64>,
+    /// Record a sample every this many steps (and always the endpoints).
+    pub record_every: usize,
+    /// Newton settings.
+    pub newton: NewtonOptions,
+    /// What to do with an initial velocity that violates the constraints.
+    pub consistency: ConsistencyPolicy,
+}
+
+impl RunSpec {
+    /// A run of `system` with its registered defaults: initial state, step
+    /// and final time.
+    pub fn defaults(system: SystemKind, method: Method, stages: usize) -> Self {
+        let e = system.entry();
+        let steps = (e.t_end / e.h).round().max(1.0) as usize;
+        let mut spec = RunSpec::paper(system, method, stages, e.h, steps);
+        spec.t0 = e.t0;
+        spec
+    }
+
+    /// A run of `system` from its registered (for the paper's systems: the
+    /// paper's) initial values.
+    pub fn paper(system: SystemKind, method: Method, stages: usize, h: f64, steps: usize) -> Self {
+        let (q0, v0) = paper_initial_values(system);
+        RunSpec {
+            system,
+            parameters: Vec::new(),
+            method,
+            stages,
+            h,
+            steps,
+            t0: 0.0,
+            q0,
+            v0,
+            record_every: 1,
+            newton: NewtonOptions::default(),
+            consistency: ConsistencyPolicy::default(),
+        }
+    }
+}
+
+/// A recorded run, column by column (no const generics, so results of all
+/// systems share one type).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct RunResult {
+    /// System key.
+    pub system: &'static str,
+    /// Coordinate names.
+    pub coordinates: Vec<String>,
+    /// The method.
+    pub method: Method,
+    /// Stage count.
+    pub stages: usize,
+    /// Step size.
+    pub h: f64,
+    /// Sample times.
+    pub t: Vec<f64>,
+    /// `q[i][k]`: coordinate `i` at sample `k`.
+    pub q: Vec<Vec<f64>>,
+    /// `v[i][k]`: velocity `i` at sample `k`.
+    pub v: Vec<Vec<f64>>,
+    /// Energy at each sample.
+    pub energy: Vec<f64>,
+    /// `max_i |k_i|` at each sample.
+    pub constraint: Vec<f64>,
+    /// `max_i |g_i(t, q)|` at each sample, the drift of the holonomic
+    /// constraints (empty when the system has none).
+    pub holonomic: Vec<f64>,
+    /// Statistics over every step (not only the samples).
+    pub stats: RunStats,
+}
+
+/// Statistics of one run over every step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RunStats {
+    /// Steps taken.
+    pub steps: usize,
+    /// Initial energy `E0`.
+    pub e0: f64,
+    /// `max_k |E_k − E0|` over all steps.
+    pub max_energy_error: f64,
+    /// `max_k max_i |k_i(t_k, q_k, v_k)|` over all steps, initial state included.
+    pub max_constraint_residual: f64,
+    /// `max_k max_i |g_i(t_k, q_k)|` over all steps: the position-level
+    /// drift of holonomic constraints imposed at velocity level (`None`
+    /// when the system has none).
+    pub max_holonomic_drift: Option<f64>,
+    /// Mean Newton iterations per step.
+    pub newton_iterations_mean: f64,
+    /// Wall-clock time of the integration.
+    #[serde(serialize_with = "seconds")]
+    pub wall_time: Duration,
+    /// CPU time of the integrating thread ([`thread_cpu_time`]; `None`
+    /// where unavailable). Unlike the wall time it does not grow when
+    /// other processes compete for the cores.
+    #[serde(serialize_with = "maybe_seconds")]
+    pub cpu_time: Option<Duration>,
+}
+
+fn maybe_seconds<S: serde::Serializer>(d: &Option<Duration>, s: S) -> Result<S::Ok, S::Error> {
+    match d {
+        Some(d) => s.serialize_f64(d.as_secs_f64()),
+        None => s.serialize_none(),
+    }
+}
+
+fn seconds<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_f64(d.as_secs_f64())
+}
+
+/// Called with the number of steps done since the previous call (every few
+/// thousand steps and at the end), for progress bars.
+pub type Tick<'a> = &'a (dyn Fn(u64) + Sync);
+
+/// How often the progress callback fires.
+const TICK_EVERY: usize = 4096;
+
+/// Runs `spec`, calling `tick` as steps complete.
+pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
+    if !(spec.h.is_finite() && spec.h != 0.0) {
+        return Err(RunError::Invalid(format!("step size h = {} must be finite and nonzero", spec.h)));
+    }
+    if !spec.t0.is_finite() {
+        return Err(RunError::Invalid(format!("initial time t0 = {} must be finite", spec.t0)));
+    }
+    let (min, max) = spec.method.stage_range();
+    if spec.stages < min || spec.stages > max {
+        return Err(TableauError::UnsupportedStages { method: spec.method, s: spec.stages, min, max }.into());
+    }
+    let entry = spec.system.entry();
+    check_parameters(entry, &spec.parameters)?;
+    crate::catalog::visit_system(spec.system, RunSystem { spec, tick })
+}
+
+/// Looks `name` up in the catalogue and runs it with its defaults (the
+/// shortest way to integrate a system by name).
+pub fn run_by_name(name: &str, method: Method, stages: usize) -> Result<RunResult, RunError> {
+    let kind = lookup(name)?.kind;
+    run(&RunSpec::defaults(kind, method, stages), &|_| {})
+}
+
+/// Rejects parameter names the system does not have, with a suggestion.
+pub fn check_parameters(entry: &'static SystemEntry, parameters: &[(String, f64)]) -> Result<(), RunError> {
+    for (name, _) in parameters {
+        if !entry.parameter_names.contains(&name.as_str()) {
+            let known =
+                if entry.parameter_names.is_empty() { "none".to_string() } else { entry.parameter_names.join(", ") };
+            return Err(RunError::UnknownParameter {
+                system: entry.name,
+                name: name.clone(),
+                suggestion: nearest(name, entry.parameter_names.iter().copied()),
+                known,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Stage dispatch of [`run`] for one system type.
+struct RunSystem<'a> {
+    spec: &'a RunSpec,
+    tick: Tick<'a>,
+}
+
+impl SystemVisitor for RunSystem<'_> {
+    type Output = Result<RunResult, RunError>;
+    fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+        self,
+        _: &'static SystemEntry,
+    ) -> Self::Output {
+        let (method, stages) = (self.spec.method, self.spec.stages);
+        Sys::with_stages(
+            stages,
+            RunStages::<Sys> { spec: self.spec, tick: self.tick, system: std::marker::PhantomData },
+        )
+        .map_err(|e| RunError::StagesNotCompiled { method, stages, max: e.max })?
+    }
+}
+
+struct RunStages<'a, Sys> {
+    spec: &'a RunSpec,
+    tick: Tick<'a>,
+    system: std::marker::PhantomData<Sys>,
+}
+
+impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for RunStages<'_, Sys> {
+    type Output = Result<RunResult, RunError>;
+    fn visit<const S: usize, const D: usize>(self) -> Self::Output {
+        run_with::<Sys, N, M, S, D>(self.spec, self.tick)
+    }
+}
+
+fn vector<const N: usize>(what: &'static str, entry: &SystemEntry, x: &[f64]) -> Result<Vector<N>, RunError> {
+    if x.len() != N {
+        return Err(RunError::Dimension {
+            what,
+            system: entry.name,
+            got: x.len(),
+            expected: N,
+            coordinates: entry.coordinates.join(", "),
+        });
+    }
+    if let Some(bad) = x.iter().find(|x| !x.is_finite()) {
+        return Err(RunError::Invalid(format!("{what} has a non-finite entry {bad}")));
+    }
+    Ok(Vector::<N>::from_column_slice(x))
+}
+
+/// Largest `|g(t0, q0)|` accepted for a holonomic constraint.
+const POSITION_TOLERANCE: f64 = 1e-10;
+
+/// The generic run: one stepper type, fixed steps, per-step observation.
+pub fn run_with<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    spec: &RunSpec,
+    tick: Tick<'_>,
+) -> Result<RunResult, RunError>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let entry = spec.system.entry();
+    let key = entry.name;
+    let make = || -> Result<Sys, RunError> {
+        let mut sys = Sys::default();
+        for (name, value) in &spec.parameters {
+            sys.set_parameter(name, *value)?;
+        }
+        Ok(sys)
+    };
+    let q0 = vector::<N>("q0", entry, &spec.q0)?;
+    let v0 = vector::<N>("v0", entry, &spec.v0)?;
+    // A second instance evaluates energy and constraints in the observer,
+    // which cannot borrow the stepper's system while the stepper runs.
+    let probe = make()?;
+    if Sys::HAS_HOLONOMIC {
+        let residual = probe.holonomic_residual(spec.t0, &q0).amax();
+        if residual.is_nan() || residual > POSITION_TOLERANCE {
+            return Err(RunError::InconsistentPositions {
+                system: key,
+                residual,
+                tolerance: POSITION_TOLERANCE,
+                default: entry.q0,
+            });
+        }
+    }
+    let tableau = Tableau::<S>::new(spec.method)?;
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(make()?, tableau).with_options(spec.newton);
+    // Check (or project) v0 here, so that E0 and the initial residual refer
+    // to the state actually integrated.
+    let v0 = consistent_velocity(&probe, spec.t0, &q0, &v0, spec.consistency).map_err(|e| match e {
+        spark_runtime::StepError::InconsistentInitialState { residual, tolerance } => {
+            RunError::InconsistentVelocities { system: key, residual, tolerance, default: entry.v0 }
+        }
+        e => {
+            RunError::Integration { system: key, method: spec.method, stages: S, source: IntegrationError::Initial(e) }
+        }
+    })?;
+    let drift = |t: f64, q: &Vector<N>| if Sys::HAS_HOLONOMIC { probe.holonomic_residual(t, q).amax() } else { 0.0 };
+    let e0 = probe.energy(spec.t0, &q0, &v0);
+    let mut max_e: f64 = 0.0;
+    let mut max_k: f64 = probe.constraint(spec.t0, &q0, &v0).amax();
+    let mut max_g: f64 = drift(spec.t0, &q0);
+    let mut count = 0usize;
+    let mut observer = |s: &spark_runtime::State<N>, _iters: usize| {
+        max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
+        max_k = max_k.max(probe.constraint(s.t, &s.q, &s.v).amax());
+        max_g = max_g.max(drift(s.t, &s.q));
+        count += 1;
+        if count.is_multiple_of(TICK_EVERY) {
+            tick(TICK_EVERY as u64);
+        }
+    };
+    let options = RunOptions {
+        observe: Observe { energy: true, constraint_residual: true, multipliers: false },
+        record_every: spec.record_every,
+        consistency: spec.consistency,
+        ..RunOptions::default()
+    };
+    let start = Instant::now();
+    let cpu_start = thread_cpu_time();
+    // A run records states, not events: the events a system declares are
+    // located by `spark section` (crate::experiments::section), so runs of the same system
+    // cost the same with or without declared events.
+    let traj = stepper
+        .integrate_with_events(
+            spec.t0,
+            &q0,
+            &v0,
+            Schedule::Fixed { h: spec.h, steps: spec.steps },
+            &options,
+            &mut observer,
+            &spark_runtime::NoEvents,
+        )
+        .map_err(|source| RunError::Integration { system: key, method: spec.method, stages: S, source })?;
+    let wall_time = start.elapsed();
+    let cpu_time = match (cpu_start, thread_cpu_time()) {
+        (Some(a), Some(b)) if b >= a => Some(b - a),
+        _ => None,
+    };
+    tick((count % TICK_EVERY) as u64);
+    let samples = &traj.samples;
+    let column = |f: &dyn Fn(&spark_runtime::Sample<N, M>) -> f64| samples.iter().map(f).collect::<Vec<f64>>();
+    Ok(RunResult {
+        system: key,
+        coordinates: Sys::SOURCE.coordinates.iter().map(|c| c.to_string()).collect(),
+        method: spec.method,
+        stages: S,
+        h: spec.h,
+        t: column(&|s| s.t),
+        q: (0..N).map(|i| column(&|s| s.q[i])).collect(),
+        v: (0..N).map(|i| column(&|s| s.v[i])).collect(),
+        energy: column(&|s| s.energy.unwrap_or(f64::NAN)),
+        constraint: column(&|s| s.constraint_residual.unwrap_or(f64::NAN)),
+        holonomic: if Sys::HAS_HOLONOMIC { column(&|s| drift(s.t, &s.q)) } else { Vec::new() },
+        stats: RunStats {
+            steps: traj.report.steps,
+            e0,
+            max_energy_error: max_e,
+            max_constraint_residual: max_k,
+            max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(max_g),
+            newton_iterations_mean: traj.report.newton_iterations_mean,
+            wall_time,
+            cpu_time,
+        },
+    })
+}
+
+/// The report of one run as Markdown: the setting, the energy error, the
+/// constraint residual, the holonomic drift (for systems with holonomic
+/// constraints), Newton iterations and timing.
+pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
+    use std::fmt::Write;
+    let entry = spec.system.entry();
+    let s = &result.stats;
+    let mut out = String::new();
+    let _ = writeln!(out, "# {} — {} s = {}\n", entry.name, result.method, result.stages);
+    let _ = writeln!(out, "{} ({}, N = {}, M = {})\n", entry.description, entry.type_name, entry.n, entry.m);
+    let _ = writeln!(out, "| quantity | value |\n|---|---|");
+    let row = |out: &mut String, k: &str, v: String| {
+        let _ = writeln!(out, "| {k} | {v} |");
+    };
+    row(
+        &mut out,
+        "steps × h",
+        format!("{} × {} (t = {} … {})", s.steps, spec.h, spec.t0, spec.t0 + s.steps as f64 * spec.h),
+    );
+    if !spec.parameters.is_empty() {
+        let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {v}")).collect();
+        row(&mut out, "parameters set", p.join(", "));
+    }
+    row(&mut out, "q0", format!("{:?}", spec.q0));
+    row(&mut out, "v0", format!("{:?}", spec.v0));
+    row(&mut out, "E0", format!("{}", s.e0));
+    let conserved = entry.structure.autonomous() && !entry.effects.does_work();
+    row(
+        &mut out,
+        "max |E − E0|",
+        if conserved {
+            format!("{:.3e}", s.max_energy_error)
+        } else {
+            format!(
+                "{:.3e} (energy is not conserved by this system: forcing, friction or time dependence)",
+                s.max_energy_error
+            )
+        },
+    );
+    row(&mut out, "max |k| (constraint residual)", format!("{:.3e}", s.max_constraint_residual));
+    if let Some(g) = s.max_holonomic_drift {
+        row(&mut out, "max |g| (holonomic drift, position level)", format!("{g:.3e}"));
+    }
+    row(&mut out, "Newton iterations per step (mean)", format!("{:.2}", s.newton_iterations_mean));
+    row(&mut out, "wall time", format!("{:.3} s", s.wall_time.as_secs_f64()));
+    if let Some(c) = s.cpu_time {
+        row(&mut out, "CPU time of the integrating thread", format!("{:.3} s", c.as_secs_f64()));
+    }
+    out
+}
