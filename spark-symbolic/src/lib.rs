@@ -79,11 +79,12 @@ pub fn generate(spec: &SystemSpec) -> Result<TokenStream, SpecError> {
 /// declaration of a system with scenes may leave a coordinate to be fixed
 /// by a scene's constraint effect, so only the scenes are checked.
 pub(crate) fn generate_checked(spec: &SystemSpec, check: bool) -> Result<TokenStream, SpecError> {
+    dsl::validate(spec)?;
     let mut model = model::Model::build(spec)?;
     if check {
         model.check_determined(spec)?;
     }
-    codegen::generate_items(spec, &mut model).map(|(tokens, _)| tokens)
+    Ok(codegen::generate_items(spec, &mut model).0)
 }
 
 /// The whole macro: DSL tokens in, generated items (or a `compile_error!`

@@ -252,6 +252,26 @@ pub struct SystemSpec {
     pub runtime_path: TokenStream,
 }
 
+impl SystemSpec {
+    /// Traits the user already derives on the struct (`#[derive(...)]` in
+    /// [`SystemSpec::attrs`]), so that the generated derives do not clash.
+    pub fn user_derives(&self) -> Vec<proc_macro2::Ident> {
+        let mut out = Vec::new();
+        let Ok(attrs) = syn::parse::Parser::parse2(syn::Attribute::parse_outer, self.attrs.clone()) else {
+            return out;
+        };
+        for a in attrs.iter().filter(|a| a.path().is_ident("derive")) {
+            let _ = a.parse_nested_meta(|m| {
+                if let Some(seg) = m.path.segments.last() {
+                    out.push(seg.ident.clone());
+                }
+                Ok(())
+            });
+        }
+        out
+    }
+}
+
 /// A semantic error found by the engine, with the span to point at.
 #[derive(Clone, Debug)]
 pub struct SpecError {

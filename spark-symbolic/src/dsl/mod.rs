@@ -73,8 +73,10 @@ mod names;
 pub mod scenes;
 #[cfg(test)]
 mod tests;
+mod validate;
 
 pub use locate::{find_declaration, LocateError};
+pub use validate::validate;
 
 use crate::spec::{
     Constant, ConstraintSpec, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec,
