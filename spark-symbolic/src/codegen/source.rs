@@ -4,8 +4,8 @@
 //! such as the CasADi cross-check) and `OPERATIONS` (the operation counts).
 
 use super::Operations;
-use crate::model::{ConstraintForm, Structure};
-use crate::source::sexpr;
+use crate::model::{ConstraintForm, Model};
+use crate::source::{constraint_sexprs, holonomic_sexprs, sexpr};
 use crate::spec::{SrcExpr, SystemSpec};
 use proc_macro2::{Literal, TokenStream};
 use quote::quote;
@@ -20,12 +20,8 @@ fn form_tokens(rt: &TokenStream, f: ConstraintForm) -> TokenStream {
 }
 
 /// `const STRUCTURE`, `const SOURCE` and `const OPERATIONS`.
-pub(super) fn descriptive_consts(
-    rt: &TokenStream,
-    spec: &SystemSpec,
-    structure: Structure,
-    ops: &Operations,
-) -> TokenStream {
+pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Model, ops: &Operations) -> TokenStream {
+    let structure = model.structure;
     let b = |x: bool| if x { quote!(true) } else { quote!(false) };
     let (la, ca, cm, sep) = (
         b(structure.lagrangian_autonomous),
@@ -39,7 +35,7 @@ pub(super) fn descriptive_consts(
         Literal::usize_unsuffixed(ops.stage_jacobians),
         Literal::usize_unsuffixed(ops.bundle),
     );
-    let source = source_const(rt, spec);
+    let source = source_const(rt, spec, model);
     quote! {
         const STRUCTURE: #rt::Structure = #rt::Structure {
             lagrangian_autonomous: #la,
@@ -59,25 +55,18 @@ pub(super) fn descriptive_consts(
 
 /// `const SOURCE`: names and S-expression text of `L`, `k`, the forces and
 /// the holonomic `g` (empty when no constraint is holonomic).
-fn source_const(rt: &TokenStream, spec: &SystemSpec) -> TokenStream {
+fn source_const(rt: &TokenStream, spec: &SystemSpec, model: &Model) -> TokenStream {
     let name_str = spec.name.to_string();
     let coord_names = spec.coordinates.iter().map(|c| c.name.clone());
     let param_names = spec.parameters.iter().map(|p| p.name.name.clone());
     let lag_src = sexpr(spec, &spec.lagrangian);
-    let k_src = spec.constraints.iter().map(|c| sexpr(spec, &c.expr));
+    let k_src = constraint_sexprs(spec, model);
     let components = |xs: &[Option<SrcExpr>]| -> Vec<String> {
         xs.iter().map(|x| x.as_ref().map_or_else(|| "0".to_string(), |e| sexpr(spec, e))).collect()
     };
     let f_src = components(&spec.external_force);
     let n_src = components(&spec.nonideal_force);
-    let g_src: Vec<String> = if spec.constraints.iter().any(|c| c.position.is_some()) {
-        spec.constraints
-            .iter()
-            .map(|c| c.position.as_ref().map_or_else(|| "0".to_string(), |g| sexpr(spec, g)))
-            .collect()
-    } else {
-        Vec::new()
-    };
+    let g_src = holonomic_sexprs(spec);
     quote! {
         const SOURCE: #rt::SystemSource = #rt::SystemSource {
             name: #name_str,

@@ -42,7 +42,7 @@
 //! engine to fold. `lagrangian` and `constraints` may use everything,
 //! including the time `t` and velocities `dot(q)`. Force blocks list
 //! components by coordinate (absent = 0); only `nonideal_forces` (and
-//! `nonideal` effects, see [`scenes`]) may use `psi[j]`, the multiplier of
+//! `nonideal` effects, see [`scenes`](crate::scenes)) may use `psi[j]`, the multiplier of
 //! constraint `j` (0-based), parsed as `"psi" "[" integer "]"`.
 //!
 //! An event `name: falling(y) terminal` is a function `g(t,q,v)` (no
@@ -65,12 +65,12 @@
 //! }
 //! ```
 
+mod effects;
 mod eval;
 mod expr;
 mod forces;
 mod locate;
 mod names;
-pub mod scenes;
 #[cfg(test)]
 mod tests;
 mod validate;
@@ -78,8 +78,15 @@ mod validate;
 pub use locate::{find_declaration, LocateError};
 pub use validate::validate;
 
+/// The path under which callers find the parsing-and-desugaring of a
+/// declaration with scenes.
+pub mod scenes {
+    pub use super::effects::EFFECT_KINDS;
+    pub use crate::scenes::parse_with_scenes;
+}
+
 use crate::spec::{
-    Constant, ConstraintSpec, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec,
+    Constant, ConstraintSpec, Declaration, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec,
 };
 use expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
 use names::{list, nearest, reserved_reason};
@@ -91,7 +98,7 @@ pub const SECTIONS: [&str; 8] =
     ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces", "events"];
 
 /// Every section name a declaration may use: [`SECTIONS`] and the optional
-/// `effects` and `scenes` that [`scenes::parse_with_scenes`] reads.
+/// `effects` and `scenes` that [`parse_declaration`] reads.
 pub const ALL_SECTIONS: [&str; 10] = [
     "coordinates",
     "parameters",
@@ -129,8 +136,20 @@ fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
 }
 
-/// Parses the body of a `nonholonomic_system!` invocation. Never panics; every
-/// malformed declaration is a [`SpecError`] at the offending token.
+/// Parses a whole body of a `nonholonomic_system!` invocation, `effects:`
+/// and `scenes:` included (both empty in the result when absent). Never
+/// panics; every malformed declaration is a [`SpecError`] at the offending
+/// token.
+pub fn parse_declaration(input: TokenStream) -> Result<Declaration, SpecError> {
+    match effects::parse_with_effects(&input)? {
+        Some(declaration) => Ok(declaration),
+        None => Ok(Declaration { base: parse(input)?, effects: Vec::new(), scenes: Vec::new() }),
+    }
+}
+
+/// Parses the body of a `nonholonomic_system!` invocation without `effects:`
+/// and `scenes:`. Never panics; every malformed declaration is a
+/// [`SpecError`] at the offending token.
 pub fn parse(input: TokenStream) -> Result<SystemSpec, SpecError> {
     let tokens: Vec<TokenTree> = input.into_iter().collect();
     let header = parse_header(&tokens)?;
@@ -338,11 +357,11 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
             return Err(e);
         }
         if kind == "effects" || kind == "scenes" {
-            // `scenes::parse_with_scenes` takes these two out before calling
+            // `parse_declaration` takes these two out before calling
             // `parse`; reaching here means `parse` was called directly.
             return err(
                 ident.span(),
-                format!("`{kind}:` is read by `spark_symbolic::dsl::scenes::parse_with_scenes`, not by `dsl::parse`"),
+                format!("`{kind}:` is read by `spark_symbolic::dsl::parse_declaration`, not by `dsl::parse`"),
             );
         }
         let slot = match kind {
@@ -602,7 +621,7 @@ fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
             constraints.push(ConstraintSpec {
                 expr,
                 span: first.span().join(last).unwrap_or(first.span()),
-                position: None,
+                holonomic: false,
             });
         }
     }
