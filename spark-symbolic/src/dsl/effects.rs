@@ -20,9 +20,10 @@
 //! provisional index `M_base + e`. A `force` may not use multipliers (it
 //! would be a non-ideal force).
 
-use super::expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
+use super::expr::{describe, parse_expression, split_commas};
 use super::forces::parse_force_block;
 use super::names::{list, nearest};
+use super::scope::{Context, Multipliers, Scope};
 use crate::spec::{Declaration, Effect, EffectDecl, SceneDecl, SpecError, SrcExpr, SystemSpec};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 
@@ -238,7 +239,7 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<EffectDecl>, Sp
                 let example = format!("`{name}: force {{ {}: … }}`", base.coordinates[0].name);
                 Effect::Force(parse_force_block(args, &scope, &format!("force `{name}`"), &example)?)
             }
-            "event" => Effect::Event(super::parse_event(name, &arg_tokens, &scope)?),
+            "event" => Effect::Event(super::events::parse_event(name, &arg_tokens, &scope)?),
             "nonideal" => {
                 let scope = Scope { multipliers: Multipliers::Allowed { base: m_base, named: &named }, ..scope };
                 let example = format!("`{name}: nonideal {{ {}: … }}`", base.coordinates[0].name);
