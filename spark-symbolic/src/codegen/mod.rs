@@ -81,14 +81,14 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> (TokenStream, Ope
     let params: Vec<Ident> = spec.parameters.iter().map(|p| Ident::new(&p.name.name, p.name.span)).collect();
     let (n, m) = (model.n, model.m);
     let mut gen = Gen::new(model, &params, rt.clone(), n, m);
-    let (bodies, fused) = trait_impl::method_bodies(&mut gen);
+    let (methods, fused) = trait_impl::methods(&mut gen);
     let effect_bodies = gen.effects();
     let ops = Operations::of(&fused, &effect_bodies);
     let effects = effects::effect_items(&mut gen, spec, effect_bodies);
     let helpers = std::mem::take(&mut gen.helpers);
     let consts = source::descriptive_consts(&rt, spec, gen.model, &ops);
     let parameters = params::parameter_methods(&rt, &params);
-    let trait_impl = trait_impl::trait_impl(&gen, &spec.name, consts, parameters, bodies, effects);
+    let trait_impl = trait_impl::trait_impl(&gen, &spec.name, consts, parameters, methods, effects);
     let item = item::struct_items(spec, &params, &gen.n, &gen.m, &helpers);
     (quote!(#item #trait_impl), ops)
 }
