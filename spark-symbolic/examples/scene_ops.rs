@@ -35,7 +35,7 @@ fn run(file: &str, names: &[String]) -> Result<(), String> {
     for name in names {
         let tokens = spark_symbolic::dsl::find_declaration(&source, name).map_err(|e| format!("{file}: {e}"))?;
         let body: proc_macro2::TokenStream = tokens;
-        let specs = match spark_symbolic::dsl::scenes::parse_with_scenes(&body).map_err(|e| e.message)? {
+        let specs = match spark_symbolic::scenes::parse_with_scenes(&body).map_err(|e| e.message)? {
             Some((_, scenes)) => scenes,
             None => vec![spark_symbolic::dsl::parse(body).map_err(|e| e.message)?],
         };

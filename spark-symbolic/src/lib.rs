@@ -6,9 +6,10 @@
 //! tested, fuzzed and benchmarked on its own; `spark-macros` only calls
 //! [`expand`].
 //!
-//! Pipeline: [`dsl::parse`] → [`SystemSpec`] → [`model::Model::build`]
-//! (lowering, derivatives, structure) → [`codegen::generate_items`] (CSE and
-//! emission through [`emit`]).
+//! Pipeline: [`dsl::parse_declaration`] → [`scenes::desugar`] (one
+//! [`SystemSpec`] per generated type) → [`dsl::validate()`] →
+//! [`model::Model::build`] (lowering, derivatives, structure) →
+//! [`codegen::generate_items`] (CSE and emission through [`emit`]).
 #![warn(missing_docs)]
 
 pub mod codegen;
@@ -19,6 +20,7 @@ pub mod graph;
 pub mod lower;
 pub mod model;
 pub mod pretty;
+pub mod scenes;
 pub mod simplify;
 pub mod source;
 pub mod spec;
@@ -26,7 +28,8 @@ pub mod spec;
 pub use codegen::Operations;
 pub use model::{ConstraintForm, Structure};
 pub use spec::{
-    BinOp, Constant, ConstraintSpec, EventDecl, EventDirection, Func, Named, Parameter, SpecError, SrcExpr, SystemSpec,
+    BinOp, Constant, ConstraintSpec, Declaration, Effect, EffectDecl, EventDecl, EventDirection, Func, Named,
+    Parameter, SceneDecl, SpecError, SrcExpr, SystemSpec,
 };
 
 use proc_macro2::TokenStream;
@@ -62,7 +65,7 @@ pub fn analyze(spec: &SystemSpec) -> Result<Analysis, SpecError> {
         structure: model.structure,
         operations,
         lagrangian_source: source::sexpr(spec, &spec.lagrangian),
-        constraint_sources: spec.constraints.iter().map(|c| source::sexpr(spec, &c.expr)).collect(),
+        constraint_sources: source::constraint_sexprs(spec, &model),
     })
 }
 
@@ -79,21 +82,30 @@ pub fn generate(spec: &SystemSpec) -> Result<TokenStream, SpecError> {
 /// declaration of a system with scenes may leave a coordinate to be fixed
 /// by a scene's constraint effect, so only the scenes are checked.
 pub(crate) fn generate_checked(spec: &SystemSpec, check: bool) -> Result<TokenStream, SpecError> {
+    dsl::validate(spec)?;
     let mut model = model::Model::build(spec)?;
     if check {
         model.check_determined(spec)?;
     }
-    codegen::generate_items(spec, &mut model).map(|(tokens, _)| tokens)
+    Ok(codegen::generate_items(spec, &mut model).0)
 }
 
 /// The whole macro: DSL tokens in, generated items (or a `compile_error!`
 /// pointing at the offending token) out. Never panics.
 pub fn expand(input: TokenStream) -> TokenStream {
-    if let Some(result) = dsl::scenes::expand_scenes(&input) {
-        return result.unwrap_or_else(|error| error.to_compile_error());
+    expand_all(input).unwrap_or_else(|error| error.to_compile_error())
+}
+
+/// Parses, desugars the scenes and generates every resulting type. The
+/// base declaration of a system with scenes may leave a coordinate to be
+/// fixed by a scene's constraint effect, so only the scenes are checked for
+/// determined accelerations.
+fn expand_all(input: TokenStream) -> Result<TokenStream, SpecError> {
+    let declaration = dsl::parse_declaration(input)?;
+    let base_is_checked = declaration.scenes.is_empty();
+    let mut out = TokenStream::new();
+    for (i, spec) in scenes::desugar(declaration)?.iter().enumerate() {
+        out.extend(generate_checked(spec, i > 0 || base_is_checked)?);
     }
-    match dsl::parse(input).and_then(|spec| generate(&spec)) {
-        Ok(tokens) => tokens,
-        Err(error) => error.to_compile_error(),
-    }
+    Ok(out)
 }

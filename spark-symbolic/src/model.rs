@@ -242,6 +242,175 @@ fn first_token(e: &SrcExpr) -> Span {
     }
 }
 
+/// `dg/dt = g_t + g_q·v` of a node `g(t,q,…)` over `n` coordinates.
+fn total_time_derivative(g: &mut Graph, d: &mut Differentiator, node: NodeId, n: usize) -> NodeId {
+    let mut terms = vec![d.diff(g, node, Var::Time)];
+    for i in 0..n as u32 {
+        let gq = d.diff(g, node, Var::Q(i));
+        let vi = g.var(Var::V(i));
+        terms.push(g.mul2(gq, vi));
+    }
+    g.add(&terms)
+}
+
+/// The constraint rows `k`, in order, and for each holonomic row its
+/// position-level `g` (`None` for a row written at velocity level). A
+/// holonomic row's `k = g_t + g_q·v` is formed on the graph.
+fn constraint_rows(
+    g: &mut Graph,
+    d: &mut Differentiator,
+    lower: &mut Lowerer,
+    spec: &SystemSpec,
+) -> Result<(Vec<NodeId>, Vec<Option<NodeId>>), SpecError> {
+    let mut rows = Vec::with_capacity(spec.constraints.len());
+    let mut positions = Vec::with_capacity(spec.constraints.len());
+    for c in &spec.constraints {
+        let node = lower.lower(g, &c.expr)?;
+        if !c.holonomic {
+            rows.push(node);
+            positions.push(None);
+            continue;
+        }
+        if g.deps(node).any(Deps::V) || g.deps(node).any(Deps::PSI) {
+            return Err(SpecError {
+                span: c.expr.span(),
+                message: "a holonomic constraint g(t, q) = 0 may not involve velocities".into(),
+            });
+        }
+        rows.push(total_time_derivative(g, d, node, spec.coordinates.len()));
+        positions.push(Some(node));
+    }
+    Ok((rows, positions))
+}
+
+/// The residuals `g` of the holonomic rows (0 for the others); empty when
+/// no row is holonomic.
+fn holonomic_residuals(g: &mut Graph, positions: &[Option<NodeId>]) -> Vec<NodeId> {
+    if positions.iter().all(Option::is_none) {
+        return Vec::new();
+    }
+    positions.iter().map(|p| p.unwrap_or_else(|| g.constant(0.0))).collect()
+}
+
+/// Rejects a constraint row free of velocities: it is holonomic (the error
+/// suggests its velocity-level form) or constrains no motion at all.
+fn reject_velocity_free_rows(
+    g: &mut Graph,
+    d: &mut Differentiator,
+    spec: &SystemSpec,
+    constraint: &[NodeId],
+    constraint_v: &NodeMatrix,
+) -> Result<(), SpecError> {
+    for (j, row) in constraint_v.iter().enumerate() {
+        if !row.iter().all(|&x| g.is_const(x, 0.0)) {
+            continue;
+        }
+        // Suggest the velocity-level constraint dg/dt = g_t + g_q·v.
+        let gdot = total_time_derivative(g, d, constraint[j], spec.coordinates.len());
+        let number = j + 1;
+        let holonomic = spec.constraints[j].holonomic;
+        if holonomic || !g.deps(gdot).any(Deps::V) {
+            // No coordinate enters: differentiating gives no velocity
+            // either, so no velocity-level form exists to suggest.
+            let what = if holonomic {
+                format!("constraint {number} comes from a holonomic constraint g(t) = 0 that involves no coordinate")
+            } else if g.is_const(constraint[j], 0.0) {
+                format!("constraint {number} is identically 0")
+            } else if g.deps(constraint[j]).any(Deps::T) {
+                format!(
+                    "constraint {number} depends only on the time `t` (and parameters), not on the coordinates or \
+                     velocities"
+                )
+            } else {
+                format!("constraint {number} involves neither the coordinates nor the velocities")
+            };
+            return Err(SpecError {
+                span: spec.constraints[j].span,
+                message: format!(
+                    "{what}: no motion can satisfy or violate it, so it cannot be a velocity constraint (and its \
+                     time derivative has no velocity either); remove it"
+                ),
+            });
+        }
+        let hint = format!(
+            "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}` (or declare \
+             `name: holonomic(g)` under `effects:` and select it in a scene, which imposes that derivative and \
+             reports the drift of g)",
+            crate::pretty::dsl_text(g, spec, gdot)
+        );
+        return Err(SpecError {
+            span: spec.constraints[j].span,
+            message: format!(
+                "constraint {number} does not depend on the velocities: it is holonomic (a position constraint \
+                 g(t, q) = 0), which this integrator does not take directly; {hint}"
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// `R = −Kᵀψ`, one entry per coordinate.
+fn constraint_force(g: &mut Graph, constraint_v: &NodeMatrix, n: usize) -> Vec<NodeId> {
+    let mut r = Vec::with_capacity(n);
+    for i in 0..n {
+        let terms: Vec<NodeId> = constraint_v
+            .iter()
+            .enumerate()
+            .map(|(j, row)| {
+                let psi = g.var(Var::Psi(j as u32));
+                g.mul2(row[i], psi)
+            })
+            .collect();
+        let s = g.add(&terms);
+        r.push(g.neg(s));
+    }
+    r
+}
+
+/// The structure facts of `L` and `k` (the optional forces do not change
+/// them).
+fn prove_structure(
+    g: &mut Graph,
+    lagrangian: NodeId,
+    constraint: &[NodeId],
+    constraint_v: &NodeMatrix,
+    momentum: &[NodeId],
+    force: &[NodeId],
+    mass: &NodeMatrix,
+) -> Structure {
+    let free_of = |g: &Graph, xs: &[NodeId], kinds: Deps| xs.iter().all(|&x| !g.deps(x).any(kinds));
+    let constraint_form = if constraint.is_empty() {
+        ConstraintForm::None
+    } else if constraint_v.iter().all(|row| free_of(g, row, Deps::V)) {
+        let mut memo = HashMap::new();
+        let b: Vec<NodeId> = constraint.iter().map(|&k| substitute_zero(g, k, Deps::V, &mut memo)).collect();
+        if b.iter().all(|&x| g.is_const(x, 0.0)) {
+            ConstraintForm::Linear
+        } else {
+            ConstraintForm::Affine
+        }
+    } else {
+        ConstraintForm::Nonlinear
+    };
+    Structure {
+        lagrangian_autonomous: !g.deps(lagrangian).any(Deps::T),
+        constraints_autonomous: free_of(g, constraint, Deps::T),
+        constant_mass_matrix: mass.iter().all(|row| row.iter().all(|&x| g.deps(x).parameters_only())),
+        separable: free_of(g, force, Deps::V) && free_of(g, momentum, Deps::Q),
+        constraint_form,
+    }
+}
+
+/// The components of a force block (`None` = 0); empty when absent.
+fn lower_components(g: &mut Graph, lower: &mut Lowerer, xs: &[Option<SrcExpr>]) -> Result<Vec<NodeId>, SpecError> {
+    xs.iter()
+        .map(|x| match x {
+            Some(x) => lower.lower(g, x),
+            None => Ok(g.constant(0.0)),
+        })
+        .collect()
+}
+
 impl Model {
     /// Rejects declarations whose equations of motion cannot determine the
     /// accelerations at any point, because the SPARK Newton matrix (and the
@@ -400,76 +569,17 @@ impl Model {
         }
         let mut g = Graph::new();
         let mut lower = Lowerer::new(spec);
-        let lagrangian = lower.lower(&mut g, &spec.lagrangian)?;
-        let mut constraint = Vec::with_capacity(m);
-        for c in &spec.constraints {
-            constraint.push(lower.lower(&mut g, &c.expr)?);
-        }
         let mut d = Differentiator::new();
+        let lagrangian = lower.lower(&mut g, &spec.lagrangian)?;
+        let (constraint, positions) = constraint_rows(&mut g, &mut d, &mut lower, spec)?;
         let qs: Vec<Var> = (0..n as u32).map(Var::Q).collect();
         let vs: Vec<Var> = (0..n as u32).map(Var::V).collect();
         let momentum = gradient(&mut g, &mut d, lagrangian, &vs);
         let force = gradient(&mut g, &mut d, lagrangian, &qs);
         let constraint_q = jacobian(&mut g, &mut d, &constraint, &qs);
         let constraint_v = jacobian(&mut g, &mut d, &constraint, &vs);
-        for (j, row) in constraint_v.iter().enumerate() {
-            if row.iter().all(|&x| g.is_const(x, 0.0)) {
-                // Suggest the velocity-level constraint dg/dt = g_t + g_q·v.
-                let mut terms = vec![d.diff(&mut g, constraint[j], Var::Time)];
-                for (i, &gq) in constraint_q[j].iter().enumerate() {
-                    let vi = g.var(Var::V(i as u32));
-                    terms.push(g.mul2(gq, vi));
-                }
-                let gdot = g.add(&terms);
-                let number = j + 1;
-                if spec.constraints[j].position.is_some() || !g.deps(gdot).any(Deps::V) {
-                    // No coordinate enters: differentiating gives no velocity
-                    // either, so no velocity-level form exists to suggest.
-                    let what = if spec.constraints[j].position.is_some() {
-                        format!("constraint {number} comes from a holonomic constraint g(t) = 0 that involves no coordinate")
-                    } else if g.is_const(constraint[j], 0.0) {
-                        format!("constraint {number} is identically 0")
-                    } else if g.deps(constraint[j]).any(Deps::T) {
-                        format!("constraint {number} depends only on the time `t` (and parameters), not on the coordinates or velocities")
-                    } else {
-                        format!("constraint {number} involves neither the coordinates nor the velocities")
-                    };
-                    return Err(SpecError {
-                        span: spec.constraints[j].span,
-                        message: format!(
-                            "{what}: no motion can satisfy or violate it, so it cannot be a velocity constraint (and \
-                             its time derivative has no velocity either); remove it"
-                        ),
-                    });
-                }
-                let hint = format!(
-                    "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}` (or declare \
-                     `name: holonomic(g)` under `effects:` and select it in a scene, which imposes that derivative \
-                     and reports the drift of g)",
-                    crate::pretty::dsl_text(&g, spec, gdot)
-                );
-                return Err(SpecError {
-                    span: spec.constraints[j].span,
-                    message: format!(
-                        "constraint {number} does not depend on the velocities: it is holonomic (a position \
-                         constraint g(t, q) = 0), which this integrator does not take directly; {hint}"
-                    ),
-                });
-            }
-        }
-        let mut r = Vec::with_capacity(n);
-        for i in 0..n {
-            let terms: Vec<NodeId> = constraint_v
-                .iter()
-                .enumerate()
-                .map(|(j, row)| {
-                    let psi = g.var(Var::Psi(j as u32));
-                    g.mul2(row[i], psi)
-                })
-                .collect();
-            let s = g.add(&terms);
-            r.push(g.neg(s));
-        }
+        reject_velocity_free_rows(&mut g, &mut d, spec, &constraint, &constraint_v)?;
+        let r = constraint_force(&mut g, &constraint_v, n);
         let momentum_q = jacobian(&mut g, &mut d, &momentum, &qs);
         let mass = jacobian(&mut g, &mut d, &momentum, &vs);
         let force_q = jacobian(&mut g, &mut d, &force, &qs);
@@ -481,40 +591,11 @@ impl Model {
         let force_t: Vec<NodeId> = force.iter().map(|&f| d.diff(&mut g, f, Var::Time)).collect();
         let constraint_t: Vec<NodeId> = constraint.iter().map(|&k| d.diff(&mut g, k, Var::Time)).collect();
         let energy = energy(&mut g, &mut d, lagrangian, &vs);
-
-        let free_of = |g: &Graph, xs: &[NodeId], kinds: Deps| xs.iter().all(|&x| !g.deps(x).any(kinds));
-        let constraint_form = if m == 0 {
-            ConstraintForm::None
-        } else if constraint_v.iter().all(|row| free_of(&g, row, Deps::V)) {
-            let mut memo = HashMap::new();
-            let b: Vec<NodeId> = constraint.iter().map(|&k| substitute_zero(&mut g, k, Deps::V, &mut memo)).collect();
-            if b.iter().all(|&x| g.is_const(x, 0.0)) {
-                ConstraintForm::Linear
-            } else {
-                ConstraintForm::Affine
-            }
-        } else {
-            ConstraintForm::Nonlinear
-        };
-        let structure = Structure {
-            lagrangian_autonomous: !g.deps(lagrangian).any(Deps::T),
-            constraints_autonomous: free_of(&g, &constraint, Deps::T),
-            constant_mass_matrix: mass.iter().all(|row| row.iter().all(|&x| g.deps(x).parameters_only())),
-            separable: free_of(&g, &force, Deps::V) && free_of(&g, &momentum, Deps::Q),
-            constraint_form,
-        };
+        let structure = prove_structure(&mut g, lagrangian, &constraint, &constraint_v, &momentum, &force, &mass);
         // The optional effects are lowered last, so that a declaration without
-        // them builds exactly the graph (and node order) it built before.
-        let mut components = |g: &mut Graph, xs: &[Option<crate::spec::SrcExpr>]| -> Result<Vec<NodeId>, SpecError> {
-            xs.iter()
-                .map(|x| match x {
-                    Some(x) => lower.lower(g, x),
-                    None => Ok(g.constant(0.0)),
-                })
-                .collect()
-        };
-        let external_force = components(&mut g, &spec.external_force)?;
-        let nonideal_force = components(&mut g, &spec.nonideal_force)?;
+        // them builds exactly the graph (and node order) it would build alone.
+        let external_force = lower_components(&mut g, &mut lower, &spec.external_force)?;
+        let nonideal_force = lower_components(&mut g, &mut lower, &spec.nonideal_force)?;
         for (i, &f) in external_force.iter().enumerate() {
             if g.deps(f).any(Deps::PSI) {
                 let span = spec.external_force[i].as_ref().map_or(spec.name.span(), |x| x.span());
@@ -530,25 +611,7 @@ impl Model {
         let nonideal_force_q = jacobian(&mut g, &mut d, &nonideal_force, &qs);
         let nonideal_force_v = jacobian(&mut g, &mut d, &nonideal_force, &vs);
         let nonideal_force_psi = jacobian(&mut g, &mut d, &nonideal_force, &psis);
-        let mut holonomic = Vec::new();
-        if spec.constraints.iter().any(|c| c.position.is_some()) {
-            for c in &spec.constraints {
-                let node = match &c.position {
-                    Some(p) => {
-                        let node = lower.lower(&mut g, p)?;
-                        if g.deps(node).any(Deps::V) || g.deps(node).any(Deps::PSI) {
-                            return Err(SpecError {
-                                span: p.span(),
-                                message: "a holonomic constraint g(t, q) = 0 may not involve velocities".into(),
-                            });
-                        }
-                        node
-                    }
-                    None => g.constant(0.0),
-                };
-                holonomic.push(node);
-            }
-        }
+        let holonomic = holonomic_residuals(&mut g, &positions);
         let mut events = Vec::with_capacity(spec.events.len());
         for e in &spec.events {
             events.push(lower.lower(&mut g, &e.expr)?);

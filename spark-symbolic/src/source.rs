@@ -1,8 +1,69 @@
 //! The neutral S-expression text of the user's source expressions (see
 //! `spark_runtime::SystemSource`): named constants substituted, numbers
-//! printed so that they parse back to the same `f64`.
+//! printed so that they parse back to the same `f64`. A constraint row the
+//! model forms itself (the `k = g_t + g_q·v` of a holonomic constraint) is
+//! printed from the graph in the same grammar.
 
+use crate::graph::{Graph, Node, NodeId, Var};
+use crate::model::Model;
 use crate::spec::{BinOp, SrcExpr, SystemSpec};
+
+/// The text of each constraint row `k_j`: as written, or for a holonomic
+/// row the `k` the model formed.
+pub fn constraint_sexprs(spec: &SystemSpec, model: &Model) -> Vec<String> {
+    spec.constraints
+        .iter()
+        .zip(&model.constraint)
+        .map(|(c, &k)| if c.holonomic { node_sexpr(&model.graph, spec, k) } else { sexpr(spec, &c.expr) })
+        .collect()
+}
+
+/// The text of each holonomic `g_j` ("0" for a row written at velocity
+/// level); empty when no row is holonomic.
+pub fn holonomic_sexprs(spec: &SystemSpec) -> Vec<String> {
+    if !spec.constraints.iter().any(|c| c.holonomic) {
+        return Vec::new();
+    }
+    spec.constraints.iter().map(|c| if c.holonomic { sexpr(spec, &c.expr) } else { "0".to_string() }).collect()
+}
+
+/// Prints one graph node as a prefix S-expression (`+` and `*` n-ary).
+pub fn node_sexpr(g: &Graph, spec: &SystemSpec, id: NodeId) -> String {
+    let mut out = String::new();
+    write_node(g, spec, id, &mut out, 0);
+    out
+}
+
+fn write_node(g: &Graph, spec: &SystemSpec, id: NodeId, out: &mut String, depth: usize) {
+    if depth > 2_000 {
+        out.push_str("nan");
+        return;
+    }
+    let coordinate = |i: u32| spec.coordinates.get(i as usize).map_or("?", |c| c.name.as_str());
+    let form = |head: &str, args: &[NodeId], out: &mut String| {
+        out.push('(');
+        out.push_str(head);
+        for &a in args {
+            out.push(' ');
+            write_node(g, spec, a, out, depth + 1);
+        }
+        out.push(')');
+    };
+    match g.node(id) {
+        Node::Const(_) => number(g.as_const(id).unwrap_or(f64::NAN), out),
+        Node::Var(Var::Time) => out.push('t'),
+        Node::Var(Var::Q(i)) => out.push_str(&format!("(q {})", coordinate(*i))),
+        Node::Var(Var::V(i)) => out.push_str(&format!("(v {})", coordinate(*i))),
+        Node::Var(Var::P(i)) => {
+            out.push_str(&format!("(p {})", spec.parameters.get(*i as usize).map_or("?", |p| p.name.name.as_str())))
+        }
+        Node::Var(Var::Psi(j)) => out.push_str(&format!("(psi {j})")),
+        Node::Add(xs) => form("+", xs, out),
+        Node::Mul(xs) => form("*", xs, out),
+        Node::Pow(b, e) => form("^", &[*b, *e], out),
+        Node::Call(f, xs) => form(f.method(), xs, out),
+    }
+}
 
 /// Prints one source expression as a prefix S-expression.
 pub fn sexpr(spec: &SystemSpec, e: &SrcExpr) -> String {

@@ -183,14 +183,16 @@ pub struct Constant {
 /// One constraint `k_j(t,q,v)` as written, with its span.
 #[derive(Clone, Debug)]
 pub struct ConstraintSpec {
-    /// The expression.
+    /// The expression: `k(t,q,v)`, or `g(t,q)` for a holonomic row.
     pub expr: SrcExpr,
     /// Span covering the whole constraint (for "this constraint is holonomic").
     pub span: Span,
-    /// `g(t,q)` when the constraint is the velocity-level form
-    /// `k = g_t + g_q·v` of a holonomic constraint `g = 0` (a `holonomic`
-    /// effect); `None` for a constraint written at velocity level.
-    pub position: Option<SrcExpr>,
+    /// The row is a holonomic constraint `g = 0` (a `holonomic` effect):
+    /// [`ConstraintSpec::expr`] is `g(t,q)`, and the model imposes its
+    /// velocity-level form `k = g_t + g_q·v` (differentiated on the graph)
+    /// and reports the drift of `g`. `false` for a constraint written at
+    /// velocity level.
+    pub holonomic: bool,
 }
 
 /// Which zero crossings of an event function count (mirrors
@@ -250,6 +252,78 @@ pub struct SystemSpec {
     /// Path under which generated code finds the runtime
     /// (`::spark_runtime` unless the caller says otherwise).
     pub runtime_path: TokenStream,
+}
+
+impl SystemSpec {
+    /// Traits the user already derives on the struct (`#[derive(...)]` in
+    /// [`SystemSpec::attrs`]), so that the generated derives do not clash.
+    pub fn user_derives(&self) -> Vec<proc_macro2::Ident> {
+        let mut out = Vec::new();
+        let Ok(attrs) = syn::parse::Parser::parse2(syn::Attribute::parse_outer, self.attrs.clone()) else {
+            return out;
+        };
+        for a in attrs.iter().filter(|a| a.path().is_ident("derive")) {
+            let _ = a.parse_nested_meta(|m| {
+                if let Some(seg) = m.path.segments.last() {
+                    out.push(seg.ident.clone());
+                }
+                Ok(())
+            });
+        }
+        out
+    }
+}
+
+/// One effect of an `effects:` section, as parsed (see [`crate::scenes`]).
+#[derive(Clone, Debug)]
+pub enum Effect {
+    /// `potential(U)`: `U(t,q,v)`, subtracted from `L`.
+    Potential(SrcExpr),
+    /// `constraint(k)`: an extra velocity-level constraint, with the span of
+    /// its argument.
+    Constraint(SrcExpr, Span),
+    /// `holonomic(g)`: `g(t,q) = 0`, imposed as `k = g_t + g_q·v`.
+    Holonomic(SrcExpr, Span),
+    /// `force { … }`: external force components by coordinate.
+    Force(Vec<Option<SrcExpr>>),
+    /// `nonideal { … }`: non-ideal constraint force components. The
+    /// multiplier of constraint effect `e` carries the provisional index
+    /// `M_base + e` until a scene fixes the constraint order.
+    Nonideal(Vec<Option<SrcExpr>>),
+    /// `event(…)`: an event named like the effect.
+    Event(EventDecl),
+}
+
+/// A named effect.
+#[derive(Clone, Debug)]
+pub struct EffectDecl {
+    /// The effect's name as written.
+    pub name: proc_macro2::Ident,
+    /// What it adds.
+    pub effect: Effect,
+}
+
+/// One scene `Name = [effect, …]`: a type generated from the base
+/// declaration plus the listed effects.
+#[derive(Clone, Debug)]
+pub struct SceneDecl {
+    /// The scene's type name.
+    pub name: proc_macro2::Ident,
+    /// The selected effects, in the scene's order: indices into
+    /// [`Declaration::effects`], with the token that names each.
+    pub effects: Vec<(usize, proc_macro2::Ident)>,
+}
+
+/// A whole `nonholonomic_system!` body: the base declaration and, when it
+/// has `effects:` and `scenes:`, those (both empty otherwise).
+#[derive(Clone, Debug)]
+pub struct Declaration {
+    /// The declaration without its effects and scenes.
+    pub base: SystemSpec,
+    /// The declared effects.
+    pub effects: Vec<EffectDecl>,
+    /// The declared scenes; empty for a plain declaration.
+    pub scenes: Vec<SceneDecl>,
 }
 
 /// A semantic error found by the engine, with the span to point at.

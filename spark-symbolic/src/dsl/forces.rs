@@ -3,8 +3,9 @@
 //! coordinate they act on (absent components are zero), shared by the
 //! `forces:`/`nonideal_forces:` sections and the `force`/`nonideal` effects.
 
-use super::expr::{describe, parse_expression, split_commas, Scope};
+use super::expr::{describe, parse_expression, split_commas};
 use super::names::{list, nearest};
+use super::scope::Scope;
 use crate::spec::{SpecError, SrcExpr};
 use proc_macro2::{Group, TokenTree};
 

@@ -42,7 +42,7 @@
 //! engine to fold. `lagrangian` and `constraints` may use everything,
 //! including the time `t` and velocities `dot(q)`. Force blocks list
 //! components by coordinate (absent = 0); only `nonideal_forces` (and
-//! `nonideal` effects, see [`scenes`]) may use `psi[j]`, the multiplier of
+//! `nonideal` effects, see [`scenes`](crate::scenes)) may use `psi[j]`, the multiplier of
 //! constraint `j` (0-based), parsed as `"psi" "[" integer "]"`.
 //!
 //! An event `name: falling(y) terminal` is a function `g(t,q,v)` (no
@@ -65,22 +65,32 @@
 //! }
 //! ```
 
+mod build;
+mod effects;
 mod eval;
+mod events;
 mod expr;
 mod forces;
 mod locate;
 mod names;
-pub mod scenes;
+mod scope;
 #[cfg(test)]
 mod tests;
+mod validate;
 
 pub use locate::{find_declaration, LocateError};
+pub use validate::validate;
 
-use crate::spec::{
-    Constant, ConstraintSpec, EventDecl, EventDirection, Named, Parameter, SpecError, SrcExpr, SystemSpec,
-};
-use expr::{describe, parse_expression, split_commas, Context, Multipliers, Scope};
-use names::{list, nearest, reserved_reason};
+/// The path under which callers find the parsing-and-desugaring of a
+/// declaration with scenes.
+pub mod scenes {
+    pub use super::effects::EFFECT_KINDS;
+    pub use crate::scenes::parse_with_scenes;
+}
+
+use crate::spec::{Declaration, SpecError, SrcExpr, SystemSpec};
+use expr::{describe, split_commas};
+use names::{list, nearest};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 use quote::quote;
 
@@ -89,7 +99,7 @@ pub const SECTIONS: [&str; 8] =
     ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces", "events"];
 
 /// Every section name a declaration may use: [`SECTIONS`] and the optional
-/// `effects` and `scenes` that [`scenes::parse_with_scenes`] reads.
+/// `effects` and `scenes` that [`parse_declaration`] reads.
 pub const ALL_SECTIONS: [&str; 10] = [
     "coordinates",
     "parameters",
@@ -127,13 +137,25 @@ fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
 }
 
-/// Parses the body of a `nonholonomic_system!` invocation. Never panics; every
-/// malformed declaration is a [`SpecError`] at the offending token.
+/// Parses a whole body of a `nonholonomic_system!` invocation, `effects:`
+/// and `scenes:` included (both empty in the result when absent). Never
+/// panics; every malformed declaration is a [`SpecError`] at the offending
+/// token.
+pub fn parse_declaration(input: TokenStream) -> Result<Declaration, SpecError> {
+    match effects::parse_with_effects(&input)? {
+        Some(declaration) => Ok(declaration),
+        None => Ok(Declaration { base: parse(input)?, effects: Vec::new(), scenes: Vec::new() }),
+    }
+}
+
+/// Parses the body of a `nonholonomic_system!` invocation without `effects:`
+/// and `scenes:`. Never panics; every malformed declaration is a
+/// [`SpecError`] at the offending token.
 pub fn parse(input: TokenStream) -> Result<SystemSpec, SpecError> {
     let tokens: Vec<TokenTree> = input.into_iter().collect();
     let header = parse_header(&tokens)?;
     let sections = parse_sections(&header.name, &header.body)?;
-    build(header, sections)
+    build::build(header, sections)
 }
 
 /// Everything before and including the struct body.
@@ -336,11 +358,11 @@ fn parse_sections(name: &Ident, body: &Group) -> Result<Sections, SpecError> {
             return Err(e);
         }
         if kind == "effects" || kind == "scenes" {
-            // `scenes::parse_with_scenes` takes these two out before calling
+            // `parse_declaration` takes these two out before calling
             // `parse`; reaching here means `parse` was called directly.
             return err(
                 ident.span(),
-                format!("`{kind}:` is read by `spark_symbolic::dsl::scenes::parse_with_scenes`, not by `dsl::parse`"),
+                format!("`{kind}:` is read by `spark_symbolic::dsl::parse_declaration`, not by `dsl::parse`"),
             );
         }
         let slot = match kind {
@@ -390,352 +412,8 @@ fn single_group(kind: &str, span: Span, value: &[TokenTree], delim: Delimiter) -
     }
 }
 
-/// Checks a new name against the reserved ones and the ones declared so far.
-fn declare(ident: &Ident, kind: &'static str, declared: &mut Vec<(String, &'static str)>) -> Result<Named, SpecError> {
-    let name = ident.to_string();
-    if let Some(reason) = reserved_reason(&name) {
-        return err(ident.span(), format!("{reason}; choose another name for this {kind}"));
-    }
-    if let Some((_, prev)) = declared.iter().find(|(n, _)| *n == name) {
-        let what = if *prev == kind {
-            format!("`{name}` is declared twice as a {kind}")
-        } else {
-            format!("`{name}` is already declared as a {prev}")
-        };
-        return err(ident.span(), format!("{what}; every coordinate, parameter and constant needs its own name"));
-    }
-    declared.push((name.clone(), kind));
-    Ok(Named { name, span: ident.span() })
-}
-
-/// Entries `name = value` of `parameters` or `constants`.
-fn assignments(kind: &'static str, group: &Group) -> Result<Vec<(Ident, Vec<TokenTree>, Span)>, SpecError> {
-    let toks: Vec<TokenTree> = group.stream().into_iter().collect();
-    let example = if kind == "parameter" { "m = 1.0" } else { "two = 2" };
-    let mut out = Vec::new();
-    for (piece, comma) in split_commas(&toks) {
-        let ident = match piece.first() {
-            Some(TokenTree::Ident(id)) => id.clone(),
-            Some(TokenTree::Punct(p)) if p.as_char() == '#' => {
-                return err(
-                    p.span(),
-                    format!("attributes are not allowed on a {kind}; document it in the struct's doc comment"),
-                )
-            }
-            Some(other) => {
-                return err(
-                    other.span(),
-                    format!("expected a {kind} name, found {}; write e.g. `{example}`", describe(other)),
-                )
-            }
-            None => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
-        };
-        match piece.get(1) {
-            Some(TokenTree::Punct(p)) if p.as_char() == '=' && p.spacing() == proc_macro2::Spacing::Alone => {
-                if piece.len() == 2 {
-                    return err(p.span(), format!("missing value after `{ident} =`; write e.g. `{ident} = 1.0`"));
-                }
-                out.push((ident, piece[2..].to_vec(), p.span()));
-            }
-            Some(TokenTree::Punct(p)) if p.as_char() == ':' => {
-                return err(
-                    p.span(),
-                    format!("write `{ident} = 1.0`: a {kind} is always an f64, give its value after `=`"),
-                )
-            }
-            Some(other) => {
-                return err(other.span(), format!("expected `=` after {kind} `{ident}`; write e.g. `{ident} = 1.0`"))
-            }
-            None => {
-                let msg = if kind == "parameter" {
-                    format!("parameter `{ident}` needs a default value: write `{ident} = 1.0`")
-                } else {
-                    format!("constant `{ident}` needs a value: write `{ident} = 2`")
-                };
-                return err(ident.span(), msg);
-            }
-        }
-    }
-    Ok(out)
-}
-
-fn build(header: Header, s: Sections) -> Result<SystemSpec, SpecError> {
-    let Header { attrs, vis, name, runtime_path, .. } = header;
-    // Names, in section source order so that a duplicate is reported where it
-    // appears second.
-    let mut declared: Vec<(String, &'static str)> = Vec::new();
-    let mut coordinates = Vec::new();
-    let mut param_raw = Vec::new();
-    let mut param_names = Vec::new();
-    let mut const_raw = Vec::new();
-    let mut const_names = Vec::new();
-    for kind in &s.order {
-        match *kind {
-            "coordinates" => {
-                let (span, value) =
-                    s.coordinates.as_ref().map(|(a, b)| (*a, b.as_slice())).unwrap_or((name.span(), &[]));
-                let group = single_group("coordinates", span, value, Delimiter::Bracket)?;
-                let toks: Vec<TokenTree> = group.stream().into_iter().collect();
-                for (piece, comma) in split_commas(&toks) {
-                    match piece.as_slice() {
-                        [TokenTree::Ident(id)] => coordinates.push(declare(id, "coordinate", &mut declared)?),
-                        [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
-                        [TokenTree::Ident(id), TokenTree::Ident(next), ..] => {
-                            return err(
-                                next.span(),
-                                format!("missing `,` between coordinates `{id}` and `{next}`: write `{id}, {next}`"),
-                            )
-                        }
-                        [TokenTree::Ident(id), second, ..] => {
-                            return err(
-                                second.span(),
-                                format!("a coordinate is just a name: write `{id}` (coordinates are always f64)"),
-                            )
-                        }
-                        [other, ..] => {
-                            return err(
-                                other.span(),
-                                format!(
-                                    "expected a coordinate name, found {}; write e.g. `coordinates: [x, y]`",
-                                    describe(other)
-                                ),
-                            )
-                        }
-                    }
-                }
-                if coordinates.is_empty() {
-                    return err(group.span(), "no coordinates: declare at least one, e.g. `coordinates: [x, y]`");
-                }
-            }
-            "parameters" => {
-                let (span, value) =
-                    s.parameters.as_ref().map(|(a, b)| (*a, b.as_slice())).unwrap_or((name.span(), &[]));
-                let group = single_group("parameters", span, value, Delimiter::Brace)?;
-                for (id, value, eq) in assignments("parameter", &group)? {
-                    param_names.push(declare(&id, "parameter", &mut declared)?);
-                    param_raw.push((value, eq));
-                }
-            }
-            "constants" => {
-                let (span, value) = s.constants.as_ref().map(|(a, b)| (*a, b.as_slice())).unwrap_or((name.span(), &[]));
-                let group = single_group("constants", span, value, Delimiter::Brace)?;
-                for (id, value, eq) in assignments("constant", &group)? {
-                    const_names.push(declare(&id, "constant", &mut declared)?);
-                    const_raw.push((value, eq));
-                }
-            }
-            _ => {}
-        }
-    }
-    if s.coordinates.is_none() {
-        return err(name.span(), format!("`struct {name}` has no coordinates: add a section `coordinates: [x, y]`"));
-    }
-    let Some((lag_span, lag_tokens)) = s.lagrangian.as_ref() else {
-        let example = coordinates.first().map_or("x".to_string(), |c| c.name.clone());
-        return err(
-            name.span(),
-            format!("`struct {name}` has no Lagrangian: add a section `lagrangian: …`, e.g. `lagrangian: dot({example})^2/2`"),
-        );
-    };
-
-    // Constants, in order; each may use earlier ones.
-    let mut constants = Vec::new();
-    let mut const_values = Vec::new();
-    for (i, (value, eq)) in const_raw.iter().enumerate() {
-        let scope = Scope {
-            coordinates: &coordinates,
-            parameters: &param_names,
-            constants: &const_names,
-            context: Context::Constant(i),
-            multipliers: Multipliers::None,
-        };
-        let what = format!("constant `{}`", const_names[i].name);
-        let expr = parse_expression(value, &scope, &what, *eq)?;
-        let v = eval::eval(&expr, &const_values)?;
-        if !v.is_finite() {
-            return err(expr.span(), format!("{what} evaluates to {v}; give it a finite value"));
-        }
-        const_values.push(v);
-        constants.push(Constant { name: const_names[i].clone(), value: expr });
-    }
-
-    let mut parameters = Vec::new();
-    for (i, (value, eq)) in param_raw.iter().enumerate() {
-        let scope = Scope {
-            coordinates: &coordinates,
-            parameters: &param_names,
-            constants: &const_names,
-            context: Context::Default(i),
-            multipliers: Multipliers::None,
-        };
-        let what = format!("the default of parameter `{}`", param_names[i].name);
-        let expr = parse_expression(value, &scope, &what, *eq)?;
-        let v = eval::eval(&expr, &const_values)?;
-        if !v.is_finite() {
-            return err(expr.span(), format!("{what} evaluates to {v}; give it a finite value"));
-        }
-        parameters.push(Parameter { name: param_names[i].clone(), default: v });
-    }
-
-    let scope = Scope {
-        coordinates: &coordinates,
-        parameters: &param_names,
-        constants: &const_names,
-        context: Context::Dynamic,
-        multipliers: Multipliers::None,
-    };
-    let lagrangian = parse_expression(lag_tokens, &scope, "the lagrangian", *lag_span)?;
-
-    let mut constraints = Vec::new();
-    if let Some((span, value)) = s.constraints.as_ref() {
-        let group = single_group("constraints", *span, value, Delimiter::Bracket)?;
-        let toks: Vec<TokenTree> = group.stream().into_iter().collect();
-        for (j, (piece, comma)) in split_commas(&toks).into_iter().enumerate() {
-            let Some(first) = piece.first() else {
-                return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it");
-            };
-            let what = format!("constraint {}", j + 1);
-            let expr = parse_expression(&piece, &scope, &what, first.span())?;
-            let last = piece.last().map_or(first.span(), TokenTree::span);
-            constraints.push(ConstraintSpec {
-                expr,
-                span: first.span().join(last).unwrap_or(first.span()),
-                position: None,
-            });
-        }
-    }
-
-    let mut external_force = Vec::new();
-    if let Some((span, value)) = s.forces.as_ref() {
-        let group = single_group("forces", *span, value, Delimiter::Brace)?;
-        let scope = Scope { multipliers: Multipliers::Forbidden { named: &[] }, ..scope };
-        let example = format!("`forces: {{ {}: tau }}`", coordinates[0].name);
-        external_force = forces::parse_force_block(&group, &scope, "the external force", &example)?;
-    }
-    let mut nonideal_force = Vec::new();
-    if let Some((span, value)) = s.nonideal_forces.as_ref() {
-        let group = single_group("nonideal_forces", *span, value, Delimiter::Brace)?;
-        let scope = Scope { multipliers: Multipliers::Allowed { base: constraints.len(), named: &[] }, ..scope };
-        let example = format!("`nonideal_forces: {{ {}: -mu*psi[0] }}`", coordinates[0].name);
-        nonideal_force = forces::parse_force_block(&group, &scope, "the non-ideal force", &example)?;
-    }
-
-    let mut events = Vec::new();
-    if let Some((span, value)) = s.events.as_ref() {
-        let group = single_group("events", *span, value, Delimiter::Brace)?;
-        events = parse_events(&group, &scope)?;
-    }
-
-    let mut attrs = attrs;
-    if parameters.iter().any(|p| p.name.name.chars().any(char::is_uppercase)) {
-        // Physics names parameters `I`, `M`, `R`; they become fields, which
-        // rustc would otherwise flag at the user's token.
-        attrs.extend(quote::quote!(#[allow(non_snake_case)]));
-    }
-    Ok(SystemSpec {
-        attrs,
-        vis,
-        name,
-        coordinates,
-        parameters,
-        constants,
-        lagrangian,
-        constraints,
-        external_force,
-        nonideal_force,
-        events,
-        runtime_path,
-    })
-}
-
-/// The entries `name: [rising|falling|crossing](expr) [terminal]` of an
-/// `events` section.
-fn parse_events(group: &Group, scope: &Scope<'_>) -> Result<Vec<EventDecl>, SpecError> {
-    let toks: Vec<TokenTree> = group.stream().into_iter().collect();
-    let example = "`events: { impact: falling(y) terminal }`";
-    let pieces = split_commas(&toks);
-    if pieces.is_empty() {
-        return err(group.span(), format!("`events` is empty; write e.g. {example}, or remove the section"));
-    }
-    let mut out: Vec<EventDecl> = Vec::new();
-    for (piece, comma) in pieces {
-        let (ident, value) = match piece.as_slice() {
-            [] => return err(comma.unwrap_or(group.span()), "unexpected `,`: remove it"),
-            [TokenTree::Ident(id), TokenTree::Punct(p), value @ ..] if p.as_char() == ':' => {
-                if value.is_empty() {
-                    return err(p.span(), format!("event `{id}` has no function: write an expression after `:`"));
-                }
-                (id, value)
-            }
-            [TokenTree::Ident(id), second, ..] => {
-                return err(second.span(), format!("expected `:` after event `{id}`: write e.g. {example}"))
-            }
-            [first, ..] => {
-                return err(
-                    first.span(),
-                    format!("expected an event name, found {}; write e.g. {example}", describe(first)),
-                )
-            }
-        };
-        if out.iter().any(|e| *ident == e.name.name) {
-            return err(ident.span(), format!("event `{ident}` is declared twice; give each event its own name"));
-        }
-        out.push(parse_event(ident, value, scope)?);
-    }
-    Ok(out)
-}
-
-/// One event's value `[rising|falling|crossing](expr) [terminal]` (or a bare
-/// `expr [terminal]`), named `ident`.
-pub(crate) fn parse_event(ident: &Ident, value: &[TokenTree], scope: &Scope<'_>) -> Result<EventDecl, SpecError> {
-    let mut value = value;
-    let name = ident.to_string();
-    if let Some(reason) = reserved_reason(&name) {
-        return err(ident.span(), format!("{reason}; choose another name for this event"));
-    }
-    let mut terminal = false;
-    if let [rest @ .., TokenTree::Ident(last)] = value {
-        if last == "terminal" {
-            if rest.is_empty() {
-                return err(last.span(), format!("event `{name}` has no function before `terminal`"));
-            }
-            terminal = true;
-            value = rest;
-        }
-    }
-    let mut direction = EventDirection::Both;
-    let mut inner: Vec<TokenTree> = value.to_vec();
-    if let [TokenTree::Ident(kw), TokenTree::Group(g)] = value {
-        let kind = kw.to_string();
-        let known = match kind.as_str() {
-            "rising" => Some(EventDirection::Rising),
-            "falling" => Some(EventDirection::Falling),
-            "crossing" => Some(EventDirection::Both),
-            _ => None,
-        };
-        if let Some(d) = known {
-            if g.delimiter() != Delimiter::Parenthesis {
-                return err(g.span(), format!("write `{kind}(expression)` with parentheses"));
-            }
-            direction = d;
-            inner = g.stream().into_iter().collect();
-            if inner.is_empty() {
-                return err(g.span(), format!("`{kind}()` is empty: write the event function inside"));
-            }
-        }
-    }
-    if let Some(TokenTree::Ident(id)) = inner.last() {
-        if id == "terminal" {
-            return err(id.span(), "`terminal` comes last, after the event function: `name: falling(y) terminal`");
-        }
-    }
-    let what = format!("event `{name}`");
-    let expr = parse_expression(&inner, scope, &what, ident.span())?;
-    Ok(EventDecl { name: Named { name, span: ident.span() }, expr, direction, terminal })
-}
-
 /// Evaluates a constant [`SrcExpr`] (numbers, `pi`, functions and constants
-/// with the given values), e.g. to fold a [`Constant`]'s value. Errors name
+/// with the given values), e.g. to fold a [`Constant`](crate::spec::Constant)'s value. Errors name
 /// the first non-constant leaf.
 pub fn eval_constant(expr: &SrcExpr, constant_values: &[f64]) -> Result<f64, SpecError> {
     eval::eval(expr, constant_values)

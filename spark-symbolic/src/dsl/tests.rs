@@ -523,7 +523,7 @@ fn structurally_singular_declarations_are_rejected_and_regular_ones_are_not() {
 /// text under the span).
 fn generate_error(src: &str) -> (String, String) {
     let tokens = src.parse::<TokenStream>().expect("test source must lex");
-    let result = match scenes::parse_with_scenes(&tokens) {
+    let result = match crate::scenes::parse_with_scenes(&tokens) {
         Ok(Some((base, specs))) => specs.iter().try_for_each(|s| crate::generate(s).map(|_| ())).map(|()| base),
         Ok(None) => parse(tokens).and_then(|s| crate::generate(&s).map(|_| s)),
         Err(e) => Err(e),
@@ -586,7 +586,7 @@ fn missing_commas_leading_points_and_section_names_get_their_own_messages() {
     let (msg, at) = error("struct S { coordinates: [x], lagrangian: 1, effect: { } }");
     assert!(msg.contains("did you mean `effects`?") && msg.contains("`scenes`"), "{msg}");
     assert_eq!(at, "effect");
-    let e = scenes::parse_with_scenes(
+    let e = crate::scenes::parse_with_scenes(
         &"struct S { coordinates: [x], lagrangian: dot(x)^2, effects: { u: potential(x^2) } scenes: { U = [u] } }"
             .parse()
             .unwrap(),

@@ -64,7 +64,7 @@ pub fn spec(name: &str, coords: &[&str], params: &[(&str, f64)], l: SrcExpr, ks:
         parameters: params.iter().map(|(n, d)| Parameter { name: named(n), default: *d }).collect(),
         constants: Vec::new(),
         lagrangian: l,
-        constraints: ks.into_iter().map(|expr| ConstraintSpec { expr, span: sp(), position: None }).collect(),
+        constraints: ks.into_iter().map(|expr| ConstraintSpec { expr, span: sp(), holonomic: false }).collect(),
         external_force: Vec::new(),
         nonideal_force: Vec::new(),
         events: Vec::new(),
