@@ -192,7 +192,7 @@ fn check_dsl<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyDict>> {
             return fail(format!("the text is not valid Rust tokens: {e}"), e.span());
         }
     };
-    match spark_symbolic::dsl::scenes::parse_with_scenes(&tokens) {
+    match spark_symbolic::scenes::parse_with_scenes(&tokens) {
         Err(e) => return fail(e.message, e.span),
         Ok(Some((base, _))) => {
             return fail(

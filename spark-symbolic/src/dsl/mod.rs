@@ -81,13 +81,6 @@ mod validate;
 pub use locate::{find_declaration, LocateError};
 pub use validate::validate;
 
-/// The path under which callers find the parsing-and-desugaring of a
-/// declaration with scenes.
-pub mod scenes {
-    pub use super::effects::EFFECT_KINDS;
-    pub use crate::scenes::parse_with_scenes;
-}
-
 use crate::spec::{Declaration, SpecError, SrcExpr, SystemSpec};
 use expr::{describe, split_commas};
 use names::{list, nearest};
