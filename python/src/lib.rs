@@ -132,30 +132,13 @@ fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> P
 /// The methods: `(key, name, smallest s, largest compiled s)`.
 #[pyfunction]
 fn methods() -> Vec<(String, String, usize, usize)> {
-    [
-        Method::Gauss,
-        Method::LobattoIIIAB,
-        Method::LobattoIIIABD,
-        Method::SymplecticEulerI,
-        Method::SymplecticEulerII,
-        Method::ModifiedLobattoIIIAB,
-        Method::LobattoIIIBALda,
-    ]
-    .into_iter()
-    .map(|m| {
-        let (lo, hi) = m.stage_range();
-        let key = match m {
-            Method::Gauss => "gauss",
-            Method::LobattoIIIAB => "lobatto-iiia-b",
-            Method::LobattoIIIABD => "lobatto-iiia-b-d",
-            Method::SymplecticEulerI => "euler-1",
-            Method::SymplecticEulerII => "euler-2",
-            Method::ModifiedLobattoIIIAB => "modified-lobatto-iiia-b",
-            Method::LobattoIIIBALda => "lobatto-iiib-a-lda",
-        };
-        (key.to_string(), m.name().to_string(), lo, hi.min(MAX_DISPATCH_STAGES))
-    })
-    .collect()
+    Method::ALL
+        .into_iter()
+        .map(|m| {
+            let (lo, hi) = m.stage_range();
+            (m.key().to_string(), m.name().to_string(), lo, hi.min(MAX_DISPATCH_STAGES))
+        })
+        .collect()
 }
 
 /// Initial values of member `j` of the §8.4 ensemble with `big_j + 1`
