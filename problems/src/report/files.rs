@@ -230,32 +230,29 @@ impl OutputDir {
 
     /// Stages `fig` as `<stem>.png` and `<stem>.svg`; returns both final paths.
     pub fn render(&mut self, fig: &Figure, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
-        let png_name = format!("{stem}.png");
-        let svg_name = format!("{stem}.svg");
-        let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
-        let result = render_files(fig, &png, &svg).map_err(OutputError::from).and_then(|()| {
-            for p in [&png, &svg] {
-                File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
-            }
-            Ok(())
-        });
-        if let Err(e) = result {
-            let _ = std::fs::remove_file(&png);
-            let _ = std::fs::remove_file(&svg);
-            return Err(e);
-        }
-        let png = self.staged(png, &png_name);
-        let svg = self.staged(svg, &svg_name);
-        Ok(vec![png, svg])
+        self.stage_figure(stem, |png, svg| render_files(fig, png, svg))
     }
 
     /// Stages the scatter plot `fig` as `<stem>.png` and `<stem>.svg`;
     /// returns both final paths.
     pub fn render_scatter(&mut self, fig: &Scatter, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
+        self.stage_figure(stem, |png, svg| render_scatter_files(fig, png, svg))
+    }
+
+    /// Draws a figure into the temporary `<stem>.png` and `<stem>.svg` with
+    /// `draw`, syncs both and stages them; on failure removes both.
+    fn stage_figure<E>(
+        &mut self,
+        stem: &str,
+        draw: impl FnOnce(&Path, &Path) -> Result<(), E>,
+    ) -> Result<Vec<PathBuf>, OutputError>
+    where
+        OutputError: From<E>,
+    {
         let png_name = format!("{stem}.png");
         let svg_name = format!("{stem}.svg");
         let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
-        let result = render_scatter_files(fig, &png, &svg).map_err(OutputError::from).and_then(|()| {
+        let result = draw(&png, &svg).map_err(OutputError::from).and_then(|()| {
             for p in [&png, &svg] {
                 File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
             }
