@@ -11,6 +11,11 @@ cd "$(dirname "$0")/.."
 echo "==> cargo test --workspace"
 cargo test --workspace --release
 
+# The README's main-job command builds `problems` without its default
+# features; the workspace tests above build it with them.
+echo "==> the main job's build (problems --no-default-features)"
+cargo check --release -p problems --no-default-features --lib --bin spark
+
 echo "==> CasADi cross-check (casadi/run.sh)"
 bash casadi/run.sh
 

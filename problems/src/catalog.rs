@@ -214,7 +214,7 @@ impl SystemKind {
 
 /// A name that is not in the catalogue.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("unknown system `{name}`{}; known: {known} (see `spark list`)", did_you_mean(.suggestion))]
+#[error("{}", lookup_message(self))]
 pub struct LookupError {
     /// The name given.
     pub name: String,
@@ -222,6 +222,21 @@ pub struct LookupError {
     pub suggestion: Option<&'static str>,
     /// Every registered name, comma-separated.
     pub known: String,
+    /// The name is a catalogue system that this build leaves out (the crate
+    /// feature `full` is off).
+    pub left_out: bool,
+}
+
+fn lookup_message(e: &LookupError) -> String {
+    if e.left_out {
+        format!(
+            "system `{}` is in the full catalogue, which this build leaves out (built with \
+             --no-default-features); build `problems` with its default features to use it; this build knows: {}",
+            e.name, e.known
+        )
+    } else {
+        format!("unknown system `{}`{}; known: {} (see `spark list`)", e.name, did_you_mean(&e.suggestion), e.known)
+    }
 }
 
 /// ` (did you mean `x`?)` or nothing: the tail of a lookup error message.
@@ -276,7 +291,8 @@ pub fn lookup(name: &str) -> Result<&'static SystemEntry, LookupError> {
                 nearest(name, CATALOG.iter().map(|e| e.name))
                     .or_else(|| CATALOG.iter().find(|e| normalize(e.name).contains(&key)).map(|e| e.name))
             };
-            LookupError { name: name.to_string(), suggestion, known: names().join(", ") }
+            let left_out = LEFT_OUT.iter().any(|n| normalize(n) == key);
+            LookupError { name: name.to_string(), suggestion, known: names().join(", "), left_out }
         })
 }
 
@@ -291,323 +307,328 @@ pub fn entries() -> &'static [SystemEntry] {
 }
 
 /// Declares the catalogue: the [`SystemKind`] enum, the static entries,
-/// [`visit_system`] and the [`Dispatch`] impls. One block per system:
+/// [`visit_system`] and the [`Dispatch`] impls. One block per system, in two
+/// groups: the paper's systems, always compiled, and the rest, compiled with
+/// the crate feature `full` (on by default):
 ///
 /// ```text
-/// Variant { ty: path::Type, n: N, m: M, name: "cli-name", peers: paper|plain,
-///     about: "one line", q0: [..], v0: [..], t_end: T, h: H },
+/// paper: [ Variant { ty: path::Type, n: N, m: M, name: "cli-name", peers: paper|plain,
+///     about: "one line", q0: [..], v0: [..], t_end: T, h: H }, .. ]
+/// full: [ .. ]
 /// ```
 macro_rules! catalog {
-    ($(
-        $(#[$doc:meta])*
-        $variant:ident {
-            ty: $ty:ty, n: $n:literal, m: $m:literal, name: $name:literal, peers: $peers:ident,
-            about: $about:literal, q0: [$($q0:expr),* $(,)?], v0: [$($v0:expr),* $(,)?], t_end: $t_end:expr, h: $h:expr $(,)?
-        }
-    ),* $(,)?) => {
+    (
+        paper: [$( $(#[$pdoc:meta])* $pvariant:ident { $($pfield:tt)* } ),* $(,)?]
+        full: [$( $(#[$fdoc:meta])* $fvariant:ident { $($ffield:tt)* } ),* $(,)?]
+    ) => {
         /// Every system the command line knows; [`SystemKind::entry`] has the facts.
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
         pub enum SystemKind {
-            $( $(#[$doc])* $variant, )*
+            $( $(#[$pdoc])* $pvariant, )*
+            $( $(#[$fdoc])* #[cfg(feature = "full")] $fvariant, )*
         }
 
         impl SystemKind {
             /// Every system, in catalogue order (the paper's four first).
-            pub const ALL: &'static [SystemKind] = &[$(SystemKind::$variant),*];
+            pub const ALL: &'static [SystemKind] = &[
+                $(SystemKind::$pvariant,)*
+                $(#[cfg(feature = "full")] SystemKind::$fvariant,)*
+            ];
         }
 
-        static CATALOG: [SystemEntry; SystemKind::ALL.len()] = [$(
-            SystemEntry {
-                kind: SystemKind::$variant,
-                name: $name,
-                type_name: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.name,
-                path: stringify!($ty),
-                description: $about,
-                n: $n,
-                m: $m,
-                structure: <$ty as NonholonomicSystem<$n, $m>>::STRUCTURE,
-                effects: Effects {
-                    forcing: <$ty as NonholonomicSystem<$n, $m>>::HAS_FORCING,
-                    nonideal: <$ty as NonholonomicSystem<$n, $m>>::HAS_NONIDEAL_FORCE,
-                    holonomic: <$ty as NonholonomicSystem<$n, $m>>::HAS_HOLONOMIC,
-                },
-                coordinates: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.coordinates,
-                parameter_names: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.parameters,
-                operations: <$ty as NonholonomicSystem<$n, $m>>::OPERATIONS,
-                paper: catalog!(@paper $peers),
-                t0: 0.0,
-                q0: &[$($q0 as f64),*],
-                v0: &[$($v0 as f64),*],
-                t_end: $t_end,
-                h: $h,
-            },
-        )*];
+        static CATALOG: [SystemEntry; SystemKind::ALL.len()] = [
+            $( catalog!(@entry $pvariant { $($pfield)* }), )*
+            $( #[cfg(feature = "full")] catalog!(@entry $fvariant { $($ffield)* }), )*
+        ];
+
+        /// Command-line names of the systems this build leaves out (those
+        /// of the feature `full` when it is off).
+        pub const LEFT_OUT: &[&str] = &[
+            $( #[cfg(not(feature = "full"))] catalog!(@name { $($ffield)* }), )*
+        ];
 
         /// Calls `visitor` with the concrete type of `kind`.
         pub fn visit_system<V: SystemVisitor>(kind: SystemKind, visitor: V) -> V::Output {
             match kind {
-                $( SystemKind::$variant => visitor.visit::<$ty, $n, $m, { 2 * $n }>(kind.entry()), )*
+                $( SystemKind::$pvariant => catalog!(@visit visitor, kind { $($pfield)* }), )*
+                $( #[cfg(feature = "full")] SystemKind::$fvariant => catalog!(@visit visitor, kind { $($ffield)* }), )*
             }
         }
 
-        $(
-            impl Dispatch<$n, $m> for $ty {
-                fn with_stages<V: StageVisitor<Self, $n, $m>>(
-                    stages: usize,
-                    visitor: V,
-                ) -> Result<V::Output, DispatchError> {
-                    Ok(match stages {
-                        1 => visitor.visit::<1, { $n + $m + $n }>(),
-                        2 => visitor.visit::<2, { 2 * ($n + $m) + $n }>(),
-                        3 => visitor.visit::<3, { 3 * ($n + $m) + $n }>(),
-                        4 => visitor.visit::<4, { 4 * ($n + $m) + $n }>(),
-                        5 => visitor.visit::<5, { 5 * ($n + $m) + $n }>(),
-                        s => return Err(DispatchError { stages: s, max: MAX_DISPATCH_STAGES }),
-                    })
-                }
+        $( catalog!(@dispatch { $($pfield)* }); )*
+        $( #[cfg(feature = "full")] catalog!(@dispatch { $($ffield)* }); )*
+    };
+    (@entry $variant:ident {
+        ty: $ty:ty, n: $n:literal, m: $m:literal, name: $name:literal, peers: $peers:ident,
+        about: $about:literal, q0: [$($q0:expr),* $(,)?], v0: [$($v0:expr),* $(,)?], t_end: $t_end:expr, h: $h:expr $(,)?
+    }) => {
+        SystemEntry {
+            kind: SystemKind::$variant,
+            name: $name,
+            type_name: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.name,
+            path: stringify!($ty),
+            description: $about,
+            n: $n,
+            m: $m,
+            structure: <$ty as NonholonomicSystem<$n, $m>>::STRUCTURE,
+            effects: Effects {
+                forcing: <$ty as NonholonomicSystem<$n, $m>>::HAS_FORCING,
+                nonideal: <$ty as NonholonomicSystem<$n, $m>>::HAS_NONIDEAL_FORCE,
+                holonomic: <$ty as NonholonomicSystem<$n, $m>>::HAS_HOLONOMIC,
+            },
+            coordinates: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.coordinates,
+            parameter_names: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.parameters,
+            operations: <$ty as NonholonomicSystem<$n, $m>>::OPERATIONS,
+            paper: catalog!(@paper $peers),
+            t0: 0.0,
+            q0: &[$($q0 as f64),*],
+            v0: &[$($v0 as f64),*],
+            t_end: $t_end,
+            h: $h,
+        }
+    };
+    (@name { ty: $ty:ty, n: $n:literal, m: $m:literal, name: $name:literal, $($rest:tt)* }) => { $name };
+    (@visit $visitor:ident, $kind:ident { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
+        $visitor.visit::<$ty, $n, $m, { 2 * $n }>($kind.entry())
+    };
+    (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
+        impl Dispatch<$n, $m> for $ty {
+            fn with_stages<V: StageVisitor<Self, $n, $m>>(
+                stages: usize,
+                visitor: V,
+            ) -> Result<V::Output, DispatchError> {
+                Ok(match stages {
+                    1 => visitor.visit::<1, { $n + $m + $n }>(),
+                    2 => visitor.visit::<2, { 2 * ($n + $m) + $n }>(),
+                    3 => visitor.visit::<3, { 3 * ($n + $m) + $n }>(),
+                    4 => visitor.visit::<4, { 4 * ($n + $m) + $n }>(),
+                    5 => visitor.visit::<5, { 5 * ($n + $m) + $n }>(),
+                    s => return Err(DispatchError { stages: s, max: MAX_DISPATCH_STAGES }),
+                })
             }
-        )*
+        }
     };
     (@paper paper) => { true };
     (@paper plain) => { false };
 }
 
 catalog! {
-    /// Nonholonomic particle (paper §8.1).
-    Particle {
-        ty: crate::systems::NonholonomicParticle, n: 3, m: 1, name: "particle", peers: paper,
-        about: "nonholonomic particle, L = |v|²/2 − q1² − q2², v3 − q2 v1 = 0 (§8.1)",
-        q0: [1.0, 0.0, 0.0], v0: [0.0, 1.0, 0.0], t_end: 10.0, h: 0.2,
-    },
-    /// Skate on an inclined plane (paper §8.2).
-    Skate {
-        ty: crate::systems::Skate, n: 3, m: 1, name: "skate", peers: paper,
-        about: "skate on an inclined plane, cos(θ) ẏ − sin(θ) ẋ = 0 (§8.2)",
-        q0: [0.0, 0.0, 0.0], v0: [0.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Mobile robot with fixed orientation and a potential (paper §8.3).
-    Robot {
-        ty: crate::systems::MobileRobot, n: 4, m: 2, name: "robot", peers: paper,
-        about: "mobile robot with fixed orientation and potential 10 sin(q4), two rolling constraints (§8.3)",
-        q0: [0.0, 0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.0, 1.0], t_end: 10.0, h: 0.2,
-    },
-    /// McLachlan–Perlmutter particles, `n = 7` (paper §8.4; member `j = 0`).
-    McLachlanPerlmutter7 {
-        ty: crate::systems::McLachlanPerlmutter7, n: 7, m: 1, name: "mp7", peers: paper,
-        about: "McLachlan–Perlmutter particles, n = 7, chaotic, v1 + q5 v5 + q6 v6 + q7 v7 = 0 (§8.4, member j = 0)",
-        q0: [1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], v0: [0, 0, 0, 0, 0, 0, 0], t_end: 10.0, h: 0.05,
-    },
-    /// McLachlan–Perlmutter particles with the nonholonomic reading of the
-    /// §8.4 constraint (member `j = 0`).
-    McLachlanPerlmutter7Nonholonomic {
-        ty: crate::systems::McLachlanPerlmutter7Nonholonomic, n: 7, m: 1, name: "mp7-nh", peers: plain,
-        about: "McLachlan–Perlmutter particles, n = 7, nonholonomic reading v1 + q2 v5 + q3 v6 + q4 v7 = 0 (§8.4)",
-        q0: [1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], v0: [0, 0, 0, 0, 0, 0, 0], t_end: 100.0, h: 0.05,
-    },
-    /// Skate on a turning table: rheonomic affine constraint.
-    Turntable {
-        ty: crate::systems::TurntableSkate, n: 3, m: 1, name: "turntable", peers: plain,
-        about: "skate on a table turning at ω(t) = ω0(1 + ε sin νt): rheonomic affine constraint, energy not conserved",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 1.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Appell–Hamel particle: constraint nonlinear in `v`.
-    AppellHamel {
-        ty: crate::systems::AppellHamel, n: 3, m: 1, name: "appell-hamel", peers: plain,
-        about: "Appell–Hamel particle under gravity, v3² − a²(v1² + v2²) = 0 (nonlinear in v)",
-        // Falling (v3 < 0): rising would stop at v = 0, where K = ∂k/∂v
-        // vanishes and the method's Newton matrix is singular.
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
-    },
-    /// The §8.1 particle in a softened Kepler potential: varying time scales.
-    Orbit {
-        ty: crate::systems::OrbitParticle, n: 3, m: 1, name: "orbit", peers: plain,
-        about: "§8.1 particle in a softened Kepler potential μ/√(x²+y²+ε²): eccentric orbit, time scale varies ≈ 100×",
-        q0: [1.0, 0.0, 0.0], v0: [0.0, 0.3, 0.0], t_end: 10.0, h: 0.002,
-    },
-    /// Chaplygin sleigh on an inclined plane: `q`-dependent mass matrix.
-    Sleigh {
-        ty: crate::systems::ChaplyginSleigh, n: 3, m: 1, name: "sleigh", peers: plain,
-        about: "Chaplygin sleigh on an inclined plane: q-dependent mass matrix, no sideways slip",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Planar double pendulum: no constraints.
-    DoublePendulum {
-        ty: crate::systems::DoublePendulum, n: 2, m: 0, name: "double-pendulum", peers: plain,
-        about: "planar double pendulum, no constraints, non-separable L",
-        q0: [1.0, 0.5], v0: [0.0, 0.0], t_end: 10.0, h: 0.01,
-    },
-    /// Planar rigid body, base declaration of the scenes (no effects).
-    Body {
-        ty: crate::systems::scenes::Body, n: 3, m: 0, name: "body", peers: plain,
-        about: "planar rigid body (x, y, θ), base of the scenes: no effects, free motion",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// Scene of `Body` with no effects.
-    BodyFree {
-        ty: crate::systems::scenes::BodyFree, n: 3, m: 0, name: "body-free", peers: plain,
-        about: "scene of body with no effects (same code as body)",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// Scene of `Body` with the spring.
-    BodySprung {
-        ty: crate::systems::scenes::BodySprung, n: 3, m: 0, name: "body-sprung", peers: plain,
-        about: "scene of body: spring κ/2 (x² + y²) to the origin",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// Scene of `Body` with the spring and the blade.
-    BodySkating {
-        ty: crate::systems::scenes::BodySkating, n: 3, m: 1, name: "body-skating", peers: plain,
-        about: "scene of body: spring + skate blade cos θ ẏ − sin θ ẋ = 0",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// Scene of `Body` with the spring, the blade and the moving rail.
-    BodyRailed {
-        ty: crate::systems::scenes::BodyRailed, n: 3, m: 2, name: "body-railed", peers: plain,
-        about: "scene of body: spring + blade + rail ẋ = u cos(νt) (time-dependent affine constraint)",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// Scene of `Body` with the spring and the tether.
-    BodyTethered {
-        ty: crate::systems::scenes::BodyTethered, n: 3, m: 1, name: "body-tethered", peers: plain,
-        about: "scene of body: spring + tether x² + y² = ℓ² imposed at velocity level",
-        q0: [1.0, 0.0, 0.0], v0: [0.0, 0.5, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// `BodySkating` declared by hand without effects or scenes.
-    BodySkatingByHand {
-        ty: crate::systems::scenes::BodySkatingByHand, n: 3, m: 1, name: "body-skating-by-hand", peers: plain,
-        about: "body-skating declared by hand without effects (must equal the scene)",
-        q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
-    },
-    /// Point mass under gravity, base of the rod-pendulum scene.
-    PointMass {
-        ty: crate::systems::scenes::PointMass, n: 2, m: 0, name: "point-mass", peers: plain,
-        about: "point mass under gravity (x, y), base of the rod-pendulum scene: free fall",
-        q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 2.0, h: 0.05,
-    },
-    /// Scene of `PointMass` with the holonomic rod.
-    RodPendulum {
-        ty: crate::systems::scenes::RodPendulum, n: 2, m: 1, name: "rod-pendulum", peers: plain,
-        about: "pendulum: point mass with the rod ½(x² + y² − ℓ²) = 0 imposed as x ẋ + y ẏ = 0 (scene)",
-        q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 10.0, h: 0.05,
-    },
-    /// Vertical rolling disk.
-    VerticalDisk {
-        ty: crate::systems::scenes::VerticalDisk, n: 4, m: 2, name: "vertical-disk", peers: plain,
-        about: "vertical rolling disk (x, y, θ, φ), rolling without slipping; exact solution known",
-        q0: [0.0, 0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Ball on a turntable with time-varying angular velocity.
-    BallOnTurntable {
-        ty: crate::systems::scenes::BallOnTurntable, n: 5, m: 2, name: "ball-on-turntable", peers: plain,
-        about: "ball rolling on a turntable turning at Ω(t) = Ω0(1 + ε sin νt): time-dependent affine constraints",
-        // θ = π/2, φ = 0: the constraints read ẋ + r ψ̇ + Ω y = 0, ẏ + r θ̇ − Ω x = 0.
-        q0: [1.0, 0.0, 0.0, std::f64::consts::FRAC_PI_2, 0.0], v0: [-0.2, 0.5, 0.0, 0.5, 0.2], t_end: 10.0, h: 0.05,
-    },
-    /// Flat Chaplygin sleigh, base declaration of the sleigh scenes.
-    SleighBase {
-        ty: crate::systems::scenes::Sleigh, n: 3, m: 1, name: "sleigh-base", peers: plain,
-        about: "Chaplygin sleigh on a horizontal plane, base of the sleigh scenes (no effects)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Scene of the flat sleigh with no effects.
-    SleighFree {
-        ty: crate::systems::scenes::SleighFree, n: 3, m: 1, name: "sleigh-free", peers: plain,
-        about: "scene of sleigh-base with no effects",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Scene of the flat sleigh with the drive torque.
-    SleighDriven {
-        ty: crate::systems::scenes::SleighDriven, n: 3, m: 1, name: "sleigh-driven", peers: plain,
-        about: "scene of sleigh-base: drive torque τ about the vertical axis (forcing)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Scene of the flat sleigh with viscous damping.
-    SleighDamped {
-        ty: crate::systems::scenes::SleighDamped, n: 3, m: 1, name: "sleigh-damped", peers: plain,
-        about: "scene of sleigh-base: viscous damping f = −c v (forcing)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Scene of the flat sleigh with drive and damping.
-    SleighDrivenDamped {
-        ty: crate::systems::scenes::SleighDrivenDamped, n: 3, m: 1, name: "sleigh-driven-damped", peers: plain,
-        about: "scene of sleigh-base: drive torque and viscous damping (forcing)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// The driven, damped sleigh declared by hand.
-    SleighDrivenDampedByHand {
-        ty: crate::systems::scenes::SleighDrivenDampedByHand, n: 3, m: 1, name: "sleigh-driven-damped-by-hand", peers: plain,
-        about: "sleigh-driven-damped declared by hand with a forces: section (must equal the scene)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
-    },
-    /// Body on an inclined plane, base of the ice-skate scenes (no blade).
-    IceSkate {
-        ty: crate::systems::scenes::IceSkate, n: 3, m: 0, name: "ice-skate", peers: plain,
-        about: "planar body on an inclined plane, base of the skate scenes (no blade, no friction)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Scene: the §8.2 skate with its blade as an effect.
-    SkateOnBlade {
-        ty: crate::systems::scenes::SkateOnBlade, n: 3, m: 1, name: "skate-on-blade", peers: plain,
-        about: "scene of ice-skate: the blade cos θ ẏ − sin θ ẋ = 0 (the §8.2 skate)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Scene: blade plus smoothed dry friction (non-ideal force).
-    SkateWithFriction {
-        ty: crate::systems::scenes::SkateWithFriction, n: 3, m: 1, name: "skate-with-friction", peers: plain,
-        about: "scene of ice-skate: blade + smoothed dry friction μ|ψ| along it (non-ideal constraint force)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Particle under gravity, base of the Appell–Hamel scene.
-    FallingParticle {
-        ty: crate::systems::scenes::FallingParticle, n: 3, m: 0, name: "falling-particle", peers: plain,
-        about: "particle under gravity, base of the appell-hamel-cord scene (free fall)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
-    },
-    /// Scene: the Appell–Hamel cord constraint (nonlinear in `v`).
-    AppellHamelCord {
-        ty: crate::systems::scenes::AppellHamelCord, n: 3, m: 1, name: "appell-hamel-cord", peers: plain,
-        about: "scene of falling-particle: cord ż² − a²(ẋ² + ẏ²) = 0, nonlinear in v (Chetaev)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
-    },
-    /// Skate driven by a torque and viscously damped (hand-written).
-    DrivenSkate {
-        ty: spark_runtime::fixtures::effects::DrivenSkate, n: 3, m: 1, name: "driven-skate", peers: plain,
-        about: "skate with drive torque τ and viscous damping c: f = (−c ẋ, −c ẏ, τ − c θ̇) (hand-written)",
-        q0: [0.0, 0.0, 0.0], v0: [0.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Skate with smoothed dry friction along the blade (hand-written).
-    FrictionSkate {
-        ty: spark_runtime::fixtures::effects::FrictionSkate, n: 3, m: 1, name: "friction-skate", peers: plain,
-        about: "skate with smoothed dry friction μ|ψ| along the blade, non-ideal constraint force (hand-written)",
-        q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
-    },
-    /// Pendulum with a holonomic rod (hand-written, reports the drift of `g`).
-    RodPendulumHand {
-        ty: spark_runtime::fixtures::effects::RodPendulum, n: 2, m: 1, name: "rod-pendulum-hand", peers: plain,
-        about: "pendulum with the rod ½(x² + y² − ℓ²) = 0 at velocity level, hand-written with its drift residual g",
-        q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 10.0, h: 0.05,
-    },
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn edit_distance_counts_single_edits() {
-        assert_eq!(edit_distance("skate", "skate"), 0);
-        assert_eq!(edit_distance("skat", "skate"), 1);
-        assert_eq!(edit_distance("sakte", "skate"), 2);
-        assert_eq!(edit_distance("", "abc"), 3);
-    }
-
-    #[test]
-    fn kinds_index_their_own_entries() {
-        for (i, e) in entries().iter().enumerate() {
-            assert_eq!(e.kind as usize, i);
-            assert_eq!(e.kind.entry().name, e.name);
-            assert_eq!(e.q0.len(), e.n, "{}: q0", e.name);
-            assert_eq!(e.v0.len(), e.n, "{}: v0", e.name);
-        }
-    }
+    paper: [
+        /// Nonholonomic particle (paper §8.1).
+        Particle {
+            ty: crate::systems::NonholonomicParticle, n: 3, m: 1, name: "particle", peers: paper,
+            about: "nonholonomic particle, L = |v|²/2 − q1² − q2², v3 − q2 v1 = 0 (§8.1)",
+            q0: [1.0, 0.0, 0.0], v0: [0.0, 1.0, 0.0], t_end: 10.0, h: 0.2,
+        },
+        /// Skate on an inclined plane (paper §8.2).
+        Skate {
+            ty: crate::systems::Skate, n: 3, m: 1, name: "skate", peers: paper,
+            about: "skate on an inclined plane, cos(θ) ẏ − sin(θ) ẋ = 0 (§8.2)",
+            q0: [0.0, 0.0, 0.0], v0: [0.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Mobile robot with fixed orientation and a potential (paper §8.3).
+        Robot {
+            ty: crate::systems::MobileRobot, n: 4, m: 2, name: "robot", peers: paper,
+            about: "mobile robot with fixed orientation and potential 10 sin(q4), two rolling constraints (§8.3)",
+            q0: [0.0, 0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.0, 1.0], t_end: 10.0, h: 0.2,
+        },
+        /// McLachlan–Perlmutter particles, `n = 7` (paper §8.4; member `j = 0`).
+        McLachlanPerlmutter7 {
+            ty: crate::systems::McLachlanPerlmutter7, n: 7, m: 1, name: "mp7", peers: paper,
+            about: "McLachlan–Perlmutter particles, n = 7, chaotic, v1 + q5 v5 + q6 v6 + q7 v7 = 0 (§8.4, member j = 0)",
+            q0: [1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], v0: [0, 0, 0, 0, 0, 0, 0], t_end: 10.0, h: 0.05,
+        },
+        /// McLachlan–Perlmutter particles with the nonholonomic reading of the
+        /// §8.4 constraint (member `j = 0`).
+        McLachlanPerlmutter7Nonholonomic {
+            ty: crate::systems::McLachlanPerlmutter7Nonholonomic, n: 7, m: 1, name: "mp7-nh", peers: plain,
+            about: "McLachlan–Perlmutter particles, n = 7, nonholonomic reading v1 + q2 v5 + q3 v6 + q4 v7 = 0 (§8.4)",
+            q0: [1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], v0: [0, 0, 0, 0, 0, 0, 0], t_end: 100.0, h: 0.05,
+        },
+    ]
+    full: [
+        /// Skate on a turning table: rheonomic affine constraint.
+        Turntable {
+            ty: crate::systems::TurntableSkate, n: 3, m: 1, name: "turntable", peers: plain,
+            about: "skate on a table turning at ω(t) = ω0(1 + ε sin νt): rheonomic affine constraint, energy not conserved",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 1.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Appell–Hamel particle: constraint nonlinear in `v`.
+        AppellHamel {
+            ty: crate::systems::AppellHamel, n: 3, m: 1, name: "appell-hamel", peers: plain,
+            about: "Appell–Hamel particle under gravity, v3² − a²(v1² + v2²) = 0 (nonlinear in v)",
+            // Falling (v3 < 0): rising would stop at v = 0, where K = ∂k/∂v
+            // vanishes and the method's Newton matrix is singular.
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
+        },
+        /// The §8.1 particle in a softened Kepler potential: varying time scales.
+        Orbit {
+            ty: crate::systems::OrbitParticle, n: 3, m: 1, name: "orbit", peers: plain,
+            about: "§8.1 particle in a softened Kepler potential μ/√(x²+y²+ε²): eccentric orbit, time scale varies ≈ 100×",
+            q0: [1.0, 0.0, 0.0], v0: [0.0, 0.3, 0.0], t_end: 10.0, h: 0.002,
+        },
+        /// Chaplygin sleigh on an inclined plane: `q`-dependent mass matrix.
+        Sleigh {
+            ty: crate::systems::ChaplyginSleigh, n: 3, m: 1, name: "sleigh", peers: plain,
+            about: "Chaplygin sleigh on an inclined plane: q-dependent mass matrix, no sideways slip",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Planar double pendulum: no constraints.
+        DoublePendulum {
+            ty: crate::systems::DoublePendulum, n: 2, m: 0, name: "double-pendulum", peers: plain,
+            about: "planar double pendulum, no constraints, non-separable L",
+            q0: [1.0, 0.5], v0: [0.0, 0.0], t_end: 10.0, h: 0.01,
+        },
+        /// Planar rigid body, base declaration of the scenes (no effects).
+        Body {
+            ty: crate::systems::scenes::Body, n: 3, m: 0, name: "body", peers: plain,
+            about: "planar rigid body (x, y, θ), base of the scenes: no effects, free motion",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// Scene of `Body` with no effects.
+        BodyFree {
+            ty: crate::systems::scenes::BodyFree, n: 3, m: 0, name: "body-free", peers: plain,
+            about: "scene of body with no effects (same code as body)",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// Scene of `Body` with the spring.
+        BodySprung {
+            ty: crate::systems::scenes::BodySprung, n: 3, m: 0, name: "body-sprung", peers: plain,
+            about: "scene of body: spring κ/2 (x² + y²) to the origin",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// Scene of `Body` with the spring and the blade.
+        BodySkating {
+            ty: crate::systems::scenes::BodySkating, n: 3, m: 1, name: "body-skating", peers: plain,
+            about: "scene of body: spring + skate blade cos θ ẏ − sin θ ẋ = 0",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// Scene of `Body` with the spring, the blade and the moving rail.
+        BodyRailed {
+            ty: crate::systems::scenes::BodyRailed, n: 3, m: 2, name: "body-railed", peers: plain,
+            about: "scene of body: spring + blade + rail ẋ = u cos(νt) (time-dependent affine constraint)",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// Scene of `Body` with the spring and the tether.
+        BodyTethered {
+            ty: crate::systems::scenes::BodyTethered, n: 3, m: 1, name: "body-tethered", peers: plain,
+            about: "scene of body: spring + tether x² + y² = ℓ² imposed at velocity level",
+            q0: [1.0, 0.0, 0.0], v0: [0.0, 0.5, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// `BodySkating` declared by hand without effects or scenes.
+        BodySkatingByHand {
+            ty: crate::systems::scenes::BodySkatingByHand, n: 3, m: 1, name: "body-skating-by-hand", peers: plain,
+            about: "body-skating declared by hand without effects (must equal the scene)",
+            q0: [1.0, 0.0, 0.0], v0: [0.5, 0.0, 0.3], t_end: 10.0, h: 0.1,
+        },
+        /// Point mass under gravity, base of the rod-pendulum scene.
+        PointMass {
+            ty: crate::systems::scenes::PointMass, n: 2, m: 0, name: "point-mass", peers: plain,
+            about: "point mass under gravity (x, y), base of the rod-pendulum scene: free fall",
+            q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 2.0, h: 0.05,
+        },
+        /// Scene of `PointMass` with the holonomic rod.
+        RodPendulum {
+            ty: crate::systems::scenes::RodPendulum, n: 2, m: 1, name: "rod-pendulum", peers: plain,
+            about: "pendulum: point mass with the rod ½(x² + y² − ℓ²) = 0 imposed as x ẋ + y ẏ = 0 (scene)",
+            q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 10.0, h: 0.05,
+        },
+        /// Vertical rolling disk.
+        VerticalDisk {
+            ty: crate::systems::scenes::VerticalDisk, n: 4, m: 2, name: "vertical-disk", peers: plain,
+            about: "vertical rolling disk (x, y, θ, φ), rolling without slipping; exact solution known",
+            q0: [0.0, 0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Ball on a turntable with time-varying angular velocity.
+        BallOnTurntable {
+            ty: crate::systems::scenes::BallOnTurntable, n: 5, m: 2, name: "ball-on-turntable", peers: plain,
+            about: "ball rolling on a turntable turning at Ω(t) = Ω0(1 + ε sin νt): time-dependent affine constraints",
+            // θ = π/2, φ = 0: the constraints read ẋ + r ψ̇ + Ω y = 0, ẏ + r θ̇ − Ω x = 0.
+            q0: [1.0, 0.0, 0.0, std::f64::consts::FRAC_PI_2, 0.0], v0: [-0.2, 0.5, 0.0, 0.5, 0.2], t_end: 10.0, h: 0.05,
+        },
+        /// Flat Chaplygin sleigh, base declaration of the sleigh scenes.
+        SleighBase {
+            ty: crate::systems::scenes::Sleigh, n: 3, m: 1, name: "sleigh-base", peers: plain,
+            about: "Chaplygin sleigh on a horizontal plane, base of the sleigh scenes (no effects)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Scene of the flat sleigh with no effects.
+        SleighFree {
+            ty: crate::systems::scenes::SleighFree, n: 3, m: 1, name: "sleigh-free", peers: plain,
+            about: "scene of sleigh-base with no effects",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Scene of the flat sleigh with the drive torque.
+        SleighDriven {
+            ty: crate::systems::scenes::SleighDriven, n: 3, m: 1, name: "sleigh-driven", peers: plain,
+            about: "scene of sleigh-base: drive torque τ about the vertical axis (forcing)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Scene of the flat sleigh with viscous damping.
+        SleighDamped {
+            ty: crate::systems::scenes::SleighDamped, n: 3, m: 1, name: "sleigh-damped", peers: plain,
+            about: "scene of sleigh-base: viscous damping f = −c v (forcing)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Scene of the flat sleigh with drive and damping.
+        SleighDrivenDamped {
+            ty: crate::systems::scenes::SleighDrivenDamped, n: 3, m: 1, name: "sleigh-driven-damped", peers: plain,
+            about: "scene of sleigh-base: drive torque and viscous damping (forcing)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// The driven, damped sleigh declared by hand.
+        SleighDrivenDampedByHand {
+            ty: crate::systems::scenes::SleighDrivenDampedByHand, n: 3, m: 1, name: "sleigh-driven-damped-by-hand", peers: plain,
+            about: "sleigh-driven-damped declared by hand with a forces: section (must equal the scene)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 0.5], t_end: 10.0, h: 0.05,
+        },
+        /// Body on an inclined plane, base of the ice-skate scenes (no blade).
+        IceSkate {
+            ty: crate::systems::scenes::IceSkate, n: 3, m: 0, name: "ice-skate", peers: plain,
+            about: "planar body on an inclined plane, base of the skate scenes (no blade, no friction)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Scene: the §8.2 skate with its blade as an effect.
+        SkateOnBlade {
+            ty: crate::systems::scenes::SkateOnBlade, n: 3, m: 1, name: "skate-on-blade", peers: plain,
+            about: "scene of ice-skate: the blade cos θ ẏ − sin θ ẋ = 0 (the §8.2 skate)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Scene: blade plus smoothed dry friction (non-ideal force).
+        SkateWithFriction {
+            ty: crate::systems::scenes::SkateWithFriction, n: 3, m: 1, name: "skate-with-friction", peers: plain,
+            about: "scene of ice-skate: blade + smoothed dry friction μ|ψ| along it (non-ideal constraint force)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Particle under gravity, base of the Appell–Hamel scene.
+        FallingParticle {
+            ty: crate::systems::scenes::FallingParticle, n: 3, m: 0, name: "falling-particle", peers: plain,
+            about: "particle under gravity, base of the appell-hamel-cord scene (free fall)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
+        },
+        /// Scene: the Appell–Hamel cord constraint (nonlinear in `v`).
+        AppellHamelCord {
+            ty: crate::systems::scenes::AppellHamelCord, n: 3, m: 1, name: "appell-hamel-cord", peers: plain,
+            about: "scene of falling-particle: cord ż² − a²(ẋ² + ẏ²) = 0, nonlinear in v (Chetaev)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, -0.5], t_end: 5.0, h: 0.05,
+        },
+        /// Skate driven by a torque and viscously damped (hand-written).
+        DrivenSkate {
+            ty: spark_runtime::fixtures::effects::DrivenSkate, n: 3, m: 1, name: "driven-skate", peers: plain,
+            about: "skate with drive torque τ and viscous damping c: f = (−c ẋ, −c ẏ, τ − c θ̇) (hand-written)",
+            q0: [0.0, 0.0, 0.0], v0: [0.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Skate with smoothed dry friction along the blade (hand-written).
+        FrictionSkate {
+            ty: spark_runtime::fixtures::effects::FrictionSkate, n: 3, m: 1, name: "friction-skate", peers: plain,
+            about: "skate with smoothed dry friction μ|ψ| along the blade, non-ideal constraint force (hand-written)",
+            q0: [0.0, 0.0, 0.0], v0: [1.0, 0.0, 1.0], t_end: 10.0, h: 0.1,
+        },
+        /// Pendulum with a holonomic rod (hand-written, reports the drift of `g`).
+        RodPendulumHand {
+            ty: spark_runtime::fixtures::effects::RodPendulum, n: 2, m: 1, name: "rod-pendulum-hand", peers: plain,
+            about: "pendulum with the rod ½(x² + y² − ℓ²) = 0 at velocity level, hand-written with its drift residual g",
+            q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 10.0, h: 0.05,
+        },
+    ]
 }

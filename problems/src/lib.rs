@@ -14,6 +14,13 @@
 //! - [`experiments`]: the paper's figures, Poincaré sections, the stress
 //!   suite and the work-precision study;
 //! - [`cli`]: the `spark` command line (`bin/spark.rs` parses and calls it).
+//!
+//! The crate feature `full` (on by default) compiles the whole catalogue,
+//! the peers, the CasADi export and the experiments beyond the paper. Without
+//! it (`--no-default-features`) the crate holds the paper's systems,
+//! `spark list`, `spark run` and `spark paper`, and builds in a fraction of
+//! the time: every catalogue system is monomorphized for every stage count
+//! and every experiment, and that is nearly all of the crate's build.
 
 pub mod systems;
 
@@ -23,7 +30,9 @@ pub mod report;
 
 pub mod run;
 
+#[cfg(feature = "full")]
 pub mod crosscheck;
+#[cfg(feature = "full")]
 pub mod peers;
 
 pub mod experiments;

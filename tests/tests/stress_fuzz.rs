@@ -9,7 +9,7 @@
 //!
 //! Executions: `FUZZ_CASES` (default 20 000) cases per run of this test, each
 //! case exercising one (system, s) pairing with three entry points. A larger
-//! run: `FUZZ_CASES=200000 cargo test --release -p spark-tests --test stress_fuzz`
+//! run: `FUZZ_CASES=200000 cargo test --release -p spark-tests --test integration stress_fuzz`
 //! (documented in docs/stress/README.md with its outcome).
 
 use problems::systems::stress::{NearParallel, NonReversibleOscillator, RollingDisk, StiffSkate};

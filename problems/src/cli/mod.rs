@@ -10,8 +10,11 @@
 pub mod list;
 pub mod paper;
 pub mod run;
+#[cfg(feature = "full")]
 pub mod section;
+#[cfg(feature = "full")]
 pub mod stress;
+#[cfg(feature = "full")]
 pub mod work_precision;
 
 use crate::catalog::nearest;
@@ -57,16 +60,19 @@ pub enum Command {
     /// measured in the same run.
     ///
     /// Example: spark work-precision --system skate --system driven-skate --out results/work-precision
+    #[cfg(feature = "full")]
     WorkPrecision(work_precision::WorkPrecisionArgs),
     /// Poincaré section: integrate an ensemble (in parallel) and record the
     /// states where it crosses one of the system's declared events; writes
     /// the points (CSV), a scatter figure (PNG + SVG) and section.json.
     ///
     /// Example: spark section mp7-nh --event section --members 10 --t-end 500 --out results/section
+    #[cfg(feature = "full")]
     Section(section::SectionArgs),
     /// Stress suite: hard cases with checks, figures and a report.
     ///
     /// Example: spark stress --full --out docs/stress
+    #[cfg(feature = "full")]
     Stress(stress::StressArgs),
 }
 
@@ -102,12 +108,17 @@ impl From<Newton> for NewtonMode {
 /// Runs the subcommand `cli` names and returns the text to print;
 /// `progress` receives the work-precision study's progress lines.
 pub fn run(cli: Cli, progress: &dyn Fn(&str)) -> Result<String, String> {
+    #[cfg(not(feature = "full"))]
+    let _ = progress;
     match cli.command {
         Command::List(args) => list::list(args),
         Command::Run(args) => run::run_command(args),
         Command::Paper(args) => paper::paper_command(args),
+        #[cfg(feature = "full")]
         Command::WorkPrecision(args) => work_precision::run(args, progress),
+        #[cfg(feature = "full")]
         Command::Section(args) => section::section_command(args),
+        #[cfg(feature = "full")]
         Command::Stress(args) => stress::run(args),
     }
 }

@@ -9,6 +9,9 @@
 //!   scaling study (`spark work-precision`).
 
 pub mod paper;
+#[cfg(feature = "full")]
 pub mod section;
+#[cfg(feature = "full")]
 pub mod stress;
+#[cfg(feature = "full")]
 pub mod work_precision;

@@ -107,35 +107,3 @@ impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> Nonholonomic
         (values, jac)
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::systems::{MobileRobot, Skate};
-
-    fn agrees<Sys: NonholonomicSystem<N, M> + Copy, const N: usize, const M: usize>(sys: Sys) {
-        let q = Vector::<N>::from_fn(|i, _| 0.3 + 0.17 * i as f64);
-        let v = Vector::<N>::from_fn(|i, _| -0.4 + 0.23 * i as f64);
-        let psi = Vector::<M>::from_fn(|i, _| 0.7 - 0.5 * i as f64);
-        let (_, exact) = sys.stage_jacobians(0.1, &q, &v, &psi);
-        let (_, fd) = FiniteDifference(sys).stage_jacobians(0.1, &q, &v, &psi);
-        let pairs = [
-            (exact.mass.as_slice(), fd.mass.as_slice()),
-            (exact.force_q.as_slice(), fd.force_q.as_slice()),
-            (exact.constraint_q.as_slice(), fd.constraint_q.as_slice()),
-            (exact.constraint_v.as_slice(), fd.constraint_v.as_slice()),
-            (exact.constraint_force_q.as_slice(), fd.constraint_force_q.as_slice()),
-        ];
-        for (a, b) in pairs {
-            for (x, y) in a.iter().zip(b) {
-                assert!((x - y).abs() < 1e-8 * (1.0 + x.abs()), "exact {x} vs central difference {y}");
-            }
-        }
-    }
-
-    #[test]
-    fn central_differences_match_generated_jacobians() {
-        agrees(Skate::default());
-        agrees(MobileRobot::default());
-    }
-}

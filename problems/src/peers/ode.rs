@@ -167,22 +167,3 @@ where
         evaluations: stats.num_eval as usize,
     })
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::systems::Skate;
-    use spark_runtime::reference::{self, ReferenceOptions};
-
-    #[test]
-    fn dop853_reaches_the_reference_on_the_skate() {
-        let sys = Skate::default();
-        let (q0, v0) = (Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-        let run = dop853::<Skate, 3, 1, 6>(&sys, 0.0, &q0, &v0, 2.0, 1e-12, 1e-12).unwrap();
-        let exact = reference::integrate(&sys, 0.0, &q0, &v0, 2.0, &ReferenceOptions::default()).unwrap();
-        let err = (run.q - exact.q[0]).amax().max((run.v - exact.v[0]).amax());
-        assert!(err < 1e-9, "DOP853 error {err}");
-        assert!(run.steps > 0 && run.evaluations > run.steps);
-        assert!(dop853::<Skate, 3, 1, 5>(&sys, 0.0, &q0, &v0, 2.0, 1e-8, 1e-8).is_err());
-    }
-}

@@ -1,8 +1,10 @@
-//! The one thread-CPU clock: `spark run`'s statistics, the work-precision
-//! study and the criterion benches read it. Thread CPU time, unlike wall
-//! time, does not grow when other processes compete for the cores.
+//! The one thread-CPU clock, and the medians of timed repeats: `spark
+//! run`'s statistics, the work-precision study and the criterion benches
+//! read it. Thread CPU time, unlike wall time, does not grow when other
+//! processes compete for the cores.
 
-use std::time::Duration;
+use crate::report::stats::median;
+use std::time::{Duration, Instant};
 
 /// CPU time consumed so far by the calling thread
 /// (`CLOCK_THREAD_CPUTIME_ID`); `None` where the clock is unavailable.
@@ -18,18 +20,19 @@ pub fn thread_cpu_seconds() -> f64 {
     thread_cpu_time().map_or(f64::NAN, |d| d.as_secs_f64())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn thread_clock_advances_with_work() {
-        let start = thread_cpu_seconds();
-        let mut x = 0.0f64;
-        for i in 0..2_000_000 {
-            x += (i as f64).sqrt();
+/// Medians of the wall and thread-CPU times of `run`, repeated `repeats`
+/// times or until `min_total` has been spent (at most 1000 times).
+pub fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, f64, usize)> {
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
+    let start = Instant::now();
+    while wall.len() < repeats.max(1) || (start.elapsed() < min_total && wall.len() < 1000) {
+        let (t, c) = (Instant::now(), thread_cpu_seconds());
+        if !run() {
+            return None;
         }
-        std::hint::black_box(x);
-        assert!(thread_cpu_seconds() > start);
+        cpu.push(thread_cpu_seconds() - c);
+        wall.push(t.elapsed().as_secs_f64());
     }
+    let n = wall.len();
+    Some((median(wall), median(cpu), n))
 }

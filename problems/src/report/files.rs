@@ -422,25 +422,3 @@ pub fn read_columns(path: &Path) -> Result<(Vec<String>, Vec<Vec<f64>>), OutputE
     }
     Ok((header, cols))
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn columns_round_trip_exactly() {
-        let dir = std::env::temp_dir().join(format!("spark-out-{}", std::process::id()));
-        create_dir(&dir).unwrap();
-        let p = dir.join("c.csv");
-        let a = [0.1, 1.0 / 3.0, -2.5e-17];
-        let b = [1.0, f64::MIN_POSITIVE, 7.0];
-        write_columns(&p, &[("a", &a), ("b", &b)]).unwrap();
-        let (h, cols) = read_columns(&p).unwrap();
-        assert_eq!(h, vec!["a", "b"]);
-        assert_eq!(cols[0], a.to_vec());
-        assert_eq!(cols[1], b.to_vec());
-        let bad = write_columns(&p, &[("a", &a), ("b", &b[..2])]);
-        assert!(matches!(bad, Err(OutputError::Ragged { .. })));
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-}

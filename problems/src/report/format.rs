@@ -57,18 +57,3 @@ pub fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
     }
     out
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn formats() {
-        assert_eq!(sci(12344.0), "1.234e4");
-        assert_eq!(sci_digits(12344.0, 2), "1.23e4");
-        assert_eq!(short(12.600000000000001), "12.6");
-        assert_eq!(duration(2.5e-6), "2.5 µs");
-        assert_eq!(nanoseconds(1.5e-7), "150");
-        assert_eq!(thin((0..10).map(|i| (i as f64, 0.0)).collect(), 4).last(), Some(&(9.0, 0.0)));
-    }
-}

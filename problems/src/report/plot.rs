@@ -259,7 +259,10 @@ fn range(lo: f64, hi: f64, scale: Scale) -> (f64, f64) {
     }
 }
 
-fn tick_label(v: f64, span: f64) -> String {
+/// An axis tick label: `0` for values within `1e-9` of the axis span (so a
+/// linear axis through zero never shows round-off), fixed point from `1e-2`
+/// to `1e5`, scientific notation otherwise.
+pub fn tick_label(v: f64, span: f64) -> String {
     if v == 0.0 || v.abs() < 1e-9 * span {
         "0".into()
     } else if v.abs() >= 1e-2 && v.abs() < 1e5 {
@@ -481,77 +484,4 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         .draw()
         .map_err(e)?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn log_axis_ticks_are_never_rounded_to_zero() {
-        // A log axis passes span 0: 1e-10 must print as itself, not "0".
-        assert_eq!(tick_label(1e-10, 0.0), "1.0e-10");
-        assert_eq!(tick_label(1e-16, 0.0), "1.0e-16");
-        // A linear axis spanning 1 still shows round-off around 0 as "0".
-        assert_eq!(tick_label(1e-12, 1.0), "0");
-    }
-
-    #[test]
-    fn writes_png_and_svg_with_text() {
-        let dir = std::env::temp_dir().join(format!("spark-plot-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let pts: Vec<(f64, f64)> = (0..200).map(|i| (i as f64 * 0.1, (i as f64 * 0.1).sin() * 1e-9)).collect();
-        let fig = Figure {
-            title: "Test figure".into(),
-            panels: vec![
-                Panel {
-                    title: "linear".into(),
-                    x_label: "t".into(),
-                    y_label: "E − E0".into(),
-                    x_scale: Scale::Linear,
-                    y_scale: Scale::Linear,
-                    series: vec![Series::new("sin", pts.clone())],
-                },
-                Panel {
-                    title: "log".into(),
-                    x_label: "t".into(),
-                    y_label: "y".into(),
-                    x_scale: Scale::Log,
-                    y_scale: Scale::Log,
-                    series: vec![Series { label: "ref".into(), points: vec![(1.0, 1.0), (10.0, 10.0)], dashed: true }],
-                },
-            ],
-            columns: 2,
-            panel_size: (400, 300),
-        };
-        let files = [dir.join("fig.png"), dir.join("fig.svg")];
-        render_files(&fig, &files[0], &files[1]).unwrap();
-        let png = std::fs::read(&files[0]).unwrap();
-        assert_eq!(&png[1..4], b"PNG");
-        let svg = std::fs::read_to_string(&files[1]).unwrap();
-        assert!(svg.contains("Test figure") && svg.contains("E − E0"));
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn empty_log_panel_is_an_error() {
-        let fig = Figure {
-            title: "F".into(),
-            panels: vec![Panel {
-                title: "P".into(),
-                x_label: "x".into(),
-                y_label: "y".into(),
-                x_scale: Scale::Linear,
-                y_scale: Scale::Log,
-                series: vec![Series::new("zero", vec![(0.0, 0.0), (1.0, -1.0)])],
-            }],
-            columns: 1,
-            panel_size: (200, 200),
-        };
-        let dir = std::env::temp_dir().join(format!("spark-plot-empty-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let err = render_files(&fig, &dir.join("f.png"), &dir.join("f.svg")).unwrap_err();
-        assert!(err.to_string().contains("log scale"), "{err}");
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
 }

@@ -272,37 +272,3 @@ pub fn ensemble_quantity(members: &[(&[f64], f64)], h: f64) -> Vec<f64> {
         .map(|k| members.iter().map(|(e, e0)| (e[k] - e0).powi(2)).sum::<f64>() / members.len() as f64 / h4)
         .collect()
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn line_fit_recovers_a_line() {
-        let x: Vec<f64> = (0..50).map(|i| i as f64).collect();
-        let y: Vec<f64> = x.iter().map(|x| 2.0 - 0.5 * x).collect();
-        let f = fit_line(&x, &y).unwrap();
-        assert!((f.slope + 0.5).abs() < 1e-12 && (f.intercept - 2.0).abs() < 1e-12);
-        assert!(f.slope_std_error < 1e-12);
-        assert!(fit_line(&[1.0, 1.0], &[0.0, 1.0]).is_none());
-    }
-
-    #[test]
-    fn oscillation_has_no_drift_but_a_ramp_does() {
-        let t: Vec<f64> = (0..2000).map(|i| i as f64 * 0.1).collect();
-        let osc: Vec<f64> = t.iter().map(|t| 1e-6 * (3.0 * t).sin()).collect();
-        assert!(energy_drift(&t, &osc).unwrap().drift_fraction < 0.05);
-        let ramp: Vec<f64> = t.iter().map(|t| 1e-8 * t + 1e-7 * (3.0 * t).sin()).collect();
-        let d = energy_drift(&t, &ramp).unwrap();
-        assert!((d.slope - 1e-8).abs() < 1e-9 && d.drift_fraction > 0.5);
-    }
-
-    #[test]
-    fn power_fit_recovers_exponent() {
-        let t: Vec<f64> = (1..=10000).map(|i| i as f64 * 5.0).collect();
-        let y: Vec<f64> = t.iter().map(|t| 3.0 * t.powf(1.5)).collect();
-        let f = fit_power(&t, &y, 10.0, 100).unwrap();
-        assert!((f.exponent - 1.5).abs() < 1e-10 && (f.coefficient - 3.0).abs() < 1e-8);
-        assert!(f.points > 50 && f.points <= 100);
-    }
-}

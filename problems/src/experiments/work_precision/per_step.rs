@@ -19,9 +19,9 @@
 //! so this is round-off accumulated over the run).
 
 use super::external::{self, MethodInput, PeerStepRun};
-use super::sweep::median_time;
 use super::{Problem, WorkPrecisionConfig};
 use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::report::clock::median_time;
 use spark_runtime::TableauTable;
 use spark_runtime::{
     Jacobian, Method, NewtonMode, NewtonOptions, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector,
@@ -296,29 +296,4 @@ pub fn per_step_markdown(rows: &[PerStepRow]) -> String {
         );
     }
     s
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn per_step_table_measures_spark_and_reports_a_missing_peer() {
-        let mut cfg = WorkPrecisionConfig::quick(std::env::temp_dir().join("spark-per-step-unused"));
-        cfg.systems = vec![SystemKind::Skate];
-        let rows = measure_per_step(&cfg, &|_| {}).unwrap();
-        assert_eq!(rows.len(), per_step_methods().len());
-        for r in &rows {
-            assert_eq!((r.steps, r.h), (100, 0.1));
-            assert!(r.full.time_per_step > 0.0 && r.simplified.time_per_step > 0.0, "{r:?}");
-            assert!(r.decoupled.time_per_step > 0.0, "{r:?}");
-            assert!(r.full.iterations >= 1.0, "{r:?}");
-            assert!(r.peer.as_ref().is_err_and(|e| e.contains("no Python")), "{r:?}");
-        }
-        let md = per_step_markdown(&rows);
-        assert!(md.contains("| skate | 0.1 | Gauss s=2 |"), "{md}");
-        assert!(md.contains("not measured"), "{md}");
-        cfg.systems = vec![SystemKind::Sleigh];
-        assert!(measure_per_step(&cfg, &|_| {}).is_err());
-    }
 }

@@ -8,38 +8,15 @@ use crate::catalog::{Dispatch, StageVisitor};
 use crate::peers::dual::{AutoDiff, DualTwin};
 use crate::peers::finite_difference::FiniteDifference;
 use crate::peers::ode;
-use crate::report::clock::thread_cpu_seconds;
-use crate::report::stats::median;
+use crate::report::clock::median_time;
 use spark_runtime::{
     integrate_adaptive, AdaptiveOptions, Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions,
     Schedule, State, Stepper, Tableau, Vector,
 };
 use std::marker::PhantomData;
-use std::time::{Duration, Instant};
 
 pub(super) fn errors<const N: usize>(q: &Vector<N>, v: &Vector<N>, q_ref: &Vector<N>, v_ref: &Vector<N>) -> (f64, f64) {
     ((q - q_ref).amax(), (v - v_ref).amax())
-}
-
-/// Medians of the wall and thread-CPU times of `run`, repeated `repeats`
-/// times or until `min_total` has been spent (at most 1000 times).
-pub(super) fn median_time<F: FnMut() -> bool>(
-    repeats: usize,
-    min_total: Duration,
-    mut run: F,
-) -> Option<(f64, f64, usize)> {
-    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
-    let start = Instant::now();
-    while wall.len() < repeats.max(1) || (start.elapsed() < min_total && wall.len() < 1000) {
-        let (t, c) = (Instant::now(), thread_cpu_seconds());
-        if !run() {
-            return None;
-        }
-        cpu.push(thread_cpu_seconds() - c);
-        wall.push(t.elapsed().as_secs_f64());
-    }
-    let n = wall.len();
-    Some((median(wall), median(cpu), n))
 }
 
 /// The context of one system's sweep.

@@ -1,9 +1,9 @@
-//! The system registry as the command line sees it: every registered system
+//! The catalogue as the command line sees it: every registered system
 //! runs through the one stage dispatch with every method family, names are
 //! looked up forgivingly with useful errors, `spark run` works end to end,
 //! and work-precision measures a system that is not in the paper.
 
-use problems::catalog::{entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
+use problems::catalog::{edit_distance, entries, lookup, SystemKind, MAX_DISPATCH_STAGES};
 use problems::experiments::work_precision::{
     method_variants, run_work_precision, Provider, WorkPrecisionConfig, SPARK_ADAPTIVE,
 };
@@ -319,4 +319,22 @@ fn work_precision_measures_a_system_outside_the_paper() {
     }
     assert!(dir.join("driven-skate.csv").exists() && dir.join("summary.md").exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn edit_distance_counts_single_edits() {
+    assert_eq!(edit_distance("skate", "skate"), 0);
+    assert_eq!(edit_distance("skat", "skate"), 1);
+    assert_eq!(edit_distance("sakte", "skate"), 2);
+    assert_eq!(edit_distance("", "abc"), 3);
+}
+
+#[test]
+fn kinds_index_their_own_entries() {
+    for (i, e) in entries().iter().enumerate() {
+        assert_eq!(e.kind as usize, i);
+        assert_eq!(e.kind.entry().name, e.name);
+        assert_eq!(e.q0.len(), e.n, "{}: q0", e.name);
+        assert_eq!(e.v0.len(), e.n, "{}: v0", e.name);
+    }
 }

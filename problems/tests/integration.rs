@@ -1,0 +1,15 @@
+//! Every integration test of `problems`, in one test binary: the crate's
+//! monomorphized code is linked once instead of once per file, and generic
+//! code the tests share is compiled once.
+
+mod catalog;
+mod cli_files;
+mod crosscheck;
+mod output_files;
+mod paper_short;
+mod peers;
+mod report;
+mod scene_effects;
+mod section;
+mod systems;
+mod work_precision;

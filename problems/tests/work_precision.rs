@@ -1,0 +1,140 @@
+//! The work-precision experiment: medians of repeats, a quick run with
+//! every solver and output, the sweep over families and stage counts, the
+//! per-step table and the report's interpolation.
+
+mod sweep {
+    use problems::catalog::SystemKind;
+    use problems::experiments::work_precision::*;
+    use problems::report::clock::median_time;
+    use std::time::Duration;
+
+    #[test]
+    fn median_time_takes_the_middle_of_the_repeats() {
+        let mut k = 0;
+        let (t, _, n) = median_time(3, Duration::ZERO, || {
+            k += 1;
+            std::thread::sleep(Duration::from_millis(if k == 2 { 30 } else { 1 }));
+            true
+        })
+        .unwrap();
+        assert_eq!(n, 3);
+        assert!(t < 0.02, "median {t} should ignore the one slow repeat");
+        assert!(median_time(3, Duration::ZERO, || false).is_none());
+    }
+
+    /// Smoke test of the whole code path (the measurement itself is a
+    /// command, never a test): one system, tiny sweep, no Python.
+    #[test]
+    fn quick_run_measures_every_solver_and_writes_every_output() {
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-smoke-{}", std::process::id()));
+        let mut cfg = WorkPrecisionConfig::quick(&dir);
+        cfg.systems = vec![SystemKind::Skate];
+        cfg.max_steps = 32;
+        let all = run_work_precision(&cfg, &|_| {}).unwrap();
+        let m = &all[0];
+        for (method, s) in method_variants() {
+            let label = method.label(s);
+            assert!(
+                m.points.iter().any(|p| p.solver == Provider::Generated.label() && p.method == label),
+                "no point for {label}"
+            );
+        }
+        for solver in [Provider::NumDual.label(), Provider::FiniteDifference.label(), report::ODE_SOLVERS] {
+            assert!(m.points.iter().any(|p| p.solver == solver), "no point for {solver}");
+        }
+        // Gauss s=2 is of order 4: doubling the steps must shrink the error.
+        let g: Vec<&Point> =
+            m.points.iter().filter(|p| p.solver == Provider::Generated.label() && p.method == "Gauss s=2").collect();
+        assert!(g.len() >= 2 && g[1].error() < g[0].error() / 8.0, "Gauss s=2 errors {:?}", g);
+        // num-dual solves the same equations: the same errors.
+        let ad = m.points.iter().find(|p| p.solver == Provider::NumDual.label() && p.steps == g[0].steps).unwrap();
+        assert!((ad.error() - g[0].error()).abs() <= 1e-9 * g[0].error().max(1e-12));
+        assert!(m.missing.iter().any(|s| s.contains("CasADi")));
+        for f in ["skate.csv", "skate.md", "skate-error.png", "skate-energy.svg", "skate-peers.png", "summary.md"] {
+            assert!(dir.join(f).exists(), "{f} not written");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn sweep_covers_every_family_and_stage_count() {
+        let v = method_variants();
+        assert_eq!(v.len(), 5 + 4 + 4 + 3);
+        for (m, s) in v {
+            let (lo, hi) = m.stage_range();
+            assert!(lo <= s && s <= hi, "{m} s={s}");
+        }
+    }
+}
+
+mod per_step {
+    use problems::catalog::SystemKind;
+    use problems::experiments::work_precision::per_step::*;
+    use problems::experiments::work_precision::WorkPrecisionConfig;
+
+    #[test]
+    fn per_step_table_measures_spark_and_reports_a_missing_peer() {
+        let mut cfg = WorkPrecisionConfig::quick(std::env::temp_dir().join("spark-per-step-unused"));
+        cfg.systems = vec![SystemKind::Skate];
+        let rows = measure_per_step(&cfg, &|_| {}).unwrap();
+        assert_eq!(rows.len(), per_step_methods().len());
+        for r in &rows {
+            assert_eq!((r.steps, r.h), (100, 0.1));
+            assert!(r.full.time_per_step > 0.0 && r.simplified.time_per_step > 0.0, "{r:?}");
+            assert!(r.decoupled.time_per_step > 0.0, "{r:?}");
+            assert!(r.full.iterations >= 1.0, "{r:?}");
+            assert!(r.peer.as_ref().is_err_and(|e| e.contains("no Python")), "{r:?}");
+        }
+        let md = per_step_markdown(&rows);
+        assert!(md.contains("| skate | 0.1 | Gauss s=2 |"), "{md}");
+        assert!(md.contains("not measured"), "{md}");
+        cfg.systems = vec![SystemKind::Sleigh];
+        assert!(measure_per_step(&cfg, &|_| {}).is_err());
+    }
+}
+
+mod report {
+    use problems::experiments::work_precision::report::*;
+    use problems::experiments::work_precision::{Point, Provider};
+
+    fn point(solver: &str, method: &str, steps: usize, err: f64, time: f64) -> Point {
+        Point {
+            system: "x".into(),
+            solver: solver.into(),
+            method: method.into(),
+            stages: 2,
+            setting: 1.0 / steps as f64,
+            steps,
+            error_q: err,
+            error_v: err / 2.0,
+            energy_error: f64::NAN,
+            wall_time: time,
+            cpu_time: f64::NAN,
+            time_per_step: time / steps as f64,
+            newton_iterations: 2.0,
+            repeats: 3,
+        }
+    }
+
+    #[test]
+    fn time_to_reach_interpolates_in_log_log() {
+        let a = point(SPARK, "m", 10, 1e-4, 1e-3);
+        let b = point(SPARK, "m", 20, 1e-8, 1e-2);
+        let c = [&a, &b];
+        let t = time_to_reach(&c, 1e-6).unwrap();
+        assert!((t - 10f64.powf(-2.5)).abs() < 1e-12);
+        assert_eq!(time_to_reach(&c, 1e-3), Some(1e-3));
+        assert_eq!(time_to_reach(&c, 1e-9), None);
+    }
+
+    #[test]
+    fn per_step_ratio_pairs_equal_steps() {
+        let pts = vec![
+            point(SPARK, "Gauss s=2", 10, 1e-4, 1e-3),
+            point(Provider::NumDual.label(), "Gauss s=2", 10, 1e-4, 4e-3),
+            point(Provider::NumDual.label(), "Gauss s=2", 20, 1e-5, 9e-3),
+        ];
+        let r = per_step_ratios(&pts, Provider::NumDual.label());
+        assert_eq!(r["Gauss s=2"], (4.0, 1));
+    }
+}
