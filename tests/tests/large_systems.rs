@@ -430,8 +430,12 @@ fn on_rayon_workers(f201: fn() -> Result<(), String>, f401: fn() -> Result<(), S
 /// whole process, so the checks that would overflow run in a child, and
 /// the parent reports the overflow as an ordinary test failure.
 fn in_child_process(name: &str) {
+    // Test names are paths within the test binary: this module's path
+    // without the crate's own name.
+    let module = module_path!().split_once("::").map_or("", |(_, rest)| rest);
+    let name = if module.is_empty() { name.to_owned() } else { format!("{module}::{name}") };
     let out = std::process::Command::new(std::env::current_exe().expect("test binary"))
-        .args([name, "--exact", "--ignored", "--nocapture", "--test-threads=1"])
+        .args([name.as_str(), "--exact", "--ignored", "--nocapture", "--test-threads=1"])
         .output()
         .expect("spawn the test binary");
     let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
