@@ -337,9 +337,12 @@ where
     /// (scaled, `|Δz_i|/(1+|z_i|)`), or when the error left after it is,
     /// estimated from a contraction rate: for full Newton the ratio of its
     /// last two updates, for simplified Newton a rate earned over three
-    /// updates on the same frozen factors. A converged step agrees with the
-    /// tightly converged solution of its equations to the tolerance in both
-    /// modes.
+    /// updates on the same frozen factors. Full Newton also stops, before
+    /// it evaluates and factors a new Jacobian, when the residual at the
+    /// new iterate solved with the previous iterate's factors is an update
+    /// within the tolerance (that update is applied). A converged step
+    /// agrees with the tightly converged solution of its equations to the
+    /// tolerance in both modes.
     ///
     /// The first step after the Newton options were set or changed checks
     /// them ([`NewtonOptions::validate`]): an out-of-range field is a
