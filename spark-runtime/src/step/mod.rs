@@ -126,6 +126,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// Steps left on the exact matrix after the stage-decoupled one was slow
     /// or singular ([`Jacobian::StageDecoupled`]).
     exact_steps_left: u32,
+    /// Full Newton's `‖Δz₁‖/‖Δz₀‖²` of the latest step with two updates
+    /// (NaN before): it predicts whether the residual test after a step's
+    /// first update can pass.
+    quadratic: f64,
     /// The step size for which `newton` (or `decoupled`, when the flag is
     /// set) holds factors that simplified Newton may reuse on the next
     /// continuing step (`None`: evaluate afresh).
@@ -197,6 +201,7 @@ where
             block: vec![0.0; N * N].into_boxed_slice(),
             decoupled: DecoupledMatrix::new(),
             exact_steps_left: 0,
+            quadratic: f64::NAN,
             reusable: None,
             anchor: None,
             history: NewtonHistory::default(),
@@ -303,6 +308,7 @@ where
     pub(crate) fn reset_run(&mut self) {
         self.reset_warm_start();
         self.exact_steps_left = 0;
+        self.quadratic = f64::NAN;
         self.anchor = None;
         self.compensation = None;
     }

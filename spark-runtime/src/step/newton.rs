@@ -278,7 +278,11 @@ where
         let mut monitor = Contraction::FRESH;
         let result = 'solve: {
             for k in 0..max_iter {
-                if !simplified && k > 0 {
+                // After the first update, the latest step's ratio
+                // ‖Δz₁‖/‖Δz₀‖² predicts whether the test can pass (see
+                // `worth_testing`); later updates are always tested.
+                let c = if k == 1 { self.quadratic } else { f64::NAN };
+                if !simplified && k > 0 && worth_testing(c, prev_update, opts.tolerance) {
                     // Full Newton: the residual at the new iterate, solved with
                     // the factors of the previous one, is a simplified Newton
                     // update; within the tolerance it ends the solve before a
@@ -402,6 +406,10 @@ where
         if result.is_ok() && simplified && max_rate <= REUSE_RATE {
             self.reusable = Some((h, decoupled));
         }
+        if result.is_ok() && !simplified && self.history.len() >= 2 {
+            let r = self.history.iterations();
+            self.quadratic = r[1].update / (r[0].update * r[0].update);
+        }
         result.map(|()| factorizations)
     }
 }
@@ -415,6 +423,24 @@ where
 fn too_slow(monitor: &Contraction, decoupled: bool, update: f64, rate: f64, remaining: i32, tolerance: f64) -> bool {
     let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
     rate.is_nan() || rate >= 1.0 || judged > limit || update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance
+}
+
+/// How far above the tolerance a predicted next update may be for full
+/// Newton to still test the residual at the new iterate before factorizing.
+const TEST_MARGIN: f64 = 100.0;
+
+/// Whether full Newton tests the residual at the new iterate (the latest
+/// update `update`) with the previous factors: unless the latest step's
+/// `c = ‖Δz₁‖/‖Δz₀‖²` predicts a next update `c·update²` more than
+/// `TEST_MARGIN` times the tolerance, when the test would cost a residual
+/// evaluation and a solve for nothing. The prediction only decides whether
+/// to test, never whether to stop. `c` is not a clean quadratic constant:
+/// the first update removes the multipliers' error at once, so `‖Δz₁‖/‖Δz₀‖²`
+/// can be far larger than the constant of later updates; it predicts the
+/// second update from the first, and only there is it used. A NaN
+/// prediction tests.
+fn worth_testing(c: f64, update: f64, tolerance: f64) -> bool {
+    !(c * update * update > TEST_MARGIN * tolerance)
 }
 
 /// Describes a failed pivot: the column, its unknown of `z` (1-based stage
