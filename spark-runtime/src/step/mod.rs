@@ -90,7 +90,8 @@ pub struct StepResult<const N: usize, const M: usize, const S: usize> {
     /// Newton iterations (updates applied to the unknowns).
     pub iterations: usize,
     /// Newton matrices evaluated and factored (full Newton: one per
-    /// iteration; simplified Newton: once, plus refreshes and a switch from
+    /// iteration, except a last update computed with the previous
+    /// iteration's factors; simplified Newton: once, plus refreshes and a switch from
     /// the stage-decoupled to the exact matrix; none when it reuses an
     /// earlier step's factors).
     pub factorizations: usize,
