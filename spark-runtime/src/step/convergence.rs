@@ -94,3 +94,26 @@ impl Contraction {
 pub(super) fn full_newton_converged(update: f64, rate: f64, tolerance: f64) -> bool {
     update <= tolerance || (rate < 1.0 && update * rate / (1.0 - rate) <= tolerance)
 }
+
+/// Full Newton's test of a new iterate before its Jacobian is evaluated:
+/// `update` is the scaled norm of `δ = J_k⁻¹ G(z_{k+1})`, the residual at the
+/// new iterate `z_{k+1} = z_k − Δz_k` solved with the factors of `J_k`, and
+/// `prev_update` the scaled norm of `Δz_k`.
+///
+/// With `z*` the solution, `e = z_{k+1} − z*` and `J̄` the mean Jacobian
+/// between them, `G(z_{k+1}) = J̄ e`, so `δ = J_k⁻¹J̄ e` and the iterate
+/// `z_{k+1} − δ` has the error `(I − J_k⁻¹J̄) e`. Its contraction
+/// `θ = ‖I − J_k⁻¹J̄‖ ≤ ‖J_k⁻¹‖·L·(‖e_k‖ + ‖e‖)` (`L` a Lipschitz constant
+/// of the Jacobian) is of the order of `‖Δz_k‖`: the factors are those of
+/// the latest Newton iteration. From `(1 − θ)‖e‖ ≤ ‖δ‖` the error left after
+/// applying `δ` is at most `θ/(1 − θ)·‖δ‖`, within the tolerance for
+/// `θ ≤ ½` when `‖δ‖` is (the Newton–Kantorovich a-posteriori bound
+/// `‖e‖ ≤ ‖J⁻¹‖‖G(z_{k+1})‖`, with `J_k`'s factors standing in for `J`'s).
+/// The test reads the update itself, not a ratio of updates, so a first
+/// update that removed mostly the multipliers' error (a fast first ratio,
+/// see [`Contraction`]) cannot pass for convergence; it also asks that `δ`
+/// be at most half of `Δz_k`, so that an iteration that is not contracting
+/// never ends here. Written so that NaN never converges.
+pub(super) fn full_newton_accepts_residual(update: f64, prev_update: f64, tolerance: f64) -> bool {
+    update <= tolerance && update <= 0.5 * prev_update
+}

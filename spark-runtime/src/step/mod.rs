@@ -90,7 +90,8 @@ pub struct StepResult<const N: usize, const M: usize, const S: usize> {
     /// Newton iterations (updates applied to the unknowns).
     pub iterations: usize,
     /// Newton matrices evaluated and factored (full Newton: one per
-    /// iteration; simplified Newton: once, plus refreshes and a switch from
+    /// iteration, except a last update computed with the previous
+    /// iteration's factors; simplified Newton: once, plus refreshes and a switch from
     /// the stage-decoupled to the exact matrix; none when it reuses an
     /// earlier step's factors).
     pub factorizations: usize,
@@ -126,6 +127,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// Steps left on the exact matrix after the stage-decoupled one was slow
     /// or singular ([`Jacobian::StageDecoupled`]).
     exact_steps_left: u32,
+    /// Full Newton's `‖Δz₁‖/‖Δz₀‖²` of the latest step with two updates
+    /// (NaN before): it predicts whether the residual test after a step's
+    /// first update can pass.
+    quadratic: f64,
     /// The step size for which `newton` (or `decoupled`, when the flag is
     /// set) holds factors that simplified Newton may reuse on the next
     /// continuing step (`None`: evaluate afresh).
@@ -197,6 +202,7 @@ where
             block: vec![0.0; N * N].into_boxed_slice(),
             decoupled: DecoupledMatrix::new(),
             exact_steps_left: 0,
+            quadratic: f64::NAN,
             reusable: None,
             anchor: None,
             history: NewtonHistory::default(),
@@ -303,6 +309,7 @@ where
     pub(crate) fn reset_run(&mut self) {
         self.reset_warm_start();
         self.exact_steps_left = 0;
+        self.quadratic = f64::NAN;
         self.anchor = None;
         self.compensation = None;
     }
@@ -337,9 +344,12 @@ where
     /// (scaled, `|Δz_i|/(1+|z_i|)`), or when the error left after it is,
     /// estimated from a contraction rate: for full Newton the ratio of its
     /// last two updates, for simplified Newton a rate earned over three
-    /// updates on the same frozen factors. A converged step agrees with the
-    /// tightly converged solution of its equations to the tolerance in both
-    /// modes.
+    /// updates on the same frozen factors. Full Newton also stops, before
+    /// it evaluates and factors a new Jacobian, when the residual at the
+    /// new iterate solved with the previous iterate's factors is an update
+    /// within the tolerance (that update is applied). A converged step
+    /// agrees with the tightly converged solution of its equations to the
+    /// tolerance in both modes.
     ///
     /// The first step after the Newton options were set or changed checks
     /// them ([`NewtonOptions::validate`]): an out-of-range field is a
