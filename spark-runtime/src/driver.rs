@@ -618,9 +618,6 @@ where
                 }
                 *step_iterations += r.iterations;
                 let piece = DenseStep::new(&basis, start, end, sub, r);
-                if O::DENSE {
-                    observer.observe_dense(&piece);
-                }
                 let mut stop_at = None;
                 if !specs.is_empty() {
                     crossings.clear();
@@ -642,6 +639,14 @@ where
                             stop_at = Some(at);
                             break;
                         }
+                    }
+                }
+                if O::DENSE {
+                    // A terminal event ends the run inside this step: the
+                    // observer sees the extension up to the event only.
+                    match stop_at {
+                        Some(at) => observer.observe_dense(&piece.until(at.t)),
+                        None => observer.observe_dense(&piece),
                     }
                 }
                 if let Some(times) = sampled {
