@@ -38,7 +38,11 @@ pub enum Schedule<'a> {
     },
 }
 
-/// Which quantities the driver records at each output point.
+/// Which quantities the driver records at each output point. The energy
+/// and the constraint residual, when observed, are also evaluated at every
+/// accepted step that is not recorded (one evaluation of `E` and one of `k`
+/// per step) for the extremes of [`RunReport`]; quantities not observed cost
+/// nothing.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Observe {
     /// `E = ∇_v L · v − L`.
@@ -138,9 +142,13 @@ pub struct RunReport {
     /// where the cold one does not.
     #[serde(default)]
     pub cold_retries: usize,
-    /// Largest `max_i |k_i|` over the recorded points (0 if not observed).
+    /// Largest `max_i |k_i|` over the initial point, every accepted step
+    /// (recorded or not) and the samples (0 if not observed: see
+    /// [`Observe::constraint_residual`]).
     pub max_constraint_residual: f64,
-    /// Largest `|E − E₀|` over the recorded points (0 if not observed).
+    /// Largest `|E − E₀|` over the initial point, every accepted step
+    /// (recorded or not) and the samples (0 if not observed: see
+    /// [`Observe::energy`]).
     pub max_energy_error: f64,
     /// Whether `v₀` was projected onto the constraints.
     pub projected_initial_velocity: bool,
@@ -215,18 +223,28 @@ struct StepCounts<const N: usize> {
     stopped: bool,
 }
 
-/// Receives every accepted step (not only recorded ones).
+/// Receives every accepted step (not only recorded ones) together with the
+/// system being integrated, so that it can evaluate the system's own
+/// quantities (energy, constraints, holonomic drift) at each step.
+///
+/// A closure `FnMut(&State<N>, usize)` is an observer that ignores the
+/// system. An observer written as a type implements
+/// [`observe`](Self::observe) for every system of dimension `(N, M)`, which
+/// it sees through [`NonholonomicSystem`].
 pub trait Observer<const N: usize, const M: usize> {
     /// The observer wants the continuous extension of every accepted
     /// (sub-)step ([`observe_dense`](Self::observe_dense)). When `false`
     /// (the default) the driver builds none for it.
     const DENSE: bool = false;
-    /// Called after each accepted step with the new state and the Newton
-    /// iteration count.
-    fn observe(&mut self, state: &State<N>, iterations: usize);
+    /// Called after each accepted step with the system, the new state and
+    /// the Newton iteration count.
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, system: &Sys, state: &State<N>, iterations: usize);
     /// Called with the continuous extension of each accepted (sub-)step,
     /// before [`observe`](Self::observe), when [`DENSE`](Self::DENSE) is
     /// true: sample it anywhere in the step with [`DenseStep::state_at`].
+    /// When a terminal event ends the run inside a step, the extension
+    /// covers the step up to the event only ([`DenseStep::end`] is the state
+    /// at the event).
     fn observe_dense<const S: usize>(&mut self, step: &DenseStep<'_, N, S>) {
         let _ = step;
     }
@@ -237,11 +255,11 @@ pub trait Observer<const N: usize, const M: usize> {
 pub struct NoObserver;
 
 impl<const N: usize, const M: usize> Observer<N, M> for NoObserver {
-    fn observe(&mut self, _: &State<N>, _: usize) {}
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, _: &State<N>, _: usize) {}
 }
 
 impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> for F {
-    fn observe(&mut self, state: &State<N>, iterations: usize) {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, state: &State<N>, iterations: usize) {
         self(state, iterations)
     }
 }
@@ -590,6 +608,11 @@ where
         };
         track(&first, &mut report);
         samples.push(first);
+        // The report's extremes cover every accepted step, recorded or not:
+        // the energy and the residual (no multipliers) at the steps not
+        // recorded, only when the run observes them.
+        let per_step = options.observe.energy || options.observe.constraint_residual;
+        let per_step_observe = Observe { multipliers: false, ..options.observe };
         // Dense output and events: nothing of this runs (the branches are on
         // constants) for a system without events, an observer without dense
         // output and a schedule that is not `Sampled`.
@@ -676,7 +699,7 @@ where
             next.t = t_target;
             report.count(&counts, warm_before);
             if let Some(at) = terminal {
-                observer.observe(&at, iters);
+                observer.observe(self.system(), &at, iters);
                 report.terminal_event = located.last().map(|e| e.index);
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
@@ -686,12 +709,14 @@ where
                 state = at;
                 break;
             }
-            observer.observe(&next, iters);
+            observer.observe(self.system(), &next, iters);
             let last = k + 1 == steps;
             if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
                 let s = self.sample(&next, &options.observe, iters);
                 track(&s, &mut report);
                 samples.push(s);
+            } else if per_step {
+                track(&self.sample(&next, &per_step_observe, iters), &mut report);
             }
             state = next;
             self.retarget_warm_start(&state);

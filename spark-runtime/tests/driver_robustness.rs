@@ -343,3 +343,56 @@ fn error_messages_print_floats_compactly() {
         assert!(m.contains("e300"), "{m}");
     }
 }
+
+/// The largest `|E − E₀|` and `max |k|` over every step, from the system the
+/// driver hands to the observer.
+struct Extremes {
+    e0: f64,
+    max_energy_error: f64,
+    max_residual: f64,
+    steps: usize,
+}
+
+impl<const N: usize, const M: usize> spark_runtime::Observer<N, M> for Extremes {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, system: &Sys, s: &State<N>, _: usize) {
+        self.max_energy_error = self.max_energy_error.max((system.energy(s.t, &s.q, &s.v) - self.e0).abs());
+        self.max_residual = self.max_residual.max(system.constraint(s.t, &s.q, &s.v).amax());
+        self.steps += 1;
+    }
+}
+
+#[test]
+fn the_report_covers_every_step_and_the_observer_sees_the_system() {
+    let sys = Skate::default();
+    let q0 = Vector::<3>::new(0.0, 0.0, 0.0);
+    let v0 = Vector::<3>::new(1.0, 0.0, 1.0);
+    let mut st = Stepper::<Skate, 3, 1, 2, 11>::new(sys.clone(), Tableau::new(Method::Gauss).unwrap());
+    let (h, steps) = (0.3, 200);
+    let mut extremes = Extremes {
+        e0: sys.energy(0.0, &q0, &v0),
+        max_energy_error: 0.0,
+        max_residual: sys.constraint(0.0, &q0, &v0).amax(),
+        steps: 0,
+    };
+    // Only the endpoints are recorded; the report still covers every step.
+    let options = RunOptions { record_every: 0, ..RunOptions::default() };
+    let traj = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &options, &mut extremes).unwrap();
+    assert_eq!(traj.samples.len(), 2);
+    assert_eq!(extremes.steps, steps);
+    assert!(extremes.max_energy_error > 0.0 && extremes.max_residual > 0.0);
+    assert_eq!(traj.report.max_energy_error, extremes.max_energy_error);
+    assert_eq!(traj.report.max_constraint_residual, extremes.max_residual);
+    // Recording every step gives the same extremes.
+    let every = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &RunOptions::default(), &mut NoObserver);
+    let every = every.unwrap();
+    assert_eq!(every.report.max_energy_error, traj.report.max_energy_error);
+    assert_eq!(every.report.max_constraint_residual, traj.report.max_constraint_residual);
+    // Quantities not observed stay zero.
+    let none = RunOptions {
+        observe: spark_runtime::Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let quiet = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &none, &mut NoObserver).unwrap();
+    assert_eq!((quiet.report.max_energy_error, quiet.report.max_constraint_residual), (0.0, 0.0));
+}

@@ -363,7 +363,7 @@ struct DenseSteps {
 
 impl spark_runtime::Observer<3, 1> for DenseSteps {
     const DENSE: bool = true;
-    fn observe(&mut self, _: &State<3>, _: usize) {}
+    fn observe<Sys: spark_runtime::NonholonomicSystem<3, 1>>(&mut self, _: &Sys, _: &State<3>, _: usize) {}
     fn observe_dense<const S: usize>(&mut self, step: &spark_runtime::DenseStep<'_, 3, S>) {
         self.steps.push((step.start.t, step.end.t, step.state_at(step.end.t)));
     }
