@@ -6,6 +6,7 @@ use crate::dense::{DenseBasis, DenseStep};
 use crate::error::{OptionError, Sci, StepError};
 use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+use crate::rejection::RejectionPolicy;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
@@ -35,6 +36,15 @@ pub enum Schedule<'a> {
         h: f64,
         /// Output times.
         times: &'a [f64],
+    },
+    /// Steps of size `h` from `t₀` to `t_end`, the last one shortened to
+    /// land on `t_end` (`⌈(t_end − t₀)/h⌉` steps; `t_end` lies ahead of
+    /// `t₀` in the direction of `h`). Step `k` ends at `t₀ + (k+1)·h`.
+    Until {
+        /// Step size.
+        h: f64,
+        /// Final time.
+        t_end: f64,
     },
 }
 
@@ -75,8 +85,33 @@ pub struct RunOptions {
     /// halving counts as a rejected step); at most [`MAX_HALVINGS`]. Halving
     /// also stops where half a step no longer changes `t`. A run that
     /// succeeds without halving is bit-identical whatever this is: a
-    /// halving happens only where the run would otherwise fail.
+    /// halving happens only where the run would otherwise fail. With
+    /// `max_halvings = 0` the run stops at the first step that fails.
+    /// Applies under [`FailurePolicy::Halve`].
     pub max_halvings: u32,
+    /// What to do when a step fails.
+    #[serde(default)]
+    pub on_failure: FailurePolicy,
+}
+
+/// What the driver does when the Newton iteration of a step fails. Either
+/// way a failure that no smaller step can cure (a non-finite state, an
+/// inconsistent start, an invalid option) ends the run at once, and a run
+/// in which no step fails is bit-identical under every policy.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum FailurePolicy {
+    /// Retry a warm-started step once from the cold starting guess (the
+    /// consistent acceleration), then replace a step that still fails by
+    /// two half steps, nested at most [`RunOptions::max_halvings`] levels
+    /// deep (`0`: stop the run at the failure).
+    #[default]
+    Halve,
+    /// Reject the failed (sub-)step and cover the rest of the scheduled
+    /// step with sub-steps whose size halves after each rejection and
+    /// doubles back after a run of accepted ones, never below the floor of
+    /// the [`RejectionPolicy`]; the next scheduled step starts again at its
+    /// own size. Giving up reports [`IntegrationError::Floor`].
+    Reject(RejectionPolicy),
 }
 
 /// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
@@ -97,6 +132,7 @@ impl Default for RunOptions {
             record_every: 1,
             consistency: ConsistencyPolicy::default(),
             max_halvings: DEFAULT_MAX_HALVINGS,
+            on_failure: FailurePolicy::Halve,
         }
     }
 }
@@ -131,8 +167,19 @@ pub struct RunReport {
     pub newton_iterations_mean: f64,
     /// Largest Newton iteration count of one step.
     pub newton_iterations_max: usize,
-    /// Steps whose Newton failed and were retried as two half steps.
+    /// Rejected (sub-)steps: each Newton failure followed by smaller
+    /// sub-steps (a halving, or a rejection under [`FailurePolicy::Reject`]).
     pub rejected_steps: usize,
+    /// Accepted sub-steps: one per scheduled step that succeeds at once,
+    /// more where failures cut it.
+    #[serde(default)]
+    pub substeps: usize,
+    /// Scheduled steps that needed at least one rejected sub-step.
+    #[serde(default)]
+    pub steps_with_rejections: usize,
+    /// Smallest magnitude of an accepted sub-step (0 before the first).
+    #[serde(default)]
+    pub smallest_step: f64,
     /// Steps started cold (no usable previous step to extrapolate from),
     /// retried cold or halved.
     pub cold_starts: usize,
@@ -204,23 +251,124 @@ pub enum IntegrationError {
         /// The trajectory up to the failure.
         partial: Box<RunReport>,
     },
+    /// Under [`FailurePolicy::Reject`], Newton kept failing down to the
+    /// smallest sub-step allowed.
+    #[error(
+        "step {index} from t = {} (h = {}) still fails at t = {} with sub-step {} at the floor {} \
+         after {rejections} rejections; last failure: {last}",
+        Sci(*t),
+        Sci(*h),
+        Sci(*substep_t),
+        Sci(*h_tried),
+        Sci(*floor)
+    )]
+    Floor {
+        /// Index of the failed step (0-based).
+        index: usize,
+        /// Its start time.
+        t: f64,
+        /// Its size.
+        h: f64,
+        /// Where the failing sub-step starts.
+        substep_t: f64,
+        /// The last sub-step size tried.
+        h_tried: f64,
+        /// The floor (see [`RejectionPolicy::floor`]).
+        floor: f64,
+        /// Rejections within this step.
+        rejections: usize,
+        /// The last Newton failure.
+        last: Box<StepError>,
+        /// The run statistics up to the failure.
+        partial: Box<RunReport>,
+    },
+}
+
+/// Why one scheduled step failed (see `Stepper::robust_step` and
+/// `Stepper::rejecting_step`).
+pub(crate) enum StepFailure {
+    /// A failure no smaller step cures, or the last one once halving stops.
+    Step(StepError),
+    /// Rejections reached the floor of the [`RejectionPolicy`].
+    Floor {
+        /// Where the failing sub-step starts.
+        substep_t: f64,
+        /// The last sub-step size tried.
+        h_tried: f64,
+        /// The floor.
+        floor: f64,
+        /// Rejections within the step.
+        rejections: usize,
+        /// The last Newton failure.
+        last: StepError,
+    },
+}
+
+impl StepFailure {
+    /// The run error of step `index` of size `h` from `t`.
+    fn into_error(self, index: usize, t: f64, h: f64, partial: RunReport) -> IntegrationError {
+        let partial = Box::new(partial);
+        match self {
+            StepFailure::Step(source) => IntegrationError::Step { index, t, source, partial },
+            StepFailure::Floor { substep_t, h_tried, floor, rejections, last } => IntegrationError::Floor {
+                index,
+                t,
+                h,
+                substep_t,
+                h_tried,
+                floor,
+                rejections,
+                last: Box::new(last),
+                partial,
+            },
+        }
+    }
 }
 
 /// Largest sample storage (bytes) `integrate` reserves before the run.
 const RESERVE_BYTES: usize = 1 << 20;
 
 /// The outcome of one scheduled step (see `Stepper::robust_step`).
-struct StepCounts<const N: usize> {
+pub(crate) struct StepCounts<const N: usize> {
     /// The state at the end of the step (its time not yet pinned).
-    state: State<N>,
+    pub(crate) state: State<N>,
     /// Newton iterations over the accepted (sub-)steps.
-    iterations: usize,
-    /// Halvings.
-    rejected: usize,
+    pub(crate) iterations: usize,
+    /// Failures each followed by smaller sub-steps.
+    pub(crate) rejected: usize,
+    /// Accepted sub-steps.
+    pub(crate) substeps: usize,
+    /// Smallest magnitude of an accepted sub-step (0 before the first).
+    pub(crate) smallest: f64,
     /// Retries from the cold guess.
     cold_retries: usize,
     /// The per-sub-step callback asked to stop (a terminal event).
     stopped: bool,
+}
+
+impl<const N: usize> StepCounts<N> {
+    /// Nothing taken yet from `state`.
+    pub(crate) fn start(state: &State<N>) -> Self {
+        StepCounts {
+            state: *state,
+            iterations: 0,
+            rejected: 0,
+            substeps: 0,
+            smallest: 0.0,
+            cold_retries: 0,
+            stopped: false,
+        }
+    }
+
+    /// Counts an accepted sub-step of size `h` ending at `end`.
+    fn accept(&mut self, end: State<N>, iterations: usize, h: f64) {
+        self.state = end;
+        self.iterations += iterations;
+        self.substeps += 1;
+        if self.smallest == 0.0 || h.abs() < self.smallest {
+            self.smallest = h.abs();
+        }
+    }
 }
 
 /// Receives every accepted step (not only recorded ones) together with the
@@ -342,6 +490,11 @@ impl RunReport {
         }
         self.steps += 1;
         self.rejected_steps += counts.rejected;
+        self.substeps += counts.substeps;
+        self.steps_with_rejections += usize::from(counts.rejected > 0);
+        if self.smallest_step == 0.0 || counts.smallest < self.smallest_step {
+            self.smallest_step = counts.smallest;
+        }
         self.cold_retries += counts.cold_retries;
         self.newton_iterations_total += counts.iterations;
         self.newton_iterations_max = self.newton_iterations_max.max(counts.iterations);
@@ -414,7 +567,7 @@ where
         t_target: f64,
         max_halvings: u32,
         on_step: &mut F,
-    ) -> Result<StepCounts<N>, StepError>
+    ) -> Result<StepCounts<N>, StepFailure>
     where
         F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
     {
@@ -426,7 +579,7 @@ where
         let mut pending = [(0.0f64, 0u32); MAX_HALVINGS as usize + 1];
         pending[0] = (h, 0);
         let mut len = 1;
-        let mut out = StepCounts { state: *state, iterations: 0, rejected: 0, cold_retries: 0, stopped: false };
+        let mut out = StepCounts::start(state);
         while len > 0 {
             let (sub, level) = pending[len - 1];
             let warm = self.is_warm_for(&out.state);
@@ -446,24 +599,93 @@ where
                         end.t = t_target;
                     }
                     let stop = on_step(self.system(), &out.state, &end, sub, &r);
-                    out.state = r.state;
-                    out.iterations += r.iterations;
+                    out.accept(r.state, r.iterations, sub);
                     if stop {
                         out.stopped = true;
                         return Ok(out);
                     }
                 }
-                Err(e) if !e.is_curable() || level >= max_halvings => return Err(e),
+                Err(e) if !e.is_curable() || level >= max_halvings => return Err(StepFailure::Step(e)),
                 Err(e) => {
                     let half = 0.5 * sub;
                     if out.state.t + half == out.state.t {
-                        return Err(e);
+                        return Err(StepFailure::Step(e));
                     }
                     out.rejected += 1;
                     self.reset_warm_start();
                     pending[len - 1] = (sub - half, level + 1);
                     pending[len] = (half, level + 1);
                     len += 1;
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// One step of size `h` from `state` under [`FailurePolicy::Reject`]:
+    /// tries `h`; on a Newton failure covers `[t₀, t₀ + h]` with sub-steps
+    /// that halve after each failure (the halved one started cold) and
+    /// double back after `regrow_after` accepted ones, never below
+    /// [`RejectionPolicy::floor`]. `on_step` as in `robust_step`.
+    pub(crate) fn rejecting_step<F>(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        policy: &RejectionPolicy,
+        on_step: &mut F,
+    ) -> Result<StepCounts<N>, StepFailure>
+    where
+        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+    {
+        let t_end = state.t + h;
+        let floor = policy.floor(h);
+        let mut out = StepCounts::start(state);
+        let mut sub = h;
+        let mut successes = 0usize;
+        // Sub-steps end within a few ulps of t_end; what is left below that
+        // is rounding of the accumulated times, not a step to take.
+        let slack = 8.0 * f64::EPSILON * t_end.abs().max(h.abs());
+        loop {
+            let remaining = t_end - out.state.t;
+            if out.substeps > 0 && remaining * h.signum() <= slack {
+                break;
+            }
+            let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
+            match self.step(&out.state, this) {
+                Ok(r) => {
+                    let mut end = r.state;
+                    if (t_end - r.state.t) * h.signum() <= slack {
+                        end.t = t_target;
+                    }
+                    let stop = on_step(self.system(), &out.state, &end, this, &r);
+                    out.accept(r.state, r.iterations, this);
+                    if stop {
+                        out.stopped = true;
+                        return Ok(out);
+                    }
+                    successes += 1;
+                    if successes >= policy.regrow_after && sub.abs() < h.abs() {
+                        sub = (2.0 * sub).clamp(-h.abs(), h.abs());
+                        successes = 0;
+                    }
+                }
+                Err(e) if !e.is_curable() => return Err(StepFailure::Step(e)),
+                Err(e) => {
+                    out.rejected += 1;
+                    successes = 0;
+                    self.reset_warm_start();
+                    let next = 0.5 * this;
+                    if next.abs() < floor {
+                        return Err(StepFailure::Floor {
+                            substep_t: out.state.t,
+                            h_tried: this,
+                            floor,
+                            rejections: out.rejected,
+                            last: e,
+                        });
+                    }
+                    sub = next;
                 }
             }
         }
@@ -482,10 +704,11 @@ where
     /// an out-of-range one is an [`IntegrationError::InvalidOption`]. Every
     /// run starts afresh: nothing an earlier run left in this stepper (warm
     /// start, energy anchor, round-off compensation) reaches it, so a reused
-    /// stepper returns bit for bit what a fresh one does. A failed step is
-    /// retried once from the cold starting guess when it was warm-started,
-    /// then halved per [`RunOptions::max_halvings`]; the error reports the
-    /// last failure. Sample storage is reserved up to 1 MiB and grows as
+    /// stepper returns bit for bit what a fresh one does. This is the one
+    /// loop that advances a run: a failed step is handled per
+    /// [`RunOptions::on_failure`] (by default retried once from the cold
+    /// starting guess when it was warm-started, then halved per
+    /// [`RunOptions::max_halvings`]); the error reports the last failure. Sample storage is reserved up to 1 MiB and grows as
     /// samples arrive, so the step count alone never allocates.
     pub fn integrate<O: Observer<N, M>>(
         &mut self,
@@ -555,6 +778,24 @@ where
                 let span = times.last().map_or(0.0, |&t| (t - t0) / h);
                 if !span.is_finite() || span >= usize::MAX as f64 {
                     return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the last time"));
+                }
+                span.ceil() as usize
+            }
+            Schedule::Until { h, t_end } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if !t_end.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
+                }
+                if (t_end - t0) * h.signum() < 0.0 {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "the final time lies behind the start in the direction of h",
+                    ));
+                }
+                let span = ((t_end - t0) / h).abs();
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the final time"));
                 }
                 span.ceil() as usize
             }
@@ -632,6 +873,10 @@ where
             let (h, t_target) = match schedule {
                 Schedule::Fixed { h, .. } | Schedule::Sampled { h, .. } => (h, t0 + (k + 1) as f64 * h),
                 Schedule::Times(ts) => (ts[k] - state.t, ts[k]),
+                Schedule::Until { h, t_end } => {
+                    let target = if k + 1 == steps { t_end } else { t0 + (k + 1) as f64 * h };
+                    (target - state.t, target)
+                }
             };
             let warm_before = self.is_warm_for(&state);
             let step_iterations = &mut 0usize;
@@ -691,9 +936,11 @@ where
                 }
                 false
             };
-            let counts = self
-                .robust_step(&state, h, t_target, options.max_halvings, &mut on_step)
-                .map_err(|source| IntegrationError::Step { index: k, t: state.t, source, partial: Box::new(report) })?;
+            let counts = match options.on_failure {
+                FailurePolicy::Halve => self.robust_step(&state, h, t_target, options.max_halvings, &mut on_step),
+                FailurePolicy::Reject(policy) => self.rejecting_step(&state, h, t_target, &policy, &mut on_step),
+            }
+            .map_err(|failure| failure.into_error(k, state.t, h, report))?;
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;

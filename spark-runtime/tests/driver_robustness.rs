@@ -8,9 +8,9 @@ use std::cell::Cell;
 
 use spark_runtime::fixtures::paper::{MobileRobot, Skate};
 use spark_runtime::{
-    nonholonomic_system, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NoObserver, NonholonomicSystem,
-    ProtectedStep, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
-    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    nonholonomic_system, ConsistencyPolicy, FailurePolicy, IntegrationError, Method, NewtonOptions, NoObserver,
+    NonholonomicSystem, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau,
+    Vector, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 
 /// Records the largest single allocation of this thread.
@@ -124,7 +124,7 @@ fn a_reused_stepper_reproduces_a_fresh_one() {
             t_end,
             0.1,
             &policy,
-            &mut |_: &ProtectedStep<4>| {},
+            &mut |_: &State<4>, _: usize| {},
         )
         .unwrap()
     };
@@ -332,7 +332,7 @@ fn error_messages_print_floats_compactly() {
             .to_string(),
     ];
     let policy = RejectionPolicy::default();
-    let mut observer = |_: &ProtectedStep<3>| {};
+    let mut observer = |_: &State<3>, _: usize| {};
     let protected =
         spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, -1e300, 1e300, &policy, &mut observer);
     let protected = protected.unwrap_err();
@@ -395,4 +395,75 @@ fn the_report_covers_every_step_and_the_observer_sees_the_system() {
     };
     let quiet = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &none, &mut NoObserver).unwrap();
     assert_eq!((quiet.report.max_energy_error, quiet.report.max_constraint_residual), (0.0, 0.0));
+}
+
+/// Step rejection is a failure policy of the one driver loop: under
+/// `FailurePolicy::Reject` a run of the constant-speed particle at h = 1.5
+/// (where Newton fails without help) is rescued by adaptive sub-steps and
+/// the report counts them; the run with a terminal event, the dense output
+/// and the samples work as under the default policy; a run that needs no
+/// rejection is bit-identical under every policy; giving up at the floor is
+/// an `IntegrationError::Floor`.
+#[test]
+fn rejection_is_a_failure_policy_of_the_driver() {
+    let (q0, v0) = speed_start();
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let policy = RejectionPolicy::default();
+    let reject = RunOptions { on_failure: FailurePolicy::Reject(policy), ..RunOptions::default() };
+    let big = Schedule::Fixed { h: 1.5, steps: 40 };
+    let run = st.integrate(0.0, &q0, &v0, big, &reject, &mut NoObserver).unwrap();
+    let r = run.report;
+    assert_eq!(r.steps, 40);
+    assert!(r.rejected_steps > 0 && r.steps_with_rejections > 0, "{r:?}");
+    assert!(r.substeps > r.steps && r.smallest_step < 1.5, "{r:?}");
+    assert!(r.max_constraint_residual <= 1e-14, "{r:?}");
+    assert_eq!(run.samples.last().unwrap().t, 60.0);
+
+    // The same run to a final time through the protected-run convenience.
+    let mut count = 0;
+    let (end, protected) = spark_runtime::integrate_with_rejection(
+        &mut st,
+        0.0,
+        &q0,
+        &v0,
+        60.0,
+        1.5,
+        &policy,
+        &mut |_: &State<3>, _: usize| count += 1,
+    )
+    .unwrap();
+    assert_eq!(count, 40);
+    assert_eq!((end.q, end.v), (run.samples.last().unwrap().q, run.samples.last().unwrap().v));
+    assert_eq!((protected.rejections, protected.substeps), (r.rejected_steps, r.substeps));
+
+    // No failure: every policy gives the same run.
+    let small = Schedule::Fixed { h: 0.1, steps: 400 };
+    let a = st.integrate(0.0, &q0, &v0, small, &RunOptions::default(), &mut NoObserver).unwrap();
+    let b = st.integrate(0.0, &q0, &v0, small, &reject, &mut NoObserver).unwrap();
+    assert_eq!(a, b);
+
+    // Sampled output through the dense extension of the rejected sub-steps.
+    let times: Vec<f64> = (1..=30).map(|k| 2.0 * k as f64).collect();
+    let sampled = st.integrate(0.0, &q0, &v0, Schedule::Sampled { h: 1.5, times: &times }, &reject, &mut NoObserver);
+    let sampled = sampled.unwrap();
+    assert_eq!(sampled.samples.len(), 31);
+    // t = 6 ends the fourth step: the sample there is the step's end.
+    assert_eq!(sampled.samples[3].t, 6.0);
+    assert_eq!((sampled.samples[3].q, sampled.samples[3].v), (run.samples[4].q, run.samples[4].v));
+    assert_eq!(sampled.report.rejected_steps, r.rejected_steps);
+
+    // No room to halve: the floor is reached at once.
+    let tight =
+        RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { max_halvings: 0, ..policy }), ..reject };
+    match st.integrate(0.0, &q0, &v0, big, &tight, &mut NoObserver) {
+        Err(IntegrationError::Floor { rejections: 1, partial, .. }) => assert!(partial.steps < 40),
+        other => panic!("expected the floor, got {other:?}"),
+    }
+    // An invalid policy is an option error before any step.
+    let bad = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { regrow_after: 0, ..policy }), ..reject };
+    match st.integrate(0.0, &q0, &v0, big, &bad, &mut NoObserver) {
+        Err(IntegrationError::InvalidOption(e)) => assert_eq!(e.option, "RejectionPolicy::regrow_after"),
+        other => panic!("expected an option error, got {other:?}"),
+    }
 }
