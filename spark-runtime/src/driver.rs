@@ -97,7 +97,8 @@ pub struct RunOptions {
 /// What the driver does when the Newton iteration of a step fails. Either
 /// way a failure that no smaller step can cure (a non-finite state, an
 /// inconsistent start, an invalid option) ends the run at once, and a run
-/// in which no step fails is bit-identical under every policy.
+/// in which no step fails takes one sub-step per scheduled step under
+/// either policy.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum FailurePolicy {
     /// Retry a warm-started step once from the cold starting guess (the
