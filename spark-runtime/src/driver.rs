@@ -256,33 +256,42 @@ pub enum IntegrationError {
     /// smallest sub-step allowed.
     #[error(
         "step {index} from t = {} (h = {}) still fails at t = {} with sub-step {} at the floor {} \
-         after {rejections} rejections; last failure: {last}",
+         after {} rejections; last failure: {}",
         Sci(*t),
-        Sci(*h),
-        Sci(*substep_t),
-        Sci(*h_tried),
-        Sci(*floor)
+        Sci(detail.h),
+        Sci(detail.substep_t),
+        Sci(detail.h_tried),
+        Sci(detail.floor),
+        detail.rejections,
+        detail.last
     )]
     Floor {
         /// Index of the failed step (0-based).
         index: usize,
         /// Its start time.
         t: f64,
-        /// Its size.
-        h: f64,
-        /// Where the failing sub-step starts.
-        substep_t: f64,
-        /// The last sub-step size tried.
-        h_tried: f64,
-        /// The floor (see [`RejectionPolicy::floor`]).
-        floor: f64,
-        /// Rejections within this step.
-        rejections: usize,
-        /// The last Newton failure.
-        last: Box<StepError>,
+        /// Where and how the rejections ended.
+        detail: Box<RejectionFloor>,
         /// The run statistics up to the failure.
         partial: Box<RunReport>,
     },
+}
+
+/// How a step under [`FailurePolicy::Reject`] reached the floor.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RejectionFloor {
+    /// The step size.
+    pub h: f64,
+    /// Where the failing sub-step starts.
+    pub substep_t: f64,
+    /// The last sub-step size tried.
+    pub h_tried: f64,
+    /// The floor (see [`RejectionPolicy::floor`]).
+    pub floor: f64,
+    /// Rejections within the step.
+    pub rejections: usize,
+    /// The last Newton failure.
+    pub last: StepError,
 }
 
 /// Why one scheduled step failed (see `Stepper::robust_step` and
@@ -314,12 +323,7 @@ impl StepFailure {
             StepFailure::Floor { substep_t, h_tried, floor, rejections, last } => IntegrationError::Floor {
                 index,
                 t,
-                h,
-                substep_t,
-                h_tried,
-                floor,
-                rejections,
-                last: Box::new(last),
+                detail: Box::new(RejectionFloor { h, substep_t, h_tried, floor, rejections, last }),
                 partial,
             },
         }

@@ -268,11 +268,19 @@ where
             IntegrationError::Step { index, t, source, partial } => {
                 RejectionRunError { index, t, source: RejectionError::Input(source), partial: summary(&partial) }
             }
-            IntegrationError::Floor { index, t, h: step, substep_t, h_tried, floor, rejections, last, partial } => {
+            IntegrationError::Floor { index, t, detail, partial } => {
+                let d = *detail;
                 RejectionRunError {
                     index,
                     t,
-                    source: RejectionError::Floor { t: substep_t, h: step, h_tried, floor, rejections, last },
+                    source: RejectionError::Floor {
+                        t: d.substep_t,
+                        h: d.h,
+                        h_tried: d.h_tried,
+                        floor: d.floor,
+                        rejections: d.rejections,
+                        last: Box::new(d.last),
+                    },
                     partial: summary(&partial),
                 }
             }

@@ -366,7 +366,7 @@ fn the_report_covers_every_step_and_the_observer_sees_the_system() {
     let sys = Skate::default();
     let q0 = Vector::<3>::new(0.0, 0.0, 0.0);
     let v0 = Vector::<3>::new(1.0, 0.0, 1.0);
-    let mut st = Stepper::<Skate, 3, 1, 2, 11>::new(sys.clone(), Tableau::new(Method::Gauss).unwrap());
+    let mut st = Stepper::<Skate, 3, 1, 2, 11>::new(sys, Tableau::new(Method::Gauss).unwrap());
     let (h, steps) = (0.3, 200);
     let mut extremes = Extremes {
         e0: sys.energy(0.0, &q0, &v0),
@@ -460,8 +460,14 @@ fn rejection_is_a_failure_policy_of_the_driver() {
     let tight =
         RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { max_halvings: 0, ..policy }), ..reject };
     match st.integrate(0.0, &q0, &v0, big, &tight, &mut NoObserver) {
-        Err(IntegrationError::Floor { rejections: 1, partial, .. }) => assert!(partial.steps < 40),
+        Err(IntegrationError::Floor { detail, partial, .. }) => assert!(detail.rejections == 1 && partial.steps < 40),
         other => panic!("expected the floor, got {other:?}"),
+    }
+    let tight_policy = RejectionPolicy { max_halvings: 0, ..policy };
+    let mut none = |_: &State<3>, _: usize| {};
+    match spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, 60.0, 1.5, &tight_policy, &mut none) {
+        Err(e) => assert!(matches!(e.source, RejectionError::Floor { rejections: 1, .. }), "{e}"),
+        Ok(_) => panic!("expected the floor"),
     }
     // An invalid policy is an option error before any step.
     let bad = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { regrow_after: 0, ..policy }), ..reject };

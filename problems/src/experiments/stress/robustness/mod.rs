@@ -41,7 +41,7 @@ pub fn integration_error_kind(e: &IntegrationError) -> String {
         IntegrationError::InvalidOption(_) => "InvalidOption".into(),
         IntegrationError::Initial(s) => format!("Initial/{}", step_error_kind(s)),
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
-        IntegrationError::Floor { last, .. } => format!("Floor/{}", step_error_kind(last)),
+        IntegrationError::Floor { detail, .. } => format!("Floor/{}", step_error_kind(&detail.last)),
     }
 }
 
