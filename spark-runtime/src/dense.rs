@@ -124,13 +124,18 @@ impl<const S: usize> DenseBasis<S> {
 pub struct DenseStep<'a, const N: usize, const S: usize> {
     /// The state at the start of the step.
     pub start: State<N>,
-    /// The state at its end.
+    /// The state at the end of the interval the extension covers: the end
+    /// of the step, or the state at a terminal event that cuts the step
+    /// short (see [`until`](Self::until)).
     pub end: State<N>,
     /// The step size the stage values belong to.
     pub h: f64,
     /// Stage velocities `V_j`.
     pub stage_velocities: [Vector<N>; S],
     basis: &'a DenseBasis<S>,
+    /// The end of the whole step: the interpolant's `θ = 1` and its end
+    /// velocity, whatever part of the step [`end`](Self::end) covers.
+    step_end: State<N>,
 }
 
 /// The interpolated state and its time derivative at one `t`.
@@ -154,19 +159,27 @@ impl<'a, const N: usize, const S: usize> DenseStep<'a, N, S> {
         h: f64,
         result: &StepResult<N, M, S>,
     ) -> Self {
-        DenseStep { start: *start, end: *end, h, stage_velocities: result.stage_velocities, basis }
+        DenseStep { start: *start, end: *end, h, stage_velocities: result.stage_velocities, basis, step_end: *end }
     }
 
-    /// Whether `t` lies in the closed interval between the start and the end
-    /// of the step.
+    /// The same extension restricted to `[t₀, t]` (`t` inside the step): its
+    /// [`end`](Self::end) becomes the interpolated state at `t`, the
+    /// polynomials stay those of the whole step.
+    pub fn until(&self, t: f64) -> Self {
+        DenseStep { end: self.state_at(t), ..*self }
+    }
+
+    /// Whether `t` lies in the closed interval between the start and the
+    /// [`end`](Self::end) of the covered interval.
     pub fn contains(&self, t: f64) -> bool {
         let (a, b) = (self.start.t, self.end.t);
         (a.min(b)..=a.max(b)).contains(&t)
     }
 
-    /// The normalized time `θ = (t − t₀)/(t₁ − t₀)`.
+    /// The normalized time `θ = (t − t₀)/(t₁ − t₀)`, `t₁` the end of the
+    /// whole step.
     pub fn theta(&self, t: f64) -> f64 {
-        (t - self.start.t) / (self.end.t - self.start.t)
+        (t - self.start.t) / (self.step_end.t - self.start.t)
     }
 
     /// The state at `t` (inside the step; outside it the polynomials are
@@ -177,6 +190,9 @@ impl<'a, const N: usize, const S: usize> DenseStep<'a, N, S> {
         }
         if t == self.end.t {
             return self.end;
+        }
+        if t == self.step_end.t {
+            return self.step_end;
         }
         let theta = self.theta(t);
         let (q, _) = self.position(theta);
@@ -193,6 +209,8 @@ impl<'a, const N: usize, const S: usize> DenseStep<'a, N, S> {
             self.start
         } else if t == self.end.t {
             self.end
+        } else if t == self.step_end.t {
+            self.step_end
         } else {
             State { t, q, v }
         };
@@ -237,7 +255,7 @@ impl<'a, const N: usize, const S: usize> DenseStep<'a, N, S> {
             let value = match b.sources[i] {
                 Source::Start => &self.start.v,
                 Source::Stage(j) => &self.stage_velocities[j],
-                Source::End => &self.end.v,
+                Source::End => &self.step_end.v,
             };
             v += p * value;
             if derivative {

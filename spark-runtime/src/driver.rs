@@ -6,6 +6,7 @@ use crate::dense::{DenseBasis, DenseStep};
 use crate::error::{OptionError, Sci, StepError};
 use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+use crate::rejection::RejectionPolicy;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
@@ -36,9 +37,22 @@ pub enum Schedule<'a> {
         /// Output times.
         times: &'a [f64],
     },
+    /// Steps of size `h` from `t₀` to `t_end`, the last one shortened to
+    /// land on `t_end` (`⌈(t_end − t₀)/h⌉` steps; `t_end` lies ahead of
+    /// `t₀` in the direction of `h`). Step `k` ends at `t₀ + (k+1)·h`.
+    Until {
+        /// Step size.
+        h: f64,
+        /// Final time.
+        t_end: f64,
+    },
 }
 
-/// Which quantities the driver records at each output point.
+/// Which quantities the driver records at each output point. The energy
+/// and the constraint residual, when observed, are also evaluated at every
+/// accepted step that is not recorded (one evaluation of `E` and one of `k`
+/// per step) for the extremes of [`RunReport`]; quantities not observed cost
+/// nothing.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Observe {
     /// `E = ∇_v L · v − L`.
@@ -71,8 +85,34 @@ pub struct RunOptions {
     /// halving counts as a rejected step); at most [`MAX_HALVINGS`]. Halving
     /// also stops where half a step no longer changes `t`. A run that
     /// succeeds without halving is bit-identical whatever this is: a
-    /// halving happens only where the run would otherwise fail.
+    /// halving happens only where the run would otherwise fail. With
+    /// `max_halvings = 0` the run stops at the first step that fails.
+    /// Applies under [`FailurePolicy::Halve`].
     pub max_halvings: u32,
+    /// What to do when a step fails.
+    #[serde(default)]
+    pub on_failure: FailurePolicy,
+}
+
+/// What the driver does when the Newton iteration of a step fails. Either
+/// way a failure that no smaller step can cure (a non-finite state, an
+/// inconsistent start, an invalid option) ends the run at once, and a run
+/// in which no step fails takes one sub-step per scheduled step under
+/// either policy.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum FailurePolicy {
+    /// Retry a warm-started step once from the cold starting guess (the
+    /// consistent acceleration), then replace a step that still fails by
+    /// two half steps, nested at most [`RunOptions::max_halvings`] levels
+    /// deep (`0`: stop the run at the failure).
+    #[default]
+    Halve,
+    /// Reject the failed (sub-)step and cover the rest of the scheduled
+    /// step with sub-steps whose size halves after each rejection and
+    /// doubles back after a run of accepted ones, never below the floor of
+    /// the [`RejectionPolicy`]; the next scheduled step starts again at its
+    /// own size. Giving up reports [`IntegrationError::Floor`].
+    Reject(RejectionPolicy),
 }
 
 /// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
@@ -93,6 +133,7 @@ impl Default for RunOptions {
             record_every: 1,
             consistency: ConsistencyPolicy::default(),
             max_halvings: DEFAULT_MAX_HALVINGS,
+            on_failure: FailurePolicy::Halve,
         }
     }
 }
@@ -127,8 +168,19 @@ pub struct RunReport {
     pub newton_iterations_mean: f64,
     /// Largest Newton iteration count of one step.
     pub newton_iterations_max: usize,
-    /// Steps whose Newton failed and were retried as two half steps.
+    /// Rejected (sub-)steps: each Newton failure followed by smaller
+    /// sub-steps (a halving, or a rejection under [`FailurePolicy::Reject`]).
     pub rejected_steps: usize,
+    /// Accepted sub-steps: one per scheduled step that succeeds at once,
+    /// more where failures cut it.
+    #[serde(default)]
+    pub substeps: usize,
+    /// Scheduled steps that needed at least one rejected sub-step.
+    #[serde(default)]
+    pub steps_with_rejections: usize,
+    /// Smallest magnitude of an accepted sub-step (0 before the first).
+    #[serde(default)]
+    pub smallest_step: f64,
     /// Steps started cold (no usable previous step to extrapolate from),
     /// retried cold or halved.
     pub cold_starts: usize,
@@ -138,9 +190,13 @@ pub struct RunReport {
     /// where the cold one does not.
     #[serde(default)]
     pub cold_retries: usize,
-    /// Largest `max_i |k_i|` over the recorded points (0 if not observed).
+    /// Largest `max_i |k_i|` over the initial point, every accepted step
+    /// (recorded or not) and the samples (0 if not observed: see
+    /// [`Observe::constraint_residual`]).
     pub max_constraint_residual: f64,
-    /// Largest `|E − E₀|` over the recorded points (0 if not observed).
+    /// Largest `|E − E₀|` over the initial point, every accepted step
+    /// (recorded or not) and the samples (0 if not observed: see
+    /// [`Observe::energy`]).
     pub max_energy_error: f64,
     /// Whether `v₀` was projected onto the constraints.
     pub projected_initial_velocity: bool,
@@ -196,37 +252,152 @@ pub enum IntegrationError {
         /// The trajectory up to the failure.
         partial: Box<RunReport>,
     },
+    /// Under [`FailurePolicy::Reject`], Newton kept failing down to the
+    /// smallest sub-step allowed.
+    #[error(
+        "step {index} from t = {} (h = {}) still fails at t = {} with sub-step {} at the floor {} \
+         after {} rejections; last failure: {}",
+        Sci(*t),
+        Sci(detail.h),
+        Sci(detail.substep_t),
+        Sci(detail.h_tried),
+        Sci(detail.floor),
+        detail.rejections,
+        detail.last
+    )]
+    Floor {
+        /// Index of the failed step (0-based).
+        index: usize,
+        /// Its start time.
+        t: f64,
+        /// Where and how the rejections ended.
+        detail: Box<RejectionFloor>,
+        /// The run statistics up to the failure.
+        partial: Box<RunReport>,
+    },
+}
+
+/// How a step under [`FailurePolicy::Reject`] reached the floor.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RejectionFloor {
+    /// The step size.
+    pub h: f64,
+    /// Where the failing sub-step starts.
+    pub substep_t: f64,
+    /// The last sub-step size tried.
+    pub h_tried: f64,
+    /// The floor (see [`RejectionPolicy::floor`]).
+    pub floor: f64,
+    /// Rejections within the step.
+    pub rejections: usize,
+    /// The last Newton failure.
+    pub last: StepError,
+}
+
+/// Why one scheduled step failed (see `Stepper::robust_step` and
+/// `Stepper::rejecting_step`).
+pub(crate) enum StepFailure {
+    /// A failure no smaller step cures, or the last one once halving stops.
+    Step(StepError),
+    /// Rejections reached the floor of the [`RejectionPolicy`].
+    Floor {
+        /// Where the failing sub-step starts.
+        substep_t: f64,
+        /// The last sub-step size tried.
+        h_tried: f64,
+        /// The floor.
+        floor: f64,
+        /// Rejections within the step.
+        rejections: usize,
+        /// The last Newton failure.
+        last: StepError,
+    },
+}
+
+impl StepFailure {
+    /// The run error of step `index` of size `h` from `t`.
+    fn into_error(self, index: usize, t: f64, h: f64, partial: RunReport) -> IntegrationError {
+        let partial = Box::new(partial);
+        match self {
+            StepFailure::Step(source) => IntegrationError::Step { index, t, source, partial },
+            StepFailure::Floor { substep_t, h_tried, floor, rejections, last } => IntegrationError::Floor {
+                index,
+                t,
+                detail: Box::new(RejectionFloor { h, substep_t, h_tried, floor, rejections, last }),
+                partial,
+            },
+        }
+    }
 }
 
 /// Largest sample storage (bytes) `integrate` reserves before the run.
 const RESERVE_BYTES: usize = 1 << 20;
 
 /// The outcome of one scheduled step (see `Stepper::robust_step`).
-struct StepCounts<const N: usize> {
+pub(crate) struct StepCounts<const N: usize> {
     /// The state at the end of the step (its time not yet pinned).
-    state: State<N>,
+    pub(crate) state: State<N>,
     /// Newton iterations over the accepted (sub-)steps.
-    iterations: usize,
-    /// Halvings.
-    rejected: usize,
+    pub(crate) iterations: usize,
+    /// Failures each followed by smaller sub-steps.
+    pub(crate) rejected: usize,
+    /// Accepted sub-steps.
+    pub(crate) substeps: usize,
+    /// Smallest magnitude of an accepted sub-step (0 before the first).
+    pub(crate) smallest: f64,
     /// Retries from the cold guess.
     cold_retries: usize,
     /// The per-sub-step callback asked to stop (a terminal event).
     stopped: bool,
 }
 
-/// Receives every accepted step (not only recorded ones).
+impl<const N: usize> StepCounts<N> {
+    /// Nothing taken yet from `state`.
+    pub(crate) fn start(state: &State<N>) -> Self {
+        StepCounts {
+            state: *state,
+            iterations: 0,
+            rejected: 0,
+            substeps: 0,
+            smallest: 0.0,
+            cold_retries: 0,
+            stopped: false,
+        }
+    }
+
+    /// Counts an accepted sub-step of size `h` ending at `end`.
+    fn accept(&mut self, end: State<N>, iterations: usize, h: f64) {
+        self.state = end;
+        self.iterations += iterations;
+        self.substeps += 1;
+        if self.smallest == 0.0 || h.abs() < self.smallest {
+            self.smallest = h.abs();
+        }
+    }
+}
+
+/// Receives every accepted step (not only recorded ones) together with the
+/// system being integrated, so that it can evaluate the system's own
+/// quantities (energy, constraints, holonomic drift) at each step.
+///
+/// A closure `FnMut(&State<N>, usize)` is an observer that ignores the
+/// system. An observer written as a type implements
+/// [`observe`](Self::observe) for every system of dimension `(N, M)`, which
+/// it sees through [`NonholonomicSystem`].
 pub trait Observer<const N: usize, const M: usize> {
     /// The observer wants the continuous extension of every accepted
     /// (sub-)step ([`observe_dense`](Self::observe_dense)). When `false`
     /// (the default) the driver builds none for it.
     const DENSE: bool = false;
-    /// Called after each accepted step with the new state and the Newton
-    /// iteration count.
-    fn observe(&mut self, state: &State<N>, iterations: usize);
+    /// Called after each accepted step with the system, the new state and
+    /// the Newton iteration count.
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, system: &Sys, state: &State<N>, iterations: usize);
     /// Called with the continuous extension of each accepted (sub-)step,
     /// before [`observe`](Self::observe), when [`DENSE`](Self::DENSE) is
     /// true: sample it anywhere in the step with [`DenseStep::state_at`].
+    /// When a terminal event ends the run inside a step, the extension
+    /// covers the step up to the event only ([`DenseStep::end`] is the state
+    /// at the event).
     fn observe_dense<const S: usize>(&mut self, step: &DenseStep<'_, N, S>) {
         let _ = step;
     }
@@ -237,11 +408,11 @@ pub trait Observer<const N: usize, const M: usize> {
 pub struct NoObserver;
 
 impl<const N: usize, const M: usize> Observer<N, M> for NoObserver {
-    fn observe(&mut self, _: &State<N>, _: usize) {}
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, _: &State<N>, _: usize) {}
 }
 
 impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> for F {
-    fn observe(&mut self, state: &State<N>, iterations: usize) {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, state: &State<N>, iterations: usize) {
         self(state, iterations)
     }
 }
@@ -324,6 +495,11 @@ impl RunReport {
         }
         self.steps += 1;
         self.rejected_steps += counts.rejected;
+        self.substeps += counts.substeps;
+        self.steps_with_rejections += usize::from(counts.rejected > 0);
+        if self.smallest_step == 0.0 || counts.smallest < self.smallest_step {
+            self.smallest_step = counts.smallest;
+        }
         self.cold_retries += counts.cold_retries;
         self.newton_iterations_total += counts.iterations;
         self.newton_iterations_max = self.newton_iterations_max.max(counts.iterations);
@@ -396,7 +572,7 @@ where
         t_target: f64,
         max_halvings: u32,
         on_step: &mut F,
-    ) -> Result<StepCounts<N>, StepError>
+    ) -> Result<StepCounts<N>, StepFailure>
     where
         F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
     {
@@ -408,7 +584,7 @@ where
         let mut pending = [(0.0f64, 0u32); MAX_HALVINGS as usize + 1];
         pending[0] = (h, 0);
         let mut len = 1;
-        let mut out = StepCounts { state: *state, iterations: 0, rejected: 0, cold_retries: 0, stopped: false };
+        let mut out = StepCounts::start(state);
         while len > 0 {
             let (sub, level) = pending[len - 1];
             let warm = self.is_warm_for(&out.state);
@@ -428,24 +604,93 @@ where
                         end.t = t_target;
                     }
                     let stop = on_step(self.system(), &out.state, &end, sub, &r);
-                    out.state = r.state;
-                    out.iterations += r.iterations;
+                    out.accept(r.state, r.iterations, sub);
                     if stop {
                         out.stopped = true;
                         return Ok(out);
                     }
                 }
-                Err(e) if !e.is_curable() || level >= max_halvings => return Err(e),
+                Err(e) if !e.is_curable() || level >= max_halvings => return Err(StepFailure::Step(e)),
                 Err(e) => {
                     let half = 0.5 * sub;
                     if out.state.t + half == out.state.t {
-                        return Err(e);
+                        return Err(StepFailure::Step(e));
                     }
                     out.rejected += 1;
                     self.reset_warm_start();
                     pending[len - 1] = (sub - half, level + 1);
                     pending[len] = (half, level + 1);
                     len += 1;
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// One step of size `h` from `state` under [`FailurePolicy::Reject`]:
+    /// tries `h`; on a Newton failure covers `[t₀, t₀ + h]` with sub-steps
+    /// that halve after each failure (the halved one started cold) and
+    /// double back after `regrow_after` accepted ones, never below
+    /// [`RejectionPolicy::floor`]. `on_step` as in `robust_step`.
+    pub(crate) fn rejecting_step<F>(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        policy: &RejectionPolicy,
+        on_step: &mut F,
+    ) -> Result<StepCounts<N>, StepFailure>
+    where
+        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+    {
+        let t_end = state.t + h;
+        let floor = policy.floor(h);
+        let mut out = StepCounts::start(state);
+        let mut sub = h;
+        let mut successes = 0usize;
+        // Sub-steps end within a few ulps of t_end; what is left below that
+        // is rounding of the accumulated times, not a step to take.
+        let slack = 8.0 * f64::EPSILON * t_end.abs().max(h.abs());
+        loop {
+            let remaining = t_end - out.state.t;
+            if out.substeps > 0 && remaining * h.signum() <= slack {
+                break;
+            }
+            let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
+            match self.step(&out.state, this) {
+                Ok(r) => {
+                    let mut end = r.state;
+                    if (t_end - r.state.t) * h.signum() <= slack {
+                        end.t = t_target;
+                    }
+                    let stop = on_step(self.system(), &out.state, &end, this, &r);
+                    out.accept(r.state, r.iterations, this);
+                    if stop {
+                        out.stopped = true;
+                        return Ok(out);
+                    }
+                    successes += 1;
+                    if successes >= policy.regrow_after && sub.abs() < h.abs() {
+                        sub = (2.0 * sub).clamp(-h.abs(), h.abs());
+                        successes = 0;
+                    }
+                }
+                Err(e) if !e.is_curable() => return Err(StepFailure::Step(e)),
+                Err(e) => {
+                    out.rejected += 1;
+                    successes = 0;
+                    self.reset_warm_start();
+                    let next = 0.5 * this;
+                    if next.abs() < floor {
+                        return Err(StepFailure::Floor {
+                            substep_t: out.state.t,
+                            h_tried: this,
+                            floor,
+                            rejections: out.rejected,
+                            last: e,
+                        });
+                    }
+                    sub = next;
                 }
             }
         }
@@ -464,10 +709,11 @@ where
     /// an out-of-range one is an [`IntegrationError::InvalidOption`]. Every
     /// run starts afresh: nothing an earlier run left in this stepper (warm
     /// start, energy anchor, round-off compensation) reaches it, so a reused
-    /// stepper returns bit for bit what a fresh one does. A failed step is
-    /// retried once from the cold starting guess when it was warm-started,
-    /// then halved per [`RunOptions::max_halvings`]; the error reports the
-    /// last failure. Sample storage is reserved up to 1 MiB and grows as
+    /// stepper returns bit for bit what a fresh one does. This is the one
+    /// loop that advances a run: a failed step is handled per
+    /// [`RunOptions::on_failure`] (by default retried once from the cold
+    /// starting guess when it was warm-started, then halved per
+    /// [`RunOptions::max_halvings`]); the error reports the last failure. Sample storage is reserved up to 1 MiB and grows as
     /// samples arrive, so the step count alone never allocates.
     pub fn integrate<O: Observer<N, M>>(
         &mut self,
@@ -540,6 +786,24 @@ where
                 }
                 span.ceil() as usize
             }
+            Schedule::Until { h, t_end } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if !t_end.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
+                }
+                if (t_end - t0) * h.signum() < 0.0 {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "the final time lies behind the start in the direction of h",
+                    ));
+                }
+                let span = ((t_end - t0) / h).abs();
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the final time"));
+                }
+                span.ceil() as usize
+            }
         };
         let v0c =
             consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
@@ -590,6 +854,11 @@ where
         };
         track(&first, &mut report);
         samples.push(first);
+        // The report's extremes cover every accepted step, recorded or not:
+        // the energy and the residual (no multipliers) at the steps not
+        // recorded, only when the run observes them.
+        let per_step = options.observe.energy || options.observe.constraint_residual;
+        let per_step_observe = Observe { multipliers: false, ..options.observe };
         // Dense output and events: nothing of this runs (the branches are on
         // constants) for a system without events, an observer without dense
         // output and a schedule that is not `Sampled`.
@@ -609,6 +878,10 @@ where
             let (h, t_target) = match schedule {
                 Schedule::Fixed { h, .. } | Schedule::Sampled { h, .. } => (h, t0 + (k + 1) as f64 * h),
                 Schedule::Times(ts) => (ts[k] - state.t, ts[k]),
+                Schedule::Until { h, t_end } => {
+                    let target = if k + 1 == steps { t_end } else { t0 + (k + 1) as f64 * h };
+                    (target - state.t, target)
+                }
             };
             let warm_before = self.is_warm_for(&state);
             let step_iterations = &mut 0usize;
@@ -618,9 +891,6 @@ where
                 }
                 *step_iterations += r.iterations;
                 let piece = DenseStep::new(&basis, start, end, sub, r);
-                if O::DENSE {
-                    observer.observe_dense(&piece);
-                }
                 let mut stop_at = None;
                 if !specs.is_empty() {
                     crossings.clear();
@@ -644,6 +914,14 @@ where
                         }
                     }
                 }
+                if O::DENSE {
+                    // A terminal event ends the run inside this step: the
+                    // observer sees the extension up to the event only.
+                    match stop_at {
+                        Some(at) => observer.observe_dense(&piece.until(at.t)),
+                        None => observer.observe_dense(&piece),
+                    }
+                }
                 if let Some(times) = sampled {
                     let forward = sub > 0.0;
                     let limit = stop_at.map_or(end.t, |s| s.t);
@@ -663,15 +941,17 @@ where
                 }
                 false
             };
-            let counts = self
-                .robust_step(&state, h, t_target, options.max_halvings, &mut on_step)
-                .map_err(|source| IntegrationError::Step { index: k, t: state.t, source, partial: Box::new(report) })?;
+            let counts = match options.on_failure {
+                FailurePolicy::Halve => self.robust_step(&state, h, t_target, options.max_halvings, &mut on_step),
+                FailurePolicy::Reject(policy) => self.rejecting_step(&state, h, t_target, &policy, &mut on_step),
+            }
+            .map_err(|failure| failure.into_error(k, state.t, h, report))?;
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
             report.count(&counts, warm_before);
             if let Some(at) = terminal {
-                observer.observe(&at, iters);
+                observer.observe(self.system(), &at, iters);
                 report.terminal_event = located.last().map(|e| e.index);
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
@@ -681,12 +961,14 @@ where
                 state = at;
                 break;
             }
-            observer.observe(&next, iters);
+            observer.observe(self.system(), &next, iters);
             let last = k + 1 == steps;
             if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
                 let s = self.sample(&next, &options.observe, iters);
                 track(&s, &mut report);
                 samples.push(s);
+            } else if per_step {
+                track(&self.sample(&next, &per_step_observe, iters), &mut report);
             }
             state = next;
             self.retarget_warm_start(&state);

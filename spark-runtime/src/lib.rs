@@ -150,8 +150,8 @@ pub use adaptive::{
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
-    IntegrationError, NoObserver, Observe, Observer, RunOptions, RunReport, Sample, Schedule, Trajectory,
-    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    FailurePolicy, IntegrationError, NoObserver, Observe, Observer, RejectionFloor, RunOptions, RunReport, Sample,
+    Schedule, Trajectory, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{

@@ -3,9 +3,10 @@
 //! [`OptionError`] naming it and its allowed range, not as a failure of the
 //! initial state or of the discrete map that it would otherwise cause.
 
-use crate::driver::{RunOptions, MAX_HALVINGS};
+use crate::driver::{FailurePolicy, RunOptions, MAX_HALVINGS};
 use crate::error::{OptionError, HISTORY_CAPACITY};
 use crate::initial::ConsistencyPolicy;
+use crate::rejection::RejectionPolicy;
 use crate::step::{Jacobian, NewtonMode, NewtonOptions};
 
 impl NewtonOptions {
@@ -88,15 +89,40 @@ impl ConsistencyPolicy {
 }
 
 impl RunOptions {
-    /// Checks the consistency policy and `max_halvings ≤ MAX_HALVINGS`.
+    /// Checks the consistency policy, `max_halvings ≤ MAX_HALVINGS` and the
+    /// [`RejectionPolicy`] of [`FailurePolicy::Reject`].
     pub fn validate(&self) -> Result<(), OptionError> {
         self.consistency.validate()?;
+        if let FailurePolicy::Reject(policy) = self.on_failure {
+            policy.check()?;
+        }
         if self.max_halvings > MAX_HALVINGS {
             return Err(OptionError::integer(
                 "RunOptions::max_halvings",
                 u64::from(self.max_halvings),
                 "at most MAX_HALVINGS = 60",
             ));
+        }
+        Ok(())
+    }
+}
+
+impl RejectionPolicy {
+    /// Checks `min_step` (finite, non-negative), `max_halvings ≤ 60` and
+    /// `regrow_after ≥ 1`.
+    pub(crate) fn check(&self) -> Result<(), OptionError> {
+        if !(self.min_step.is_finite() && self.min_step >= 0.0) {
+            return Err(OptionError::float("RejectionPolicy::min_step", self.min_step, "finite and non-negative"));
+        }
+        if self.max_halvings > MAX_HALVINGS {
+            return Err(OptionError::integer(
+                "RejectionPolicy::max_halvings",
+                u64::from(self.max_halvings),
+                "at most MAX_HALVINGS = 60",
+            ));
+        }
+        if self.regrow_after == 0 {
+            return Err(OptionError::integer("RejectionPolicy::regrow_after", 0, "at least 1"));
         }
         Ok(())
     }

@@ -1,23 +1,28 @@
-//! A step-rejection policy built on [`Stepper::step`]: when the Newton solve
-//! of a step fails, the same interval is covered by sub-steps whose size is
-//! halved after every failure (never below a floor) and doubled back after a
-//! run of successes; the next nominal step starts again at the nominal size.
+//! Step rejection as a failure policy of the driver
+//! ([`FailurePolicy::Reject`]): when the Newton solve of a step fails, the
+//! same interval is covered by sub-steps whose size is halved after every
+//! failure (never below a floor) and doubled back after a run of successes;
+//! the next scheduled step starts again at its own size.
 //!
-//! This owns the policy ([`RejectionPolicy`]), one protected step
-//! ([`step_with_rejection`]) and a fixed-step run to a final time
-//! ([`integrate_with_rejection`]). Failures that a smaller step cannot cure
-//! (a non-finite state, `h = 0`, an inconsistent initial state, a final time
-//! behind the start) are returned at once, typed, before any step is taken.
+//! This owns the policy ([`RejectionPolicy`]) and two conveniences over
+//! the driver's loop: one protected step ([`step_with_rejection`]) and a
+//! run to a final time ([`integrate_with_rejection`], which is
+//! [`Stepper::integrate`] with [`Schedule::Until`] under
+//! [`FailurePolicy::Reject`]). Failures that a smaller step cannot cure
+//! (a non-finite state, `h = 0`, an inconsistent initial state, a final
+//! time behind the start) are returned at once, typed, before any step is
+//! taken.
 //!
-//! The driver's [`RunOptions::max_halvings`](crate::RunOptions) retries a
-//! failed step as two half steps, nested; this module differs in that
-//! the sub-step size adapts within the interval (halve on failure, double
-//! back after successes) and that giving up reports the floor reached and
-//! the last Newton failure.
+//! The default policy [`FailurePolicy::Halve`] retries a failed step as two
+//! half steps, nested; rejection differs in that the sub-step size adapts
+//! within the interval (halve on failure, double back after successes) and
+//! that giving up reports the floor reached and the last Newton failure.
 
+use crate::driver::{FailurePolicy, IntegrationError, Observe, RunOptions, RunReport, Schedule, StepFailure};
 use crate::error::{Sci, StepError};
+use crate::events::NoEvents;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
-use crate::step::{State, Stepper};
+use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 
 /// How far a step may be cut down and when it grows back.
@@ -125,7 +130,8 @@ pub struct ProtectedStep<const N: usize> {
 
 /// One nominal step of size `h` from `state` under `policy`: tries `h`; on a
 /// Newton failure covers `[t₀, t₀ + h]` with sub-steps that halve after each
-/// failure and double back after `regrow_after` successes.
+/// failure and double back after `regrow_after` successes. The same
+/// sub-step loop as the driver's under [`FailurePolicy::Reject`].
 pub fn step_with_rejection<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
     state: &State<N>,
@@ -137,51 +143,27 @@ where
 {
     policy.validate()?;
     let t_end = state.t + h;
-    let floor = policy.floor(h);
-    let mut out = ProtectedStep { state: *state, substeps: 0, rejections: 0, smallest_step: h.abs(), iterations: 0 };
-    let mut sub = h;
-    let mut successes = 0usize;
-    // Sub-steps end within a few ulps of t_end; what is left below that is
-    // rounding of the accumulated times, not a step to take.
-    let slack = 8.0 * f64::EPSILON * t_end.abs().max(h.abs());
-    loop {
-        let remaining = t_end - out.state.t;
-        if out.substeps > 0 && remaining * h.signum() <= slack {
-            break;
-        }
-        let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
-        match stepper.step(&out.state, this) {
-            Ok(r) => {
-                out.state = r.state;
-                out.substeps += 1;
-                out.iterations += r.iterations;
-                out.smallest_step = out.smallest_step.min(this.abs());
-                successes += 1;
-                if successes >= policy.regrow_after && sub.abs() < h.abs() {
-                    sub = (2.0 * sub).clamp(-h.abs(), h.abs());
-                    successes = 0;
-                }
+    let counts = stepper
+        .rejecting_step(
+            state,
+            h,
+            t_end,
+            policy,
+            &mut |_: &Sys, _: &State<N>, _: &State<N>, _: f64, _: &StepResult<N, M, S>| false,
+        )
+        .map_err(|failure| match failure {
+            StepFailure::Step(e) => RejectionError::Input(e),
+            StepFailure::Floor { substep_t, h_tried, floor, rejections, last } => {
+                RejectionError::Floor { t: substep_t, h, h_tried, floor, rejections, last: Box::new(last) }
             }
-            Err(e) if !e.is_curable() => return Err(RejectionError::Input(e)),
-            Err(e) => {
-                out.rejections += 1;
-                successes = 0;
-                stepper.reset_warm_start();
-                let next = 0.5 * this;
-                if next.abs() < floor {
-                    return Err(RejectionError::Floor {
-                        t: out.state.t,
-                        h,
-                        h_tried: this,
-                        floor,
-                        rejections: out.rejections,
-                        last: Box::new(e),
-                    });
-                }
-                sub = next;
-            }
-        }
-    }
+        })?;
+    let mut out = ProtectedStep {
+        state: counts.state,
+        substeps: counts.substeps,
+        rejections: counts.rejected,
+        smallest_step: h.abs().min(counts.smallest),
+        iterations: counts.iterations,
+    };
     out.state.t = t_end;
     // The next nominal step continues this one: let it extrapolate from the
     // last accepted (sub-)step, whose end differs from ours only in `t`.
@@ -222,10 +204,12 @@ pub struct RejectionRunError {
 }
 
 /// Integrates from `(t₀, q₀, v₀)` to `t_end` with nominal step `h` (the last
-/// step shortened to land on `t_end`), each step protected by
-/// [`step_with_rejection`]. The initial velocity must satisfy the
+/// step shortened to land on `t_end`) under `policy`: [`Stepper::integrate`]
+/// with [`Schedule::Until`] and [`FailurePolicy::Reject`], no samples but
+/// the endpoints and no events. The initial velocity must satisfy the
 /// constraints to `1e-12`; `t_end` must lie ahead of `t₀` in the direction
-/// of `h`. `observer` sees every nominal step's outcome.
+/// of `h`. `observer` sees every nominal step's end state and its Newton
+/// iterations.
 #[allow(clippy::too_many_arguments)]
 pub fn integrate_with_rejection<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
@@ -235,7 +219,7 @@ pub fn integrate_with_rejection<Sys, const N: usize, const M: usize, const S: us
     t_end: f64,
     h: f64,
     policy: &RejectionPolicy,
-    observer: &mut dyn FnMut(&ProtectedStep<N>),
+    mut observer: &mut dyn FnMut(&State<N>, usize),
 ) -> Result<(State<N>, RejectionReport), RejectionRunError>
 where
     Sys: NonholonomicSystem<N, M>,
@@ -252,36 +236,54 @@ where
     if (t_end - t0) * h.signum() < 0.0 {
         return Err(interval("the final time lies behind the start in the direction of h"));
     }
-    let v = consistent_velocity(stepper.system(), t0, q0, v0, ConsistencyPolicy::default())
+    consistent_velocity(stepper.system(), t0, q0, v0, ConsistencyPolicy::default())
         .map_err(|e| fail(RejectionError::Input(e)))?;
-    let steps = ((t_end - t0) / h).abs().ceil();
-    if steps > 1e12 {
+    if ((t_end - t0) / h).abs().ceil() > 1e12 {
         return Err(interval("more than 10¹² steps"));
     }
-    let steps = steps as usize;
-    // A run depends on its inputs only (see `Stepper::integrate`).
-    stepper.reset_run();
-    let mut state = State::new(t0, *q0, v);
-    let mut report = RejectionReport { smallest_step: h.abs(), ..RejectionReport::default() };
-    for k in 0..steps {
-        let target = if k + 1 == steps { t_end } else { t0 + (k + 1) as f64 * h };
-        let this = target - state.t;
-        let r = step_with_rejection(stepper, &state, this, policy).map_err(|source| RejectionRunError {
-            index: k,
-            t: state.t,
-            source,
-            partial: report,
-        })?;
-        report.steps += 1;
-        report.substeps += r.substeps;
-        report.rejections += r.rejections;
-        report.rejected_steps += usize::from(r.rejections > 0);
-        report.smallest_step = report.smallest_step.min(r.smallest_step);
-        report.iterations += r.iterations;
-        observer(&r);
-        state = r.state;
-        state.t = target;
-        stepper.retarget_warm_start(&state);
+    let options = RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        on_failure: FailurePolicy::Reject(*policy),
+        ..RunOptions::default()
+    };
+    let schedule = Schedule::Until { h, t_end };
+    let summary = |r: &RunReport| RejectionReport {
+        steps: r.steps,
+        substeps: r.substeps,
+        rejections: r.rejected_steps,
+        rejected_steps: r.steps_with_rejections,
+        smallest_step: if r.smallest_step > 0.0 { h.abs().min(r.smallest_step) } else { h.abs() },
+        iterations: r.newton_iterations_total,
+    };
+    match stepper.integrate_with_events(t0, q0, v0, schedule, &options, &mut observer, &NoEvents) {
+        Ok(run) => {
+            let end = run.last().unwrap_or(State::new(t0, *q0, *v0));
+            Ok((end, summary(&run.report)))
+        }
+        Err(e) => Err(match e {
+            IntegrationError::InvalidSchedule(reason) => interval(reason),
+            IntegrationError::InvalidOption(o) => fail(RejectionError::Input(StepError::InvalidOption(Box::new(o)))),
+            IntegrationError::Initial(e) => fail(RejectionError::Input(e)),
+            IntegrationError::Step { index, t, source, partial } => {
+                RejectionRunError { index, t, source: RejectionError::Input(source), partial: summary(&partial) }
+            }
+            IntegrationError::Floor { index, t, detail, partial } => {
+                let d = *detail;
+                RejectionRunError {
+                    index,
+                    t,
+                    source: RejectionError::Floor {
+                        t: d.substep_t,
+                        h: d.h,
+                        h_tried: d.h_tried,
+                        floor: d.floor,
+                        rejections: d.rejections,
+                        last: Box::new(d.last),
+                    },
+                    partial: summary(&partial),
+                }
+            }
+        }),
     }
-    Ok((state, report))
 }

@@ -156,7 +156,7 @@ struct Dense {
 
 impl spark_runtime::Observer<3, 1> for Dense {
     const DENSE: bool = true;
-    fn observe(&mut self, _: &State<3>, _: usize) {}
+    fn observe<Sys: spark_runtime::NonholonomicSystem<3, 1>>(&mut self, _: &Sys, _: &State<3>, _: usize) {}
     fn observe_dense<const S: usize>(&mut self, step: &spark_runtime::DenseStep<'_, 3, S>) {
         let mid = 0.5 * (step.start.t + step.end.t);
         self.steps.push((step.state_at(step.start.t), step.state_at(step.end.t), step.state_at(mid)));

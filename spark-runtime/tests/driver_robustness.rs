@@ -8,9 +8,9 @@ use std::cell::Cell;
 
 use spark_runtime::fixtures::paper::{MobileRobot, Skate};
 use spark_runtime::{
-    nonholonomic_system, ConsistencyPolicy, IntegrationError, Method, NewtonOptions, NoObserver, NonholonomicSystem,
-    ProtectedStep, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
-    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    nonholonomic_system, ConsistencyPolicy, FailurePolicy, IntegrationError, Method, NewtonOptions, NoObserver,
+    NonholonomicSystem, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau,
+    Vector, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 
 /// Records the largest single allocation of this thread.
@@ -124,7 +124,7 @@ fn a_reused_stepper_reproduces_a_fresh_one() {
             t_end,
             0.1,
             &policy,
-            &mut |_: &ProtectedStep<4>| {},
+            &mut |_: &State<4>, _: usize| {},
         )
         .unwrap()
     };
@@ -332,7 +332,7 @@ fn error_messages_print_floats_compactly() {
             .to_string(),
     ];
     let policy = RejectionPolicy::default();
-    let mut observer = |_: &ProtectedStep<3>| {};
+    let mut observer = |_: &State<3>, _: usize| {};
     let protected =
         spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, -1e300, 1e300, &policy, &mut observer);
     let protected = protected.unwrap_err();
@@ -341,5 +341,138 @@ fn error_messages_print_floats_compactly() {
     for m in &messages {
         assert!(longest_digit_run(m) <= 17, "{m}");
         assert!(m.contains("e300"), "{m}");
+    }
+}
+
+/// The largest `|E − E₀|` and `max |k|` over every step, from the system the
+/// driver hands to the observer.
+struct Extremes {
+    e0: f64,
+    max_energy_error: f64,
+    max_residual: f64,
+    steps: usize,
+}
+
+impl<const N: usize, const M: usize> spark_runtime::Observer<N, M> for Extremes {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, system: &Sys, s: &State<N>, _: usize) {
+        self.max_energy_error = self.max_energy_error.max((system.energy(s.t, &s.q, &s.v) - self.e0).abs());
+        self.max_residual = self.max_residual.max(system.constraint(s.t, &s.q, &s.v).amax());
+        self.steps += 1;
+    }
+}
+
+#[test]
+fn the_report_covers_every_step_and_the_observer_sees_the_system() {
+    let sys = Skate::default();
+    let q0 = Vector::<3>::new(0.0, 0.0, 0.0);
+    let v0 = Vector::<3>::new(1.0, 0.0, 1.0);
+    let mut st = Stepper::<Skate, 3, 1, 2, 11>::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let (h, steps) = (0.3, 200);
+    let mut extremes = Extremes {
+        e0: sys.energy(0.0, &q0, &v0),
+        max_energy_error: 0.0,
+        max_residual: sys.constraint(0.0, &q0, &v0).amax(),
+        steps: 0,
+    };
+    // Only the endpoints are recorded; the report still covers every step.
+    let options = RunOptions { record_every: 0, ..RunOptions::default() };
+    let traj = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &options, &mut extremes).unwrap();
+    assert_eq!(traj.samples.len(), 2);
+    assert_eq!(extremes.steps, steps);
+    assert!(extremes.max_energy_error > 0.0 && extremes.max_residual > 0.0);
+    assert_eq!(traj.report.max_energy_error, extremes.max_energy_error);
+    assert_eq!(traj.report.max_constraint_residual, extremes.max_residual);
+    // Recording every step gives the same extremes.
+    let every = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &RunOptions::default(), &mut NoObserver);
+    let every = every.unwrap();
+    assert_eq!(every.report.max_energy_error, traj.report.max_energy_error);
+    assert_eq!(every.report.max_constraint_residual, traj.report.max_constraint_residual);
+    // Quantities not observed stay zero.
+    let none = RunOptions {
+        observe: spark_runtime::Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let quiet = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &none, &mut NoObserver).unwrap();
+    assert_eq!((quiet.report.max_energy_error, quiet.report.max_constraint_residual), (0.0, 0.0));
+}
+
+/// Step rejection is a failure policy of the one driver loop: under
+/// `FailurePolicy::Reject` a run of the constant-speed particle at h = 1.5
+/// (where Newton fails without help) is rescued by adaptive sub-steps and
+/// the report counts them; the run with a terminal event, the dense output
+/// and the samples work as under the default policy; a run that needs no
+/// rejection is bit-identical under every policy; giving up at the floor is
+/// an `IntegrationError::Floor`.
+#[test]
+fn rejection_is_a_failure_policy_of_the_driver() {
+    let (q0, v0) = speed_start();
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let policy = RejectionPolicy::default();
+    let reject = RunOptions { on_failure: FailurePolicy::Reject(policy), ..RunOptions::default() };
+    let big = Schedule::Fixed { h: 1.5, steps: 40 };
+    let run = st.integrate(0.0, &q0, &v0, big, &reject, &mut NoObserver).unwrap();
+    let r = run.report;
+    assert_eq!(r.steps, 40);
+    assert!(r.rejected_steps > 0 && r.steps_with_rejections > 0, "{r:?}");
+    assert!(r.substeps > r.steps && r.smallest_step < 1.5, "{r:?}");
+    assert!(r.max_constraint_residual <= 1e-14, "{r:?}");
+    assert_eq!(run.samples.last().unwrap().t, 60.0);
+
+    // The same run to a final time through the protected-run convenience.
+    let mut count = 0;
+    let (end, protected) = spark_runtime::integrate_with_rejection(
+        &mut st,
+        0.0,
+        &q0,
+        &v0,
+        60.0,
+        1.5,
+        &policy,
+        &mut |_: &State<3>, _: usize| count += 1,
+    )
+    .unwrap();
+    assert_eq!(count, 40);
+    assert_eq!((end.q, end.v), (run.samples.last().unwrap().q, run.samples.last().unwrap().v));
+    assert_eq!((protected.rejections, protected.substeps), (r.rejected_steps, r.substeps));
+
+    // No failure: one sub-step per step, the same run up to the rounding
+    // of the step sizes (rejection steps to the end of the interval).
+    let small = Schedule::Fixed { h: 0.1, steps: 400 };
+    let a = st.integrate(0.0, &q0, &v0, small, &RunOptions::default(), &mut NoObserver).unwrap();
+    let b = st.integrate(0.0, &q0, &v0, small, &reject, &mut NoObserver).unwrap();
+    assert_eq!((b.report.rejected_steps, b.report.substeps), (0, 400));
+    let (ea, eb) = (a.last().unwrap(), b.last().unwrap());
+    assert!((ea.q - eb.q).amax() < 1e-10 && (ea.v - eb.v).amax() < 1e-10, "{ea:?} {eb:?}");
+
+    // Sampled output through the dense extension of the rejected sub-steps.
+    let times: Vec<f64> = (1..=30).map(|k| 2.0 * k as f64).collect();
+    let sampled = st.integrate(0.0, &q0, &v0, Schedule::Sampled { h: 1.5, times: &times }, &reject, &mut NoObserver);
+    let sampled = sampled.unwrap();
+    assert_eq!(sampled.samples.len(), 31);
+    // t = 6 ends the fourth step: the sample there is the step's end.
+    assert_eq!(sampled.samples[3].t, 6.0);
+    assert_eq!((sampled.samples[3].q, sampled.samples[3].v), (run.samples[4].q, run.samples[4].v));
+    assert_eq!(sampled.report.rejected_steps, r.rejected_steps);
+
+    // No room to halve: the floor is reached at once.
+    let tight =
+        RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { max_halvings: 0, ..policy }), ..reject };
+    match st.integrate(0.0, &q0, &v0, big, &tight, &mut NoObserver) {
+        Err(IntegrationError::Floor { detail, partial, .. }) => assert!(detail.rejections == 1 && partial.steps < 40),
+        other => panic!("expected the floor, got {other:?}"),
+    }
+    let tight_policy = RejectionPolicy { max_halvings: 0, ..policy };
+    let mut none = |_: &State<3>, _: usize| {};
+    match spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, 60.0, 1.5, &tight_policy, &mut none) {
+        Err(e) => assert!(matches!(e.source, RejectionError::Floor { rejections: 1, .. }), "{e}"),
+        Ok(_) => panic!("expected the floor"),
+    }
+    // An invalid policy is an option error before any step.
+    let bad = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { regrow_after: 0, ..policy }), ..reject };
+    match st.integrate(0.0, &q0, &v0, big, &bad, &mut NoObserver) {
+        Err(IntegrationError::InvalidOption(e)) => assert_eq!(e.option, "RejectionPolicy::regrow_after"),
+        other => panic!("expected an option error, got {other:?}"),
     }
 }

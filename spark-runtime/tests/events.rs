@@ -356,6 +356,52 @@ fn a_terminal_event_ends_the_run_exactly_there() {
     assert!(plain.events.is_empty() && plain.report.terminal_event.is_none());
 }
 
+/// Records the interval each dense step covers and its samples at both ends.
+struct DenseSteps {
+    steps: Vec<(f64, f64, State<3>)>,
+}
+
+impl spark_runtime::Observer<3, 1> for DenseSteps {
+    const DENSE: bool = true;
+    fn observe<Sys: spark_runtime::NonholonomicSystem<3, 1>>(&mut self, _: &Sys, _: &State<3>, _: usize) {}
+    fn observe_dense<const S: usize>(&mut self, step: &spark_runtime::DenseStep<'_, 3, S>) {
+        self.steps.push((step.start.t, step.end.t, step.state_at(step.end.t)));
+    }
+}
+
+#[test]
+fn a_dense_observer_sees_the_last_step_only_up_to_the_terminal_event() {
+    let s0 = particle_start();
+    // Terminal at t = 0.35, inside the fourth step of size 0.1.
+    let specs = [EventSpec { name: "stop", direction: Direction::Rising, terminal: true, source: "" }];
+    let g = time_event::<3>(0.35);
+    let events = RuntimeEvents { specs: &specs, gradient: &g };
+    let mut dense = DenseSteps { steps: Vec::new() };
+    let traj = particle_stepper()
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h: 0.1, steps: 10 },
+            &RunOptions::default(),
+            &mut dense,
+            &events,
+        )
+        .unwrap();
+    let stop = traj.events.last().unwrap();
+    assert!((stop.t - 0.35).abs() <= 1e-15, "event at {}", stop.t);
+    assert_eq!(dense.steps.len(), 4, "{:?}", dense.steps);
+    let (start, end, at_end) = dense.steps[3];
+    assert!((start - 0.3).abs() <= 1e-15);
+    assert_eq!(end, stop.t, "the last dense step ends at the terminal event");
+    assert_eq!(at_end.q, stop.q);
+    assert_eq!(at_end.v, stop.v);
+    // The earlier steps are whole.
+    for (k, &(a, b, _)) in dense.steps[..3].iter().enumerate() {
+        assert!((a - 0.1 * k as f64).abs() <= 1e-15 && (b - 0.1 * (k + 1) as f64).abs() <= 1e-15);
+    }
+}
+
 nonholonomic_system! {
     /// A ball on a vertical line with gravity; events on its height.
     pub struct Ball {

@@ -583,7 +583,7 @@ where
     let index = report.accepted;
     rec.run.newton_iterations_total += iterations;
     rec.run.newton_iterations_max = rec.run.newton_iterations_max.max(iterations);
-    observer.observe(&state, iterations);
+    observer.observe(stepper.system(), &state, iterations);
     if last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
         let s = stepper.sample(&state, &rec.observe, iterations);
         rec.push(s);

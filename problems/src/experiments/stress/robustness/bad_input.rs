@@ -173,7 +173,7 @@ fn protected_scenarios() -> Result<Vec<Bad>, StressError> {
     let mut st = <Stepper![Skate, 2]>::new(Skate::default(), spark_runtime::Tableau::new(Method::Gauss)?);
     let mut run = |what, expected, t0: f64, h: f64, policy: &RejectionPolicy, observed: bool| {
         let mut count = 0usize;
-        let r = integrate_with_rejection(&mut st, t0, &q0, &v0, 1.0, h, policy, &mut |_| count += 1);
+        let r = integrate_with_rejection(&mut st, t0, &q0, &v0, 1.0, h, policy, &mut |_, _| count += 1);
         let got = r.map(|_| "Ok".to_string()).map_err(|e| format!("{} — {e}", rejection_error_kind(&e)));
         Bad { what, expected, got, observed_steps: if observed { count } else { 0 } }
     };

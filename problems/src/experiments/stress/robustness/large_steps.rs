@@ -56,7 +56,7 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
         let mut st = mp7_gauss2()?;
         let n = (t_end / h).round() as usize;
         let plain = run_fixed(&mut st, &q0, &v0, h, n, 1, 0);
-        let protected = integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h, &policy, &mut |_| {});
+        let protected = integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h, &policy, &mut |_, _| {});
         pairs.push(Pair { plain, protected });
     }
     let e0 = McLachlanPerlmutter7::default().energy(0.0, &q0, &v0);
@@ -171,7 +171,7 @@ fn judge_floor(
 ) -> Result<(), StressError> {
     let tight = RejectionPolicy { max_halvings: 1, ..*policy };
     let mut st = mp7_gauss2()?;
-    match integrate_with_rejection(&mut st, 0.0, q0, v0, t_end, h_max, &tight, &mut |_| {}) {
+    match integrate_with_rejection(&mut st, 0.0, q0, v0, t_end, h_max, &tight, &mut |_, _| {}) {
         Ok(_) => c.check(
             format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
             false,

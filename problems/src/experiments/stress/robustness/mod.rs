@@ -34,13 +34,14 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
     }
 }
 
-/// The kind of a driver failure (`Step/<kind>`, `Initial/<kind>`, `InvalidSchedule`, `InvalidOption`).
+/// The kind of a driver failure (`Step/<kind>`, `Floor/<kind>`, `Initial/<kind>`, `InvalidSchedule`, `InvalidOption`).
 pub fn integration_error_kind(e: &IntegrationError) -> String {
     match e {
         IntegrationError::InvalidSchedule(_) => "InvalidSchedule".into(),
         IntegrationError::InvalidOption(_) => "InvalidOption".into(),
         IntegrationError::Initial(s) => format!("Initial/{}", step_error_kind(s)),
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
+        IntegrationError::Floor { detail, .. } => format!("Floor/{}", step_error_kind(&detail.last)),
     }
 }
 
@@ -71,7 +72,9 @@ fn is_newton_failure(e: &IntegrationError) -> bool {
 /// The index and time of the step a driver failure names.
 fn failed_index(e: &IntegrationError) -> String {
     match e {
-        IntegrationError::Step { index, t, .. } => format!("{index} (t = {t})"),
+        IntegrationError::Step { index, t, .. } | IntegrationError::Floor { index, t, .. } => {
+            format!("{index} (t = {t})")
+        }
         _ => "—".into(),
     }
 }
