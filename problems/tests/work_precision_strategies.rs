@@ -29,6 +29,18 @@ fn assert_error_falls(c: &[&Point], what: &str) {
     }
 }
 
+/// The reversible rule takes its scale from the tolerance once, and loose
+/// tolerances may all be capped at the sweep's largest step (the same run):
+/// errors must not grow as the tolerance tightens, and must fall overall.
+fn assert_error_does_not_grow(c: &[&Point], what: &str) {
+    assert!(c.len() >= 2, "{what}: fewer than two points: {c:?}");
+    for w in c.windows(2) {
+        assert!(w[1].setting < w[0].setting, "{what}: tolerances not tightening: {c:?}");
+        assert!(w[1].error() <= w[0].error(), "{what}: error grows as rtol falls: {c:?}");
+    }
+    assert!(c[c.len() - 1].error() < c[0].error() / 10.0, "{what}: error does not fall: {c:?}");
+}
+
 /// On the orbit (time scale varying by ≈ 100 around the orbit), the sweep
 /// measures error-controlled steps for every method and the reversible rule
 /// for exactly the symmetric ones, both with errors falling as the
@@ -56,7 +68,7 @@ fn orbit_sweep_measures_adaptive_and_reversible_steps_next_to_fixed_steps() {
     }
     for label in ["Gauss s=2", "Gauss s=4", "Lobatto IIIA-B s=3"] {
         assert_error_falls(&curve(&m.points, SPARK_ADAPTIVE, label), &format!("adaptive {label}"));
-        assert_error_falls(&curve(&m.points, SPARK_REVERSIBLE, label), &format!("reversible {label}"));
+        assert_error_does_not_grow(&curve(&m.points, SPARK_REVERSIBLE, label), &format!("reversible {label}"));
     }
     let table = strategy_table(m, &cfg.targets);
     for row in ["SPARK fixed steps", "SPARK adaptive (rtol = atol)", "SPARK reversible adaptive", "ode_solvers"] {

@@ -11,8 +11,9 @@ use crate::peers::ode;
 use crate::report::clock::thread_cpu_seconds;
 use crate::report::stats::median;
 use spark_runtime::{
-    adaptive::is_symmetric, integrate_adaptive, integrate_reversible, AdaptiveOptions, AdaptiveRun, Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions,
-    Schedule, State, Stepper, Tableau, Vector,
+    adaptive::is_symmetric, integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveRun,
+    Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau,
+    Vector,
 };
 use std::marker::PhantomData;
 use std::time::{Duration, Instant};
@@ -201,13 +202,15 @@ pub(super) fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize
     let t1 = ctx.cfg.final_time;
     let (q0, v0) = (ctx.q0, ctx.v0);
     sweep_tolerances(ctx, stepper, probe, label, SPARK_ADAPTIVE, points, |stepper, options, mut observer| {
-        integrate_adaptive(stepper, 0.0, &q0, &v0, t1, options, &mut observer).ok()
+        integrate_adaptive(stepper, 0.0, &q0, &v0, t1, options, &mut observer)
     });
 }
 
 /// Sweeps the reversible step-size rule over the configured tolerances (the
 /// tolerance fixes the scale `ε` at the initial state), like
-/// [`sweep_adaptive`].
+/// [`sweep_adaptive`]. Steps are bounded by the fixed-step sweep's largest,
+/// `T/n₀`: the scale is calibrated at the initial state only, and a loose
+/// tolerance there can ask for a step the rest of the run cannot take.
 pub(super) fn sweep_reversible<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     ctx: &Ctx<'_, N>,
     stepper: &mut Stepper<Sys, N, M, S, D>,
@@ -221,8 +224,10 @@ pub(super) fn sweep_reversible<Sys, const N: usize, const M: usize, const S: usi
     let t1 = ctx.cfg.final_time;
     let (q0, v0) = (ctx.q0, ctx.v0);
     let sigma = |_: f64, q: &Vector<N>, _: &Vector<N>| density(q.as_slice());
+    let max_step = t1 / ctx.cfg.min_steps.max(1) as f64;
     sweep_tolerances(ctx, stepper, probe, label, SPARK_REVERSIBLE, points, |stepper, options, mut observer| {
-        integrate_reversible(stepper, 0.0, &q0, &v0, t1, sigma, options, &mut observer).ok()
+        let options = AdaptiveOptions { max_step: Some(max_step), ..*options };
+        integrate_reversible(stepper, 0.0, &q0, &v0, t1, sigma, &options, &mut observer)
     });
 }
 
@@ -234,7 +239,9 @@ type EnergyObserver<'o, const N: usize> = &'o mut dyn FnMut(&State<N>, usize);
 /// configured tolerance: once observing the energy (the point's errors),
 /// then timed unobserved; stops at the error floor, the run-time limit, or
 /// the first tolerance the driver cannot meet within the fixed-step sweep's
-/// step budget.
+/// step budget (every tighter one needs more steps). A run that fails
+/// otherwise (a Newton failure, a step below the smallest allowed) skips its
+/// tolerance only.
 #[allow(clippy::too_many_arguments)]
 fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     ctx: &Ctx<'_, N>,
@@ -243,7 +250,11 @@ fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D
     label: &str,
     solver: &str,
     points: &mut Vec<Point>,
-    drive: impl Fn(&mut Stepper<Sys, N, M, S, D>, &AdaptiveOptions, EnergyObserver<'_, N>) -> Option<AdaptiveRun<N, M>>,
+    drive: impl Fn(
+        &mut Stepper<Sys, N, M, S, D>,
+        &AdaptiveOptions,
+        EnergyObserver<'_, N>,
+    ) -> Result<AdaptiveRun<N, M>, AdaptiveError>,
 ) where
     Sys: NonholonomicSystem<N, M>,
 {
@@ -261,14 +272,18 @@ fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D
         let mut observer = |s: &State<N>, _: usize| {
             max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
         };
-        let Some(run) = drive(stepper, &options, &mut observer) else { break };
+        let run = match drive(stepper, &options, &mut observer) {
+            Ok(run) => run,
+            Err(AdaptiveError::TooManySteps { .. }) => break,
+            Err(_) => continue,
+        };
         let Some(end) = run.trajectory.last() else { continue };
         let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
         if !(eq.is_finite() && ev.is_finite()) {
             continue;
         }
         let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-            drive(stepper, &options, &mut |_: &State<N>, _: usize| {}).is_some()
+            drive(stepper, &options, &mut |_: &State<N>, _: usize| {}).is_ok()
         }) else {
             continue;
         };
