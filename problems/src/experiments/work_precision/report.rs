@@ -174,7 +174,7 @@ pub fn strategy_table(m: &SystemMeasurement, targets: &[f64]) -> String {
             .map(|(&t, best_fixed)| match cheapest(&all, t, filter) {
                 None => "not reached".into(),
                 Some((p, time)) => {
-                    let ratio = best_fixed.map_or("–".into(), |f| format!("{:.1}×", f / time));
+                    let ratio = best_fixed.map_or("–".into(), |f| times(f / time));
                     format!("{}, {}, fixed / this {ratio}", p.method, duration(time))
                 }
             })
@@ -196,7 +196,7 @@ pub fn strategy_table(m: &SystemMeasurement, targets: &[f64]) -> String {
                 .map(|(&t, best_fixed)| match time_to_reach(&all[&(solver.to_string(), method.clone())], t) {
                     None => "not reached".into(),
                     Some(time) => {
-                        let ratio = best_fixed.map_or("–".into(), |f| format!("{:.1}×", f / time));
+                        let ratio = best_fixed.map_or("–".into(), |f| times(f / time));
                         format!("{}, fixed / this {ratio}", duration(time))
                     }
                 })
@@ -205,6 +205,15 @@ pub fn strategy_table(m: &SystemMeasurement, targets: &[f64]) -> String {
         }
     }
     s
+}
+
+/// A time ratio: one decimal, or two significant digits below 0.1.
+fn times(x: f64) -> String {
+    if x >= 0.1 {
+        format!("{x:.1}×")
+    } else {
+        format!("{x:.1e}×")
+    }
 }
 
 /// The ratio tables of one system (Markdown).
