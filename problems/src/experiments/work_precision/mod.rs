@@ -85,7 +85,10 @@ pub const SPARK_REVERSIBLE: &str = "SPARK reversible adaptive (generated)";
 
 /// A step density `σ(q)` (steps per unit time, up to the scale `ε`) of the
 /// reversible runs.
-pub type StepDensity = Box<dyn Fn(&[f64]) -> f64 + Send + Sync>;
+pub type DensityFn = dyn Fn(&[f64]) -> f64 + Send + Sync;
+
+/// An owned [`DensityFn`].
+pub type StepDensity = Box<DensityFn>;
 
 /// The step density of the reversible runs on `kind`, for the systems with
 /// a known local time scale: `orbit`'s Kepler time scale `r^{3/2}` gives

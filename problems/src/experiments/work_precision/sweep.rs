@@ -52,7 +52,7 @@ pub(super) struct Ctx<'a, const N: usize> {
     pub(super) q_ref: Vector<N>,
     pub(super) v_ref: Vector<N>,
     /// The step density of the reversible runs ([`super::step_density`]).
-    pub(super) density: Option<&'a (dyn Fn(&[f64]) -> f64 + Send + Sync)>,
+    pub(super) density: Option<&'a super::DensityFn>,
 }
 
 /// Run options of a timed run: no observation, nothing recorded.
@@ -216,7 +216,7 @@ pub(super) fn sweep_reversible<Sys, const N: usize, const M: usize, const S: usi
     stepper: &mut Stepper<Sys, N, M, S, D>,
     probe: &Sys,
     label: &str,
-    density: &(dyn Fn(&[f64]) -> f64 + Send + Sync),
+    density: &super::DensityFn,
     points: &mut Vec<Point>,
 ) where
     Sys: NonholonomicSystem<N, M>,
