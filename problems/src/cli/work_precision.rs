@@ -14,8 +14,9 @@ pub struct WorkPrecisionArgs {
     /// System by name (see `spark list`), repeatable or comma-separated;
     /// `all` measures every registered system. Default: the paper's four
     /// (particle, skate, robot, mp7). Peers that exist only for the paper's
-    /// systems (num-dual, finite differences, CasADi C, SciPy) are skipped
-    /// for the others, and the report says so.
+    /// systems (num-dual, finite differences, CasADi C) are skipped for the
+    /// others, and the report says so; DOP853 and SciPy's Radau run on every
+    /// system without external or non-ideal forces.
     #[arg(long, short = 'y', value_delimiter = ',')]
     pub system: Vec<String>,
     /// Output folder (CSV, Markdown, PNG and SVG figures).

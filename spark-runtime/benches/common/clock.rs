@@ -21,7 +21,8 @@ extern "C" {
 const THREAD_CPU_CLOCK: i32 = 3;
 
 /// The calling thread's CPU time in seconds (NaN when the clock fails).
-fn thread_cpu_time() -> f64 {
+#[allow(dead_code)] // called directly by some benches only
+pub fn thread_cpu_time() -> f64 {
     let mut ts = Timespec { tv_sec: 0, tv_nsec: 0 };
     // SAFETY: clock_gettime writes one timespec through a valid pointer.
     let rc = unsafe { clock_gettime(THREAD_CPU_CLOCK, &mut ts) };

@@ -10,7 +10,7 @@
 //! peer's error is measured against the same reference in the same run.
 
 use super::{Point, Problem, SystemMeasurement, WorkPrecisionConfig};
-use crate::catalog::SystemKind;
+use crate::catalog::{visit_system, Dispatch, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::TableauTable;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -80,7 +80,10 @@ pub struct PeerStepRun {
     pub v: Vec<f64>,
 }
 
-/// Runs the external peers for one measured system and returns their points.
+/// Runs the external peers for one measured system and returns their points:
+/// the CasADi C steps of `tableaux` (when `casadi`) and SciPy's DOP853 and
+/// Radau (always).
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     python: &Path,
     script: &Path,
@@ -89,6 +92,7 @@ pub fn run(
     m: &SystemMeasurement,
     tableaux: &[TableauTable],
     cfg: &WorkPrecisionConfig,
+    casadi: bool,
 ) -> Result<Vec<Point>, String> {
     let methods = tableaux
         .iter()
@@ -107,7 +111,8 @@ pub fn run(
         .collect();
     let dir = out.join("external");
     let output_path = dir.join(format!("{}-points.csv", kind.key()));
-    run_script(python, script, &dir, kind, &m.problem, methods, cfg, &output_path, &[])?;
+    let extra: &[&str] = if casadi { &[] } else { &["--skip-casadi"] };
+    run_script(python, script, &dir, kind, &m.problem, methods, cfg, &output_path, extra)?;
     let mut reader = csv::Reader::from_path(&output_path).map_err(|e| format!("{}: {e}", output_path.display()))?;
     reader.deserialize::<Point>().collect::<Result<Vec<_>, _>>().map_err(|e| format!("{}: {e}", output_path.display()))
 }
@@ -204,13 +209,18 @@ fn run_script(
     Ok(())
 }
 
-fn source_of(kind: SystemKind) -> spark_runtime::SystemSource {
-    use crate::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
-    use spark_runtime::NonholonomicSystem;
-    match kind {
-        SystemKind::Skate => <Skate as NonholonomicSystem<3, 1>>::SOURCE,
-        SystemKind::Robot => <MobileRobot as NonholonomicSystem<4, 2>>::SOURCE,
-        SystemKind::McLachlanPerlmutter7 => <McLachlanPerlmutter7 as NonholonomicSystem<7, 1>>::SOURCE,
-        _ => <NonholonomicParticle as NonholonomicSystem<3, 1>>::SOURCE,
+/// The neutral source (coordinates, parameters, Lagrangian, constraints) of
+/// the registered system `kind`, which the Python peers rebuild in CasADi.
+pub fn source_of(kind: SystemKind) -> spark_runtime::SystemSource {
+    struct Source;
+    impl SystemVisitor for Source {
+        type Output = spark_runtime::SystemSource;
+        fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+            self,
+            _: &'static SystemEntry,
+        ) -> Self::Output {
+            Sys::SOURCE
+        }
     }
+    visit_system(kind, Source)
 }

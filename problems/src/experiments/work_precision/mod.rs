@@ -18,8 +18,13 @@
 //!   over a tolerance sweep;
 //! - CasADi-generated C in two variants (CasADi's Newton iteration with its
 //!   QR solve; CasADi's residual and dense Jacobian with a hand-written LU
-//!   Newton) and SciPy `solve_ivp`, by running `casadi/peers/peers.py`
-//!   ([`external`]).
+//!   Newton) on the paper's systems, and SciPy `solve_ivp` (DOP853, Radau)
+//!   on every system without external or non-ideal forces, by running
+//!   `casadi/peers/peers.py` ([`external`]);
+//! - the same generated stepper driven by tolerances
+//!   ([`spark_runtime::integrate_adaptive`], every method) and by the
+//!   reversible step-size rule ([`spark_runtime::integrate_reversible`],
+//!   symmetric methods on systems with a step density, [`step_density`]).
 //!
 //! [`report`] turns the points into CSV, Markdown tables and figures;
 //! [`per_step`] times SPARK and the Newton-LU peer per step at the paper's
@@ -71,6 +76,34 @@ impl Provider {
 /// steps ([`spark_runtime::integrate_adaptive`]); their
 /// [`Point::setting`] is `rtol = atol`, [`Point::steps`] the accepted steps.
 pub const SPARK_ADAPTIVE: &str = "SPARK adaptive (generated)";
+
+/// Solver label of the generated-code SPARK runs with the reversible
+/// step-size rule ([`spark_runtime::integrate_reversible`], symmetric
+/// methods, systems with a [`step_density`]); their [`Point::setting`] is the
+/// `rtol = atol` that fixes the scale `ε`, [`Point::steps`] the steps.
+pub const SPARK_REVERSIBLE: &str = "SPARK reversible adaptive (generated)";
+
+/// A step density `σ(q)` (steps per unit time, up to the scale `ε`) of the
+/// reversible runs.
+pub type DensityFn = dyn Fn(&[f64]) -> f64 + Send + Sync;
+
+/// An owned [`DensityFn`].
+pub type StepDensity = Box<DensityFn>;
+
+/// The step density of the reversible runs on `kind`, for the systems with
+/// a known local time scale: `orbit`'s Kepler time scale `r^{3/2}` gives
+/// `σ = (x² + y² + ε²)^{−3/4}` (even in `v`, as reversibility needs). The
+/// paper's systems have nearly constant time scales, on which the rule
+/// reduces to fixed steps; they have none.
+pub fn step_density(kind: SystemKind) -> Option<StepDensity> {
+    match kind {
+        SystemKind::Orbit => {
+            let softening = crate::systems::OrbitParticle::default().parameter_values()[1];
+            Some(Box::new(move |q: &[f64]| (q[0] * q[0] + q[1] * q[1] + softening * softening).powf(-0.75)))
+        }
+        _ => None,
+    }
+}
 
 /// One measured run.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -303,7 +336,8 @@ where
     let exact = reference::integrate(&sys, 0.0, &q0, &v0, cfg.final_time, &ReferenceOptions::default())
         .map_err(|source| WorkPrecisionError::Reference { system: key, source })?;
     let (q_ref, v_ref) = (exact.q[0], exact.v[0]);
-    let ctx = Ctx { cfg, key, q0, v0, q_ref, v_ref };
+    let density = step_density(entry.kind);
+    let ctx = Ctx { cfg, key, q0, v0, q_ref, v_ref, density: density.as_deref() };
     let mut points = Vec::new();
     let mut missing = Vec::new();
     for (method, s) in method_variants() {
@@ -392,35 +426,61 @@ fn peer_tableaux(cfg: &WorkPrecisionConfig) -> Result<Vec<TableauTable>, WorkPre
         .collect()
 }
 
+/// Whether the ψ-eliminated ODE of the ODE-solver peers (DOP853, Radau)
+/// describes `kind`: their right-hand side has no external or non-ideal
+/// force.
+fn has_ode_form(kind: SystemKind) -> bool {
+    struct OdeForm;
+    impl SystemVisitor for OdeForm {
+        type Output = bool;
+        fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+            self,
+            _: &'static SystemEntry,
+        ) -> bool {
+            !(Sys::HAS_FORCING || Sys::HAS_NONIDEAL_FORCE)
+        }
+    }
+    visit_system(kind, OdeForm)
+}
+
 /// Measures one system with every Rust solver and, when configured, the
-/// external peers.
+/// external peers (CasADi C on the paper's systems; SciPy's DOP853 and
+/// Radau on every system their ODE describes).
 pub fn measure(
     kind: SystemKind,
     cfg: &WorkPrecisionConfig,
     progress: &dyn Fn(&str),
 ) -> Result<SystemMeasurement, WorkPrecisionError> {
     // The paper's systems have num-dual twins and run the same-stepper
-    // peers; the others run SPARK and DOP853 only.
+    // peers; the others run SPARK, DOP853 and the SciPy solvers.
     let mut m = match visit_twin(kind, MeasureVisitor { cfg, progress }) {
         Ok(m) => m?,
         Err(visitor) => visit_system(kind, visitor)?,
     };
-    if !kind.entry().paper {
+    let paper = kind.entry().paper;
+    if !paper {
+        let key = kind.key();
+        if !has_ode_form(kind) {
+            m.missing.push(format!(
+                "CasADi C and SciPy: the CasADi C peers run only on the paper's systems (particle, skate, robot, \
+                 mp7), and SciPy's right-hand side has no external or non-ideal force; not run for `{key}`"
+            ));
+            return Ok(m);
+        }
         m.missing.push(format!(
-            "CasADi C and SciPy: the external peers exist only for the paper's systems (particle, skate, robot, \
-             mp7); not run for `{}`",
-            kind.key()
+            "CasADi C: the CasADi C peers run only on the paper's systems (particle, skate, robot, mp7); not run for \
+             `{key}`"
         ));
-        return Ok(m);
     }
+    let peers = if paper { "CasADi C and SciPy" } else { "SciPy" };
     match &cfg.python {
-        None => m.missing.push("CasADi C and SciPy: not run (no Python interpreter configured)".into()),
+        None => m.missing.push(format!("{peers}: not run (no Python interpreter configured)")),
         Some(python) => {
-            progress(&format!("{}: CasADi C and SciPy (external)", kind.key()));
-            let tableaux = peer_tableaux(cfg)?;
-            match external::run(python, &cfg.peers_script, &cfg.out, kind, &m, &tableaux, cfg) {
+            progress(&format!("{}: {peers} (external)", kind.key()));
+            let tableaux = if paper { peer_tableaux(cfg)? } else { Vec::new() };
+            match external::run(python, &cfg.peers_script, &cfg.out, kind, &m, &tableaux, cfg, paper) {
                 Ok(mut pts) => m.points.append(&mut pts),
-                Err(e) => m.missing.push(format!("CasADi C and SciPy: {e}")),
+                Err(e) => m.missing.push(format!("{peers}: {e}")),
             }
         }
     }

@@ -1,7 +1,9 @@
 //! Work-precision output: the points as CSV, the "cheapest method per target
 //! error" and peer-ratio tables as Markdown, and the figures.
 
-use super::{Point, Provider, SystemMeasurement, WorkPrecisionConfig, WorkPrecisionError};
+use super::{
+    Point, Provider, SystemMeasurement, WorkPrecisionConfig, WorkPrecisionError, SPARK_ADAPTIVE, SPARK_REVERSIBLE,
+};
 use crate::report::files::OutputDir;
 use crate::report::format::duration;
 use crate::report::plot::{Figure, Panel, Scale, Series};
@@ -18,6 +20,9 @@ pub const CASADI_C: [&str; 2] = [super::external::CASADI_NEWTON_QR, super::exter
 /// The peers compared per step, at the same method and step count.
 const PER_STEP_PEERS: [&str; 4] =
     [Provider::NumDual.label(), Provider::FiniteDifference.label(), CASADI_C[0], CASADI_C[1]];
+/// The SPARK step-size strategies of the adaptive figure and table: fixed
+/// steps, error-controlled steps, the reversible rule.
+pub const SPARK_STRATEGIES: [&str; 3] = [SPARK, SPARK_ADAPTIVE, SPARK_REVERSIBLE];
 /// Solver label of SciPy `solve_ivp`.
 pub const SCIPY: &str = "SciPy solve_ivp";
 /// Solver label of `ode_solvers`.
@@ -128,7 +133,7 @@ pub fn cheapest_table(m: &SystemMeasurement, targets: &[f64]) -> String {
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
     for &t in targets {
         let spark = cheapest(&all, t, |x| x == SPARK);
-        let peer = cheapest(&all, t, |x| x != SPARK);
+        let peer = cheapest(&all, t, |x| !SPARK_STRATEGIES.contains(&x));
         let (sm, st, ss, sps) = match spark {
             Some((p, time)) => {
                 let steps = steps_at(&all[&(p.solver.clone(), p.method.clone())], t);
@@ -148,6 +153,67 @@ pub fn cheapest_table(m: &SystemMeasurement, targets: &[f64]) -> String {
         let _ = writeln!(s, "| {t:.0e} | {sm} | {ss} | {st} | {sps} | {pm} | {pt} | {ratio} |");
     }
     s
+}
+
+/// The "fixed against adaptive steps" table of one system (Markdown): at
+/// each target error the cheapest SPARK method of each step-size strategy,
+/// its time, and the time of the cheapest fixed-step method divided by it
+/// (above 1: the strategy reaches the error at lower cost), next to the ODE
+/// solvers.
+pub fn strategy_table(m: &SystemMeasurement, targets: &[f64]) -> String {
+    let all = curves(&m.points);
+    let mut s = String::new();
+    let head: Vec<String> = targets.iter().map(|t| format!("{t:.0e}")).collect();
+    let _ = writeln!(s, "| step sizes (cheapest method) | {} |", head.join(" | "));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(targets.len()));
+    let fixed: Vec<Option<f64>> = targets.iter().map(|&t| cheapest(&all, t, |x| x == SPARK).map(|c| c.1)).collect();
+    let mut row = |name: &str, filter: &dyn Fn(&str) -> bool| {
+        let cells: Vec<String> = targets
+            .iter()
+            .zip(&fixed)
+            .map(|(&t, best_fixed)| match cheapest(&all, t, filter) {
+                None => "not reached".into(),
+                Some((p, time)) => {
+                    let ratio = best_fixed.map_or("–".into(), |f| times(f / time));
+                    format!("{}, {}, fixed / this {ratio}", p.method, duration(time))
+                }
+            })
+            .collect();
+        let _ = writeln!(s, "| {name} | {} |", cells.join(" | "));
+    };
+    for solver in SPARK_STRATEGIES {
+        if all.keys().any(|(x, _)| x == solver) {
+            row(&format!("SPARK {}", strategy(solver)), &|x: &str| x == solver);
+        }
+    }
+    for solver in [ODE_SOLVERS, SCIPY] {
+        let methods: Vec<&String> = all.keys().filter(|(x, _)| x == solver).map(|(_, me)| me).collect();
+        for method in methods {
+            let name = format!("{solver}: {method}");
+            let cells: Vec<String> = targets
+                .iter()
+                .zip(&fixed)
+                .map(|(&t, best_fixed)| match time_to_reach(&all[&(solver.to_string(), method.clone())], t) {
+                    None => "not reached".into(),
+                    Some(time) => {
+                        let ratio = best_fixed.map_or("–".into(), |f| times(f / time));
+                        format!("{}, fixed / this {ratio}", duration(time))
+                    }
+                })
+                .collect();
+            let _ = writeln!(s, "| {name} | {} |", cells.join(" | "));
+        }
+    }
+    s
+}
+
+/// A time ratio: one decimal, or two significant digits below 0.1.
+fn times(x: f64) -> String {
+    if x >= 0.1 {
+        format!("{x:.1}×")
+    } else {
+        format!("{x:.1e}×")
+    }
 }
 
 /// The ratio tables of one system (Markdown).
@@ -236,16 +302,7 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
         }
     }
     // The lower envelope of all SPARK methods against the ODE solvers.
-    let mut envelope: Vec<(f64, f64)> =
-        m.points.iter().filter(|p| p.solver == SPARK && p.error() > 0.0).map(|p| (p.time(), p.error())).collect();
-    envelope.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut best = f64::INFINITY;
-    envelope.retain(|&(_, e)| {
-        let keep = e < best;
-        best = best.min(e);
-        keep
-    });
-    let mut series = vec![Series::new("SPARK, best method at each cost", envelope)];
+    let mut series = vec![Series::new("SPARK, best method at each cost", envelope(&m.points, SPARK))];
     for ((solver, method), c) in &all {
         if *solver == *SCIPY || *solver == *ODE_SOLVERS {
             series.push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.time(), p.error())).collect()));
@@ -269,8 +326,36 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     }
 }
 
-/// Fixed against tolerance-driven steps of the same method (the peer
-/// methods), next to DOP853 and SciPy's solvers on the ψ-eliminated ODE.
+/// The lower envelope `(time, error)` of every curve of `solver`: the
+/// smallest error reached at each cost, by any method.
+pub fn envelope(points: &[Point], solver: &str) -> Vec<(f64, f64)> {
+    let mut env: Vec<(f64, f64)> =
+        points.iter().filter(|p| p.solver == solver && p.error() > 0.0).map(|p| (p.time(), p.error())).collect();
+    env.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut best = f64::INFINITY;
+    env.retain(|&(_, e)| {
+        let keep = e < best;
+        best = best.min(e);
+        keep
+    });
+    env
+}
+
+/// The series label of a SPARK step-size strategy in the adaptive figure.
+fn strategy(solver: &str) -> &'static str {
+    if solver == SPARK_ADAPTIVE {
+        "adaptive (rtol = atol)"
+    } else if solver == SPARK_REVERSIBLE {
+        "reversible adaptive"
+    } else {
+        "fixed steps"
+    }
+}
+
+/// Fixed against tolerance-driven and reversible steps of the same method
+/// (the peer methods), next to DOP853 and SciPy's solvers on the
+/// ψ-eliminated ODE; the last panel puts the best SPARK method at each cost
+/// of each step-size strategy against those solvers.
 fn adaptive_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
     let all = curves(&m.points);
     let mut panels = Vec::new();
@@ -278,11 +363,8 @@ fn adaptive_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
         let label = method.label(s);
         let mut series: Vec<Series> = all
             .iter()
-            .filter(|((solver, me), _)| *me == label && (solver == SPARK || solver == super::SPARK_ADAPTIVE))
-            .map(|((solver, _), c)| {
-                let name = if solver == SPARK { "fixed steps" } else { "adaptive (rtol = atol)" };
-                Series::new(name, c.iter().map(|p| (p.time(), p.error())).collect())
-            })
+            .filter(|((solver, me), _)| *me == label && SPARK_STRATEGIES.contains(&solver.as_str()))
+            .map(|((solver, _), c)| Series::new(strategy(solver), c.iter().map(|p| (p.time(), p.error())).collect()))
             .collect();
         for ((solver, me), c) in &all {
             if *solver == *SCIPY || *solver == *ODE_SOLVERS {
@@ -299,6 +381,26 @@ fn adaptive_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
                 series,
             });
         }
+    }
+    let mut series: Vec<Series> = SPARK_STRATEGIES
+        .iter()
+        .map(|&solver| Series::new(format!("SPARK {}, best method", strategy(solver)), envelope(&m.points, solver)))
+        .filter(|s| !s.points.is_empty())
+        .collect();
+    for ((solver, me), c) in &all {
+        if *solver == *SCIPY || *solver == *ODE_SOLVERS {
+            series.push(Series::new(format!("{solver}: {me}"), c.iter().map(|p| (p.time(), p.error())).collect()));
+        }
+    }
+    if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
+        panels.push(Panel {
+            title: "best method at each cost, per step-size strategy".into(),
+            x_label: "time per run [s] (thread CPU)".into(),
+            y_label: "global error in q, v at T".into(),
+            x_scale: Scale::Log,
+            y_scale: Scale::Log,
+            series,
+        });
     }
     Figure {
         title: format!("{}: fixed vs adaptive steps, T = {}", m.problem.system, m.problem.final_time),
@@ -355,6 +457,11 @@ pub fn system_markdown(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Stri
          ![fixed vs adaptive steps]({key}-adaptive.png)\n"
     );
     let _ = writeln!(s, "{}", cheapest_table(m, &cfg.targets));
+    let _ = writeln!(
+        s,
+        "Fixed against adaptive steps: time to reach each target error (log–log interpolated along each curve)\n"
+    );
+    let _ = writeln!(s, "{}", strategy_table(m, &cfg.targets));
     let _ = writeln!(s, "{}", ratio_tables(m, &cfg.targets));
     for miss in &m.missing {
         let _ = writeln!(s, "- not measured: {miss}");

@@ -3,15 +3,16 @@
 //! stepper with num-dual and finite-difference derivatives, and DOP853, each
 //! point timed by the median of repeats on the thread-CPU clock.
 
-use super::{Point, Provider, WorkPrecisionConfig, WorkPrecisionError, SPARK_ADAPTIVE};
+use super::{Point, Provider, WorkPrecisionConfig, WorkPrecisionError, SPARK_ADAPTIVE, SPARK_REVERSIBLE};
 use crate::catalog::{Dispatch, StageVisitor};
 use crate::peers::dual::{AutoDiff, DualTwin};
 use crate::peers::finite_difference::FiniteDifference;
 use crate::peers::ode;
 use crate::report::clock::median_time;
 use spark_runtime::{
-    integrate_adaptive, AdaptiveOptions, Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions,
-    Schedule, State, Stepper, Tableau, Vector,
+    adaptive::is_symmetric, integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveRun,
+    Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau,
+    Vector,
 };
 use std::marker::PhantomData;
 
@@ -27,6 +28,8 @@ pub(super) struct Ctx<'a, const N: usize> {
     pub(super) v0: Vector<N>,
     pub(super) q_ref: Vector<N>,
     pub(super) v_ref: Vector<N>,
+    /// The step density of the reversible runs ([`super::step_density`]).
+    pub(super) density: Option<&'a super::DensityFn>,
 }
 
 /// Run options of a timed run: no observation, nothing recorded.
@@ -155,6 +158,9 @@ where
         }
     }
     sweep_adaptive(ctx, &mut stepper, &probe, &label, points);
+    if let Some(density) = ctx.density.filter(|_| is_symmetric(method)) {
+        sweep_reversible(ctx, &mut stepper, &probe, &label, density, points);
+    }
     Ok(used)
 }
 
@@ -171,6 +177,64 @@ pub(super) fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize
     Sys: NonholonomicSystem<N, M>,
 {
     let t1 = ctx.cfg.final_time;
+    let (q0, v0) = (ctx.q0, ctx.v0);
+    sweep_tolerances(ctx, stepper, probe, label, SPARK_ADAPTIVE, points, |stepper, options, mut observer| {
+        integrate_adaptive(stepper, 0.0, &q0, &v0, t1, options, &mut observer)
+    });
+}
+
+/// Sweeps the reversible step-size rule over the configured tolerances (the
+/// tolerance fixes the scale `ε` at the initial state), like
+/// [`sweep_adaptive`]. Steps are bounded by the fixed-step sweep's largest,
+/// `T/n₀`: the scale is calibrated at the initial state only, and a loose
+/// tolerance there can ask for a step the rest of the run cannot take.
+pub(super) fn sweep_reversible<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    ctx: &Ctx<'_, N>,
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    probe: &Sys,
+    label: &str,
+    density: &super::DensityFn,
+    points: &mut Vec<Point>,
+) where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let t1 = ctx.cfg.final_time;
+    let (q0, v0) = (ctx.q0, ctx.v0);
+    let sigma = |_: f64, q: &Vector<N>, _: &Vector<N>| density(q.as_slice());
+    let max_step = t1 / ctx.cfg.min_steps.max(1) as f64;
+    sweep_tolerances(ctx, stepper, probe, label, SPARK_REVERSIBLE, points, |stepper, options, mut observer| {
+        let options = AdaptiveOptions { max_step: Some(max_step), ..*options };
+        integrate_reversible(stepper, 0.0, &q0, &v0, t1, sigma, &options, &mut observer)
+    });
+}
+
+/// One observer type for the measured and the timed runs of
+/// [`sweep_tolerances`]: the largest energy error, or nothing.
+type EnergyObserver<'o, const N: usize> = &'o mut dyn FnMut(&State<N>, usize);
+
+/// Runs `drive` (one tolerance-driven integration over `[0, T]`) at each
+/// configured tolerance: once observing the energy (the point's errors),
+/// then timed unobserved; stops at the error floor, the run-time limit, or
+/// the first tolerance the driver cannot meet within the fixed-step sweep's
+/// step budget (every tighter one needs more steps). A run that fails
+/// otherwise (a Newton failure, a step below the smallest allowed) skips its
+/// tolerance only.
+#[allow(clippy::too_many_arguments)]
+fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    ctx: &Ctx<'_, N>,
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    probe: &Sys,
+    label: &str,
+    solver: &str,
+    points: &mut Vec<Point>,
+    drive: impl Fn(
+        &mut Stepper<Sys, N, M, S, D>,
+        &AdaptiveOptions,
+        EnergyObserver<'_, N>,
+    ) -> Result<AdaptiveRun<N, M>, AdaptiveError>,
+) where
+    Sys: NonholonomicSystem<N, M>,
+{
     let e0 = probe.energy(0.0, &ctx.q0, &ctx.v0);
     let quiet = AdaptiveOptions {
         observe: Observe { energy: false, constraint_residual: false, multipliers: false },
@@ -178,26 +242,28 @@ pub(super) fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize
         ..AdaptiveOptions::default()
     };
     for &tol in &ctx.cfg.tolerances {
-        let options = AdaptiveOptions { rtol: tol, atol: tol, ..quiet };
+        // The step budget of the fixed-step sweep; a tolerance that needs
+        // more, and every tighter one, is not measured.
+        let options = AdaptiveOptions { rtol: tol, atol: tol, max_steps: ctx.cfg.max_steps.max(1), ..quiet };
         let mut max_e: f64 = 0.0;
         let mut observer = |s: &State<N>, _: usize| {
             max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
         };
-        // The step budget of the fixed-step sweep (three solves per attempt);
-        // a tolerance that needs more, and every tighter one, is not measured.
-        let options = AdaptiveOptions { max_steps: ctx.cfg.max_steps.max(1), ..options };
-        let Ok(run) = integrate_adaptive(stepper, 0.0, &ctx.q0, &ctx.v0, t1, &options, &mut observer) else { break };
+        let run = match drive(stepper, &options, &mut observer) {
+            Ok(run) => run,
+            Err(AdaptiveError::TooManySteps { .. }) => break,
+            Err(_) => continue,
+        };
         let Some(end) = run.trajectory.last() else { continue };
         let (eq, ev) = errors(&end.q, &end.v, &ctx.q_ref, &ctx.v_ref);
         if !(eq.is_finite() && ev.is_finite()) {
             continue;
         }
         let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-            integrate_adaptive(stepper, 0.0, &ctx.q0, &ctx.v0, t1, &options, &mut NoObserver).is_ok()
+            drive(stepper, &options, &mut |_: &State<N>, _: usize| {}).is_ok()
         }) else {
             continue;
         };
-        let steps = run.report.accepted;
         let m = Measured {
             error_q: eq,
             error_v: ev,
@@ -207,7 +273,7 @@ pub(super) fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize
             cpu,
             repeats,
         };
-        let mut p = point(ctx, SPARK_ADAPTIVE, label, S, steps, m);
+        let mut p = point(ctx, solver, label, S, run.report.accepted, m);
         p.setting = tol;
         let stop = p.error() < ctx.cfg.floor_error || p.time() > ctx.cfg.max_run_time.as_secs_f64();
         points.push(p);
