@@ -13,3 +13,4 @@ mod scene_effects;
 mod section;
 mod systems;
 mod work_precision;
+mod work_precision_strategies;
