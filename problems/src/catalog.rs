@@ -138,8 +138,9 @@ pub struct SystemEntry {
     pub parameter_names: &'static [&'static str],
     /// Operation counts of the generated code (zeros for hand-written types).
     pub operations: OperationCounts,
-    /// One of the paper's §8 systems (they have the CasADi C, SciPy and
-    /// num-dual peers).
+    /// One of the paper's §8 systems (they have the CasADi C and num-dual
+    /// peers; SciPy's run on every system without external or non-ideal
+    /// forces).
     pub paper: bool,
     /// Default initial time.
     pub t0: f64,

@@ -282,20 +282,12 @@ where
                 // ‖Δz₁‖/‖Δz₀‖² predicts whether the test can pass (see
                 // `worth_testing`); later updates are always tested.
                 let c = if k == 1 { self.quadratic } else { f64::NAN };
-                if !simplified && k > 0 && worth_testing(c, prev_update, opts.tolerance) {
-                    // Full Newton: the residual at the new iterate, solved with
-                    // the factors of the previous one, is a simplified Newton
-                    // update; within the tolerance it ends the solve before a
-                    // new Jacobian is evaluated and factored (see "Stopping").
-                    let (mut g, residual) = self.iteration_residual(state, carry, &p0, h, z, false)?;
-                    self.newton.solve_in_place(&mut g);
-                    let next = *z - g;
-                    let update = scaled_update_norm(&g, &next);
-                    if full_newton_accepts_residual(update, prev_update, opts.tolerance) {
-                        *z = next;
-                        self.history.push(IterationRecord { residual, update, rate: update / prev_update });
-                        break 'solve Ok(());
-                    }
+                if !simplified
+                    && k > 0
+                    && worth_testing(c, prev_update, opts.tolerance)
+                    && self.accepts_on_residual(state, carry, &p0, h, z, prev_update)?
+                {
+                    break 'solve Ok(());
                 }
                 let fresh = refresh || !simplified;
                 if refresh && k > 0 {
@@ -403,14 +395,49 @@ where
             }
             Err(StepError::MaxIterations { t, h, history: Box::new(self.history) })
         };
-        if result.is_ok() && simplified && max_rate <= REUSE_RATE {
+        if result.is_ok() {
+            self.remember_solve(simplified && max_rate <= REUSE_RATE, h, decoupled);
+        }
+        result.map(|()| factorizations)
+    }
+
+    /// Full Newton's acceptance before a new Jacobian: the residual at the
+    /// new iterate `z`, solved with the factors of the previous one, is a
+    /// simplified Newton update; when it is within the tolerance it is
+    /// applied and ends the solve before a new Jacobian is evaluated and
+    /// factored (see "Stopping"). Returns whether it did.
+    fn accepts_on_residual(
+        &mut self,
+        state: &State<N>,
+        carry: &Vector<N>,
+        p0: &Vector<N>,
+        h: f64,
+        z: &mut Vector<D>,
+        prev_update: f64,
+    ) -> Result<bool, StepError> {
+        let (mut g, residual) = self.iteration_residual(state, carry, p0, h, z, false)?;
+        self.newton.solve_in_place(&mut g);
+        let next = *z - g;
+        let update = scaled_update_norm(&g, &next);
+        if !full_newton_accepts_residual(update, prev_update, self.options.tolerance) {
+            return Ok(false);
+        }
+        *z = next;
+        self.history.push(IterationRecord { residual, update, rate: update / prev_update });
+        Ok(true)
+    }
+
+    /// What a converged solve leaves for the next step: simplified Newton's
+    /// factors when they contracted fast enough to reuse (`reuse`), and full
+    /// Newton's quadratic constant `‖Δz₁‖/‖Δz₀‖²` (see `worth_testing`).
+    fn remember_solve(&mut self, reuse: bool, h: f64, decoupled: bool) {
+        if reuse {
             self.reusable = Some((h, decoupled));
         }
-        if result.is_ok() && !simplified && self.history.len() >= 2 {
+        if self.options.mode == NewtonMode::Full && self.history.len() >= 2 {
             let r = self.history.iterations();
             self.quadratic = r[1].update / (r[0].update * r[0].update);
         }
-        result.map(|()| factorizations)
     }
 }
 

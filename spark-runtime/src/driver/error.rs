@@ -1,0 +1,71 @@
+//! Why a run failed: [`IntegrationError`] and the detail of a rejection
+//! that reached its floor.
+
+use super::RunReport;
+use crate::error::{OptionError, Sci, StepError};
+
+/// An integration run failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum IntegrationError {
+    /// The schedule is unusable.
+    #[error("invalid schedule: {0}")]
+    InvalidSchedule(&'static str),
+    /// A run or Newton option is out of range (checked before any step).
+    #[error("{0}")]
+    InvalidOption(OptionError),
+    /// The initial state was rejected or could not be projected.
+    #[error("initial state: {0}")]
+    Initial(#[source] StepError),
+    /// A step failed (after any retries).
+    #[error("step {index} from t = {} failed: {source}", Sci(*t))]
+    Step {
+        /// Index of the failed step (0-based).
+        index: usize,
+        /// Its start time.
+        t: f64,
+        /// Why.
+        source: StepError,
+        /// The trajectory up to the failure.
+        partial: Box<RunReport>,
+    },
+    /// Under [`FailurePolicy::Reject`], Newton kept failing down to the
+    /// smallest sub-step allowed.
+    #[error(
+        "step {index} from t = {} (h = {}) still fails at t = {} with sub-step {} at the floor {} \
+         after {} rejections; last failure: {}",
+        Sci(*t),
+        Sci(detail.h),
+        Sci(detail.substep_t),
+        Sci(detail.h_tried),
+        Sci(detail.floor),
+        detail.rejections,
+        detail.last
+    )]
+    Floor {
+        /// Index of the failed step (0-based).
+        index: usize,
+        /// Its start time.
+        t: f64,
+        /// Where and how the rejections ended.
+        detail: Box<RejectionFloor>,
+        /// The run statistics up to the failure.
+        partial: Box<RunReport>,
+    },
+}
+
+/// How a step under [`FailurePolicy::Reject`] reached the floor.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RejectionFloor {
+    /// The step size.
+    pub h: f64,
+    /// Where the failing sub-step starts.
+    pub substep_t: f64,
+    /// The last sub-step size tried.
+    pub h_tried: f64,
+    /// The floor (see [`RejectionPolicy::floor`]).
+    pub floor: f64,
+    /// Rejections within the step.
+    pub rejections: usize,
+    /// The last Newton failure.
+    pub last: StepError,
+}

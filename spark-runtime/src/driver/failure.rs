@@ -1,0 +1,235 @@
+//! What the driver does when a step's Newton iteration fails: the halving
+//! of [`FailurePolicy::Halve`](super::FailurePolicy::Halve) and the
+//! rejection with an adapted sub-step of
+//! [`FailurePolicy::Reject`](super::FailurePolicy::Reject).
+
+use super::*;
+use crate::error::StepError;
+use crate::rejection::RejectionPolicy;
+use crate::step::{State, StepResult, Stepper};
+use crate::system::NonholonomicSystem;
+
+/// Why one scheduled step failed (see `Stepper::robust_step` and
+/// `Stepper::rejecting_step`).
+pub(crate) enum StepFailure {
+    /// A failure no smaller step cures, or the last one once halving stops.
+    Step(StepError),
+    /// Rejections reached the floor of the [`RejectionPolicy`].
+    Floor {
+        /// Where the failing sub-step starts.
+        substep_t: f64,
+        /// The last sub-step size tried.
+        h_tried: f64,
+        /// The floor.
+        floor: f64,
+        /// Rejections within the step.
+        rejections: usize,
+        /// The last Newton failure.
+        last: StepError,
+    },
+}
+
+impl StepFailure {
+    /// The run error of step `index` of size `h` from `t`.
+    pub(super) fn into_error(self, index: usize, t: f64, h: f64, partial: RunReport) -> IntegrationError {
+        let partial = Box::new(partial);
+        match self {
+            StepFailure::Step(source) => IntegrationError::Step { index, t, source, partial },
+            StepFailure::Floor { substep_t, h_tried, floor, rejections, last } => IntegrationError::Floor {
+                index,
+                t,
+                detail: Box::new(RejectionFloor { h, substep_t, h_tried, floor, rejections, last }),
+                partial,
+            },
+        }
+    }
+}
+
+/// The outcome of one scheduled step (see `Stepper::robust_step`).
+pub(crate) struct StepCounts<const N: usize> {
+    /// The state at the end of the step (its time not yet pinned).
+    pub(crate) state: State<N>,
+    /// Newton iterations over the accepted (sub-)steps.
+    pub(crate) iterations: usize,
+    /// Failures each followed by smaller sub-steps.
+    pub(crate) rejected: usize,
+    /// Accepted sub-steps.
+    pub(crate) substeps: usize,
+    /// Smallest magnitude of an accepted sub-step (0 before the first).
+    pub(crate) smallest: f64,
+    /// Retries from the cold guess.
+    pub(crate) cold_retries: usize,
+    /// The per-sub-step callback asked to stop (a terminal event).
+    pub(crate) stopped: bool,
+}
+
+impl<const N: usize> StepCounts<N> {
+    /// Nothing taken yet from `state`.
+    pub(crate) fn start(state: &State<N>) -> Self {
+        StepCounts {
+            state: *state,
+            iterations: 0,
+            rejected: 0,
+            substeps: 0,
+            smallest: 0.0,
+            cold_retries: 0,
+            stopped: false,
+        }
+    }
+
+    /// Counts an accepted sub-step of size `h` ending at `end`.
+    fn accept(&mut self, end: State<N>, iterations: usize, h: f64) {
+        self.state = end;
+        self.iterations += iterations;
+        self.substeps += 1;
+        if self.smallest == 0.0 || h.abs() < self.smallest {
+            self.smallest = h.abs();
+        }
+    }
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// One step of size `h` from `state`. A warm-started attempt that fails
+    /// is retried once from the cold guess; a sub-step that still fails is
+    /// replaced by two half steps, at most `max_halvings` levels deep and
+    /// only while half of it still changes `t`. Iterative, with the pending
+    /// sub-steps in a fixed array: no recursion, no heap.
+    ///
+    /// `on_step(system, start, end, h, result)` sees every accepted
+    /// sub-step (the last one with its end time pinned to `t_target`); when
+    /// it returns `true` the step stops there.
+    pub(super) fn robust_step<F>(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        max_halvings: u32,
+        on_step: &mut F,
+    ) -> Result<StepCounts<N>, StepFailure>
+    where
+        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+    {
+        let max_halvings = max_halvings.min(MAX_HALVINGS);
+        // Sub-steps still to take, the next one last, with their halving
+        // level. A failure replaces its entry by its two halves one level
+        // deeper, so the levels increase strictly up the array but for a
+        // pair at the top: `MAX_HALVINGS + 1` entries suffice.
+        let mut pending = [(0.0f64, 0u32); MAX_HALVINGS as usize + 1];
+        pending[0] = (h, 0);
+        let mut len = 1;
+        let mut out = StepCounts::start(state);
+        while len > 0 {
+            let (sub, level) = pending[len - 1];
+            let warm = self.is_warm_for(&out.state);
+            let result = match self.step(&out.state, sub) {
+                Err(e) if warm && e.is_curable() => {
+                    out.cold_retries += 1;
+                    self.reset_warm_start();
+                    self.step(&out.state, sub)
+                }
+                other => other,
+            };
+            match result {
+                Ok(r) => {
+                    len -= 1;
+                    let mut end = r.state;
+                    if len == 0 {
+                        end.t = t_target;
+                    }
+                    let stop = on_step(self.system(), &out.state, &end, sub, &r);
+                    out.accept(r.state, r.iterations, sub);
+                    if stop {
+                        out.stopped = true;
+                        return Ok(out);
+                    }
+                }
+                Err(e) if !e.is_curable() || level >= max_halvings => return Err(StepFailure::Step(e)),
+                Err(e) => {
+                    let half = 0.5 * sub;
+                    if out.state.t + half == out.state.t {
+                        return Err(StepFailure::Step(e));
+                    }
+                    out.rejected += 1;
+                    self.reset_warm_start();
+                    pending[len - 1] = (sub - half, level + 1);
+                    pending[len] = (half, level + 1);
+                    len += 1;
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// One step of size `h` from `state` under [`FailurePolicy::Reject`]:
+    /// tries `h`; on a Newton failure covers `[t₀, t₀ + h]` with sub-steps
+    /// that halve after each failure (the halved one started cold) and
+    /// double back after `regrow_after` accepted ones, never below
+    /// [`RejectionPolicy::floor`]. `on_step` as in `robust_step`.
+    pub(crate) fn rejecting_step<F>(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        policy: &RejectionPolicy,
+        on_step: &mut F,
+    ) -> Result<StepCounts<N>, StepFailure>
+    where
+        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+    {
+        let t_end = state.t + h;
+        let floor = policy.floor(h);
+        let mut out = StepCounts::start(state);
+        let mut sub = h;
+        let mut successes = 0usize;
+        // Sub-steps end within a few ulps of t_end; what is left below that
+        // is rounding of the accumulated times, not a step to take.
+        let slack = 8.0 * f64::EPSILON * t_end.abs().max(h.abs());
+        loop {
+            let remaining = t_end - out.state.t;
+            if out.substeps > 0 && remaining * h.signum() <= slack {
+                break;
+            }
+            let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
+            match self.step(&out.state, this) {
+                Ok(r) => {
+                    let mut end = r.state;
+                    if (t_end - r.state.t) * h.signum() <= slack {
+                        end.t = t_target;
+                    }
+                    let stop = on_step(self.system(), &out.state, &end, this, &r);
+                    out.accept(r.state, r.iterations, this);
+                    if stop {
+                        out.stopped = true;
+                        return Ok(out);
+                    }
+                    successes += 1;
+                    if successes >= policy.regrow_after && sub.abs() < h.abs() {
+                        sub = (2.0 * sub).clamp(-h.abs(), h.abs());
+                        successes = 0;
+                    }
+                }
+                Err(e) if !e.is_curable() => return Err(StepFailure::Step(e)),
+                Err(e) => {
+                    out.rejected += 1;
+                    successes = 0;
+                    self.reset_warm_start();
+                    let next = 0.5 * this;
+                    if next.abs() < floor {
+                        return Err(StepFailure::Floor {
+                            substep_t: out.state.t,
+                            h_tried: this,
+                            floor,
+                            rejections: out.rejected,
+                            last: e,
+                        });
+                    }
+                    sub = next;
+                }
+            }
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,489 @@
+//! The integration driver: fixed steps or a list of output times (any sign,
+//! any spacing), observers (energy, constraint residual, multipliers, or a
+//! user callback), a serializable [`Trajectory`] and a per-run [`RunReport`].
+//!
+//! - [`trajectory`]: what a run returns ([`Sample`], [`RunReport`],
+//!   [`Trajectory`]);
+//! - [`observer`]: what sees every accepted step ([`Observer`]);
+//! - [`failure`]: what happens when a step's Newton fails
+//!   ([`FailurePolicy`]: halving, or rejection with an adapted sub-step);
+//! - [`error`]: why a run failed ([`IntegrationError`]).
+
+mod error;
+mod failure;
+mod observer;
+mod trajectory;
+
+pub use error::{IntegrationError, RejectionFloor};
+pub(crate) use failure::{StepCounts, StepFailure};
+pub use observer::{NoObserver, Observer};
+pub(crate) use trajectory::{sample_of, sample_storage};
+pub use trajectory::{RunReport, Sample, Trajectory};
+
+use crate::dense::{DenseBasis, DenseStep};
+use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
+use crate::initial::{consistent_velocity, ConsistencyPolicy};
+use crate::rejection::RejectionPolicy;
+use crate::step::{State, StepResult, Stepper};
+use crate::system::{NonholonomicSystem, Vector};
+
+/// Where to produce output.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Schedule<'a> {
+    /// `steps` steps of size `h` from `t₀` (negative `h` integrates backward).
+    Fixed {
+        /// Step size.
+        h: f64,
+        /// Number of steps.
+        steps: usize,
+    },
+    /// Step from `t₀` to each of these times in turn (each step is
+    /// `t_{k+1} − t_k`; any nonzero spacing and either direction).
+    Times(&'a [f64]),
+    /// Fixed steps of size `h` from `t₀` until the last of `times` is
+    /// reached, with samples at `times` taken from the dense output
+    /// ([`DenseStep`]): the step size never changes to land on an output
+    /// time. `times` are strictly monotone in the direction of `h`, the
+    /// first one not before `t₀`; the samples are the initial point and
+    /// these times (`record_every` does not apply). The last step may end
+    /// beyond the last time.
+    Sampled {
+        /// Step size.
+        h: f64,
+        /// Output times.
+        times: &'a [f64],
+    },
+    /// Steps of size `h` from `t₀` to `t_end`, the last one shortened to
+    /// land on `t_end` (`⌈(t_end − t₀)/h⌉` steps; `t_end` lies ahead of
+    /// `t₀` in the direction of `h`). Step `k` ends at `t₀ + (k+1)·h`.
+    Until {
+        /// Step size.
+        h: f64,
+        /// Final time.
+        t_end: f64,
+    },
+}
+
+impl Schedule<'_> {
+    /// Step `k` of `steps` from time `t`, for a run that starts at `t0`: its
+    /// size and the scheduled time it ends at.
+    fn step(&self, k: usize, steps: usize, t0: f64, t: f64) -> (f64, f64) {
+        match *self {
+            Schedule::Fixed { h, .. } | Schedule::Sampled { h, .. } => (h, t0 + (k + 1) as f64 * h),
+            Schedule::Times(ts) => (ts[k] - t, ts[k]),
+            Schedule::Until { h, t_end } => {
+                let target = if k + 1 == steps { t_end } else { t0 + (k + 1) as f64 * h };
+                (target - t, target)
+            }
+        }
+    }
+}
+
+/// Which quantities the driver records at each output point. The energy
+/// and the constraint residual, when observed, are also evaluated at every
+/// accepted step that is not recorded (one evaluation of `E` and one of `k`
+/// per step) for the extremes of [`RunReport`]; quantities not observed cost
+/// nothing.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Observe {
+    /// `E = ∇_v L · v − L`.
+    pub energy: bool,
+    /// `max_i |k_i(t, q, v)|`.
+    pub constraint_residual: bool,
+    /// The multiplier `ψ(t, q, v)` of the ψ-eliminated equations at the
+    /// numerical state (costs a stage Jacobian and a small saddle solve).
+    pub multipliers: bool,
+}
+
+impl Default for Observe {
+    fn default() -> Self {
+        Observe { energy: true, constraint_residual: true, multipliers: false }
+    }
+}
+
+/// Options of one integration run.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RunOptions {
+    /// What to record.
+    pub observe: Observe,
+    /// Record every `record_every`-th step (and always the first and last
+    /// point); `0` records only the endpoints.
+    pub record_every: usize,
+    /// How to treat an inconsistent initial velocity.
+    pub consistency: ConsistencyPolicy,
+    /// When a step fails (after its retry from the cold starting guess),
+    /// retry it as two half steps, nested at most this many times (each
+    /// halving counts as a rejected step); at most [`MAX_HALVINGS`]. Halving
+    /// also stops where half a step no longer changes `t`. A run that
+    /// succeeds without halving is bit-identical whatever this is: a
+    /// halving happens only where the run would otherwise fail. With
+    /// `max_halvings = 0` the run stops at the first step that fails.
+    /// Applies under [`FailurePolicy::Halve`].
+    pub max_halvings: u32,
+    /// What to do when a step fails.
+    #[serde(default)]
+    pub on_failure: FailurePolicy,
+}
+
+/// What the driver does when the Newton iteration of a step fails. Either
+/// way a failure that no smaller step can cure (a non-finite state, an
+/// inconsistent start, an invalid option) ends the run at once, and a run
+/// in which no step fails takes one sub-step per scheduled step under
+/// either policy.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum FailurePolicy {
+    /// Retry a warm-started step once from the cold starting guess (the
+    /// consistent acceleration), then replace a step that still fails by
+    /// two half steps, nested at most [`RunOptions::max_halvings`] levels
+    /// deep (`0`: stop the run at the failure).
+    #[default]
+    Halve,
+    /// Reject the failed (sub-)step and cover the rest of the scheduled
+    /// step with sub-steps whose size halves after each rejection and
+    /// doubles back after a run of accepted ones, never below the floor of
+    /// the [`RejectionPolicy`]; the next scheduled step starts again at its
+    /// own size. Giving up reports [`IntegrationError::Floor`].
+    Reject(RejectionPolicy),
+}
+
+/// Largest [`RunOptions::max_halvings`]: a step is cut to at most `2⁻⁶⁰` of
+/// its size (the same bound as [`RejectionPolicy`](crate::RejectionPolicy)).
+pub const MAX_HALVINGS: u32 = 60;
+
+/// The default [`RunOptions::max_halvings`]: a step that Newton cannot solve
+/// is covered by at most 16 sub-steps before the run reports the failure.
+/// Enough for the step sizes where a constraint nonlinear in `v` (the speed
+/// `|v| = c`) first defeats Newton, while a step size that is wrong for the
+/// problem is still reported after a bounded amount of work.
+pub const DEFAULT_MAX_HALVINGS: u32 = 4;
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            observe: Observe::default(),
+            record_every: 1,
+            consistency: ConsistencyPolicy::default(),
+            max_halvings: DEFAULT_MAX_HALVINGS,
+            on_failure: FailurePolicy::Halve,
+        }
+    }
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// Integrates from `(t₀, q₀, v₀)` over `schedule`, checking (or projecting)
+    /// the initial velocity first, recording samples per `options` and
+    /// calling `observer` after every accepted step. The events the system
+    /// declares ([`NonholonomicSystem::EVENTS`]) are located in every step
+    /// and reported in [`Trajectory::events`]; a terminal one ends the run
+    /// at its time (see [`events`](crate::events)).
+    ///
+    /// The run and Newton options are checked first
+    /// ([`RunOptions::validate`], [`NewtonOptions::validate`](crate::NewtonOptions::validate));
+    /// an out-of-range one is an [`IntegrationError::InvalidOption`]. Every
+    /// run starts afresh: nothing an earlier run left in this stepper (warm
+    /// start, energy anchor, round-off compensation) reaches it, so a reused
+    /// stepper returns bit for bit what a fresh one does. This is the one
+    /// loop that advances a run: a failed step is handled per
+    /// [`RunOptions::on_failure`] (by default retried once from the cold
+    /// starting guess when it was warm-started, then halved per
+    /// [`RunOptions::max_halvings`]); the error reports the last failure. Sample storage is reserved up to 1 MiB and grows as
+    /// samples arrive, so the step count alone never allocates.
+    pub fn integrate<O: Observer<N, M>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut O,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        if Sys::HAS_EVENTS {
+            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &SystemEvents::<M>)
+        } else {
+            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &NoEvents)
+        }
+    }
+
+    /// [`integrate`](Self::integrate) locating the events of `events`
+    /// instead of the system's own (e.g. [`RuntimeEvents`](crate::RuntimeEvents)
+    /// given at run time, or [`NoEvents`] to ignore the declared ones).
+    #[allow(clippy::too_many_arguments)]
+    pub fn integrate_with_events<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut O,
+        events: &E,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        options.validate().map_err(IntegrationError::InvalidOption)?;
+        self.options().validate().map_err(IntegrationError::InvalidOption)?;
+        let steps = match schedule {
+            Schedule::Fixed { h, steps } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
+                }
+                steps
+            }
+            Schedule::Times(ts) => {
+                if ts.iter().any(|t| !t.is_finite()) {
+                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
+                }
+                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| a == b) {
+                    return Err(IntegrationError::InvalidSchedule("consecutive output times must differ"));
+                }
+                ts.len()
+            }
+            Schedule::Sampled { h, times } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if times.iter().any(|t| !t.is_finite()) {
+                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
+                }
+                if times.first().is_some_and(|&t| (t - t0) * h < 0.0)
+                    || times.windows(2).any(|w| (w[1] - w[0]) * h <= 0.0)
+                {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "sampled output times must be strictly monotone in the direction of h, from t0 on",
+                    ));
+                }
+                let span = times.last().map_or(0.0, |&t| (t - t0) / h);
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the last time"));
+                }
+                span.ceil() as usize
+            }
+            Schedule::Until { h, t_end } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if !t_end.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
+                }
+                if (t_end - t0) * h.signum() < 0.0 {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "the final time lies behind the start in the direction of h",
+                    ));
+                }
+                let span = ((t_end - t0) / h).abs();
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the final time"));
+                }
+                span.ceil() as usize
+            }
+        };
+        let v0c =
+            consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
+        // A run depends on its inputs only: nothing of an earlier run (warm
+        // start, energy anchor, round-off carry) reaches its first step.
+        self.reset_run();
+        let accepted = match options.consistency {
+            ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
+        };
+        self.set_accepted_start_residual(accepted);
+        let result = self.run_steps(t0, q0, v0, v0c, steps, schedule, options, observer, events);
+        self.set_accepted_start_residual(0.0);
+        result
+    }
+
+    /// The stepping loop of [`Stepper::integrate`], from the checked initial
+    /// velocity `v0c`.
+    #[allow(clippy::too_many_arguments)]
+    fn run_steps<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        v0c: Vector<N>,
+        steps: usize,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut O,
+        events: &E,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
+        let every = options.record_every;
+        let sampled = match schedule {
+            Schedule::Sampled { times, .. } => Some(times),
+            _ => None,
+        };
+        let mut samples = sample_storage::<N, M>(sampled, steps, every);
+        let mut state = State { t: t0, q: *q0, v: v0c };
+        let first = self.sample(&state, &options.observe, 0);
+        let e0 = first.energy;
+        let track = |s: &Sample<N, M>, report: &mut RunReport| report.track(s, e0);
+        track(&first, &mut report);
+        samples.push(first);
+        // The report's extremes cover every accepted step, recorded or not:
+        // the energy and the residual (no multipliers) at the steps not
+        // recorded, only when the run observes them.
+        let per_step = options.observe.energy || options.observe.constraint_residual;
+        let per_step_observe = Observe { multipliers: false, ..options.observe };
+        // Dense output and events: nothing of this runs (the branches are on
+        // constants) for a system without events, an observer without dense
+        // output and a schedule that is not `Sampled`.
+        let specs = events.specs();
+        let dense = O::DENSE || !specs.is_empty() || sampled.is_some();
+        let basis = DenseBasis::new(self.tableau());
+        let mut located: Vec<EventRecord<N>> = Vec::new();
+        let mut crossings: Vec<Crossing> = Vec::with_capacity(specs.len());
+        let mut previous: Vec<f64> = specs
+            .iter()
+            .enumerate()
+            .map(|(i, _)| events.value(self.system(), i, state.t, &state.q, &state.v))
+            .collect();
+        let mut next_time = 0usize;
+        let mut terminal: Option<State<N>> = None;
+        for k in 0..steps {
+            let (h, t_target) = schedule.step(k, steps, t0, state.t);
+            let warm_before = self.is_warm_for(&state);
+            let step_iterations = &mut 0usize;
+            let mut on_step = |sys: &Sys, start: &State<N>, end: &State<N>, sub: f64, r: &StepResult<N, M, S>| {
+                if !dense {
+                    return false;
+                }
+                *step_iterations += r.iterations;
+                let piece = DenseStep::new(&basis, start, end, sub, r);
+                let mut stop_at = None;
+                if !specs.is_empty() {
+                    crossings.clear();
+                    find_crossings(events, sys, &piece, &mut previous, &mut crossings);
+                    for c in crossings.iter() {
+                        let at = piece.state_at(c.t);
+                        let spec = &specs[c.index];
+                        located.push(EventRecord {
+                            index: c.index,
+                            name: spec.name.to_string(),
+                            rising: c.rising,
+                            t: c.t,
+                            q: at.q,
+                            v: at.v,
+                            residual: events.value(sys, c.index, at.t, &at.q, &at.v),
+                            step: k,
+                        });
+                        if spec.terminal {
+                            stop_at = Some(at);
+                            break;
+                        }
+                    }
+                }
+                if O::DENSE {
+                    // A terminal event ends the run inside this step: the
+                    // observer sees the extension up to the event only.
+                    match stop_at {
+                        Some(at) => observer.observe_dense(&piece.until(at.t)),
+                        None => observer.observe_dense(&piece),
+                    }
+                }
+                if let Some(times) = sampled {
+                    let forward = sub > 0.0;
+                    let limit = stop_at.map_or(end.t, |s| s.t);
+                    while let Some(&t) = times.get(next_time) {
+                        if (forward && t > limit) || (!forward && t < limit) {
+                            break;
+                        }
+                        let s = sample_of(sys, &piece.state_at(t), &options.observe, *step_iterations);
+                        track(&s, &mut report);
+                        samples.push(s);
+                        next_time += 1;
+                    }
+                }
+                if stop_at.is_some() {
+                    terminal = stop_at;
+                    return true;
+                }
+                false
+            };
+            let counts = match options.on_failure {
+                FailurePolicy::Halve => self.robust_step(&state, h, t_target, options.max_halvings, &mut on_step),
+                FailurePolicy::Reject(policy) => self.rejecting_step(&state, h, t_target, &policy, &mut on_step),
+            }
+            .map_err(|failure| failure.into_error(k, state.t, h, report))?;
+            let (mut next, iters) = (counts.state, counts.iterations);
+            // Accumulating t0 + Σh drifts; pin t to the scheduled value.
+            next.t = t_target;
+            report.count(&counts, warm_before);
+            if let Some(at) = terminal {
+                observer.observe(self.system(), &at, iters);
+                report.terminal_event = located.last().map(|e| e.index);
+                if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
+                    let s = self.sample(&at, &options.observe, iters);
+                    track(&s, &mut report);
+                    samples.push(s);
+                }
+                state = at;
+                break;
+            }
+            observer.observe(self.system(), &next, iters);
+            let last = k + 1 == steps;
+            if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
+                let s = self.sample(&next, &options.observe, iters);
+                track(&s, &mut report);
+                samples.push(s);
+            } else if per_step {
+                track(&self.sample(&next, &per_step_observe, iters), &mut report);
+            }
+            state = next;
+            self.retarget_warm_start(&state);
+        }
+        let _ = state;
+        report.events = located.len();
+        if report.steps > 0 {
+            report.newton_iterations_mean = report.newton_iterations_total as f64 / report.steps as f64;
+        }
+        Ok(Trajectory::of::<Sys>(self.tableau().method, S, samples, report, located))
+    }
+}
+
+/// Appends the crossings of `piece` (each located, in time order) to
+/// `crossings`, updating each event's last value in `previous`.
+fn find_crossings<Sys, E, const N: usize, const S: usize>(
+    events: &E,
+    sys: &Sys,
+    piece: &DenseStep<'_, N, S>,
+    previous: &mut [f64],
+    crossings: &mut Vec<Crossing>,
+) where
+    E: EventFunctions<Sys, N> + ?Sized,
+{
+    let specs = events.specs();
+    let (ta, tb) = (piece.start.t, piece.end.t);
+    for (index, spec) in specs.iter().enumerate() {
+        let mut a = (ta, previous[index]);
+        for k in 1..=EVENT_SUBINTERVALS {
+            let (t, at) = if k == EVENT_SUBINTERVALS {
+                (tb, piece.end)
+            } else {
+                let t = ta + (tb - ta) * (k as f64 / EVENT_SUBINTERVALS as f64);
+                (t, piece.state_at(t))
+            };
+            let b = (t, events.value(sys, index, t, &at.q, &at.v));
+            let crossed = a.1 != 0.0 && (b.1 == 0.0 || (a.1 < 0.0) != (b.1 < 0.0)) && !b.1.is_nan();
+            let rising = a.1 < 0.0;
+            if crossed && spec.direction.accepts(rising) {
+                let t = locate(events, sys, index, piece, a, b);
+                crossings.push(Crossing { index, rising, t });
+            }
+            a = b;
+        }
+        previous[index] = a.1;
+    }
+    let forward = tb > ta;
+    crossings.sort_by(|x, y| {
+        let order = x.t.total_cmp(&y.t);
+        if forward {
+            order
+        } else {
+            order.reverse()
+        }
+    });
+}

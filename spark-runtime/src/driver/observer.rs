@@ -1,0 +1,47 @@
+//! What sees every accepted step: the [`Observer`] trait, the empty
+//! observer and closures as observers.
+
+use crate::dense::DenseStep;
+use crate::step::State;
+use crate::system::NonholonomicSystem;
+
+/// Receives every accepted step (not only recorded ones) together with the
+/// system being integrated, so that it can evaluate the system's own
+/// quantities (energy, constraints, holonomic drift) at each step.
+///
+/// A closure `FnMut(&State<N>, usize)` is an observer that ignores the
+/// system. An observer written as a type implements
+/// [`observe`](Self::observe) for every system of dimension `(N, M)`, which
+/// it sees through [`NonholonomicSystem`].
+pub trait Observer<const N: usize, const M: usize> {
+    /// The observer wants the continuous extension of every accepted
+    /// (sub-)step ([`observe_dense`](Self::observe_dense)). When `false`
+    /// (the default) the driver builds none for it.
+    const DENSE: bool = false;
+    /// Called after each accepted step with the system, the new state and
+    /// the Newton iteration count.
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, system: &Sys, state: &State<N>, iterations: usize);
+    /// Called with the continuous extension of each accepted (sub-)step,
+    /// before [`observe`](Self::observe), when [`DENSE`](Self::DENSE) is
+    /// true: sample it anywhere in the step with [`DenseStep::state_at`].
+    /// When a terminal event ends the run inside a step, the extension
+    /// covers the step up to the event only ([`DenseStep::end`] is the state
+    /// at the event).
+    fn observe_dense<const S: usize>(&mut self, step: &DenseStep<'_, N, S>) {
+        let _ = step;
+    }
+}
+
+/// An observer that does nothing.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoObserver;
+
+impl<const N: usize, const M: usize> Observer<N, M> for NoObserver {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, _: &State<N>, _: usize) {}
+}
+
+impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> for F {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, state: &State<N>, iterations: usize) {
+        self(state, iterations)
+    }
+}
