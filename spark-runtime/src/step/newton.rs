@@ -327,16 +327,11 @@ where
                     max_rate = max_rate.max(rate);
                 }
                 if let Some(z_before) = z_before {
-                    // Factors from an earlier iterate (this step's frozen
-                    // Jacobian, or an earlier step's) that grow, contract slower
-                    // than REFRESH_RATE, or too slowly to reach the tolerance
-                    // within the iteration limit: take a fresh Jacobian at the
-                    // last good iterate (the standard remedy of simplified
-                    // Newton) instead of crawling into MaxIterations or reporting
-                    // a divergence full Newton would not have. Not when this
-                    // iteration is accepted below anyway, nor at round-off level
-                    // (no Jacobian helps there), nor on the first iteration of an
-                    // earlier step's factors (no rate yet).
+                    // Factors from an earlier iterate that grow or contract too
+                    // slowly (see `too_slow`): a fresh Jacobian at the last good
+                    // iterate, simplified Newton's standard remedy. Not when this
+                    // iteration is accepted anyway, at round-off level, or on the
+                    // first iteration of an earlier step's factors (no rate yet).
                     let remaining = (max_iter - 1 - k) as i32;
                     let too_slow = too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance);
                     let converged = monitor.converged(update, opts.tolerance);
@@ -446,7 +441,9 @@ where
 /// `tolerance` within the `remaining` iterations. The stage-decoupled matrix
 /// is judged on the rate it keeps to over two updates (one ratio says
 /// little) against `DECOUPLED_RATE`, and gives way to the exact matrix: a
-/// refresh of it cannot change the rate its dropped couplings set.
+/// refresh of it cannot change the rate its dropped couplings set. A
+/// refresh, rather than crawling into `MaxIterations`, keeps simplified
+/// Newton from reporting a divergence that full Newton would not have.
 fn too_slow(monitor: &Contraction, decoupled: bool, update: f64, rate: f64, remaining: i32, tolerance: f64) -> bool {
     let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
     rate.is_nan() || rate >= 1.0 || judged > limit || update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance
