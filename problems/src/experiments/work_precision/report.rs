@@ -302,22 +302,8 @@ fn peer_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
         }
     }
     // The lower envelope of all SPARK methods against the ODE solvers.
-    let mut series = vec![Series::new("SPARK, best method at each cost", envelope(&m.points, SPARK))];
-    for ((solver, method), c) in &all {
-        if *solver == *SCIPY || *solver == *ODE_SOLVERS {
-            series.push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.time(), p.error())).collect()));
-        }
-    }
-    if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
-        panels.push(Panel {
-            title: "SPARK against ODE solvers on the ψ-eliminated ODE".into(),
-            x_label: "time per run [s] (thread CPU)".into(),
-            y_label: "global error in q, v at T".into(),
-            x_scale: Scale::Log,
-            y_scale: Scale::Log,
-            series,
-        });
-    }
+    let series = vec![Series::new("SPARK, best method at each cost", envelope(&m.points, SPARK))];
+    push_against_ode_solvers(&mut panels, "SPARK against ODE solvers on the ψ-eliminated ODE", series, &all);
     Figure {
         title: format!("{}: peers, T = {}", m.problem.system, m.problem.final_time),
         panels,
@@ -352,6 +338,32 @@ fn strategy(solver: &str) -> &'static str {
     }
 }
 
+/// Adds the ODE solvers' curves (SciPy, ode_solvers) of `all` to `series`
+/// and pushes them as one error-against-time panel titled `title`, unless
+/// no point can be drawn on its log axes.
+fn push_against_ode_solvers(
+    panels: &mut Vec<Panel>,
+    title: &str,
+    mut series: Vec<Series>,
+    all: &BTreeMap<(String, String), Vec<&Point>>,
+) {
+    for ((solver, method), c) in all {
+        if *solver == *SCIPY || *solver == *ODE_SOLVERS {
+            series.push(Series::new(format!("{solver}: {method}"), c.iter().map(|p| (p.time(), p.error())).collect()));
+        }
+    }
+    if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
+        panels.push(Panel {
+            title: title.into(),
+            x_label: "time per run [s] (thread CPU)".into(),
+            y_label: "global error in q, v at T".into(),
+            x_scale: Scale::Log,
+            y_scale: Scale::Log,
+            series,
+        });
+    }
+}
+
 /// Fixed against tolerance-driven and reversible steps of the same method
 /// (the peer methods), next to DOP853 and SciPy's solvers on the
 /// ψ-eliminated ODE; the last panel puts the best SPARK method at each cost
@@ -382,26 +394,12 @@ fn adaptive_figure(m: &SystemMeasurement, cfg: &WorkPrecisionConfig) -> Figure {
             });
         }
     }
-    let mut series: Vec<Series> = SPARK_STRATEGIES
+    let series: Vec<Series> = SPARK_STRATEGIES
         .iter()
         .map(|&solver| Series::new(format!("SPARK {}, best method", strategy(solver)), envelope(&m.points, solver)))
         .filter(|s| !s.points.is_empty())
         .collect();
-    for ((solver, me), c) in &all {
-        if *solver == *SCIPY || *solver == *ODE_SOLVERS {
-            series.push(Series::new(format!("{solver}: {me}"), c.iter().map(|p| (p.time(), p.error())).collect()));
-        }
-    }
-    if series.iter().any(|s| s.points.iter().any(|&(x, y)| x > 0.0 && y > 0.0)) {
-        panels.push(Panel {
-            title: "best method at each cost, per step-size strategy".into(),
-            x_label: "time per run [s] (thread CPU)".into(),
-            y_label: "global error in q, v at T".into(),
-            x_scale: Scale::Log,
-            y_scale: Scale::Log,
-            series,
-        });
-    }
+    push_against_ode_solvers(&mut panels, "best method at each cost, per step-size strategy", series, &all);
     Figure {
         title: format!("{}: fixed vs adaptive steps, T = {}", m.problem.system, m.problem.final_time),
         panels,
