@@ -127,7 +127,19 @@ fn check<S, const N: usize, const M: usize>(
         let r = -(h.k_v.transpose() * psi);
         let sv = sys.stage_values(*t, q, v, psi);
         let (sv2, sj) = sys.stage_jacobians(*t, q, v, psi);
-        for (tag, vals) in [("stage_values", &sv), ("stage_jacobians.0", &sv2)] {
+        // The fused refresh of the stage-decoupled matrix, into storage
+        // holding garbage (every entry must be overwritten).
+        let (mut sv3, mut k_q, mut k_v) = (sv, Matrix::<M, N>::repeat(f64::NAN), Matrix::<M, N>::repeat(f64::NAN));
+        sv3.momentum.fill(f64::NAN);
+        sv3.force.fill(f64::NAN);
+        sv3.constraint.fill(f64::NAN);
+        sv3.constraint_force.fill(f64::NAN);
+        sys.stage_values_and_constraint_jacobians(*t, q, v, psi, &mut sv3, &mut k_q, &mut k_v);
+        assert_close(&w("fused constraint_q"), &k_q, &h.k_q, TOL);
+        assert_close(&w("fused constraint_v"), &k_v, &h.k_v, TOL);
+        for (tag, vals) in
+            [("stage_values", &sv), ("stage_jacobians.0", &sv2), ("values_and_constraint_jacobians", &sv3)]
+        {
             assert_close(&w(&format!("{tag}.momentum")), &vals.momentum, &h.p, TOL);
             assert_close(&w(&format!("{tag}.force")), &vals.force, &h.f, TOL);
             assert_close(&w(&format!("{tag}.constraint")), &vals.constraint, &h.k, TOL);

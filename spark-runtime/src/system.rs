@@ -289,6 +289,29 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         (*values, *jacobians) = self.stage_jacobians(t, q, v, psi);
     }
 
+    /// Fused: the stage values with the constraint Jacobians `k_q` and
+    /// `K = k_v` at one point, written into the caller's storage — what a
+    /// refresh of the stage-decoupled Newton matrix of a system with a
+    /// constant mass matrix needs, in one evaluation whose shared
+    /// subexpressions (the trigonometry of a rolling constraint, say) are
+    /// computed once. The default makes the three separate calls;
+    /// `nonholonomic_system!` generates the fused body.
+    #[allow(clippy::too_many_arguments)]
+    fn stage_values_and_constraint_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+        values: &mut StageValues<N, M>,
+        constraint_q: &mut Matrix<M, N>,
+        constraint_v: &mut Matrix<M, N>,
+    ) {
+        *values = self.stage_values(t, q, v, psi);
+        *constraint_q = self.constraint_q(t, q, v);
+        *constraint_v = self.constraint_v(t, q, v);
+    }
+
     // ---- Optional effects (all default to "absent"; see the module docs). ----
 
     /// The system has an external generalized force `f(t,q,v)`

@@ -46,6 +46,13 @@ pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize
     /// The mass matrix whose factors block 0 holds when `shared` (compared
     /// bit for bit, so a constant mass matrix is factored once).
     w_source: Box<[f64]>,
+    /// The shared mass matrix is diagonal (every off-diagonal entry zero, as
+    /// for most mechanical systems in Cartesian or angle coordinates): its
+    /// solves are the products with `w_rdiag`, the reciprocals of its
+    /// diagonal — the same operations as the LU solve of a diagonal matrix,
+    /// without the triangular sweeps over zeros.
+    diagonal: bool,
+    w_rdiag: Box<[f64]>,
     w_valid: bool,
     /// `K = k_v` and `k_q` at the stages (`0..S`), the end point (`S`) and
     /// the midpoint (`S + 1`), written by the caller before
@@ -87,6 +94,8 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             w_perm: vec![0; (S + 1) * N].into_boxed_slice(),
             shared: false,
             w_source: vec![0.0; N * N].into_boxed_slice(),
+            diagonal: false,
+            w_rdiag: vec![0.0; N].into_boxed_slice(),
             w_valid: false,
             constraint_v: vec![Matrix::zeros(); S + 2].into_boxed_slice(),
             constraint_q: vec![Matrix::zeros(); S + 2].into_boxed_slice(),
@@ -137,6 +146,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                     self.factor_shared(mass(0))?;
                 } else {
                     self.shared = false;
+                    self.diagonal = false;
                     self.w_valid = false;
                     for i in 0..=S {
                         let (lu, perm) = (&mut self.w[i * nn..(i + 1) * nn], &mut self.w_perm[i * N..(i + 1) * N]);
@@ -154,7 +164,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             }
             if self.shared {
                 for col in kt.as_mut_slice().chunks_exact_mut(N) {
-                    solve_in_place::<N>(&self.w[..nn], &self.w_perm[..N], col);
+                    self.solve_block(0, col);
                 }
             }
             for i in 0..=S {
@@ -217,11 +227,38 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.shared = true;
         if !(self.w_valid && &*self.w_source == mass) {
             self.w_valid = false;
-            Self::factor_block(&mut self.w[..N * N], &mut self.w_perm[..N], mass)?;
+            self.diagonal = (0..N * N).all(|k| k % (N + 1) == 0 || mass[k] == 0.0);
+            if self.diagonal {
+                for (k, r) in self.w_rdiag.iter_mut().enumerate() {
+                    let d = mass[k * (N + 1)];
+                    // The LU's singularity test on a diagonal matrix: a zero or
+                    // non-finite pivot.
+                    if d == 0.0 || !d.is_finite() {
+                        return Err(Singular { column: k, pivot: d.abs() });
+                    }
+                    *r = 1.0 / d;
+                }
+            } else {
+                Self::factor_block(&mut self.w[..N * N], &mut self.w_perm[..N], mass)?;
+            }
             self.w_source.copy_from_slice(mass);
             self.w_valid = true;
         }
         Ok(())
+    }
+
+    /// `x ← W_b⁻¹ x` with the factors of velocity block `b` (block 0 stands
+    /// for every block when `shared`).
+    #[inline(always)]
+    fn solve_block(&self, b: usize, x: &mut [f64]) {
+        if self.diagonal {
+            for (xi, r) in x[..N].iter_mut().zip(self.w_rdiag.iter()) {
+                *xi *= r;
+            }
+        } else {
+            let nn = N * N;
+            solve_in_place::<N>(&self.w[b * nn..(b + 1) * nn], &self.w_perm[b * N..(b + 1) * N], x);
+        }
     }
 
     /// LU factors of one `N × N` mass matrix.
@@ -275,18 +312,14 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         if !self.factored {
             return;
         }
-        let (nn, nm, sm) = (N * N, N * M, Self::SM);
+        let (nm, sm) = (N * M, Self::SM);
         let base = (S + 1) * N;
         let mut y = *g;
         let y = y.as_mut_slice();
         // y_i = W_i⁻¹ g_i for the S + 1 velocity blocks.
         for i in 0..=S {
             let b = if self.shared { 0 } else { i };
-            solve_in_place::<N>(
-                &self.w[b * nn..(b + 1) * nn],
-                &self.w_perm[b * N..(b + 1) * N],
-                &mut y[i * N..(i + 1) * N],
-            );
+            self.solve_block(b, &mut y[i * N..(i + 1) * N]);
         }
         // Constraint rows: g_c − C y, then Σ⁻¹.
         let (vel, con) = y.split_at_mut(base);
@@ -365,6 +398,32 @@ mod tests {
             let err = (nalgebra::DVector::from_column_slice(x.as_slice()) - &dense).amax() / dense.amax();
             let name = Sys::SOURCE.name;
             assert!(err < 1e-12, "{name} {method} s={S} lean={lean}: decoupled vs dense solve {err:.3e}");
+        }
+    }
+
+    /// A constant mass matrix is solved with its LU factors, or, when it is
+    /// diagonal, with the reciprocals of its diagonal: both equal the dense
+    /// solve of the same matrix, and a zero on the diagonal is singular.
+    #[test]
+    fn constant_mass_matrices_full_and_diagonal_solve_like_the_dense_matrix() {
+        let k = State::new(0.0, Vector::<3>::new(0.1, 0.2, 0.3), Vector::<3>::new(0.4, -0.3, 1.0));
+        let full = Matrix::<3, 3>::new(2.0, 0.3, 0.1, 0.3, 1.5, 0.2, 0.1, 0.2, 1.0);
+        let diagonal = Matrix::<3, 3>::from_diagonal(&Vector::<3>::new(2.0, 1.5, 0.5));
+        for method in [Method::Gauss, Method::LobattoIIIAB, Method::LobattoIIIABD] {
+            let mut st = Stepper::<_, 3, 1, 2, 11>::new(Skate::default(), Tableau::new(method).unwrap());
+            let z = probe::<11>();
+            for mass in [full, diagonal] {
+                let (g, approx, x) = st.decoupled_solve_with_mass(&k, 0.1, &z, &mass).unwrap();
+                let dense = nalgebra::DMatrix::from_column_slice(11, 11, approx.as_slice())
+                    .lu()
+                    .solve(&nalgebra::DVector::from_column_slice(g.as_slice()))
+                    .expect("regular");
+                let err = (nalgebra::DVector::from_column_slice(x.as_slice()) - &dense).amax() / dense.amax();
+                assert!(err < 1e-12, "{method} mass {mass}: decoupled vs dense solve {err:.3e}");
+            }
+            let singular = Matrix::<3, 3>::from_diagonal(&Vector::<3>::new(2.0, 0.0, 0.5));
+            let err = st.decoupled_solve_with_mass(&k, 0.1, &z, &singular).unwrap_err();
+            assert_eq!(err.column, 1, "{err:?}");
         }
     }
 

@@ -52,15 +52,20 @@ pub(crate) fn column_scales<const D: usize>(a: &[f64]) -> [f64; D] {
 /// (or infinite) update is reported by the caller at the iteration where it
 /// appears.
 pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
+    // Branch-free, so that the loop vectorizes: the NaN test is a flag and
+    // the maximum a comparison (a NaN `r` never wins it).
     let mut norm = 0.0f64;
+    let mut nan = false;
     for (d, x) in update.iter().zip(z.iter()) {
         let r = d.abs() / (1.0 + x.abs());
-        if r.is_nan() {
-            return f64::NAN;
-        }
-        norm = norm.max(r);
+        nan |= r.is_nan();
+        norm = if r > norm { r } else { norm };
     }
-    norm
+    if nan {
+        f64::NAN
+    } else {
+        norm
+    }
 }
 
 /// Whether this CPU has AVX2 and FMA (the detection is cached by std): the

@@ -8,17 +8,39 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::Stepper;
-use crate::linalg::decoupled::Masses;
+use crate::linalg::decoupled::{DecoupledMatrix, Masses};
 use crate::linalg::newton_matrix::NewtonMatrix;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 use crate::State;
 
-/// Everything one residual evaluation produced.
+/// Everything one residual evaluation produced. The stepper keeps one and
+/// every evaluation overwrites it in place (returned by value, its copies
+/// were a few per cent of a step).
+#[derive(Clone, Copy, Debug)]
 pub(super) struct Eval<const N: usize, const M: usize, const S: usize> {
     pub(super) stages: [StageValues<N, M>; S],
     pub(super) end: StageValues<N, M>,
     pub(super) mid: Option<StageValues<N, M>>,
+}
+
+impl<const N: usize, const M: usize, const S: usize> Eval<N, M, S> {
+    pub(super) fn zeros() -> Self {
+        Eval { stages: [StageValues::zeros(); S], end: StageValues::zeros(), mid: None }
+    }
+}
+
+/// What one evaluation computes besides the stage values.
+pub(super) enum Derivatives<'a, const N: usize, const M: usize, const S: usize> {
+    /// Nothing: a residual alone.
+    None,
+    /// Every stage Jacobian, for the exact Newton matrix (or a stage-decoupled
+    /// one with point-dependent masses).
+    Full(&'a mut EvalJac<N, M, S>),
+    /// The constraint Jacobians `k_v`, `k_q` at the stages (`0..S`), the end
+    /// point (`S`) and the midpoint (`S + 1`), for a refresh of the
+    /// stage-decoupled matrix of a system with a constant mass matrix.
+    Constraint { constraint_v: &'a mut [Matrix<M, N>], constraint_q: &'a mut [Matrix<M, N>] },
 }
 
 /// Jacobians of one evaluation (only for full-Jacobian iterations).
@@ -51,14 +73,17 @@ where
         let (z, _) = self.starting_guess(state, h);
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let carry = self.carry_for(state);
-        let ev = Self::evaluate(&self.system, &self.tableau, state, &carry, h, &z, Some(&mut *self.work));
+        let mut ev = Eval::zeros();
+        Self::evaluate(&self.system, &self.tableau, state, &carry, h, &z, Derivatives::Full(&mut *self.work), &mut ev);
         let g = Self::residual(&self.tableau, &p0, h, &z, &ev);
         self.assemble_jacobian(h);
         self.reusable = None;
         (&self.newton, g)
     }
 
-    /// Evaluates the stage points of `z`, optionally with Jacobians.
+    /// Evaluates the stage points of `z` into `ev`, with the derivatives
+    /// `jac` asks for.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn evaluate(
         system: &Sys,
         tab: &Tableau<S>,
@@ -66,12 +91,15 @@ where
         carry: &Vector<N>,
         h: f64,
         z: &Vector<D>,
-        jac: Option<&mut EvalJac<N, M, S>>,
-    ) -> Eval<N, M, S> {
+        jac: Derivatives<'_, N, M, S>,
+        ev: &mut Eval<N, M, S>,
+    ) {
         let (v, mu) = split::<N, M, S, D>(z);
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let zero_m = Vector::<M>::zeros();
-        let mut ev = Eval { stages: [StageValues::zeros(); S], end: StageValues::zeros(), mid: None };
+        if tab.conditions != ConditionRows::MidpointConstraint {
+            ev.mid = None;
+        }
         let q1 = state.q + increment(carry, h, &tab.b, &v);
         let t1 = state.t + h;
         let mid_point = || {
@@ -80,7 +108,7 @@ where
         };
         let stage_q = |i: usize| state.q + increment(carry, h, &tab.a[i], &v);
         match jac {
-            Some(jac) => {
+            Derivatives::Full(jac) => {
                 for i in 0..S {
                     let psi = mu[i] / h;
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
@@ -103,7 +131,43 @@ where
                     system.stage_jacobians_into(tm, &qm, &v[0], &zero_m, mv, mj);
                 }
             }
-            None => {
+            Derivatives::Constraint { constraint_v: kv, constraint_q: kq } => {
+                for i in 0..S {
+                    let psi = mu[i] / h;
+                    let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
+                    let vals = &mut ev.stages[i];
+                    system.stage_values_and_constraint_jacobians(ti, &qi, &v[i], &psi, vals, &mut kq[i], &mut kv[i]);
+                    if Sys::HAS_FORCING {
+                        vals.force += system.external_force(ti, &qi, &v[i]);
+                    }
+                    if Sys::HAS_NONIDEAL_FORCE {
+                        vals.constraint_force += system.nonideal_force(ti, &qi, &v[i], &psi);
+                    }
+                }
+                system.stage_values_and_constraint_jacobians(
+                    t1,
+                    &q1,
+                    &v1,
+                    &zero_m,
+                    &mut ev.end,
+                    &mut kq[S],
+                    &mut kv[S],
+                );
+                if tab.conditions == ConditionRows::MidpointConstraint {
+                    let (tm, qm) = mid_point();
+                    let mv = ev.mid.insert(StageValues::zeros());
+                    system.stage_values_and_constraint_jacobians(
+                        tm,
+                        &qm,
+                        &v[0],
+                        &zero_m,
+                        mv,
+                        &mut kq[S + 1],
+                        &mut kv[S + 1],
+                    );
+                }
+            }
+            Derivatives::None => {
                 for i in 0..S {
                     let psi = mu[i] / h;
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
@@ -122,7 +186,6 @@ where
                 }
             }
         }
-        ev
     }
 
     /// The SPARK residual `G(z)` (see the module docs for the row layout).
@@ -298,9 +361,10 @@ where
     }
 
     /// Factors the stage-decoupled matrix at `z`. `lean`: the latest
-    /// evaluation computed no stage Jacobians, so the constraint Jacobians
-    /// are evaluated here (and the constant mass matrix once, while its
-    /// factors are not kept); otherwise they are copied from `self.work`.
+    /// evaluation wrote the constraint Jacobians into the decoupled matrix
+    /// ([`Derivatives::Constraint`]) and no stage Jacobians, so the constant
+    /// mass matrix is evaluated here once, while its factors are not kept;
+    /// otherwise everything is copied from `self.work`.
     pub(super) fn factor_decoupled(
         &mut self,
         state: &State<N>,
@@ -313,41 +377,20 @@ where
         let dec = &mut self.decoupled;
         let work = &mut *self.work;
         if !lean {
-            for i in 0..S {
-                dec.constraint_v[i] = work.stages[i].constraint_v;
-                dec.constraint_q[i] = work.stages[i].constraint_q;
-            }
-            dec.constraint_v[S] = work.end.constraint_v;
-            dec.constraint_q[S] = work.end.constraint_q;
-            if let Some(mj) = &work.mid {
-                dec.constraint_v[S + 1] = mj.constraint_v;
-                dec.constraint_q[S + 1] = mj.constraint_q;
-            }
+            copy_constraint_jacobians(work, dec);
             let masses = Masses::PerPoint { stages: &work.stages, end: &work.end };
             let nonideal = Sys::HAS_NONIDEAL_FORCE.then_some(&work.nonideal_psi[..]);
             return dec.factor(tab, h, masses, nonideal);
-        }
-        let (v, _) = split::<N, M, S, D>(z);
-        let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
-        let sys = &self.system;
-        for i in 0..S {
-            let (ti, qi) = (state.t + tab.c[i] * h, state.q + increment(carry, h, &tab.a[i], &v));
-            dec.constraint_v[i] = sys.constraint_v(ti, &qi, &v[i]);
-            dec.constraint_q[i] = sys.constraint_q(ti, &qi, &v[i]);
-        }
-        let (t1, q1) = (state.t + h, state.q + increment(carry, h, &tab.b, &v));
-        dec.constraint_v[S] = sys.constraint_v(t1, &q1, &v1);
-        dec.constraint_q[S] = sys.constraint_q(t1, &q1, &v1);
-        if tab.conditions == ConditionRows::MidpointConstraint {
-            let (tm, qm) = (state.t + 0.5 * h, state.q + (carry + (0.5 * h) * v[0]));
-            dec.constraint_v[S + 1] = sys.constraint_v(tm, &qm, &v[0]);
-            dec.constraint_q[S + 1] = sys.constraint_q(tm, &qm, &v[0]);
         }
         if dec.has_constant_mass() {
             return dec.factor(tab, h, Masses::Cached, None);
         }
         // The mass matrix is constant: one evaluation into the heap work
         // storage (no N×N value on the stack) gives it for every block.
+        let (v, _) = split::<N, M, S, D>(z);
+        let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
+        let (t1, q1) = (state.t + h, state.q + increment(carry, h, &tab.b, &v));
+        let sys = &self.system;
         let mut vals = StageValues::zeros();
         sys.stage_jacobians_into(t1, &q1, &v1, &Vector::zeros(), &mut vals, &mut work.end);
         dec.factor(tab, h, Masses::Constant(&work.end.mass), None)
@@ -368,7 +411,8 @@ where
     ) -> (Vector<D>, Matrix<D, D>) {
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let carry = self.carry_for(state);
-        let ev = Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Some(&mut *self.work));
+        let mut ev = Eval::zeros();
+        Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::Full(&mut *self.work), &mut ev);
         let g = Self::residual(&self.tableau, &p0, h, z, &ev);
         self.assemble_jacobian(h);
         (g, self.newton.matrix().into_owned())
@@ -399,10 +443,41 @@ where
             }
         }
         if lean {
+            // A lean refresh takes the constraint Jacobians its evaluation
+            // wrote (here: those of the full evaluation at the same `z`).
             self.decoupled.invalidate();
+            copy_constraint_jacobians(&self.work, &mut self.decoupled);
         }
         let carry = self.carry_for(state);
         self.factor_decoupled(state, &carry, h, z, lean)?;
+        let mut x = g;
+        self.decoupled.solve_in_place(&mut x);
+        Ok((g, approx, x))
+    }
+
+    /// For the stage-decoupled matrix's tests: the residual `g` at `z`, the
+    /// stage-decoupled matrix written out densely with every velocity block
+    /// replaced by the constant `mass` (which need not be the system's), and
+    /// the solve of `g` by [`DecoupledMatrix`] factored with that mass
+    /// matrix.
+    pub(crate) fn decoupled_solve_with_mass(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        z: &Vector<D>,
+        mass: &Matrix<N, N>,
+    ) -> Result<(Vector<D>, Matrix<D, D>, Vector<D>), crate::linalg::Singular> {
+        let (g, mut approx) = self.residual_and_jacobian(state, h, z);
+        for i in 0..=S {
+            for l in 0..=S {
+                let col = if l < S { l * N } else { S * (N + M) };
+                let block = if i == l { *mass } else { Matrix::<N, N>::zeros() };
+                approx.fixed_view_mut::<N, N>(i * N, col).copy_from(&block);
+            }
+        }
+        self.decoupled.invalidate();
+        copy_constraint_jacobians(&self.work, &mut self.decoupled);
+        self.decoupled.factor(&self.tableau, h, Masses::Constant(mass), None)?;
         let mut x = g;
         self.decoupled.solve_in_place(&mut x);
         Ok((g, approx, x))
@@ -416,8 +491,28 @@ where
     /// The residual at `z`.
     pub(crate) fn residual_at(&self, state: &State<N>, h: f64, z: &Vector<D>) -> Vector<D> {
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
-        let ev = Self::evaluate(&self.system, &self.tableau, state, &self.carry_for(state), h, z, None);
+        let mut ev = Eval::zeros();
+        let carry = self.carry_for(state);
+        Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::None, &mut ev);
         Self::residual(&self.tableau, &p0, h, z, &ev)
+    }
+}
+
+/// Copies the constraint Jacobians of a full evaluation into the
+/// stage-decoupled matrix.
+fn copy_constraint_jacobians<const N: usize, const M: usize, const S: usize>(
+    work: &EvalJac<N, M, S>,
+    dec: &mut DecoupledMatrix<N, M, S>,
+) {
+    for i in 0..S {
+        dec.constraint_v[i] = work.stages[i].constraint_v;
+        dec.constraint_q[i] = work.stages[i].constraint_q;
+    }
+    dec.constraint_v[S] = work.end.constraint_v;
+    dec.constraint_q[S] = work.end.constraint_q;
+    if let Some(mj) = &work.mid {
+        dec.constraint_v[S + 1] = mj.constraint_v;
+        dec.constraint_q[S + 1] = mj.constraint_q;
     }
 }
 

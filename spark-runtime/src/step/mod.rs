@@ -57,7 +57,7 @@ use crate::tableau::Tableau;
 use cold_start::check_cold_start;
 use compensation::{two_sum_error, Compensation};
 use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
-use equations::{increment, split, EvalJac};
+use equations::{increment, split, Eval, EvalJac};
 use guess::Warm;
 
 /// A point `(t, q, v)` of the phase space.
@@ -118,6 +118,8 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// Stage Jacobians of the latest full evaluation (heap, allocated once:
     /// `(S+2)·8·N²` doubles would dominate the stepper's size).
     work: Box<EvalJac<N, M, S>>,
+    /// The stage values of the latest evaluation (see `equations::Eval`).
+    eval: Eval<N, M, S>,
     /// Scratch for one `N × N` block of the Newton matrix while it is
     /// accumulated (heap, allocated once: a local `Matrix<N, N>` put
     /// `2·8·N²` bytes on the stack, 4.4 MiB at n = 513).
@@ -199,6 +201,7 @@ where
                 mid: None,
                 nonideal_psi: vec![Matrix::zeros(); S].into_boxed_slice(),
             }),
+            eval: Eval::zeros(),
             block: vec![0.0; N * N].into_boxed_slice(),
             decoupled: DecoupledMatrix::new(),
             exact_steps_left: 0,

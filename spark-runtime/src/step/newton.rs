@@ -4,6 +4,7 @@
 //! the exact matrix, and the typed errors it ends with.
 
 use super::convergence::{full_newton_accepts_residual, full_newton_converged, Contraction};
+use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
 use crate::linalg::scaled_update_norm;
@@ -189,9 +190,12 @@ where
         })
     }
 
-    /// The residual at `z` (evaluated with the stage Jacobians when
-    /// `full_jacobians`) and its largest magnitude; a non-finite residual is
-    /// recorded in the history and returned as an error.
+    /// The residual at `z` and its largest magnitude, evaluated with the
+    /// stage Jacobians (`jacobians == Some(true)`), with the constraint
+    /// Jacobians of a lean stage-decoupled refresh (`Some(false)`) or alone
+    /// (`None`), written into `g`; a non-finite residual is recorded in the
+    /// history and returned as an error.
+    #[allow(clippy::too_many_arguments)]
     fn iteration_residual(
         &mut self,
         state: &State<N>,
@@ -199,16 +203,24 @@ where
         p0: &Vector<N>,
         h: f64,
         z: &Vector<D>,
-        full_jacobians: bool,
-    ) -> Result<(Vector<D>, f64), StepError> {
-        let work = full_jacobians.then_some(&mut *self.work);
-        let ev = Self::evaluate(&self.system, &self.tableau, state, carry, h, z, work);
-        let g = Self::residual(&self.tableau, p0, h, z, &ev);
+        jacobians: Option<bool>,
+        g: &mut Vector<D>,
+    ) -> Result<f64, StepError> {
+        let derivatives = match jacobians {
+            Some(true) => Derivatives::Full(&mut *self.work),
+            Some(false) => Derivatives::Constraint {
+                constraint_v: &mut self.decoupled.constraint_v,
+                constraint_q: &mut self.decoupled.constraint_q,
+            },
+            None => Derivatives::None,
+        };
+        Self::evaluate(&self.system, &self.tableau, state, carry, h, z, derivatives, &mut self.eval);
+        *g = Self::residual(&self.tableau, p0, h, z, &self.eval);
         if !g.iter().all(|x| x.is_finite()) {
             self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
             return Err(StepError::NonFinite { t: state.t, h, stage: "residual", history: Box::new(self.history) });
         }
-        Ok((g, g.amax()))
+        Ok(g.amax())
     }
 
     /// Newton's method on `G(z) = 0`; records the iterations in `self.history`
@@ -276,6 +288,7 @@ where
         let mut max_rate = 0.0f64;
         let mut factorizations = 0usize;
         let mut monitor = Contraction::FRESH;
+        let mut g = Vector::<D>::zeros();
         let result = 'solve: {
             for k in 0..max_iter {
                 // After the first update, the latest step's ratio
@@ -294,11 +307,12 @@ where
                     refreshed = true;
                 }
                 refresh = false;
-                // A lean decoupled refresh needs only the constraint Jacobians
-                // (below), not the stage Jacobians of a full evaluation.
+                // A lean decoupled refresh needs only the constraint Jacobians,
+                // evaluated with the residual, not the stage Jacobians of a
+                // full evaluation.
                 let lean = fresh && decoupled && Self::LEAN_DECOUPLED;
-                let full_jacobians = fresh && !lean;
-                let (mut g, residual) = self.iteration_residual(state, carry, &p0, h, z, full_jacobians)?;
+                let jacobians = fresh.then_some(!lean);
+                let residual = self.iteration_residual(state, carry, &p0, h, z, jacobians, &mut g)?;
                 if fresh {
                     factorizations += 1;
                     monitor = Contraction::FRESH;
@@ -410,7 +424,8 @@ where
         z: &mut Vector<D>,
         prev_update: f64,
     ) -> Result<bool, StepError> {
-        let (mut g, residual) = self.iteration_residual(state, carry, p0, h, z, false)?;
+        let mut g = Vector::<D>::zeros();
+        let residual = self.iteration_residual(state, carry, p0, h, z, None, &mut g)?;
         self.newton.solve_in_place(&mut g);
         let next = *z - g;
         let update = scaled_update_norm(&g, &next);

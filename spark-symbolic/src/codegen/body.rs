@@ -234,6 +234,20 @@ impl<'a> Gen<'a> {
         (sv, sj, self.bundle())
     }
 
+    /// Body of `stage_values_and_constraint_jacobians`: the stage values
+    /// and `k_q`, `K = k_v`, written through `&mut` bindings into the
+    /// caller's storage, with their shared subexpressions computed once.
+    pub(super) fn values_and_constraint_jacobians(&mut self) -> Body {
+        let (values, _) = self.stage_outs();
+        let m = self.m.clone();
+        let md = &*self.model;
+        let mut outs = values;
+        outs.push(self.matrix("constraint_q", &md.constraint_q, &m));
+        outs.push(self.matrix("constraint_v", &md.constraint_v, &m));
+        let outs: Vec<Out> = outs.into_iter().map(|o| o.into_dest(Dest::Write)).collect();
+        self.body("stage_values_and_constraint_jacobians", Vec::new(), &outs, true)
+    }
+
     /// The statements of the bundle (see [`super::Operations::bundle`]).
     fn bundle(&mut self) -> Body {
         let n = self.n.clone();

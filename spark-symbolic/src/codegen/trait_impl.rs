@@ -1,6 +1,7 @@
 //! The `NonholonomicSystem` implementation: the bodies of the value and
 //! derivative methods (`lagrangian`, `energy`, `momentum`, …, the fused
-//! `stage_values`/`stage_jacobians_into`) and the `impl` item that holds
+//! `stage_values`, `stage_jacobians_into`,
+//! `stage_values_and_constraint_jacobians`) and the `impl` item that holds
 //! them together with the constants, the parameter methods and the effects.
 
 use super::body::{Body, Gen};
@@ -39,6 +40,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         gen.body("time_derivatives", vec![(Target::Let(format_ident!("lagrangian_t")), lt)], &td_outs, false);
 
     let fused = gen.fused();
+    let (values_and_constraint_jacobians, _) = gen.values_and_constraint_jacobians();
     let (stage_values, stage_jacobians) = (&fused.0 .0, &fused.1 .0);
     let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
     let sig = quote!(&self, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>);
@@ -101,6 +103,17 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
                 self, t, q, v, psi, &mut values, &mut jacobians,
             );
             (values, jacobians)
+        }
+
+        fn stage_values_and_constraint_jacobians(
+            #sig,
+            psi: &#rt::Vector<#m>,
+            values: &mut #rt::StageValues<#n, #m>,
+            constraint_q: &mut #rt::Matrix<#m, #n>,
+            constraint_v: &mut #rt::Matrix<#m, #n>
+        ) {
+            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            #values_and_constraint_jacobians
         }
 
         fn stage_jacobians_into(#sj_sig) {

@@ -253,6 +253,42 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         >>::stage_jacobians_into(self, t, q, v, psi, &mut values, &mut jacobians);
         (values, jacobians)
     }
+    fn stage_values_and_constraint_jacobians(
+        &self,
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        psi: &::spark_runtime::Vector<1>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+        constraint_q: &mut ::spark_runtime::Matrix<1, 3>,
+        constraint_v: &mut ::spark_runtime::Matrix<1, 3>,
+    ) {
+        let ::spark_runtime::StageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        force.fill(0.0);
+        constraint_force.fill(0.0);
+        constraint_q.fill(0.0);
+        constraint_v.fill(0.0);
+        let s0 = self.m * self.g;
+        let s1 = self.beta.sin();
+        let s2 = s0 * s1;
+        let s3 = q[2].cos();
+        let s4 = q[2].sin();
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        force[0] = s2;
+        constraint[0] = s3 * v[1] - s4 * v[0];
+        constraint_force[0] = s4 * psi[0];
+        constraint_force[1] = -(s3 * psi[0]);
+        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
+        constraint_v[(0, 0)] = -s4;
+        constraint_v[(0, 1)] = s3;
+    }
     fn stage_jacobians_into(
         &self,
         t: f64,
