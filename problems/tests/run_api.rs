@@ -30,7 +30,7 @@ fn multipliers_are_recorded_on_request_without_changing_the_run() {
     assert_eq!(with.psi.len(), 1);
     assert_eq!(with.psi[0].len(), with.t.len());
     // The same ψ as the stepper's own observation.
-    let mut stepper = Stepper::<problems::systems::Skate, 3, 1, 2, 8>::new(
+    let mut stepper = Stepper::<problems::systems::Skate, 3, 1, 2, 11>::new(
         problems::systems::Skate::default(),
         Tableau::<2>::new(Method::Gauss).unwrap(),
     );
