@@ -19,7 +19,7 @@
 //!   list, maps a run-time stage count to [`StageVisitor::visit`] with
 //!   literal `S` and `D`. `spark run` and `spark work-precision` share it.
 
-use spark_runtime::{NonholonomicSystem, OperationCounts, Structure};
+use spark_runtime::{NonholonomicSystem, OperationCounts, Structure, SystemSource};
 
 /// Largest stage count compiled into the dispatch. Every family reaches its
 /// largest useful order here: Gauss s = 1..5 (order 10), Lobatto IIIA-B and
@@ -138,6 +138,11 @@ pub struct SystemEntry {
     pub parameter_names: &'static [&'static str],
     /// Operation counts of the generated code (zeros for hand-written types).
     pub operations: OperationCounts,
+    /// The declaration's expressions ([`NonholonomicSystem::SOURCE`]): the
+    /// Lagrangian and the constraints as the Python package's `info` shows
+    /// them. Not part of `spark list --json`.
+    #[serde(skip)]
+    pub source: SystemSource,
     /// One of the paper's §8 systems (they have the CasADi C and num-dual
     /// peers; SciPy's run on every system without external or non-ideal
     /// forces).
@@ -380,6 +385,7 @@ macro_rules! catalog {
             coordinates: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.coordinates,
             parameter_names: <$ty as NonholonomicSystem<$n, $m>>::SOURCE.parameters,
             operations: <$ty as NonholonomicSystem<$n, $m>>::OPERATIONS,
+            source: <$ty as NonholonomicSystem<$n, $m>>::SOURCE,
             paper: catalog!(@paper $peers),
             t0: 0.0,
             q0: &[$($q0 as f64),*],

@@ -9,6 +9,7 @@ mod output_files;
 mod paper_short;
 mod peers;
 mod report;
+mod run_api;
 mod scene_effects;
 mod section;
 mod systems;

@@ -2,21 +2,27 @@
 //!
 //! It exposes the registry of the `problems` crate (every system `spark list`
 //! shows, by name), one integration run and ensembles of runs for those
-//! systems through the same generic code as the modules `spark.compile`
-//! builds (`spark-python-core`), and the DSL check that `spark.compile` runs
-//! before it calls cargo.
+//! systems, and the DSL check that `spark.compile` runs before it calls
+//! cargo.
+//!
+//! Runs go through `problems::run::run` and `problems::run::run_ensemble`,
+//! the non-generic entry points `spark run` uses: every (system, s) stepper
+//! is compiled once, in `problems`, and this crate holds no generic
+//! instantiation per system. It shares the request parsing and the result
+//! conversion with the modules `spark.compile` builds (`spark-python-core`),
+//! so registered and compiled systems take the same requests and return the
+//! same dicts.
 
-use problems::catalog::{
-    entries, lookup, visit_system, Dispatch, StageVisitor, SystemEntry, SystemVisitor, MAX_DISPATCH_STAGES,
-};
+use problems::catalog::{entries, lookup, SystemEntry, MAX_DISPATCH_STAGES};
+use problems::run::{run, run_ensemble, EnsembleError, RunError, RunResult, RunSpec};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
-    columns_to_py, detached, ensemble_to_py, read_ensemble, read_request, spark_error, system_info, Columns,
-    EnsembleRequest, Failure, IntegrateRequest,
+    columns_to_py, detached, ensemble_to_py, facts_to_py, read_ensemble, read_request, spark_error, Columns, Failure,
+    IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
 };
-use spark_runtime::Method;
-use std::marker::PhantomData;
+use spark_runtime::{ConsistencyPolicy, Method};
+use std::time::Instant;
 
 pyo3::create_exception!(
     _native,
@@ -30,42 +36,77 @@ fn entry(py: Python<'_>, name: &str) -> PyResult<&'static SystemEntry> {
     lookup(name).map_err(|e| spark_error(py, e.to_string()))
 }
 
-/// What one registry visit does: integrate, or integrate an ensemble.
-enum Work<'a> {
-    Integrate(&'a IntegrateRequest),
-    Ensemble(&'a EnsembleRequest),
-}
-
-enum Done {
-    One(Columns),
-    Many(Vec<Columns>),
-}
-
-struct ForSystem<'a>(Work<'a>);
-
-impl SystemVisitor for ForSystem<'_> {
-    type Output = Result<Done, Failure>;
-    fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
-        self,
-        _: &'static SystemEntry,
-    ) -> Self::Output {
-        let stages = match &self.0 {
-            Work::Integrate(r) => r.stages,
-            Work::Ensemble(r) => r.run.stages,
-        };
-        Sys::with_stages(stages, ForStages::<Sys>(self.0, PhantomData)).map_err(|e| e.to_string())?
+/// The run `r` asks for, of the registered system `e`.
+fn run_spec(e: &'static SystemEntry, r: &IntegrateRequest) -> RunSpec {
+    RunSpec {
+        system: e.kind,
+        parameters: r.parameters.clone(),
+        method: r.method,
+        stages: r.stages,
+        h: r.h,
+        steps: r.steps,
+        t0: r.t0,
+        q0: r.q0.clone(),
+        v0: r.v0.clone(),
+        record_every: r.every,
+        newton: r.newton,
+        consistency: if r.project_v0 {
+            ConsistencyPolicy::Project { tolerance: PROJECTION_TOLERANCE }
+        } else {
+            ConsistencyPolicy::default()
+        },
+        multipliers: r.multipliers,
     }
 }
 
-struct ForStages<'a, Sys>(Work<'a>, PhantomData<Sys>);
+/// A run's error in the words of the Python API: the keyword arguments
+/// where `spark run`'s message names command-line flags.
+fn message(e: &RunError) -> Failure {
+    match e {
+        RunError::InconsistentVelocities { system, residual, tolerance, default } => format!(
+            "v0 violates the constraints of `{system}`: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; give \
+             a v0 with k = 0 or pass project_v0=True to use the nearest consistent one (default v0 = {default:?})"
+        ),
+        RunError::UnknownParameter { system, name, suggestion, known } => format!(
+            "system `{system}` has no parameter `{name}`{}; its parameters: {known} \
+             (see `spark.system(\"{system}\").parameters`)",
+            problems::catalog::did_you_mean(suggestion)
+        ),
+        e => e.to_string(),
+    }
+}
 
-impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for ForStages<'_, Sys> {
-    type Output = Result<Done, Failure>;
-    fn visit<const S: usize, const D: usize>(self) -> Self::Output {
-        match self.0 {
-            Work::Integrate(r) => spark_python_core::integrate::<Sys, N, M, S, D>(r).map(Done::One),
-            Work::Ensemble(r) => spark_python_core::ensemble::<Sys, N, M, S, D>(r).map(Done::Many),
+fn ensemble_message(e: &EnsembleError) -> Failure {
+    match e {
+        EnsembleError::Member { member, source } => format!("member {member}: {}", message(source)),
+        e => e.to_string(),
+    }
+}
+
+/// A run's columns as the row-major samples the Python side returns.
+fn columns(r: RunResult, m: usize, seconds: f64) -> Columns {
+    let samples = r.t.len();
+    let rows = |cols: &[Vec<f64>]| -> Vec<f64> {
+        let mut out = Vec::with_capacity(samples * cols.len());
+        for k in 0..samples {
+            out.extend(cols.iter().map(|c| c[k]));
         }
+        out
+    };
+    Columns {
+        n: r.q.len(),
+        m,
+        q: rows(&r.q),
+        v: rows(&r.v),
+        psi: rows(&r.psi),
+        t: r.t,
+        energy: r.energy,
+        constraint: r.constraint,
+        holonomic: r.holonomic,
+        e0: r.stats.e0,
+        steps: r.stats.steps,
+        newton_iterations_mean: r.stats.newton_iterations_mean,
+        seconds,
     }
 }
 
@@ -81,17 +122,17 @@ fn names() -> Vec<&'static str> {
 #[pyfunction]
 fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDict>> {
     let e = entry(py, name)?;
-    struct Info<'py>(Python<'py>);
-    impl<'py> SystemVisitor for Info<'py> {
-        type Output = PyResult<Bound<'py, PyDict>>;
-        fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
-            self,
-            _: &'static SystemEntry,
-        ) -> Self::Output {
-            system_info::<Sys, N, M>(self.0)
-        }
-    }
-    let d = visit_system(e.kind, Info(py))?;
+    let facts = SystemFacts {
+        source: e.source,
+        n: e.n,
+        m: e.m,
+        parameter_values: e.default_parameters().into_iter().map(|(_, value)| value).collect(),
+        structure: e.structure,
+        forcing: e.effects.forcing,
+        nonideal: e.effects.nonideal,
+        holonomic: e.effects.holonomic,
+    };
+    let d = facts_to_py(py, &facts)?;
     d.set_item("name", e.name)?;
     d.set_item("description", e.description)?;
     d.set_item("path", e.path)?;
@@ -106,15 +147,18 @@ fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDic
 }
 
 /// One run of the registered system `name` (see `spark.System.integrate`).
+/// `rust_seconds` is the wall time of `problems::run::run` (checks, stepper
+/// set-up, the steps and the columns): what a Rust caller pays.
 #[pyfunction]
 fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
     let e = entry(py, name)?;
-    let r = read_request(py, request)?;
-    let done = detached(py, || visit_system(e.kind, ForSystem(Work::Integrate(&r))))?;
-    match done {
-        Done::One(c) => columns_to_py(py, c),
-        Done::Many(_) => Err(spark_error(py, "internal: integrate returned an ensemble")),
-    }
+    let spec = run_spec(e, &read_request(py, request)?);
+    let c = detached(py, || {
+        let start = Instant::now();
+        let result = run(&spec, &|_| {}).map_err(|err| message(&err))?;
+        Ok(columns(result, e.m, start.elapsed().as_secs_f64()))
+    })?;
+    columns_to_py(py, c)
 }
 
 /// An ensemble of runs of the registered system `name` (see `spark.ensemble`).
@@ -122,11 +166,32 @@ fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> 
 fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
     let e = entry(py, name)?;
     let r = read_ensemble(py, request)?;
-    let done = detached(py, || visit_system(e.kind, ForSystem(Work::Ensemble(&r))))?;
-    match done {
-        Done::Many(c) => ensemble_to_py(py, c),
-        Done::One(_) => Err(spark_error(py, "internal: ensemble returned one run")),
+    if r.q0s.len() != r.members * e.n || r.v0s.len() != r.members * e.n {
+        return Err(spark_error(
+            py,
+            format!(
+                "q0s and v0s must have shape (members, {n}) = ({}, {n}); got {} and {} numbers",
+                r.members,
+                r.q0s.len(),
+                r.v0s.len(),
+                n = e.n
+            ),
+        ));
     }
+    let row = |x: &[f64], j: usize| x[j * e.n..(j + 1) * e.n].to_vec();
+    let members: Vec<(Vec<f64>, Vec<f64>)> = (0..r.members).map(|j| (row(&r.q0s, j), row(&r.v0s, j))).collect();
+    let spec = run_spec(e, &r.run);
+    let runs = detached(py, || {
+        let results = run_ensemble(&spec, &members, r.threads).map_err(|err| ensemble_message(&err))?;
+        Ok(results
+            .into_iter()
+            .map(|result| {
+                let seconds = result.stats.wall_time.as_secs_f64();
+                columns(result, e.m, seconds)
+            })
+            .collect::<Vec<_>>())
+    })?;
+    ensemble_to_py(py, runs)
 }
 
 /// The methods: `(key, name, smallest s, largest compiled s)`.

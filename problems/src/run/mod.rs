@@ -3,8 +3,14 @@
 //!
 //! The systems, their defaults and the dispatch from run-time `(system, s)`
 //! to the const-generic [`Stepper`] live in [`crate::catalog`]; this module
-//! only says what one run does for a given stepper type ([`run_with`]).
-//! [`files`] writes a run's trajectory and figure.
+//! says what one run does for a given stepper type ([`run_with`]).
+//!
+//! [`run`] (one run) and [`run_ensemble`] (one run per initial state, in
+//! parallel) are the non-generic entry points: `spark run` and the Python
+//! extension module (`python/`) both call them, so every (system, s)
+//! stepper is monomorphized once, in this crate, and the extension links
+//! that code instead of compiling it again. [`files`] writes a run's
+//! trajectory and figure.
 
 pub mod files;
 
@@ -149,6 +155,8 @@ pub struct RunSpec {
     pub newton: NewtonOptions,
     /// What to do with an initial velocity that violates the constraints.
     pub consistency: ConsistencyPolicy,
+    /// Record the multipliers `ψ` at every sample ([`RunResult::psi`]).
+    pub multipliers: bool,
 }
 
 impl RunSpec {
@@ -179,6 +187,7 @@ impl RunSpec {
             record_every: 1,
             newton: NewtonOptions::default(),
             consistency: ConsistencyPolicy::default(),
+            multipliers: false,
         }
     }
 }
@@ -210,6 +219,11 @@ pub struct RunResult {
     /// `max_i |g_i(t, q)|` at each sample, the drift of the holonomic
     /// constraints (empty when the system has none).
     pub holonomic: Vec<f64>,
+    /// `psi[j][k]`: the multiplier `ψ_j` at sample `k`, recorded when
+    /// [`RunSpec::multipliers`] asks for it (empty otherwise; NaN where the
+    /// saddle matrix was singular).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub psi: Vec<Vec<f64>>,
     /// Statistics over every step (not only the samples).
     pub stats: RunStats,
 }
@@ -262,10 +276,10 @@ const TICK_EVERY: usize = 4096;
 /// Runs `spec`, calling `tick` as steps complete.
 pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
     if !(spec.h.is_finite() && spec.h != 0.0) {
-        return Err(RunError::Invalid(format!("step size h = {} must be finite and nonzero", spec.h)));
+        return Err(RunError::Invalid(format!("step size h = {:.3e} must be finite and nonzero", spec.h)));
     }
     if !spec.t0.is_finite() {
-        return Err(RunError::Invalid(format!("initial time t0 = {} must be finite", spec.t0)));
+        return Err(RunError::Invalid(format!("initial time t0 = {:.3e} must be finite", spec.t0)));
     }
     let (min, max) = spec.method.stage_range();
     if spec.stages < min || spec.stages > max {
@@ -281,6 +295,68 @@ pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
 pub fn run_by_name(name: &str, method: Method, stages: usize) -> Result<RunResult, RunError> {
     let kind = lookup(name)?.kind;
     run(&RunSpec::defaults(kind, method, stages), &|_| {})
+}
+
+/// Errors of an ensemble ([`run_ensemble`]); each says what to change.
+#[derive(Debug, thiserror::Error)]
+pub enum EnsembleError {
+    /// No initial state was given.
+    #[error("an ensemble needs at least one member")]
+    NoMembers,
+    /// A thread count of zero.
+    #[error("threads must be at least 1")]
+    NoThreads,
+    /// The worker threads could not be started.
+    #[error("could not start {threads} worker threads: {reason}")]
+    ThreadPool {
+        /// Threads asked for.
+        threads: usize,
+        /// What the operating system said.
+        reason: String,
+    },
+    /// One member's run failed (bad initial state, failed step).
+    #[error("member {member}: {source}")]
+    Member {
+        /// The member's index in the list of initial states.
+        member: usize,
+        /// Why its run failed.
+        source: RunError,
+    },
+}
+
+/// An ensemble: `spec` run from every initial state `(q0, v0)` of `members`
+/// (`spec.q0` and `spec.v0` are not used), in parallel over members on
+/// `threads` worker threads (`None`: rayon's global pool, all cores or
+/// `RAYON_NUM_THREADS`). Each member is its own [`run`], so its result is
+/// bit for bit what [`run`] returns for it alone, whatever the thread count.
+pub fn run_ensemble(
+    spec: &RunSpec,
+    members: &[(Vec<f64>, Vec<f64>)],
+    threads: Option<usize>,
+) -> Result<Vec<RunResult>, EnsembleError> {
+    use rayon::prelude::*;
+    if members.is_empty() {
+        return Err(EnsembleError::NoMembers);
+    }
+    let work = || -> Result<Vec<RunResult>, EnsembleError> {
+        members
+            .par_iter()
+            .enumerate()
+            .map(|(member, (q0, v0))| {
+                let one = RunSpec { q0: q0.clone(), v0: v0.clone(), ..spec.clone() };
+                run(&one, &|_| {}).map_err(|source| EnsembleError::Member { member, source })
+            })
+            .collect()
+    };
+    match threads {
+        None => work(),
+        Some(0) => Err(EnsembleError::NoThreads),
+        Some(t) => rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .map_err(|e| EnsembleError::ThreadPool { threads: t, reason: e.to_string() })?
+            .install(work),
+    }
 }
 
 /// Rejects parameter names the system does not have, with a suggestion.
@@ -345,7 +421,7 @@ fn vector<const N: usize>(what: &'static str, entry: &SystemEntry, x: &[f64]) ->
         });
     }
     if let Some(bad) = x.iter().find(|x| !x.is_finite()) {
-        return Err(RunError::Invalid(format!("{what} has a non-finite entry {bad}")));
+        return Err(RunError::Invalid(format!("{what} has a non-finite entry {bad:.3e}")));
     }
     Ok(Vector::<N>::from_column_slice(x))
 }
@@ -424,7 +500,7 @@ where
     // observer adds the holonomic drift and the progress ticks.
     let mut observer = RunObserver { tick, count: 0, max_holonomic_drift: drift(spec.t0, &q0) };
     let options = RunOptions {
-        observe: Observe { energy: true, constraint_residual: true, multipliers: false },
+        observe: Observe { energy: true, constraint_residual: true, multipliers: spec.multipliers },
         record_every: spec.record_every,
         consistency: spec.consistency,
         ..RunOptions::default()
@@ -465,6 +541,11 @@ where
         energy: column(&|s| s.energy.unwrap_or(f64::NAN)),
         constraint: column(&|s| s.constraint_residual.unwrap_or(f64::NAN)),
         holonomic: if Sys::HAS_HOLONOMIC { column(&|s| drift(s.t, &s.q)) } else { Vec::new() },
+        psi: if spec.multipliers {
+            (0..M).map(|j| column(&|s| s.multipliers.as_ref().map_or(f64::NAN, |psi| psi[j]))).collect()
+        } else {
+            Vec::new()
+        },
         stats: RunStats {
             steps: traj.report.steps,
             e0,

@@ -4,9 +4,12 @@
 //! [`export_system!`] macro that turns a declared system into a Python
 //! extension module.
 //!
-//! The `spark` extension module uses it for the registered systems (through
-//! the registry's stage dispatch), and every module built by
-//! `spark.compile` uses it for its one system, so both run the same code.
+//! Every module built by `spark.compile` runs its one system with
+//! [`integrate`] and [`ensemble`]. The `spark` extension module runs the
+//! registered systems with `problems::run` (the code `spark run` uses,
+//! compiled once in the `problems` crate) and shares this crate's request
+//! parsing and result conversion, so both kinds of module read the same
+//! requests and return the same dicts.
 
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::IntoPyArray;
@@ -16,7 +19,8 @@ use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, ConstraintForm, IntegrationError, Method, NewtonMode, NewtonOptions,
-    NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, StepError, Stepper, Tableau, Vector,
+    NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, StepError, Stepper, Structure, SystemSource,
+    Tableau, Vector,
 };
 
 pub use numpy;
@@ -26,7 +30,7 @@ pub use pyo3;
 const POSITION_TOLERANCE: f64 = 1e-10;
 
 /// Tolerance of the projection of an inconsistent `v0` (as `spark run --project-v0`).
-const PROJECTION_TOLERANCE: f64 = 1e-12;
+pub const PROJECTION_TOLERANCE: f64 = 1e-12;
 
 /// One integration run, as read from the Python side.
 #[derive(Clone, Debug, PartialEq)]
@@ -277,24 +281,70 @@ where
     }
 }
 
+/// The static facts of a system that `info()` shows, without its type.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SystemFacts {
+    /// The declaration: type name, coordinates, parameter names, Lagrangian,
+    /// constraints.
+    pub source: SystemSource,
+    /// Number of coordinates `N`.
+    pub n: usize,
+    /// Number of constraints `M`.
+    pub m: usize,
+    /// Default values of `source.parameters`, in the same order.
+    pub parameter_values: Vec<f64>,
+    /// Structure facts.
+    pub structure: Structure,
+    /// External force `f(t, q, v)`.
+    pub forcing: bool,
+    /// Non-ideal constraint force.
+    pub nonideal: bool,
+    /// Holonomic constraints imposed at velocity level.
+    pub holonomic: bool,
+}
+
+impl SystemFacts {
+    /// The facts of the system type `Sys`.
+    pub fn of<Sys, const N: usize, const M: usize>() -> Self
+    where
+        Sys: NonholonomicSystem<N, M> + Default,
+    {
+        SystemFacts {
+            source: Sys::SOURCE,
+            n: N,
+            m: M,
+            parameter_values: Sys::default().parameter_values(),
+            structure: Sys::STRUCTURE,
+            forcing: Sys::HAS_FORCING,
+            nonideal: Sys::HAS_NONIDEAL_FORCE,
+            holonomic: Sys::HAS_HOLONOMIC,
+        }
+    }
+}
+
 /// Static facts of a system type for `info()`: name, `N`, `M`, coordinates,
 /// parameters with defaults, structure facts and effects.
 pub fn system_info<'py, Sys, const N: usize, const M: usize>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>>
 where
     Sys: NonholonomicSystem<N, M> + Default,
 {
+    facts_to_py(py, &SystemFacts::of::<Sys, N, M>())
+}
+
+/// [`SystemFacts`] as the dict `info()` returns.
+pub fn facts_to_py<'py>(py: Python<'py>, facts: &SystemFacts) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    let src = Sys::SOURCE;
+    let src = &facts.source;
     d.set_item("type_name", src.name)?;
-    d.set_item("n", N)?;
-    d.set_item("m", M)?;
+    d.set_item("n", facts.n)?;
+    d.set_item("m", facts.m)?;
     d.set_item("coordinates", src.coordinates.to_vec())?;
     let params = PyDict::new(py);
-    for (name, value) in src.parameters.iter().zip(Sys::default().parameter_values()) {
-        params.set_item(*name, value)?;
+    for (name, value) in src.parameters.iter().zip(&facts.parameter_values) {
+        params.set_item(*name, *value)?;
     }
     d.set_item("parameters", params)?;
-    let s = Sys::STRUCTURE;
+    let s = facts.structure;
     let st = PyDict::new(py);
     st.set_item("lagrangian_autonomous", s.lagrangian_autonomous)?;
     st.set_item("constraints_autonomous", s.constraints_autonomous)?;
@@ -311,9 +361,9 @@ where
     )?;
     d.set_item("structure", st)?;
     let fx = PyDict::new(py);
-    fx.set_item("forcing", Sys::HAS_FORCING)?;
-    fx.set_item("nonideal", Sys::HAS_NONIDEAL_FORCE)?;
-    fx.set_item("holonomic", Sys::HAS_HOLONOMIC)?;
+    fx.set_item("forcing", facts.forcing)?;
+    fx.set_item("nonideal", facts.nonideal)?;
+    fx.set_item("holonomic", facts.holonomic)?;
     d.set_item("effects", fx)?;
     d.set_item("lagrangian", src.lagrangian)?;
     d.set_item("constraints", src.constraints.to_vec())?;
