@@ -16,6 +16,7 @@ mod trajectory;
 
 pub use error::{IntegrationError, RejectionFloor};
 pub(crate) use failure::{StepCounts, StepFailure};
+use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::{sample_of, sample_storage};
 pub use trajectory::{RunReport, Sample, Trajectory};
@@ -200,11 +201,7 @@ where
         options: &RunOptions,
         observer: &mut O,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
-        if Sys::HAS_EVENTS {
-            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &SystemEvents::<M>)
-        } else {
-            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &NoEvents)
-        }
+        self.run_system_events(t0, q0, v0, schedule, options, observer)
     }
 
     /// [`integrate`](Self::integrate) locating the events of `events`
@@ -219,6 +216,43 @@ where
         schedule: Schedule<'_>,
         options: &RunOptions,
         observer: &mut O,
+        events: &E,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        self.run(t0, q0, v0, schedule, options, observer, events)
+    }
+
+    /// [`integrate`](Self::integrate) behind the observer's object-safe
+    /// view: the public entry points are generic over the observer only to
+    /// take it, everything from here on is compiled once per system and
+    /// method.
+    fn run_system_events(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut dyn StepObserver<Sys, N, M, S>,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
+        if Sys::HAS_EVENTS {
+            self.run(t0, q0, v0, schedule, options, observer, &SystemEvents::<M>)
+        } else {
+            self.run(t0, q0, v0, schedule, options, observer, &NoEvents)
+        }
+    }
+
+    /// [`integrate_with_events`](Self::integrate_with_events) behind the
+    /// observer's object-safe view: checks the options and the schedule,
+    /// then runs the steps.
+    #[allow(clippy::too_many_arguments)]
+    fn run<E: EventFunctions<Sys, N>>(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut dyn StepObserver<Sys, N, M, S>,
         events: &E,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         options.validate().map_err(IntegrationError::InvalidOption)?;
@@ -298,7 +332,7 @@ where
     /// The stepping loop of [`Stepper::integrate`], from the checked initial
     /// velocity `v0c`.
     #[allow(clippy::too_many_arguments)]
-    fn run_steps<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
+    fn run_steps<E: EventFunctions<Sys, N>>(
         &mut self,
         t0: f64,
         q0: &Vector<N>,
@@ -307,7 +341,7 @@ where
         steps: usize,
         schedule: Schedule<'_>,
         options: &RunOptions,
-        observer: &mut O,
+        observer: &mut dyn StepObserver<Sys, N, M, S>,
         events: &E,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
@@ -328,11 +362,13 @@ where
         // recorded, only when the run observes them.
         let per_step = options.observe.energy || options.observe.constraint_residual;
         let per_step_observe = Observe { multipliers: false, ..options.observe };
-        // Dense output and events: nothing of this runs (the branches are on
-        // constants) for a system without events, an observer without dense
-        // output and a schedule that is not `Sampled`.
+        // Dense output and events: nothing of this runs for a system without
+        // events (the event branches are on constants), an observer without
+        // dense output and a schedule that is not `Sampled` (one test per
+        // accepted sub-step of a flag set once per run).
         let specs = events.specs();
-        let dense = O::DENSE || !specs.is_empty() || sampled.is_some();
+        let wants_dense = observer.wants_dense();
+        let dense = wants_dense || !specs.is_empty() || sampled.is_some();
         let basis = DenseBasis::new(self.tableau());
         let mut located: Vec<EventRecord<N>> = Vec::new();
         let mut crossings: Vec<Crossing> = Vec::with_capacity(specs.len());
@@ -376,12 +412,12 @@ where
                         }
                     }
                 }
-                if O::DENSE {
+                if wants_dense {
                     // A terminal event ends the run inside this step: the
                     // observer sees the extension up to the event only.
                     match stop_at {
-                        Some(at) => observer.observe_dense(&piece.until(at.t)),
-                        None => observer.observe_dense(&piece),
+                        Some(at) => observer.dense_step(&piece.until(at.t)),
+                        None => observer.dense_step(&piece),
                     }
                 }
                 if let Some(times) = sampled {
@@ -403,17 +439,24 @@ where
                 }
                 false
             };
-            let counts = match options.on_failure {
-                FailurePolicy::Halve => self.robust_step(&state, h, t_target, options.max_halvings, &mut on_step),
+            let taken = match options.on_failure {
+                FailurePolicy::Halve => {
+                    self.robust_step(&state, h, t_target, options.max_halvings, warm_before, &mut on_step)
+                }
                 FailurePolicy::Reject(policy) => self.rejecting_step(&state, h, t_target, &policy, &mut on_step),
-            }
-            .map_err(|failure| failure.into_error(k, state.t, h, report))?;
+            };
+            // Matched rather than mapped: the accepted outcome is not moved
+            // into a second `Result`, and the error is built only on failure.
+            let counts = match taken {
+                Ok(counts) => counts,
+                Err(failure) => return Err(failure.into_error(k, state.t, h, report)),
+            };
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
             report.count(&counts, warm_before);
             if let Some(at) = terminal {
-                observer.observe(self.system(), &at, iters);
+                observer.accepted(self.system(), &at, iters);
                 report.terminal_event = located.last().map(|e| e.index);
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
@@ -423,7 +466,7 @@ where
                 state = at;
                 break;
             }
-            observer.observe(self.system(), &next, iters);
+            observer.accepted(self.system(), &next, iters);
             let last = k + 1 == steps;
             if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
                 let s = self.sample(&next, &options.observe, iters);
@@ -432,8 +475,12 @@ where
             } else if per_step {
                 track(&self.sample(&next, &per_step_observe, iters), &mut report);
             }
+            // The stepper continues from the step's own end; when pinning
+            // moved its time, it learns that the pinned state continues it.
+            if next.t.to_bits() != counts.state.t.to_bits() {
+                self.retarget_warm_start(&next);
+            }
             state = next;
-            self.retarget_warm_start(&state);
         }
         let _ = state;
         report.events = located.len();
