@@ -476,3 +476,94 @@ fn rejection_is_a_failure_policy_of_the_driver() {
         other => panic!("expected an option error, got {other:?}"),
     }
 }
+
+/// An observer that wants the dense output: records every accepted state
+/// and counts the continuous extensions it is given.
+struct DenseRecorder<const N: usize> {
+    states: Vec<(State<N>, usize)>,
+    pieces: usize,
+}
+
+impl<const N: usize, const M: usize> spark_runtime::Observer<N, M> for DenseRecorder<N> {
+    const DENSE: bool = true;
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, s: &State<N>, iterations: usize) {
+        self.states.push((*s, iterations));
+    }
+    fn observe_dense<const S: usize>(&mut self, step: &spark_runtime::DenseStep<'_, N, S>) {
+        assert_eq!(step.state_at(step.end.t), step.end);
+        self.pieces += 1;
+    }
+}
+
+/// `system` from `(0, q0, v0)` by `method` with `s` stages: `integrate`
+/// takes exactly the steps of a bare loop of `Stepper::step` whatever the
+/// observer (a closure, a dense one, none), and the run continues each
+/// step from the previous one where the schedule pins the step times.
+fn matches_the_bare_loop<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    system: Sys,
+    method: Method,
+    q0: Vector<N>,
+    v0: Vector<N>,
+    steps: usize,
+) where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let tab = Tableau::<S>::new(method).unwrap();
+    // h = 1/8 from t = 0: the step times accumulate exactly, so the bare
+    // loop's states are the ones the driver pins.
+    let h = 0.125;
+    let mut bare = Stepper::<Sys, N, M, S, D>::new(system.clone(), tab);
+    let mut state = State::new(0.0, q0, v0);
+    let mut expected = Vec::with_capacity(steps);
+    for _ in 0..steps {
+        let r = bare.step(&state, h).unwrap();
+        state = r.state;
+        expected.push((r.state, r.iterations));
+    }
+    let mut st = Stepper::<Sys, N, M, S, D>::new(system, tab);
+    let schedule = Schedule::Fixed { h, steps };
+    let name = std::any::type_name::<Sys>();
+
+    let mut seen = Vec::with_capacity(steps);
+    let tr = st
+        .integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut |s: &State<N>, i: usize| seen.push((*s, i)))
+        .unwrap();
+    assert!(seen == expected, "{name} {method}: the closure observer's states differ from the bare loop's");
+    assert_eq!(tr.samples.len(), steps + 1);
+    for (s, (e, i)) in tr.samples[1..].iter().zip(&expected) {
+        assert_eq!((s.t, s.q, s.v, s.newton_iterations), (e.t, e.q, e.v, *i), "{name} {method}");
+    }
+    assert_eq!(tr.report.cold_starts, 1, "{name} {method}: {:?}", tr.report);
+
+    let mut dense = DenseRecorder { states: Vec::new(), pieces: 0 };
+    st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut dense).unwrap();
+    assert!(dense.states == expected, "{name} {method}: the dense observer's states differ from the bare loop's");
+    assert_eq!(dense.pieces, steps);
+
+    let quiet = RunOptions {
+        observe: spark_runtime::Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let end = st.integrate(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver).unwrap().last().unwrap();
+    assert_eq!(end, expected[steps - 1].0, "{name} {method}");
+
+    // h = 0.1: t₀ + Σh drifts from the pinned (k+1)·h, and every step still
+    // continues the previous one (warm started, no second cold start).
+    let tenth = st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.1, steps }, &quiet, &mut NoObserver).unwrap();
+    assert_eq!(tenth.report.cold_starts, 1, "{name} {method}: {:?}", tenth.report);
+    assert_eq!(tenth.last().unwrap().t, 0.1 * steps as f64);
+}
+
+/// The driver adds no arithmetic of its own to the steps: its states, with
+/// the Newton iteration counts, are the bare `Stepper::step` loop's bit for
+/// bit, for every kind of observer.
+#[test]
+fn integrate_takes_the_steps_of_a_bare_step_loop() {
+    let robot = (Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.5, 1.0));
+    matches_the_bare_loop::<MobileRobot, 4, 2, 2, 16>(MobileRobot::default(), Method::Gauss, robot.0, robot.1, 400);
+    let skate = (Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    matches_the_bare_loop::<Skate, 3, 1, 3, 15>(Skate::default(), Method::LobattoIIIAB, skate.0, skate.1, 400);
+    let (q0, v0) = speed_start();
+    matches_the_bare_loop::<ConstantSpeed, 3, 1, 2, 11>(ConstantSpeed::default(), Method::Gauss, q0, v0, 200);
+}

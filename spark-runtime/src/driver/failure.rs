@@ -95,18 +95,62 @@ where
     /// One step of size `h` from `state`. A warm-started attempt that fails
     /// is retried once from the cold guess; a sub-step that still fails is
     /// replaced by two half steps, at most `max_halvings` levels deep and
-    /// only while half of it still changes `t`. Iterative, with the pending
-    /// sub-steps in a fixed array: no recursion, no heap.
+    /// only while half of it still changes `t`. `warm`: whether the
+    /// stepper continues into `state` (`Stepper::is_warm_for`).
     ///
     /// `on_step(system, start, end, h, result)` sees every accepted
     /// sub-step (the last one with its end time pinned to `t_target`); when
     /// it returns `true` the step stops there.
+    ///
+    /// A step that succeeds at once costs one call of [`Stepper::step`] and
+    /// nothing more: the retry and the halving are set up only after a
+    /// failure, in `recover`.
     pub(super) fn robust_step<F>(
         &mut self,
         state: &State<N>,
         h: f64,
         t_target: f64,
         max_halvings: u32,
+        warm: bool,
+        on_step: &mut F,
+    ) -> Result<StepCounts<N>, StepFailure>
+    where
+        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+    {
+        match self.step(state, h) {
+            Ok(r) => {
+                let mut end = r.state;
+                end.t = t_target;
+                let stopped = on_step(self.system(), state, &end, h, &r);
+                Ok(StepCounts {
+                    state: r.state,
+                    iterations: r.iterations,
+                    rejected: 0,
+                    substeps: 1,
+                    smallest: h.abs(),
+                    cold_retries: 0,
+                    stopped,
+                })
+            }
+            Err(first) => self.recover(state, h, t_target, max_halvings, warm, first, on_step),
+        }
+    }
+
+    /// The rest of [`robust_step`](Self::robust_step) after its first
+    /// attempt failed with `first`: the cold retry, then the halving.
+    /// Iterative, with the pending sub-steps in a fixed array: no
+    /// recursion, no heap.
+    #[cold]
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    fn recover<F>(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        max_halvings: u32,
+        warm: bool,
+        first: StepError,
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
     where
@@ -121,10 +165,15 @@ where
         pending[0] = (h, 0);
         let mut len = 1;
         let mut out = StepCounts::start(state);
+        // The outcome of the whole step's attempt, already taken once.
+        let mut taken = Some((warm, first));
         while len > 0 {
             let (sub, level) = pending[len - 1];
-            let warm = self.is_warm_for(&out.state);
-            let result = match self.step(&out.state, sub) {
+            let (warm, attempt) = match taken.take() {
+                Some((warm, first)) => (warm, Err(first)),
+                None => (self.is_warm_for(&out.state), self.step(&out.state, sub)),
+            };
+            let result = match attempt {
                 Err(e) if warm && e.is_curable() => {
                     out.cold_retries += 1;
                     self.reset_warm_start();

@@ -16,6 +16,7 @@ mod trajectory;
 
 pub use error::{IntegrationError, RejectionFloor};
 pub(crate) use failure::{StepCounts, StepFailure};
+use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::{sample_of, sample_storage};
 pub use trajectory::{RunReport, Sample, Trajectory};
@@ -65,6 +66,69 @@ pub enum Schedule<'a> {
 }
 
 impl Schedule<'_> {
+    /// The number of steps of a run from `t0`, or why the schedule cannot
+    /// be run (not generic: compiled once, not once per system).
+    fn steps(&self, t0: f64) -> Result<usize, IntegrationError> {
+        Ok(match *self {
+            Schedule::Fixed { h, steps } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
+                }
+                steps
+            }
+            Schedule::Times(ts) => {
+                if ts.iter().any(|t| !t.is_finite()) {
+                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
+                }
+                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| a == b) {
+                    return Err(IntegrationError::InvalidSchedule("consecutive output times must differ"));
+                }
+                ts.len()
+            }
+            Schedule::Sampled { h, times } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if times.iter().any(|t| !t.is_finite()) {
+                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
+                }
+                if times.first().is_some_and(|&t| (t - t0) * h < 0.0)
+                    || times.windows(2).any(|w| (w[1] - w[0]) * h <= 0.0)
+                {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "sampled output times must be strictly monotone in the direction of h, from t0 on",
+                    ));
+                }
+                let span = times.last().map_or(0.0, |&t| (t - t0) / h);
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the last time"));
+                }
+                span.ceil() as usize
+            }
+            Schedule::Until { h, t_end } => {
+                if h == 0.0 || !h.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+                }
+                if !t_end.is_finite() {
+                    return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
+                }
+                if (t_end - t0) * h.signum() < 0.0 {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "the final time lies behind the start in the direction of h",
+                    ));
+                }
+                let span = ((t_end - t0) / h).abs();
+                if !span.is_finite() || span >= usize::MAX as f64 {
+                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the final time"));
+                }
+                span.ceil() as usize
+            }
+        })
+    }
+
     /// Step `k` of `steps` from time `t`, for a run that starts at `t0`: its
     /// size and the scheduled time it ends at.
     fn step(&self, k: usize, steps: usize, t0: f64, t: f64) -> (f64, f64) {
@@ -189,8 +253,15 @@ where
     /// loop that advances a run: a failed step is handled per
     /// [`RunOptions::on_failure`] (by default retried once from the cold
     /// starting guess when it was warm-started, then halved per
-    /// [`RunOptions::max_halvings`]); the error reports the last failure. Sample storage is reserved up to 1 MiB and grows as
-    /// samples arrive, so the step count alone never allocates.
+    /// [`RunOptions::max_halvings`]); the error reports the last failure.
+    /// Sample storage is reserved up to 1 MiB and grows as samples arrive,
+    /// so the step count alone never allocates.
+    ///
+    /// The loop sees the observer and the events through trait objects
+    /// ([`Observer`] behind an object-safe view, [`EventFunctions`] as
+    /// `&dyn`), so it is compiled once per system and method, whatever the
+    /// observer and the events; what that costs at run time is one
+    /// indirect call per accepted step and per event-function evaluation.
     pub fn integrate<O: Observer<N, M>>(
         &mut self,
         t0: f64,
@@ -200,11 +271,8 @@ where
         options: &RunOptions,
         observer: &mut O,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
-        if Sys::HAS_EVENTS {
-            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &SystemEvents::<M>)
-        } else {
-            self.integrate_with_events(t0, q0, v0, schedule, options, observer, &NoEvents)
-        }
+        let events: &dyn EventFunctions<Sys, N> = if Sys::HAS_EVENTS { &SystemEvents::<M> } else { &NoEvents };
+        self.run(t0, q0, v0, schedule, options, observer, events)
     }
 
     /// [`integrate`](Self::integrate) locating the events of `events`
@@ -221,66 +289,28 @@ where
         observer: &mut O,
         events: &E,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
+        self.run(t0, q0, v0, schedule, options, observer, events)
+    }
+
+    /// [`integrate_with_events`](Self::integrate_with_events) with the
+    /// observer and the events as trait objects (the public entry points
+    /// are generic only to take them; from here on everything is compiled
+    /// once per system and method): checks the options and the schedule,
+    /// then runs the steps.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &mut self,
+        t0: f64,
+        q0: &Vector<N>,
+        v0: &Vector<N>,
+        schedule: Schedule<'_>,
+        options: &RunOptions,
+        observer: &mut dyn StepObserver<Sys, N, M, S>,
+        events: &dyn EventFunctions<Sys, N>,
+    ) -> Result<Trajectory<N, M>, IntegrationError> {
         options.validate().map_err(IntegrationError::InvalidOption)?;
         self.options().validate().map_err(IntegrationError::InvalidOption)?;
-        let steps = match schedule {
-            Schedule::Fixed { h, steps } => {
-                if h == 0.0 || !h.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
-                }
-                if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
-                }
-                steps
-            }
-            Schedule::Times(ts) => {
-                if ts.iter().any(|t| !t.is_finite()) {
-                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
-                }
-                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| a == b) {
-                    return Err(IntegrationError::InvalidSchedule("consecutive output times must differ"));
-                }
-                ts.len()
-            }
-            Schedule::Sampled { h, times } => {
-                if h == 0.0 || !h.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
-                }
-                if times.iter().any(|t| !t.is_finite()) {
-                    return Err(IntegrationError::InvalidSchedule("output times must be finite"));
-                }
-                if times.first().is_some_and(|&t| (t - t0) * h < 0.0)
-                    || times.windows(2).any(|w| (w[1] - w[0]) * h <= 0.0)
-                {
-                    return Err(IntegrationError::InvalidSchedule(
-                        "sampled output times must be strictly monotone in the direction of h, from t0 on",
-                    ));
-                }
-                let span = times.last().map_or(0.0, |&t| (t - t0) / h);
-                if !span.is_finite() || span >= usize::MAX as f64 {
-                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the last time"));
-                }
-                span.ceil() as usize
-            }
-            Schedule::Until { h, t_end } => {
-                if h == 0.0 || !h.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
-                }
-                if !t_end.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
-                }
-                if (t_end - t0) * h.signum() < 0.0 {
-                    return Err(IntegrationError::InvalidSchedule(
-                        "the final time lies behind the start in the direction of h",
-                    ));
-                }
-                let span = ((t_end - t0) / h).abs();
-                if !span.is_finite() || span >= usize::MAX as f64 {
-                    return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the final time"));
-                }
-                span.ceil() as usize
-            }
-        };
+        let steps = schedule.steps(t0)?;
         let v0c =
             consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
         // A run depends on its inputs only: nothing of an earlier run (warm
@@ -298,7 +328,7 @@ where
     /// The stepping loop of [`Stepper::integrate`], from the checked initial
     /// velocity `v0c`.
     #[allow(clippy::too_many_arguments)]
-    fn run_steps<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
+    fn run_steps(
         &mut self,
         t0: f64,
         q0: &Vector<N>,
@@ -307,8 +337,8 @@ where
         steps: usize,
         schedule: Schedule<'_>,
         options: &RunOptions,
-        observer: &mut O,
-        events: &E,
+        observer: &mut dyn StepObserver<Sys, N, M, S>,
+        events: &dyn EventFunctions<Sys, N>,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
         let every = options.record_every;
@@ -328,11 +358,14 @@ where
         // recorded, only when the run observes them.
         let per_step = options.observe.energy || options.observe.constraint_residual;
         let per_step_observe = Observe { multipliers: false, ..options.observe };
-        // Dense output and events: nothing of this runs (the branches are on
-        // constants) for a system without events, an observer without dense
-        // output and a schedule that is not `Sampled`.
+        // Dense output and events: for a run without events, without an
+        // observer of the dense output and without a `Sampled` schedule
+        // nothing of this runs but one test per accepted sub-step of a flag
+        // set here, once per run; no continuous extension is built and no
+        // event function is evaluated.
         let specs = events.specs();
-        let dense = O::DENSE || !specs.is_empty() || sampled.is_some();
+        let wants_dense = observer.wants_dense();
+        let dense = wants_dense || !specs.is_empty() || sampled.is_some();
         let basis = DenseBasis::new(self.tableau());
         let mut located: Vec<EventRecord<N>> = Vec::new();
         let mut crossings: Vec<Crossing> = Vec::with_capacity(specs.len());
@@ -376,12 +409,12 @@ where
                         }
                     }
                 }
-                if O::DENSE {
+                if wants_dense {
                     // A terminal event ends the run inside this step: the
                     // observer sees the extension up to the event only.
                     match stop_at {
-                        Some(at) => observer.observe_dense(&piece.until(at.t)),
-                        None => observer.observe_dense(&piece),
+                        Some(at) => observer.dense_step(&piece.until(at.t)),
+                        None => observer.dense_step(&piece),
                     }
                 }
                 if let Some(times) = sampled {
@@ -403,17 +436,24 @@ where
                 }
                 false
             };
-            let counts = match options.on_failure {
-                FailurePolicy::Halve => self.robust_step(&state, h, t_target, options.max_halvings, &mut on_step),
+            let taken = match options.on_failure {
+                FailurePolicy::Halve => {
+                    self.robust_step(&state, h, t_target, options.max_halvings, warm_before, &mut on_step)
+                }
                 FailurePolicy::Reject(policy) => self.rejecting_step(&state, h, t_target, &policy, &mut on_step),
-            }
-            .map_err(|failure| failure.into_error(k, state.t, h, report))?;
+            };
+            // Matched rather than mapped: the accepted outcome is not moved
+            // into a second `Result`, and the error is built only on failure.
+            let counts = match taken {
+                Ok(counts) => counts,
+                Err(failure) => return Err(failure.into_error(k, state.t, h, report)),
+            };
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
             report.count(&counts, warm_before);
             if let Some(at) = terminal {
-                observer.observe(self.system(), &at, iters);
+                observer.accepted(self.system(), &at, iters);
                 report.terminal_event = located.last().map(|e| e.index);
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
@@ -423,7 +463,7 @@ where
                 state = at;
                 break;
             }
-            observer.observe(self.system(), &next, iters);
+            observer.accepted(self.system(), &next, iters);
             let last = k + 1 == steps;
             if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
                 let s = self.sample(&next, &options.observe, iters);
@@ -432,8 +472,12 @@ where
             } else if per_step {
                 track(&self.sample(&next, &per_step_observe, iters), &mut report);
             }
+            // The stepper continues from the step's own end; when pinning
+            // moved its time, it learns that the pinned state continues it.
+            if next.t.to_bits() != counts.state.t.to_bits() {
+                self.retarget_warm_start(&next);
+            }
             state = next;
-            self.retarget_warm_start(&state);
         }
         let _ = state;
         report.events = located.len();

@@ -1,5 +1,6 @@
 //! What sees every accepted step: the [`Observer`] trait, the empty
-//! observer and closures as observers.
+//! observer and closures as observers, and the object-safe view of an
+//! observer the driver loop takes ([`StepObserver`]).
 
 use crate::dense::DenseStep;
 use crate::step::State;
@@ -43,5 +44,37 @@ impl<const N: usize, const M: usize> Observer<N, M> for NoObserver {
 impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> for F {
     fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, state: &State<N>, iterations: usize) {
         self(state, iterations)
+    }
+}
+
+/// What the driver loop sees of an [`Observer`] once the system and the
+/// stage count are fixed. Object safe: the loop takes `&mut dyn
+/// StepObserver`, so it is compiled once per system and method rather than
+/// once for every observer type (each closure is a type of its own), at the
+/// price of one indirect call per accepted step.
+pub(crate) trait StepObserver<Sys, const N: usize, const M: usize, const S: usize> {
+    /// [`Observer::DENSE`].
+    fn wants_dense(&self) -> bool;
+    /// [`Observer::observe`].
+    fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize);
+    /// [`Observer::observe_dense`].
+    fn dense_step(&mut self, step: &DenseStep<'_, N, S>);
+}
+
+impl<Sys, O, const N: usize, const M: usize, const S: usize> StepObserver<Sys, N, M, S> for O
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+{
+    fn wants_dense(&self) -> bool {
+        O::DENSE
+    }
+
+    fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) {
+        self.observe(system, state, iterations)
+    }
+
+    fn dense_step(&mut self, step: &DenseStep<'_, N, S>) {
+        self.observe_dense(step)
     }
 }
