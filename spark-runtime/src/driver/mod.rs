@@ -65,15 +65,21 @@ pub enum Schedule<'a> {
     },
 }
 
+/// A schedule's step size must be finite and nonzero.
+fn check_step_size(h: f64) -> Result<(), IntegrationError> {
+    if h == 0.0 || !h.is_finite() {
+        return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+    }
+    Ok(())
+}
+
 impl Schedule<'_> {
     /// The number of steps of a run from `t0`, or why the schedule cannot
     /// be run (not generic: compiled once, not once per system).
     fn steps(&self, t0: f64) -> Result<usize, IntegrationError> {
         Ok(match *self {
             Schedule::Fixed { h, steps } => {
-                if h == 0.0 || !h.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
-                }
+                check_step_size(h)?;
                 if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
                     return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
                 }
@@ -89,9 +95,7 @@ impl Schedule<'_> {
                 ts.len()
             }
             Schedule::Sampled { h, times } => {
-                if h == 0.0 || !h.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
-                }
+                check_step_size(h)?;
                 if times.iter().any(|t| !t.is_finite()) {
                     return Err(IntegrationError::InvalidSchedule("output times must be finite"));
                 }
@@ -109,9 +113,7 @@ impl Schedule<'_> {
                 span.ceil() as usize
             }
             Schedule::Until { h, t_end } => {
-                if h == 0.0 || !h.is_finite() {
-                    return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
-                }
+                check_step_size(h)?;
                 if !t_end.is_finite() {
                     return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
                 }

@@ -131,47 +131,27 @@ where
                     system.stage_jacobians_into(tm, &qm, &v[0], &zero_m, mv, mj);
                 }
             }
-            Derivatives::Constraint { constraint_v: kv, constraint_q: kq } => {
+            values_only => {
+                // The stage values at point `p` (stages `0..S`, the end point
+                // `S`, the midpoint `S + 1`), with the constraint Jacobians
+                // there when a lean refresh asks for them.
+                let mut constraint_jacobians = match values_only {
+                    Derivatives::Constraint { constraint_v, constraint_q } => Some((constraint_v, constraint_q)),
+                    _ => None,
+                };
+                let mut values_at =
+                    |p: usize, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>, out: &mut StageValues<N, M>| {
+                        match &mut constraint_jacobians {
+                            Some((kv, kq)) => {
+                                system.stage_values_and_constraint_jacobians(t, q, v, psi, out, &mut kq[p], &mut kv[p])
+                            }
+                            None => *out = system.stage_values(t, q, v, psi),
+                        }
+                    };
                 for i in 0..S {
                     let psi = mu[i] / h;
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
-                    let vals = &mut ev.stages[i];
-                    system.stage_values_and_constraint_jacobians(ti, &qi, &v[i], &psi, vals, &mut kq[i], &mut kv[i]);
-                    if Sys::HAS_FORCING {
-                        vals.force += system.external_force(ti, &qi, &v[i]);
-                    }
-                    if Sys::HAS_NONIDEAL_FORCE {
-                        vals.constraint_force += system.nonideal_force(ti, &qi, &v[i], &psi);
-                    }
-                }
-                system.stage_values_and_constraint_jacobians(
-                    t1,
-                    &q1,
-                    &v1,
-                    &zero_m,
-                    &mut ev.end,
-                    &mut kq[S],
-                    &mut kv[S],
-                );
-                if tab.conditions == ConditionRows::MidpointConstraint {
-                    let (tm, qm) = mid_point();
-                    let mv = ev.mid.insert(StageValues::zeros());
-                    system.stage_values_and_constraint_jacobians(
-                        tm,
-                        &qm,
-                        &v[0],
-                        &zero_m,
-                        mv,
-                        &mut kq[S + 1],
-                        &mut kv[S + 1],
-                    );
-                }
-            }
-            Derivatives::None => {
-                for i in 0..S {
-                    let psi = mu[i] / h;
-                    let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
-                    ev.stages[i] = system.stage_values(ti, &qi, &v[i], &psi);
+                    values_at(i, ti, &qi, &v[i], &psi, &mut ev.stages[i]);
                     if Sys::HAS_FORCING {
                         ev.stages[i].force += system.external_force(ti, &qi, &v[i]);
                     }
@@ -179,10 +159,10 @@ where
                         ev.stages[i].constraint_force += system.nonideal_force(ti, &qi, &v[i], &psi);
                     }
                 }
-                ev.end = system.stage_values(t1, &q1, &v1, &zero_m);
+                values_at(S, t1, &q1, &v1, &zero_m, &mut ev.end);
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
-                    ev.mid = Some(system.stage_values(tm, &qm, &v[0], &zero_m));
+                    values_at(S + 1, tm, &qm, &v[0], &zero_m, ev.mid.insert(StageValues::zeros()));
                 }
             }
         }
@@ -431,17 +411,11 @@ where
         lean: bool,
     ) -> Result<(Vector<D>, Matrix<D, D>, Vector<D>), crate::linalg::Singular> {
         let (g, mut approx) = self.residual_and_jacobian(state, h, z);
-        for i in 0..=S {
-            for l in 0..=S {
-                let col = if l < S { l * N } else { S * (N + M) };
-                let mass = match (i == l, i < S) {
-                    (false, _) => Matrix::<N, N>::zeros(),
-                    (true, true) => self.work.stages[i].mass,
-                    (true, false) => self.work.end.mass,
-                };
-                approx.fixed_view_mut::<N, N>(i * N, col).copy_from(&mass);
-            }
-        }
+        let work = &self.work;
+        decouple_velocity_blocks::<N, M, S, D>(
+            &mut approx,
+            |i| if i < S { work.stages[i].mass } else { work.end.mass },
+        );
         if lean {
             // A lean refresh takes the constraint Jacobians its evaluation
             // wrote (here: those of the full evaluation at the same `z`).
@@ -468,13 +442,7 @@ where
         mass: &Matrix<N, N>,
     ) -> Result<(Vector<D>, Matrix<D, D>, Vector<D>), crate::linalg::Singular> {
         let (g, mut approx) = self.residual_and_jacobian(state, h, z);
-        for i in 0..=S {
-            for l in 0..=S {
-                let col = if l < S { l * N } else { S * (N + M) };
-                let block = if i == l { *mass } else { Matrix::<N, N>::zeros() };
-                approx.fixed_view_mut::<N, N>(i * N, col).copy_from(&block);
-            }
-        }
+        decouple_velocity_blocks::<N, M, S, D>(&mut approx, |_| *mass);
         self.decoupled.invalidate();
         copy_constraint_jacobians(&self.work, &mut self.decoupled);
         self.decoupled.factor(&self.tableau, h, Masses::Constant(mass), None)?;
@@ -495,6 +463,23 @@ where
         let carry = self.carry_for(state);
         Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::None, &mut ev);
         Self::residual(&self.tableau, &p0, h, z, &ev)
+    }
+}
+
+/// The stage-decoupled matrix from the exact Jacobian `j`: the velocity
+/// blocks between different points zeroed and point `i`'s own block (stages
+/// `0..S`, the end point `S`) replaced by `mass(i)`.
+#[cfg(test)]
+fn decouple_velocity_blocks<const N: usize, const M: usize, const S: usize, const D: usize>(
+    j: &mut Matrix<D, D>,
+    mass: impl Fn(usize) -> Matrix<N, N>,
+) {
+    for i in 0..=S {
+        for l in 0..=S {
+            let col = if l < S { l * N } else { S * (N + M) };
+            let block = if i == l { mass(i) } else { Matrix::<N, N>::zeros() };
+            j.fixed_view_mut::<N, N>(i * N, col).copy_from(&block);
+        }
     }
 }
 
