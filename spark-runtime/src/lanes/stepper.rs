@@ -81,7 +81,8 @@ pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, cons
     steps: usize,
 }
 
-impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> LaneStepper<Sys, N, M, S, D, W>
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize, const W: usize>
+    LaneStepper<Sys, N, M, S, D, W>
 where
     Sys: NonholonomicSystem<N, M> + Clone,
 {

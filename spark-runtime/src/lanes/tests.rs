@@ -3,7 +3,9 @@
 
 use super::*;
 use crate::fixtures::paper::{MobileRobot, MpParticles, Skate};
-use crate::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepError, Stepper, Tableau, Vector};
+use crate::{
+    Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepError, Stepper, Tableau, Vector,
+};
 
 /// The settings of the paper's Fig. 8.4: simplified Newton, the matrix
 /// chosen by the structure facts (stage-decoupled for these systems).
@@ -221,7 +223,8 @@ fn lane_groups_refuse_what_they_cannot_run() {
     let err = lanes.start(&late[..4], 0.05).unwrap_err();
     assert_eq!(err, LaneError::StartTimes { member: 3, t: 1.0, t0: 0.0 });
     assert!(err.to_string().contains("1.000e0"), "{err}");
-    let run = |starts: &[State<7>], h| integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), starts, h, 10, 1);
+    let run =
+        |starts: &[State<7>], h| integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), starts, h, 10, 1);
     assert!(matches!(run(&late, 0.05), Err(LaneError::StartTimes { member: 3, .. })));
     assert!(matches!(run(&starts, f64::NAN), Err(LaneError::StepSize { .. })));
     assert_eq!(run(&[], 0.05), Ok(Vec::new()));
