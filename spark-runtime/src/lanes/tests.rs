@@ -229,3 +229,25 @@ fn lane_groups_refuse_what_they_cannot_run() {
     assert!(matches!(run(&starts, f64::NAN), Err(LaneError::StepSize { .. })));
     assert_eq!(run(&[], 0.05), Ok(Vec::new()));
 }
+
+/// The members' samples are those of the integration driver run on each
+/// member alone with the same fixed steps (no step of these runs needs a
+/// halving).
+#[test]
+fn mp_particles_in_lanes_match_the_driver() {
+    let starts = mp_starts(6);
+    let tab = Tableau::<2>::new(Method::ModifiedLobattoIIIAB).unwrap();
+    let runs = integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), &starts, 0.05, 600, 100).unwrap();
+    let opts = crate::RunOptions { record_every: 100, ..Default::default() };
+    for (j, (run, s)) in runs.iter().zip(&starts).enumerate() {
+        let mut st = Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tab).with_options(fig84());
+        let schedule = crate::Schedule::Fixed { h: 0.05, steps: 600 };
+        let traj = st.integrate(s.t, &s.q, &s.v, schedule, &opts, &mut crate::NoObserver).unwrap();
+        let driver = EnsembleRun {
+            samples: traj.samples.iter().map(|p| State::new(p.t, p.q, p.v)).collect(),
+            steps: traj.report.steps,
+            failure: None,
+        };
+        assert_same(run, &driver, &format!("member {j} against the driver"));
+    }
+}
