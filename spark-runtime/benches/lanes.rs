@@ -5,6 +5,9 @@
 //! - `lanes/mp7/sequential`: eight steppers, one member after another;
 //! - `lanes/mp7/lanes-4x2`: two [`LaneStepper`]s of four lanes;
 //! - `lanes/mp7/lanes-8`: one [`LaneStepper`] of eight lanes;
+//! - `lanes/mp7/lanes-4x2-blocked`: two groups of four, each lane's 100
+//!   steps back to back ([`LaneStepper::advance_by`], as
+//!   [`integrate_ensemble`] steps between samples);
 //!
 //! timed by the measuring thread's CPU time (one core), and
 //! - `lanes/mp7/ensemble-2-threads`: [`integrate_ensemble`] on a pool of
@@ -76,6 +79,17 @@ fn one_core(c: &mut C) {
                 for _ in 0..STEPS {
                     lanes.advance();
                 }
+                acc += lanes.state(0).unwrap().q[0];
+            }
+            black_box(acc)
+        })
+    });
+    c.bench_function("lanes/mp7/lanes-4x2-blocked", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for (lanes, chunk) in groups.iter_mut().zip(starts.chunks(4)) {
+                lanes.start(chunk, H).unwrap();
+                lanes.advance_by(STEPS);
                 acc += lanes.state(0).unwrap().q[0];
             }
             black_box(acc)

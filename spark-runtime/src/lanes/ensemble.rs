@@ -58,18 +58,25 @@ where
             lanes.start(chunk, h)?;
             let mut runs: Vec<EnsembleRun<N>> =
                 chunk.iter().map(|s| EnsembleRun { samples: vec![*s], steps: 0, failure: None }).collect();
-            for k in 0..steps {
-                let running = lanes.advance();
-                let record = k + 1 == steps || (sample_every != 0 && (k + 1) % sample_every == 0);
+            // Lane after lane up to the next sample (see `advance_by`).
+            let mut done = 0;
+            while done < steps {
+                let chunk = if sample_every == 0 { steps - done } else { sample_every - done % sample_every };
+                let chunk = chunk.min(steps - done);
+                let running = lanes.advance_by(chunk);
+                done += chunk;
                 for (j, run) in runs.iter_mut().enumerate() {
                     if run.failure.is_some() {
                         continue;
                     }
                     match lanes.status(j) {
-                        Some(LaneStatus::Failed(f)) => run.failure = Some((**f).clone()),
+                        Some(LaneStatus::Failed(f)) => {
+                            run.steps = f.step;
+                            run.failure = Some((**f).clone());
+                        }
                         Some(LaneStatus::Running) => {
-                            run.steps = k + 1;
-                            if let (true, Some(s)) = (record, lanes.state(j)) {
+                            run.steps = done;
+                            if let Some(s) = lanes.state(j) {
                                 run.samples.push(*s);
                             }
                         }

@@ -135,29 +135,41 @@ where
     /// stops there ([`LaneStatus::Failed`]) and the others go on. Returns
     /// how many lanes still run.
     pub fn advance(&mut self) -> usize {
-        let t_target = self.t0 + (self.steps + 1) as f64 * self.h;
+        self.advance_by(1)
+    }
+
+    /// `k` steps of every running lane, lane after lane: the states are
+    /// those of `k` calls of [`Self::advance`] (the members are
+    /// independent), and a member's `k` steps run back to back, so its
+    /// stepper's work storage stays in cache between them. Returns how many
+    /// lanes still run.
+    pub fn advance_by(&mut self, k: usize) -> usize {
         let mut running = 0;
         for j in 0..W {
             if !matches!(self.status[j], LaneStatus::Running) {
                 continue;
             }
             let (lane, state) = (&mut self.lanes[j], &mut self.states[j]);
-            match lane.step(state, self.h) {
-                Ok(r) => {
-                    // As the driver does: t pinned to the schedule, and the
-                    // pinned state declared the continuation of the step.
-                    *state = State { t: t_target, ..r.state };
-                    lane.retarget_warm_start(state);
-                    self.iterations[j] = r.iterations;
-                    running += 1;
-                }
-                Err(error) => {
-                    let failure = LaneFailure { step: self.steps, t: state.t, error };
-                    self.status[j] = LaneStatus::Failed(Box::new(failure));
+            for i in self.steps..self.steps + k {
+                match lane.step(state, self.h) {
+                    Ok(r) => {
+                        // As the driver does: t pinned to the schedule, and
+                        // the pinned state declared the continuation of the
+                        // step.
+                        *state = State { t: self.t0 + (i + 1) as f64 * self.h, ..r.state };
+                        lane.retarget_warm_start(state);
+                        self.iterations[j] = r.iterations;
+                    }
+                    Err(error) => {
+                        let failure = LaneFailure { step: i, t: state.t, error };
+                        self.status[j] = LaneStatus::Failed(Box::new(failure));
+                        break;
+                    }
                 }
             }
+            running += usize::from(matches!(self.status[j], LaneStatus::Running));
         }
-        self.steps += 1;
+        self.steps += k;
         running
     }
 
