@@ -31,11 +31,11 @@
 //! function that would change, and the tests in this module compare every
 //! lane with its member stepped alone, bit for bit.
 //!
-//! Stepped scalar, the lock-step costs time on one core: eight members of
-//! those particles take ≈ 1.17× the time of the same members stepped one
-//! after another (`cargo bench -p spark-runtime --bench lanes`), since the
-//! eight steppers' work storage no longer stays in the L1 cache between
-//! two steps of one member.
+//! Stepped scalar, lanes neither gain nor lose on one core: eight members
+//! of those particles in lanes took 0.85× and 1.06× of the time of the same
+//! members stepped one after another in two runs of
+//! `cargo bench -p spark-runtime --bench lanes` on a loaded machine (the
+//! difference is noise).
 //!
 //! Throughput across cores comes from [`integrate_ensemble`], which runs
 //! lane groups in parallel (rayon).

@@ -140,9 +140,8 @@ where
 
     /// `k` steps of every running lane, lane after lane: the states are
     /// those of `k` calls of [`Self::advance`] (the members are
-    /// independent), and a member's `k` steps run back to back, so its
-    /// stepper's work storage stays in cache between them. Returns how many
-    /// lanes still run.
+    /// independent), with a member's `k` steps back to back. Returns how
+    /// many lanes still run.
     pub fn advance_by(&mut self, k: usize) -> usize {
         let mut running = 0;
         for j in 0..W {
