@@ -30,6 +30,9 @@
 //!   ψ-eliminated equations, for error measurements.
 //! - [`diagnostics`]: the drift of holonomic constraints and the work of
 //!   the external and non-ideal forces over a step.
+//! - [`lanes`]: ensembles of one system, method and step size, members
+//!   advanced in lock-step ([`LaneStepper`]) and lane groups in parallel
+//!   ([`integrate_ensemble`]), each member bit for bit its solo run.
 //! - [`NewtonMatrix`]: the Newton matrix of a step, public so that benches
 //!   can time its factorization and solve alone.
 //!
@@ -134,6 +137,7 @@ mod error;
 pub mod events;
 pub mod fixtures;
 mod initial;
+pub mod lanes;
 mod linalg;
 mod options;
 pub mod reference;
@@ -159,6 +163,7 @@ pub use events::{
     EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+pub use lanes::{integrate_ensemble, EnsembleRun, LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 pub use rejection::{
     integrate_with_rejection, step_with_rejection, ProtectedStep, RejectionError, RejectionPolicy, RejectionReport,

@@ -1,0 +1,94 @@
+//! Whole ensembles: the members split into lane groups of [`LANES`], each
+//! group a [`LaneStepper`], the groups run in parallel (rayon).
+
+use rayon::prelude::*;
+
+use super::stepper::{LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
+use crate::step::{NewtonOptions, State};
+use crate::system::NonholonomicSystem;
+use crate::tableau::Tableau;
+
+/// One member's run in [`integrate_ensemble`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnsembleRun<const N: usize> {
+    /// Its start, its state after every `sample_every`-th step and after
+    /// its last step (up to the step before a failure).
+    pub samples: Vec<State<N>>,
+    /// Steps it completed.
+    pub steps: usize,
+    /// The failed step that stopped it, if one did.
+    pub failure: Option<LaneFailure>,
+}
+
+/// Integrates every member of `starts` (one start time) with `steps` fixed
+/// steps of size `h`, in lane groups of [`LANES`] that run in parallel on
+/// rayon's current thread pool. Each member's samples are bit for bit
+/// those of its own [`Stepper`](struct@crate::Stepper) stepped alone with
+/// `t` pinned to `t₀ + k·h` (what [`Stepper::integrate`](crate::Stepper::integrate)
+/// computes for a fixed schedule when no step needs halving), whatever the
+/// grouping and the thread count; a member that fails stops with its
+/// [`LaneFailure`] and no other member is affected.
+///
+/// `sample_every = 0` records the start and the end only. Fails only for a
+/// request no member can run: a zero or non-finite `h`, or start times that
+/// differ.
+pub fn integrate_ensemble<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    system: &Sys,
+    tableau: Tableau<S>,
+    options: NewtonOptions,
+    starts: &[State<N>],
+    h: f64,
+    steps: usize,
+    sample_every: usize,
+) -> Result<Vec<EnsembleRun<N>>, LaneError>
+where
+    Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
+{
+    let Some(first) = starts.first() else { return Ok(Vec::new()) };
+    if h == 0.0 || !h.is_finite() {
+        return Err(LaneError::StepSize { h });
+    }
+    if let Some((member, s)) = starts.iter().enumerate().find(|(_, s)| s.t.to_bits() != first.t.to_bits()) {
+        return Err(LaneError::StartTimes { member, t: s.t, t0: first.t });
+    }
+    let groups = starts
+        .par_chunks(LANES)
+        .map(|chunk| {
+            let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(system.clone(), tableau, options);
+            lanes.start(chunk, h)?;
+            let mut runs: Vec<EnsembleRun<N>> =
+                chunk.iter().map(|s| EnsembleRun { samples: vec![*s], steps: 0, failure: None }).collect();
+            // Lane after lane up to the next sample (see `advance_by`).
+            let mut done = 0;
+            while done < steps {
+                let chunk = if sample_every == 0 { steps - done } else { sample_every - done % sample_every };
+                let chunk = chunk.min(steps - done);
+                let running = lanes.advance_by(chunk);
+                done += chunk;
+                for (j, run) in runs.iter_mut().enumerate() {
+                    if run.failure.is_some() {
+                        continue;
+                    }
+                    match lanes.status(j) {
+                        Some(LaneStatus::Failed(f)) => {
+                            run.steps = f.step;
+                            run.failure = Some((**f).clone());
+                        }
+                        Some(LaneStatus::Running) => {
+                            run.steps = done;
+                            if let Some(s) = lanes.state(j) {
+                                run.samples.push(*s);
+                            }
+                        }
+                        Some(LaneStatus::Empty) | None => {}
+                    }
+                }
+                if running == 0 {
+                    break;
+                }
+            }
+            Ok(runs)
+        })
+        .collect::<Result<Vec<_>, LaneError>>()?;
+    Ok(groups.into_iter().flatten().collect())
+}

@@ -1,0 +1,203 @@
+//! The [`LaneStepper`]: `W` members of one ensemble (same system, method,
+//! Newton options and step size) advanced in lock-step on fixed steps, with
+//! a status per member.
+
+use crate::step::{NewtonOptions, State, Stepper};
+use crate::system::NonholonomicSystem;
+use crate::tableau::Tableau;
+use crate::StepError;
+
+/// Members per lane group of [`integrate_ensemble`](crate::integrate_ensemble):
+/// four `f64` fill one 256-bit (AVX2) vector.
+pub const LANES: usize = 4;
+
+/// Why a lane group cannot start.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum LaneError {
+    /// More members than lanes, or none.
+    #[error("a lane group holds 1 to {lanes} members; got {members}")]
+    MemberCount {
+        /// Members asked for.
+        members: usize,
+        /// Lanes of the group.
+        lanes: usize,
+    },
+    /// The members do not start at one time (they share the step times
+    /// `t₀ + k·h`).
+    #[error("member {member} starts at t = {t:.3e}, member 0 at t = {t0:.3e}; an ensemble shares its start time")]
+    StartTimes {
+        /// The member whose start time differs.
+        member: usize,
+        /// Its start time.
+        t: f64,
+        /// Member 0's start time.
+        t0: f64,
+    },
+    /// The step size is zero or not finite.
+    #[error("step size h = {h:.3e} must be finite and nonzero")]
+    StepSize {
+        /// The step size asked for.
+        h: f64,
+    },
+}
+
+/// How a member ended its steps: the step that failed and its error.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("step {step} from t = {t:.3e} failed: {error}")]
+pub struct LaneFailure {
+    /// Index of the failed step (0 = the first step from the start).
+    pub step: usize,
+    /// Time the failed step started from.
+    pub t: f64,
+    /// The stepper's error.
+    pub error: StepError,
+}
+
+/// What a lane is doing.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LaneStatus {
+    /// Holds no member (the group has fewer members than lanes).
+    Empty,
+    /// Steps on.
+    Running,
+    /// Stopped at a failed step; its state is where that step started.
+    Failed(Box<LaneFailure>),
+}
+
+/// `W` members of an ensemble stepped in lock-step with one step size `h`:
+/// [`Self::advance`] takes one step of every running member. Each lane is
+/// a [`Stepper`] of its own (see the `lanes` module docs), so a member's
+/// states are bit for bit those of its stepper alone, stepped from the
+/// same start with `t` pinned to `t₀ + k·h` after every step as
+/// [`Stepper::integrate`] pins it.
+#[derive(Clone, Debug)]
+pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> {
+    lanes: [Stepper<Sys, N, M, S, D>; W],
+    states: [State<N>; W],
+    status: [LaneStatus; W],
+    iterations: [usize; W],
+    t0: f64,
+    h: f64,
+    steps: usize,
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize, const W: usize>
+    LaneStepper<Sys, N, M, S, D, W>
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    /// `W` lanes stepping `system` with `tableau` and `options`, all empty.
+    pub fn new(system: Sys, tableau: Tableau<S>, options: NewtonOptions) -> Self {
+        const { assert!(W >= 1, "LaneStepper: W must be at least 1") };
+        LaneStepper {
+            lanes: std::array::from_fn(|_| Stepper::new(system.clone(), tableau).with_options(options)),
+            states: [State::new(0.0, nalgebra::zero(), nalgebra::zero()); W],
+            status: std::array::from_fn(|_| LaneStatus::Empty),
+            iterations: [0; W],
+            t0: 0.0,
+            h: 0.0,
+            steps: 0,
+        }
+    }
+
+    /// Loads the members `starts` (1 to `W`, one start time) for steps of
+    /// size `h`; lanes beyond them stay empty. Every lane forgets its
+    /// previous run, so the first step of each member starts cold and checks
+    /// its state (an inconsistent one fails that member alone, with
+    /// [`StepError::InconsistentStart`]).
+    pub fn start(&mut self, starts: &[State<N>], h: f64) -> Result<(), LaneError> {
+        if starts.is_empty() || starts.len() > W {
+            return Err(LaneError::MemberCount { members: starts.len(), lanes: W });
+        }
+        if h == 0.0 || !h.is_finite() {
+            return Err(LaneError::StepSize { h });
+        }
+        let t0 = starts[0].t;
+        if let Some((member, s)) = starts.iter().enumerate().find(|(_, s)| s.t.to_bits() != t0.to_bits()) {
+            return Err(LaneError::StartTimes { member, t: s.t, t0 });
+        }
+        for (j, lane) in self.lanes.iter_mut().enumerate() {
+            lane.reset_run();
+            self.iterations[j] = 0;
+            match starts.get(j) {
+                Some(s) => {
+                    self.states[j] = *s;
+                    self.status[j] = LaneStatus::Running;
+                }
+                None => self.status[j] = LaneStatus::Empty,
+            }
+        }
+        (self.t0, self.h, self.steps) = (t0, h, 0);
+        Ok(())
+    }
+
+    /// One step of size `h` of every running lane; a lane whose step fails
+    /// stops there ([`LaneStatus::Failed`]) and the others go on. Returns
+    /// how many lanes still run.
+    pub fn advance(&mut self) -> usize {
+        self.advance_by(1)
+    }
+
+    /// `k` steps of every running lane, lane after lane: the states are
+    /// those of `k` calls of [`Self::advance`] (the members are
+    /// independent), with a member's `k` steps back to back. Returns how
+    /// many lanes still run.
+    pub fn advance_by(&mut self, k: usize) -> usize {
+        let mut running = 0;
+        for j in 0..W {
+            if !matches!(self.status[j], LaneStatus::Running) {
+                continue;
+            }
+            let (lane, state) = (&mut self.lanes[j], &mut self.states[j]);
+            for i in self.steps..self.steps + k {
+                match lane.step(state, self.h) {
+                    Ok(r) => {
+                        // As the driver does: t pinned to the schedule, and
+                        // the pinned state declared the continuation of the
+                        // step.
+                        *state = State { t: self.t0 + (i + 1) as f64 * self.h, ..r.state };
+                        lane.retarget_warm_start(state);
+                        self.iterations[j] = r.iterations;
+                    }
+                    Err(error) => {
+                        let failure = LaneFailure { step: i, t: state.t, error };
+                        self.status[j] = LaneStatus::Failed(Box::new(failure));
+                        break;
+                    }
+                }
+            }
+            running += usize::from(matches!(self.status[j], LaneStatus::Running));
+        }
+        self.steps += k;
+        running
+    }
+
+    /// Steps taken since [`Self::start`].
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// The state of lane `j`: where its latest step ended (its start before
+    /// any step; where the failed step started for a failed lane).
+    /// `None` when `j ≥ W`.
+    pub fn state(&self, j: usize) -> Option<&State<N>> {
+        self.states.get(j)
+    }
+
+    /// The status of lane `j` (`None` when `j ≥ W`).
+    pub fn status(&self, j: usize) -> Option<&LaneStatus> {
+        self.status.get(j)
+    }
+
+    /// Newton iterations of lane `j`'s latest successful step (`None` when
+    /// `j ≥ W`).
+    pub fn iterations(&self, j: usize) -> Option<usize> {
+        self.iterations.get(j).copied()
+    }
+
+    /// The stepper of lane `j`: its options, system and latest Newton
+    /// history (`None` when `j ≥ W`).
+    pub fn lane(&self, j: usize) -> Option<&Stepper<Sys, N, M, S, D>> {
+        self.lanes.get(j)
+    }
+}

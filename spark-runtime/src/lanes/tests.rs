@@ -1,0 +1,253 @@
+//! Every lane against its member stepped alone, bit for bit; failures that
+//! stay in their lane; the requests a lane group refuses.
+
+use super::*;
+use crate::fixtures::paper::{MobileRobot, MpParticles, Skate};
+use crate::{
+    Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepError, Stepper, Tableau, Vector,
+};
+
+/// The settings of the paper's Fig. 8.4: simplified Newton, the matrix
+/// chosen by the structure facts (stage-decoupled for these systems).
+fn fig84() -> NewtonOptions {
+    NewtonOptions { mode: NewtonMode::Simplified, jacobian: Jacobian::Auto, ..NewtonOptions::default() }
+}
+
+/// The member `start` stepped alone by its own stepper, with `t` pinned to
+/// `t₀ + k·h` after every step and sampled as [`integrate_ensemble`]
+/// samples.
+fn solo<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    system: &Sys,
+    tableau: Tableau<S>,
+    options: NewtonOptions,
+    start: State<N>,
+    h: f64,
+    steps: usize,
+    every: usize,
+) -> EnsembleRun<N>
+where
+    Sys: NonholonomicSystem<N, M> + Clone,
+{
+    let mut st = Stepper::<Sys, N, M, S, D>::new(system.clone(), tableau).with_options(options);
+    let mut run = EnsembleRun { samples: vec![start], steps: 0, failure: None };
+    let mut s = start;
+    for k in 0..steps {
+        match st.step(&s, h) {
+            Ok(r) => {
+                s = State { t: start.t + (k + 1) as f64 * h, ..r.state };
+                st.retarget_warm_start(&s);
+                run.steps = k + 1;
+                if k + 1 == steps || (every != 0 && (k + 1) % every == 0) {
+                    run.samples.push(s);
+                }
+            }
+            Err(error) => {
+                run.failure = Some(LaneFailure { step: k, t: s.t, error });
+                break;
+            }
+        }
+    }
+    run
+}
+
+/// Whether two runs agree bit for bit (failures compared by their debug
+/// text, which holds every number of the Newton history, NaN included).
+fn assert_same<const N: usize>(lane: &EnsembleRun<N>, alone: &EnsembleRun<N>, what: &str) {
+    let bits = |s: &State<N>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
+    assert_eq!(lane.steps, alone.steps, "{what}: steps");
+    assert_eq!(lane.samples.len(), alone.samples.len(), "{what}: samples");
+    for (k, (a, b)) in lane.samples.iter().zip(&alone.samples).enumerate() {
+        assert!(bits(a) == bits(b), "{what}: sample {k}: {a:?} in the lane, {b:?} alone");
+    }
+    assert_eq!(format!("{:?}", lane.failure), format!("{:?}", alone.failure), "{what}: failure");
+}
+
+/// Runs `starts` as one ensemble and every member alone; all must agree.
+#[allow(clippy::too_many_arguments)]
+fn compare<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    system: Sys,
+    method: Method,
+    options: NewtonOptions,
+    starts: &[State<N>],
+    h: f64,
+    steps: usize,
+    every: usize,
+) -> Vec<EnsembleRun<N>>
+where
+    Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
+{
+    let tab = Tableau::<S>::new(method).unwrap();
+    let runs = integrate_ensemble::<Sys, N, M, S, D>(&system, tab, options, starts, h, steps, every).unwrap();
+    assert_eq!(runs.len(), starts.len());
+    for (j, (run, start)) in runs.iter().zip(starts).enumerate() {
+        let alone = solo::<Sys, N, M, S, D>(&system, tab, options, *start, h, steps, every);
+        assert_same(run, &alone, &format!("{} {method} s={S} member {j}", Sys::SOURCE.name));
+    }
+    runs
+}
+
+/// McLachlan–Perlmutter starts: the fixed `q₀` with `v₀ = (0, β, 0, …)`
+/// (consistent: `k = v₁ + q₅v₅ + q₆v₆ + q₇v₇`).
+fn mp_starts(members: usize) -> Vec<State<7>> {
+    let q0 = Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+    (0..members)
+        .map(|j| {
+            let mut v0 = Vector::<7>::zeros();
+            v0[1] = 0.05 * j as f64;
+            State::new(0.0, q0, v0)
+        })
+        .collect()
+}
+
+/// Six members (one full group of four and one of two), 600 steps, the
+/// methods of Fig. 8.4 and Gauss s = 3, simplified and full Newton.
+#[test]
+fn mp_particles_in_lanes_match_each_member_alone() {
+    let starts = mp_starts(6);
+    for method in [Method::LobattoIIIAB, Method::ModifiedLobattoIIIAB, Method::LobattoIIIBALda] {
+        let runs = compare::<_, 7, 1, 2, 23>(MpParticles, method, fig84(), &starts, 0.05, 600, 100);
+        assert!(runs.iter().all(|r| r.failure.is_none() && r.samples.len() == 7), "{method}");
+    }
+    let full = NewtonOptions::default();
+    let runs = compare::<_, 7, 1, 3, 31>(MpParticles, Method::Gauss, full, &starts, 0.05, 600, 0);
+    assert!(runs.iter().all(|r| r.failure.is_none() && r.samples.len() == 2));
+}
+
+/// The skate (five members) and the mobile robot (nine: two full groups
+/// and one of one), several methods and stage counts.
+#[test]
+fn skate_and_robot_in_lanes_match_each_member_alone() {
+    let skate: Vec<_> = (0..5)
+        .map(|j| State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.2 * j as f64, 0.0, 1.0 + 0.1 * j as f64)))
+        .collect();
+    compare::<_, 3, 1, 2, 11>(Skate::default(), Method::Gauss, fig84(), &skate, 0.1, 500, 7);
+    compare::<_, 3, 1, 3, 15>(Skate::default(), Method::LobattoIIIAB, NewtonOptions::default(), &skate, 0.1, 500, 7);
+    let robot: Vec<_> = (0..9)
+        .map(|j| {
+            let w = 0.1 * j as f64;
+            State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(w, 0.0, 0.5 - 0.05 * j as f64, w))
+        })
+        .collect();
+    compare::<_, 4, 2, 2, 16>(MobileRobot::default(), Method::LobattoIIIABD, fig84(), &robot, 0.2, 400, 50);
+    compare::<_, 4, 2, 3, 22>(MobileRobot::default(), Method::Gauss, fig84(), &robot, 0.2, 400, 50);
+}
+
+/// A member with an inconsistent start fails its first step alone with
+/// the stepper's own error; the other members of its group run on and
+/// match their solo runs.
+#[test]
+fn an_inconsistent_member_fails_alone() {
+    let mut starts = mp_starts(5);
+    starts[2].v[0] = 0.5; // k = v₁ + … = 0.5
+    let runs = compare::<_, 7, 1, 2, 23>(MpParticles, Method::LobattoIIIAB, fig84(), &starts, 0.05, 200, 50);
+    for (j, run) in runs.iter().enumerate() {
+        match (&run.failure, j) {
+            (Some(f), 2) => {
+                assert!(f.step == 0 && matches!(f.error, StepError::InconsistentStart { .. }), "{f}");
+                assert_eq!(run.samples.len(), 1);
+            }
+            (None, 0 | 1 | 3 | 4) => assert_eq!(run.steps, 200),
+            _ => panic!("member {j}: {:?}", run.failure),
+        }
+    }
+}
+
+/// Robots at h = 2 (beyond Newton's reach for a moving one, simplified
+/// Newton without the energy guard): the moving member diverges at its own
+/// step with its own history, the robots at rest at `φ = −π/2` (the
+/// minimum of the potential `10 sin φ`) step on, and every member matches
+/// its solo run.
+#[test]
+fn a_diverging_member_fails_alone() {
+    let opts = NewtonOptions { energy_drift_limit: None, ..fig84() };
+    let phi = -std::f64::consts::FRAC_PI_2;
+    let starts = [
+        State::new(0.0, Vector::<4>::new(0.0, 0.0, 0.0, phi), Vector::<4>::zeros()),
+        State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0)),
+        State::new(0.0, Vector::<4>::new(0.5, -0.5, 0.0, phi), Vector::<4>::zeros()),
+    ];
+    let runs = compare::<_, 4, 2, 2, 16>(MobileRobot::default(), Method::Gauss, opts, &starts, 2.0, 20, 1);
+    assert!(runs[0].failure.is_none() && runs[2].failure.is_none(), "{:?} {:?}", runs[0].failure, runs[2].failure);
+    let failure = runs[1].failure.as_ref().expect("the moving robot at h = 2 fails");
+    assert!(matches!(failure.error, StepError::Diverged { .. }), "{failure}");
+}
+
+/// Eight lanes (a partly filled group) stepped directly match their
+/// members alone, and report their status and Newton iterations.
+#[test]
+fn eight_lanes_partly_filled() {
+    let starts = mp_starts(5);
+    let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+    let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(MpParticles, tab, fig84());
+    lanes.start(&starts, 0.05).unwrap();
+    for _ in 0..300 {
+        assert_eq!(lanes.advance(), 5);
+    }
+    assert_eq!(lanes.steps(), 300);
+    for (j, start) in starts.iter().enumerate() {
+        let alone = solo::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), *start, 0.05, 300, 0);
+        let lane = EnsembleRun { samples: vec![*start, *lanes.state(j).unwrap()], steps: 300, failure: None };
+        assert_same(&lane, &alone, &format!("lane {j}"));
+        assert_eq!(lanes.status(j), Some(&LaneStatus::Running));
+        assert!(lanes.iterations(j).is_some_and(|i| i > 0));
+    }
+    for j in 5..8 {
+        assert_eq!(lanes.status(j), Some(&LaneStatus::Empty));
+    }
+    assert_eq!(lanes.status(8), None);
+    // A second start forgets the first run: the same members again give
+    // the same states.
+    let first: Vec<_> = (0..5).map(|j| *lanes.state(j).unwrap()).collect();
+    lanes.start(&starts, 0.05).unwrap();
+    for _ in 0..300 {
+        lanes.advance();
+    }
+    for (j, s) in first.iter().enumerate() {
+        assert_eq!(lanes.state(j), Some(s), "lane {j} after a restart");
+    }
+}
+
+/// Requests a lane group or an ensemble cannot run.
+#[test]
+fn lane_groups_refuse_what_they_cannot_run() {
+    let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+    let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 4>::new(MpParticles, tab, fig84());
+    let starts = mp_starts(5);
+    assert_eq!(lanes.start(&starts, 0.05), Err(LaneError::MemberCount { members: 5, lanes: 4 }));
+    assert_eq!(lanes.start(&[], 0.05), Err(LaneError::MemberCount { members: 0, lanes: 4 }));
+    for h in [0.0, f64::NAN, f64::INFINITY] {
+        assert!(matches!(lanes.start(&starts[..2], h), Err(LaneError::StepSize { .. })), "{h}");
+    }
+    let mut late = starts.clone();
+    late[3].t = 1.0;
+    let err = lanes.start(&late[..4], 0.05).unwrap_err();
+    assert_eq!(err, LaneError::StartTimes { member: 3, t: 1.0, t0: 0.0 });
+    assert!(err.to_string().contains("1.000e0"), "{err}");
+    let run =
+        |starts: &[State<7>], h| integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), starts, h, 10, 1);
+    assert!(matches!(run(&late, 0.05), Err(LaneError::StartTimes { member: 3, .. })));
+    assert!(matches!(run(&starts, f64::NAN), Err(LaneError::StepSize { .. })));
+    assert_eq!(run(&[], 0.05), Ok(Vec::new()));
+}
+
+/// The members' samples are those of the integration driver run on each
+/// member alone with the same fixed steps (no step of these runs needs a
+/// halving).
+#[test]
+fn mp_particles_in_lanes_match_the_driver() {
+    let starts = mp_starts(6);
+    let tab = Tableau::<2>::new(Method::ModifiedLobattoIIIAB).unwrap();
+    let runs = integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), &starts, 0.05, 600, 100).unwrap();
+    let opts = crate::RunOptions { record_every: 100, ..Default::default() };
+    for (j, (run, s)) in runs.iter().zip(&starts).enumerate() {
+        let mut st = Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tab).with_options(fig84());
+        let schedule = crate::Schedule::Fixed { h: 0.05, steps: 600 };
+        let traj = st.integrate(s.t, &s.q, &s.v, schedule, &opts, &mut crate::NoObserver).unwrap();
+        let driver = EnsembleRun {
+            samples: traj.samples.iter().map(|p| State::new(p.t, p.q, p.v)).collect(),
+            steps: traj.report.steps,
+            failure: None,
+        };
+        assert_same(run, &driver, &format!("member {j} against the driver"));
+    }
+}
