@@ -16,6 +16,8 @@ pub struct EnsembleRun<const N: usize> {
     pub samples: Vec<State<N>>,
     /// Steps it completed.
     pub steps: usize,
+    /// Newton iterations over those steps.
+    pub iterations: usize,
     /// The failed step that stopped it, if one did.
     pub failure: Option<LaneFailure>,
 }
@@ -56,8 +58,10 @@ where
         .map(|chunk| {
             let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(system.clone(), tableau, options);
             lanes.start(chunk, h)?;
-            let mut runs: Vec<EnsembleRun<N>> =
-                chunk.iter().map(|s| EnsembleRun { samples: vec![*s], steps: 0, failure: None }).collect();
+            let mut runs: Vec<EnsembleRun<N>> = chunk
+                .iter()
+                .map(|s| EnsembleRun { samples: vec![*s], steps: 0, iterations: 0, failure: None })
+                .collect();
             // Lane after lane up to the next sample (see `advance_by`).
             let mut done = 0;
             while done < steps {
@@ -72,10 +76,12 @@ where
                     match lanes.status(j) {
                         Some(LaneStatus::Failed(f)) => {
                             run.steps = f.step;
+                            run.iterations = lanes.total_iterations(j).unwrap_or(0);
                             run.failure = Some((**f).clone());
                         }
                         Some(LaneStatus::Running) => {
                             run.steps = done;
+                            run.iterations = lanes.total_iterations(j).unwrap_or(0);
                             if let Some(s) = lanes.state(j) {
                                 run.samples.push(*s);
                             }

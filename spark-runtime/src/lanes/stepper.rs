@@ -76,6 +76,7 @@ pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, cons
     states: [State<N>; W],
     status: [LaneStatus; W],
     iterations: [usize; W],
+    total_iterations: [usize; W],
     t0: f64,
     h: f64,
     steps: usize,
@@ -94,6 +95,7 @@ where
             states: [State::new(0.0, nalgebra::zero(), nalgebra::zero()); W],
             status: std::array::from_fn(|_| LaneStatus::Empty),
             iterations: [0; W],
+            total_iterations: [0; W],
             t0: 0.0,
             h: 0.0,
             steps: 0,
@@ -119,6 +121,7 @@ where
         for (j, lane) in self.lanes.iter_mut().enumerate() {
             lane.reset_run();
             self.iterations[j] = 0;
+            self.total_iterations[j] = 0;
             match starts.get(j) {
                 Some(s) => {
                     self.states[j] = *s;
@@ -158,6 +161,7 @@ where
                         *state = State { t: self.t0 + (i + 1) as f64 * self.h, ..r.state };
                         lane.retarget_warm_start(state);
                         self.iterations[j] = r.iterations;
+                        self.total_iterations[j] += r.iterations;
                     }
                     Err(error) => {
                         let failure = LaneFailure { step: i, t: state.t, error };
@@ -193,6 +197,12 @@ where
     /// `j ≥ W`).
     pub fn iterations(&self, j: usize) -> Option<usize> {
         self.iterations.get(j).copied()
+    }
+
+    /// Newton iterations of lane `j`'s successful steps since
+    /// [`Self::start`] (`None` when `j ≥ W`).
+    pub fn total_iterations(&self, j: usize) -> Option<usize> {
+        self.total_iterations.get(j).copied()
     }
 
     /// The stepper of lane `j`: its options, system and latest Newton

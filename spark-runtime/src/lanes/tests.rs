@@ -29,7 +29,7 @@ where
     Sys: NonholonomicSystem<N, M> + Clone,
 {
     let mut st = Stepper::<Sys, N, M, S, D>::new(system.clone(), tableau).with_options(options);
-    let mut run = EnsembleRun { samples: vec![start], steps: 0, failure: None };
+    let mut run = EnsembleRun { samples: vec![start], steps: 0, iterations: 0, failure: None };
     let mut s = start;
     for k in 0..steps {
         match st.step(&s, h) {
@@ -37,6 +37,7 @@ where
                 s = State { t: start.t + (k + 1) as f64 * h, ..r.state };
                 st.retarget_warm_start(&s);
                 run.steps = k + 1;
+                run.iterations += r.iterations;
                 if k + 1 == steps || (every != 0 && (k + 1) % every == 0) {
                     run.samples.push(s);
                 }
@@ -55,6 +56,7 @@ where
 fn assert_same<const N: usize>(lane: &EnsembleRun<N>, alone: &EnsembleRun<N>, what: &str) {
     let bits = |s: &State<N>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
     assert_eq!(lane.steps, alone.steps, "{what}: steps");
+    assert_eq!(lane.iterations, alone.iterations, "{what}: Newton iterations");
     assert_eq!(lane.samples.len(), alone.samples.len(), "{what}: samples");
     for (k, (a, b)) in lane.samples.iter().zip(&alone.samples).enumerate() {
         assert!(bits(a) == bits(b), "{what}: sample {k}: {a:?} in the lane, {b:?} alone");
@@ -186,7 +188,9 @@ fn eight_lanes_partly_filled() {
     assert_eq!(lanes.steps(), 300);
     for (j, start) in starts.iter().enumerate() {
         let alone = solo::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), *start, 0.05, 300, 0);
-        let lane = EnsembleRun { samples: vec![*start, *lanes.state(j).unwrap()], steps: 300, failure: None };
+        let iterations = lanes.total_iterations(j).unwrap();
+        let lane =
+            EnsembleRun { samples: vec![*start, *lanes.state(j).unwrap()], steps: 300, iterations, failure: None };
         assert_same(&lane, &alone, &format!("lane {j}"));
         assert_eq!(lanes.status(j), Some(&LaneStatus::Running));
         assert!(lanes.iterations(j).is_some_and(|i| i > 0));
@@ -246,6 +250,7 @@ fn mp_particles_in_lanes_match_the_driver() {
         let driver = EnsembleRun {
             samples: traj.samples.iter().map(|p| State::new(p.t, p.q, p.v)).collect(),
             steps: traj.report.steps,
+            iterations: traj.report.newton_iterations_total,
             failure: None,
         };
         assert_same(run, &driver, &format!("member {j} against the driver"));
