@@ -41,6 +41,7 @@
 //! lane groups in parallel (rayon).
 
 mod ensemble;
+mod kernel;
 mod stepper;
 #[cfg(test)]
 mod tests;

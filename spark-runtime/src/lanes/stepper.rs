@@ -2,6 +2,7 @@
 //! Newton options and step size) advanced in lock-step on fixed steps, with
 //! a status per member.
 
+use super::kernel::{Kernel, Outcome};
 use crate::step::{NewtonOptions, State, Stepper};
 use crate::system::NonholonomicSystem;
 use crate::tableau::Tableau;
@@ -72,11 +73,21 @@ pub enum LaneStatus {
 /// [`Stepper::integrate`] pins it.
 #[derive(Clone, Debug)]
 pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> {
+    system: Sys,
+    tableau: Tableau<S>,
+    options: NewtonOptions,
     lanes: [Stepper<Sys, N, M, S, D>; W],
+    /// The structure-of-arrays kernel (see the module docs), made at the
+    /// first lane it can take; `kernel_refused` once its mass matrix was
+    /// found singular.
+    kernel: Option<Box<Kernel<N, M, S, D, W>>>,
+    kernel_refused: bool,
     states: [State<N>; W],
     status: [LaneStatus; W],
     iterations: [usize; W],
     total_iterations: [usize; W],
+    /// Steps each lane took in the kernel since [`Self::start`].
+    kernel_steps: [usize; W],
     t0: f64,
     h: f64,
     steps: usize,
@@ -92,10 +103,16 @@ where
         const { assert!(W >= 1, "LaneStepper: W must be at least 1") };
         LaneStepper {
             lanes: std::array::from_fn(|_| Stepper::new(system.clone(), tableau).with_options(options)),
+            system,
+            tableau,
+            options,
+            kernel: None,
+            kernel_refused: false,
             states: [State::new(0.0, nalgebra::zero(), nalgebra::zero()); W],
             status: std::array::from_fn(|_| LaneStatus::Empty),
             iterations: [0; W],
             total_iterations: [0; W],
+            kernel_steps: [0; W],
             t0: 0.0,
             h: 0.0,
             steps: 0,
@@ -118,10 +135,12 @@ where
         if let Some((member, s)) = starts.iter().enumerate().find(|(_, s)| s.t.to_bits() != t0.to_bits()) {
             return Err(LaneError::StartTimes { member, t: s.t, t0 });
         }
+        (self.kernel, self.kernel_refused) = (None, false);
         for (j, lane) in self.lanes.iter_mut().enumerate() {
             lane.reset_run();
             self.iterations[j] = 0;
             self.total_iterations[j] = 0;
+            self.kernel_steps[j] = 0;
             match starts.get(j) {
                 Some(s) => {
                     self.states[j] = *s;
@@ -141,39 +160,78 @@ where
         self.advance_by(1)
     }
 
-    /// `k` steps of every running lane, lane after lane: the states are
-    /// those of `k` calls of [`Self::advance`] (the members are
-    /// independent), with a member's `k` steps back to back. Returns how
-    /// many lanes still run.
+    /// `k` steps of every running lane: the states are those of `k` calls
+    /// of [`Self::advance`]. Returns how many lanes still run.
     pub fn advance_by(&mut self, k: usize) -> usize {
-        let mut running = 0;
-        for j in 0..W {
-            if !matches!(self.status[j], LaneStatus::Running) {
-                continue;
-            }
-            let (lane, state) = (&mut self.lanes[j], &mut self.states[j]);
-            for i in self.steps..self.steps + k {
-                match lane.step(state, self.h) {
-                    Ok(r) => {
-                        // As the driver does: t pinned to the schedule, and
-                        // the pinned state declared the continuation of the
-                        // step.
-                        *state = State { t: self.t0 + (i + 1) as f64 * self.h, ..r.state };
-                        lane.retarget_warm_start(state);
-                        self.iterations[j] = r.iterations;
-                        self.total_iterations[j] += r.iterations;
+        for i in self.steps..self.steps + k {
+            let t = self.t0 + i as f64 * self.h;
+            let t_next = self.t0 + (i + 1) as f64 * self.h;
+            let outcomes = match self.kernel.as_deref_mut() {
+                Some(kernel) => kernel.step(&self.system, &self.tableau, &self.options, t, t_next),
+                None => [Outcome::Idle; W],
+            };
+            for (j, outcome) in outcomes.into_iter().enumerate() {
+                match outcome {
+                    Outcome::Stepped(iterations) => {
+                        self.kernel_steps[j] += 1;
+                        self.iterations[j] = iterations;
+                        self.total_iterations[j] += iterations;
                     }
-                    Err(error) => {
-                        let failure = LaneFailure { step: i, t: state.t, error };
-                        self.status[j] = LaneStatus::Failed(Box::new(failure));
-                        break;
+                    Outcome::HandBack => {
+                        if let Some(kernel) = self.kernel.as_deref_mut() {
+                            let c = kernel.give(j, t);
+                            self.lanes[j].resume_lane(&c);
+                            self.states[j] = c.end;
+                        }
+                        self.step_alone(j, i);
+                    }
+                    Outcome::Idle => {
+                        if matches!(self.status[j], LaneStatus::Running) {
+                            self.step_alone(j, i);
+                        }
                     }
                 }
             }
-            running += usize::from(matches!(self.status[j], LaneStatus::Running));
         }
         self.steps += k;
+        let t = self.t0 + self.steps as f64 * self.h;
+        let mut running = 0;
+        for j in 0..W {
+            if let Some(kernel) = self.kernel.as_deref().filter(|kn| kn.holds(j)) {
+                self.states[j] = kernel.state(j, t);
+            }
+            running += usize::from(matches!(self.status[j], LaneStatus::Running));
+        }
         running
+    }
+
+    /// Step `i` of lane `j` by its own stepper; hands the lane to the
+    /// kernel when its next step takes the kernel's path.
+    fn step_alone(&mut self, j: usize, i: usize) {
+        let (lane, state) = (&mut self.lanes[j], &mut self.states[j]);
+        match lane.step(state, self.h) {
+            Ok(r) => {
+                // As the driver does: t pinned to the schedule, and the
+                // pinned state declared the continuation of the step.
+                *state = State { t: self.t0 + (i + 1) as f64 * self.h, ..r.state };
+                lane.retarget_warm_start(state);
+                self.iterations[j] = r.iterations;
+                self.total_iterations[j] += r.iterations;
+            }
+            Err(error) => {
+                let failure = LaneFailure { step: i, t: state.t, error };
+                self.status[j] = LaneStatus::Failed(Box::new(failure));
+                return;
+            }
+        }
+        let Some(c) = lane.lane_continuation(state, self.h) else { return };
+        if self.kernel.is_none() && !self.kernel_refused {
+            self.kernel = Kernel::new(&self.system, state, self.h).map(Box::new);
+            self.kernel_refused = self.kernel.is_none();
+        }
+        if let Some(kernel) = self.kernel.as_deref_mut() {
+            kernel.take(j, &c);
+        }
     }
 
     /// Steps taken since [`Self::start`].
@@ -203,6 +261,13 @@ where
     /// [`Self::start`] (`None` when `j ≥ W`).
     pub fn total_iterations(&self, j: usize) -> Option<usize> {
         self.total_iterations.get(j).copied()
+    }
+
+    /// How many of lane `j`'s steps since [`Self::start`] the
+    /// structure-of-arrays kernel took (the rest its own stepper took; see
+    /// the module docs). `None` when `j ≥ W`.
+    pub fn kernel_steps(&self, j: usize) -> Option<usize> {
+        self.kernel_steps.get(j).copied()
     }
 
     /// The stepper of lane `j`: its options, system and latest Newton

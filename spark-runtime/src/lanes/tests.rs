@@ -194,6 +194,9 @@ fn eight_lanes_partly_filled() {
         assert_same(&lane, &alone, &format!("lane {j}"));
         assert_eq!(lanes.status(j), Some(&LaneStatus::Running));
         assert!(lanes.iterations(j).is_some_and(|i| i > 0));
+        // Two steps alone build the extrapolation's history; the kernel
+        // takes every later step of these members.
+        assert_eq!(lanes.kernel_steps(j), Some(298), "lane {j}");
     }
     for j in 5..8 {
         assert_eq!(lanes.status(j), Some(&LaneStatus::Empty));
@@ -255,4 +258,27 @@ fn mp_particles_in_lanes_match_the_driver() {
         };
         assert_same(run, &driver, &format!("member {j} against the driver"));
     }
+}
+
+/// Steps the kernel hands back: at h = 0.6 the McLachlan–Perlmutter
+/// particles' stage-decoupled iteration is too slow (the stepper falls back
+/// to the exact matrix for a while), and the energy guard is tight enough
+/// to refuse some members. Every lane still matches its member alone, bit
+/// for bit, and the kernel took some of the steps and not all.
+#[test]
+fn lanes_the_kernel_hands_back_match_each_member_alone() {
+    let starts = mp_starts(6);
+    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+    for (h, steps) in [(0.6, 120), (0.45, 200)] {
+        let runs = compare::<_, 7, 1, 2, 23>(MpParticles, Method::Gauss, fig84(), &starts, h, steps, 10);
+        let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 4>::new(MpParticles, tab, fig84());
+        lanes.start(&starts[..4], h).unwrap();
+        lanes.advance_by(steps);
+        let kernel: usize = (0..4).map(|j| lanes.kernel_steps(j).unwrap()).sum();
+        let stepped: usize = runs[..4].iter().map(|r| r.steps).sum();
+        assert!(kernel > 0 && kernel + 8 < stepped, "h = {h}: kernel took {kernel} of {stepped} steps");
+    }
+    let guard = NewtonOptions { energy_drift_limit: Some(1e-9), ..fig84() };
+    let runs = compare::<_, 7, 1, 2, 23>(MpParticles, Method::LobattoIIIAB, guard, &starts, 0.05, 300, 25);
+    assert!(runs.iter().any(|r| matches!(r.failure, Some(LaneFailure { error: StepError::EnergyDrift { .. }, .. }))));
 }

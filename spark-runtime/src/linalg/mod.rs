@@ -71,7 +71,7 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
 /// Whether this CPU has AVX2 and FMA (the detection is cached by std): the
 /// check every use of the kernels compiled for them rests on.
 #[cfg(target_arch = "x86_64")]
-fn avx2_fma_available() -> bool {
+pub(crate) fn avx2_fma_available() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 

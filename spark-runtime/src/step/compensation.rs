@@ -42,7 +42,7 @@ where
 /// `(a + b) − s` exactly for `s = fl(a + b)`, per component (Knuth's
 /// TwoSum: no assumption on the magnitudes of `a` and `b`).
 #[inline(always)]
-pub(super) fn two_sum_error<const N: usize>(a: &Vector<N>, b: &Vector<N>, s: &Vector<N>) -> Vector<N> {
+pub(crate) fn two_sum_error<const N: usize>(a: &Vector<N>, b: &Vector<N>, s: &Vector<N>) -> Vector<N> {
     Vector::<N>::from_fn(|i, _| {
         let bb = s[i] - a[i];
         (a[i] - (s[i] - bb)) + (b[i] - bb)

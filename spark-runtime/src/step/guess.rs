@@ -8,7 +8,12 @@ use crate::system::{NonholonomicSystem, StageValues, Vector};
 use crate::State;
 
 /// How many previous solutions the starting-guess extrapolation keeps.
-pub(super) const PAST: usize = 4;
+pub(crate) const PAST: usize = 4;
+
+/// Newton backward differences: the extrapolation of degree `d` from the
+/// `d + 1` latest solutions takes row `d − 1`, most recent solution first.
+pub(crate) const EXTRAPOLATION: [[f64; PAST]; PAST - 1] =
+    [[2.0, -1.0, 0.0, 0.0], [3.0, -3.0, 1.0, 0.0], [4.0, -6.0, 4.0, -1.0]];
 
 /// The previous steps, kept for extrapolating the next starting guess.
 ///
@@ -16,19 +21,19 @@ pub(super) const PAST: usize = 4;
 /// shifted array rebuilt per step: that copy was `PAST·D` doubles).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Warm<const N: usize, const D: usize> {
-    h: f64,
+    pub(super) h: f64,
     /// Where the latest of these steps ended.
     pub(super) end: State<N>,
     /// Solutions `z` of the last `depth` consecutive steps of size `h`; the
     /// most recent is `past[head]`, the one before `past[(head + 1) % PAST]`.
-    past: [Vector<D>; PAST],
-    head: usize,
-    depth: usize,
+    pub(super) past: [Vector<D>; PAST],
+    pub(super) head: usize,
+    pub(super) depth: usize,
 }
 
 impl<const N: usize, const D: usize> Warm<N, D> {
     /// The `k`-th most recent solution (`k < depth`).
-    fn back(&self, k: usize) -> &Vector<D> {
+    pub(super) fn back(&self, k: usize) -> &Vector<D> {
         &self.past[(self.head + k) % PAST]
     }
 
@@ -70,11 +75,8 @@ where
         let mut z = Vector::<D>::zeros();
         if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
             if w.h == h && w.depth >= 2 {
-                // Newton backward differences: degree d uses d + 1 solutions.
-                const COEFFS: [[f64; PAST]; PAST - 1] =
-                    [[2.0, -1.0, 0.0, 0.0], [3.0, -3.0, 1.0, 0.0], [4.0, -6.0, 4.0, -1.0]];
                 let degree = (w.depth - 1).min(self.options.extrapolation_degree.clamp(1, PAST - 1));
-                for (k, coef) in COEFFS[degree - 1].iter().enumerate().take(degree + 1) {
+                for (k, coef) in EXTRAPOLATION[degree - 1].iter().enumerate().take(degree + 1) {
                     z += *coef * w.back(k);
                 }
                 return (z, true);

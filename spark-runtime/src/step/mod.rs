@@ -45,9 +45,17 @@ mod convergence;
 mod energy_guard;
 mod equations;
 mod guess;
+mod lane_handover;
 mod newton;
 
 pub use newton::{Jacobian, NewtonMode, NewtonOptions};
+
+pub(crate) use compensation::two_sum_error;
+pub(crate) use convergence::Contraction;
+pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
+pub(crate) use guess::{EXTRAPOLATION, PAST};
+pub(crate) use lane_handover::LaneContinuation;
+pub(crate) use newton::too_slow;
 
 use crate::error::{NewtonHistory, StepError};
 use crate::linalg::decoupled::DecoupledMatrix;
@@ -55,8 +63,7 @@ use crate::linalg::newton_matrix::NewtonMatrix;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
 use cold_start::check_cold_start;
-use compensation::{two_sum_error, Compensation};
-use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
+use compensation::Compensation;
 use equations::{increment, split, Eval, EvalJac};
 use guess::Warm;
 

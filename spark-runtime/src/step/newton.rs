@@ -459,7 +459,14 @@ where
 /// refresh of it cannot change the rate its dropped couplings set. A
 /// refresh, rather than crawling into `MaxIterations`, keeps simplified
 /// Newton from reporting a divergence that full Newton would not have.
-fn too_slow(monitor: &Contraction, decoupled: bool, update: f64, rate: f64, remaining: i32, tolerance: f64) -> bool {
+pub(crate) fn too_slow(
+    monitor: &Contraction,
+    decoupled: bool,
+    update: f64,
+    rate: f64,
+    remaining: i32,
+    tolerance: f64,
+) -> bool {
     let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
     rate.is_nan() || rate >= 1.0 || judged > limit || update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance
 }
