@@ -1,6 +1,6 @@
 //! Eight McLachlan–Perlmutter particle members (`n = 7`, Lobatto IIIA-B
 //! `s = 2`, `h = 0.05`, simplified Newton with the stage-decoupled matrix:
-//! the settings of the paper's Fig. 8.4), 100 steps each per iteration:
+//! the settings of the paper's Fig. 8.4), 500 steps each per iteration:
 //!
 //! - `lanes/mp7/sequential`: eight steppers, one member after another;
 //! - `lanes/mp7/lanes-4x2`: two [`LaneStepper`]s of four lanes;
@@ -29,7 +29,7 @@ mod clock;
 use clock::{ThreadCpu, C};
 
 const H: f64 = 0.05;
-const STEPS: usize = 100;
+const STEPS: usize = 500;
 const MEMBERS: usize = 8;
 
 fn options() -> NewtonOptions {

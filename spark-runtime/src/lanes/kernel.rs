@@ -360,8 +360,31 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// (`Stepper::starting_guess` on a continuing step of equal size).
     #[inline(always)]
     fn starting_guess(&mut self, opts: &NewtonOptions) {
-        for w in (0..W).filter(|&w| self.held[w]) {
-            let degree = (self.depth[w] - 1).min(opts.extrapolation_degree.clamp(1, PAST - 1));
+        let degree = |w: usize| (self.depth[w] - 1).min(opts.extrapolation_degree.clamp(1, PAST - 1));
+        let first = (0..W).find(|&w| self.held[w]);
+        let uniform = first
+            .is_some_and(|f| (0..W).all(|w| !self.held[w] || (degree(w) == degree(f) && self.head[w] == self.head[f])));
+        if let (Some(f), true) = (first, uniform) {
+            // Every held lane extrapolates alike: whole rows at once (the
+            // lanes not held compute garbage nobody reads).
+            let (degree, head) = (degree(f), self.head[f]);
+            for d in 0..D {
+                let mut z = [0.0; W];
+                for (k, coef) in EXTRAPOLATION[degree - 1].iter().enumerate().take(degree + 1) {
+                    let past = self.past[((head + k) % PAST) * D + d];
+                    for w in 0..W {
+                        z[w] += *coef * past[w];
+                    }
+                }
+                self.z[d] = z;
+            }
+            return;
+        }
+        for w in 0..W {
+            if !self.held[w] {
+                continue;
+            }
+            let degree = degree(w);
             for d in 0..D {
                 self.z[d][w] = 0.0;
             }
@@ -389,9 +412,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                 }
             }
+            let q = self.q[n];
+            let mut point = [0.0; W];
             for w in 0..W {
-                self.points[p * N + n][w] = self.q[n][w] + d[w];
+                point[w] = q[w] + d[w];
             }
+            self.points[p * N + n] = point;
         }
     }
 
@@ -405,10 +431,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         if tab.conditions == ConditionRows::MidpointConstraint {
             let half = 0.5 * self.h;
             for n in 0..N {
+                let (carry, q, v) = (self.carry[n], self.q[n], self.z[n]);
+                let mut point = [0.0; W];
                 for w in 0..W {
-                    let d = self.carry[n][w] + half * self.z[n][w];
-                    self.points[(S + 1) * N + n][w] = self.q[n][w] + d;
+                    point[w] = q[w] + (carry[w] + half * v[w]);
                 }
+                self.points[(S + 1) * N + n] = point;
             }
         }
     }
@@ -472,21 +500,22 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for i in 0..=S {
             let (hat, tilde) = if i < S { (&tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b_hat, &tab.b_tilde) };
             for n in 0..N {
+                let (momentum, p0) = (self.momentum[i * N + n], self.p0[n]);
                 let mut r = [0.0; W];
                 for w in 0..W {
-                    r[w] = self.momentum[i * N + n][w] - self.p0[n][w];
+                    r[w] = momentum[w] - p0[w];
                 }
                 for j in 0..S {
                     if hat[j] != 0.0 {
-                        let c = h * hat[j];
+                        let (c, f) = (h * hat[j], self.force[j * N + n]);
                         for w in 0..W {
-                            r[w] -= c * self.force[j * N + n][w];
+                            r[w] -= c * f[w];
                         }
                     }
                     if tilde[j] != 0.0 {
-                        let c = h * tilde[j];
+                        let (c, f) = (h * tilde[j], self.constraint_force[j * N + n]);
                         for w in 0..W {
-                            r[w] -= c * self.constraint_force[j * N + n][w];
+                            r[w] -= c * f[w];
                         }
                     }
                 }
@@ -500,9 +529,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     for m in 0..M {
                         let mut k = [0.0; W];
                         for j in 0..S {
-                            let c = tab.omega[r][j];
+                            let (c, con) = (tab.omega[r][j], self.constraint[j * M + m]);
                             for w in 0..W {
-                                k[w] += c * self.constraint[j * M + m][w];
+                                k[w] += c * con[w];
                             }
                         }
                         self.g[base + r * M + m] = k;
@@ -538,9 +567,11 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         match mass {
             MassSolve::Diagonal(r) => {
                 for n in 0..N {
+                    let (mut xn, rn) = (x[at + n], r[n]);
                     for w in 0..W {
-                        x[at + n][w] *= r[n];
+                        xn[w] *= rn;
                     }
+                    x[at + n] = xn;
                 }
             }
             MassSolve::Lu { lu, perm } => {
@@ -578,9 +609,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
                 let at = (i * S + l) * nm;
                 for e in 0..nm {
+                    let k = kt[e];
+                    let mut x = [0.0; W];
                     for w in 0..W {
-                        self.x[at + e][w] = coef * kt[e][w];
+                        x[w] = coef * k[w];
                     }
+                    self.x[at + e] = x;
                 }
             }
         }
@@ -654,9 +688,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                             for m in 0..S {
                                 let cm = tab.omega[r][m] * tab.a[m][l];
                                 if cm != 0.0 {
-                                    let hc = h * cm;
+                                    let (hc, k) = (h * cm, kq[m * mn + e]);
                                     for w in 0..W {
-                                        blk[w] += hc * kq[m * mn + e][w];
+                                        blk[w] += hc * k[w];
                                     }
                                 }
                             }
@@ -669,8 +703,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 let half = 0.5 * h;
                 for e in 0..mn {
                     let mut blk = [0.0; W];
+                    let (kve, kqe) = (kv[(S + 1) * mn + e], kq[(S + 1) * mn + e]);
                     for w in 0..W {
-                        blk[w] = kv[(S + 1) * mn + e][w] + half * kq[(S + 1) * mn + e][w];
+                        blk[w] = kve[w] + half * kqe[w];
                     }
                     put(0, 0, e, blk);
                 }
@@ -681,8 +716,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             let hb = h * tab.b[l];
             for e in 0..mn {
                 let mut blk = [0.0; W];
+                let k = kq[S * mn + e];
                 for w in 0..W {
-                    blk[w] = hb * kq[S * mn + e][w];
+                    blk[w] = hb * k[w];
                 }
                 put(S - 1, l, e, blk);
             }
@@ -703,20 +739,24 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             Self::solve_mass(&self.mass, &mut self.y, i * N);
         }
         let (vel, con) = self.y.split_at_mut(base);
+        // Each entry of `con` takes its products in the order of the
+        // stage-decoupled solve (point `i`, then coordinate `k`).
         for r in 0..S {
-            for i in 0..=S {
-                if !self.c_nonzero[r * (S + 1) + i] {
-                    continue;
-                }
-                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
-                for k in 0..N {
-                    let yk = vel[i * N + k];
-                    for m in 0..M {
+            for m in 0..M {
+                let mut acc = con[r * M + m];
+                for i in 0..=S {
+                    if !self.c_nonzero[r * (S + 1) + i] {
+                        continue;
+                    }
+                    let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                    for k in 0..N {
+                        let (yk, ck) = (vel[i * N + k], c[k * M + m]);
                         for w in 0..W {
-                            con[r * M + m][w] -= c[k * M + m][w] * yk[w];
+                            acc[w] -= ck[w] * yk[w];
                         }
                     }
                 }
+                con[r * M + m] = acc;
             }
         }
         let b = &mut self.schur_rhs;
@@ -735,18 +775,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for i in 0..=S {
             let out_at = if i < S { i * N } else { S * (N + M) };
             for n in 0..N {
-                self.g[out_at + n] = vel[i * N + n];
-            }
-            for l in 0..S {
-                let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
-                for e in 0..M {
-                    let mu = con[l * M + e];
-                    for n in 0..N {
+                let mut acc = vel[i * N + n];
+                for l in 0..S {
+                    let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                    for e in 0..M {
+                        let (mu, xe) = (con[l * M + e], x[e * N + n]);
                         for w in 0..W {
-                            self.g[out_at + n][w] -= x[e * N + n][w] * mu[w];
+                            acc[w] -= xe[w] * mu[w];
                         }
                     }
                 }
+                self.g[out_at + n] = acc;
             }
         }
         for e in 0..sm {
@@ -761,13 +800,14 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let mut norm = [0.0f64; W];
         let mut nan = [false; W];
         for d in 0..D {
+            let (mut z, g) = (self.z[d], self.g[d]);
             for w in 0..W {
-                let z = if iterating[w] { self.z[d][w] - self.g[d][w] } else { self.z[d][w] };
-                self.z[d][w] = z;
-                let r = self.g[d][w].abs() / (1.0 + z.abs());
+                z[w] = if iterating[w] { z[w] - g[w] } else { z[w] };
+                let r = g[w].abs() / (1.0 + z[w].abs());
                 nan[w] |= r.is_nan();
                 norm[w] = if r > norm[w] { r } else { norm[w] };
             }
+            self.z[d] = z;
         }
         std::array::from_fn(|w| if nan[w] { f64::NAN } else { norm[w] })
     }
