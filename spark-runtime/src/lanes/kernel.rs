@@ -25,8 +25,9 @@
 // Stage and lane loops index several parallel arrays with one index.
 #![allow(clippy::needless_range_loop)]
 
+use super::lane_lu;
 use crate::error::HISTORY_CAPACITY;
-use crate::linalg::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime};
+use crate::linalg::{column_scales, factor_in_place, solve_in_place};
 use crate::step::{
     check_energy, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
     NewtonOptions, State, EXTRAPOLATION, PAST,
@@ -103,12 +104,10 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     x: Box<[L<W>]>,
     c: Box<[L<W>]>,
     c_nonzero: Box<[bool]>,
-    /// Each lane's Schur complement factors (lane `w` at `w·(SM)²`).
-    schur: Box<[f64]>,
-    schur_perm: Box<[usize]>,
-    schur_scale: Box<[f64]>,
-    schur_col: Box<[f64]>,
-    schur_rhs: Box<[f64]>,
+    /// The lanes' Schur complements `Σ` (`SM × SM`) and their factors.
+    schur: Box<[L<W>]>,
+    schur_perm: Box<[[usize; W]]>,
+    schur_scale: Box<[L<W>]>,
     /// Scratch for `K_lᵀ` (`N × M`).
     kt: Box<[L<W>]>,
 }
@@ -174,11 +173,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             x: lanes((S + 1) * S * N * M),
             c: lanes(S * (S + 1) * M * N),
             c_nonzero: vec![false; S * (S + 1)].into_boxed_slice(),
-            schur: vec![0.0; W * sm * sm].into_boxed_slice(),
-            schur_perm: vec![0; W * sm].into_boxed_slice(),
-            schur_scale: vec![0.0; sm].into_boxed_slice(),
-            schur_col: vec![0.0; sm * sm].into_boxed_slice(),
-            schur_rhs: vec![0.0; sm].into_boxed_slice(),
+            schur: lanes(sm * sm),
+            schur_perm: vec![[0; W]; sm].into_boxed_slice(),
+            schur_scale: lanes(sm),
             kt: lanes(N * M),
         })
     }
@@ -293,18 +290,22 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             self.stage_points(tab);
             self.evaluate(sys, tab, t, &iterating, k == 0);
             self.residual(tab);
-            for w in 0..W {
-                if !iterating[w] {
-                    continue;
+            let mut finite = [true; W];
+            for d in 0..D {
+                let g = self.g[d];
+                for w in 0..W {
+                    finite[w] &= g[w].is_finite();
                 }
-                if !(0..D).all(|d| self.g[d][w].is_finite()) {
+            }
+            for w in 0..W {
+                if iterating[w] && !finite[w] {
                     (iterating[w], out[w]) = (false, Outcome::HandBack);
                 }
             }
             if k == 0 {
                 self.factor(tab, &mut iterating, &mut out);
             }
-            self.solve(&iterating);
+            self.solve();
             let update = self.apply_update(&iterating);
             for w in 0..W {
                 if !iterating[w] {
@@ -619,47 +620,46 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         self.constraint_blocks(tab);
-        // Σ = E − Σ_i C[r][i] X[i][l], lane by lane into its own storage.
-        for w in 0..W {
-            if !iterating[w] {
-                continue;
-            }
-            let schur = &mut self.schur_col[..sm * sm];
-            schur.fill(0.0);
-            if tab.conditions == ConditionRows::EqualMultipliers {
-                for r in 0..S.saturating_sub(1) {
-                    for d in 0..M {
-                        schur[(r * M + d) * sm + r * M + d] = 1.0;
-                        schur[((r + 1) * M + d) * sm + r * M + d] = -1.0;
-                    }
+        // Σ = E − Σ_i C[r][i] X[i][l].
+        let schur = &mut self.schur;
+        schur.fill([0.0; W]);
+        if tab.conditions == ConditionRows::EqualMultipliers {
+            for r in 0..S.saturating_sub(1) {
+                for d in 0..M {
+                    schur[(r * M + d) * sm + r * M + d] = [1.0; W];
+                    schur[((r + 1) * M + d) * sm + r * M + d] = [-1.0; W];
                 }
             }
-            for r in 0..S {
-                for i in 0..=S {
-                    if !self.c_nonzero[r * (S + 1) + i] {
-                        continue;
-                    }
-                    let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
-                    for l in 0..S {
-                        let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
-                        for e in 0..M {
-                            let col = &mut schur[(l * M + e) * sm + r * M..(l * M + e) * sm + (r + 1) * M];
+        }
+        for r in 0..S {
+            for i in 0..=S {
+                if !self.c_nonzero[r * (S + 1) + i] {
+                    continue;
+                }
+                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                for l in 0..S {
+                    let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                    for e in 0..M {
+                        for m in 0..M {
+                            let at = (l * M + e) * sm + r * M + m;
+                            let mut acc = schur[at];
                             for k in 0..N {
-                                let xk = x[e * N + k][w];
-                                if xk != 0.0 {
-                                    for (m, s) in col.iter_mut().enumerate() {
-                                        *s -= c[k * M + m][w] * xk;
-                                    }
+                                let (xk, ck) = (x[e * N + k], c[k * M + m]);
+                                for w in 0..W {
+                                    // The scalar assembly skips a zero `X` entry.
+                                    acc[w] = if xk[w] != 0.0 { acc[w] - ck[w] * xk[w] } else { acc[w] };
                                 }
                             }
+                            schur[at] = acc;
                         }
                     }
                 }
             }
-            let (lu, perm) =
-                (&mut self.schur[w * sm * sm..(w + 1) * sm * sm], &mut self.schur_perm[w * sm..(w + 1) * sm]);
-            lu.copy_from_slice(schur);
-            if factor_runtime(lu, sm, perm, &mut self.schur_scale).is_err() {
+        }
+        let mut live = *iterating;
+        lane_lu::factor(&mut self.schur, sm, &mut self.schur_perm, &mut self.schur_scale, &mut live);
+        for w in 0..W {
+            if iterating[w] && !live[w] {
                 (iterating[w], out[w]) = (false, Outcome::HandBack);
             }
         }
@@ -731,7 +731,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// Overwrites the residual `g` with the update `J̃⁻¹ g`
     /// (`DecoupledMatrix::solve_in_place`).
     #[inline(always)]
-    fn solve(&mut self, iterating: &[bool; W]) {
+    fn solve(&mut self) {
         let (nm, sm) = (N * M, Self::SM);
         let base = (S + 1) * N;
         self.y.copy_from_slice(&self.g);
@@ -759,19 +759,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 con[r * M + m] = acc;
             }
         }
-        let b = &mut self.schur_rhs;
-        for w in 0..W {
-            if !iterating[w] {
-                continue;
-            }
-            for e in 0..sm {
-                b[e] = con[e][w];
-            }
-            solve_runtime(&self.schur[w * sm * sm..], sm, &self.schur_perm[w * sm..], b);
-            for e in 0..sm {
-                con[e][w] = b[e];
-            }
-        }
+        lane_lu::solve(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
         for i in 0..=S {
             let out_at = if i < S { i * N } else { S * (N + M) };
             for n in 0..N {

@@ -42,6 +42,7 @@
 
 mod ensemble;
 mod kernel;
+mod lane_lu;
 mod stepper;
 #[cfg(test)]
 mod tests;
