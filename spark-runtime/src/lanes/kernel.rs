@@ -43,6 +43,15 @@ fn lanes<const W: usize>(n: usize) -> Box<[L<W>]> {
     vec![[0.0; W]; n].into_boxed_slice()
 }
 
+/// `K` zeroed lane values on the heap, as an array (built on the heap: no
+/// `K·W` value goes on the stack).
+fn fixed<const W: usize, const K: usize>() -> Box<[L<W>; K]> {
+    match lanes::<W>(K).try_into() {
+        Ok(a) => a,
+        Err(_) => unreachable!("a slice of K entries converts to [_; K]"),
+    }
+}
+
 /// How one lane's step ended in the kernel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Outcome {
@@ -74,9 +83,9 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// Which lanes the kernel holds.
     held: [bool; W],
     /// The state where each lane's latest step ended, and its carry.
-    q: Box<[L<W>]>,
-    v: Box<[L<W>]>,
-    carry: Box<[L<W>]>,
+    q: Box<[L<W>; N]>,
+    v: Box<[L<W>; N]>,
+    carry: Box<[L<W>; N]>,
     anchor: [Option<EnergyAnchor<N>>; W],
     /// Ring of the latest solutions: slot `k` at `k·D`; lane `w`'s most
     /// recent is slot `head[w]`.
@@ -84,10 +93,10 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     head: [usize; W],
     depth: [usize; W],
     /// The unknowns, the residual (then the update) and the solve's scratch.
-    z: Box<[L<W>]>,
-    g: Box<[L<W>]>,
+    z: Box<[L<W>; D]>,
+    g: Box<[L<W>; D]>,
     y: Box<[L<W>]>,
-    p0: Box<[L<W>]>,
+    p0: Box<[L<W>; N]>,
     /// Positions of the evaluation points: stages `0..S`, the end `S`, the
     /// midpoint `S + 1` (`N` each).
     points: Box<[L<W>]>,
@@ -152,17 +161,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             mass,
             h,
             held: [false; W],
-            q: lanes(N),
-            v: lanes(N),
-            carry: lanes(N),
+            q: fixed(),
+            v: fixed(),
+            carry: fixed(),
             anchor: [None; W],
             past: lanes(PAST * D),
             head: [0; W],
             depth: [0; W],
-            z: lanes(D),
-            g: lanes(D),
+            z: fixed(),
+            g: fixed(),
             y: lanes(D),
-            p0: lanes(N),
+            p0: fixed(),
             points: lanes(p * N),
             momentum: lanes(p * N),
             force: lanes(p * N),
@@ -278,7 +287,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         self.starting_guess(opts);
         for w in (0..W).filter(|&w| self.held[w]) {
-            let p0 = sys.momentum(t, &self.lane_vector(&self.q, 0, w), &self.lane_vector(&self.v, 0, w));
+            let p0 = sys.momentum(t, &self.lane_vector(&self.q[..], 0, w), &self.lane_vector(&self.v[..], 0, w));
             for n in 0..N {
                 self.p0[n][w] = p0[n];
             }
@@ -468,7 +477,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     _ => (t + 0.5 * h, 0),
                 };
                 let q = self.lane_vector::<N>(&self.points, p * N, w);
-                let v = self.lane_vector::<N>(&self.z, v_at, w);
+                let v = self.lane_vector::<N>(&self.z[..], v_at, w);
                 let psi =
                     if p < S { Vector::<M>::from_fn(|m, _| self.z[S * N + p * M + m][w] / h) } else { Vector::zeros() };
                 let vals = if refresh {
@@ -734,7 +743,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     fn solve(&mut self) {
         let (nm, sm) = (N * M, Self::SM);
         let base = (S + 1) * N;
-        self.y.copy_from_slice(&self.g);
+        self.y.copy_from_slice(&self.g[..]);
         for i in 0..=S {
             Self::solve_mass(&self.mass, &mut self.y, i * N);
         }
@@ -819,7 +828,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             if !matches!(out[w], Outcome::Stepped(_)) {
                 continue;
             }
-            let carry = self.lane_vector::<N>(&self.carry, 0, w);
+            let carry = self.lane_vector::<N>(&self.carry[..], 0, w);
             let mut dq = carry;
             for j in 0..S {
                 if tab.b[j] != 0.0 {
@@ -829,15 +838,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                 }
             }
-            let q0 = self.lane_vector::<N>(&self.q, 0, w);
+            let q0 = self.lane_vector::<N>(&self.q[..], 0, w);
             let q1 = q0 + dq;
-            let v1 = self.lane_vector::<N>(&self.z, S * (N + M), w);
+            let v1 = self.lane_vector::<N>(&self.z[..], S * (N + M), w);
             if !q1.iter().chain(v1.iter()).all(|x| x.is_finite()) {
                 out[w] = Outcome::HandBack;
                 continue;
             }
             if let (Some(limit), true) = (opts.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
-                let start = State::new(t, q0, self.lane_vector::<N>(&self.v, 0, w));
+                let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                 let end = State::new(t + h, q1, v1);
                 match check_energy::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, limit) {
                     EnergyCheck::Accept(a) => {
