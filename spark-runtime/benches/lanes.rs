@@ -5,9 +5,8 @@
 //! - `lanes/mp7/sequential`: eight steppers, one member after another;
 //! - `lanes/mp7/lanes-4x2`: two [`LaneStepper`]s of four lanes;
 //! - `lanes/mp7/lanes-8`: one [`LaneStepper`] of eight lanes;
-//! - `lanes/mp7/lanes-4x2-blocked`: two groups of four, each lane's 100
-//!   steps back to back ([`LaneStepper::advance_by`], as
-//!   [`integrate_ensemble`] steps between samples);
+//! - `lanes/mp7/lanes-8-without-kernel`: one group of eight whose members
+//!   step alone, each by its own stepper ([`LaneStepper::without_kernel`]);
 //!
 //! timed by the measuring thread's CPU time (one core), and
 //! - `lanes/mp7/ensemble-2-threads`: [`integrate_ensemble`] on a pool of
@@ -76,35 +75,23 @@ fn one_core(c: &mut C) {
             let mut acc = 0.0;
             for (lanes, chunk) in groups.iter_mut().zip(starts.chunks(4)) {
                 lanes.start(chunk, H).unwrap();
-                for _ in 0..STEPS {
-                    lanes.advance();
-                }
-                acc += lanes.state(0).unwrap().q[0];
-            }
-            black_box(acc)
-        })
-    });
-    c.bench_function("lanes/mp7/lanes-4x2-blocked", |b| {
-        b.iter(|| {
-            let mut acc = 0.0;
-            for (lanes, chunk) in groups.iter_mut().zip(starts.chunks(4)) {
-                lanes.start(chunk, H).unwrap();
                 lanes.advance_by(STEPS);
                 acc += lanes.state(0).unwrap().q[0];
             }
             black_box(acc)
         })
     });
-    let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(MpParticles, tableau(), options());
-    c.bench_function("lanes/mp7/lanes-8", |b| {
-        b.iter(|| {
-            lanes.start(&starts, H).unwrap();
-            for _ in 0..STEPS {
-                lanes.advance();
-            }
-            black_box(lanes.state(0).unwrap().q[0])
-        })
-    });
+    for (name, kernel) in [("lanes/mp7/lanes-8", true), ("lanes/mp7/lanes-8-without-kernel", false)] {
+        let lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(MpParticles, tableau(), options());
+        let mut lanes = if kernel { lanes } else { lanes.without_kernel() };
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                lanes.start(&starts, H).unwrap();
+                lanes.advance_by(STEPS);
+                black_box(lanes.state(0).unwrap().q[0])
+            })
+        });
+    }
 }
 
 fn threads(c: &mut Criterion<WallTime>) {

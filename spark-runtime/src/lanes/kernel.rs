@@ -99,19 +99,19 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     p0: Box<[L<W>; N]>,
     /// Positions of the evaluation points: stages `0..S`, the end `S`, the
     /// midpoint `S + 1` (`N` each).
-    points: Box<[L<W>]>,
+    points: Box<[[L<W>; N]]>,
     /// Stage values at the points.
-    momentum: Box<[L<W>]>,
-    force: Box<[L<W>]>,
-    constraint_force: Box<[L<W>]>,
-    constraint: Box<[L<W>]>,
+    momentum: Box<[[L<W>; N]]>,
+    force: Box<[[L<W>; N]]>,
+    constraint_force: Box<[[L<W>; N]]>,
+    constraint: Box<[[L<W>; M]]>,
     /// `K = k_v` and `k_q` at the points (`M × N` column-major each).
     constraint_v: Box<[L<W>]>,
     constraint_q: Box<[L<W>]>,
     /// `X[i][l] = W⁻¹ ã_il K_lᵀ` and the constraint rows' blocks `C[r][i]`,
     /// laid out as in `linalg::decoupled`.
-    x: Box<[L<W>]>,
-    c: Box<[L<W>]>,
+    x: Box<[[[L<W>; N]; M]]>,
+    c: Box<[[[L<W>; M]; N]]>,
     c_nonzero: Box<[bool]>,
     /// The lanes' Schur complements `Σ` (`SM × SM`) and their factors.
     schur: Box<[L<W>]>,
@@ -172,15 +172,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             g: fixed(),
             y: lanes(D),
             p0: fixed(),
-            points: lanes(p * N),
-            momentum: lanes(p * N),
-            force: lanes(p * N),
-            constraint_force: lanes(p * N),
-            constraint: lanes(p * M),
+            points: vec![[[0.0; W]; N]; p].into_boxed_slice(),
+            momentum: vec![[[0.0; W]; N]; p].into_boxed_slice(),
+            force: vec![[[0.0; W]; N]; p].into_boxed_slice(),
+            constraint_force: vec![[[0.0; W]; N]; p].into_boxed_slice(),
+            constraint: vec![[[0.0; W]; M]; p].into_boxed_slice(),
             constraint_v: lanes(p * M * N),
             constraint_q: lanes(p * M * N),
-            x: lanes((S + 1) * S * N * M),
-            c: lanes(S * (S + 1) * M * N),
+            x: vec![[[[0.0; W]; N]; M]; (S + 1) * S].into_boxed_slice(),
+            c: vec![[[[0.0; W]; M]; N]; S * (S + 1)].into_boxed_slice(),
             c_nonzero: vec![false; S * (S + 1)].into_boxed_slice(),
             schur: lanes(sm * sm),
             schur_perm: vec![[0; W]; sm].into_boxed_slice(),
@@ -427,7 +427,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             for w in 0..W {
                 point[w] = q[w] + d[w];
             }
-            self.points[p * N + n] = point;
+            self.points[p][n] = point;
         }
     }
 
@@ -446,7 +446,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 for w in 0..W {
                     point[w] = q[w] + (carry[w] + half * v[w]);
                 }
-                self.points[(S + 1) * N + n] = point;
+                self.points[S + 1][n] = point;
             }
         }
     }
@@ -476,7 +476,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     p if p == S => (t + h, S * (N + M)),
                     _ => (t + 0.5 * h, 0),
                 };
-                let q = self.lane_vector::<N>(&self.points, p * N, w);
+                let q = Vector::<N>::from_fn(|n, _| self.points[p][n][w]);
                 let v = self.lane_vector::<N>(&self.z[..], v_at, w);
                 let psi =
                     if p < S { Vector::<M>::from_fn(|m, _| self.z[S * N + p * M + m][w] / h) } else { Vector::zeros() };
@@ -492,12 +492,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     sys.stage_values(tp, &q, &v, &psi)
                 };
                 for n in 0..N {
-                    self.momentum[p * N + n][w] = vals.momentum[n];
-                    self.force[p * N + n][w] = vals.force[n];
-                    self.constraint_force[p * N + n][w] = vals.constraint_force[n];
+                    self.momentum[p][n][w] = vals.momentum[n];
+                    self.force[p][n][w] = vals.force[n];
+                    self.constraint_force[p][n][w] = vals.constraint_force[n];
                 }
                 for m in 0..M {
-                    self.constraint[p * M + m][w] = vals.constraint[m];
+                    self.constraint[p][m][w] = vals.constraint[m];
                 }
             }
         }
@@ -510,20 +510,20 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for i in 0..=S {
             let (hat, tilde) = if i < S { (&tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b_hat, &tab.b_tilde) };
             for n in 0..N {
-                let (momentum, p0) = (self.momentum[i * N + n], self.p0[n]);
+                let (momentum, p0) = (self.momentum[i][n], self.p0[n]);
                 let mut r = [0.0; W];
                 for w in 0..W {
                     r[w] = momentum[w] - p0[w];
                 }
                 for j in 0..S {
                     if hat[j] != 0.0 {
-                        let (c, f) = (h * hat[j], self.force[j * N + n]);
+                        let (c, f) = (h * hat[j], self.force[j][n]);
                         for w in 0..W {
                             r[w] -= c * f[w];
                         }
                     }
                     if tilde[j] != 0.0 {
-                        let (c, f) = (h * tilde[j], self.constraint_force[j * N + n]);
+                        let (c, f) = (h * tilde[j], self.constraint_force[j][n]);
                         for w in 0..W {
                             r[w] -= c * f[w];
                         }
@@ -539,7 +539,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     for m in 0..M {
                         let mut k = [0.0; W];
                         for j in 0..S {
-                            let (c, con) = (tab.omega[r][j], self.constraint[j * M + m]);
+                            let (c, con) = (tab.omega[r][j], self.constraint[j][m]);
                             for w in 0..W {
                                 k[w] += c * con[w];
                             }
@@ -551,7 +551,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             ConditionRows::MidpointConstraint => {
                 for r in 0..S.saturating_sub(1) {
                     for m in 0..M {
-                        self.g[base + r * M + m] = if r == 0 { self.constraint[(S + 1) * M + m] } else { [0.0; W] };
+                        self.g[base + r * M + m] = if r == 0 { self.constraint[S + 1][m] } else { [0.0; W] };
                     }
                 }
             }
@@ -567,7 +567,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         for m in 0..M {
-            self.g[D - M + m] = self.constraint[S * M + m];
+            self.g[D - M + m] = self.constraint[S][m];
         }
     }
 
@@ -617,14 +617,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
             for i in 0..=S {
                 let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
-                let at = (i * S + l) * nm;
-                for e in 0..nm {
-                    let k = kt[e];
-                    let mut x = [0.0; W];
-                    for w in 0..W {
-                        x[w] = coef * k[w];
+                for e in 0..M {
+                    for n in 0..N {
+                        let k = kt[e * N + n];
+                        let mut x = [0.0; W];
+                        for w in 0..W {
+                            x[w] = coef * k[w];
+                        }
+                        self.x[i * S + l][e][n] = x;
                     }
-                    self.x[at + e] = x;
                 }
             }
         }
@@ -645,15 +646,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 if !self.c_nonzero[r * (S + 1) + i] {
                     continue;
                 }
-                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                let c = &self.c[r * (S + 1) + i];
                 for l in 0..S {
-                    let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                    let x = &self.x[i * S + l];
                     for e in 0..M {
                         for m in 0..M {
                             let at = (l * M + e) * sm + r * M + m;
                             let mut acc = schur[at];
                             for k in 0..N {
-                                let (xk, ck) = (x[e * N + k], c[k * M + m]);
+                                let (xk, ck) = (x[e][k], c[k][m]);
                                 for w in 0..W {
                                     // The scalar assembly skips a zero `X` entry.
                                     acc[w] = if xk[w] != 0.0 { acc[w] - ck[w] * xk[w] } else { acc[w] };
@@ -682,7 +683,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let (kv, kq) = (&self.constraint_v, &self.constraint_q);
         let (c, nonzero) = (&mut self.c, &mut self.c_nonzero);
         let mut put = |r: usize, i: usize, e: usize, x: L<W>| {
-            c[(r * (S + 1) + i) * mn + e] = x;
+            c[r * (S + 1) + i][e / M][e % M] = x;
             nonzero[r * (S + 1) + i] = true;
         };
         match tab.conditions {
@@ -741,7 +742,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// (`DecoupledMatrix::solve_in_place`).
     #[inline(always)]
     fn solve(&mut self) {
-        let (nm, sm) = (N * M, Self::SM);
+        let sm = Self::SM;
         let base = (S + 1) * N;
         self.y.copy_from_slice(&self.g[..]);
         for i in 0..=S {
@@ -757,9 +758,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     if !self.c_nonzero[r * (S + 1) + i] {
                         continue;
                     }
-                    let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                    let c = &self.c[r * (S + 1) + i];
                     for k in 0..N {
-                        let (yk, ck) = (vel[i * N + k], c[k * M + m]);
+                        let (yk, ck) = (vel[i * N + k], c[k][m]);
                         for w in 0..W {
                             acc[w] -= ck[w] * yk[w];
                         }
@@ -774,9 +775,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             for n in 0..N {
                 let mut acc = vel[i * N + n];
                 for l in 0..S {
-                    let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                    let x = &self.x[i * S + l];
                     for e in 0..M {
-                        let (mu, xe) = (con[l * M + e], x[e * N + n]);
+                        let (mu, xe) = (con[l * M + e], x[e][n]);
                         for w in 0..W {
                             acc[w] -= xe[w] * mu[w];
                         }
