@@ -180,9 +180,9 @@ fn ensemble_errors_name_the_member_and_what_to_change() {
     let err = run_ensemble(&spec, &[good.clone(), short], None).unwrap_err();
     assert!(err.to_string().contains("member 1: q0 has 2 entries"), "{err}");
     assert!(matches!(run_ensemble(&spec, &[], None), Err(EnsembleError::NoMembers)));
-    assert!(matches!(run_ensemble(&spec, &[good.clone()], Some(0)), Err(EnsembleError::NoThreads)));
+    assert!(matches!(run_ensemble(&spec, std::slice::from_ref(&good), Some(0)), Err(EnsembleError::NoThreads)));
     // A spec `run` rejects: every member reports the same error.
-    let err = run_ensemble(&RunSpec { h: f64::NAN, ..spec.clone() }, &[good.clone()], None).unwrap_err();
+    let err = run_ensemble(&RunSpec { h: f64::NAN, ..spec.clone() }, std::slice::from_ref(&good), None).unwrap_err();
     assert!(err.to_string().contains("step size h = NaN must be finite"), "{err}");
 }
 

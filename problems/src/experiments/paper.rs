@@ -131,7 +131,7 @@ pub enum PaperError {
         /// The figure.
         figure: &'static str,
         /// What failed, with the member.
-        source: EnsembleError,
+        source: Box<EnsembleError>,
     },
     /// Writing a table failed.
     #[error(transparent)]
@@ -331,6 +331,9 @@ fn jobs(cfg: &PaperConfig) -> Result<Vec<Job>, PaperError> {
     Ok(jobs)
 }
 
+/// The runs of one unit of work of [`run_paper`] (its job indices first).
+type UnitRuns<'a> = (&'a Vec<usize>, Result<Vec<RunResult>, PaperError>);
+
 /// Runs all four experiments in parallel (rayon), writes every file and
 /// returns the summary. `progress` draws one bar per figure. The output
 /// folder is created and locked before the experiments start.
@@ -360,7 +363,7 @@ pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, 
     // Longest first (in member steps), so the short ones fill the gaps at
     // the end.
     units.sort_by_key(|u| std::cmp::Reverse(u.iter().map(|&i| jobs[i].spec.steps).sum::<usize>()));
-    let mut results: Vec<(&Vec<usize>, Result<Vec<RunResult>, PaperError>)> = units
+    let mut results: Vec<UnitRuns<'_>> = units
         .par_iter()
         .map(|u| {
             let first = &jobs[u[0]];
@@ -373,7 +376,7 @@ pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, 
                 let members: Vec<(Vec<f64>, Vec<f64>)> =
                     u.iter().map(|&i| (jobs[i].spec.q0.clone(), jobs[i].spec.v0.clone())).collect();
                 run_ensemble_with(&first.spec, &members, None, &tick)
-                    .map_err(|source| PaperError::Ensemble { figure, source })
+                    .map_err(|source| PaperError::Ensemble { figure, source: Box::new(source) })
             };
             (u, result)
         })
