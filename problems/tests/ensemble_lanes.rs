@@ -94,9 +94,8 @@ fn mp7_members_agree_with_their_runs_alone() {
     let members = mp7_members(6);
     let out = check_against_solo_runs(&mp7_spec("mp7-nh", 200, 7), &members, 1 + 200 / 7 + 1);
     assert_ne!(out[0].q, out[5].q, "each member starts from its own state");
-    // The printed constraint is holonomic: the |g| column and its maximum.
-    let out = check_against_solo_runs(&mp7_spec("mp7", 200, 1), &members[..3], 201);
-    assert_eq!(out[2].holonomic.len(), 201);
+    // The constraint as printed, every step recorded.
+    check_against_solo_runs(&mp7_spec("mp7", 200, 1), &members[..3], 201);
 }
 
 #[test]
