@@ -5,6 +5,7 @@
 mod catalog;
 mod cli_files;
 mod crosscheck;
+mod ensemble_lanes;
 mod output_files;
 mod paper_short;
 mod peers;

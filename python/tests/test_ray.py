@@ -1,5 +1,11 @@
 """The Ray sweep on a local Ray instance: the 1000-member Fig. 8.4 statistic
-equals the one computed from the Rust CLI's runs of the same members."""
+agrees with the one computed from the Rust CLI's runs of the same members.
+
+The sweep's shards run the native ensemble (SIMD lane groups), the CLI one
+stepper per run: each step agrees to the Newton tolerance, not bit for bit,
+and over 100 steps (t = 5) the differences stay far below the 1e-9 relative
+bound used here (the energy errors compared are O(1e-4), the round-off
+O(1e-15))."""
 
 from __future__ import annotations
 
@@ -54,10 +60,10 @@ def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
     for row in errors:
         acc += row * row
     expected = acc / MEMBERS / (H * H * (H * H))
-    np.testing.assert_array_equal(stat, expected)
+    np.testing.assert_allclose(stat, expected, rtol=1e-9, atol=0)
     # and every member's energy error, row by row
     err = table.column("energy_error").to_numpy().reshape(MEMBERS, samples)
-    np.testing.assert_array_equal(err, errors)
+    np.testing.assert_allclose(err, errors, rtol=1e-9, atol=1e-13)
     assert stat[-1] > 0
 
 
@@ -72,4 +78,5 @@ def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
     sray.sweep(skate, "gauss", 2, 0.1, 20, q0s, v0s, out=str(out), shards=2)
     x = pq.read_table(out).column("q_x").to_numpy().reshape(4, 21)
     ref = spark.ensemble("skate", "gauss", 2, 0.1, 20, q0s, v0s)
-    np.testing.assert_array_equal(x, ref.q[:, :, 0])
+    # Two shards of two members against one lane group of four.
+    np.testing.assert_allclose(x, ref.q[:, :, 0], rtol=1e-9, atol=1e-12)

@@ -29,6 +29,11 @@
 //! The top row of Fig. 8.4 is that reading over the paper's interval; the
 //! bottom row is the printed constraint over a twentieth of it
 //! ([`PaperConfig::fig84_printed_t_end`]). Evidence: `docs/stress/chaos.md`.
+//!
+//! Each (reading, method) of Fig. 8.4 is one ensemble
+//! ([`run_ensemble_with`]): its members run in SIMD lane groups through the
+//! lane stepper of [`spark_runtime::integrate_ensemble`], in parallel (rayon)
+//! with each other and with the other figures' runs.
 
 use crate::catalog::SystemKind;
 use crate::report::files::OutputDir;
@@ -36,7 +41,7 @@ use crate::report::format::{sci_digits, short};
 use crate::report::plot::{Figure, Panel, PlotError, Scale, Series};
 use crate::report::progress::Progress;
 use crate::report::stats::{energy_drift, ensemble_quantity, fit_power, log_bin_means, Drift, PowerFit};
-use crate::run::{run, RunError, RunResult, RunSpec};
+use crate::run::{run, run_ensemble_with, EnsembleError, RunError, RunResult, RunSpec};
 use crate::systems::mp7_initial_values;
 use rayon::prelude::*;
 use spark_runtime::{Method, NewtonMode, NewtonOptions};
@@ -119,6 +124,14 @@ pub enum PaperError {
         figure: &'static str,
         /// What failed.
         source: RunError,
+    },
+    /// An ensemble (Fig. 8.4) failed.
+    #[error("{figure}: {source}")]
+    Ensemble {
+        /// The figure.
+        figure: &'static str,
+        /// What failed, with the member.
+        source: Box<EnsembleError>,
     },
     /// Writing a table failed.
     #[error(transparent)]
@@ -244,7 +257,8 @@ pub struct PaperReport {
 /// The methods of Fig. 8.4, in plotting order.
 pub const FIG84_METHODS: [Method; 3] = [Method::LobattoIIIAB, Method::ModifiedLobattoIIIAB, Method::LobattoIIIBALda];
 
-/// One integration of the experiment list.
+/// One integration of the experiment list (for Fig. 8.4 one member; the
+/// members of one reading and method run together, see [`run_paper`]).
 #[derive(Clone, Debug)]
 struct Job {
     figure: usize,
@@ -317,6 +331,9 @@ fn jobs(cfg: &PaperConfig) -> Result<Vec<Job>, PaperError> {
     Ok(jobs)
 }
 
+/// The runs of one unit of work of [`run_paper`] (its job indices first).
+type UnitRuns<'a> = (&'a Vec<usize>, Result<Vec<RunResult>, PaperError>);
+
 /// Runs all four experiments in parallel (rayon), writes every file and
 /// returns the summary. `progress` draws one bar per figure. The output
 /// folder is created and locked before the experiments start.
@@ -330,24 +347,55 @@ pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, 
             progress.bar(FIGURES[f], total as u64)
         })
         .collect();
-    // Longest runs first, so the short ones fill the gaps at the end.
-    let mut order: Vec<usize> = (0..jobs.len()).collect();
-    order.sort_by_key(|&i| std::cmp::Reverse(jobs[i].spec.steps));
-    let mut results: Vec<(usize, Result<RunResult, RunError>)> = order
+    // The units of work: one job each for Figs. 8.1–8.3; for Fig. 8.4 the
+    // members of one (reading, method), in member order, as one ensemble.
+    let mut units: Vec<Vec<usize>> = Vec::new();
+    for (i, job) in jobs.iter().enumerate() {
+        let same = |u: &&mut Vec<usize>| {
+            let first = &jobs[u[0]];
+            job.reading.is_some() && first.reading == job.reading && first.curve == job.curve
+        };
+        match units.iter_mut().find(same) {
+            Some(u) => u.push(i),
+            None => units.push(vec![i]),
+        }
+    }
+    // Longest first (in member steps), so the short ones fill the gaps at
+    // the end.
+    units.sort_by_key(|u| std::cmp::Reverse(u.iter().map(|&i| jobs[i].spec.steps).sum::<usize>()));
+    let mut results: Vec<UnitRuns<'_>> = units
         .par_iter()
-        .map(|&i| {
-            let bar = &bars[jobs[i].figure];
-            (i, run(&jobs[i].spec, &|n| bar.inc(n)))
+        .map(|u| {
+            let first = &jobs[u[0]];
+            let (figure, bar) = (FIGURES[first.figure], &bars[first.figure]);
+            let tick = |n| bar.inc(n);
+            let result = if first.reading.is_none() {
+                run(&first.spec, &tick).map(|r| vec![r]).map_err(|source| PaperError::Run { figure, source })
+            } else {
+                // Fig. 8.4's members in SIMD lane groups (`run_ensemble_with`).
+                let members: Vec<(Vec<f64>, Vec<f64>)> =
+                    u.iter().map(|&i| (jobs[i].spec.q0.clone(), jobs[i].spec.v0.clone())).collect();
+                run_ensemble_with(&first.spec, &members, None, &tick)
+                    .map_err(|source| PaperError::Ensemble { figure, source: Box::new(source) })
+            };
+            (u, result)
         })
         .collect();
     for bar in &bars {
         bar.finish();
     }
-    results.sort_by_key(|r| r.0);
-    let mut runs = Vec::with_capacity(results.len());
-    for (i, r) in results {
-        runs.push(r.map_err(|source| PaperError::Run { figure: FIGURES[jobs[i].figure], source })?);
+    // The first failure in job order is reported.
+    results.sort_by_key(|r| r.0[0]);
+    let mut by_job: Vec<Option<RunResult>> = vec![None; jobs.len()];
+    for (u, result) in results {
+        for (&i, r) in u.iter().zip(result?) {
+            by_job[i] = Some(r);
+        }
     }
+    let runs: Vec<RunResult> = by_job
+        .into_iter()
+        .collect::<Option<Vec<RunResult>>>()
+        .ok_or_else(|| PaperError::Config("an ensemble returned fewer runs than it has members".into()))?;
 
     let mut files = Vec::new();
     let mut rows = Vec::new();

@@ -18,9 +18,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    consistent_velocity, ConsistencyPolicy, ConstraintForm, IntegrationError, Method, NewtonMode, NewtonOptions,
-    NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, StepError, Stepper, Structure, SystemSource,
-    Tableau, Vector,
+    consistent_velocity, integrate_ensemble, ConsistencyPolicy, ConstraintForm, EnsembleRun, IntegrationError, Method,
+    NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, StepError,
+    Stepper, Structure, SystemSource, Tableau, Vector,
 };
 
 pub use numpy;
@@ -155,6 +155,48 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
     Ok(())
 }
 
+/// How a request treats an inconsistent `v0`.
+fn consistency(r: &IntegrateRequest) -> ConsistencyPolicy {
+    if r.project_v0 {
+        ConsistencyPolicy::Project { tolerance: PROJECTION_TOLERANCE }
+    } else {
+        ConsistencyPolicy::default()
+    }
+}
+
+/// The initial state a run of `r` from `(q0, v0)` integrates: `q0` checked
+/// against the holonomic constraints, `v0` checked (or projected, with
+/// `project_v0`) against the constraints.
+fn checked_start<Sys, const N: usize, const M: usize>(
+    r: &IntegrateRequest,
+    probe: &Sys,
+    q0: &[f64],
+    v0: &[f64],
+) -> Result<(Vector<N>, Vector<N>), Failure>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let q0 = vector::<N>("q0", q0)?;
+    let v0 = vector::<N>("v0", v0)?;
+    if Sys::HAS_HOLONOMIC {
+        let residual = probe.holonomic_residual(r.t0, &q0).amax();
+        if residual.is_nan() || residual > POSITION_TOLERANCE {
+            return Err(format!(
+                "q0 violates the holonomic constraint: max |g(t0, q0)| = {residual:.3e} > {POSITION_TOLERANCE:.1e}; \
+                 choose q0 on the constraint"
+            ));
+        }
+    }
+    let v0 = consistent_velocity(probe, r.t0, &q0, &v0, consistency(r)).map_err(|e| match e {
+        StepError::InconsistentInitialState { residual, tolerance } => format!(
+            "v0 violates the constraints: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; give a v0 with \
+             k = 0 or pass project_v0=True to use the nearest consistent one"
+        ),
+        e => format!("initial state: {e}"),
+    })?;
+    Ok((q0, v0))
+}
+
 /// Integrates one run with stepper type `Stepper<Sys, N, M, S, D>`: the same
 /// steps, options and observations as `spark run` (`problems::run::run_with`).
 pub fn integrate<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
@@ -165,30 +207,9 @@ where
 {
     let start = std::time::Instant::now();
     check_request(r)?;
-    let q0 = vector::<N>("q0", &r.q0)?;
-    let v0 = vector::<N>("v0", &r.v0)?;
     let probe: Sys = configured(&r.parameters)?;
-    if Sys::HAS_HOLONOMIC {
-        let residual = probe.holonomic_residual(r.t0, &q0).amax();
-        if residual.is_nan() || residual > POSITION_TOLERANCE {
-            return Err(format!(
-                "q0 violates the holonomic constraint: max |g(t0, q0)| = {residual:.3e} > {POSITION_TOLERANCE:.1e}; \
-                 choose q0 on the constraint"
-            ));
-        }
-    }
-    let consistency = if r.project_v0 {
-        ConsistencyPolicy::Project { tolerance: PROJECTION_TOLERANCE }
-    } else {
-        ConsistencyPolicy::default()
-    };
-    let v0 = consistent_velocity(&probe, r.t0, &q0, &v0, consistency).map_err(|e| match e {
-        StepError::InconsistentInitialState { residual, tolerance } => format!(
-            "v0 violates the constraints: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; give a v0 with \
-             k = 0 or pass project_v0=True to use the nearest consistent one"
-        ),
-        e => format!("initial state: {e}"),
-    })?;
+    let (q0, v0) = checked_start::<Sys, N, M>(r, &probe, &r.q0, &r.v0)?;
+    let consistency = consistency(r);
     let tableau = Tableau::<S>::new(r.method).map_err(|e| e.to_string())?;
     let mut stepper = Stepper::<Sys, N, M, S, D>::new(configured(&r.parameters)?, tableau).with_options(r.newton);
     let options = RunOptions {
@@ -237,17 +258,23 @@ where
     Ok(out)
 }
 
-/// Integrates every member of `r` with its own stepper, in parallel over
-/// members (rayon). Members are independent, so the result of each is bit
-/// for bit what [`integrate`] returns for it alone, whatever the thread count.
+/// Integrates every member of `r`: in SIMD lane groups through
+/// [`integrate_ensemble`] (the groups in parallel, rayon), each member's
+/// columns computed from its samples as [`integrate`] computes them. A
+/// member agrees with [`integrate`] for it alone to the Newton tolerance
+/// per step, whatever the thread count.
 ///
-/// The signature does not depend on how members are distributed: a stepper
-/// that advances several members per instruction (SIMD lanes) fits behind it.
+/// The runs the lanes do not take go through [`integrate`] per member (in
+/// parallel over members): a request for the multipliers `ψ`, a request
+/// [`integrate`] rejects before stepping, and a member whose lane fails (it
+/// runs again alone, so the driver's cold retry and step halving apply and
+/// the member gets [`integrate`]'s result or error). Each member's
+/// `seconds` is an equal share of the ensemble's wall time.
 pub fn ensemble<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     r: &EnsembleRequest,
 ) -> Result<Vec<Columns>, Failure>
 where
-    Sys: NonholonomicSystem<N, M> + Default,
+    Sys: NonholonomicSystem<N, M> + Default + Clone + Send + Sync,
 {
     if r.q0s.len() != r.members * N || r.v0s.len() != r.members * N {
         return Err(format!(
@@ -257,16 +284,45 @@ where
             r.v0s.len()
         ));
     }
+    let member = |j: usize| IntegrateRequest {
+        q0: r.q0s[j * N..(j + 1) * N].to_vec(),
+        v0: r.v0s[j * N..(j + 1) * N].to_vec(),
+        ..r.run.clone()
+    };
+    let alone = |j: usize| integrate::<Sys, N, M, S, D>(&member(j)).map_err(|e| format!("member {j}: {e}"));
     let work = || -> Result<Vec<Columns>, Failure> {
-        (0..r.members)
-            .into_par_iter()
+        let lanes = if r.run.multipliers || check_request(&r.run).is_err() {
+            None
+        } else {
+            configured::<Sys, N, M>(&r.run.parameters).ok().zip(Tableau::<S>::new(r.run.method).ok())
+        };
+        let Some((probe, tableau)) = lanes else {
+            return (0..r.members).into_par_iter().map(alone).collect();
+        };
+        let start = std::time::Instant::now();
+        let starts = (0..r.members)
             .map(|j| {
-                let member = IntegrateRequest {
-                    q0: r.q0s[j * N..(j + 1) * N].to_vec(),
-                    v0: r.v0s[j * N..(j + 1) * N].to_vec(),
-                    ..r.run.clone()
-                };
-                integrate::<Sys, N, M, S, D>(&member).map_err(|e| format!("member {j}: {e}"))
+                let (q0, v0) = checked_start::<Sys, N, M>(&r.run, &probe, &member(j).q0, &member(j).v0)
+                    .map_err(|e| format!("member {j}: {e}"))?;
+                Ok(State::new(r.run.t0, q0, v0))
+            })
+            .collect::<Result<Vec<State<N>>, Failure>>()?;
+        let runs = integrate_ensemble::<Sys, N, M, S, D>(
+            &probe,
+            tableau,
+            r.run.newton,
+            &starts,
+            r.run.h,
+            r.run.steps,
+            r.run.every,
+        )
+        .map_err(|e| e.to_string())?;
+        let seconds = start.elapsed().as_secs_f64() / r.members as f64;
+        runs.into_par_iter()
+            .enumerate()
+            .map(|(j, run)| match run.failure {
+                Some(_) => alone(j),
+                None => Ok(lane_columns::<Sys, N, M>(&probe, &starts[j], &run, seconds)),
             })
             .collect()
     };
@@ -279,6 +335,46 @@ where
             .map_err(|e| format!("could not start {t} worker threads: {e}"))?
             .install(work),
     }
+}
+
+/// The columns of one member's lane run, as [`integrate`] computes them
+/// from its samples.
+fn lane_columns<Sys, const N: usize, const M: usize>(
+    probe: &Sys,
+    start: &State<N>,
+    run: &EnsembleRun<N>,
+    seconds: f64,
+) -> Columns
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let k = run.samples.len();
+    let mut out = Columns {
+        n: N,
+        m: M,
+        t: Vec::with_capacity(k),
+        q: Vec::with_capacity(k * N),
+        v: Vec::with_capacity(k * N),
+        energy: Vec::with_capacity(k),
+        constraint: Vec::with_capacity(k),
+        psi: Vec::new(),
+        holonomic: Vec::new(),
+        e0: probe.energy(start.t, &start.q, &start.v),
+        steps: run.steps,
+        newton_iterations_mean: if run.steps > 0 { run.iterations as f64 / run.steps as f64 } else { 0.0 },
+        seconds,
+    };
+    for s in &run.samples {
+        out.t.push(s.t);
+        out.q.extend(s.q.iter());
+        out.v.extend(s.v.iter());
+        out.energy.push(probe.energy(s.t, &s.q, &s.v));
+        out.constraint.push(probe.constraint(s.t, &s.q, &s.v).amax());
+        if Sys::HAS_HOLONOMIC {
+            out.holonomic.push(probe.holonomic_residual(s.t, &s.q).amax());
+        }
+    }
+    out
 }
 
 /// The static facts of a system that `info()` shows, without its type.
