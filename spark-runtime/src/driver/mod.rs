@@ -15,7 +15,7 @@ mod observer;
 mod trajectory;
 
 pub use error::{IntegrationError, RejectionFloor};
-pub(crate) use failure::{StepCounts, StepFailure};
+use failure::StepCounts;
 use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::{sample_of, sample_storage};
