@@ -7,8 +7,8 @@ use crate::report::format::sci;
 use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
 use crate::systems::McLachlanPerlmutter7;
 use spark_runtime::{
-    FailurePolicy, IntegrationError, Method, NoObserver, NonholonomicSystem, Observe, RejectionPolicy, RunOptions,
-    Schedule, Stepper, Tableau, Trajectory, Vector,
+    FailurePolicy, IntegrationError, Method, NoEvents, NoObserver, NonholonomicSystem, Observe, RejectionPolicy,
+    RunOptions, Schedule, Stepper, Tableau, Trajectory, Vector,
 };
 
 /// One plain and one protected run of the same problem.
@@ -95,8 +95,9 @@ fn mp7_gauss2() -> Result<Stepper![McLachlanPerlmutter7, 2], StressError> {
 }
 
 /// The driver under the rejection policy from `(0, q0, v0)` to `t_end`
-/// with nominal step `h`, recording only the endpoints and observing
-/// nothing (the energy and the residual are judged at the end).
+/// with nominal step `h`, recording only the endpoints, observing nothing
+/// (the energy and the residual are judged at the end) and locating no
+/// events.
 fn protected_run(
     st: &mut Stepper![McLachlanPerlmutter7, 2],
     q0: &Vector<7>,
@@ -111,7 +112,7 @@ fn protected_run(
         on_failure: FailurePolicy::Reject(*policy),
         ..RunOptions::default()
     };
-    st.integrate(0.0, q0, v0, Schedule::Until { h, t_end }, &options, &mut NoObserver)
+    st.integrate_with_events(0.0, q0, v0, Schedule::Until { h, t_end }, &options, &mut NoObserver, &NoEvents)
 }
 
 /// The metrics of each `h` (plain and protected outcome), and the tally the
