@@ -165,10 +165,7 @@ pub use events::{
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use lanes::{integrate_ensemble, EnsembleRun, LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
-pub use rejection::{
-    integrate_with_rejection, step_with_rejection, ProtectedStep, RejectionError, RejectionPolicy, RejectionReport,
-    RejectionRunError,
-};
+pub use rejection::RejectionPolicy;
 pub use spark_macros::nonholonomic_system;
 pub use step::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};
 pub use system::{

@@ -94,7 +94,7 @@ impl RunOptions {
     pub fn validate(&self) -> Result<(), OptionError> {
         self.consistency.validate()?;
         if let FailurePolicy::Reject(policy) = self.on_failure {
-            policy.check()?;
+            policy.validate()?;
         }
         if self.max_halvings > MAX_HALVINGS {
             return Err(OptionError::integer(
@@ -109,8 +109,9 @@ impl RunOptions {
 
 impl RejectionPolicy {
     /// Checks `min_step` (finite, non-negative), `max_halvings ≤ 60` and
-    /// `regrow_after ≥ 1`.
-    pub(crate) fn check(&self) -> Result<(), OptionError> {
+    /// `regrow_after ≥ 1` ([`RunOptions::validate`] checks the policy of
+    /// [`FailurePolicy::Reject`] with this).
+    pub fn validate(&self) -> Result<(), OptionError> {
         if !(self.min_step.is_finite() && self.min_step >= 0.0) {
             return Err(OptionError::float("RejectionPolicy::min_step", self.min_step, "finite and non-negative"));
         }

@@ -9,8 +9,8 @@ use std::cell::Cell;
 use spark_runtime::fixtures::paper::{MobileRobot, Skate};
 use spark_runtime::{
     nonholonomic_system, ConsistencyPolicy, FailurePolicy, IntegrationError, Method, NewtonOptions, NoObserver,
-    NonholonomicSystem, RejectionError, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau,
-    Vector, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    NonholonomicSystem, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
+    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 
 /// Records the largest single allocation of this thread.
@@ -112,21 +112,11 @@ fn a_reused_stepper_reproduces_a_fresh_one() {
     let rerun = used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
     assert_eq!(rerun, first);
 
-    // The protected run too.
-    let policy = RejectionPolicy::default();
-    let t_end = end.t + 250.0;
+    // A run under the rejection policy to a final time too.
+    let reject = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy::default()), ..opts };
+    let until = Schedule::Until { h: 0.1, t_end: end.t + 250.0 };
     let protected = |st: &mut spark_runtime::Stepper![MobileRobot, 3]| {
-        spark_runtime::integrate_with_rejection(
-            st,
-            end.t,
-            &end.q,
-            &end.v,
-            t_end,
-            0.1,
-            &policy,
-            &mut |_: &State<4>, _: usize| {},
-        )
-        .unwrap()
+        st.integrate(end.t, &end.q, &end.v, until, &reject, &mut |_: &State<4>, _: usize| {}).unwrap()
     };
     let mut fresh: spark_runtime::Stepper![MobileRobot, 3] = Stepper::new(MobileRobot::default(), tab);
     used.integrate(0.0, &q0, &v0, schedule, &opts, &mut NoObserver).unwrap();
@@ -331,12 +321,12 @@ fn error_messages_print_floats_compactly() {
             .unwrap_err()
             .to_string(),
     ];
-    let policy = RejectionPolicy::default();
-    let mut observer = |_: &State<3>, _: usize| {};
-    let protected =
-        spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, -1e300, 1e300, &policy, &mut observer);
+    // Under the rejection policy the step is cut down to its floor
+    // (1e300·2⁻¹²), and the error names the sizes tried.
+    let reject = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy::default()), ..quiet(0) };
+    let protected = st.integrate(0.0, &q0, &v0, Schedule::Until { h: 1e300, t_end: 1e300 }, &reject, &mut NoObserver);
     let protected = protected.unwrap_err();
-    assert!(matches!(protected.source, RejectionError::InvalidInterval { .. }), "{protected}");
+    assert!(matches!(protected, IntegrationError::Floor { .. }), "{protected}");
     messages.push(protected.to_string());
     for m in &messages {
         assert!(longest_digit_run(m) <= 17, "{m}");
@@ -420,22 +410,16 @@ fn rejection_is_a_failure_policy_of_the_driver() {
     assert!(r.max_constraint_residual <= 1e-14, "{r:?}");
     assert_eq!(run.samples.last().unwrap().t, 60.0);
 
-    // The same run to a final time through the protected-run convenience.
+    // The same run to a final time: the observer sees every scheduled
+    // step's end, the report the same sub-steps.
     let mut count = 0;
-    let (end, protected) = spark_runtime::integrate_with_rejection(
-        &mut st,
-        0.0,
-        &q0,
-        &v0,
-        60.0,
-        1.5,
-        &policy,
-        &mut |_: &State<3>, _: usize| count += 1,
-    )
-    .unwrap();
+    let until = Schedule::Until { h: 1.5, t_end: 60.0 };
+    let protected = st.integrate(0.0, &q0, &v0, until, &reject, &mut |_: &State<3>, _: usize| count += 1).unwrap();
     assert_eq!(count, 40);
+    let end = protected.last().unwrap();
     assert_eq!((end.q, end.v), (run.samples.last().unwrap().q, run.samples.last().unwrap().v));
-    assert_eq!((protected.rejections, protected.substeps), (r.rejected_steps, r.substeps));
+    let p = protected.report;
+    assert_eq!((p.rejected_steps, p.substeps, p.smallest_step), (r.rejected_steps, r.substeps, r.smallest_step));
 
     // No failure: one sub-step per step, the same run up to the rounding
     // of the step sizes (rejection steps to the end of the interval).
@@ -463,11 +447,9 @@ fn rejection_is_a_failure_policy_of_the_driver() {
         Err(IntegrationError::Floor { detail, partial, .. }) => assert!(detail.rejections == 1 && partial.steps < 40),
         other => panic!("expected the floor, got {other:?}"),
     }
-    let tight_policy = RejectionPolicy { max_halvings: 0, ..policy };
-    let mut none = |_: &State<3>, _: usize| {};
-    match spark_runtime::integrate_with_rejection(&mut st, 0.0, &q0, &v0, 60.0, 1.5, &tight_policy, &mut none) {
-        Err(e) => assert!(matches!(e.source, RejectionError::Floor { rejections: 1, .. }), "{e}"),
-        Ok(_) => panic!("expected the floor"),
+    match st.integrate(0.0, &q0, &v0, until, &tight, &mut NoObserver) {
+        Err(IntegrationError::Floor { detail, partial, .. }) => assert!(detail.rejections == 1 && partial.steps < 40),
+        other => panic!("expected the floor, got {other:?}"),
     }
     // An invalid policy is an option error before any step.
     let bad = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy { regrow_after: 0, ..policy }), ..reject };

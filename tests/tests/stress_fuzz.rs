@@ -2,7 +2,8 @@
 //! its parameters, method and stage count, state (t, q, v) and step size,
 //! drawn from ordinary values mixed with zeros, huge, tiny, NaN and infinite
 //! ones — through `Stepper::step`, the driver `integrate` (with projection of
-//! the initial velocity and step halving) and `step_with_rejection`.
+//! the initial velocity and step halving) and `integrate` under the
+//! rejection policy (`FailurePolicy::Reject`).
 //!
 //! Properties: nothing panics; every `Ok` carries a finite state; every
 //! error renders a message.
@@ -18,8 +19,8 @@ use problems::systems::{
 };
 use proptest::prelude::*;
 use spark_runtime::{
-    step_with_rejection, ConsistencyPolicy, Method, NoObserver, NonholonomicSystem, RejectionPolicy, RunOptions,
-    Schedule, State, Stepper, Tableau, Vector,
+    ConsistencyPolicy, FailurePolicy, Method, NoObserver, NonholonomicSystem, RejectionPolicy, RunOptions, Schedule,
+    State, Stepper, Tableau, Vector,
 };
 
 /// A float that is usually ordinary and sometimes hostile.
@@ -142,8 +143,12 @@ where
         }
     }
     let policy = RejectionPolicy { max_halvings: 4, ..RejectionPolicy::default() };
-    match step_with_rejection(&mut st, &state, x.h, &policy) {
-        Ok(r) => assert!(finite(&r.state), "protected step returned a non-finite state"),
+    let reject = RunOptions { consistency, on_failure: FailurePolicy::Reject(policy), ..RunOptions::default() };
+    match st.integrate(x.t0, &q, &v, Schedule::Fixed { h: x.h, steps: 1 }, &reject, &mut NoObserver) {
+        Ok(traj) => {
+            let end = traj.last().expect("a run records its end");
+            assert!(finite(&end), "a step under the rejection policy returned a non-finite state");
+        }
         Err(e) => {
             let _ = e.to_string();
         }

@@ -217,7 +217,7 @@ where
     /// that halve after each failure (the halved one started cold) and
     /// double back after `regrow_after` accepted ones, never below
     /// [`RejectionPolicy::floor`]. `on_step` as in `robust_step`.
-    pub(crate) fn rejecting_step<F>(
+    pub(super) fn rejecting_step<F>(
         &mut self,
         state: &State<N>,
         h: f64,

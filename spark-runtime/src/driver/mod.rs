@@ -15,7 +15,7 @@ mod observer;
 mod trajectory;
 
 pub use error::{IntegrationError, RejectionFloor};
-pub(crate) use failure::{StepCounts, StepFailure};
+use failure::StepCounts;
 use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::{sample_of, sample_storage};
@@ -368,75 +368,35 @@ where
         let specs = events.specs();
         let wants_dense = observer.wants_dense();
         let dense = wants_dense || !specs.is_empty() || sampled.is_some();
-        let basis = DenseBasis::new(self.tableau());
-        let mut located: Vec<EventRecord<N>> = Vec::new();
-        let mut crossings: Vec<Crossing> = Vec::with_capacity(specs.len());
-        let mut previous: Vec<f64> = specs
-            .iter()
-            .enumerate()
-            .map(|(i, _)| events.value(self.system(), i, state.t, &state.q, &state.v))
-            .collect();
-        let mut next_time = 0usize;
-        let mut terminal: Option<State<N>> = None;
+        let mut dense_run = DenseRun {
+            basis: DenseBasis::new(self.tableau()),
+            events,
+            previous: specs
+                .iter()
+                .enumerate()
+                .map(|(i, _)| events.value(self.system(), i, state.t, &state.q, &state.v))
+                .collect(),
+            crossings: Vec::with_capacity(specs.len()),
+            located: Vec::new(),
+            wants_dense,
+            sampled,
+            next_time: 0,
+            observe: options.observe,
+            e0,
+            terminal: None,
+        };
         for k in 0..steps {
             let (h, t_target) = schedule.step(k, steps, t0, state.t);
             let warm_before = self.is_warm_for(&state);
-            let step_iterations = &mut 0usize;
+            let mut step_iterations = 0usize;
+            // The test of `dense` is all a sub-step costs here when the run
+            // needs no continuous extension; the rest is out of line.
             let mut on_step = |sys: &Sys, start: &State<N>, end: &State<N>, sub: f64, r: &StepResult<N, M, S>| {
-                if !dense {
-                    return false;
+                dense && {
+                    step_iterations += r.iterations;
+                    let at = Accepted { k, iterations: step_iterations, start, end, sub, result: r };
+                    dense_run.accepted(sys, at, observer, &mut samples, &mut report)
                 }
-                *step_iterations += r.iterations;
-                let piece = DenseStep::new(&basis, start, end, sub, r);
-                let mut stop_at = None;
-                if !specs.is_empty() {
-                    crossings.clear();
-                    find_crossings(events, sys, &piece, &mut previous, &mut crossings);
-                    for c in crossings.iter() {
-                        let at = piece.state_at(c.t);
-                        let spec = &specs[c.index];
-                        located.push(EventRecord {
-                            index: c.index,
-                            name: spec.name.to_string(),
-                            rising: c.rising,
-                            t: c.t,
-                            q: at.q,
-                            v: at.v,
-                            residual: events.value(sys, c.index, at.t, &at.q, &at.v),
-                            step: k,
-                        });
-                        if spec.terminal {
-                            stop_at = Some(at);
-                            break;
-                        }
-                    }
-                }
-                if wants_dense {
-                    // A terminal event ends the run inside this step: the
-                    // observer sees the extension up to the event only.
-                    match stop_at {
-                        Some(at) => observer.dense_step(&piece.until(at.t)),
-                        None => observer.dense_step(&piece),
-                    }
-                }
-                if let Some(times) = sampled {
-                    let forward = sub > 0.0;
-                    let limit = stop_at.map_or(end.t, |s| s.t);
-                    while let Some(&t) = times.get(next_time) {
-                        if (forward && t > limit) || (!forward && t < limit) {
-                            break;
-                        }
-                        let s = sample_of(sys, &piece.state_at(t), &options.observe, *step_iterations);
-                        track(&s, &mut report);
-                        samples.push(s);
-                        next_time += 1;
-                    }
-                }
-                if stop_at.is_some() {
-                    terminal = stop_at;
-                    return true;
-                }
-                false
             };
             let taken = match options.on_failure {
                 FailurePolicy::Halve => {
@@ -454,9 +414,9 @@ where
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
             report.count(&counts, warm_before);
-            if let Some(at) = terminal {
+            if let Some(at) = dense_run.terminal {
                 observer.accepted(self.system(), &at, iters);
-                report.terminal_event = located.last().map(|e| e.index);
+                report.terminal_event = dense_run.located.last().map(|e| e.index);
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
                     track(&s, &mut report);
@@ -482,11 +442,118 @@ where
             state = next;
         }
         let _ = state;
-        report.events = located.len();
+        report.events = dense_run.located.len();
         if report.steps > 0 {
             report.newton_iterations_mean = report.newton_iterations_total as f64 / report.steps as f64;
         }
-        Ok(Trajectory::of::<Sys>(self.tableau().method, S, samples, report, located))
+        Ok(Trajectory::of::<Sys>(self.tableau().method, S, samples, report, dense_run.located))
+    }
+}
+
+/// One accepted sub-step of scheduled step `k`, as the failure policies
+/// report it: from `start` to `end` (its time pinned when it ends the
+/// step) with size `sub`; `iterations` counts the Newton iterations of the
+/// scheduled step so far.
+struct Accepted<'a, const N: usize, const M: usize, const S: usize> {
+    k: usize,
+    iterations: usize,
+    start: &'a State<N>,
+    end: &'a State<N>,
+    sub: f64,
+    result: &'a StepResult<N, M, S>,
+}
+
+/// What a run keeps from step to step for the continuous extension of its
+/// accepted sub-steps: the events it locates, the observer of the dense
+/// output and the `Sampled` output times.
+struct DenseRun<'a, Sys, const N: usize, const S: usize> {
+    basis: DenseBasis<S>,
+    events: &'a dyn EventFunctions<Sys, N>,
+    /// Each event function's value at the end of the last accepted sub-step.
+    previous: Vec<f64>,
+    crossings: Vec<Crossing>,
+    located: Vec<EventRecord<N>>,
+    wants_dense: bool,
+    sampled: Option<&'a [f64]>,
+    /// The next of the `Sampled` times to record.
+    next_time: usize,
+    observe: Observe,
+    /// The energy at the start, for the report's extremes.
+    e0: Option<f64>,
+    /// The state at the terminal event that ends the run, once located.
+    terminal: Option<State<N>>,
+}
+
+impl<Sys, const N: usize, const S: usize> DenseRun<'_, Sys, N, S> {
+    /// Builds the continuous extension of sub-step `at`, locates the events
+    /// in it, hands it to the observer of the dense output and records the
+    /// `Sampled` times it covers. Returns `true` when a terminal event ends
+    /// the run in it (the event's state is then [`Self::terminal`]). Out of
+    /// line: a run that needs none of this never calls it.
+    #[inline(never)]
+    fn accepted<const M: usize>(
+        &mut self,
+        sys: &Sys,
+        at: Accepted<'_, N, M, S>,
+        observer: &mut dyn StepObserver<Sys, N, M, S>,
+        samples: &mut Vec<Sample<N, M>>,
+        report: &mut RunReport,
+    ) -> bool
+    where
+        Sys: NonholonomicSystem<N, M>,
+    {
+        let events = self.events;
+        let specs = events.specs();
+        let piece = DenseStep::new(&self.basis, at.start, at.end, at.sub, at.result);
+        let mut stop_at = None;
+        if !specs.is_empty() {
+            self.crossings.clear();
+            find_crossings(events, sys, &piece, &mut self.previous, &mut self.crossings);
+            for c in self.crossings.iter() {
+                let state = piece.state_at(c.t);
+                let spec = &specs[c.index];
+                self.located.push(EventRecord {
+                    index: c.index,
+                    name: spec.name.to_string(),
+                    rising: c.rising,
+                    t: c.t,
+                    q: state.q,
+                    v: state.v,
+                    residual: events.value(sys, c.index, state.t, &state.q, &state.v),
+                    step: at.k,
+                });
+                if spec.terminal {
+                    stop_at = Some(state);
+                    break;
+                }
+            }
+        }
+        if self.wants_dense {
+            // A terminal event ends the run inside this step: the
+            // observer sees the extension up to the event only.
+            match stop_at {
+                Some(stop) => observer.dense_step(&piece.until(stop.t)),
+                None => observer.dense_step(&piece),
+            }
+        }
+        if let Some(times) = self.sampled {
+            let forward = at.sub > 0.0;
+            let limit = stop_at.map_or(at.end.t, |s| s.t);
+            while let Some(&t) = times.get(self.next_time) {
+                if (forward && t > limit) || (!forward && t < limit) {
+                    break;
+                }
+                let s = sample_of(sys, &piece.state_at(t), &self.observe, at.iterations);
+                report.track(&s, self.e0);
+                samples.push(s);
+                self.next_time += 1;
+            }
+        }
+        if stop_at.is_some() {
+            self.terminal = stop_at;
+            return true;
+        }
+        false
     }
 }
 

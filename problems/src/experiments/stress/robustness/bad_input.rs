@@ -1,12 +1,12 @@
 //! The bad-input case: every invalid input comes back as a typed error.
 
-use super::{integration_error_kind, rejection_error_kind, step_error_kind};
+use super::{integration_error_kind, step_error_kind};
 use crate::experiments::stress::{CaseReport, Scale, StressError};
 use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
 use crate::systems::stress::NearParallel;
 use crate::systems::Skate;
 use spark_runtime::{
-    integrate_with_rejection, Method, NonholonomicSystem, RejectionPolicy, RunOptions, Schedule, State, Stepper, Vector,
+    FailurePolicy, Method, NonholonomicSystem, RejectionPolicy, RunOptions, Schedule, State, Stepper, Vector,
 };
 
 /// One bad-input scenario: what it is, the error kind expected, what came back.
@@ -25,7 +25,7 @@ pub fn bad_input(_scale: Scale) -> Result<CaseReport, StressError> {
         "bad_input",
         "Bad input",
         "Each scenario calls the library as a user would (driver `integrate`, `Stepper::step`, `set_parameter`, \
-         `integrate_with_rejection`) on the skate or the near-parallel particle, and must return the expected typed \
+         `integrate` under the rejection policy) on the skate or the near-parallel particle, and must return the expected typed \
          error with no step taken (an observer counts the steps; nothing is returned but the error).",
     );
     let mut cases = driver_scenarios();
@@ -167,28 +167,31 @@ fn stepper_scenarios() -> Result<Vec<Bad>, StressError> {
 }
 
 /// A final time behind the start, `h = 0` and a bad policy through the
-/// protected run (the first two count the steps they observe).
+/// driver under the rejection policy (`FailurePolicy::Reject`, a run to a
+/// final time; the first two count the steps they observe).
 fn protected_scenarios() -> Result<Vec<Bad>, StressError> {
     let (q0, v0) = skate_start();
     let mut st = <Stepper![Skate, 2]>::new(Skate::default(), spark_runtime::Tableau::new(Method::Gauss)?);
     let mut run = |what, expected, t0: f64, h: f64, policy: &RejectionPolicy, observed: bool| {
         let mut count = 0usize;
-        let r = integrate_with_rejection(&mut st, t0, &q0, &v0, 1.0, h, policy, &mut |_, _| count += 1);
-        let got = r.map(|_| "Ok".to_string()).map_err(|e| format!("{} — {e}", rejection_error_kind(&e)));
+        let options = RunOptions { on_failure: FailurePolicy::Reject(*policy), ..RunOptions::default() };
+        let schedule = Schedule::Until { h, t_end: 1.0 };
+        let r = st.integrate(t0, &q0, &v0, schedule, &options, &mut |_: &State<3>, _: usize| count += 1);
+        let (got, count) = driven(r, count);
         Bad { what, expected, got, observed_steps: if observed { count } else { 0 } }
     };
     let bad_policy = RejectionPolicy { min_step: f64::NAN, ..RejectionPolicy::default() };
     Ok(vec![
         run(
-            "final time 1 behind the start 5 (h = 0.1)",
-            "InvalidInterval",
+            "final time 1 behind the start 5 (h = 0.1), rejection policy",
+            "InvalidSchedule",
             5.0,
             0.1,
             &RejectionPolicy::default(),
             true,
         ),
-        run("protected run with h = 0", "InvalidInterval", 0.0, 0.0, &RejectionPolicy::default(), true),
-        run("rejection policy with min_step = NaN", "InvalidPolicy", 0.0, 0.1, &bad_policy, false),
+        run("h = 0 under the rejection policy", "InvalidSchedule", 0.0, 0.0, &RejectionPolicy::default(), true),
+        run("rejection policy with min_step = NaN", "InvalidOption", 0.0, 0.1, &bad_policy, false),
     ])
 }
 

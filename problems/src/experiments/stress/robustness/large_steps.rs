@@ -1,20 +1,20 @@
 //! The large-steps case: where Newton stops converging, with and without
 //! the rejection policy.
 
-use super::{failed_index, integration_error_kind, is_newton_failure, rejection_error_kind};
+use super::{failed_index, integration_error_kind, is_newton_failure};
 use crate::experiments::stress::{run_fixed, CaseReport, RunData, Scale, StressError};
 use crate::report::format::sci;
 use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
 use crate::systems::McLachlanPerlmutter7;
 use spark_runtime::{
-    integrate_with_rejection, IntegrationError, Method, NonholonomicSystem, RejectionError, RejectionPolicy,
-    RejectionReport, RejectionRunError, State, Stepper, Tableau, Vector,
+    FailurePolicy, IntegrationError, Method, NoEvents, NoObserver, NonholonomicSystem, Observe, RejectionPolicy,
+    RunOptions, Schedule, Stepper, Tableau, Trajectory, Vector,
 };
 
 /// One plain and one protected run of the same problem.
 struct Pair {
     plain: Result<RunData, IntegrationError>,
-    protected: Result<(State<7>, RejectionReport), RejectionRunError>,
+    protected: Result<Trajectory<7, 1>, IntegrationError>,
 }
 
 /// What the sweep over `h` found.
@@ -56,7 +56,7 @@ pub fn large_steps(_scale: Scale) -> Result<CaseReport, StressError> {
         let mut st = mp7_gauss2()?;
         let n = (t_end / h).round() as usize;
         let plain = run_fixed(&mut st, &q0, &v0, h, n, 1, 0);
-        let protected = integrate_with_rejection(&mut st, 0.0, &q0, &v0, t_end, h, &policy, &mut |_, _| {});
+        let protected = protected_run(&mut st, &q0, &v0, t_end, h, &policy);
         pairs.push(Pair { plain, protected });
     }
     let e0 = McLachlanPerlmutter7::default().energy(0.0, &q0, &v0);
@@ -94,6 +94,27 @@ fn mp7_gauss2() -> Result<Stepper![McLachlanPerlmutter7, 2], StressError> {
     Ok(<Stepper![McLachlanPerlmutter7, 2]>::new(McLachlanPerlmutter7::default(), Tableau::new(Method::Gauss)?))
 }
 
+/// The driver under the rejection policy from `(0, q0, v0)` to `t_end`
+/// with nominal step `h`, recording only the endpoints, observing nothing
+/// (the energy and the residual are judged at the end) and locating no
+/// events.
+fn protected_run(
+    st: &mut Stepper![McLachlanPerlmutter7, 2],
+    q0: &Vector<7>,
+    v0: &Vector<7>,
+    t_end: f64,
+    h: f64,
+    policy: &RejectionPolicy,
+) -> Result<Trajectory<7, 1>, IntegrationError> {
+    let options = RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        on_failure: FailurePolicy::Reject(*policy),
+        ..RunOptions::default()
+    };
+    st.integrate_with_events(0.0, q0, v0, Schedule::Until { h, t_end }, &options, &mut NoObserver, &NoEvents)
+}
+
 /// The metrics of each `h` (plain and protected outcome), and the tally the
 /// checks and the figure read.
 fn judge_sweep(c: &mut CaseReport, hs: &[f64], pairs: &[Pair], e0: f64) -> Tally {
@@ -119,9 +140,9 @@ fn judge_sweep(c: &mut CaseReport, hs: &[f64], pairs: &[Pair], e0: f64) -> Tally
                 format!("fails: {} at step {}", integration_error_kind(e), failed_index(e))
             }
         };
-        let prot_desc = match &p.protected {
-            Ok((s, r)) => {
-                c.rejections += r.rejections;
+        let prot_desc = match p.protected.as_ref().map(|run| (run.last(), &run.report)) {
+            Ok((Some(s), r)) => {
+                c.rejections += r.rejected_steps;
                 let de = (sys.energy(s.t, &s.q, &s.v) - e0).abs();
                 let k = sys.constraint(s.t, &s.q, &s.v).amax();
                 c.worst_residual = c.worst_residual.max(k);
@@ -129,26 +150,35 @@ fn judge_sweep(c: &mut CaseReport, hs: &[f64], pairs: &[Pair], e0: f64) -> Tally
                     t.rescued.push(h);
                 }
                 t.protected_points.push((h, de.max(1e-17)));
-                t.rejection_points.push((h, r.rejections as f64));
+                t.rejection_points.push((h, r.rejected_steps as f64));
                 format!(
                     "completes: {} rejections in {} nominal steps, smallest sub-step {}, final |E−E0| {}, |k| {}",
-                    r.rejections,
+                    r.rejected_steps,
                     r.steps,
                     sci(r.smallest_step),
                     sci(de),
                     sci(k)
                 )
             }
+            Ok((None, _)) => {
+                t.all_typed = false;
+                "completes without recording its end".to_string()
+            }
             Err(e) => {
-                if !matches!(e.source, RejectionError::Floor { .. }) {
+                if !matches!(e, IntegrationError::Floor { .. }) {
                     t.all_typed = false;
                 }
                 c.errors.push(format!("protected, h = {h}: {e}"));
+                let before = match e {
+                    IntegrationError::Step { partial, .. } | IntegrationError::Floor { partial, .. } => {
+                        partial.rejected_steps
+                    }
+                    _ => 0,
+                };
                 format!(
-                    "fails: {} in nominal step {} ({} rejections before)",
-                    rejection_error_kind(e),
-                    e.index,
-                    e.partial.rejections
+                    "fails: {} in nominal step {} ({before} rejections before)",
+                    integration_error_kind(e),
+                    failed_index(e)
                 )
             }
         };
@@ -171,7 +201,7 @@ fn judge_floor(
 ) -> Result<(), StressError> {
     let tight = RejectionPolicy { max_halvings: 1, ..*policy };
     let mut st = mp7_gauss2()?;
-    match integrate_with_rejection(&mut st, 0.0, q0, v0, t_end, h_max, &tight, &mut |_, _| {}) {
+    match protected_run(&mut st, q0, v0, t_end, h_max, &tight) {
         Ok(_) => c.check(
             format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
             false,
@@ -181,8 +211,8 @@ fn judge_floor(
             c.errors.push(format!("protected, h = {h_max}, max_halvings = 1: {e}"));
             c.check(
                 format!("h = {h_max} with a policy of one halving stops with a typed Floor error"),
-                matches!(e.source, RejectionError::Floor { .. }),
-                format!("{}: {e}", rejection_error_kind(&e)),
+                matches!(e, IntegrationError::Floor { .. }),
+                format!("{}: {e}", integration_error_kind(&e)),
             );
         }
     }

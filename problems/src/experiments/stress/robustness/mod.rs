@@ -16,7 +16,7 @@ pub use near_singular::{near_singular, saddle_condition, CONDITION_WARNING};
 pub use non_reversible::non_reversible;
 pub use stiff::{stiff_spring, stiff_step_radius};
 
-use spark_runtime::{IntegrationError, RejectionError, RejectionRunError, StepError};
+use spark_runtime::{IntegrationError, StepError};
 
 /// A short name of a step failure's kind.
 pub fn step_error_kind(e: &StepError) -> &'static str {
@@ -42,16 +42,6 @@ pub fn integration_error_kind(e: &IntegrationError) -> String {
         IntegrationError::Initial(s) => format!("Initial/{}", step_error_kind(s)),
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
         IntegrationError::Floor { detail, .. } => format!("Floor/{}", step_error_kind(&detail.last)),
-    }
-}
-
-/// The kind of a protected-run failure.
-pub fn rejection_error_kind(e: &RejectionRunError) -> String {
-    match &e.source {
-        RejectionError::InvalidPolicy(_) => "InvalidPolicy".into(),
-        RejectionError::InvalidInterval { .. } => "InvalidInterval".into(),
-        RejectionError::Input(s) => format!("Input/{}", step_error_kind(s)),
-        RejectionError::Floor { last, .. } => format!("Floor/{}", step_error_kind(last)),
     }
 }
 
