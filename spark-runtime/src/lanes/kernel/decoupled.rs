@@ -1,0 +1,234 @@
+//! The kernel's stage-decoupled Newton matrix, in lanes: its factors from
+//! the constraint Jacobians and the solve with them
+//! (`linalg::decoupled::DecoupledMatrix`, operation for operation; the
+//! Schur complement is factored by `lanes::lane_lu`).
+
+// Stage and lane loops index several parallel arrays with one index.
+#![allow(clippy::needless_range_loop)]
+
+use super::{Kernel, MassSolve, Outcome, L};
+use crate::lanes::lane_lu;
+use crate::linalg::solve_in_place;
+use crate::tableau::{ConditionRows, Tableau};
+
+impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> Kernel<N, M, S, D, W> {
+    /// `x ← W⁻¹ x` for the `N` lane values at `at` of `x`.
+    #[inline(always)]
+    pub(super) fn solve_mass(mass: &MassSolve, x: &mut [L<W>], at: usize) {
+        match mass {
+            MassSolve::Diagonal(r) => {
+                for n in 0..N {
+                    let (mut xn, rn) = (x[at + n], r[n]);
+                    for w in 0..W {
+                        xn[w] *= rn;
+                    }
+                    x[at + n] = xn;
+                }
+            }
+            MassSolve::Lu { lu, perm } => {
+                for w in 0..W {
+                    let mut col = [0.0; N];
+                    for n in 0..N {
+                        col[n] = x[at + n][w];
+                    }
+                    solve_in_place::<N>(lu, perm, &mut col);
+                    for n in 0..N {
+                        x[at + n][w] = col[n];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Factors the stage-decoupled matrix of every iterating lane from the
+    /// constraint Jacobians of the latest evaluation
+    /// (`DecoupledMatrix::factor` with a shared mass block); a lane whose
+    /// Schur complement is singular is handed back.
+    #[inline(always)]
+    pub(super) fn factor(&mut self, tab: &Tableau<S>, iterating: &mut [bool; W], out: &mut [Outcome; W]) {
+        let (nm, sm) = (N * M, Self::SM);
+        // X[i][l] = coef_il · W⁻¹ K_lᵀ.
+        let kt = &mut self.kt;
+        for l in 0..S {
+            for e in 0..M {
+                for n in 0..N {
+                    kt[e * N + n] = self.constraint_v[l * nm + n * M + e];
+                }
+                Self::solve_mass(&self.mass, kt, e * N);
+            }
+            for i in 0..=S {
+                let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
+                for e in 0..M {
+                    for n in 0..N {
+                        let k = kt[e * N + n];
+                        let mut x = [0.0; W];
+                        for w in 0..W {
+                            x[w] = coef * k[w];
+                        }
+                        self.x[i * S + l][e][n] = x;
+                    }
+                }
+            }
+        }
+        self.constraint_blocks(tab);
+        // Σ = E − Σ_i C[r][i] X[i][l].
+        let schur = &mut self.schur;
+        schur.fill([0.0; W]);
+        if tab.conditions == ConditionRows::EqualMultipliers {
+            for r in 0..S.saturating_sub(1) {
+                for d in 0..M {
+                    schur[(r * M + d) * sm + r * M + d] = [1.0; W];
+                    schur[((r + 1) * M + d) * sm + r * M + d] = [-1.0; W];
+                }
+            }
+        }
+        for r in 0..S {
+            for i in 0..=S {
+                if !self.c_nonzero[r * (S + 1) + i] {
+                    continue;
+                }
+                let c = &self.c[r * (S + 1) + i];
+                for l in 0..S {
+                    let x = &self.x[i * S + l];
+                    for e in 0..M {
+                        for m in 0..M {
+                            let at = (l * M + e) * sm + r * M + m;
+                            let mut acc = schur[at];
+                            for k in 0..N {
+                                let (xk, ck) = (x[e][k], c[k][m]);
+                                for w in 0..W {
+                                    // The scalar assembly skips a zero `X` entry.
+                                    acc[w] = if xk[w] != 0.0 { acc[w] - ck[w] * xk[w] } else { acc[w] };
+                                }
+                            }
+                            schur[at] = acc;
+                        }
+                    }
+                }
+            }
+        }
+        let mut live = *iterating;
+        lane_lu::factor(&mut self.schur, sm, &mut self.schur_perm, &mut self.schur_scale, &mut live);
+        for w in 0..W {
+            if iterating[w] && !live[w] {
+                (iterating[w], out[w]) = (false, Outcome::HandBack);
+            }
+        }
+    }
+
+    /// `C[r][i]`, as `DecoupledMatrix::write_constraint_blocks` writes them.
+    #[inline(always)]
+    pub(super) fn constraint_blocks(&mut self, tab: &Tableau<S>) {
+        let (mn, h) = (M * N, self.h);
+        self.c_nonzero.fill(false);
+        let (kv, kq) = (&self.constraint_v, &self.constraint_q);
+        let (c, nonzero) = (&mut self.c, &mut self.c_nonzero);
+        let mut put = |r: usize, i: usize, e: usize, x: L<W>| {
+            c[r * (S + 1) + i][e / M][e % M] = x;
+            nonzero[r * (S + 1) + i] = true;
+        };
+        match tab.conditions {
+            ConditionRows::Omega => {
+                for r in 0..S.saturating_sub(1) {
+                    for l in 0..S {
+                        for e in 0..mn {
+                            let mut blk = [0.0; W];
+                            for w in 0..W {
+                                blk[w] = tab.omega[r][l] * kv[l * mn + e][w];
+                            }
+                            for m in 0..S {
+                                let cm = tab.omega[r][m] * tab.a[m][l];
+                                if cm != 0.0 {
+                                    let (hc, k) = (h * cm, kq[m * mn + e]);
+                                    for w in 0..W {
+                                        blk[w] += hc * k[w];
+                                    }
+                                }
+                            }
+                            put(r, l, e, blk);
+                        }
+                    }
+                }
+            }
+            ConditionRows::MidpointConstraint => {
+                let half = 0.5 * h;
+                for e in 0..mn {
+                    let mut blk = [0.0; W];
+                    let (kve, kqe) = (kv[(S + 1) * mn + e], kq[(S + 1) * mn + e]);
+                    for w in 0..W {
+                        blk[w] = kve[w] + half * kqe[w];
+                    }
+                    put(0, 0, e, blk);
+                }
+            }
+            ConditionRows::EqualMultipliers => {}
+        }
+        for l in 0..S {
+            let hb = h * tab.b[l];
+            for e in 0..mn {
+                let mut blk = [0.0; W];
+                let k = kq[S * mn + e];
+                for w in 0..W {
+                    blk[w] = hb * k[w];
+                }
+                put(S - 1, l, e, blk);
+            }
+        }
+        for e in 0..mn {
+            put(S - 1, S, e, kv[S * mn + e]);
+        }
+    }
+
+    /// Overwrites the residual `g` with the update `J̃⁻¹ g`
+    /// (`DecoupledMatrix::solve_in_place`).
+    #[inline(always)]
+    pub(super) fn solve(&mut self) {
+        let sm = Self::SM;
+        let base = (S + 1) * N;
+        self.y.copy_from_slice(&self.g[..]);
+        for i in 0..=S {
+            Self::solve_mass(&self.mass, &mut self.y, i * N);
+        }
+        let (vel, con) = self.y.split_at_mut(base);
+        // Each entry of `con` takes its products in the order of the
+        // stage-decoupled solve (point `i`, then coordinate `k`).
+        for r in 0..S {
+            for m in 0..M {
+                let mut acc = con[r * M + m];
+                for i in 0..=S {
+                    if !self.c_nonzero[r * (S + 1) + i] {
+                        continue;
+                    }
+                    let c = &self.c[r * (S + 1) + i];
+                    for k in 0..N {
+                        let (yk, ck) = (vel[i * N + k], c[k][m]);
+                        for w in 0..W {
+                            acc[w] -= ck[w] * yk[w];
+                        }
+                    }
+                }
+                con[r * M + m] = acc;
+            }
+        }
+        lane_lu::solve(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
+        for i in 0..=S {
+            let out_at = if i < S { i * N } else { S * (N + M) };
+            for n in 0..N {
+                let mut acc = vel[i * N + n];
+                for l in 0..S {
+                    let x = &self.x[i * S + l];
+                    for e in 0..M {
+                        let (mu, xe) = (con[l * M + e], x[e][n]);
+                        for w in 0..W {
+                            acc[w] -= xe[w] * mu[w];
+                        }
+                    }
+                }
+                self.g[out_at + n] = acc;
+            }
+        }
+        for e in 0..sm {
+            self.g[S * N + e] = con[e];
+        }
+    }
+}
