@@ -57,11 +57,6 @@ where
         .par_chunks(LANES)
         .map(|chunk| {
             let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(system.clone(), tableau, options);
-            if chunk.len() <= LANES / 2 {
-                // The kernel's step costs the same however few of its lanes
-                // are filled: half a group or less steps faster alone.
-                lanes = lanes.without_kernel();
-            }
             lanes.start(chunk, h)?;
             let mut runs: Vec<EnsembleRun<N>> = chunk
                 .iter()

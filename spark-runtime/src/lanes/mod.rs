@@ -25,13 +25,13 @@
 //! The kernel's rows of `W` lanes vectorize (it is compiled for AVX2 where
 //! the CPU has it); the system's own functions run lane by lane. Eight
 //! McLachlan–Perlmutter members (`n = 7`, Lobatto IIIA-B `s = 2`,
-//! `h = 0.05`, the settings of Fig. 8.4) step about 1.8× faster in one
+//! `h = 0.05`, the settings of Fig. 8.4) step about 2.2× faster in one
 //! group of eight lanes than one after another on one core
 //! (`cargo bench -p spark-runtime --bench lanes`; the figures with their
 //! load are in `docs/performance/README.md`). A kernel step costs the same
-//! however many of its lanes hold a member, so [`integrate_ensemble`] steps
-//! a group of half its lanes or fewer member by member
-//! ([`LaneStepper::without_kernel`]).
+//! however many of its lanes hold a member, so a [`LaneStepper`] started
+//! with half its lanes or fewer steps its members each alone
+//! ([`LaneStepper::start`]).
 //!
 //! Throughput across cores comes from [`integrate_ensemble`], which runs
 //! lane groups in parallel (rayon).

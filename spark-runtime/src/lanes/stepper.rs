@@ -87,6 +87,9 @@ pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, cons
     kernel_refused: bool,
     /// Whether the lanes may use the kernel at all ([`Self::without_kernel`]).
     kernel_enabled: bool,
+    /// Whether this run's lanes use it: more than half the lanes hold a
+    /// member (see [`Self::start`]).
+    kernel_for_run: bool,
     states: [State<N>; W],
     status: [LaneStatus; W],
     iterations: [usize; W],
@@ -114,6 +117,7 @@ where
             kernel: None,
             kernel_refused: false,
             kernel_enabled: true,
+            kernel_for_run: false,
             states: [State::new(0.0, nalgebra::zero(), nalgebra::zero()); W],
             status: std::array::from_fn(|_| LaneStatus::Empty),
             iterations: [0; W],
@@ -126,9 +130,9 @@ where
     }
 
     /// Every lane steps alone, by its own stepper, never in the kernel:
-    /// the same states, at the cost of one member after another. Worth it
-    /// for a group with few members, since the kernel's cost per step does
-    /// not depend on how many of its `W` lanes hold one.
+    /// the same states, at the cost of one member after another (for
+    /// comparisons; [`Self::start`] already leaves the kernel out where it
+    /// does not pay).
     pub fn without_kernel(mut self) -> Self {
         self.kernel_enabled = false;
         self
@@ -138,7 +142,9 @@ where
     /// size `h`; lanes beyond them stay empty. Every lane forgets its
     /// previous run, so the first step of each member starts cold and checks
     /// its state (an inconsistent one fails that member alone, with
-    /// [`StepError::InconsistentStart`]).
+    /// [`StepError::InconsistentStart`]). The kernel takes the members'
+    /// steps only when they fill more than half the lanes: its step costs
+    /// the same however few lanes hold a member.
     pub fn start(&mut self, starts: &[State<N>], h: f64) -> Result<(), LaneError> {
         if starts.is_empty() || starts.len() > W {
             return Err(LaneError::MemberCount { members: starts.len(), lanes: W });
@@ -151,6 +157,9 @@ where
             return Err(LaneError::StartTimes { member, t: s.t, t0 });
         }
         (self.kernel, self.kernel_refused) = (None, false);
+        // The kernel's step costs the same however few of its lanes hold a
+        // member: half the lanes or fewer step faster each alone.
+        self.kernel_for_run = self.kernel_enabled && starts.len() > W / 2;
         for (j, lane) in self.lanes.iter_mut().enumerate() {
             lane.reset_run();
             self.iterations[j] = 0;
@@ -240,7 +249,7 @@ where
             }
         }
         let Some(c) = lane.lane_continuation(state, self.h) else { return };
-        if !self.kernel_enabled {
+        if !self.kernel_for_run {
             return;
         }
         if self.kernel.is_none() && !self.kernel_refused {

@@ -83,6 +83,36 @@ pub(crate) enum Masses<'a, const N: usize, const M: usize> {
     Cached,
 }
 
+/// Factors a mass matrix shared by every velocity block: a diagonal one
+/// (every off-diagonal entry zero, as for most mechanical systems in
+/// Cartesian or angle coordinates) as the reciprocals of its diagonal in
+/// `rdiag` — the same operations as the LU solve of a diagonal matrix,
+/// without the triangular sweeps over zeros — and any other one as LU
+/// factors in `lu`, `perm`. Returns whether it is diagonal. The lane
+/// kernel (`crate::lanes`) factors its mass matrix with this function too,
+/// so its solves are the stepper's bit for bit.
+pub(crate) fn factor_mass<const N: usize>(
+    mass: &[f64],
+    rdiag: &mut [f64],
+    lu: &mut [f64],
+    perm: &mut [usize],
+) -> Result<bool, Singular> {
+    if !(0..N * N).all(|k| k % (N + 1) == 0 || mass[k] == 0.0) {
+        DecoupledMatrix::<N, 0, 1>::factor_block(lu, perm, mass)?;
+        return Ok(false);
+    }
+    for (k, r) in rdiag[..N].iter_mut().enumerate() {
+        let d = mass[k * (N + 1)];
+        // The LU's singularity test on a diagonal matrix: a zero or
+        // non-finite pivot.
+        if d == 0.0 || !d.is_finite() {
+            return Err(Singular { column: k, pivot: d.abs() });
+        }
+        *r = 1.0 / d;
+    }
+    Ok(true)
+}
+
 impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     const SM: usize = S * M;
 
@@ -227,20 +257,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.shared = true;
         if !(self.w_valid && &*self.w_source == mass) {
             self.w_valid = false;
-            self.diagonal = (0..N * N).all(|k| k % (N + 1) == 0 || mass[k] == 0.0);
-            if self.diagonal {
-                for (k, r) in self.w_rdiag.iter_mut().enumerate() {
-                    let d = mass[k * (N + 1)];
-                    // The LU's singularity test on a diagonal matrix: a zero or
-                    // non-finite pivot.
-                    if d == 0.0 || !d.is_finite() {
-                        return Err(Singular { column: k, pivot: d.abs() });
-                    }
-                    *r = 1.0 / d;
-                }
-            } else {
-                Self::factor_block(&mut self.w[..N * N], &mut self.w_perm[..N], mass)?;
-            }
+            self.diagonal = factor_mass::<N>(mass, &mut self.w_rdiag, &mut self.w[..N * N], &mut self.w_perm[..N])?;
             self.w_source.copy_from_slice(mass);
             self.w_valid = true;
         }
@@ -262,7 +279,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     }
 
     /// LU factors of one `N × N` mass matrix.
-    fn factor_block(lu: &mut [f64], perm: &mut [usize], mass: &[f64]) -> Result<(), Singular> {
+    pub(crate) fn factor_block(lu: &mut [f64], perm: &mut [usize], mass: &[f64]) -> Result<(), Singular> {
         lu.copy_from_slice(mass);
         let scale = column_scales::<N>(lu);
         factor_in_place::<N>(lu, perm, &scale, &[N])

@@ -29,7 +29,7 @@ mod decoupled;
 mod equations;
 
 use crate::error::HISTORY_CAPACITY;
-use crate::linalg::{column_scales, factor_in_place};
+use crate::linalg::decoupled::factor_mass;
 use crate::step::{
     check_energy, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
     NewtonOptions, State, PAST,
@@ -134,25 +134,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let mut vals = StageValues::zeros();
         let mut jac = StageJacobians::<N, M>::boxed_zeros();
         system.stage_jacobians_into(at.t, &at.q, &at.v, &Vector::zeros(), &mut vals, &mut jac);
-        let mass = jac.mass.as_slice();
-        // The same tests and arithmetic as the stage-decoupled matrix's
-        // shared mass block (`DecoupledMatrix::factor_shared`).
-        let mass = if (0..N * N).all(|k| k % (N + 1) == 0 || mass[k] == 0.0) {
-            let mut r = vec![0.0; N].into_boxed_slice();
-            for (k, rk) in r.iter_mut().enumerate() {
-                let d = mass[k * (N + 1)];
-                if d == 0.0 || !d.is_finite() {
-                    return None;
-                }
-                *rk = 1.0 / d;
-            }
-            MassSolve::Diagonal(r)
-        } else {
-            let mut lu: Box<[f64]> = mass.into();
-            let mut perm = vec![0; N].into_boxed_slice();
-            let scale = column_scales::<N>(&lu);
-            factor_in_place::<N>(&mut lu, &mut perm, &scale, &[N]).ok()?;
-            MassSolve::Lu { lu, perm }
+        let (mut rdiag, mut lu, mut perm) = (vec![0.0; N], vec![0.0; N * N], vec![0; N]);
+        let mass = match factor_mass::<N>(jac.mass.as_slice(), &mut rdiag, &mut lu, &mut perm).ok()? {
+            true => MassSolve::Diagonal(rdiag.into()),
+            false => MassSolve::Lu { lu: lu.into(), perm: perm.into() },
         };
         let (p, sm) = (Self::POINTS, Self::SM);
         Some(Kernel {
