@@ -17,7 +17,9 @@
 //!   first-order ODE peers);
 //! - [`Dispatch::with_stages`], implemented for every registered type by the
 //!   list, maps a run-time stage count to [`StageVisitor::visit`] with
-//!   literal `S` and `D`. `spark run` and `spark work-precision` share it.
+//!   literal `S` and `D`. `spark run` and `spark work-precision` share it;
+//!   [`Dispatch::with_lane_stages`] is the same dispatch for the entries
+//!   whose ensembles step in SIMD lanes (`ensemble: lanes`).
 
 use spark_runtime::{NonholonomicSystem, OperationCounts, Structure, SystemSource};
 
@@ -53,6 +55,19 @@ pub trait Dispatch<const N: usize, const M: usize>: Registered<N, M> {
     /// Calls `visitor.visit::<S, D>()` for `S = stages`, or says which stage
     /// counts are compiled in.
     fn with_stages<V: StageVisitor<Self, N, M>>(stages: usize, visitor: V) -> Result<V::Output, DispatchError>;
+
+    /// [`Self::with_stages`] for the systems whose ensembles step in SIMD
+    /// lanes (entries marked `ensemble: lanes`); `None` for the others,
+    /// whose ensembles run member by member. The lane kernel is compiled
+    /// once per (system, `S`), so it is compiled only where the catalogue
+    /// asks for it.
+    fn with_lane_stages<V: StageVisitor<Self, N, M>>(
+        stages: usize,
+        visitor: V,
+    ) -> Option<Result<V::Output, DispatchError>> {
+        let _ = (stages, visitor);
+        None
+    }
 }
 
 /// Work generic in the system type.
@@ -318,7 +333,7 @@ pub fn entries() -> &'static [SystemEntry] {
 /// the crate feature `full` (on by default):
 ///
 /// ```text
-/// paper: [ Variant { ty: path::Type, n: N, m: M, name: "cli-name", peers: paper|plain,
+/// paper: [ Variant { ty: path::Type, n: N, m: M, [ensemble: lanes,] name: "cli-name", peers: paper|plain,
 ///     about: "one line", q0: [..], v0: [..], t_end: T, h: H }, .. ]
 /// full: [ .. ]
 /// ```
@@ -365,7 +380,7 @@ macro_rules! catalog {
         $( #[cfg(feature = "full")] catalog!(@dispatch { $($ffield)* }); )*
     };
     (@entry $variant:ident {
-        ty: $ty:ty, n: $n:literal, m: $m:literal, name: $name:literal, peers: $peers:ident,
+        ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? name: $name:literal, peers: $peers:ident,
         about: $about:literal, q0: [$($q0:expr),* $(,)?], v0: [$($v0:expr),* $(,)?], t_end: $t_end:expr, h: $h:expr $(,)?
     }) => {
         SystemEntry {
@@ -394,9 +409,25 @@ macro_rules! catalog {
             h: $h,
         }
     };
-    (@name { ty: $ty:ty, n: $n:literal, m: $m:literal, name: $name:literal, $($rest:tt)* }) => { $name };
+    (@name { ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? name: $name:literal, $($rest:tt)* }) => { $name };
     (@visit $visitor:ident, $kind:ident { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
         $visitor.visit::<$ty, $n, $m, { 2 * $n }>($kind.entry())
+    };
+    (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, ensemble: lanes, $($rest:tt)* }) => {
+        impl Dispatch<$n, $m> for $ty {
+            fn with_stages<V: StageVisitor<Self, $n, $m>>(
+                stages: usize,
+                visitor: V,
+            ) -> Result<V::Output, DispatchError> {
+                catalog!(@stages $n, $m, stages, visitor)
+            }
+            fn with_lane_stages<V: StageVisitor<Self, $n, $m>>(
+                stages: usize,
+                visitor: V,
+            ) -> Option<Result<V::Output, DispatchError>> {
+                Some(catalog!(@stages $n, $m, stages, visitor))
+            }
+        }
     };
     (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
         impl Dispatch<$n, $m> for $ty {
@@ -404,15 +435,18 @@ macro_rules! catalog {
                 stages: usize,
                 visitor: V,
             ) -> Result<V::Output, DispatchError> {
-                Ok(match stages {
-                    1 => visitor.visit::<1, { $n + $m + $n }>(),
-                    2 => visitor.visit::<2, { 2 * ($n + $m) + $n }>(),
-                    3 => visitor.visit::<3, { 3 * ($n + $m) + $n }>(),
-                    4 => visitor.visit::<4, { 4 * ($n + $m) + $n }>(),
-                    5 => visitor.visit::<5, { 5 * ($n + $m) + $n }>(),
-                    s => return Err(DispatchError { stages: s, max: MAX_DISPATCH_STAGES }),
-                })
+                catalog!(@stages $n, $m, stages, visitor)
             }
+        }
+    };
+    (@stages $n:literal, $m:literal, $stages:ident, $visitor:ident) => {
+        match $stages {
+            1 => Ok($visitor.visit::<1, { $n + $m + $n }>()),
+            2 => Ok($visitor.visit::<2, { 2 * ($n + $m) + $n }>()),
+            3 => Ok($visitor.visit::<3, { 3 * ($n + $m) + $n }>()),
+            4 => Ok($visitor.visit::<4, { 4 * ($n + $m) + $n }>()),
+            5 => Ok($visitor.visit::<5, { 5 * ($n + $m) + $n }>()),
+            s => Err(DispatchError { stages: s, max: MAX_DISPATCH_STAGES }),
         }
     };
     (@paper paper) => { true };
@@ -441,14 +475,14 @@ catalog! {
         },
         /// McLachlan–Perlmutter particles, `n = 7` (paper §8.4; member `j = 0`).
         McLachlanPerlmutter7 {
-            ty: crate::systems::McLachlanPerlmutter7, n: 7, m: 1, name: "mp7", peers: paper,
+            ty: crate::systems::McLachlanPerlmutter7, n: 7, m: 1, ensemble: lanes, name: "mp7", peers: paper,
             about: "McLachlan–Perlmutter particles, n = 7, chaotic, v1 + q5 v5 + q6 v6 + q7 v7 = 0 (§8.4, member j = 0)",
             q0: [1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], v0: [0, 0, 0, 0, 0, 0, 0], t_end: 10.0, h: 0.05,
         },
         /// McLachlan–Perlmutter particles with the nonholonomic reading of the
         /// §8.4 constraint (member `j = 0`).
         McLachlanPerlmutter7Nonholonomic {
-            ty: crate::systems::McLachlanPerlmutter7Nonholonomic, n: 7, m: 1, name: "mp7-nh", peers: plain,
+            ty: crate::systems::McLachlanPerlmutter7Nonholonomic, n: 7, m: 1, ensemble: lanes, name: "mp7-nh", peers: plain,
             about: "McLachlan–Perlmutter particles, n = 7, nonholonomic reading v1 + q2 v5 + q3 v6 + q4 v7 = 0 (§8.4)",
             q0: [1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0], v0: [0, 0, 0, 0, 0, 0, 0], t_end: 100.0, h: 0.05,
         },

@@ -253,10 +253,12 @@ class System:
         threads: int | None = None,
     ) -> Ensemble:
         """Integrates every row of ``q0s``/``v0s`` (shape ``(members, N)``)
-        with the same method, step and parameters, in SIMD lane groups of
-        the native lane stepper (``integrate_ensemble``), the groups in
-        parallel on ``threads`` threads (default: all cores, or
-        ``RAYON_NUM_THREADS``), with the GIL released. Each member agrees
+        with the same method, step and parameters, on ``threads`` threads
+        (default: all cores, or ``RAYON_NUM_THREADS``), with the GIL
+        released: a compiled system and the McLachlan–Perlmutter particles
+        in SIMD lane groups of the native lane stepper
+        (``integrate_ensemble``), the other registered systems one run per
+        member. Each member agrees
         with what :meth:`integrate` returns for it alone to the Newton
         tolerance per step, and is the same whatever the thread count."""
         q0s = np.ascontiguousarray(q0s, dtype=np.float64)

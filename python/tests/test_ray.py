@@ -78,5 +78,5 @@ def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
     sray.sweep(skate, "gauss", 2, 0.1, 20, q0s, v0s, out=str(out), shards=2)
     x = pq.read_table(out).column("q_x").to_numpy().reshape(4, 21)
     ref = spark.ensemble("skate", "gauss", 2, 0.1, 20, q0s, v0s)
-    # Two shards of two members against one lane group of four.
+    # Two shards of two members against one ensemble of four.
     np.testing.assert_allclose(x, ref.q[:, :, 0], rtol=1e-9, atol=1e-12)

@@ -63,6 +63,9 @@ pub fn run_ensemble(
 ///
 /// The lanes take fixed steps and report failures; anything more goes
 /// through [`run`] per member (in parallel over members):
+/// - systems the catalogue does not mark `ensemble: lanes` (the lane kernel
+///   is compiled per system and stage count, so only for the systems whose
+///   ensembles the project runs: the McLachlan–Perlmutter particles);
 /// - [`RunSpec::multipliers`] (the lanes do not solve for `ψ` at the
 ///   samples) and `steps = 0`: every member runs through [`run`];
 /// - a spec [`run`] rejects before stepping (step size, initial time, stage
@@ -146,10 +149,13 @@ impl SystemVisitor for EnsembleSystem<'_> {
             tick: self.tick,
             system: std::marker::PhantomData,
         };
-        Sys::with_stages(stages, visitor).map_err(|e| EnsembleError::Member {
-            member: 0,
-            source: RunError::StagesNotCompiled { method, stages, max: e.max },
-        })?
+        match Sys::with_lane_stages(stages, visitor) {
+            Some(result) => result.map_err(|e| EnsembleError::Member {
+                member: 0,
+                source: RunError::StagesNotCompiled { method, stages, max: e.max },
+            })?,
+            None => each_member(self.spec, self.members, self.tick),
+        }
     }
 }
 
