@@ -6,6 +6,7 @@ mod catalog;
 mod cli_files;
 mod crosscheck;
 mod ensemble_lanes;
+mod lane_values;
 mod output_files;
 mod paper_short;
 mod peers;

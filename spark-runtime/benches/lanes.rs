@@ -1,12 +1,16 @@
 //! Eight McLachlan–Perlmutter particle members (`n = 7`, Lobatto IIIA-B
 //! `s = 2`, `h = 0.05`, simplified Newton with the stage-decoupled matrix:
-//! the settings of the paper's Fig. 8.4), 500 steps each per iteration:
+//! the settings of the paper's Fig. 8.4), 500 steps each per iteration, for
+//! the system declared with `nonholonomic_system!` (`mp7`, whose stage
+//! values the kernel evaluates in lane form) and for the hand-written
+//! fixture (`mp7-hand-written`, evaluated lane by lane):
 //!
-//! - `lanes/mp7/sequential`: eight steppers, one member after another;
-//! - `lanes/mp7/lanes-4x2`: two [`LaneStepper`]s of four lanes;
-//! - `lanes/mp7/lanes-8`: one [`LaneStepper`] of eight lanes;
-//! - `lanes/mp7/lanes-8-without-kernel`: one group of eight whose members
-//!   step alone, each by its own stepper ([`LaneStepper::without_kernel`]);
+//! - `lanes/<system>/sequential`: eight steppers, one member after another;
+//! - `lanes/<system>/lanes-4x2`: two [`LaneStepper`]s of four lanes;
+//! - `lanes/<system>/lanes-8`: one [`LaneStepper`] of eight lanes;
+//! - `lanes/<system>/lanes-8-without-kernel`: one group of eight whose
+//!   members step alone, each by its own stepper
+//!   ([`LaneStepper::without_kernel`]);
 //!
 //! timed by the measuring thread's CPU time (one core), and
 //! - `lanes/mp7/ensemble-2-threads`: [`integrate_ensemble`] on a pool of
@@ -18,7 +22,8 @@ use criterion::measurement::WallTime;
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use spark_runtime::fixtures::paper::MpParticles;
 use spark_runtime::{
-    integrate_ensemble, Jacobian, LaneStepper, Method, NewtonMode, NewtonOptions, State, Stepper, Tableau, Vector,
+    integrate_ensemble, nonholonomic_system, Jacobian, LaneStepper, Method, NewtonMode, NewtonOptions,
+    NonholonomicSystem, State, Stepper, Tableau, Vector,
 };
 
 use std::time::Duration;
@@ -50,11 +55,28 @@ fn starts() -> Vec<State<7>> {
         .collect()
 }
 
+nonholonomic_system! {
+    /// The McLachlan–Perlmutter particles of Fig. 8.4 (`problems`'
+    /// `McLachlanPerlmutter7`).
+    pub struct Mp7 {
+        coordinates: [q1, q2, q3, q4, q5, q6, q7],
+        lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
+            - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
+               + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
+        constraints: [ dot(q1) + q5*dot(q5) + q6*dot(q6) + q7*dot(q7) ],
+    }
+}
+
 fn one_core(c: &mut C) {
+    one_core_for(c, "mp7", Mp7::default());
+    one_core_for(c, "mp7-hand-written", MpParticles);
+}
+
+fn one_core_for<Sys: NonholonomicSystem<7, 1> + Clone>(c: &mut C, system: &str, sys: Sys) {
     let starts = starts();
     let mut steppers: Vec<_> =
-        (0..MEMBERS).map(|_| Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tableau()).with_options(options())).collect();
-    c.bench_function("lanes/mp7/sequential", |b| {
+        (0..MEMBERS).map(|_| Stepper::<_, 7, 1, 2, 23>::new(sys.clone(), tableau()).with_options(options())).collect();
+    c.bench_function(&format!("lanes/{system}/sequential"), |b| {
         b.iter(|| {
             let mut acc = 0.0;
             for (st, start) in steppers.iter_mut().zip(&starts) {
@@ -69,8 +91,8 @@ fn one_core(c: &mut C) {
         })
     });
     let mut groups: Vec<_> =
-        (0..2).map(|_| LaneStepper::<_, 7, 1, 2, 23, 4>::new(MpParticles, tableau(), options())).collect();
-    c.bench_function("lanes/mp7/lanes-4x2", |b| {
+        (0..2).map(|_| LaneStepper::<_, 7, 1, 2, 23, 4>::new(sys.clone(), tableau(), options())).collect();
+    c.bench_function(&format!("lanes/{system}/lanes-4x2"), |b| {
         b.iter(|| {
             let mut acc = 0.0;
             for (lanes, chunk) in groups.iter_mut().zip(starts.chunks(4)) {
@@ -81,10 +103,10 @@ fn one_core(c: &mut C) {
             black_box(acc)
         })
     });
-    for (name, kernel) in [("lanes/mp7/lanes-8", true), ("lanes/mp7/lanes-8-without-kernel", false)] {
-        let lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(MpParticles, tableau(), options());
+    for (case, kernel) in [("lanes-8", true), ("lanes-8-without-kernel", false)] {
+        let lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(sys.clone(), tableau(), options());
         let mut lanes = if kernel { lanes } else { lanes.without_kernel() };
-        c.bench_function(name, |b| {
+        c.bench_function(&format!("lanes/{system}/{case}"), |b| {
             b.iter(|| {
                 lanes.start(&starts, H).unwrap();
                 lanes.advance_by(STEPS);
@@ -101,7 +123,7 @@ fn threads(c: &mut Criterion<WallTime>) {
         b.iter(|| {
             pool.install(|| {
                 let runs =
-                    integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tableau(), options(), &starts, H, STEPS, 0)
+                    integrate_ensemble::<_, 7, 1, 2, 23>(&Mp7::default(), tableau(), options(), &starts, H, STEPS, 0)
                         .unwrap();
                 black_box(runs[0].samples[1].q[0])
             })

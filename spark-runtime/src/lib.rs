@@ -163,7 +163,10 @@ pub use events::{
     EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
-pub use lanes::{integrate_ensemble, EnsembleRun, LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
+pub use lanes::{
+    integrate_ensemble, EnsembleRun, LaneConstraintJacobians, LaneError, LaneFailure, LaneStageValues, LaneStatus,
+    LaneStepper, LANES,
+};
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 pub use rejection::RejectionPolicy;
 pub use spark_macros::nonholonomic_system;

@@ -312,6 +312,35 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         *constraint_v = self.constraint_v(t, q, v);
     }
 
+    /// [`stage_values`](Self::stage_values) of `W` lanes at once, for the
+    /// lane kernel (`crate::lanes`): lane `w` is the point
+    /// `(t, q[·][w], v[·][w], psi[·][w])`, and its values go to
+    /// `values.*[·][w]` — with `jacobians`, also `k_q` and `K = k_v`, as
+    /// [`stage_values_and_constraint_jacobians`](Self::stage_values_and_constraint_jacobians)
+    /// computes them — for every lane with `lanes[w]`. The entries of the
+    /// other lanes are unspecified afterwards: an implementation may leave
+    /// them or compute them from those lanes' inputs, whatever is cheaper.
+    ///
+    /// Each lane's values are bit for bit what the scalar functions return
+    /// at its point. The default evaluates the lanes with `lanes[w]` one by
+    /// one through the scalar functions; `nonholonomic_system!` generates a
+    /// body whose every operation is one loop over all the lanes, which
+    /// vectorizes.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn stage_values_in_lanes<const W: usize>(
+        &self,
+        t: f64,
+        q: &[[f64; W]; N],
+        v: &[[f64; W]; N],
+        psi: &[[f64; W]; M],
+        lanes: &[bool; W],
+        values: &mut crate::lanes::LaneStageValues<N, M, W>,
+        jacobians: Option<&mut crate::lanes::LaneConstraintJacobians<N, M, W>>,
+    ) {
+        crate::lanes::values::lane_by_lane(self, t, q, v, psi, lanes, values, jacobians);
+    }
+
     // ---- Optional effects (all default to "absent"; see the module docs). ----
 
     /// The system has an external generalized force `f(t,q,v)`

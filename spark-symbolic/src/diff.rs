@@ -83,9 +83,11 @@ impl Differentiator {
                     Fun::Sinh => g.call(Fun::Cosh, &[x]),
                     Fun::Cosh => g.call(Fun::Sinh, &[x]),
                     Fun::Tanh => {
-                        let t2 = g.powc(node, 2.0);
-                        let one = g.constant(1.0);
-                        g.sub(one, t2)
+                        // sech² = cosh⁻², not 1 − tanh²: where |x| is large,
+                        // tanh rounds towards ±1 and 1 − tanh² loses the
+                        // digits of sech², while cosh⁻² keeps them.
+                        let c = g.call(Fun::Cosh, &[x]);
+                        g.powc(c, -2.0)
                     }
                     Fun::Atan2 => {
                         // d atan2(y, x) = (x dy − y dx) / (x² + y²)

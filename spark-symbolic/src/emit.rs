@@ -174,6 +174,19 @@ fn view(g: &mut Graph, n: NodeId) -> View {
     }
 }
 
+/// How shared values and inputs are written.
+#[derive(Clone, Copy, Debug)]
+enum Mode {
+    /// Shared values as `let sK`.
+    Plain,
+    /// Shared values in an array `w` (`w[k]`).
+    Array,
+    /// One lane `w` of the lane form: inputs `q[i][w]`, `v[i][w]`,
+    /// `psi[j][w]`, shared values `sK[w]`, except the first `scalar`
+    /// (parameter-only) ones, which are one `sK` for every lane.
+    Lane { scalar: usize },
+}
+
 /// A rendered Rust expression, kept as a tree so that its operations can be
 /// counted and parentheses placed by precedence.
 #[derive(Clone, Debug)]
@@ -249,8 +262,8 @@ impl R {
         }
     }
 
-    fn wrap(&self, min: u8, array: bool) -> TokenStream {
-        let t = self.tokens(array);
+    fn wrap(&self, min: u8, mode: Mode) -> TokenStream {
+        let t = self.tokens(mode);
         if self.prec() < min {
             quote!((#t))
         } else {
@@ -258,8 +271,8 @@ impl R {
         }
     }
 
-    /// The Rust tokens; with `array`, shared values are `w[k]` instead of `sK`.
-    fn tokens(&self, array: bool) -> TokenStream {
+    /// The Rust tokens, with shared values and inputs written as `mode` says.
+    fn tokens(&self, mode: Mode) -> TokenStream {
         match self {
             R::Lit(x) => {
                 let l = Literal::f64_unsuffixed(x.abs());
@@ -269,14 +282,21 @@ impl R {
                     quote!(#l)
                 }
             }
-            R::Shared(k, _) if array => {
+            R::Shared(k, _) if matches!(mode, Mode::Array) => {
                 let k = Literal::usize_unsuffixed(*k);
                 quote!(w[#k])
             }
-            R::Var(_, t) | R::Shared(_, t) => t.clone(),
+            R::Shared(k, t) => match mode {
+                Mode::Lane { scalar } if *k >= scalar => quote!(#t[w]),
+                _ => t.clone(),
+            },
+            R::Var(v, t) => match (mode, v) {
+                (Mode::Lane { .. }, Var::Q(_) | Var::V(_) | Var::Psi(_)) => quote!(#t[w]),
+                _ => t.clone(),
+            },
             R::Bin(op, a, b) => {
                 let p = self.prec();
-                let (a, b) = (a.wrap(p, array), b.wrap(p + 1, array));
+                let (a, b) = (a.wrap(p, mode), b.wrap(p + 1, mode));
                 match op {
                     '+' => quote!(#a + #b),
                     '-' => quote!(#a - #b),
@@ -285,7 +305,7 @@ impl R {
                 }
             }
             R::Neg(a) => {
-                let a = a.wrap(3, array);
+                let a = a.wrap(3, mode);
                 quote!(-#a)
             }
             R::Method(recv, name, args) => {
@@ -294,14 +314,14 @@ impl R {
                         let l = Literal::f64_suffixed(x);
                         quote!((#l))
                     }
-                    _ => recv.wrap(4, array),
+                    _ => recv.wrap(4, mode),
                 };
                 let name = Ident::new(name, Span::call_site());
-                let args = args.iter().map(|a| a.tokens(array));
+                let args = args.iter().map(|a| a.tokens(mode));
                 quote!(#recv.#name(#(#args),*))
             }
             R::Powi(recv, k) => {
-                let recv = recv.wrap(4, array);
+                let recv = recv.wrap(4, mode);
                 let k = Literal::i32_unsuffixed(*k);
                 quote!(#recv.powi(#k))
             }
@@ -336,8 +356,11 @@ pub struct Emitted {
     pub ops: usize,
     /// Number of shared subexpressions bound to `let`s.
     pub shared: usize,
+    /// How many of the first `lets` depend on parameters only.
+    scalar_lets: usize,
     lets: Vec<R>,
-    outputs: Vec<Option<(Place, R)>>,
+    /// Every output's place, with its expression (`None`: structurally zero).
+    outputs: Vec<(Place, Option<R>)>,
 }
 
 impl Emitted {
@@ -350,7 +373,7 @@ impl Emitted {
             let x = e.eval(env, &shared);
             shared.push(x);
         }
-        self.outputs.iter().map(|o| o.as_ref().map_or(0.0, |(_, e)| e.eval(env, &shared))).collect()
+        self.outputs.iter().map(|(_, e)| e.as_ref().map_or(0.0, |e| e.eval(env, &shared))).collect()
     }
 
     /// The statements with shared values kept in an array `w` (`w[k] = …;`
@@ -359,27 +382,122 @@ impl Emitted {
     pub fn statements_in_array(&self) -> Vec<TokenStream> {
         let lets = self.lets.iter().enumerate().map(|(k, e)| {
             let k = Literal::usize_unsuffixed(k);
-            let t = e.tokens(true);
+            let t = e.tokens(Mode::Array);
             quote!(w[#k] = #t;)
         });
-        let outs = self.outputs.iter().flatten().map(|(place, e)| {
-            let t = e.tokens(true);
-            match place {
+        let outs = self.outputs.iter().filter_map(|(place, e)| {
+            let t = e.as_ref()?.tokens(Mode::Array);
+            Some(match place {
                 Place::Let(name) => quote!(let #name: f64 = #t;),
-                Place::Store(place) => quote!(#place = #t;),
-                Place::Add(place) => quote!(#place += #t;),
+                Place::Store(..) => {
+                    let place = place.tokens();
+                    quote!(#place = #t;)
+                }
+                Place::Add(..) => {
+                    let place = place.tokens();
+                    quote!(#place += #t;)
+                }
+            })
+        });
+        lets.chain(outs).collect()
+    }
+
+    /// The statements in lane form, for a body with `q`, `v`, `psi` given
+    /// as `[[f64; W]; _]` (row `i` holds entry `i` of every lane), `t` and
+    /// the parameters shared by the lanes, and outputs `name[i][w]`
+    /// (vectors) or `name[j][i][w]` (matrices, column-major): every shared
+    /// value and output is a loop over all `W` lanes whose body is the
+    /// scalar statement's expression, so each lane computes exactly the
+    /// scalar operations. Structural zeros are written as `0.0`, since
+    /// nothing zeroes the lane storage first.
+    pub fn statements_in_lanes(&self) -> Vec<TokenStream> {
+        let mode = Mode::Lane { scalar: self.scalar_lets };
+        let lets = self.lets.iter().enumerate().map(|(k, e)| {
+            let name = format_ident!("s{}", k);
+            let t = e.tokens(mode);
+            if k < self.scalar_lets {
+                quote!(let #name = #t;)
+            } else {
+                quote! {
+                    let mut #name = [0.0f64; W];
+                    for w in 0..W {
+                        #name[w] = #t;
+                    }
+                }
             }
+        });
+        let outs = self.outputs.iter().filter_map(|(place, e)| {
+            let t = match e {
+                Some(e) => e.tokens(mode),
+                None if matches!(place, Place::Store(..)) => quote!(0.0),
+                None => return None,
+            };
+            Some(match place {
+                Place::Let(name) => quote! {
+                    let mut #name = [0.0f64; W];
+                    for w in 0..W {
+                        #name[w] = #t;
+                    }
+                },
+                Place::Store(..) | Place::Add(..) => {
+                    let op = if matches!(place, Place::Add(..)) { quote!(+=) } else { quote!(=) };
+                    let place = place.lane_tokens();
+                    quote! {
+                        for w in 0..W {
+                            #place[w] #op #t;
+                        }
+                    }
+                }
+            })
         });
         lets.chain(outs).collect()
     }
 }
 
-/// Where a rendered output is written.
+/// Where a rendered output is written: a `let`, or entry `i` (row `i`,
+/// column `j` for a matrix) of the output `name`, stored or added to.
 #[derive(Clone, Debug)]
 enum Place {
     Let(Ident),
-    Store(TokenStream),
-    Add(TokenStream),
+    Store(Ident, usize, Option<usize>),
+    Add(Ident, usize, Option<usize>),
+}
+
+impl Place {
+    /// `name[i]` or `name[(i, j)]`.
+    fn tokens(&self) -> TokenStream {
+        match self {
+            Place::Let(name) => quote!(#name),
+            Place::Store(name, i, j) | Place::Add(name, i, j) => {
+                let i = Literal::usize_unsuffixed(*i);
+                match j {
+                    None => quote!(#name[#i]),
+                    Some(j) => {
+                        let j = Literal::usize_unsuffixed(*j);
+                        quote!(#name[(#i, #j)])
+                    }
+                }
+            }
+        }
+    }
+
+    /// `name[i]` or `name[j][i]` (lane storage, column-major), to be
+    /// indexed by the lane.
+    fn lane_tokens(&self) -> TokenStream {
+        match self {
+            Place::Let(name) => quote!(#name),
+            Place::Store(name, i, j) | Place::Add(name, i, j) => {
+                let i = Literal::usize_unsuffixed(*i);
+                match j {
+                    None => quote!(#name[#i]),
+                    Some(j) => {
+                        let j = Literal::usize_unsuffixed(*j);
+                        quote!(#name[#j][#i])
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// Renders the inputs: `t`, `q[i]`, `v[i]`, `psi[j]`, `self.<parameter>`.
@@ -510,6 +628,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
     // Pass 2: which nodes become `let`s, parameter-only ones first.
     let bound = |n: &NodeId| !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only());
     let mut lets: Vec<NodeId> = order.iter().copied().filter(|n| bound(n) && g.deps(*n).parameters_only()).collect();
+    let scalar_lets = lets.len();
     lets.extend(order.iter().copied().filter(|n| bound(n) && !g.deps(*n).parameters_only()));
     let mut em = Emitter { views, names: HashMap::new(), order: HashMap::new(), inputs };
     let mut lets_r = Vec::new();
@@ -520,7 +639,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         let e = em.render(g, n, true);
         ops += e.ops();
         let name = format_ident!("s{}", k);
-        let t = e.tokens(false);
+        let t = e.tokens(Mode::Plain);
         statements.push(quote!(let #name = #t;));
         em.names.insert(n, name);
         em.order.insert(n, k);
@@ -531,35 +650,30 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
             Target::Let(name) => {
                 let e = if g.is_const(*root, 0.0) { R::Lit(0.0) } else { em.render(g, *root, false) };
                 ops += e.ops();
-                let t = e.tokens(false);
+                let t = e.tokens(Mode::Plain);
                 statements.push(quote!(let #name: f64 = #t;));
-                outputs_r.push(Some((Place::Let(name.clone()), e)));
+                outputs_r.push((Place::Let(name.clone()), Some(e)));
             }
             Target::Store(name, i, j) | Target::Add(name, i, j) => {
+                let place = match target {
+                    Target::Add(..) => Place::Add(name.clone(), *i, *j),
+                    _ => Place::Store(name.clone(), *i, *j),
+                };
                 if g.is_const(*root, 0.0) {
-                    outputs_r.push(None);
+                    outputs_r.push((place, None));
                     continue;
                 }
-                let i = Literal::usize_unsuffixed(*i);
-                let place = match j {
-                    None => quote!(#name[#i]),
-                    Some(j) => {
-                        let j = Literal::usize_unsuffixed(*j);
-                        quote!(#name[(#i, #j)])
-                    }
-                };
                 let e = em.render(g, *root, false);
                 ops += e.ops();
-                let t = e.tokens(false);
+                let (t, p) = (e.tokens(Mode::Plain), place.tokens());
                 if matches!(target, Target::Add(..)) {
-                    statements.push(quote!(#place += #t;));
-                    outputs_r.push(Some((Place::Add(place), e)));
+                    statements.push(quote!(#p += #t;));
                 } else {
-                    statements.push(quote!(#place = #t;));
-                    outputs_r.push(Some((Place::Store(place), e)));
+                    statements.push(quote!(#p = #t;));
                 }
+                outputs_r.push((place, Some(e)));
             }
         }
     }
-    Emitted { statements, ops, shared: lets.len(), lets: lets_r, outputs: outputs_r }
+    Emitted { statements, ops, shared: lets.len(), scalar_lets, lets: lets_r, outputs: outputs_r }
 }

@@ -23,12 +23,15 @@
 //!
 //! # What it costs
 //! The kernel's rows of `W` lanes vectorize (it is compiled for AVX2 where
-//! the CPU has it); the system's own functions run lane by lane. Eight
+//! the CPU has it), and so do the system's stage values where
+//! `nonholonomic_system!` generates them in lane form
+//! ([`NonholonomicSystem::stage_values_in_lanes`](crate::NonholonomicSystem::stage_values_in_lanes),
+//! `values`); a hand-written system's run lane by lane. Eight
 //! McLachlan–Perlmutter members (`n = 7`, Lobatto IIIA-B `s = 2`,
-//! `h = 0.05`, the settings of Fig. 8.4) step about 2.2× faster in one
-//! group of eight lanes than one after another on one core
-//! (`cargo bench -p spark-runtime --bench lanes`; the figures with their
-//! load are in `docs/performance/README.md`). A kernel step costs the same
+//! `h = 0.05`, the settings of Fig. 8.4) step several times faster in
+//! one group of eight lanes than one after another on one core
+//! (`cargo bench -p spark-runtime --bench lanes`; the figures are in
+//! `docs/performance/README.md`). A kernel step costs the same
 //! however many of its lanes hold a member, so a [`LaneStepper`] started
 //! with half its lanes or fewer steps its members each alone
 //! ([`LaneStepper::start`]).
@@ -42,6 +45,8 @@ mod lane_lu;
 mod stepper;
 #[cfg(test)]
 mod tests;
+pub(crate) mod values;
 
 pub use ensemble::{integrate_ensemble, EnsembleRun};
 pub use stepper::{LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
+pub use values::{LaneConstraintJacobians, LaneStageValues};

@@ -248,6 +248,34 @@ impl<'a> Gen<'a> {
         self.body("stage_values_and_constraint_jacobians", Vec::new(), &outs, true)
     }
 
+    /// The two bodies of `stage_values_in_lanes` in lane form (see
+    /// [`crate::emit::Emitted::statements_in_lanes`]): the stage values,
+    /// and the stage values with `k_q` and `K = k_v`. `None` when either is
+    /// longer than [`SPLIT_STATEMENTS`]: such a system keeps the trait's
+    /// lane-by-lane default rather than one very long generic function.
+    pub(super) fn lane_bodies(&mut self) -> Option<(TokenStream, TokenStream)> {
+        let (values, _) = self.stage_outs();
+        let m = self.m.clone();
+        let md = &*self.model;
+        let mut fused = values.clone();
+        fused.push(self.matrix("constraint_q", &md.constraint_q, &m));
+        fused.push(self.matrix("constraint_v", &md.constraint_v, &m));
+        let values = self.lane_body(&values)?;
+        let fused = self.lane_body(&fused)?;
+        Some((values, fused))
+    }
+
+    fn lane_body(&mut self, outs: &[Out]) -> Option<TokenStream> {
+        let entries: Vec<(Target, NodeId)> = outs.iter().flat_map(|o| o.entries.iter().cloned()).collect();
+        let inputs = Inputs { parameters: &self.params };
+        let emitted = emit(&mut self.model.graph, &entries, &inputs);
+        if emitted.statements.len() > SPLIT_STATEMENTS {
+            return None;
+        }
+        let statements = emitted.statements_in_lanes();
+        Some(quote!(#(#statements)*))
+    }
+
     /// The statements of the bundle (see [`super::Operations::bundle`]).
     fn bundle(&mut self) -> Body {
         let n = self.n.clone();

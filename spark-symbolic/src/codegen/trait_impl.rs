@@ -41,6 +41,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
 
     let fused = gen.fused();
     let (values_and_constraint_jacobians, _) = gen.values_and_constraint_jacobians();
+    let in_lanes = lanes_method(gen);
     let (stage_values, stage_jacobians) = (&fused.0 .0, &fused.1 .0);
     let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
     let sig = quote!(&self, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>);
@@ -116,6 +117,8 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
             #values_and_constraint_jacobians
         }
 
+        #in_lanes
+
         fn stage_jacobians_into(#sj_sig) {
             let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
             let #rt::StageJacobians {
@@ -126,6 +129,36 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         }
     };
     (methods, fused)
+}
+
+/// `stage_values_in_lanes` in lane form (nothing, so the trait's
+/// lane-by-lane default, when its bodies would be too long).
+fn lanes_method(gen: &mut Gen) -> TokenStream {
+    let Some((values, fused)) = gen.lane_bodies() else { return quote!() };
+    let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
+    quote! {
+        #[inline(always)]
+        #[allow(clippy::needless_range_loop, clippy::too_many_arguments, unused_variables, unused_mut)]
+        fn stage_values_in_lanes<const W: usize>(
+            &self,
+            t: f64,
+            q: &[[f64; W]; #n],
+            v: &[[f64; W]; #n],
+            psi: &[[f64; W]; #m],
+            lanes: &[bool; W],
+            values: &mut #rt::LaneStageValues<#n, #m, W>,
+            jacobians: ::core::option::Option<&mut #rt::LaneConstraintJacobians<#n, #m, W>>,
+        ) {
+            let #rt::LaneStageValues { momentum, force, constraint, constraint_force } = values;
+            match jacobians {
+                ::core::option::Option::None => { #values }
+                ::core::option::Option::Some(jacobians) => {
+                    let #rt::LaneConstraintJacobians { constraint_q, constraint_v } = jacobians;
+                    #fused
+                }
+            }
+        }
+    }
 }
 
 /// The `impl NonholonomicSystem<N, M> for Name` item: `consts` (STRUCTURE,

@@ -289,6 +289,142 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_v[(0, 0)] = -s4;
         constraint_v[(0, 1)] = s3;
     }
+    #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        clippy::too_many_arguments,
+        unused_variables,
+        unused_mut
+    )]
+    fn stage_values_in_lanes<const W: usize>(
+        &self,
+        t: f64,
+        q: &[[f64; W]; 3],
+        v: &[[f64; W]; 3],
+        psi: &[[f64; W]; 1],
+        lanes: &[bool; W],
+        values: &mut ::spark_runtime::LaneStageValues<3, 1, W>,
+        jacobians: ::core::option::Option<
+            &mut ::spark_runtime::LaneConstraintJacobians<3, 1, W>,
+        >,
+    ) {
+        let ::spark_runtime::LaneStageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        match jacobians {
+            ::core::option::Option::None => {
+                let s0 = self.m * self.g;
+                let s1 = self.beta.sin();
+                let s2 = s0 * s1;
+                let mut s3 = [0.0f64; W];
+                for w in 0..W {
+                    s3[w] = q[2][w].cos();
+                }
+                let mut s4 = [0.0f64; W];
+                for w in 0..W {
+                    s4[w] = q[2][w].sin();
+                }
+                for w in 0..W {
+                    momentum[0][w] = self.m * v[0][w];
+                }
+                for w in 0..W {
+                    momentum[1][w] = self.m * v[1][w];
+                }
+                for w in 0..W {
+                    momentum[2][w] = self.inertia * v[2][w];
+                }
+                for w in 0..W {
+                    force[0][w] = s2;
+                }
+                for w in 0..W {
+                    force[1][w] = 0.0;
+                }
+                for w in 0..W {
+                    force[2][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint[0][w] = s3[w] * v[1][w] - s4[w] * v[0][w];
+                }
+                for w in 0..W {
+                    constraint_force[0][w] = s4[w] * psi[0][w];
+                }
+                for w in 0..W {
+                    constraint_force[1][w] = -(s3[w] * psi[0][w]);
+                }
+                for w in 0..W {
+                    constraint_force[2][w] = 0.0;
+                }
+            }
+            ::core::option::Option::Some(jacobians) => {
+                let ::spark_runtime::LaneConstraintJacobians {
+                    constraint_q,
+                    constraint_v,
+                } = jacobians;
+                let s0 = self.m * self.g;
+                let s1 = self.beta.sin();
+                let s2 = s0 * s1;
+                let mut s3 = [0.0f64; W];
+                for w in 0..W {
+                    s3[w] = q[2][w].cos();
+                }
+                let mut s4 = [0.0f64; W];
+                for w in 0..W {
+                    s4[w] = q[2][w].sin();
+                }
+                for w in 0..W {
+                    momentum[0][w] = self.m * v[0][w];
+                }
+                for w in 0..W {
+                    momentum[1][w] = self.m * v[1][w];
+                }
+                for w in 0..W {
+                    momentum[2][w] = self.inertia * v[2][w];
+                }
+                for w in 0..W {
+                    force[0][w] = s2;
+                }
+                for w in 0..W {
+                    force[1][w] = 0.0;
+                }
+                for w in 0..W {
+                    force[2][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint[0][w] = s3[w] * v[1][w] - s4[w] * v[0][w];
+                }
+                for w in 0..W {
+                    constraint_force[0][w] = s4[w] * psi[0][w];
+                }
+                for w in 0..W {
+                    constraint_force[1][w] = -(s3[w] * psi[0][w]);
+                }
+                for w in 0..W {
+                    constraint_force[2][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint_q[0][0][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint_q[1][0][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint_q[2][0][w] = -(s4[w] * v[1][w]) - s3[w] * v[0][w];
+                }
+                for w in 0..W {
+                    constraint_v[0][0][w] = -s4[w];
+                }
+                for w in 0..W {
+                    constraint_v[1][0][w] = s3[w];
+                }
+                for w in 0..W {
+                    constraint_v[2][0][w] = 0.0;
+                }
+            }
+        }
+    }
     fn stage_jacobians_into(
         &self,
         t: f64,

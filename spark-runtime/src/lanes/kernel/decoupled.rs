@@ -46,13 +46,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// Schur complement is singular is handed back.
     #[inline(always)]
     pub(super) fn factor(&mut self, tab: &Tableau<S>, iterating: &mut [bool; W], out: &mut [Outcome; W]) {
-        let (nm, sm) = (N * M, Self::SM);
+        let sm = Self::SM;
         // X[i][l] = coef_il · W⁻¹ K_lᵀ.
         let kt = &mut self.kt;
         for l in 0..S {
             for e in 0..M {
                 for n in 0..N {
-                    kt[e * N + n] = self.constraint_v[l * nm + n * M + e];
+                    kt[e * N + n] = self.jacobians[l].constraint_v[n][e];
                 }
                 Self::solve_mass(&self.mass, kt, e * N);
             }
@@ -121,7 +121,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     pub(super) fn constraint_blocks(&mut self, tab: &Tableau<S>) {
         let (mn, h) = (M * N, self.h);
         self.c_nonzero.fill(false);
-        let (kv, kq) = (&self.constraint_v, &self.constraint_q);
+        let jac = &self.jacobians;
+        let kv = |p: usize, e: usize| jac[p].constraint_v[e / M][e % M];
+        let kq = |p: usize, e: usize| jac[p].constraint_q[e / M][e % M];
         let (c, nonzero) = (&mut self.c, &mut self.c_nonzero);
         let mut put = |r: usize, i: usize, e: usize, x: L<W>| {
             c[r * (S + 1) + i][e / M][e % M] = x;
@@ -132,14 +134,14 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 for r in 0..S.saturating_sub(1) {
                     for l in 0..S {
                         for e in 0..mn {
-                            let mut blk = [0.0; W];
+                            let (mut blk, k) = ([0.0; W], kv(l, e));
                             for w in 0..W {
-                                blk[w] = tab.omega[r][l] * kv[l * mn + e][w];
+                                blk[w] = tab.omega[r][l] * k[w];
                             }
                             for m in 0..S {
                                 let cm = tab.omega[r][m] * tab.a[m][l];
                                 if cm != 0.0 {
-                                    let (hc, k) = (h * cm, kq[m * mn + e]);
+                                    let (hc, k) = (h * cm, kq(m, e));
                                     for w in 0..W {
                                         blk[w] += hc * k[w];
                                     }
@@ -154,7 +156,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 let half = 0.5 * h;
                 for e in 0..mn {
                     let mut blk = [0.0; W];
-                    let (kve, kqe) = (kv[(S + 1) * mn + e], kq[(S + 1) * mn + e]);
+                    let (kve, kqe) = (kv(S + 1, e), kq(S + 1, e));
                     for w in 0..W {
                         blk[w] = kve[w] + half * kqe[w];
                     }
@@ -167,7 +169,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             let hb = h * tab.b[l];
             for e in 0..mn {
                 let mut blk = [0.0; W];
-                let k = kq[S * mn + e];
+                let k = kq(S, e);
                 for w in 0..W {
                     blk[w] = hb * k[w];
                 }
@@ -175,7 +177,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         for e in 0..mn {
-            put(S - 1, S, e, kv[S * mn + e]);
+            put(S - 1, S, e, kv(S, e));
         }
     }
 

@@ -8,7 +8,7 @@
 
 use super::Kernel;
 use crate::step::{NewtonOptions, EXTRAPOLATION, PAST};
-use crate::system::{Matrix, NonholonomicSystem, StageValues, Vector};
+use crate::system::NonholonomicSystem;
 use crate::tableau::{ConditionRows, Tableau};
 
 impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> Kernel<N, M, S, D, W> {
@@ -98,7 +98,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     }
 
     /// The system's stage values at every point of the iterating lanes,
-    /// with the constraint Jacobians when `refresh` (the lean refresh).
+    /// with the constraint Jacobians when `refresh` (the lean refresh), in
+    /// one lane-form evaluation per point
+    /// ([`NonholonomicSystem::stage_values_in_lanes`]). The values of a lane
+    /// that stopped iterating may be overwritten there: nothing reads them
+    /// again (its step is committed from `z`, and the next step evaluates
+    /// every held lane at its first iteration).
     #[inline(always)]
     pub(super) fn evaluate<Sys: NonholonomicSystem<N, M>>(
         &mut self,
@@ -110,42 +115,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     ) {
         let h = self.h;
         let points = if tab.conditions == ConditionRows::MidpointConstraint { S + 2 } else { S + 1 };
-        let mut kq = Matrix::<M, N>::zeros();
-        let mut kv = Matrix::<M, N>::zeros();
-        for w in 0..W {
-            if !iterating[w] {
-                continue;
-            }
-            for p in 0..points {
-                let (tp, v_at) = match p {
-                    p if p < S => (t + tab.c[p] * h, p * N),
-                    p if p == S => (t + h, S * (N + M)),
-                    _ => (t + 0.5 * h, 0),
-                };
-                let q = Vector::<N>::from_fn(|n, _| self.points[p][n][w]);
-                let v = self.lane_vector::<N>(&self.z[..], v_at, w);
-                let psi =
-                    if p < S { Vector::<M>::from_fn(|m, _| self.z[S * N + p * M + m][w] / h) } else { Vector::zeros() };
-                let vals = if refresh {
-                    let mut vals = StageValues::zeros();
-                    sys.stage_values_and_constraint_jacobians(tp, &q, &v, &psi, &mut vals, &mut kq, &mut kv);
-                    for e in 0..M * N {
-                        self.constraint_q[p * M * N + e][w] = kq.as_slice()[e];
-                        self.constraint_v[p * M * N + e][w] = kv.as_slice()[e];
-                    }
-                    vals
-                } else {
-                    sys.stage_values(tp, &q, &v, &psi)
-                };
-                for n in 0..N {
-                    self.momentum[p][n][w] = vals.momentum[n];
-                    self.force[p][n][w] = vals.force[n];
-                    self.constraint_force[p][n][w] = vals.constraint_force[n];
-                }
-                for m in 0..M {
-                    self.constraint[p][m][w] = vals.constraint[m];
-                }
-            }
+        for p in 0..points {
+            let (tp, v_at) = match p {
+                p if p < S => (t + tab.c[p] * h, p * N),
+                p if p == S => (t + h, S * (N + M)),
+                _ => (t + 0.5 * h, 0),
+            };
+            let v: [[f64; W]; N] = std::array::from_fn(|n| self.z[v_at + n]);
+            let psi: [[f64; W]; M] =
+                if p < S { std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z / h)) } else { [[0.0; W]; M] };
+            let jacobians = if refresh { Some(&mut self.jacobians[p]) } else { None };
+            sys.stage_values_in_lanes(tp, &self.points[p], &v, &psi, iterating, &mut self.values[p], jacobians);
         }
     }
 
@@ -156,20 +136,20 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for i in 0..=S {
             let (hat, tilde) = if i < S { (&tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b_hat, &tab.b_tilde) };
             for n in 0..N {
-                let (momentum, p0) = (self.momentum[i][n], self.p0[n]);
+                let (momentum, p0) = (self.values[i].momentum[n], self.p0[n]);
                 let mut r = [0.0; W];
                 for w in 0..W {
                     r[w] = momentum[w] - p0[w];
                 }
                 for j in 0..S {
                     if hat[j] != 0.0 {
-                        let (c, f) = (h * hat[j], self.force[j][n]);
+                        let (c, f) = (h * hat[j], self.values[j].force[n]);
                         for w in 0..W {
                             r[w] -= c * f[w];
                         }
                     }
                     if tilde[j] != 0.0 {
-                        let (c, f) = (h * tilde[j], self.constraint_force[j][n]);
+                        let (c, f) = (h * tilde[j], self.values[j].constraint_force[n]);
                         for w in 0..W {
                             r[w] -= c * f[w];
                         }
@@ -185,7 +165,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     for m in 0..M {
                         let mut k = [0.0; W];
                         for j in 0..S {
-                            let (c, con) = (tab.omega[r][j], self.constraint[j][m]);
+                            let (c, con) = (tab.omega[r][j], self.values[j].constraint[m]);
                             for w in 0..W {
                                 k[w] += c * con[w];
                             }
@@ -197,7 +177,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             ConditionRows::MidpointConstraint => {
                 for r in 0..S.saturating_sub(1) {
                     for m in 0..M {
-                        self.g[base + r * M + m] = if r == 0 { self.constraint[S + 1][m] } else { [0.0; W] };
+                        self.g[base + r * M + m] = if r == 0 { self.values[S + 1].constraint[m] } else { [0.0; W] };
                     }
                 }
             }
@@ -213,7 +193,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         for m in 0..M {
-            self.g[D - M + m] = self.constraint[S][m];
+            self.g[D - M + m] = self.values[S].constraint[m];
         }
     }
 }

@@ -28,6 +28,7 @@
 mod decoupled;
 mod equations;
 
+use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
 use crate::step::{
@@ -103,13 +104,9 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// midpoint `S + 1` (`N` each).
     points: Box<[[L<W>; N]]>,
     /// Stage values at the points.
-    momentum: Box<[[L<W>; N]]>,
-    force: Box<[[L<W>; N]]>,
-    constraint_force: Box<[[L<W>; N]]>,
-    constraint: Box<[[L<W>; M]]>,
-    /// `K = k_v` and `k_q` at the points (`M × N` column-major each).
-    constraint_v: Box<[L<W>]>,
-    constraint_q: Box<[L<W>]>,
+    values: Box<[LaneStageValues<N, M, W>]>,
+    /// `k_q` and `K = k_v` at the points.
+    jacobians: Box<[LaneConstraintJacobians<N, M, W>]>,
     /// `X[i][l] = W⁻¹ ã_il K_lᵀ` and the constraint rows' blocks `C[r][i]`,
     /// laid out as in `linalg::decoupled`.
     x: Box<[[[L<W>; N]; M]]>,
@@ -160,12 +157,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             y: lanes(D),
             p0: fixed(),
             points: vec![[[0.0; W]; N]; p].into_boxed_slice(),
-            momentum: vec![[[0.0; W]; N]; p].into_boxed_slice(),
-            force: vec![[[0.0; W]; N]; p].into_boxed_slice(),
-            constraint_force: vec![[[0.0; W]; N]; p].into_boxed_slice(),
-            constraint: vec![[[0.0; W]; M]; p].into_boxed_slice(),
-            constraint_v: lanes(p * M * N),
-            constraint_q: lanes(p * M * N),
+            values: vec![LaneStageValues::zeros(); p].into_boxed_slice(),
+            jacobians: vec![LaneConstraintJacobians::zeros(); p].into_boxed_slice(),
             x: vec![[[[0.0; W]; N]; M]; (S + 1) * S].into_boxed_slice(),
             c: vec![[[[0.0; W]; M]; N]; S * (S + 1)].into_boxed_slice(),
             c_nonzero: vec![false; S * (S + 1)].into_boxed_slice(),
