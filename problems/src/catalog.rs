@@ -415,12 +415,7 @@ macro_rules! catalog {
     };
     (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, ensemble: lanes, $($rest:tt)* }) => {
         impl Dispatch<$n, $m> for $ty {
-            fn with_stages<V: StageVisitor<Self, $n, $m>>(
-                stages: usize,
-                visitor: V,
-            ) -> Result<V::Output, DispatchError> {
-                catalog!(@stages $n, $m, stages, visitor)
-            }
+            catalog!(@with_stages $n, $m);
             fn with_lane_stages<V: StageVisitor<Self, $n, $m>>(
                 stages: usize,
                 visitor: V,
@@ -431,12 +426,12 @@ macro_rules! catalog {
     };
     (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
         impl Dispatch<$n, $m> for $ty {
-            fn with_stages<V: StageVisitor<Self, $n, $m>>(
-                stages: usize,
-                visitor: V,
-            ) -> Result<V::Output, DispatchError> {
-                catalog!(@stages $n, $m, stages, visitor)
-            }
+            catalog!(@with_stages $n, $m);
+        }
+    };
+    (@with_stages $n:literal, $m:literal) => {
+        fn with_stages<V: StageVisitor<Self, $n, $m>>(stages: usize, visitor: V) -> Result<V::Output, DispatchError> {
+            catalog!(@stages $n, $m, stages, visitor)
         }
     };
     (@stages $n:literal, $m:literal, $stages:ident, $visitor:ident) => {

@@ -1,9 +1,10 @@
-//! Every catalogue system's stage values in lane form
-//! (`stage_values_in_lanes`, the body `nonholonomic_system!` generates, or
-//! the trait's lane-by-lane default where the body would be too long) are
-//! bit for bit its scalar stage values at each lane's point, with and
-//! without the constraint Jacobians: what lets a member stepped in the
-//! lane kernel match its run alone.
+//! Every catalogue system's stage values and energy in lane form
+//! (`stage_values_in_lanes` and `energy_in_lanes`, the bodies
+//! `nonholonomic_system!` generates, or the trait's lane-by-lane defaults
+//! where a body would be too long) are bit for bit its scalar ones at each
+//! lane's point, the stage values with and without the constraint
+//! Jacobians: what lets a member stepped in the lane kernel match its run
+//! alone.
 
 use problems::catalog::{visit_system, Dispatch, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::{LaneConstraintJacobians, LaneStageValues, Matrix, StageValues, Vector};
@@ -27,6 +28,11 @@ impl SystemVisitor for LaneValuesMatchScalar {
         let v: [[f64; W]; N] = std::array::from_fn(|n| std::array::from_fn(|w| entry.v0[n] + wobble(n, w, 2.0)));
         let psi: [[f64; W]; M] = std::array::from_fn(|m| std::array::from_fn(|w| 0.3 + wobble(m, w, 3.0)));
         let t = entry.t0 + 0.37;
+        let energy = sys.energy_in_lanes(t, &q, &v, &[true; W]);
+        for w in 0..W {
+            let (qw, vw) = (Vector::<N>::from_fn(|n, _| q[n][w]), Vector::<N>::from_fn(|n, _| v[n][w]));
+            same(energy[w], sys.energy(t, &qw, &vw), &format!("{} lane {w} energy", entry.name));
+        }
         let mut values = LaneStageValues::<N, M, W>::zeros();
         let mut jacobians = LaneConstraintJacobians::<N, M, W>::zeros();
         for with_jacobians in [false, true] {
@@ -67,7 +73,7 @@ impl SystemVisitor for LaneValuesMatchScalar {
 }
 
 #[test]
-fn every_system_s_stage_values_in_lanes_are_its_scalar_values() {
+fn every_system_s_values_in_lanes_are_its_scalar_values() {
     for &kind in SystemKind::ALL {
         visit_system(kind, LaneValuesMatchScalar);
     }

@@ -341,6 +341,31 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         crate::lanes::values::lane_by_lane(self, t, q, v, psi, lanes, values, jacobians);
     }
 
+    /// [`energy`](Self::energy) of `W` lanes at once (lane `w` at
+    /// `(t, q[·][w], v[·][w])`), for every lane with `lanes[w]`; the other
+    /// lanes' entries are unspecified. Each is bit for bit the scalar
+    /// energy. The default evaluates the lanes with `lanes[w]` one by one
+    /// (the others are `NaN`); `nonholonomic_system!` generates a body that
+    /// computes every lane in one loop per operation.
+    #[inline(always)]
+    fn energy_in_lanes<const W: usize>(
+        &self,
+        t: f64,
+        q: &[[f64; W]; N],
+        v: &[[f64; W]; N],
+        lanes: &[bool; W],
+    ) -> [f64; W] {
+        std::array::from_fn(|w| {
+            if lanes[w] {
+                let qw = Vector::<N>::from_fn(|n, _| q[n][w]);
+                let vw = Vector::<N>::from_fn(|n, _| v[n][w]);
+                self.energy(t, &qw, &vw)
+            } else {
+                f64::NAN
+            }
+        })
+    }
+
     // ---- Optional effects (all default to "absent"; see the module docs). ----
 
     /// The system has an external generalized force `f(t,q,v)`

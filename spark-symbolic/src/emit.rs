@@ -466,31 +466,27 @@ enum Place {
 impl Place {
     /// `name[i]` or `name[(i, j)]`.
     fn tokens(&self) -> TokenStream {
-        match self {
-            Place::Let(name) => quote!(#name),
-            Place::Store(name, i, j) | Place::Add(name, i, j) => {
-                let i = Literal::usize_unsuffixed(*i);
-                match j {
-                    None => quote!(#name[#i]),
-                    Some(j) => {
-                        let j = Literal::usize_unsuffixed(*j);
-                        quote!(#name[(#i, #j)])
-                    }
-                }
-            }
-        }
+        self.written(false)
     }
 
     /// `name[i]` or `name[j][i]` (lane storage, column-major), to be
     /// indexed by the lane.
     fn lane_tokens(&self) -> TokenStream {
+        self.written(true)
+    }
+
+    fn written(&self, lanes: bool) -> TokenStream {
         match self {
             Place::Let(name) => quote!(#name),
             Place::Store(name, i, j) | Place::Add(name, i, j) => {
                 let i = Literal::usize_unsuffixed(*i);
-                match j {
-                    None => quote!(#name[#i]),
-                    Some(j) => {
+                match (j, lanes) {
+                    (None, _) => quote!(#name[#i]),
+                    (Some(j), false) => {
+                        let j = Literal::usize_unsuffixed(*j);
+                        quote!(#name[(#i, #j)])
+                    }
+                    (Some(j), true) => {
                         let j = Literal::usize_unsuffixed(*j);
                         quote!(#name[#j][#i])
                     }

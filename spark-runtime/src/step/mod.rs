@@ -52,7 +52,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use compensation::two_sum_error;
 pub(crate) use convergence::Contraction;
-pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
+pub(crate) use energy_guard::{check_energy, check_energy_at, energy_is_invariant, EnergyAnchor, EnergyCheck};
 pub(crate) use guess::{EXTRAPOLATION, PAST};
 pub(crate) use lane_handover::LaneContinuation;
 pub(crate) use newton::too_slow;

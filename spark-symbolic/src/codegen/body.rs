@@ -265,8 +265,18 @@ impl<'a> Gen<'a> {
         Some((values, fused))
     }
 
+    /// The body of `energy_in_lanes` in lane form (a lane array `energy`),
+    /// or `None` when it is longer than [`SPLIT_STATEMENTS`].
+    pub(super) fn lane_energy(&mut self) -> Option<TokenStream> {
+        let energy = (Target::Let(format_ident!("energy")), self.model.energy);
+        self.lane_statements(vec![energy])
+    }
+
     fn lane_body(&mut self, outs: &[Out]) -> Option<TokenStream> {
-        let entries: Vec<(Target, NodeId)> = outs.iter().flat_map(|o| o.entries.iter().cloned()).collect();
+        self.lane_statements(outs.iter().flat_map(|o| o.entries.iter().cloned()).collect())
+    }
+
+    fn lane_statements(&mut self, entries: Vec<(Target, NodeId)>) -> Option<TokenStream> {
         let inputs = Inputs { parameters: &self.params };
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         if emitted.statements.len() > SPLIT_STATEMENTS {

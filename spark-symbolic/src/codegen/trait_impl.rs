@@ -131,12 +131,32 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
     (methods, fused)
 }
 
-/// `stage_values_in_lanes` in lane form (nothing, so the trait's
-/// lane-by-lane default, when its bodies would be too long).
+/// `stage_values_in_lanes` and `energy_in_lanes` in lane form (each left
+/// out, so the trait's lane-by-lane default, when its body would be too
+/// long).
 fn lanes_method(gen: &mut Gen) -> TokenStream {
-    let Some((values, fused)) = gen.lane_bodies() else { return quote!() };
+    let energy = gen.lane_energy().map(|body| {
+        let n = &gen.n;
+        quote! {
+            #[inline(always)]
+            #[allow(clippy::needless_range_loop, unused_variables, unused_mut)]
+            fn energy_in_lanes<const W: usize>(
+                &self,
+                t: f64,
+                q: &[[f64; W]; #n],
+                v: &[[f64; W]; #n],
+                lanes: &[bool; W],
+            ) -> [f64; W] {
+                #body
+                energy
+            }
+        }
+    });
+    let Some((values, fused)) = gen.lane_bodies() else { return quote!(#energy) };
     let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
     quote! {
+        #energy
+
         #[inline(always)]
         #[allow(clippy::needless_range_loop, clippy::too_many_arguments, unused_variables, unused_mut)]
         fn stage_values_in_lanes<const W: usize>(

@@ -290,6 +290,26 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_v[(0, 1)] = s3;
     }
     #[inline(always)]
+    #[allow(clippy::needless_range_loop, unused_variables, unused_mut)]
+    fn energy_in_lanes<const W: usize>(
+        &self,
+        t: f64,
+        q: &[[f64; W]; 3],
+        v: &[[f64; W]; 3],
+        lanes: &[bool; W],
+    ) -> [f64; W] {
+        let s0 = self.m * self.g;
+        let s1 = self.beta.sin();
+        let s2 = s0 * s1;
+        let mut energy = [0.0f64; W];
+        for w in 0..W {
+            energy[w] = 0.5
+                * (self.m * (v[0][w] * v[0][w] + v[1][w] * v[1][w])
+                    + self.inertia * (v[2][w] * v[2][w])) - s2 * q[0][w];
+        }
+        energy
+    }
+    #[inline(always)]
     #[allow(
         clippy::needless_range_loop,
         clippy::too_many_arguments,

@@ -32,7 +32,7 @@ use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
 use crate::step::{
-    check_energy, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
+    check_energy_at, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
     NewtonOptions, State, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
@@ -380,31 +380,45 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         out: &mut [Outcome; W],
     ) {
         let h = self.h;
-        for w in 0..W {
-            if !matches!(out[w], Outcome::Stepped(_)) {
-                continue;
-            }
-            let carry = self.lane_vector::<N>(&self.carry[..], 0, w);
-            let mut dq = carry;
-            for j in 0..S {
-                if tab.b[j] != 0.0 {
-                    let c = h * tab.b[j];
-                    for n in 0..N {
-                        dq[n] += c * self.z[j * N + n][w];
+        let stepped: [bool; W] = std::array::from_fn(|w| matches!(out[w], Outcome::Stepped(_)));
+        if !stepped.contains(&true) {
+            return;
+        }
+        // Δq = carry + Σ_j (h b_j) V_j and q₁ = q₀ + Δq in every lane, in
+        // the stepper's order of operations.
+        let mut dq_lanes: [L<W>; N] = *self.carry;
+        for j in 0..S {
+            if tab.b[j] != 0.0 {
+                let c = h * tab.b[j];
+                for n in 0..N {
+                    let z = self.z[j * N + n];
+                    for w in 0..W {
+                        dq_lanes[n][w] += c * z[w];
                     }
                 }
             }
+        }
+        let q1_lanes: [L<W>; N] = std::array::from_fn(|n| std::array::from_fn(|w| self.q[n][w] + dq_lanes[n][w]));
+        let v1_lanes: [L<W>; N] = std::array::from_fn(|n| self.z[S * (N + M) + n]);
+        let guard = opts.energy_drift_limit.filter(|_| energy_is_invariant::<Sys, N, M>());
+        let e1 = guard.map(|_| sys.energy_in_lanes(t + h, &q1_lanes, &v1_lanes, &stepped));
+        for w in 0..W {
+            if !stepped[w] {
+                continue;
+            }
+            let dq = self.lane_vector::<N>(&dq_lanes[..], 0, w);
             let q0 = self.lane_vector::<N>(&self.q[..], 0, w);
-            let q1 = q0 + dq;
-            let v1 = self.lane_vector::<N>(&self.z[..], S * (N + M), w);
+            let q1 = self.lane_vector::<N>(&q1_lanes[..], 0, w);
+            let v1 = self.lane_vector::<N>(&v1_lanes[..], 0, w);
             if !q1.iter().chain(v1.iter()).all(|x| x.is_finite()) {
                 out[w] = Outcome::HandBack;
                 continue;
             }
-            if let (Some(limit), true) = (opts.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
+            if let Some(limit) = guard {
                 let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                 let end = State::new(t + h, q1, v1);
-                match check_energy::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, limit) {
+                let e1 = e1.map(|e| e[w]);
+                match check_energy_at::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, e1, limit) {
                     EnergyCheck::Accept(a) => {
                         self.anchor[w] = Some(EnergyAnchor { end: State { t: t_next, ..end }, ..a })
                     }
