@@ -36,6 +36,14 @@ pub(crate) struct EnergyAnchor<const N: usize> {
 }
 
 impl<const N: usize> EnergyAnchor<N> {
+    /// Whether the energy `e1` at the end of a step is within `limit` of
+    /// this anchor's (with the round-off floor of [`check_energy`]); a NaN
+    /// energy is not.
+    #[inline(always)]
+    pub(crate) fn holds(&self, e1: f64, limit: f64) -> bool {
+        (e1 - self.energy).abs() <= limit * self.scale + 64.0 * f64::EPSILON * e1.abs()
+    }
+
     /// An anchor at `state`.
     pub(crate) fn at<Sys, const M: usize>(sys: &Sys, state: &State<N>) -> Self
     where
@@ -95,9 +103,7 @@ where
         return EnergyCheck::Accept(EnergyAnchor::at::<Sys, M>(sys, end));
     }
     let e1 = e1.unwrap_or_else(|| sys.energy(end.t, &end.q, &end.v));
-    let drift = (e1 - a.energy).abs();
-    // Written so that a NaN energy fails the test.
-    if drift <= limit * a.scale + 64.0 * f64::EPSILON * e1.abs() {
+    if a.holds(e1, limit) {
         EnergyCheck::Accept(EnergyAnchor { end: *end, ..a })
     } else {
         EnergyCheck::Drift(a, e1)

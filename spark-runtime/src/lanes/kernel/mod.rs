@@ -414,17 +414,30 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 out[w] = Outcome::HandBack;
                 continue;
             }
-            if let Some(limit) = guard {
-                let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
-                let end = State::new(t + h, q1, v1);
-                let e1 = e1.map(|e| e[w]);
-                match check_energy_at::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, e1, limit) {
-                    EnergyCheck::Accept(a) => {
-                        self.anchor[w] = Some(EnergyAnchor { end: State { t: t_next, ..end }, ..a })
-                    }
-                    EnergyCheck::Drift(..) => {
+            if let (Some(limit), Some(e1)) = (guard, e1.map(|e| e[w])) {
+                // The chain the kernel continues, checked in place: what
+                // `check_energy_at` decides for an anchor at the step's start.
+                let (q, v) = (&self.q, &self.v);
+                let continued = self.anchor[w].as_mut().filter(|a| {
+                    a.scale > 0.0 && a.end.t == t && (0..N).all(|n| a.end.q[n] == q[n][w] && a.end.v[n] == v[n][w])
+                });
+                if let Some(a) = continued {
+                    if !a.holds(e1, limit) {
                         out[w] = Outcome::HandBack;
                         continue;
+                    }
+                    a.end = State::new(t_next, q1, v1);
+                } else {
+                    let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
+                    let end = State::new(t + h, q1, v1);
+                    match check_energy_at::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, Some(e1), limit) {
+                        EnergyCheck::Accept(a) => {
+                            self.anchor[w] = Some(EnergyAnchor { end: State { t: t_next, ..end }, ..a })
+                        }
+                        EnergyCheck::Drift(..) => {
+                            out[w] = Outcome::HandBack;
+                            continue;
+                        }
                     }
                 }
             }
