@@ -355,15 +355,7 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         v: &[[f64; W]; N],
         lanes: &[bool; W],
     ) -> [f64; W] {
-        std::array::from_fn(|w| {
-            if lanes[w] {
-                let qw = Vector::<N>::from_fn(|n, _| q[n][w]);
-                let vw = Vector::<N>::from_fn(|n, _| v[n][w]);
-                self.energy(t, &qw, &vw)
-            } else {
-                f64::NAN
-            }
-        })
+        crate::lanes::values::energy_lane_by_lane(self, t, q, v, lanes)
     }
 
     // ---- Optional effects (all default to "absent"; see the module docs). ----

@@ -55,6 +55,28 @@ impl<const N: usize, const M: usize, const W: usize> LaneConstraintJacobians<N, 
     }
 }
 
+/// Lane `w` of the lane rows `x`, as a vector.
+#[inline(always)]
+fn lane<const K: usize, const W: usize>(x: &[[f64; W]; K], w: usize) -> Vector<K> {
+    Vector::<K>::from_fn(|k, _| x[k][w])
+}
+
+/// The default of [`NonholonomicSystem::energy_in_lanes`]: the energy of
+/// every lane `w` with `lanes[w]` by [`NonholonomicSystem::energy`]; `NaN`
+/// for the others.
+pub(crate) fn energy_lane_by_lane<Sys, const N: usize, const M: usize, const W: usize>(
+    sys: &Sys,
+    t: f64,
+    q: &[[f64; W]; N],
+    v: &[[f64; W]; N],
+    lanes: &[bool; W],
+) -> [f64; W]
+where
+    Sys: NonholonomicSystem<N, M> + ?Sized,
+{
+    std::array::from_fn(|w| if lanes[w] { sys.energy(t, &lane(q, w), &lane(v, w)) } else { f64::NAN })
+}
+
 /// The default of [`NonholonomicSystem::stage_values_in_lanes`]: every lane
 /// `w` with `lanes[w]` gathered into vectors and evaluated by
 /// [`NonholonomicSystem::stage_values`] (or, with `jacobians`,
@@ -78,9 +100,7 @@ pub(crate) fn lane_by_lane<Sys, const N: usize, const M: usize, const W: usize>(
         if !lanes[w] {
             continue;
         }
-        let qw = Vector::<N>::from_fn(|n, _| q[n][w]);
-        let vw = Vector::<N>::from_fn(|n, _| v[n][w]);
-        let psiw = Vector::<M>::from_fn(|m, _| psi[m][w]);
+        let (qw, vw, psiw) = (lane(q, w), lane(v, w), lane(psi, w));
         let vals = match jacobians.as_deref_mut() {
             Some(jac) => {
                 let mut vals = StageValues::zeros();

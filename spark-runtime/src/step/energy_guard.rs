@@ -69,22 +69,10 @@ pub(crate) enum EnergyCheck<const N: usize> {
 /// An anchor whose scale is zero (at rest where `E = 0`) measures nothing,
 /// so the chain re-anchors at the next state instead. A round-off floor of
 /// `64 ε |E₁|` keeps huge energy offsets from tripping the test.
+///
+/// `e1` is the energy at `end` when the caller has it already (as
+/// [`NonholonomicSystem::energy`] computes it); `None` computes it here.
 pub(crate) fn check_energy<Sys, const N: usize, const M: usize>(
-    sys: &Sys,
-    anchor: Option<&EnergyAnchor<N>>,
-    start: &State<N>,
-    end: &State<N>,
-    limit: f64,
-) -> EnergyCheck<N>
-where
-    Sys: NonholonomicSystem<N, M>,
-{
-    check_energy_at::<Sys, N, M>(sys, anchor, start, end, None, limit)
-}
-
-/// [`check_energy`] with the energy at `end` already computed (`e1`, as
-/// [`NonholonomicSystem::energy`] computes it), or computed here when `None`.
-pub(crate) fn check_energy_at<Sys, const N: usize, const M: usize>(
     sys: &Sys,
     anchor: Option<&EnergyAnchor<N>>,
     start: &State<N>,

@@ -52,7 +52,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use compensation::two_sum_error;
 pub(crate) use convergence::Contraction;
-pub(crate) use energy_guard::{check_energy, check_energy_at, energy_is_invariant, EnergyAnchor, EnergyCheck};
+pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
 pub(crate) use guess::{EXTRAPOLATION, PAST};
 pub(crate) use lane_handover::LaneContinuation;
 pub(crate) use newton::too_slow;
@@ -401,7 +401,7 @@ where
             return Err(StepError::NonFinite { t: t0, h, stage: "step result", history: Box::new(self.history) });
         }
         if let (Some(limit), true) = (self.options.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
-            match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, limit) {
+            match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, None, limit) {
                 EnergyCheck::Accept(a) => self.anchor = Some(a),
                 EnergyCheck::Drift(a, energy) => {
                     return Err(StepError::EnergyDrift { t: t0, h, energy0: a.energy, energy, bound: limit * a.scale });

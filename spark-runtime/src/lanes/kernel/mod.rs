@@ -32,7 +32,7 @@ use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
 use crate::step::{
-    check_energy_at, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
+    check_energy, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
     NewtonOptions, State, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
@@ -416,7 +416,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
             if let (Some(limit), Some(e1)) = (guard, e1.map(|e| e[w])) {
                 // The chain the kernel continues, checked in place: what
-                // `check_energy_at` decides for an anchor at the step's start.
+                // `check_energy` decides for an anchor at the step's start.
                 let (q, v) = (&self.q, &self.v);
                 let continued = self.anchor[w].as_mut().filter(|a| {
                     a.scale > 0.0 && a.end.t == t && (0..N).all(|n| a.end.q[n] == q[n][w] && a.end.v[n] == v[n][w])
@@ -430,7 +430,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 } else {
                     let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                     let end = State::new(t + h, q1, v1);
-                    match check_energy_at::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, Some(e1), limit) {
+                    match check_energy::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, Some(e1), limit) {
                         EnergyCheck::Accept(a) => {
                             self.anchor[w] = Some(EnergyAnchor { end: State { t: t_next, ..end }, ..a })
                         }
