@@ -124,6 +124,7 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
         crate::experiments::work_precision::scaling::write_scaling_figure(&rows, &mut out)
             .map_err(|e| e.to_string())?;
         out.write_bytes("scaling.md", md.as_bytes()).map_err(|e| e.to_string())?;
+        out.write_json("scaling.json", &rows).map_err(|e| e.to_string())?;
         out.commit().map_err(|e| e.to_string())?;
         return Ok(md);
     }

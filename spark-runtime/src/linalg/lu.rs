@@ -144,10 +144,25 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
 /// The singularity test is [`factor_in_place`]'s: a pivot below `64 ε`
 /// times its column's largest magnitude.
 pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
-    if n == 0 {
-        // No multipliers (an unconstrained system): nothing to factor.
-        return Ok(());
+    // The Schur complements met in practice are a few multipliers square:
+    // each small size gets its own copy of the elimination with `n` a
+    // constant (loops unrolled, slices unchecked), the same operations in
+    // the same order as the general one.
+    match n {
+        0 => Ok(()), // No multipliers (an unconstrained system): nothing to factor.
+        1 => factor_sized(lu, 1, perm, scale),
+        2 => factor_sized(lu, 2, perm, scale),
+        3 => factor_sized(lu, 3, perm, scale),
+        4 => factor_sized(lu, 4, perm, scale),
+        5 => factor_sized(lu, 5, perm, scale),
+        6 => factor_sized(lu, 6, perm, scale),
+        _ => factor_sized(lu, n, perm, scale),
     }
+}
+
+/// The body of [`factor_runtime`], inlined into each size it is called with.
+#[inline(always)]
+fn factor_sized(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
     let lu = &mut lu[..n * n];
     let scale = &mut scale[..n];
     for (sk, col) in scale.iter_mut().zip(lu.chunks_exact(n)) {
@@ -191,6 +206,22 @@ pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale
 
 /// Overwrites `b` with `A⁻¹ b` from the factors of [`factor_runtime`].
 pub(crate) fn solve_runtime(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
+    // Small sizes as in `factor_runtime`: the general loops' slicing and
+    // bounds checks cost more than the arithmetic there.
+    match n {
+        1 => solve_sized(lu, 1, perm, b),
+        2 => solve_sized(lu, 2, perm, b),
+        3 => solve_sized(lu, 3, perm, b),
+        4 => solve_sized(lu, 4, perm, b),
+        5 => solve_sized(lu, 5, perm, b),
+        6 => solve_sized(lu, 6, perm, b),
+        _ => solve_sized(lu, n, perm, b),
+    }
+}
+
+/// The body of [`solve_runtime`], inlined into each size it is called with.
+#[inline(always)]
+fn solve_sized(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
     let lu = &lu[..n * n];
     let b = &mut b[..n];
     for (k, &p) in perm[..n].iter().enumerate() {

@@ -216,11 +216,17 @@ where
         };
         Self::evaluate(&self.system, &self.tableau, state, carry, h, z, derivatives, &mut self.eval);
         *g = Self::residual(&self.tableau, p0, h, z, &self.eval);
-        if !g.iter().all(|x| x.is_finite()) {
+        // One pass for both: the finiteness test and the largest magnitude.
+        let (mut finite, mut largest) = (true, 0.0f64);
+        for x in g.iter() {
+            finite &= x.is_finite();
+            largest = largest.max(x.abs());
+        }
+        if !finite {
             self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
             return Err(StepError::NonFinite { t: state.t, h, stage: "residual", history: Box::new(self.history) });
         }
-        Ok(g.amax())
+        Ok(largest)
     }
 
     /// Newton's method on `G(z) = 0`; records the iterations in `self.history`
@@ -340,6 +346,13 @@ where
                 if rate.is_finite() {
                     max_rate = max_rate.max(rate);
                 }
+                // Factors from an earlier iterate exist only in simplified
+                // Newton, whose test this is there too.
+                let converged = if simplified {
+                    monitor.converged(update, opts.tolerance)
+                } else {
+                    full_newton_converged(update, rate, opts.tolerance)
+                };
                 if let Some(z_before) = z_before {
                     // Factors from an earlier iterate that grow or contract too
                     // slowly (see `too_slow`): a fresh Jacobian at the last good
@@ -348,7 +361,6 @@ where
                     // first iteration of an earlier step's factors (no rate yet).
                     let remaining = (max_iter - 1 - k) as i32;
                     let too_slow = too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance);
-                    let converged = monitor.converged(update, opts.tolerance);
                     let round_off = update <= opts.stagnation_level;
                     let first_stale = k == 0 && update.is_finite();
                     if too_slow && !converged && !round_off && !first_stale {
@@ -386,11 +398,6 @@ where
                 if !update.is_finite() {
                     return Err(fail_nonfinite("update", &self.history));
                 }
-                let converged = if simplified {
-                    monitor.converged(update, opts.tolerance)
-                } else {
-                    full_newton_converged(update, rate, opts.tolerance)
-                };
                 if converged {
                     break 'solve Ok(());
                 }
@@ -468,7 +475,12 @@ pub(crate) fn too_slow(
     tolerance: f64,
 ) -> bool {
     let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
-    rate.is_nan() || rate >= 1.0 || judged > limit || update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance
+    // `judged` is NaN until the factors have a rate: then the last test is
+    // false, and `powi` (a library call) is not worth making.
+    rate.is_nan()
+        || rate >= 1.0
+        || judged > limit
+        || (!judged.is_nan() && update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance)
 }
 
 /// How far above the tolerance a predicted next update may be for full

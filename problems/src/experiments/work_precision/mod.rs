@@ -32,6 +32,7 @@
 
 pub mod adaptive_energy;
 pub mod external;
+pub mod flops;
 pub mod per_step;
 pub mod report;
 pub mod scaling;

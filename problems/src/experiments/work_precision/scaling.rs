@@ -1,10 +1,12 @@
 //! Scaling with the system size: McLachlan–Perlmutter particles for
 //! `n = 5, 9, 17, 33, 65, 129` ([`scaling_systems`](super::scaling_systems)),
-//! Gauss SPARK `s = 2` (and `s = 5` for the large-`D` end): time per step
-//! with full Newton and with simplified Newton (one factorization per step),
-//! the stepper's size and heap storage, and the arithmetic rate one step
-//! reaches (operation count of the generated code plus the block LU of the
-//! `D × D` Newton matrix, `D = s(n+1)+n`).
+//! Gauss SPARK `s = 2` (and `s = 5` for the large-`D` end): time per step on
+//! the dense paths (full and simplified Newton on the exact `D × D`
+//! Jacobian, `D = s(n+1)+n`) and on the structured one (the stage-decoupled
+//! matrix: reciprocal mass diagonal and an `s × s` Schur complement), the
+//! Newton work each counted step by step, the flops that work implies and
+//! the rate reached, the fitted exponent of time against `n`, and the
+//! stepper's size and heap storage.
 //!
 //! The Newton matrix, its factors and the stage Jacobians live on the heap
 //! (allocated once per stepper; the generated `stage_jacobians_into` writes
@@ -14,23 +16,41 @@
 //! ([`WORKER_STACK`]), which the old stack-allocated matrices overflowed from
 //! `D ≈ 250` on and the by-value stage Jacobians from `n ≈ 90`.
 
+use super::flops::{flops_per_step, NewtonPath};
 use super::sweep::unobserved;
 use super::WorkPrecisionError;
 use crate::report::clock::thread_cpu_seconds;
 use crate::report::files::OutputDir;
 use crate::report::format::duration;
 use crate::report::plot::{Figure, Panel, Scale, Series};
+use crate::report::stats::{fit_line, LineFit};
 use crate::systems::scaling::{
     McLachlanPerlmutter129, McLachlanPerlmutter17, McLachlanPerlmutter33, McLachlanPerlmutter5, McLachlanPerlmutter65,
     McLachlanPerlmutter9,
 };
-use spark_runtime::{
-    Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Schedule, Stepper, Tableau, Vector,
-};
+use spark_runtime::{Method, NoObserver, NonholonomicSystem, Schedule, State, Stepper, Tableau, Vector};
 use std::time::{Duration, Instant};
 
 /// Stack size of the measuring thread: rayon's default worker stack.
 pub const WORKER_STACK: usize = 2 << 20;
+
+/// One path of one row: its time, its counted Newton work and the flops
+/// that work implies.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct PathRun {
+    /// Which solve.
+    pub path: NewtonPath,
+    /// Median CPU time of the measuring thread per step, seconds.
+    pub time_per_step: f64,
+    /// Mean Newton updates per step.
+    pub iterations: f64,
+    /// Mean factorizations per step.
+    pub factorizations: f64,
+    /// Floating-point operations per step by the count of [`flops_per_step`].
+    pub flops_per_step: f64,
+    /// `flops_per_step / time_per_step`, in GFLOP/s.
+    pub gflops: f64,
+}
 
 /// One row of the scaling table.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -47,68 +67,90 @@ pub struct ScalingRow {
     pub heap_bytes: usize,
     /// Operations of the generated `stage_jacobians`.
     pub jacobian_operations: usize,
-    /// Median CPU time of the measuring thread per step, full Newton, seconds.
-    pub time_per_step: f64,
-    /// Mean Newton iterations per step, full Newton.
-    pub newton_iterations: f64,
-    /// Median CPU time per step, simplified Newton (one factorization per step).
-    pub time_per_step_simplified: f64,
-    /// Mean Newton iterations per step, simplified Newton.
-    pub newton_iterations_simplified: f64,
-    /// Estimated floating-point operations per step, full Newton.
-    pub flops_per_step: f64,
-    /// `flops_per_step / time_per_step`, in GFLOP/s.
-    pub gflops: f64,
+    /// Operations of the generated `stage_values`.
+    pub value_operations: usize,
+    /// The paths, in [`NewtonPath::ALL`] order.
+    pub paths: Vec<PathRun>,
 }
 
-/// Median thread-CPU time per step and mean iterations of `steps` steps.
-fn timed<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    mode: NewtonMode,
-    repeats: usize,
-) -> Option<(f64, f64)>
+/// The run every path starts from: `q₀` spread over the coordinates, at rest.
+fn start<const N: usize>() -> (Vector<N>, Vector<N>) {
+    (Vector::<N>::from_fn(|i, _| 0.5 + 0.3 * ((i + 1) as f64).sin()), Vector::<N>::zeros())
+}
+
+/// Step size and steps of every run.
+const STEP: (f64, usize) = (0.01, 200);
+
+/// Mean updates and factorizations per step of one run on `path`, counted
+/// step by step (`None` if a step fails).
+fn counts<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(path: NewtonPath) -> Option<(f64, f64)>
 where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let opts = NewtonOptions { mode, ..NewtonOptions::default() };
     let mut stepper =
-        Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(Method::Gauss).ok()?).with_options(opts);
-    let q0 = Vector::<N>::from_fn(|i, _| 0.5 + 0.3 * ((i + 1) as f64).sin());
-    let v0 = Vector::<N>::zeros();
-    let (h, steps) = (0.01, 200);
+        Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(Method::Gauss).ok()?).with_options(path.options());
+    let (q0, v0) = start::<N>();
+    let (h, steps) = STEP;
+    let mut state = State::new(0.0, q0, v0);
+    let (mut iterations, mut factorizations) = (0usize, 0usize);
+    for _ in 0..steps {
+        let r = stepper.step(&state, h).ok()?;
+        (state, iterations, factorizations) = (r.state, iterations + r.iterations, factorizations + r.factorizations);
+    }
+    Some((iterations as f64 / steps as f64, factorizations as f64 / steps as f64))
+}
+
+/// Median thread-CPU time per step of the run on `path` through the driver.
+fn timed<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    path: NewtonPath,
+    repeats: usize,
+) -> Option<f64>
+where
+    Sys: NonholonomicSystem<N, M> + Default,
+{
+    let mut stepper =
+        Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(Method::Gauss).ok()?).with_options(path.options());
+    let (q0, v0) = start::<N>();
+    let (h, steps) = STEP;
     let quiet = unobserved();
     let schedule = Schedule::Fixed { h, steps };
     // Timed without event location, like the peers: declared events are
     // for `spark section`.
-    let traj = stepper
-        .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
-        .ok()?;
-    let iterations = traj.report.newton_iterations_mean;
+    let mut run = || {
+        stepper.integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents).ok()
+    };
+    run()?;
     let mut times = Vec::new();
-    let start = Instant::now();
-    while times.len() < repeats.max(1) || (start.elapsed() < Duration::from_millis(50) && times.len() < 200) {
+    let begin = Instant::now();
+    while times.len() < repeats.max(1) || (begin.elapsed() < Duration::from_millis(50) && times.len() < 200) {
         let c = thread_cpu_seconds();
-        stepper
-            .integrate_with_events(0.0, &q0, &v0, schedule, &quiet, &mut NoObserver, &spark_runtime::NoEvents)
-            .ok()?;
+        run()?;
         times.push((thread_cpu_seconds() - c) / steps as f64);
     }
     times.sort_by(f64::total_cmp);
-    Some((times[times.len() / 2], iterations))
+    Some(times[times.len() / 2])
 }
 
 fn row<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(repeats: usize) -> Option<ScalingRow>
 where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let (time_per_step, iterations) = timed::<Sys, N, M, S, D>(NewtonMode::Full, repeats)?;
-    let (time_simplified, iterations_simplified) = timed::<Sys, N, M, S, D>(NewtonMode::Simplified, repeats)?;
-    let ops = Sys::OPERATIONS.stage_jacobians;
-    let d = D as f64;
-    // Per Newton iteration: S+1 fused Jacobian evaluations, assembling the
-    // matrix (~D² writes counted as flops of the chain rule), LU 2/3·D³
-    // (counted dense although the block elimination skips the v₁ columns
-    // of the stage rows), solve 2·D².
-    let flops_per_step = iterations * ((S + 1) as f64 * ops as f64 + 2.0 / 3.0 * d * d * d + 3.0 * d * d);
+    let ops = Sys::OPERATIONS;
+    let mut paths = Vec::with_capacity(NewtonPath::ALL.len());
+    for path in NewtonPath::ALL {
+        let (iterations, factorizations) = counts::<Sys, N, M, S, D>(path)?;
+        let time_per_step = timed::<Sys, N, M, S, D>(path, repeats)?;
+        let flops =
+            flops_per_step(path, (N, M, S), (ops.stage_values, ops.stage_jacobians), iterations, factorizations);
+        paths.push(PathRun {
+            path,
+            time_per_step,
+            iterations,
+            factorizations,
+            flops_per_step: flops,
+            gflops: flops / time_per_step / 1e9,
+        });
+    }
     let f = std::mem::size_of::<f64>();
     let jacobian_bytes = std::mem::size_of::<spark_runtime::StageJacobians<N, M>>();
     Some(ScalingRow {
@@ -117,14 +159,55 @@ where
         newton_dimension: D,
         stepper_bytes: std::mem::size_of::<Stepper<Sys, N, M, S, D>>(),
         heap_bytes: 2 * D * D * f + D * std::mem::size_of::<usize>() + (S + 2) * jacobian_bytes + S * N * M * f,
-        jacobian_operations: ops,
-        time_per_step,
-        newton_iterations: iterations,
-        time_per_step_simplified: time_simplified,
-        newton_iterations_simplified: iterations_simplified,
-        flops_per_step,
-        gflops: flops_per_step / time_per_step / 1e9,
+        jacobian_operations: ops.stage_jacobians,
+        value_operations: ops.stage_values,
+        paths,
     })
+}
+
+/// The fitted exponent `p` of `time per step ∝ n^p` for one path and stage
+/// count, over the rows with `n ≥ n_min` (least squares in log–log).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ScalingFit {
+    /// Which solve.
+    pub path: NewtonPath,
+    /// Stages.
+    pub stages: usize,
+    /// Smallest `n` in the fit.
+    pub n_min: usize,
+    /// Largest `n` in the fit.
+    pub n_max: usize,
+    /// The fit of `ln(time per step)` against `ln n`.
+    pub fit: LineFit,
+}
+
+/// Smallest `n` of the exponent fits: below it a step is dominated by
+/// costs that do not grow with `n` (the loop's bookkeeping, the Schur
+/// complement of one multiplier), so the fit would mix two regimes.
+pub const FIT_N_MIN: usize = 17;
+
+/// The exponent of every path for every stage count with at least three
+/// rows from [`FIT_N_MIN`] on.
+pub fn scaling_fits(rows: &[ScalingRow]) -> Vec<ScalingFit> {
+    let mut stages: Vec<usize> = rows.iter().map(|r| r.stages).collect();
+    stages.dedup();
+    let mut fits = Vec::new();
+    for s in stages {
+        let sel: Vec<&ScalingRow> = rows.iter().filter(|r| r.stages == s && r.n >= FIT_N_MIN).collect();
+        if sel.len() < 3 {
+            continue;
+        }
+        for (k, path) in NewtonPath::ALL.into_iter().enumerate() {
+            let x: Vec<f64> = sel.iter().map(|r| (r.n as f64).ln()).collect();
+            let y: Vec<f64> = sel.iter().map(|r| r.paths[k].time_per_step.ln()).collect();
+            if let Some(fit) = fit_line(&x, &y) {
+                let n_min = sel.iter().map(|r| r.n).min().unwrap_or(0);
+                let n_max = sel.iter().map(|r| r.n).max().unwrap_or(0);
+                fits.push(ScalingFit { path, stages: s, n_min, n_max, fit });
+            }
+        }
+    }
+    fits
 }
 
 /// Measures every size on a thread with a [`WORKER_STACK`] stack; `Err` if
@@ -153,61 +236,107 @@ pub fn measure_scaling(repeats: usize) -> Result<Vec<ScalingRow>, String> {
         .ok_or_else(|| "a scaling run failed (Newton did not converge)".to_string())
 }
 
-/// The scaling table as Markdown.
+/// The scaling tables as Markdown: sizes and storage, time and counted work
+/// per path, and the fitted exponents.
 pub fn scaling_markdown(rows: &[ScalingRow]) -> String {
     let mut s = String::from(
-        "| n | s | D | stepper value | heap (once) | ops stage_jacobians | time/step full Newton | its | time/step simplified Newton | its | est. flop/step (full) | GFLOP/s |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| n | s | D | stepper value | heap (once) | ops stage_values | ops stage_jacobians |\n|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {:.1} KiB | {:.1} KiB | {} | {} | {:.2} | {} | {:.2} | {:.3e} | {:.2} |\n",
+            "| {} | {} | {} | {:.1} KiB | {:.1} KiB | {} | {} |\n",
             r.n,
             r.stages,
             r.newton_dimension,
             r.stepper_bytes as f64 / 1024.0,
             r.heap_bytes as f64 / 1024.0,
+            r.value_operations,
             r.jacobian_operations,
-            duration(r.time_per_step),
-            r.newton_iterations,
-            duration(r.time_per_step_simplified),
-            r.newton_iterations_simplified,
-            r.flops_per_step,
-            r.gflops
+        ));
+    }
+    s.push_str(
+        "\nTime per step, Newton updates / factorizations per step, flops per step (counted, see `flops_per_step`) and the rate they imply:\n\n| n | s | D | path | time/step | updates / factorizations | flop/step | GFLOP/s | dense full / this path |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let dense = r.paths[0].time_per_step;
+        for p in &r.paths {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {:.2} / {:.2} | {:.3e} | {:.2} | {:.2} |\n",
+                r.n,
+                r.stages,
+                r.newton_dimension,
+                p.path.label(),
+                duration(p.time_per_step),
+                p.iterations,
+                p.factorizations,
+                p.flops_per_step,
+                p.gflops,
+                dense / p.time_per_step,
+            ));
+        }
+    }
+    s.push_str(&format!(
+        "\nFitted exponents `p` of time per step ∝ n^p (least squares in log–log over n ≥ {FIT_N_MIN}):\n\n| path | s | n | p | standard error |\n|---|---|---|---|---|\n"
+    ));
+    for f in scaling_fits(rows) {
+        s.push_str(&format!(
+            "| {} | {} | {} … {} | {:.2} | {:.2} |\n",
+            f.path.label(),
+            f.stages,
+            f.n_min,
+            f.n_max,
+            f.fit.slope,
+            f.fit.slope_std_error
         ));
     }
     s
 }
 
-/// Time per step and stepper size against `n` (log–log), staged in `out` as
+/// Time per step of each path against `n` (log–log, one panel per stage
+/// count), the stepper's size and the arithmetic rate, staged in `out` as
 /// `scaling.png` and `scaling.svg`.
-pub fn write_scaling_figure(
-    rows: &[super::scaling::ScalingRow],
-    out: &mut OutputDir,
-) -> Result<(), WorkPrecisionError> {
-    let panel = |title: &str, y_label: &str, f: &dyn Fn(&super::scaling::ScalingRow) -> f64| Panel {
-        title: title.into(),
+pub fn write_scaling_figure(rows: &[ScalingRow], out: &mut OutputDir) -> Result<(), WorkPrecisionError> {
+    let series = |s: usize, f: &dyn Fn(&PathRun) -> f64| -> Vec<Series> {
+        NewtonPath::ALL
+            .iter()
+            .enumerate()
+            .map(|(k, path)| {
+                let pts = rows.iter().filter(|r| r.stages == s).map(|r| (r.n as f64, f(&r.paths[k]))).collect();
+                Series::new(format!("{} (s={s})", path.label()), pts)
+            })
+            .collect()
+    };
+    let panel = |title: String, y_label: &str, series: Vec<Series>| Panel {
+        title,
         x_label: "n (coordinates)".into(),
         y_label: y_label.into(),
         x_scale: Scale::Log,
         y_scale: Scale::Log,
-        series: [2, 5]
-            .iter()
-            .map(|&st| {
-                let pts = rows.iter().filter(|r| r.stages == st).map(|r| (r.n as f64, f(r))).collect();
-                Series::new(format!("Gauss s={st}"), pts)
-            })
-            .collect(),
+        series,
     };
+    let sizes = [2, 5]
+        .iter()
+        .map(|&st| {
+            let pts = rows
+                .iter()
+                .filter(|r| r.stages == st)
+                .map(|r| (r.n as f64, (r.stepper_bytes + r.heap_bytes) as f64))
+                .collect();
+            Series::new(format!("Gauss s={st}"), pts)
+        })
+        .collect();
+    let mut rate = series(2, &|p| p.gflops);
+    rate.extend(series(5, &|p| p.gflops));
     let fig = Figure {
-        title: "McLachlan–Perlmutter particles: cost against size".into(),
+        title: "McLachlan–Perlmutter particles: cost against size, dense and structured Newton".into(),
         panels: vec![
-            panel("time per step (full Newton)", "seconds", &|r| r.time_per_step),
-            panel("time per step (simplified Newton)", "seconds", &|r| r.time_per_step_simplified),
-            panel("stepper value + heap", "bytes", &|r| (r.stepper_bytes + r.heap_bytes) as f64),
-            panel("arithmetic rate", "GFLOP/s (estimated)", &|r| r.gflops),
+            panel("time per step, Gauss s=2".into(), "seconds", series(2, &|p| p.time_per_step)),
+            panel("time per step, Gauss s=5".into(), "seconds", series(5, &|p| p.time_per_step)),
+            panel("stepper value + heap".into(), "bytes", sizes),
+            panel("arithmetic rate (counted flops)".into(), "GFLOP/s", rate),
         ],
         columns: 2,
-        panel_size: (520, 420),
+        panel_size: (560, 440),
     };
     out.render(&fig, "scaling")?;
     Ok(())

@@ -1,0 +1,93 @@
+//! What a step's Newton solve costs in floating-point operations, counted
+//! from the algorithm: the three solves the per-step table and the scaling
+//! study compare ([`NewtonPath`]) and the count of [`flops_per_step`], so a
+//! measured time per step can be read as a rate against the core's
+//! arithmetic limit.
+
+use spark_runtime::{Jacobian, NewtonMode, NewtonOptions};
+
+/// The three ways a step can solve its Newton equations, as the scaling
+/// study compares them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum NewtonPath {
+    /// Full Newton on the exact `D × D` Jacobian (a block LU of the dense
+    /// matrix per factorization).
+    Dense,
+    /// Simplified Newton on the exact Jacobian: the same factorization, kept
+    /// for the step.
+    DenseSimplified,
+    /// Simplified Newton on the stage-decoupled matrix: the constant mass
+    /// matrix solved by its reciprocal diagonal and an `S·M` Schur
+    /// complement in the multipliers (`Jacobian::StageDecoupled`).
+    Structured,
+}
+
+impl NewtonPath {
+    /// Every path, in table order.
+    pub const ALL: [NewtonPath; 3] = [NewtonPath::Dense, NewtonPath::DenseSimplified, NewtonPath::Structured];
+
+    /// Column and legend text.
+    pub fn label(self) -> &'static str {
+        match self {
+            NewtonPath::Dense => "dense, full Newton",
+            NewtonPath::DenseSimplified => "dense, simplified Newton",
+            NewtonPath::Structured => "structured (stage-decoupled)",
+        }
+    }
+
+    /// The Newton options that select this path.
+    pub fn options(self) -> NewtonOptions {
+        let (mode, jacobian) = match self {
+            NewtonPath::Dense => (NewtonMode::Full, Jacobian::Exact),
+            NewtonPath::DenseSimplified => (NewtonMode::Simplified, Jacobian::Exact),
+            NewtonPath::Structured => (NewtonMode::Simplified, Jacobian::StageDecoupled),
+        };
+        NewtonOptions { mode, jacobian, ..NewtonOptions::default() }
+    }
+}
+
+/// Floating-point operations of one step that makes `iterations` updates
+/// and `factorizations` factorizations on `path`, counted from the
+/// algorithm (`n`, `m`, `s`, `D = s(n+m)+n`, `V`, `J` the operations of the
+/// generated `stage_values` and `stage_jacobians`):
+///
+/// - every update evaluates the residual: `(s+1)·V` at the stage points and
+///   the end point, `2s(s+1)n` to form the stage points and `4s(s+1)n` for
+///   the force and constraint-force sums;
+/// - dense paths: a factorization evaluates `(s+1)·J`, assembles the
+///   momentum blocks by the chain rule (`2s(s+1)n²`) and factors `⅔D³`
+///   (counted dense, although the block elimination skips the structural
+///   zeros); an update solves with `2D²`;
+/// - structured path: a factorization evaluates `(s+1)·J` (an upper bound:
+///   the refresh evaluates the values and the constraint Jacobians only),
+///   forms `W⁻¹Kᵀ` with the reciprocal diagonal (`2s(s+1)nm`), the
+///   constraint blocks and the Schur complement (`2s²(s+1)nm²`) and factors
+///   it (`⅔(sm)³`); an update costs `(s+1)n` for `W⁻¹`, `4s(s+1)nm` for the
+///   two block products and `2(sm)²` for the Schur solve.
+pub fn flops_per_step(
+    path: NewtonPath,
+    (n, m, s): (usize, usize, usize),
+    (values, jacobians): (usize, usize),
+    iterations: f64,
+    factorizations: f64,
+) -> f64 {
+    let (n, m, s) = (n as f64, m as f64, s as f64);
+    let d = s * (n + m) + n;
+    let residual = (s + 1.0) * values as f64 + 6.0 * s * (s + 1.0) * n;
+    let (factor, solve) = match path {
+        NewtonPath::Dense | NewtonPath::DenseSimplified => {
+            ((s + 1.0) * jacobians as f64 + 2.0 * s * (s + 1.0) * n * n + 2.0 / 3.0 * d * d * d, 2.0 * d * d)
+        }
+        NewtonPath::Structured => {
+            let sm = s * m;
+            (
+                (s + 1.0) * jacobians as f64
+                    + 2.0 * s * (s + 1.0) * n * m
+                    + 2.0 * s * s * (s + 1.0) * n * m * m
+                    + 2.0 / 3.0 * sm * sm * sm,
+                (s + 1.0) * n + 4.0 * s * (s + 1.0) * n * m + 2.0 * sm * sm,
+            )
+        }
+    };
+    iterations * (residual + solve) + factorizations * factor
+}

@@ -1,0 +1,94 @@
+//! A step loop to profile: the paper's particle or skate, declared with
+//! `nonholonomic_system!`, stepped over `t ∈ [0, 10]` from the paper's
+//! initial values, `repeats` times, with one Newton mode, and the mean time
+//! and Newton updates per step printed. Built for `perf record` and
+//! `valgrind --tool=callgrind` (instruction counts are the machine-noise-free
+//! way to compare two builds of the step):
+//!
+//! ```sh
+//! cargo build --profile profiling -p spark-runtime --example step_profile
+//! valgrind --tool=callgrind target/profiling/examples/step_profile skate decoupled 2 200
+//! ```
+//!
+//! Arguments: `particle|skate`, `full|simplified|decoupled` (full Newton,
+//! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
+//! Gauss stages `1..=3`, repeats. With `SPARK_PRINT_END=1` it also prints
+//! the end state of the last repeat in full precision (to check that two
+//! builds step bit for bit alike).
+
+use spark_runtime::{
+    nonholonomic_system, Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau,
+    Vector,
+};
+
+nonholonomic_system! {
+    /// The skate on an inclined plane (paper §8.2).
+    pub struct Skate {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 1.0, g = 1.0, beta = pi/2 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + m*g*x*sin(beta),
+        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The nonholonomic particle (paper §8.1).
+    pub struct Particle {
+        coordinates: [x, y, z],
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2),
+        constraints: [ dot(z) - y*dot(x) ],
+    }
+}
+
+fn run<Sys: NonholonomicSystem<3, 1>, const S: usize, const D: usize>(
+    sys: Sys,
+    start: State<3>,
+    h: f64,
+    options: NewtonOptions,
+    repeats: usize,
+) -> Result<(), String> {
+    let tableau = Tableau::new(Method::Gauss).map_err(|e| e.to_string())?;
+    let mut stepper = Stepper::<Sys, 3, 1, S, D>::new(sys, tableau).with_options(options);
+    let (mut updates, mut steps, mut end) = (0usize, 0usize, start);
+    let clock = std::time::Instant::now();
+    for _ in 0..repeats {
+        let mut state = start;
+        stepper.reset_warm_start();
+        while state.t < 10.0 - 1e-9 {
+            let r = stepper.step(&state, h).map_err(|e| e.to_string())?;
+            (state, updates, steps) = (r.state, updates + r.iterations, steps + 1);
+        }
+        end = state;
+    }
+    let elapsed = clock.elapsed().as_nanos() as f64;
+    if std::env::var_os("SPARK_PRINT_END").is_some() {
+        println!("end q = {:?}, v = {:?}", end.q.as_slice(), end.v.as_slice());
+    }
+    println!("{:.1} ns/step, {:.2} Newton updates/step", elapsed / steps as f64, updates as f64 / steps as f64);
+    Ok(())
+}
+
+fn main() -> Result<(), String> {
+    let args: Vec<String> = std::env::args().collect();
+    let arg = |i: usize, default: &str| args.get(i).cloned().unwrap_or_else(|| default.to_string());
+    let (mode, jacobian) = match arg(2, "decoupled").as_str() {
+        "full" => (NewtonMode::Full, Jacobian::Exact),
+        "simplified" => (NewtonMode::Simplified, Jacobian::Exact),
+        "decoupled" => (NewtonMode::Simplified, Jacobian::StageDecoupled),
+        other => return Err(format!("unknown Newton mode {other:?}: full, simplified or decoupled")),
+    };
+    let options = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
+    let stages: usize = arg(3, "2").parse().map_err(|e| format!("stages: {e}"))?;
+    let repeats: usize = arg(4, "2000").parse().map_err(|e| format!("repeats: {e}"))?;
+    let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    match (arg(1, "skate").as_str(), stages) {
+        ("skate", 1) => run::<_, 1, 7>(Skate::default(), skate, 0.1, options, repeats),
+        ("skate", 2) => run::<_, 2, 11>(Skate::default(), skate, 0.1, options, repeats),
+        ("skate", 3) => run::<_, 3, 15>(Skate::default(), skate, 0.1, options, repeats),
+        ("particle", 1) => run::<_, 1, 7>(Particle::default(), particle, 0.2, options, repeats),
+        ("particle", 2) => run::<_, 2, 11>(Particle::default(), particle, 0.2, options, repeats),
+        ("particle", 3) => run::<_, 3, 15>(Particle::default(), particle, 0.2, options, repeats),
+        (system, s) => Err(format!("no case {system} with s = {s}: particle or skate, s = 1..=3")),
+    }
+}
