@@ -31,7 +31,8 @@ import spark.ray as sray
 def _shard(q0s, v0s, steps):
     t0, c0 = time.time(), time.process_time()
     spark.ensemble("mp7-nh", "lobatto-iiia-b", 2, 0.05, steps, q0s, v0s, every=100, newton="simplified", threads=1)
-    return os.getpid(), t0, time.time(), time.process_time() - c0, threading.active_count(), len(os.sched_getaffinity(0))
+    cores = len(os.sched_getaffinity(0))
+    return os.getpid(), t0, time.time(), time.process_time() - c0, threading.active_count(), cores
 
 
 def main() -> None:
