@@ -6,8 +6,9 @@ The sweep's shards run the native ensemble (SIMD lane groups), the CLI one
 stepper per run; a member in a lane computes bit for bit its run alone. The
 CLI's CSV and report.json carry every number with round-trip precision, and
 both statistics sum the squared energy errors member by member in member
-order and divide by J + 1 and by (h²)² as `problems::report::stats::
-ensemble_quantity` does, so the two are compared exactly."""
+order, then divide by J + 1 and by h⁴ = (h·h)·(h·h) as `problems::report::
+stats::ensemble_quantity` does (LLVM expands its `h.powi(4)` by repeated
+squaring into those two products), so the two are compared exactly."""
 
 from __future__ import annotations
 
