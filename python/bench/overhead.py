@@ -1,7 +1,7 @@
 """Overhead of calling spark from Python: a 10⁶-step run through
-`spark.integrate` against the same Rust call (`spark_python_core::integrate`,
-what a Rust program calls: checks, stepper set-up, `Stepper::integrate`,
-the columns), timed inside Rust.
+`spark.integrate` against the Rust call inside it (`problems::run::run`,
+what `spark run` and a Rust program call: checks, stepper set-up, the steps
+and the recorded columns), timed inside Rust.
 
     python python/bench/overhead.py [--steps 1000000] [--repeat 5]
 

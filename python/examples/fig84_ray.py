@@ -63,7 +63,7 @@ def main() -> None:
         w = csv.writer(f)
         w.writerow(list(columns))
         for row in zip(*columns.values()):
-            w.writerow([repr(x) for x in row])
+            w.writerow([repr(float(x)) for x in row])
     print(f"wrote {a.out}/fig84_statistic.csv and one Parquet file per method")
 
 

@@ -53,3 +53,42 @@ def test_ensemble_errors_name_the_member_and_the_shape():
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 3)), np.array([[0, 0, 1.0], [0, 1.0, 0]]))
     with pytest.raises(spark.SparkError, match="threads"):
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), threads=0)
+
+
+def test_ensemble_releases_the_gil():
+    """The main thread runs Python code while `spark.ensemble` steps in
+    another thread. The switch interval is raised far above the call's
+    length, so a thread holding the GIL is never made to give it up: had the
+    call held the GIL, the worker would read the main thread's counter
+    before and after the call with no main-thread bytecode in between, and
+    the counter would not move at all."""
+    import sys
+    import threading
+    import time
+
+    q0s, v0s = _members(4)
+    counter = [0]
+    seen: list[int] = []
+
+    def work():
+        before = counter[0]
+        e = spark.ensemble("mp7-nh", "lobatto-iiia-b", 2, 0.05, 100_000, q0s, v0s, every=100_000,
+                           newton="simplified", threads=1)
+        seen.append(counter[0] - before)
+        assert e.energy.shape == (4, 2)
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(60.0)
+    try:
+        worker = threading.Thread(target=work)
+        worker.start()
+        while worker.is_alive():
+            counter[0] += 1
+            time.sleep(1e-4)  # sleeping releases the GIL, so the worker can take it back on return
+        worker.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert len(seen) == 1, "the ensemble call failed in the worker thread"
+    # Thousands of increments during the call when the GIL is released (the
+    # main thread sleeps 0.1 ms per increment); none when it is held.
+    assert seen[0] >= 100, f"the main thread advanced {seen[0]} times during the call"
