@@ -40,7 +40,9 @@ pub enum Schedule<'a> {
         steps: usize,
     },
     /// Step from `t₀` to each of these times in turn (each step is
-    /// `t_{k+1} − t_k`; any nonzero spacing and either direction).
+    /// `t_{k+1} − t_k`; any nonzero spacing and either direction): the
+    /// samples are step ends. [`Schedule::Sampled`] keeps `h` fixed instead
+    /// and samples the times through the dense output.
     Times(&'a [f64]),
     /// Fixed steps of size `h` from `t₀` until the last of `times` is
     /// reached, with samples at `times` taken from the dense output
