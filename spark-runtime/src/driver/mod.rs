@@ -7,6 +7,9 @@
 //! - [`observer`]: what sees every accepted step ([`Observer`]);
 //! - [`failure`]: what happens when a step's Newton fails
 //!   ([`FailurePolicy`]: halving, or rejection with an adapted sub-step);
+//! - [`dense_run`]: the continuous extension of accepted steps (events, the
+//!   observer of the dense output, `Sampled` times), shared with the
+//!   tolerance-driven drivers;
 //! - [`error`]: why a run failed ([`IntegrationError`]).
 
 mod dense_run;
@@ -46,8 +49,8 @@ pub enum Schedule<'a> {
     Times(&'a [f64]),
     /// Fixed steps of size `h` from `t₀` until the last of `times` is
     /// reached, with samples at `times` taken from the dense output
-    /// ([`DenseStep`](crate::DenseStep)): the step size never changes to land on an output
-    /// time. `times` are strictly monotone in the direction of `h`, the
+    /// ([`DenseStep`](crate::DenseStep)): the step size never changes to
+    /// land on an output time. `times` are strictly monotone in the direction of `h`, the
     /// first one not before `t₀`; the samples are the initial point and
     /// these times (`record_every` does not apply). The last step may end
     /// beyond the last time.
