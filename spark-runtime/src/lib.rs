@@ -25,7 +25,8 @@
 //! - [`adaptive`]: tolerance-driven steps ([`integrate_adaptive`]: a
 //!   step-doubling error estimate for every family, PI control with
 //!   rejection) and reversible steps for the symmetric methods
-//!   ([`integrate_reversible`], Hairer–Söderlind).
+//!   ([`integrate_reversible`], Hairer–Söderlind), with dense output and
+//!   events as on fixed steps.
 //! - [`reference`](mod@crate::reference): an independent high-accuracy integrator of the
 //!   ψ-eliminated equations, for error measurements.
 //! - [`diagnostics`]: the drift of holonomic constraints and the work of
@@ -149,8 +150,8 @@ pub mod tableau;
 mod tests;
 
 pub use adaptive::{
-    integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun,
-    EstimateFailure, EstimatedStep,
+    integrate_adaptive, integrate_adaptive_with_events, integrate_reversible, integrate_reversible_with_events,
+    AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun, EstimateFailure, EstimatedStep,
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{

@@ -10,7 +10,8 @@
 //! - Several events in one step come in time order; directions filter.
 //! - A terminal event ends the run exactly at its time.
 //! - Events declared in the DSL are generated with exact derivatives and
-//!   stop `integrate` when terminal; a scene selects its events.
+//!   stop `integrate` when terminal; a scene adds the event effects it
+//!   selects to the base events, which every scene keeps.
 
 use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::reference::{integrate, integrate_at, ReferenceOptions};
@@ -469,4 +470,42 @@ fn dsl_events_have_exact_derivatives_and_stop_terminal_runs() {
     assert_eq!(late.len(), 5);
     assert_eq!(late[4].name, "late");
     assert_eq!(late[4].direction, Direction::Rising);
+}
+
+#[test]
+fn every_scene_keeps_the_base_events() {
+    // A scene is the base declaration plus its effects: the base `events:`
+    // come first in every scene, in their order and with their indices, and
+    // the scene's `event(…)` effects follow; no scene can leave one out.
+    let base: Vec<&str> = <Ball as NonholonomicSystem<2, 1>>::EVENTS.iter().map(|s| s.name).collect();
+    let plain: Vec<&str> = <Plain as NonholonomicSystem<2, 1>>::EVENTS.iter().map(|s| s.name).collect();
+    let late: Vec<&str> = <Late as NonholonomicSystem<2, 1>>::EVENTS.iter().map(|s| s.name).collect();
+    assert_eq!(plain, base);
+    assert_eq!(late[..base.len()], base[..]);
+    assert_eq!(late[base.len()..], ["late"]);
+    // So a run of either scene stops at the base declaration's terminal
+    // `ground` event, and the scene that selects none of the events still
+    // locates them all.
+    let (q0, v0) = (Vector::<2>::new(1.0, 0.0), Vector::<2>::new(2.0, 1.0));
+    let schedule = Schedule::Fixed { h: 0.05, steps: 200 };
+    let mut plain_st: spark_runtime::Stepper![Plain, 3] =
+        Stepper::new(Plain::default(), Tableau::new(Method::Gauss).unwrap());
+    let plain_run = plain_st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut NoObserver).unwrap();
+    let mut late_st: spark_runtime::Stepper![Late, 3] =
+        Stepper::new(Late::default(), Tableau::new(Method::Gauss).unwrap());
+    let late_run = late_st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut NoObserver).unwrap();
+    for (name, run) in [("Plain", &plain_run), ("Late", &late_run)] {
+        assert_eq!(run.events.last().map(|e| e.name.as_str()), Some("ground"), "{name}");
+        assert_eq!(run.report.terminal_event, Some(0), "{name}");
+        assert!(run.events.iter().any(|e| e.name == "apex"), "{name}");
+    }
+    assert!(late_run.events.iter().any(|e| e.name == "late"));
+    assert!(plain_run.events.iter().all(|e| e.name != "late"));
+    // Leaving the base events out is a run-time choice: `NoEvents` (or a
+    // `RuntimeEvents` subset) replaces them for one run.
+    let quiet = plain_st
+        .integrate_with_events(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut NoObserver, &NoEvents)
+        .unwrap();
+    assert!(quiet.events.is_empty() && quiet.report.terminal_event.is_none());
+    assert_eq!(quiet.report.steps, 200);
 }

@@ -62,21 +62,34 @@
 //! error-controlled steps of [`integrate_adaptive`] lose (their step
 //! sequence is not symmetric, so the energy error drifts).
 //!
+//! # Dense output and events
+//! Every accepted step goes through the fixed-step driver's handling of a
+//! continuous extension: a step with estimate as its two half steps (the
+//! kept state is theirs), a reversible step whole. So an observer of the
+//! dense output ([`Observer::DENSE`]) sees every accepted step, and the
+//! events (the system's, or those given to [`integrate_adaptive_with_events`]
+//! and [`integrate_reversible_with_events`]) are located and reported as by
+//! [`Stepper::integrate`]; a terminal one ends the run at its time. A run
+//! without either builds no extension.
+//!
 //! Neither driver touches the fixed-step path: a run of
 //! [`Stepper::integrate`] does exactly what it does without this module.
 
 mod reversible;
+mod run;
 #[cfg(test)]
 mod tests;
 
-pub use reversible::integrate_reversible;
+pub use reversible::{integrate_reversible, integrate_reversible_with_events};
 
-use crate::driver::{Observe, Observer, RunReport, Sample, Trajectory};
+use crate::driver::{declared_events, Observe, Observer, Trajectory};
 use crate::error::{OptionError, Sci, StepError};
-use crate::initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
-use crate::step::{State, Stepper};
+use crate::events::EventFunctions;
+use crate::initial::{consistent_acceleration, ConsistencyPolicy};
+use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
+use run::{accept, finish, start, Recorder, Taken};
 
 /// Options of a tolerance-driven run.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -248,6 +261,18 @@ where
         rtol: f64,
         atol: f64,
     ) -> Result<EstimatedStep<N>, EstimateFailure> {
+        self.estimate(state, h, rtol, atol).map(|(est, _)| est)
+    }
+
+    /// [`step_with_estimate`](Self::step_with_estimate) with the results of
+    /// the two half steps (what their continuous extensions need).
+    pub(crate) fn estimate(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        rtol: f64,
+        atol: f64,
+    ) -> Result<(EstimatedStep<N>, Halves<N, M, S>), EstimateFailure> {
         let saved = self.continuation();
         let mut iterations = 0;
         let mut solves = 0;
@@ -263,24 +288,36 @@ where
         solves += 1;
         self.restore_continuation(&saved);
         let half = 0.5 * h;
-        let mid = match self.step(state, half) {
-            Ok(r) => r.state,
+        let first = match self.step(state, half) {
+            Ok(r) => r,
             Err(e) => return Err(fail(self, solves, iterations, e)),
         };
         iterations += self.last_history().len();
         solves += 1;
-        let end = match self.step(&mid, h - half) {
-            Ok(r) => r.state,
+        let second = match self.step(&first.state, h - half) {
+            Ok(r) => r,
             Err(e) => return Err(fail(self, solves, iterations, e)),
         };
         iterations += self.last_history().len();
+        let end = second.state;
         let p = self.tableau().method.order(S) as i32;
         let denominator = 2f64.powi(p) - 1.0;
         let error_q = (whole.q - end.q) / denominator;
         let error_v = (whole.v - end.v) / denominator;
         let scaled_error = scaled_norm(&error_q, &error_v, state, &end, rtol, atol);
-        Ok(EstimatedStep { state: end, error_q, error_v, scaled_error, iterations })
+        let sizes = [half, h - half];
+        Ok((
+            EstimatedStep { state: end, error_q, error_v, scaled_error, iterations },
+            Halves { results: [first, second], sizes },
+        ))
     }
+}
+
+/// The two half steps of a step with estimate: their results (the second
+/// ends at the kept state) and their signed sizes.
+pub(crate) struct Halves<const N: usize, const M: usize, const S: usize> {
+    results: [StepResult<N, M, S>; 2],
+    sizes: [f64; 2],
 }
 
 /// Statistics of a tolerance-driven run.
@@ -306,7 +343,7 @@ pub struct AdaptiveReport {
 }
 
 /// A tolerance-driven run: the trajectory at the accepted steps (its
-/// [`RunReport`] counts accepted steps and their Newton iterations) and the
+/// [`RunReport`](crate::RunReport) counts accepted steps and their Newton iterations) and the
 /// controller's statistics.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AdaptiveRun<const N: usize, const M: usize> {
@@ -424,68 +461,6 @@ pub fn is_symmetric(method: Method) -> bool {
     matches!(method, Method::Gauss | Method::LobattoIIIAB | Method::LobattoIIIBALda)
 }
 
-/// Records samples and tracks the run's energy and constraint figures.
-struct Recorder<const N: usize, const M: usize> {
-    samples: Vec<Sample<N, M>>,
-    run: RunReport,
-    e0: Option<f64>,
-    every: usize,
-    observe: Observe,
-}
-
-impl<const N: usize, const M: usize> Recorder<N, M> {
-    fn push(&mut self, s: Sample<N, M>) {
-        if let Some(r) = s.constraint_residual {
-            self.run.max_constraint_residual = self.run.max_constraint_residual.max(r);
-        }
-        if let (Some(e), Some(e0)) = (s.energy, self.e0) {
-            self.run.max_energy_error = self.run.max_energy_error.max((e - e0).abs());
-        }
-        self.samples.push(s);
-    }
-}
-
-/// Checks options and interval, projects `v₀` and prepares the stepper.
-#[allow(clippy::type_complexity)]
-fn start<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    stepper: &mut Stepper<Sys, N, M, S, D>,
-    t0: f64,
-    q0: &Vector<N>,
-    v0: &Vector<N>,
-    t_end: f64,
-    options: &AdaptiveOptions,
-) -> Result<(State<N>, Recorder<N, M>), AdaptiveError>
-where
-    Sys: NonholonomicSystem<N, M>,
-{
-    options.validate().map_err(AdaptiveError::InvalidOption)?;
-    stepper.options().validate().map_err(AdaptiveError::InvalidOption)?;
-    if !t0.is_finite() || !t_end.is_finite() {
-        return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "times must be finite" });
-    }
-    if t0 == t_end {
-        return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "t_end must differ from t0" });
-    }
-    let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;
-    stepper.reset_run();
-    let accepted = match options.consistency {
-        ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
-    };
-    stepper.set_accepted_start_residual(accepted);
-    let state = State::new(t0, *q0, v);
-    let mut rec = Recorder {
-        samples: Vec::new(),
-        run: RunReport { projected_initial_velocity: v != *v0, ..RunReport::default() },
-        e0: None,
-        every: options.record_every,
-        observe: options.observe,
-    };
-    let first = stepper.sample(&state, &options.observe, 0);
-    rec.e0 = first.energy;
-    rec.push(first);
-    Ok((state, rec))
-}
-
 /// The first step magnitude when none is given (Hairer–Nørsett–Wanner,
 /// *Solving ODEs I*, §II.4): `0.01·‖y₀‖/‖y₀'‖` in the weighted norm, with
 /// `y₀' = (v₀, a₀)` from the consistent acceleration.
@@ -511,7 +486,11 @@ fn resolution(t: f64) -> f64 {
 /// Integrates from `(t₀, q₀, v₀)` to `t_end` (either direction) with step
 /// sizes chosen by the PI controller on the step-doubling error estimate
 /// (module docs), landing exactly on `t_end`. `observer` sees every
-/// accepted step with its Newton iterations (of the three solves).
+/// accepted step with its Newton iterations (of the three solves), and,
+/// when it asks for it ([`Observer::DENSE`]), the continuous extension of
+/// each of its two half steps. The events the system declares are located
+/// in every accepted step and reported in the trajectory, exactly as by
+/// [`Stepper::integrate`]; a terminal one ends the run at its time.
 ///
 /// Every run starts afresh (as [`Stepper::integrate`]); the options are
 /// checked first ([`AdaptiveOptions::validate`]).
@@ -528,67 +507,51 @@ where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
-    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options)?;
-    let result = adaptive_loop(stepper, state, t_end, options, &mut rec, observer);
-    stepper.set_accepted_start_residual(0.0);
-    let report = result?;
-    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
+    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, declared_events::<Sys, N, M>())
 }
 
-fn finish<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    stepper: &Stepper<Sys, N, M, S, D>,
-    mut rec: Recorder<N, M>,
-    report: AdaptiveReport,
-) -> AdaptiveRun<N, M>
+/// [`integrate_adaptive`] locating the events of `events` instead of the
+/// system's own (e.g. [`RuntimeEvents`](crate::RuntimeEvents), or
+/// [`NoEvents`](crate::NoEvents) to ignore the declared ones).
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_adaptive_with_events<Sys, O, E, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    options: &AdaptiveOptions,
+    observer: &mut O,
+    events: &E,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
 where
     Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+    E: EventFunctions<Sys, N>,
 {
-    rec.run.steps = report.accepted;
-    if rec.run.steps > 0 {
-        rec.run.newton_iterations_mean = rec.run.newton_iterations_total as f64 / rec.run.steps as f64;
-    }
-    // Adaptive runs do not locate events (use `integrate_with_events` on
-    // fixed steps for that).
-    let method = stepper.tableau().method;
-    AdaptiveRun { trajectory: Trajectory::of::<Sys>(method, S, rec.samples, rec.run, Vec::new()), report }
+    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, events)
 }
 
-/// Accepts a step of magnitude `this` that ended at `end` (the last step
-/// lands exactly on `t_end`): counts it in `report`, records and observes
-/// it, and returns the state the next step starts from.
 #[allow(clippy::too_many_arguments)]
-fn accept<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
+fn adaptive_run<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
-    rec: &mut Recorder<N, M>,
-    observer: &mut O,
-    report: &mut AdaptiveReport,
-    end: State<N>,
-    this: f64,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
     t_end: f64,
-    iterations: usize,
-    last: bool,
-) -> State<N>
+    options: &AdaptiveOptions,
+    observer: &mut O,
+    events: &dyn EventFunctions<Sys, N>,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
 where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
-    let mut state = end;
-    if last {
-        state.t = t_end;
-        stepper.retarget_warm_start(&state);
-    }
-    report.accepted += 1;
-    report.smallest_step = report.smallest_step.min(this);
-    report.largest_step = report.largest_step.max(this);
-    let index = report.accepted;
-    rec.run.newton_iterations_total += iterations;
-    rec.run.newton_iterations_max = rec.run.newton_iterations_max.max(iterations);
-    observer.observe(stepper.system(), &state, iterations);
-    if last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
-        let s = stepper.sample(&state, &rec.observe, iterations);
-        rec.push(s);
-    }
-    state
+    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, O::DENSE, events)?;
+    let result = adaptive_loop(stepper, state, t_end, options, &mut rec, observer);
+    stepper.set_accepted_start_residual(0.0);
+    let report = result?;
+    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
 }
 
 fn adaptive_loop<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
@@ -596,7 +559,7 @@ fn adaptive_loop<Sys, O, const N: usize, const M: usize, const S: usize, const D
     mut state: State<N>,
     t_end: f64,
     options: &AdaptiveOptions,
-    rec: &mut Recorder<N, M>,
+    rec: &mut Recorder<'_, Sys, N, M, S>,
     observer: &mut O,
 ) -> Result<AdaptiveReport, AdaptiveError>
 where
@@ -630,15 +593,19 @@ where
         // discarded end: the retry from `state` keeps its warm start and the
         // round-off compensation of `state`.
         let saved = stepper.continuation();
-        let step = stepper.step_with_estimate(&state, dir * this, options.rtol, options.atol);
+        let step = stepper.estimate(&state, dir * this, options.rtol, options.atol);
         match step {
-            Ok(est) => {
+            Ok((est, halves)) => {
                 report.solves += 3;
                 report.newton_iterations += est.iterations;
                 let err = est.scaled_error;
                 if err <= 1.0 {
-                    state = accept(stepper, rec, observer, &mut report, est.state, this, t_end, est.iterations, last);
-                    if last {
+                    let [first, second] = &halves.results;
+                    let pieces = [(halves.sizes[0], first), (halves.sizes[1], second)];
+                    let taken = Taken { start: state, pieces: &pieces, this, iterations: est.iterations, last };
+                    let done;
+                    (state, done) = accept(stepper, rec, observer, &mut report, taken, t_end);
+                    if done {
                         return Ok(report);
                     }
                     let mut factor = if err == 0.0 {

@@ -4,9 +4,10 @@
 
 use super::{
     accept, finish, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
-    AdaptiveRun, Recorder,
+    AdaptiveRun, Recorder, Taken,
 };
-use crate::driver::Observer;
+use crate::driver::{declared_events, Observer};
+use crate::events::EventFunctions;
 use crate::initial::consistent_acceleration;
 use crate::step::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
@@ -21,6 +22,11 @@ use crate::system::{NonholonomicSystem, Vector};
 /// methods are accepted ([`is_symmetric`]). `options.max_step`, when set,
 /// bounds every step (it bounds the density from below, which keeps the
 /// rule reversible).
+///
+/// The events the system declares are located in every step and the
+/// observer of the dense output ([`Observer::DENSE`]) sees each step's
+/// continuous extension, exactly as in [`Stepper::integrate`]; a terminal
+/// event ends the run at its time.
 #[allow(clippy::too_many_arguments)]
 pub fn integrate_reversible<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
@@ -37,12 +43,57 @@ where
     O: Observer<N, M>,
     F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
 {
+    let events = declared_events::<Sys, N, M>();
+    reversible_run(stepper, t0, q0, v0, t_end, &density, options, observer, events)
+}
+
+/// [`integrate_reversible`] locating the events of `events` instead of the
+/// system's own (e.g. [`RuntimeEvents`](crate::RuntimeEvents), or
+/// [`NoEvents`](crate::NoEvents) to ignore the declared ones).
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_reversible_with_events<Sys, O, F, E, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    density: F,
+    options: &AdaptiveOptions,
+    observer: &mut O,
+    events: &E,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
+    E: EventFunctions<Sys, N>,
+{
+    reversible_run(stepper, t0, q0, v0, t_end, &density, options, observer, events)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn reversible_run<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    density: &F,
+    options: &AdaptiveOptions,
+    observer: &mut O,
+    events: &dyn EventFunctions<Sys, N>,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+    F: Fn(f64, &Vector<N>, &Vector<N>) -> f64,
+{
     let method = stepper.tableau().method;
     if !is_symmetric(method) {
         return Err(AdaptiveError::NotSymmetric { method });
     }
-    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options)?;
-    let result = reversible_loop(stepper, state, t_end, &density, options, &mut rec, observer);
+    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, O::DENSE, events)?;
+    let result = reversible_loop(stepper, state, t_end, density, options, &mut rec, observer);
     stepper.set_accepted_start_residual(0.0);
     let report = result?;
     Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
@@ -131,7 +182,7 @@ fn reversible_loop<Sys, O, F, const N: usize, const M: usize, const S: usize, co
     t_end: f64,
     density: &F,
     options: &AdaptiveOptions,
-    rec: &mut Recorder<N, M>,
+    rec: &mut Recorder<'_, Sys, N, M, S>,
     observer: &mut O,
 ) -> Result<AdaptiveReport, AdaptiveError>
 where
@@ -171,8 +222,11 @@ where
             AdaptiveError::Step { t: state.t, source, partial }
         })?;
         report.newton_iterations += r.iterations;
-        state = accept(stepper, rec, observer, &mut report, r.state, this, t_end, r.iterations, last);
-        if last {
+        let pieces = [(dir * this, &r)];
+        let taken = Taken { start: state, pieces: &pieces, this, iterations: r.iterations, last };
+        let done;
+        (state, done) = accept(stepper, rec, observer, &mut report, taken, t_end);
+        if done {
             return Ok(report);
         }
         // The reversed run walks t backwards, so G changes sign with dir.

@@ -7,8 +7,12 @@
 //! - [`observer`]: what sees every accepted step ([`Observer`]);
 //! - [`failure`]: what happens when a step's Newton fails
 //!   ([`FailurePolicy`]: halving, or rejection with an adapted sub-step);
+//! - [`dense_run`]: the continuous extension of accepted steps (events, the
+//!   observer of the dense output, `Sampled` times), shared with the
+//!   tolerance-driven drivers;
 //! - [`error`]: why a run failed ([`IntegrationError`]).
 
+mod dense_run;
 mod error;
 mod failure;
 mod observer;
@@ -16,17 +20,17 @@ mod trajectory;
 
 pub use error::{IntegrationError, RejectionFloor};
 use failure::StepCounts;
-use observer::StepObserver;
+pub(crate) use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
-pub(crate) use trajectory::{sample_of, sample_storage};
+pub(crate) use trajectory::sample_storage;
 pub use trajectory::{RunReport, Sample, Trajectory};
 
-use crate::dense::{DenseBasis, DenseStep};
-use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
+use crate::events::EventFunctions;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
 use crate::rejection::RejectionPolicy;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
+pub(crate) use dense_run::{declared_events, Accepted, DenseRun};
 
 /// Where to produce output.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,12 +43,14 @@ pub enum Schedule<'a> {
         steps: usize,
     },
     /// Step from `t₀` to each of these times in turn (each step is
-    /// `t_{k+1} − t_k`; any nonzero spacing and either direction).
+    /// `t_{k+1} − t_k`; any nonzero spacing and either direction): the
+    /// samples are step ends. [`Schedule::Sampled`] keeps `h` fixed instead
+    /// and samples the times through the dense output.
     Times(&'a [f64]),
     /// Fixed steps of size `h` from `t₀` until the last of `times` is
     /// reached, with samples at `times` taken from the dense output
-    /// ([`DenseStep`]): the step size never changes to land on an output
-    /// time. `times` are strictly monotone in the direction of `h`, the
+    /// ([`DenseStep`](crate::DenseStep)): the step size never changes to
+    /// land on an output time. `times` are strictly monotone in the direction of `h`, the
     /// first one not before `t₀`; the samples are the initial point and
     /// these times (`record_every` does not apply). The last step may end
     /// beyond the last time.
@@ -273,13 +279,12 @@ where
         options: &RunOptions,
         observer: &mut O,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
-        let events: &dyn EventFunctions<Sys, N> = if Sys::HAS_EVENTS { &SystemEvents::<M> } else { &NoEvents };
-        self.run(t0, q0, v0, schedule, options, observer, events)
+        self.run(t0, q0, v0, schedule, options, observer, declared_events::<Sys, N, M>())
     }
 
     /// [`integrate`](Self::integrate) locating the events of `events`
     /// instead of the system's own (e.g. [`RuntimeEvents`](crate::RuntimeEvents)
-    /// given at run time, or [`NoEvents`] to ignore the declared ones).
+    /// given at run time, or [`NoEvents`](crate::NoEvents) to ignore the declared ones).
     #[allow(clippy::too_many_arguments)]
     pub fn integrate_with_events<O: Observer<N, M>, E: EventFunctions<Sys, N>>(
         &mut self,
@@ -365,26 +370,17 @@ where
         // nothing of this runs but one test per accepted sub-step of a flag
         // set here, once per run; no continuous extension is built and no
         // event function is evaluated.
-        let specs = events.specs();
-        let wants_dense = observer.wants_dense();
-        let dense = wants_dense || !specs.is_empty() || sampled.is_some();
-        let mut dense_run = DenseRun {
-            basis: DenseBasis::new(self.tableau()),
+        let mut dense_run = DenseRun::new(
+            self.system(),
+            self.tableau(),
             events,
-            previous: specs
-                .iter()
-                .enumerate()
-                .map(|(i, _)| events.value(self.system(), i, state.t, &state.q, &state.v))
-                .collect(),
-            crossings: Vec::with_capacity(specs.len()),
-            located: Vec::new(),
-            wants_dense,
+            observer.wants_dense(),
             sampled,
-            next_time: 0,
-            observe: options.observe,
+            options.observe,
             e0,
-            terminal: None,
-        };
+            &state,
+        );
+        let dense = dense_run.is_needed();
         for k in 0..steps {
             let (h, t_target) = schedule.step(k, steps, t0, state.t);
             let warm_before = self.is_warm_for(&state);
@@ -416,7 +412,7 @@ where
             report.count(&counts, warm_before);
             if let Some(at) = dense_run.terminal {
                 observer.accepted(self.system(), &at, iters);
-                report.terminal_event = dense_run.located.last().map(|e| e.index);
+                report.terminal_event = dense_run.terminal_event();
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
                     track(&s, &mut report);
@@ -448,155 +444,4 @@ where
         }
         Ok(Trajectory::of::<Sys>(self.tableau().method, S, samples, report, dense_run.located))
     }
-}
-
-/// One accepted sub-step of scheduled step `k`, as the failure policies
-/// report it: from `start` to `end` (its time pinned when it ends the
-/// step) with size `sub`; `iterations` counts the Newton iterations of the
-/// scheduled step so far.
-struct Accepted<'a, const N: usize, const M: usize, const S: usize> {
-    k: usize,
-    iterations: usize,
-    start: &'a State<N>,
-    end: &'a State<N>,
-    sub: f64,
-    result: &'a StepResult<N, M, S>,
-}
-
-/// What a run keeps from step to step for the continuous extension of its
-/// accepted sub-steps: the events it locates, the observer of the dense
-/// output and the `Sampled` output times.
-struct DenseRun<'a, Sys, const N: usize, const S: usize> {
-    basis: DenseBasis<S>,
-    events: &'a dyn EventFunctions<Sys, N>,
-    /// Each event function's value at the end of the last accepted sub-step.
-    previous: Vec<f64>,
-    crossings: Vec<Crossing>,
-    located: Vec<EventRecord<N>>,
-    wants_dense: bool,
-    sampled: Option<&'a [f64]>,
-    /// The next of the `Sampled` times to record.
-    next_time: usize,
-    observe: Observe,
-    /// The energy at the start, for the report's extremes.
-    e0: Option<f64>,
-    /// The state at the terminal event that ends the run, once located.
-    terminal: Option<State<N>>,
-}
-
-impl<Sys, const N: usize, const S: usize> DenseRun<'_, Sys, N, S> {
-    /// Builds the continuous extension of sub-step `at`, locates the events
-    /// in it, hands it to the observer of the dense output and records the
-    /// `Sampled` times it covers. Returns `true` when a terminal event ends
-    /// the run in it (the event's state is then [`Self::terminal`]). Out of
-    /// line: a run that needs none of this never calls it.
-    #[inline(never)]
-    fn accepted<const M: usize>(
-        &mut self,
-        sys: &Sys,
-        at: Accepted<'_, N, M, S>,
-        observer: &mut dyn StepObserver<Sys, N, M, S>,
-        samples: &mut Vec<Sample<N, M>>,
-        report: &mut RunReport,
-    ) -> bool
-    where
-        Sys: NonholonomicSystem<N, M>,
-    {
-        let events = self.events;
-        let specs = events.specs();
-        let piece = DenseStep::new(&self.basis, at.start, at.end, at.sub, at.result);
-        let mut stop_at = None;
-        if !specs.is_empty() {
-            self.crossings.clear();
-            find_crossings(events, sys, &piece, &mut self.previous, &mut self.crossings);
-            for c in self.crossings.iter() {
-                let state = piece.state_at(c.t);
-                let spec = &specs[c.index];
-                self.located.push(EventRecord {
-                    index: c.index,
-                    name: spec.name.to_string(),
-                    rising: c.rising,
-                    t: c.t,
-                    q: state.q,
-                    v: state.v,
-                    residual: events.value(sys, c.index, state.t, &state.q, &state.v),
-                    step: at.k,
-                });
-                if spec.terminal {
-                    stop_at = Some(state);
-                    break;
-                }
-            }
-        }
-        if self.wants_dense {
-            // A terminal event ends the run inside this step: the
-            // observer sees the extension up to the event only.
-            match stop_at {
-                Some(stop) => observer.dense_step(&piece.until(stop.t)),
-                None => observer.dense_step(&piece),
-            }
-        }
-        if let Some(times) = self.sampled {
-            let forward = at.sub > 0.0;
-            let limit = stop_at.map_or(at.end.t, |s| s.t);
-            while let Some(&t) = times.get(self.next_time) {
-                if (forward && t > limit) || (!forward && t < limit) {
-                    break;
-                }
-                let s = sample_of(sys, &piece.state_at(t), &self.observe, at.iterations);
-                report.track(&s, self.e0);
-                samples.push(s);
-                self.next_time += 1;
-            }
-        }
-        if stop_at.is_some() {
-            self.terminal = stop_at;
-            return true;
-        }
-        false
-    }
-}
-
-/// Appends the crossings of `piece` (each located, in time order) to
-/// `crossings`, updating each event's last value in `previous`.
-fn find_crossings<Sys, E, const N: usize, const S: usize>(
-    events: &E,
-    sys: &Sys,
-    piece: &DenseStep<'_, N, S>,
-    previous: &mut [f64],
-    crossings: &mut Vec<Crossing>,
-) where
-    E: EventFunctions<Sys, N> + ?Sized,
-{
-    let specs = events.specs();
-    let (ta, tb) = (piece.start.t, piece.end.t);
-    for (index, spec) in specs.iter().enumerate() {
-        let mut a = (ta, previous[index]);
-        for k in 1..=EVENT_SUBINTERVALS {
-            let (t, at) = if k == EVENT_SUBINTERVALS {
-                (tb, piece.end)
-            } else {
-                let t = ta + (tb - ta) * (k as f64 / EVENT_SUBINTERVALS as f64);
-                (t, piece.state_at(t))
-            };
-            let b = (t, events.value(sys, index, t, &at.q, &at.v));
-            let crossed = a.1 != 0.0 && (b.1 == 0.0 || (a.1 < 0.0) != (b.1 < 0.0)) && !b.1.is_nan();
-            let rising = a.1 < 0.0;
-            if crossed && spec.direction.accepts(rising) {
-                let t = locate(events, sys, index, piece, a, b);
-                crossings.push(Crossing { index, rising, t });
-            }
-            a = b;
-        }
-        previous[index] = a.1;
-    }
-    let forward = tb > ta;
-    crossings.sort_by(|x, y| {
-        let order = x.t.total_cmp(&y.t);
-        if forward {
-            order
-        } else {
-            order.reverse()
-        }
-    });
 }

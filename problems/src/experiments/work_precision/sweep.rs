@@ -10,9 +10,9 @@ use crate::peers::finite_difference::FiniteDifference;
 use crate::peers::ode;
 use crate::report::clock::median_time;
 use spark_runtime::{
-    adaptive::is_symmetric, integrate_adaptive, integrate_reversible, AdaptiveError, AdaptiveOptions, AdaptiveRun,
-    Method, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau,
-    Vector,
+    adaptive::is_symmetric, integrate_adaptive_with_events, integrate_reversible_with_events, AdaptiveError,
+    AdaptiveOptions, AdaptiveRun, Method, NewtonOptions, NoEvents, NoObserver, NonholonomicSystem, Observe, RunOptions,
+    Schedule, State, Stepper, Tableau, Vector,
 };
 use std::marker::PhantomData;
 
@@ -179,7 +179,9 @@ pub(super) fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize
     let t1 = ctx.cfg.final_time;
     let (q0, v0) = (ctx.q0, ctx.v0);
     sweep_tolerances(ctx, stepper, probe, label, SPARK_ADAPTIVE, points, |stepper, options, mut observer| {
-        integrate_adaptive(stepper, 0.0, &q0, &v0, t1, options, &mut observer)
+        // Like the fixed-step sweeps: no events (a declared section event
+        // would add its location to the timed work).
+        integrate_adaptive_with_events(stepper, 0.0, &q0, &v0, t1, options, &mut observer, &NoEvents)
     });
 }
 
@@ -204,7 +206,7 @@ pub(super) fn sweep_reversible<Sys, const N: usize, const M: usize, const S: usi
     let max_step = t1 / ctx.cfg.min_steps.max(1) as f64;
     sweep_tolerances(ctx, stepper, probe, label, SPARK_REVERSIBLE, points, |stepper, options, mut observer| {
         let options = AdaptiveOptions { max_step: Some(max_step), ..*options };
-        integrate_reversible(stepper, 0.0, &q0, &v0, t1, sigma, &options, &mut observer)
+        integrate_reversible_with_events(stepper, 0.0, &q0, &v0, t1, sigma, &options, &mut observer, &NoEvents)
     });
 }
 
