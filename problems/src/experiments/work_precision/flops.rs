@@ -4,7 +4,7 @@
 //! measured time per step can be read as a rate against the core's
 //! arithmetic limit.
 
-use spark_runtime::{Jacobian, NewtonMode, NewtonOptions};
+use spark_runtime::{Jacobian, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepError, Stepper};
 
 /// The three ways a step can solve its Newton equations, as the scaling
 /// study compares them.
@@ -90,4 +90,26 @@ pub fn flops_per_step(
         }
     };
     iterations * (residual + solve) + factorizations * factor
+}
+
+/// The Newton work of `steps` steps of size `h` from `start`, taken one by
+/// one with `stepper` (the driver's report does not keep factorizations):
+/// mean updates and mean factorizations per step.
+pub fn newton_work<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    start: State<N>,
+    h: f64,
+    steps: usize,
+) -> Result<(f64, f64), StepError>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let mut state = start;
+    let (mut iterations, mut factorizations) = (0usize, 0usize);
+    for _ in 0..steps {
+        let r = stepper.step(&state, h)?;
+        (state, iterations, factorizations) = (r.state, iterations + r.iterations, factorizations + r.factorizations);
+    }
+    let per_step = |x: usize| x as f64 / steps.max(1) as f64;
+    Ok((per_step(iterations), per_step(factorizations)))
 }

@@ -19,7 +19,7 @@
 //! so this is round-off accumulated over the run).
 
 use super::external::{self, MethodInput, PeerStepRun};
-use super::flops::{flops_per_step, NewtonPath};
+use super::flops::{flops_per_step, newton_work, NewtonPath};
 use super::{Problem, WorkPrecisionConfig};
 use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::median_time;
@@ -141,25 +141,14 @@ where
     // The same steps once more, one by one, to count the factorizations the
     // driver's report does not keep.
     let mut counting = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
-    let mut state = State::new(0.0, q0, v0);
-    let (mut iterations, mut factorizations) = (0usize, 0usize);
-    for _ in 0..steps {
-        let r = counting.step(&state, h).map_err(|e| format!("{} {label}: {e}", entry.name))?;
-        (state, iterations, factorizations) = (r.state, iterations + r.iterations, factorizations + r.factorizations);
-    }
-    let per_step = |x: usize| x as f64 / steps as f64;
+    let (iterations, factorizations) = newton_work(&mut counting, State::new(0.0, q0, v0), h, steps)
+        .map_err(|e| format!("{} {label}: {e}", entry.name))?;
     let ops = Sys::OPERATIONS;
-    let flops = flops_per_step(
-        path,
-        (N, M, S),
-        (ops.stage_values, ops.stage_jacobians),
-        per_step(iterations),
-        per_step(factorizations),
-    );
+    let flops = flops_per_step(path, (N, M, S), (ops.stage_values, ops.stage_jacobians), iterations, factorizations);
     Ok(SparkRun {
         time_per_step: cpu / steps as f64,
         iterations: traj.report.newton_iterations_mean,
-        factorizations: per_step(factorizations),
+        factorizations,
         flops_per_step: flops,
         repeats,
         q: end.q.iter().copied().collect(),

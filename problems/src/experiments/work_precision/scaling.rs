@@ -16,7 +16,7 @@
 //! ([`WORKER_STACK`]), which the old stack-allocated matrices overflowed from
 //! `D ≈ 250` on and the by-value stage Jacobians from `n ≈ 90`.
 
-use super::flops::{flops_per_step, NewtonPath};
+use super::flops::{flops_per_step, newton_work, NewtonPath};
 use super::sweep::unobserved;
 use super::WorkPrecisionError;
 use crate::report::clock::thread_cpu_seconds;
@@ -81,23 +81,14 @@ fn start<const N: usize>() -> (Vector<N>, Vector<N>) {
 /// Step size and steps of every run.
 const STEP: (f64, usize) = (0.01, 200);
 
-/// Mean updates and factorizations per step of one run on `path`, counted
-/// step by step (`None` if a step fails).
-fn counts<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(path: NewtonPath) -> Option<(f64, f64)>
+/// A Gauss stepper of `Sys` on `path`.
+fn stepper<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    path: NewtonPath,
+) -> Option<Stepper<Sys, N, M, S, D>>
 where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let mut stepper =
-        Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(Method::Gauss).ok()?).with_options(path.options());
-    let (q0, v0) = start::<N>();
-    let (h, steps) = STEP;
-    let mut state = State::new(0.0, q0, v0);
-    let (mut iterations, mut factorizations) = (0usize, 0usize);
-    for _ in 0..steps {
-        let r = stepper.step(&state, h).ok()?;
-        (state, iterations, factorizations) = (r.state, iterations + r.iterations, factorizations + r.factorizations);
-    }
-    Some((iterations as f64 / steps as f64, factorizations as f64 / steps as f64))
+    Some(Stepper::new(Sys::default(), Tableau::new(Method::Gauss).ok()?).with_options(path.options()))
 }
 
 /// Median thread-CPU time per step of the run on `path` through the driver.
@@ -108,8 +99,7 @@ fn timed<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
 where
     Sys: NonholonomicSystem<N, M> + Default,
 {
-    let mut stepper =
-        Stepper::<Sys, N, M, S, D>::new(Sys::default(), Tableau::new(Method::Gauss).ok()?).with_options(path.options());
+    let mut stepper = stepper::<Sys, N, M, S, D>(path)?;
     let (q0, v0) = start::<N>();
     let (h, steps) = STEP;
     let quiet = unobserved();
@@ -138,7 +128,10 @@ where
     let ops = Sys::OPERATIONS;
     let mut paths = Vec::with_capacity(NewtonPath::ALL.len());
     for path in NewtonPath::ALL {
-        let (iterations, factorizations) = counts::<Sys, N, M, S, D>(path)?;
+        let (q0, v0) = start::<N>();
+        let (h, steps) = STEP;
+        let (iterations, factorizations) =
+            newton_work(&mut stepper::<Sys, N, M, S, D>(path)?, State::new(0.0, q0, v0), h, steps).ok()?;
         let time_per_step = timed::<Sys, N, M, S, D>(path, repeats)?;
         let flops =
             flops_per_step(path, (N, M, S), (ops.stage_values, ops.stage_jacobians), iterations, factorizations);
