@@ -9,30 +9,14 @@
 //!   with steps bounded so that the dense output is that accurate);
 //! - a terminal event stops the run exactly at its time.
 
+use super::affine::Affine;
 use spark_runtime::fixtures::paper::{Particle, Skate};
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{
     integrate_adaptive, integrate_adaptive_with_events, integrate_reversible, integrate_reversible_with_events,
-    nonholonomic_system, AdaptiveOptions, DenseStep, Direction, EventGradient, EventRecord, EventSpec, Method,
-    NoObserver, NonholonomicSystem, Observer, RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
+    nonholonomic_system, AdaptiveOptions, DenseStep, Direction, EventRecord, EventSpec, Method, NoObserver,
+    NonholonomicSystem, Observer, RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
 };
-
-/// `g(t, q, v) = w·q + u·v + a·t + b`.
-#[derive(Clone, Copy)]
-struct Affine<const N: usize> {
-    w: [f64; N],
-    u: [f64; N],
-    a: f64,
-    b: f64,
-}
-
-impl<const N: usize> Affine<N> {
-    fn gradient(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N> {
-        let w = Vector::<N>::from_row_slice(&self.w);
-        let u = Vector::<N>::from_row_slice(&self.u);
-        EventGradient { value: w.dot(q) + u.dot(v) + self.a * t + self.b, t: self.a, q: w, v: u }
-    }
-}
 
 fn specs(n: usize, terminal: Option<usize>) -> Vec<EventSpec> {
     (0..n)
@@ -132,16 +116,16 @@ fn compare<const N: usize>(name: &str, runs: &[(Vec<EventRecord<N>>, State<N>); 
 fn events_on_adaptive_runs_agree_with_the_fixed_step_locations() {
     let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
     let gs = [
-        Affine { w: [1.0, 0.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.3 },
-        Affine { w: [0.0; 3], u: [0.0, 1.0, 0.0], a: 0.0, b: 0.0 },
-        Affine { w: [0.0, 1.0, 0.0], u: [0.0; 3], a: -0.1, b: 0.0 },
+        Affine { w: [1.0, 0.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.3, kappa: 0.0 },
+        Affine { w: [0.0; 3], u: [0.0, 1.0, 0.0], a: 0.0, b: 0.0, kappa: 0.0 },
+        Affine { w: [0.0, 1.0, 0.0], u: [0.0; 3], a: -0.1, b: 0.0, kappa: 0.0 },
     ];
     let runs = three_runs::<_, 3, 1, { 4 * 4 + 3 }>(Particle, &particle, &gs, None, 4.0);
     let worst_particle = compare("particle", &runs);
     let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
     let gs = [
-        Affine { w: [0.0, 0.0, 1.0], u: [0.0; 3], a: 0.0, b: -2.0 },
-        Affine { w: [0.0; 3], u: [1.0, 0.0, 0.0], a: 0.0, b: -0.2 },
+        Affine { w: [0.0, 0.0, 1.0], u: [0.0; 3], a: 0.0, b: -2.0, kappa: 0.0 },
+        Affine { w: [0.0; 3], u: [1.0, 0.0, 0.0], a: 0.0, b: -0.2, kappa: 0.0 },
     ];
     let runs = three_runs::<_, 3, 1, { 4 * 4 + 3 }>(Skate::default(), &skate, &gs, None, 4.0);
     let worst_skate = compare("skate", &runs);
@@ -153,8 +137,8 @@ fn a_terminal_event_stops_an_adaptive_run_exactly() {
     let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
     // A counting event at x = 0.3, and y = 0.5 (terminal).
     let gs = [
-        Affine { w: [1.0, 0.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.3 },
-        Affine { w: [0.0, 1.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.5 },
+        Affine { w: [1.0, 0.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.3, kappa: 0.0 },
+        Affine { w: [0.0, 1.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.5, kappa: 0.0 },
     ];
     let runs = three_runs::<_, 3, 1, { 4 * 4 + 3 }>(Particle, &particle, &gs, Some(1), 4.0);
     compare("particle, terminal", &runs);

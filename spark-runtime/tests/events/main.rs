@@ -12,34 +12,19 @@
 //! - Events declared in the DSL are generated with exact derivatives and
 //!   stop `integrate` when terminal; a scene adds the event effects it
 //!   selects to the base events, which every scene keeps.
+//! - Tolerance-driven and reversible runs locate events and feed dense
+//!   observers as fixed-step runs do (`adaptive`).
 
+mod adaptive;
+mod affine;
+
+use affine::Affine;
 use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::reference::{integrate, integrate_at, ReferenceOptions};
 use spark_runtime::{
     nonholonomic_system, Direction, EventGradient, EventSpec, Method, NoEvents, NoObserver, NonholonomicSystem,
     RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
 };
-
-/// `g(t,q,v) = w·q + u·v + a·t + b + κ q₀²`, with its gradient.
-#[derive(Clone, Copy)]
-struct Affine<const N: usize> {
-    w: [f64; N],
-    u: [f64; N],
-    a: f64,
-    b: f64,
-    kappa: f64,
-}
-
-impl<const N: usize> Affine<N> {
-    fn gradient(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> EventGradient<N> {
-        let w = Vector::<N>::from_row_slice(&self.w);
-        let u = Vector::<N>::from_row_slice(&self.u);
-        let value = w.dot(q) + u.dot(v) + self.a * t + self.b + self.kappa * q[0] * q[0];
-        let mut gq = w;
-        gq[0] += 2.0 * self.kappa * q[0];
-        EventGradient { value, t: self.a, q: gq, v: u }
-    }
-}
 
 /// The first zero of `g` after `t0` along the reference solution, by a scan
 /// every `scan` and bisection to the resolution of `t`.
