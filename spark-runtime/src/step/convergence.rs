@@ -81,6 +81,17 @@ impl Contraction {
         let theta = self.earned();
         update <= tolerance || (theta < 1.0 && update * theta / (1.0 - theta) <= tolerance)
     }
+
+    /// The stopping rule of the solve's mode: [`Self::converged`] for
+    /// simplified Newton, [`full_newton_converged`] on the latest ratio
+    /// `rate` for full Newton.
+    pub(crate) fn converged_in(&self, simplified: bool, update: f64, rate: f64, tolerance: f64) -> bool {
+        if simplified {
+            self.converged(update, tolerance)
+        } else {
+            full_newton_converged(update, rate, tolerance)
+        }
+    }
 }
 
 /// Full Newton's stopping rule: the update itself, or the error left after

@@ -3,7 +3,7 @@
 //! simplified Newton matrix and its fall-back from the stage-decoupled to
 //! the exact matrix, and the typed errors it ends with.
 
-use super::convergence::{full_newton_accepts_residual, full_newton_converged, Contraction};
+use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
@@ -346,13 +346,7 @@ where
                 if rate.is_finite() {
                     max_rate = max_rate.max(rate);
                 }
-                // Factors from an earlier iterate exist only in simplified
-                // Newton, whose test this is there too.
-                let converged = if simplified {
-                    monitor.converged(update, opts.tolerance)
-                } else {
-                    full_newton_converged(update, rate, opts.tolerance)
-                };
+                let converged = monitor.converged_in(simplified, update, rate, opts.tolerance);
                 if let Some(z_before) = z_before {
                     // Factors from an earlier iterate that grow or contract too
                     // slowly (see `too_slow`): a fresh Jacobian at the last good
