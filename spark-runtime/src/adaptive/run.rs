@@ -28,12 +28,7 @@ pub(super) struct Recorder<'a, Sys, const N: usize, const M: usize, const S: usi
 
 impl<Sys, const N: usize, const M: usize, const S: usize> Recorder<'_, Sys, N, M, S> {
     fn push(&mut self, s: Sample<N, M>) {
-        if let Some(r) = s.constraint_residual {
-            self.run.max_constraint_residual = self.run.max_constraint_residual.max(r);
-        }
-        if let (Some(e), Some(e0)) = (s.energy, self.e0) {
-            self.run.max_energy_error = self.run.max_energy_error.max((e - e0).abs());
-        }
+        self.run.track(&s, self.e0);
         self.samples.push(s);
     }
 }

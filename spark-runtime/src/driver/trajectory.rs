@@ -173,7 +173,7 @@ impl<const N: usize, const M: usize> Trajectory<N, M> {
 impl RunReport {
     /// Takes sample `s` into the run's extremes of the constraint residual
     /// and of the energy error against `e0`.
-    pub(super) fn track<const N: usize, const M: usize>(&mut self, s: &Sample<N, M>, e0: Option<f64>) {
+    pub(crate) fn track<const N: usize, const M: usize>(&mut self, s: &Sample<N, M>, e0: Option<f64>) {
         if let Some(r) = s.constraint_residual {
             self.max_constraint_residual = self.max_constraint_residual.max(r);
         }
