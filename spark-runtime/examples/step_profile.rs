@@ -16,6 +16,8 @@
 //! the end state of the last repeat in full precision (to check that two
 //! builds step bit for bit alike).
 
+use std::io::Write;
+
 use spark_runtime::{
     nonholonomic_system, Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau,
     Vector,
@@ -61,11 +63,14 @@ fn run<Sys: NonholonomicSystem<3, 1>, const S: usize, const D: usize>(
         end = state;
     }
     let elapsed = clock.elapsed().as_nanos() as f64;
+    // Written, not printed: a closed pipe (`| head -1`) is an error to
+    // report, not a panic.
+    let mut out = std::io::stdout().lock();
     if std::env::var_os("SPARK_PRINT_END").is_some() {
-        println!("end q = {:?}, v = {:?}", end.q.as_slice(), end.v.as_slice());
+        writeln!(out, "end q = {:?}, v = {:?}", end.q.as_slice(), end.v.as_slice()).map_err(|e| e.to_string())?;
     }
-    println!("{:.1} ns/step, {:.2} Newton updates/step", elapsed / steps as f64, updates as f64 / steps as f64);
-    Ok(())
+    let per_step = (elapsed / steps as f64, updates as f64 / steps as f64);
+    writeln!(out, "{:.1} ns/step, {:.2} Newton updates/step", per_step.0, per_step.1).map_err(|e| e.to_string())
 }
 
 fn main() -> Result<(), String> {
