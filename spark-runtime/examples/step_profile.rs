@@ -12,15 +12,18 @@
 //!
 //! Arguments: `particle|skate`, `full|simplified|decoupled` (full Newton,
 //! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
-//! Gauss stages `1..=3`, repeats. With `SPARK_PRINT_END=1` it also prints
+//! Gauss stages `1..=3`, repeats, and `loop|integrate`: a bare loop of
+//! `Stepper::step` (the default) or one `Stepper::integrate` call per repeat
+//! with the same steps, nothing observed and only the endpoints recorded
+//! (the driver's own cost is the difference of the two). With `SPARK_PRINT_END=1` it also prints
 //! the end state of the last repeat in full precision (to check that two
 //! builds step bit for bit alike).
 
 use std::io::Write;
 
 use spark_runtime::{
-    nonholonomic_system, Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau,
-    Vector,
+    nonholonomic_system, Jacobian, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe,
+    RunOptions, Schedule, State, Stepper, Tableau, Vector,
 };
 
 nonholonomic_system! {
@@ -48,19 +51,39 @@ fn run<Sys: NonholonomicSystem<3, 1>, const S: usize, const D: usize>(
     h: f64,
     options: NewtonOptions,
     repeats: usize,
+    driver: Driver,
 ) -> Result<(), String> {
     let tableau = Tableau::new(Method::Gauss).map_err(|e| e.to_string())?;
     let mut stepper = Stepper::<Sys, 3, 1, S, D>::new(sys, tableau).with_options(options);
     let (mut updates, mut steps, mut end) = (0usize, 0usize, start);
+    let run_options = RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let per_run = (10.0 / h).round() as usize;
     let clock = std::time::Instant::now();
     for _ in 0..repeats {
-        let mut state = start;
-        stepper.reset_warm_start();
-        while state.t < 10.0 - 1e-9 {
-            let r = stepper.step(&state, h).map_err(|e| e.to_string())?;
-            (state, updates, steps) = (r.state, updates + r.iterations, steps + 1);
+        match driver {
+            Driver::Loop => {
+                let mut state = start;
+                stepper.reset_warm_start();
+                for _ in 0..per_run {
+                    let r = stepper.step(&state, h).map_err(|e| e.to_string())?;
+                    (state, updates, steps) = (r.state, updates + r.iterations, steps + 1);
+                }
+                end = state;
+            }
+            Driver::Integrate => {
+                let schedule = Schedule::Fixed { h, steps: per_run };
+                let run = stepper
+                    .integrate(start.t, &start.q, &start.v, schedule, &run_options, &mut NoObserver)
+                    .map_err(|e| e.to_string())?;
+                let last = run.samples.last().ok_or("a run without samples")?;
+                end = State::new(last.t, last.q, last.v);
+                (updates, steps) = (updates + run.report.newton_iterations_total, steps + run.report.steps);
+            }
         }
-        end = state;
     }
     let elapsed = clock.elapsed().as_nanos() as f64;
     // Written, not printed: a closed pipe (`| head -1`) is an error to
@@ -71,6 +94,15 @@ fn run<Sys: NonholonomicSystem<3, 1>, const S: usize, const D: usize>(
     }
     let per_step = (elapsed / steps as f64, updates as f64 / steps as f64);
     writeln!(out, "{:.1} ns/step, {:.2} Newton updates/step", per_step.0, per_step.1).map_err(|e| e.to_string())
+}
+
+/// What advances the steps.
+#[derive(Clone, Copy)]
+enum Driver {
+    /// A bare loop of `Stepper::step`.
+    Loop,
+    /// One `Stepper::integrate` call per repeat.
+    Integrate,
 }
 
 fn main() -> Result<(), String> {
@@ -85,15 +117,20 @@ fn main() -> Result<(), String> {
     let options = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
     let stages: usize = arg(3, "2").parse().map_err(|e| format!("stages: {e}"))?;
     let repeats: usize = arg(4, "2000").parse().map_err(|e| format!("repeats: {e}"))?;
+    let driver = match arg(5, "loop").as_str() {
+        "loop" => Driver::Loop,
+        "integrate" => Driver::Integrate,
+        other => return Err(format!("unknown driver {other:?}: loop or integrate")),
+    };
     let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
     let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
     match (arg(1, "skate").as_str(), stages) {
-        ("skate", 1) => run::<_, 1, 7>(Skate::default(), skate, 0.1, options, repeats),
-        ("skate", 2) => run::<_, 2, 11>(Skate::default(), skate, 0.1, options, repeats),
-        ("skate", 3) => run::<_, 3, 15>(Skate::default(), skate, 0.1, options, repeats),
-        ("particle", 1) => run::<_, 1, 7>(Particle::default(), particle, 0.2, options, repeats),
-        ("particle", 2) => run::<_, 2, 11>(Particle::default(), particle, 0.2, options, repeats),
-        ("particle", 3) => run::<_, 3, 15>(Particle::default(), particle, 0.2, options, repeats),
+        ("skate", 1) => run::<_, 1, 7>(Skate::default(), skate, 0.1, options, repeats, driver),
+        ("skate", 2) => run::<_, 2, 11>(Skate::default(), skate, 0.1, options, repeats, driver),
+        ("skate", 3) => run::<_, 3, 15>(Skate::default(), skate, 0.1, options, repeats, driver),
+        ("particle", 1) => run::<_, 1, 7>(Particle::default(), particle, 0.2, options, repeats, driver),
+        ("particle", 2) => run::<_, 2, 11>(Particle::default(), particle, 0.2, options, repeats, driver),
+        ("particle", 3) => run::<_, 3, 15>(Particle::default(), particle, 0.2, options, repeats, driver),
         (system, s) => Err(format!("no case {system} with s = {s}: particle or skate, s = 1..=3")),
     }
 }

@@ -117,11 +117,13 @@ where
     where
         F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
     {
+        // Borrowed where accepted: the step's result is not moved out of
+        // the `Result` (a copy of every stage value) on the common path.
         match self.step(state, h) {
-            Ok(r) => {
+            Ok(ref r) => {
                 let mut end = r.state;
                 end.t = t_target;
-                let stopped = on_step(self.system(), state, &end, h, &r);
+                let stopped = on_step(self.system(), state, &end, h, r);
                 Ok(StepCounts {
                     state: r.state,
                     iterations: r.iterations,

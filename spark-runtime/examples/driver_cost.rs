@@ -1,0 +1,140 @@
+//! Time per step of `Stepper::integrate` on the paper's four systems, for
+//! runs with no events, no dense output and no sampling: 200 fixed Gauss
+//! `s = 2` steps at h = 0.05 (full Newton, default options), nothing
+//! observed and only the endpoints recorded, run again and again for
+//! `seconds` per system. It prints one line per system:
+//! `<system> <ns per step> <Newton updates per step>`.
+//!
+//! The file uses only API that predates dense output and events, and
+//! declares its systems itself, so it builds at any commit of the
+//! workspace: `spark-runtime/benches/two_binaries.sh` builds it at two
+//! commits and runs the two binaries alternately (the step time with and
+//! without a feature, side by side). Run alone:
+//!
+//! ```sh
+//! cargo run --release -p spark-runtime --example driver_cost -- 0.5
+//! ```
+
+use std::io::Write;
+use std::time::Instant;
+
+use spark_runtime::{
+    nonholonomic_system, Method, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, Stepper, Tableau,
+    Vector,
+};
+
+nonholonomic_system! {
+    /// The nonholonomic particle (§8.1).
+    pub struct Particle {
+        coordinates: [x, y, z],
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2),
+        constraints: [ dot(z) - y*dot(x) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The skate on an inclined plane (§8.2).
+    pub struct Skate {
+        coordinates: [x, y, theta],
+        parameters: { m = 1.0, inertia = 1.0, g = 1.0, beta = pi/2 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + m*g*x*sin(beta),
+        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+    }
+}
+
+nonholonomic_system! {
+    /// The mobile robot (§8.3).
+    pub struct MobileRobot {
+        coordinates: [x, y, theta, phi],
+        parameters: { m = 1.0, inertia = 1.0, inertia_wheel = 1.0, ell = 1.0 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + 3/2*inertia_wheel*dot(phi)^2
+            - 10*sin(phi),
+        constraints: [
+            dot(x) - ell*cos(theta)*dot(phi),
+            dot(y) - ell*sin(theta)*dot(phi),
+        ],
+    }
+}
+
+nonholonomic_system! {
+    /// McLachlan and Perlmutter's particles, n = 7, the constraint as the
+    /// paper prints it (§8.4).
+    pub struct Mp7 {
+        coordinates: [q1, q2, q3, q4, q5, q6, q7],
+        lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
+            - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
+               + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
+        constraints: [ dot(q1) + q5*dot(q5) + q6*dot(q6) + q7*dot(q7) ],
+    }
+}
+
+/// Steps per run and their size.
+const STEPS: usize = 200;
+const H: f64 = 0.05;
+
+/// Runs `integrate` from `(q0, v0)` for about `seconds`; returns ns per step
+/// and Newton updates per step.
+fn time<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize, const D: usize>(
+    sys: Sys,
+    q0: Vector<N>,
+    v0: Vector<N>,
+    seconds: f64,
+) -> Result<(f64, f64), String> {
+    let tableau = Tableau::new(Method::Gauss).map_err(|e| e.to_string())?;
+    let mut stepper = Stepper::<Sys, N, M, 2, D>::new(sys, tableau);
+    let options = RunOptions {
+        observe: Observe { energy: false, constraint_residual: false, multipliers: false },
+        record_every: 0,
+        ..RunOptions::default()
+    };
+    let schedule = Schedule::Fixed { h: H, steps: STEPS };
+    let (mut steps, mut updates) = (0usize, 0usize);
+    let clock = Instant::now();
+    while clock.elapsed().as_secs_f64() < seconds {
+        let run = stepper.integrate(0.0, &q0, &v0, schedule, &options, &mut NoObserver).map_err(|e| e.to_string())?;
+        steps += run.report.steps;
+        updates += run.report.newton_iterations_total;
+    }
+    let elapsed = clock.elapsed().as_nanos() as f64;
+    Ok((elapsed / steps as f64, updates as f64 / steps as f64))
+}
+
+fn main() -> Result<(), String> {
+    let seconds: f64 = match std::env::args().nth(1) {
+        Some(s) => s.parse().map_err(|e| format!("seconds per system: {e}"))?,
+        None => 0.5,
+    };
+    let mp_q = Vector::<7>::from_column_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
+    let mp_v = Vector::<7>::from_column_slice(&[0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let rows = [
+        (
+            "particle",
+            time::<_, 3, 1, 11>(
+                Particle::default(),
+                Vector::<3>::new(1.0, 0.0, 0.0),
+                Vector::<3>::new(0.0, 1.0, 0.0),
+                seconds,
+            )?,
+        ),
+        (
+            "skate",
+            time::<_, 3, 1, 11>(Skate::default(), Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0), seconds)?,
+        ),
+        (
+            "robot",
+            time::<_, 4, 2, 16>(
+                MobileRobot::default(),
+                Vector::<4>::zeros(),
+                Vector::<4>::new(1.0, 0.0, 0.5, 1.0),
+                seconds,
+            )?,
+        ),
+        ("mp7", time::<_, 7, 1, 23>(Mp7::default(), mp_q, mp_v, seconds)?),
+    ];
+    // Written, not printed: a closed pipe is an error to report, not a panic.
+    let mut out = std::io::stdout().lock();
+    for (name, (ns, updates)) in rows {
+        writeln!(out, "{name} {ns:.1} {updates:.3}").map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
