@@ -4,8 +4,11 @@
 # predates dense output and events) at commits OLD and NEW in temporary
 # worktrees, runs the two binaries alternately for ROUNDS rounds (the first
 # of each round swapped every round, so load on the machine hits both
-# alike) and prints, per paper system, the median ns per step of each and
-# the median and quartiles of the per-round ratio NEW / OLD.
+# alike) and prints, per paper system, the median ns per step of
+# `integrate` in each, the median and quartiles of the per-round ratio
+# NEW / OLD, and each binary's own median ratio of `integrate` to a bare
+# loop of `Stepper::step` over the same steps (the driver's cost at that
+# commit, independent of how fast its step is).
 #
 #   bash spark-runtime/benches/two_binaries.sh [OLD [NEW [ROUNDS [SECONDS]]]]
 #
@@ -48,22 +51,24 @@ done >"$work/times.txt"
 python3 - "$work/times.txt" "$old" "$new" <<'EOF'
 import statistics, sys
 path, old, new = sys.argv[1:4]
-times = {}
+runs = {}
 for line in open(path):
-    round_, side, system, ns, updates = line.split()
-    times.setdefault(system, {}).setdefault(side, {})[int(round_)] = (float(ns), float(updates))
+    round_, side, system, driven, bare, ratio, updates = line.split()
+    runs.setdefault(system, {}).setdefault(side, {})[int(round_)] = (float(driven), float(ratio), float(updates))
 def quartiles(x):
     x = sorted(x)
     pick = lambda p: x[round((len(x) - 1) * p)]
     return pick(0.25), pick(0.5), pick(0.75)
-print(f"| system | {old} (ns/step, median) | {new} (ns/step, median) | ratio of medians | paired ratio, median [quartiles] | Newton updates/step |")
-print("|---|---:|---:|---:|---:|---:|")
-for system, sides in times.items():
+print(f"| system | integrate at {old} (ns/step) | integrate at {new} (ns/step) | paired ratio {new} / {old}, median [quartiles] | integrate / step loop at {old} | at {new} | Newton updates/step |")
+print("|---|---:|---:|---:|---:|---:|---:|")
+for system, sides in runs.items():
     rounds = sorted(set(sides["old"]) & set(sides["new"]))
     a = [sides["old"][r][0] for r in rounds]
     b = [sides["new"][r][0] for r in rounds]
     q1, q2, q3 = quartiles([y / x for x, y in zip(a, b)])
-    ma, mb = statistics.median(a), statistics.median(b)
-    ua, ub = sides["old"][rounds[0]][1], sides["new"][rounds[0]][1]
-    print(f"| {system} | {ma:.1f} | {mb:.1f} | {mb / ma:.3f} | {q2:.3f} [{q1:.3f}, {q3:.3f}] | {ua:.3f} / {ub:.3f} |")
+    la = statistics.median(sides["old"][r][1] for r in rounds)
+    lb = statistics.median(sides["new"][r][1] for r in rounds)
+    ua, ub = sides["old"][rounds[0]][2], sides["new"][rounds[0]][2]
+    print(f"| {system} | {statistics.median(a):.1f} | {statistics.median(b):.1f} | {q2:.3f} [{q1:.3f}, {q3:.3f}] "
+          f"| {la:.3f} | {lb:.3f} | {ua:.3f} / {ub:.3f} |")
 EOF
