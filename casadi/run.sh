@@ -3,7 +3,8 @@
 # exports every system's derivatives and SPARK steps from Rust, compares them
 # with CasADi, writes docs/casadi-report.md, and proves the check can fail.
 #
-#   bash casadi/run.sh
+#   bash casadi/run.sh             # the whole cross-check
+#   bash casadi/run.sh --prepare   # only set up casadi/.venv, then exit
 #
 # Exit status is non-zero on any disagreement or setup problem; nothing is
 # ever skipped silently.
@@ -40,6 +41,7 @@ if [[ "$want" != "$have" ]] || ! "$PY" -c 'import casadi, numpy' >/dev/null 2>&1
 else
     echo "==> reusing $VENV ($("$PY" -c 'import casadi; print("casadi", casadi.__version__)'))"
 fi
+[[ "${1:-}" == --prepare ]] && exit 0
 
 # --- translator unit tests ---------------------------------------------------
 echo "==> CasADi translator unit tests"

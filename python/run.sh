@@ -6,7 +6,8 @@
 # python/.venv and runs pytest (registry against the Rust CLI, ensembles,
 # spark.compile, the Ray sweep on a local Ray instance).
 #
-#   bash python/run.sh
+#   bash python/run.sh             # the whole test
+#   bash python/run.sh --prepare   # only set up python/.venv, then exit
 #
 # Prints the time of each stage. Exit status is non-zero on any failure.
 set -euo pipefail
@@ -43,6 +44,7 @@ else
     echo "==> reusing $VENV"
 fi
 echo "    test environment: $(took "$t")"
+[[ "${1:-}" == --prepare ]] && exit 0
 
 # --- wheel -------------------------------------------------------------------
 target_dir=$(cargo metadata --format-version 1 --no-deps |
