@@ -20,7 +20,9 @@
 //! `g_t + g_q·q̇ + g_v·v̇`, kept inside the bracket by bisection: any Newton
 //! iterate outside the bracket, or a bracket that does not halve in two
 //! iterations, is replaced by the midpoint. Location stops when the bracket
-//! or the Newton update is below [`EVENT_TIME_TOLERANCE`]`·max(1, |t|)`.
+//! or the Newton update is below [`event_time_tolerance`]: `1e-14·max(1, |t|)`,
+//! capped at 1e-12, and never below four units in the last place of `t`
+//! (what a double can resolve once `|t|` passes about 2000).
 //!
 //! The subintervals of consecutive steps share their end points and the
 //! value at a step's end is carried into the next step unchanged, so a zero
@@ -41,6 +43,18 @@ pub const EVENT_SUBINTERVALS: usize = 4;
 
 /// Relative tolerance in `t` of an event location (`tol·max(1, |t|)`).
 pub const EVENT_TIME_TOLERANCE: f64 = 1e-14;
+
+/// Largest tolerance in `t` of an event location, where `|t|` is large.
+pub const EVENT_TIME_TOLERANCE_MAX: f64 = 1e-12;
+
+/// The tolerance in `t` of an event located near `t`:
+/// [`EVENT_TIME_TOLERANCE`]`·max(1, |t|)`, at most
+/// [`EVENT_TIME_TOLERANCE_MAX`], and at least four units in the last place
+/// of `t` (a bracket narrower than that cannot be formed).
+pub fn event_time_tolerance(t: f64) -> f64 {
+    let ulp = f64::from_bits(t.abs().to_bits() + 1) - t.abs();
+    (EVENT_TIME_TOLERANCE * t.abs().max(1.0)).min(EVENT_TIME_TOLERANCE_MAX).max(4.0 * ulp)
+}
 
 /// A set of event functions evaluated for a system `Sys`.
 pub trait EventFunctions<Sys, const N: usize> {
@@ -159,7 +173,7 @@ pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, co
     // the bracket at least halves every two iterations.
     let mut widths = [hi - lo; 2];
     for _ in 0..200 {
-        let tol = EVENT_TIME_TOLERANCE * t.abs().max(1.0);
+        let tol = event_time_tolerance(t);
         let value = step.value_at(t);
         let g = events.gradient(system, index, t, &value.state.q, &value.state.v);
         if g.value == 0.0 {

@@ -160,8 +160,8 @@ pub use driver::{
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{
-    Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents, SystemEvents,
-    EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
+    event_time_tolerance, Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents,
+    SystemEvents, EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE, EVENT_TIME_TOLERANCE_MAX,
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use lanes::{

@@ -5,7 +5,9 @@
 //!   velocity-nonlinear constraint) every located event time agrees to
 //!   ≤ 1e-12 with an independent bracket: bisection in `t` on the event
 //!   function along the reference integrator (extrapolation at 1e-14), which
-//!   shares nothing with the SPARK step or its dense output.
+//!   shares nothing with the SPARK step or its dense output. Far from
+//!   `t = 0` (runs that start at `t = 1000`) the same holds: the location
+//!   tolerance is capped at 1e-12, not relative to `t`.
 //! - An event exactly at a step boundary is reported once.
 //! - Several events in one step come in time order; directions filter.
 //! - A terminal event ends the run exactly at its time.
@@ -22,8 +24,8 @@ use affine::Affine;
 use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::reference::{integrate, integrate_at, ReferenceOptions};
 use spark_runtime::{
-    nonholonomic_system, Direction, EventGradient, EventSpec, Method, NoEvents, NoObserver, NonholonomicSystem,
-    RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
+    event_time_tolerance, nonholonomic_system, Direction, EventGradient, EventSpec, Method, NoEvents, NoObserver,
+    NonholonomicSystem, RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
 };
 
 /// The first zero of `g` after `t0` along the reference solution, by a scan
@@ -51,7 +53,8 @@ where
             // Bisection from the left end, integrating the reference each time.
             let (mut lo, mut hi) = (a.t, t);
             let left = a;
-            while hi - lo > 1e-15 * hi.abs().max(1.0) {
+            // To the resolution of `t`: the bracket is as sharp as a double.
+            loop {
                 let mid = 0.5 * (lo + hi);
                 if mid <= lo || mid >= hi {
                     break;
@@ -194,6 +197,48 @@ fn events_agree_with_an_independent_bracket_on_five_systems() {
         h,
         4.0,
     );
+}
+
+#[test]
+fn events_far_from_the_origin_of_time_are_located_to_1e_12() {
+    // The tolerance: relative near the origin, capped at 1e-12, and never
+    // below what a double resolves.
+    assert_eq!(event_time_tolerance(0.5), 1e-14);
+    assert_eq!(event_time_tolerance(-50.0), 50.0 * 1e-14);
+    assert_eq!(event_time_tolerance(1000.0), 1e-12);
+    assert_eq!(event_time_tolerance(1e6), 4.0 * (f64::from_bits(1e6f64.to_bits() + 1) - 1e6));
+    // Starting at t = 1000, where a tolerance relative to t would allow 1e-11.
+    let t0 = 1000.0;
+    let h = 0.01;
+    let particle = State::new(t0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    let (worst, count) = check_system::<_, 3, 1, { 4 * 4 + 3 }>(
+        Particle,
+        particle,
+        &[
+            Affine { w: [1.0, 0.0, 0.0], u: [0.0; 3], a: 0.0, b: -0.3, kappa: 0.0 },
+            Affine { w: [0.0; 3], u: [0.0, 1.0, 0.0], a: 0.0, b: 0.0, kappa: 0.0 },
+        ],
+        h,
+        t0 + 4.0,
+    );
+    assert!(count >= 4 && worst <= 1e-12);
+    // The time-dependent constraint, with an event that depends on t.
+    let g = General::default();
+    let v1 = 0.8;
+    let (q0, q1) = (0.3, -0.2);
+    let v2 = q0 * v1 + g.a * v1 * v1 - g.e * t0.sin();
+    let general = State::new(t0, Vector::<2>::new(q0, q1), Vector::<2>::new(v1, v2));
+    let (worst, count) = check_system::<_, 2, 1, { 4 * 3 + 2 }>(
+        g,
+        general,
+        &[
+            Affine { w: [1.0, 0.0], u: [0.0; 2], a: 0.0, b: 0.0, kappa: 0.0 },
+            Affine { w: [0.0, 1.0], u: [0.0, 0.5], a: 0.1, b: 0.05 - 0.1 * t0, kappa: 0.5 },
+        ],
+        h,
+        t0 + 4.0,
+    );
+    assert!(count >= 1 && worst <= 1e-12);
 }
 
 fn time_event<const N: usize>(target: f64) -> impl Fn(usize, f64, &Vector<N>, &Vector<N>) -> EventGradient<N> {
