@@ -124,6 +124,10 @@ nonholonomic_system! {
     /// `k = cos(q₃)(v₂ − ω q₁) − sin(q₃)(v₁ + ω q₂) = 0`, i.e.
     /// `K = (−sin q₃, cos q₃, 0)`, `b(t, q) = −ω(t)(q₁ cos q₃ + q₂ sin q₃)`.
     /// Energy is not conserved (the table does work).
+    ///
+    /// Event `relative_speed`: the blade's speed relative to the table,
+    /// `|v − ω(t)(−q₂, q₁)|`, crossing 1 (an event function that depends on
+    /// `t`, on parameters and nonlinearly on `q` and `v`).
     pub struct TurntableSkate {
         coordinates: [x, y, theta],
         parameters: { m = 1.0, inertia = 1.0, omega0 = 1.0, eps = 0.5, nu = 2.0 },
@@ -132,6 +136,10 @@ nonholonomic_system! {
             cos(theta)*(dot(y) - omega0*(1 + eps*sin(nu*t))*x)
                 - sin(theta)*(dot(x) + omega0*(1 + eps*sin(nu*t))*y),
         ],
+        events: {
+            relative_speed: (dot(x) + omega0*(1 + eps*sin(nu*t))*y)^2
+                + (dot(y) - omega0*(1 + eps*sin(nu*t))*x)^2 - 1,
+        },
     }
 }
 
