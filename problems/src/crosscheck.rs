@@ -23,8 +23,8 @@
 
 use serde::Serialize;
 use spark_runtime::{
-    consistent_velocity, ConsistencyPolicy, Method, NonholonomicSystem, State, StepError, Stepper, SystemError,
-    Tableau, TableauError, TableauTable, Vector,
+    consistent_velocity, ConsistencyPolicy, Method, NonholonomicSystem, State, StepError, StepResult, Stepper,
+    SystemError, Tableau, TableauError, TableauTable, Vector,
 };
 
 use crate::catalog::{self, Dispatch, DispatchError, StageVisitor, SystemEntry, SystemVisitor};
@@ -355,18 +355,33 @@ where
         stages: S,
         source,
     })?;
+    let holonomic = Sys::HAS_HOLONOMIC.then(|| sample::vec_of(&system.holonomic_residual(r.state.t, &r.state.q)));
+    Ok(step_export(name, &tableau, (t0, h), (q0, &v0), &r, holonomic))
+}
+
+/// The [`StepExport`] of step `r` from `(t0, q0, v0)` (generic in the
+/// dimensions and the stage count only: compiled once per `(N, M, S)`, not
+/// once per system).
+fn step_export<const N: usize, const M: usize, const S: usize>(
+    name: &str,
+    tableau: &Tableau<S>,
+    (t0, h): (f64, f64),
+    (q0, v0): (&Vector<N>, &Vector<N>),
+    r: &StepResult<N, M, S>,
+    holonomic_residual: Option<Vec<f64>>,
+) -> StepExport {
     use sample::vec_of;
-    Ok(StepExport {
+    StepExport {
         system: name.to_owned(),
-        method: TableauTable::of(&tableau),
+        method: TableauTable::of(tableau),
         t0,
         h,
         q0: vec_of(q0),
-        v0: vec_of(&v0),
+        v0: vec_of(v0),
         q1: vec_of(&r.state.q),
         v1: vec_of(&r.state.v),
         psi: r.stage_multipliers.iter().map(vec_of).collect(),
         stage_velocities: r.stage_velocities.iter().map(vec_of).collect(),
-        holonomic_residual: Sys::HAS_HOLONOMIC.then(|| vec_of(&system.holonomic_residual(r.state.t, &r.state.q))),
-    })
+        holonomic_residual,
+    }
 }

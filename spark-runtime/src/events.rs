@@ -155,9 +155,20 @@ pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, co
     system: &Sys,
     index: usize,
     step: &DenseStep<'_, N, S>,
-    (a, ga): (f64, f64),
-    (b, gb): (f64, f64),
+    a: (f64, f64),
+    b: (f64, f64),
 ) -> f64 {
+    locate_zero(a, b, &mut |t| {
+        let value = step.value_at(t);
+        let g = events.gradient(system, index, t, &value.state.q, &value.state.v);
+        (g.value, g.t + g.q.dot(&value.q_dot) + g.v.dot(&value.v_dot))
+    })
+}
+
+/// The root finding of [`locate`] on the values it evaluates: `eval(t)` is
+/// the event function and its time derivative along the dense output at `t`
+/// (not generic: compiled once, not once per system and method).
+fn locate_zero((a, ga): (f64, f64), (b, gb): (f64, f64), eval: &mut dyn FnMut(f64) -> (f64, f64)) -> f64 {
     if gb == 0.0 {
         return b;
     }
@@ -174,12 +185,11 @@ pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, co
     let mut widths = [hi - lo; 2];
     for _ in 0..200 {
         let tol = event_time_tolerance(t);
-        let value = step.value_at(t);
-        let g = events.gradient(system, index, t, &value.state.q, &value.state.v);
-        if g.value == 0.0 {
+        let (value, slope) = eval(t);
+        if value == 0.0 {
             return t;
         }
-        if (g.value < 0.0) == negative_at_lo {
+        if (value < 0.0) == negative_at_lo {
             lo = t;
         } else {
             hi = t;
@@ -189,8 +199,7 @@ pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, co
         }
         let stalled = hi - lo > 0.5 * widths[0];
         widths = [widths[1], hi - lo];
-        let slope = g.t + g.q.dot(&value.q_dot) + g.v.dot(&value.v_dot);
-        let newton = t - g.value / slope;
+        let newton = t - value / slope;
         if newton.is_finite() && newton > lo && newton < hi && !stalled {
             if (newton - t).abs() <= tol {
                 return newton;

@@ -376,6 +376,12 @@ impl SystemVisitor for MemberRun<'_> {
         self,
         _: &'static SystemEntry,
     ) -> Self::Output {
+        // A section needs an event ([`find_event`] checked that there is
+        // one); the branch is on a constant, so the runs are compiled only
+        // for the systems that declare events.
+        if const { Sys::EVENTS.is_empty() } {
+            return Err(RunError::Invalid(format!("`{}` declares no events", self.spec.system.key())));
+        }
         let (method, stages) = (self.spec.method, self.spec.stages);
         Sys::with_stages(stages, MemberStages::<Sys> { run: self, system: std::marker::PhantomData })
             .map_err(|e| RunError::StagesNotCompiled { method, stages, max: e.max })?

@@ -23,6 +23,12 @@ pub fn thread_cpu_seconds() -> f64 {
 /// Medians of the wall and thread-CPU times of `run`, repeated `repeats`
 /// times or until `min_total` has been spent (at most 1000 times).
 pub fn median_time<F: FnMut() -> bool>(repeats: usize, min_total: Duration, mut run: F) -> Option<(f64, f64, usize)> {
+    timed_repeats(repeats, min_total, &mut run)
+}
+
+/// [`median_time`] with `run` as a trait object: the loop is compiled
+/// once, not once per timed closure.
+fn timed_repeats(repeats: usize, min_total: Duration, run: &mut dyn FnMut() -> bool) -> Option<(f64, f64, usize)> {
     let (mut wall, mut cpu) = (Vec::new(), Vec::new());
     let start = Instant::now();
     while wall.len() < repeats.max(1) || (start.elapsed() < min_total && wall.len() < 1000) {

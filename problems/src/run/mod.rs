@@ -496,36 +496,52 @@ where
         _ => None,
     };
     tick((observer.count % TICK_EVERY) as u64);
-    let samples = &traj.samples;
+    let holonomic =
+        if Sys::HAS_HOLONOMIC { traj.samples.iter().map(|s| drift(s.t, &s.q)).collect() } else { Vec::new() };
+    let stats = RunStats {
+        steps: traj.report.steps,
+        e0,
+        max_energy_error: traj.report.max_energy_error,
+        max_constraint_residual: traj.report.max_constraint_residual,
+        max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(observer.max_holonomic_drift),
+        newton_iterations_mean: traj.report.newton_iterations_mean,
+        wall_time,
+        cpu_time,
+    };
+    Ok(run_result(spec, S, Sys::SOURCE.coordinates, &traj.samples, holonomic, stats))
+}
+
+/// The columns of a run's samples as a [`RunResult`] (generic in the
+/// dimensions only: compiled once per `(N, M)`, not once per system and
+/// method).
+fn run_result<const N: usize, const M: usize>(
+    spec: &RunSpec,
+    stages: usize,
+    coordinates: &[&str],
+    samples: &[spark_runtime::Sample<N, M>],
+    holonomic: Vec<f64>,
+    stats: RunStats,
+) -> RunResult {
     let column = |f: &dyn Fn(&spark_runtime::Sample<N, M>) -> f64| samples.iter().map(f).collect::<Vec<f64>>();
-    Ok(RunResult {
-        system: key,
-        coordinates: Sys::SOURCE.coordinates.iter().map(|c| c.to_string()).collect(),
+    RunResult {
+        system: spec.system.entry().name,
+        coordinates: coordinates.iter().map(|c| c.to_string()).collect(),
         method: spec.method,
-        stages: S,
+        stages,
         h: spec.h,
         t: column(&|s| s.t),
         q: (0..N).map(|i| column(&|s| s.q[i])).collect(),
         v: (0..N).map(|i| column(&|s| s.v[i])).collect(),
         energy: column(&|s| s.energy.unwrap_or(f64::NAN)),
         constraint: column(&|s| s.constraint_residual.unwrap_or(f64::NAN)),
-        holonomic: if Sys::HAS_HOLONOMIC { column(&|s| drift(s.t, &s.q)) } else { Vec::new() },
+        holonomic,
         psi: if spec.multipliers {
             (0..M).map(|j| column(&|s| s.multipliers.as_ref().map_or(f64::NAN, |psi| psi[j]))).collect()
         } else {
             Vec::new()
         },
-        stats: RunStats {
-            steps: traj.report.steps,
-            e0,
-            max_energy_error: traj.report.max_energy_error,
-            max_constraint_residual: traj.report.max_constraint_residual,
-            max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(observer.max_holonomic_drift),
-            newton_iterations_mean: traj.report.newton_iterations_mean,
-            wall_time,
-            cpu_time,
-        },
-    })
+        stats,
+    }
 }
 
 /// The report of one run as Markdown: the setting, the energy error, the

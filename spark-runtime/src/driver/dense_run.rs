@@ -214,7 +214,12 @@ fn find_crossings<Sys, E, const N: usize, const S: usize>(
         }
         previous[index] = a.1;
     }
-    let forward = tb > ta;
+    sort_in_time(crossings, tb > ta);
+}
+
+/// Orders `crossings` by time in the direction of the run (not generic:
+/// compiled once, not once per system and method).
+fn sort_in_time(crossings: &mut [Crossing], forward: bool) {
     crossings.sort_by(|x, y| {
         let order = x.t.total_cmp(&y.t);
         if forward {

@@ -21,7 +21,8 @@
 use super::external::{self, MethodInput, PeerStepRun};
 use super::flops::{flops_per_step, newton_work, NewtonPath};
 use super::{Problem, WorkPrecisionConfig};
-use crate::catalog::{visit_system, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::catalog::{Dispatch, StageVisitor, SystemEntry, SystemKind};
+use crate::peers::dual::{visit_twin, DualTwin, TwinVisitor};
 use crate::report::clock::median_time;
 use spark_runtime::TableauTable;
 use spark_runtime::{
@@ -193,16 +194,18 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
     }
 }
 
-/// Every method of one system through the catalogue's dispatch.
+/// Every method of one system through the dispatch of the paper's systems
+/// ([`visit_twin`]): the table measures only those, so the timed runs are
+/// compiled for them alone.
 struct SystemRuns<'a> {
     h: f64,
     steps: usize,
     cfg: &'a WorkPrecisionConfig,
 }
 
-impl SystemVisitor for SystemRuns<'_> {
+impl TwinVisitor for SystemRuns<'_> {
     type Output = Result<Vec<(Method, usize, Runs)>, String>;
-    fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+    fn visit<Sys: Dispatch<N, M> + DualTwin<N, M>, const N: usize, const M: usize, const Y: usize>(
         self,
         entry: &'static SystemEntry,
     ) -> Self::Output {
@@ -232,7 +235,8 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
         let entry = kind.entry();
         let steps = (FINAL_TIME / h).round() as usize;
         progress(&format!("{}: SPARK, h = {h}", entry.name));
-        let runs = visit_system(kind, SystemRuns { h, steps, cfg })?;
+        let runs = visit_twin(kind, SystemRuns { h, steps, cfg })
+            .map_err(|_| format!("--per-step measures the paper's systems only, not `{}`", entry.name))??;
         let mut spark = Vec::new();
         let mut methods = Vec::new();
         for (method, s, r) in runs {

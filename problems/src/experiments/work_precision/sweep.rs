@@ -178,7 +178,8 @@ pub(super) fn sweep_adaptive<Sys, const N: usize, const M: usize, const S: usize
 {
     let t1 = ctx.cfg.final_time;
     let (q0, v0) = (ctx.q0, ctx.v0);
-    sweep_tolerances(ctx, stepper, probe, label, SPARK_ADAPTIVE, points, |stepper, options, mut observer| {
+    let energy = |s: &State<N>| probe.energy(s.t, &s.q, &s.v);
+    sweep_tolerances(ctx, &energy, (label, S), SPARK_ADAPTIVE, points, &mut |options, mut observer| {
         // Like the fixed-step sweeps: no events (a declared section event
         // would add its location to the timed work).
         integrate_adaptive_with_events(stepper, 0.0, &q0, &v0, t1, options, &mut observer, &NoEvents)
@@ -204,7 +205,8 @@ pub(super) fn sweep_reversible<Sys, const N: usize, const M: usize, const S: usi
     let (q0, v0) = (ctx.q0, ctx.v0);
     let sigma = |_: f64, q: &Vector<N>, _: &Vector<N>| density(q.as_slice());
     let max_step = t1 / ctx.cfg.min_steps.max(1) as f64;
-    sweep_tolerances(ctx, stepper, probe, label, SPARK_REVERSIBLE, points, |stepper, options, mut observer| {
+    let energy = |s: &State<N>| probe.energy(s.t, &s.q, &s.v);
+    sweep_tolerances(ctx, &energy, (label, S), SPARK_REVERSIBLE, points, &mut |options, mut observer| {
         let options = AdaptiveOptions { max_step: Some(max_step), ..*options };
         integrate_reversible_with_events(stepper, 0.0, &q0, &v0, t1, sigma, &options, &mut observer, &NoEvents)
     });
@@ -220,24 +222,18 @@ type EnergyObserver<'o, const N: usize> = &'o mut dyn FnMut(&State<N>, usize);
 /// the first tolerance the driver cannot meet within the fixed-step sweep's
 /// step budget (every tighter one needs more steps). A run that fails
 /// otherwise (a Newton failure, a step below the smallest allowed) skips its
-/// tolerance only.
-#[allow(clippy::too_many_arguments)]
-fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+/// tolerance only. `energy` is the system's energy at a state; `(label,
+/// stages)` name the method. Generic in the dimensions only: compiled once
+/// per `(N, M)`, not once per system and method.
+fn sweep_tolerances<const N: usize, const M: usize>(
     ctx: &Ctx<'_, N>,
-    stepper: &mut Stepper<Sys, N, M, S, D>,
-    probe: &Sys,
-    label: &str,
+    energy: &dyn Fn(&State<N>) -> f64,
+    (label, stages): (&str, usize),
     solver: &str,
     points: &mut Vec<Point>,
-    drive: impl Fn(
-        &mut Stepper<Sys, N, M, S, D>,
-        &AdaptiveOptions,
-        EnergyObserver<'_, N>,
-    ) -> Result<AdaptiveRun<N, M>, AdaptiveError>,
-) where
-    Sys: NonholonomicSystem<N, M>,
-{
-    let e0 = probe.energy(0.0, &ctx.q0, &ctx.v0);
+    drive: &mut dyn FnMut(&AdaptiveOptions, EnergyObserver<'_, N>) -> Result<AdaptiveRun<N, M>, AdaptiveError>,
+) {
+    let e0 = energy(&State::new(0.0, ctx.q0, ctx.v0));
     let quiet = AdaptiveOptions {
         observe: Observe { energy: false, constraint_residual: false, multipliers: false },
         record_every: 0,
@@ -249,9 +245,9 @@ fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D
         let options = AdaptiveOptions { rtol: tol, atol: tol, max_steps: ctx.cfg.max_steps.max(1), ..quiet };
         let mut max_e: f64 = 0.0;
         let mut observer = |s: &State<N>, _: usize| {
-            max_e = max_e.max((probe.energy(s.t, &s.q, &s.v) - e0).abs());
+            max_e = max_e.max((energy(s) - e0).abs());
         };
-        let run = match drive(stepper, &options, &mut observer) {
+        let run = match drive(&options, &mut observer) {
             Ok(run) => run,
             Err(AdaptiveError::TooManySteps { .. }) => break,
             Err(_) => continue,
@@ -262,7 +258,7 @@ fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D
             continue;
         }
         let Some((wall, cpu, repeats)) = median_time(ctx.cfg.repeats, ctx.cfg.min_timing, || {
-            drive(stepper, &options, &mut |_: &State<N>, _: usize| {}).is_ok()
+            drive(&options, &mut |_: &State<N>, _: usize| {}).is_ok()
         }) else {
             continue;
         };
@@ -275,7 +271,7 @@ fn sweep_tolerances<Sys, const N: usize, const M: usize, const S: usize, const D
             cpu,
             repeats,
         };
-        let mut p = point(ctx, solver, label, S, run.report.accepted, m);
+        let mut p = point(ctx, solver, label, stages, run.report.accepted, m);
         p.setting = tol;
         let stop = p.error() < ctx.cfg.floor_error || p.time() > ctx.cfg.max_run_time.as_secs_f64();
         points.push(p);
