@@ -68,6 +68,11 @@ pub trait Dispatch<const N: usize, const M: usize>: Registered<N, M> {
         let _ = (stages, visitor);
         None
     }
+
+    /// The work-precision study runs the reversible step-size rule on this
+    /// system (entries marked `steps: reversible`, the ones with a step
+    /// density): its drivers are compiled only for these.
+    const REVERSIBLE_STEPS: bool = false;
 }
 
 /// Work generic in the system type.
@@ -333,7 +338,7 @@ pub fn entries() -> &'static [SystemEntry] {
 /// the crate feature `full` (on by default):
 ///
 /// ```text
-/// paper: [ Variant { ty: path::Type, n: N, m: M, [ensemble: lanes,] name: "cli-name", peers: paper|plain,
+/// paper: [ Variant { ty: path::Type, n: N, m: M, [ensemble: lanes,] [steps: reversible,] name: "cli-name", peers: paper|plain,
 ///     about: "one line", q0: [..], v0: [..], t_end: T, h: H }, .. ]
 /// full: [ .. ]
 /// ```
@@ -380,7 +385,7 @@ macro_rules! catalog {
         $( #[cfg(feature = "full")] catalog!(@dispatch { $($ffield)* }); )*
     };
     (@entry $variant:ident {
-        ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? name: $name:literal, peers: $peers:ident,
+        ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? $(steps: $steps:ident,)? name: $name:literal, peers: $peers:ident,
         about: $about:literal, q0: [$($q0:expr),* $(,)?], v0: [$($v0:expr),* $(,)?], t_end: $t_end:expr, h: $h:expr $(,)?
     }) => {
         SystemEntry {
@@ -409,25 +414,30 @@ macro_rules! catalog {
             h: $h,
         }
     };
-    (@name { ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? name: $name:literal, $($rest:tt)* }) => { $name };
+    (@name { ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? $(steps: $steps:ident,)? name: $name:literal, $($rest:tt)* }) => { $name };
     (@visit $visitor:ident, $kind:ident { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
         $visitor.visit::<$ty, $n, $m, { 2 * $n }>($kind.entry())
     };
-    (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, ensemble: lanes, $($rest:tt)* }) => {
+    (@dispatch {
+        ty: $ty:ty, n: $n:literal, m: $m:literal, $(ensemble: $ensemble:ident,)? $(steps: $steps:ident,)?
+        name: $name:literal, $($rest:tt)*
+    }) => {
         impl Dispatch<$n, $m> for $ty {
             catalog!(@with_stages $n, $m);
-            fn with_lane_stages<V: StageVisitor<Self, $n, $m>>(
-                stages: usize,
-                visitor: V,
-            ) -> Option<Result<V::Output, DispatchError>> {
-                Some(catalog!(@stages $n, $m, stages, visitor))
-            }
+            $( catalog!(@ensemble $ensemble $n, $m); )?
+            $( catalog!(@steps $steps); )?
         }
     };
-    (@dispatch { ty: $ty:ty, n: $n:literal, m: $m:literal, $($rest:tt)* }) => {
-        impl Dispatch<$n, $m> for $ty {
-            catalog!(@with_stages $n, $m);
+    (@ensemble lanes $n:literal, $m:literal) => {
+        fn with_lane_stages<V: StageVisitor<Self, $n, $m>>(
+            stages: usize,
+            visitor: V,
+        ) -> Option<Result<V::Output, DispatchError>> {
+            Some(catalog!(@stages $n, $m, stages, visitor))
         }
+    };
+    (@steps reversible) => {
+        const REVERSIBLE_STEPS: bool = true;
     };
     (@with_stages $n:literal, $m:literal) => {
         fn with_stages<V: StageVisitor<Self, $n, $m>>(stages: usize, visitor: V) -> Result<V::Output, DispatchError> {
@@ -499,7 +509,7 @@ catalog! {
         },
         /// The §8.1 particle in a softened Kepler potential: varying time scales.
         Orbit {
-            ty: crate::systems::OrbitParticle, n: 3, m: 1, name: "orbit", peers: plain,
+            ty: crate::systems::OrbitParticle, n: 3, m: 1, steps: reversible, name: "orbit", peers: plain,
             about: "§8.1 particle in a softened Kepler potential μ/√(x²+y²+ε²): eccentric orbit, time scale varies ≈ 100×",
             q0: [1.0, 0.0, 0.0], v0: [0.0, 0.3, 0.0], t_end: 10.0, h: 0.002,
         },

@@ -56,6 +56,29 @@ mod sweep {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// The reversible sweep runs on the systems with a step density, and
+    /// its driver is compiled for the entries marked `steps: reversible`:
+    /// the two lists agree.
+    #[test]
+    fn systems_with_a_step_density_are_marked_reversible_in_the_catalogue() {
+        use problems::catalog::{visit_system, Dispatch, SystemEntry, SystemVisitor};
+        struct Marked;
+        impl SystemVisitor for Marked {
+            type Output = bool;
+            fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+                self,
+                _: &'static SystemEntry,
+            ) -> bool {
+                Sys::REVERSIBLE_STEPS
+            }
+        }
+        let marked: Vec<SystemKind> = SystemKind::ALL.iter().copied().filter(|&k| visit_system(k, Marked)).collect();
+        let with_density: Vec<SystemKind> =
+            SystemKind::ALL.iter().copied().filter(|&k| step_density(k).is_some()).collect();
+        assert_eq!(marked, with_density);
+        assert_eq!(marked, vec![SystemKind::Orbit]);
+    }
+
     #[test]
     fn sweep_covers_every_family_and_stage_count() {
         let v = method_variants();

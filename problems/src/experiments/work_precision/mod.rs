@@ -95,7 +95,9 @@ pub type StepDensity = Box<DensityFn>;
 /// a known local time scale: `orbit`'s Kepler time scale `r^{3/2}` gives
 /// `σ = (x² + y² + ε²)^{−3/4}` (even in `v`, as reversibility needs). The
 /// paper's systems have nearly constant time scales, on which the rule
-/// reduces to fixed steps; they have none.
+/// reduces to fixed steps; they have none. A system with a density is
+/// marked `steps: reversible` in the catalogue, which compiles the
+/// reversible driver for it.
 pub fn step_density(kind: SystemKind) -> Option<StepDensity> {
     match kind {
         SystemKind::Orbit => {

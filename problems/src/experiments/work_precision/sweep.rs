@@ -139,7 +139,7 @@ pub(super) fn sweep_generated<Sys, const N: usize, const M: usize, const S: usiz
     points: &mut Vec<Point>,
 ) -> Result<Vec<usize>, WorkPrecisionError>
 where
-    Sys: NonholonomicSystem<N, M> + Default,
+    Sys: Dispatch<N, M>,
 {
     let tableau = Tableau::<S>::new(method)?;
     let label = method.label(S);
@@ -159,6 +159,14 @@ where
     }
     sweep_adaptive(ctx, &mut stepper, &probe, &label, points);
     if let Some(density) = ctx.density.filter(|_| is_symmetric(method)) {
+        // The branch is on a constant: the reversible driver is compiled
+        // only for the systems the catalogue marks `steps: reversible`.
+        if !Sys::REVERSIBLE_STEPS {
+            return Err(WorkPrecisionError::Invalid(format!(
+                "`{}` has a step density, but its catalogue entry is not marked `steps: reversible`",
+                ctx.key
+            )));
+        }
         sweep_reversible(ctx, &mut stepper, &probe, &label, density, points);
     }
     Ok(used)
