@@ -20,7 +20,9 @@
 //! it (`--no-default-features`) the crate holds the paper's systems,
 //! `spark list`, `spark run` and `spark paper`, and builds in a fraction of
 //! the time: every catalogue system is monomorphized for every stage count
-//! and every experiment, and that is nearly all of the crate's build.
+//! and the experiments it runs (the per-step table, Poincaré sections and
+//! reversible sweeps only for the systems the catalogue and their setups
+//! name), and that is nearly all of the crate's build.
 
 pub mod systems;
 
