@@ -52,8 +52,8 @@ pub const EVENT_TIME_TOLERANCE_MAX: f64 = 1e-12;
 /// [`EVENT_TIME_TOLERANCE_MAX`], and at least four units in the last place
 /// of `t` (a bracket narrower than that cannot be formed).
 pub fn event_time_tolerance(t: f64) -> f64 {
-    let ulp = f64::from_bits(t.abs().to_bits() + 1) - t.abs();
-    (EVENT_TIME_TOLERANCE * t.abs().max(1.0)).min(EVENT_TIME_TOLERANCE_MAX).max(4.0 * ulp)
+    let t = t.abs();
+    (EVENT_TIME_TOLERANCE * t.max(1.0)).min(EVENT_TIME_TOLERANCE_MAX).max(4.0 * (t.next_up() - t))
 }
 
 /// A set of event functions evaluated for a system `Sys`.

@@ -206,7 +206,7 @@ fn events_far_from_the_origin_of_time_are_located_to_1e_12() {
     assert_eq!(event_time_tolerance(0.5), 1e-14);
     assert_eq!(event_time_tolerance(-50.0), 50.0 * 1e-14);
     assert_eq!(event_time_tolerance(1000.0), 1e-12);
-    assert_eq!(event_time_tolerance(1e6), 4.0 * (f64::from_bits(1e6f64.to_bits() + 1) - 1e6));
+    assert_eq!(event_time_tolerance(1e6), 4.0 * (1e6f64.next_up() - 1e6));
     // Starting at t = 1000, where a tolerance relative to t would allow 1e-11.
     let t0 = 1000.0;
     let h = 0.01;
