@@ -280,8 +280,9 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
 
     /// LU factors of one `N × N` mass matrix.
     pub(crate) fn factor_block(lu: &mut [f64], perm: &mut [usize], mass: &[f64]) -> Result<(), Singular> {
+        // Scales from the source: scanning the fresh copy would wait on its stores.
+        let scale = column_scales::<N>(mass);
         lu.copy_from_slice(mass);
-        let scale = column_scales::<N>(lu);
         factor_in_place::<N>(lu, perm, &scale, &[N])
     }
 

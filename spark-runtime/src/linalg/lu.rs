@@ -166,7 +166,7 @@ fn factor_sized(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64])
     let lu = &mut lu[..n * n];
     let scale = &mut scale[..n];
     for (sk, col) in scale.iter_mut().zip(lu.chunks_exact(n)) {
-        *sk = col.iter().fold(0.0, |m: f64, x| m.max(x.abs()));
+        *sk = super::column_scale(col);
     }
     for k in 0..n {
         let col = &lu[k * n..(k + 1) * n];

@@ -35,14 +35,23 @@ pub(crate) struct Singular {
     pub(crate) pivot: f64,
 }
 
-/// The largest magnitude of each column of a `D × D` column-major matrix.
+/// The largest magnitude of each column of a `D × D` column-major matrix
+/// (NaN entries passed over, as `f64::max` would).
 #[inline]
 pub(crate) fn column_scales<const D: usize>(a: &[f64]) -> [f64; D] {
     let mut s = [0.0; D];
     for (sk, col) in s.iter_mut().zip(a[..D * D].chunks_exact(D)) {
-        *sk = col.iter().fold(0.0, |m: f64, x| m.max(x.abs()));
+        *sk = column_scale(col);
     }
     s
+}
+
+/// The largest magnitude in `col`, NaN entries passed over: a comparison
+/// rather than `f64::max`, whose NaN rule costs a blend per entry on a
+/// dependency chain.
+#[inline(always)]
+pub(crate) fn column_scale(col: &[f64]) -> f64 {
+    col.iter().fold(0.0, |m: f64, x| if x.abs() > m { x.abs() } else { m })
 }
 
 /// `max_i |Δz_i| / (1 + |z_i|)`, NaN as soon as any component is NaN.
