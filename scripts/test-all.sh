@@ -5,38 +5,101 @@
 # On a fresh machine it installs what it needs itself (local Python venvs
 # with the pinned CasADi, see casadi/requirements.txt, and the Python test
 # requirements, see python/requirements-test.txt).
+#
+# The workspace is compiled once, first; then three independent stages run
+# side by side, each into its own log under out/logs, printed whole when the
+# stage ends:
+#   rust    the workspace's tests, then the README main job's build;
+#   casadi  the CasADi cross-check (casadi/run.sh);
+#   python  the Python package (python/run.sh).
+# Cargo holds its build lock only while it compiles, so a stage's tests
+# never wait for another stage's cargo; the stages' cargo calls after the
+# first build find the workspace compiled. The exit status is non-zero when
+# any stage fails, and every stage runs to its end either way.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# The Python environments of the last two stages install (from PyPI, when
-# they are missing or stale) while cargo compiles; their logs are printed
-# when the stages start.
+stamp() { date +%s.%N; }
+took() { awk -v a="$1" -v b="$(stamp)" 'BEGIN { printf "%.0f s", b - a }'; }
+start=$(stamp)
+
+# The Python environments install (from PyPI, when they are missing or
+# stale) while cargo compiles.
 mkdir -p out/logs
 bash casadi/run.sh --prepare >out/logs/casadi-venv.log 2>&1 &
 casadi_venv=$!
 bash python/run.sh --prepare >out/logs/python-venv.log 2>&1 &
 python_venv=$!
 
-echo "==> cargo test --workspace"
-cargo test --workspace --release
+echo "==> cargo test --workspace --no-run (the build every stage uses)"
+t=$(stamp)
+cargo test --workspace --release --no-run
+echo "    build: $(took "$t")"
 
-# The README's main-job command builds `problems` without its default
-# features; the workspace tests above build it with them.
-echo "==> the main job's build (problems --no-default-features)"
-cargo check --release -p problems --no-default-features --lib --bin spark
-
-# The environment set up alongside the build, or why it failed.
+# The environments set up alongside the build, or why they failed.
 prepared() {
     local status=0
     wait "$1" || status=$?
     cat "$2"
     return "$status"
 }
-
-echo "==> CasADi cross-check (casadi/run.sh)"
 prepared "$casadi_venv" out/logs/casadi-venv.log
-bash casadi/run.sh
-
-echo "==> Python package (python/run.sh)"
 prepared "$python_venv" out/logs/python-venv.log
-bash python/run.sh
+
+rust_stage() {
+    echo "==> cargo test --workspace"
+    cargo test --workspace --release
+    # The README's main-job command builds `problems` without its default
+    # features; the workspace tests above build it with them.
+    echo "==> the main job's build (problems --no-default-features)"
+    cargo check --release -p problems --no-default-features --lib --bin spark
+}
+
+casadi_stage() {
+    echo "==> CasADi cross-check (casadi/run.sh)"
+    bash casadi/run.sh
+}
+
+python_stage() {
+    echo "==> Python package (python/run.sh)"
+    bash python/run.sh
+}
+
+declare -A pid began
+for stage in rust casadi python; do
+    began[$stage]=$(stamp)
+    "${stage}_stage" >"out/logs/$stage.log" 2>&1 &
+    pid[$stage]=$!
+done
+echo "==> stages rust, casadi and python running side by side (logs in out/logs)"
+
+# Print each stage's log as it ends, in the order they end.
+failed=()
+remaining=(rust casadi python)
+while ((${#remaining[@]} > 0)); do
+    running=()
+    for stage in "${remaining[@]}"; do running+=("${pid[$stage]}"); done
+    wait -n "${running[@]}" || true
+    still=()
+    for stage in "${remaining[@]}"; do
+        if kill -0 "${pid[$stage]}" 2>/dev/null; then
+            still+=("$stage")
+            continue
+        fi
+        status=0
+        wait "${pid[$stage]}" || status=$?
+        echo
+        echo "==================== stage $stage: exit $status after $(took "${began[$stage]}") ===================="
+        cat "out/logs/$stage.log"
+        ((status == 0)) || failed+=("$stage")
+    done
+    remaining=("${still[@]}")
+done
+
+echo
+echo "test-all: $(took "$start") in all"
+if ((${#failed[@]} > 0)); then
+    echo "test-all: FAILED stage(s): ${failed[*]} (logs in out/logs)" >&2
+    exit 1
+fi
+echo "test-all: every stage passed"
