@@ -6,12 +6,13 @@
 # with the pinned CasADi, see casadi/requirements.txt, and the Python test
 # requirements, see python/requirements-test.txt).
 #
-# The workspace is compiled once, first; then three independent stages run
+# The workspace is compiled once, first; then four independent stages run
 # side by side, each into its own log under out/logs, printed whole when the
 # stage ends:
-#   rust    the workspace's tests, then the README main job's build;
-#   casadi  the CasADi cross-check (casadi/run.sh);
-#   python  the Python package (python/run.sh).
+#   rust      the workspace's tests;
+#   main_job  the README main job's build (`cargo check`);
+#   casadi    the CasADi cross-check (casadi/run.sh);
+#   python    the Python package (python/run.sh).
 # Cargo holds its build lock only while it compiles, so a stage's tests
 # never wait for another stage's cargo; the stages' cargo calls after the
 # first build find the workspace compiled. The exit status is non-zero when
@@ -49,8 +50,11 @@ prepared "$python_venv" out/logs/python-venv.log
 rust_stage() {
     echo "==> cargo test --workspace"
     cargo test --workspace --release
-    # The README's main-job command builds `problems` without its default
-    # features; the workspace tests above build it with them.
+}
+
+# The README's main-job command builds `problems` without its default
+# features; the workspace's tests build it with them.
+main_job_stage() {
     echo "==> the main job's build (problems --no-default-features)"
     cargo check --release -p problems --no-default-features --lib --bin spark
 }
@@ -66,16 +70,16 @@ python_stage() {
 }
 
 declare -A pid began
-for stage in rust casadi python; do
+for stage in rust main_job casadi python; do
     began[$stage]=$(stamp)
     "${stage}_stage" >"out/logs/$stage.log" 2>&1 &
     pid[$stage]=$!
 done
-echo "==> stages rust, casadi and python running side by side (logs in out/logs)"
+echo "==> stages rust, main_job, casadi and python running side by side (logs in out/logs)"
 
 # Print each stage's log as it ends, in the order they end.
 failed=()
-remaining=(rust casadi python)
+remaining=(rust main_job casadi python)
 while ((${#remaining[@]} > 0)); do
     running=()
     for stage in "${remaining[@]}"; do running+=("${pid[$stage]}"); done
