@@ -20,6 +20,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# Every cargo call of the test command (the stages' own, maturin's and the
+# builds pytest asks for inherit it) compiles without thin-local LTO: it is
+# a third of the `problems` crate's compile time, and what the tests check
+# does not depend on it (inlining changes no floating-point result in Rust).
+# The main job keeps it: its steps are 1.3-2.8x faster with it
+# (docs/performance/README.md, "Build profile").
+export CARGO_PROFILE_RELEASE_LTO=off
+
 stamp() { date +%s.%N; }
 took() { awk -v a="$1" -v b="$(stamp)" 'BEGIN { printf "%.0f s", b - a }'; }
 start=$(stamp)
