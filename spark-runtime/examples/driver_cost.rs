@@ -10,7 +10,7 @@
 //!
 //! The file uses only API that predates dense output and events, and
 //! declares its systems itself, so it builds at any commit of the
-//! workspace: `spark-runtime/benches/two_binaries.sh` builds it at two
+//! workspace: `benches/two_binaries.sh` builds it at two
 //! commits and runs the two binaries alternately (the step time with and
 //! without a feature, side by side). Run alone:
 //!

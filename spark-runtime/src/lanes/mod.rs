@@ -30,7 +30,7 @@
 //! McLachlan–Perlmutter members (`n = 7`, Lobatto IIIA-B `s = 2`,
 //! `h = 0.05`, the settings of Fig. 8.4) step several times faster in
 //! one group of eight lanes than one after another on one core
-//! (`cargo bench -p spark-runtime --bench lanes`; the figures are in
+//! (`cargo bench -p spark-benches --bench lanes`; the figures are in
 //! `docs/performance/README.md`). A kernel step costs the same
 //! however many of its lanes hold a member, so a [`LaneStepper`] started
 //! with half its lanes or fewer steps its members each alone

@@ -12,7 +12,7 @@ use crate::StepError;
 /// two 256-bit (AVX2) vectors of four `f64` per row, so each operation of
 /// the kernel has two independent vectors in flight (eight lanes stepped
 /// 1.2× faster per member than two groups of four in
-/// `cargo bench -p spark-runtime --bench lanes`).
+/// `cargo bench -p spark-benches --bench lanes`).
 pub const LANES: usize = 8;
 
 /// Why a lane group cannot start.

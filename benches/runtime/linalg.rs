@@ -9,7 +9,7 @@
 //! and for D = 101 and 197 (the McLachlan–Perlmutter scaling study's n = 33
 //! and 65, Gauss s = 2) synthetic matrices with the same block pattern.
 //!
-//! `cargo bench -p spark-runtime --bench linalg`
+//! `cargo bench -p spark-benches --bench linalg`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};

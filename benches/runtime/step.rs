@@ -1,6 +1,6 @@
 //! Cost of one SPARK step on the paper's systems with hand-written
 //! derivatives (fast to build; the generated-code benches live in
-//! `problems/benches/spark.rs`). Run with `cargo bench -p spark-runtime --bench step`.
+//! `benches/problems/spark.rs`). Run with `cargo bench -p spark-benches --bench step`.
 //!
 //! - `step/<system>/<method>/<mode>`: one warm-started step at h = 0.05,
 //!   full Newton, simplified Newton on the exact matrix, and simplified

@@ -1,7 +1,7 @@
 //! Cost of `integrate` for systems without events and schedules without
 //! dense sampling: the dense output and event location must add nothing
 //! there (docs/performance/README.md, "Driver cost"). Run with
-//! `cargo bench -p spark-runtime --bench integrate_cost` (add `-- none` to
+//! `cargo bench -p spark-benches --bench integrate_cost` (add `-- none` to
 //! skip the criterion benches and print only the paired tables).
 //!
 //! Every run is 200 fixed Gauss `s = 2` steps at h = 0.05 (full Newton,

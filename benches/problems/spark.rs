@@ -1,5 +1,5 @@
 //! Criterion benchmarks of the generated systems (not part of the test suite;
-//! run with `cargo bench -p problems --bench spark`):
+//! run with `cargo bench -p spark-benches --bench spark`):
 //! - one SPARK step per paper system × method family × stage count
 //!   (warm-started, at the work-precision sweep's mid-range step), full
 //!   Newton (`step/…`) and simplified Newton (`step-simplified/…`), default

@@ -2,7 +2,7 @@
 //! defaults for the paper's systems (particle h = 0.2, skate 0.1, robot 0.2,
 //! McLachlan–Perlmutter particles 0.05), Gauss s = 1..3 and Lobatto IIIA-B
 //! s = 2..4: the benchmark of Newton's stopping rule. Run with
-//! `cargo bench -p spark-runtime --bench newton_stop`.
+//! `cargo bench -p spark-benches --bench newton_stop`.
 //!
 //! Before timing, each case runs 10 time units and prints its mean Newton
 //! iterations and factorizations per step (`counts ...` lines on stderr).

@@ -4,7 +4,7 @@
 //! (`BodySkatingByHand` = scene `BodySkating`, `SleighDrivenDampedByHand` =
 //! scene `SleighDrivenDamped`): the cost follows the effects a scene calls
 //! for. Gauss s = 2, full Newton, warm-started, h = 0.05. Run with
-//! `cargo bench -p problems --bench scenes`.
+//! `cargo bench -p spark-benches --bench scenes`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use problems::systems::scenes::{

@@ -16,7 +16,7 @@
 //! - `lanes/mp7/ensemble-2-threads`: [`integrate_ensemble`] on a pool of
 //!   two threads, by wall time.
 //!
-//! Run with `cargo bench -p spark-runtime --bench lanes`.
+//! Run with `cargo bench -p spark-benches --bench lanes`.
 
 use criterion::measurement::WallTime;
 use criterion::{black_box, criterion_group, criterion_main, Criterion};

@@ -10,14 +10,14 @@
 # loop of `Stepper::step` over the same steps (the driver's cost at that
 # commit, independent of how fast its step is).
 #
-#   bash spark-runtime/benches/two_binaries.sh [OLD [NEW [ROUNDS [SECONDS]]]]
+#   bash benches/two_binaries.sh [OLD [NEW [ROUNDS [SECONDS]]]]
 #
 # The defaults compare the stepper without dense output and events
 # (cb791eb, the first parent of the merge cdc06d2 that added them) with the
 # stepper that has them (660ac37: the merge and the one-line fix that makes
 # its adaptive module build). SECONDS is the time per system per run.
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 old=${1:-cb791eb}
 new=${2:-660ac37}
 rounds=${3:-15}
