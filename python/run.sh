@@ -53,8 +53,11 @@ rm -rf "$OUT/wheels"
 mkdir -p "$OUT/wheels"
 echo "==> building the wheel (maturin, release, CARGO_TARGET_DIR=$target_dir)"
 t=$(stamp)
+# `-i "$PY"`: PyO3's build then sees the interpreter pytest runs, the one
+# `spark.compile` names to its cargo builds in the same target directory, so
+# neither build invalidates PyO3 for the other.
 CARGO_TARGET_DIR="$target_dir" "$VENV/bin/maturin" build --release --quiet --compatibility linux \
-    -m python/Cargo.toml -o "$OUT/wheels" || fail "maturin could not build the wheel."
+    -i "$PY" -m python/Cargo.toml -o "$OUT/wheels" || fail "maturin could not build the wheel."
 wheel=$(ls "$OUT"/wheels/*.whl)
 echo "    wheel build: $(took "$t") -> $wheel"
 

@@ -51,6 +51,12 @@ def cache_key(text: str) -> str:
     return h.hexdigest()[:20]
 
 
+def _environment_signature() -> str:
+    """``PYO3_ENVIRONMENT_SIGNATURE`` as maturin sets it for this interpreter."""
+    bits = 64 if sys.maxsize > 2**32 else 32
+    return f"{sys.implementation.name}-{sys.version_info.major}.{sys.version_info.minor}-{bits}bit"
+
+
 def _cargo() -> str:
     cargo = os.environ.get("CARGO") or shutil.which("cargo")
     if not cargo or not (os.path.isfile(cargo) and os.access(cargo, os.X_OK)):
@@ -132,6 +138,14 @@ def compile_system(text: str, *, cache_dir: str | None = None, verbose: bool = F
             shutil.copyfile(lock, folder / "Cargo.lock")
         target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))
         env = dict(os.environ, CARGO_TARGET_DIR=str(target))
+        # PyO3's build script is rerun whenever these differ from the last
+        # build in the target directory: the interpreter that will load the
+        # module, and the signature maturin sets for it. With the values a
+        # wheel build made with `maturin build -i <this interpreter>` used, a
+        # target directory shared with it keeps PyO3 and the crates above it
+        # compiled, instead of each build invalidating the other's.
+        env.setdefault("PYO3_PYTHON", sys.executable)
+        env.setdefault("PYO3_ENVIRONMENT_SIGNATURE", _environment_signature())
         cmd = [cargo, "build", "--release", "--quiet", "--manifest-path", str(folder / "Cargo.toml")]
         try:
             done = subprocess.run(cmd, env=env, capture_output=not verbose, text=True)

@@ -33,7 +33,8 @@ nonholonomic_system! {
     }
 }
 
-fn main() {
+#[test]
+fn physics_style_names_and_scenes() {
     let w = Wheel { M: 1.0, I: 1.0, R: 2.0 };
     let (q, v) = (Vector::<2>::new(0.5, 0.0), Vector::<2>::new(2.0, 1.0));
     let expected = 2.0 + 0.5 - 0.5f64.atan() + 0.125f64.asin() - 0.1f64.acos();

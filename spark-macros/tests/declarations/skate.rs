@@ -20,7 +20,8 @@ nonholonomic_system! {
     }
 }
 
-fn main() {
+#[test]
+fn skate_and_a_forced_system() {
     let s = Skate::default();
     let q = Vector::<3>::new(0.5, 0.0, 0.3);
     let v = Vector::<3>::new(0.1, 0.2, 1.0);
