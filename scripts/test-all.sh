@@ -6,13 +6,13 @@
 # with the pinned CasADi, see casadi/requirements.txt, and the Python test
 # requirements, see python/requirements-test.txt).
 #
-# The workspace is compiled once, first; then four independent stages run
+# The workspace is compiled once, first; then three independent stages run
 # side by side, each into its own log under out/logs, printed whole when the
 # stage ends:
-#   rust      the workspace's tests;
-#   main_job  the README main job's build (`cargo check`);
-#   casadi    the CasADi cross-check (casadi/run.sh);
-#   python    the Python package (python/run.sh).
+#   rust    the workspace's tests;
+#   casadi  the CasADi cross-check (casadi/run.sh), then the README main
+#           job's build (`cargo check`);
+#   python  the Python package (python/run.sh).
 # Cargo holds its build lock only while it compiles, so a stage's tests
 # never wait for another stage's cargo; the stages' cargo calls after the
 # first build find the workspace compiled. The exit status is non-zero when
@@ -44,6 +44,9 @@ echo "==> cargo test --workspace --no-run (the build every stage uses)"
 t=$(stamp)
 cargo test --workspace --release --no-run
 echo "    build: $(took "$t")"
+cargo_target_dir() {
+    cargo metadata --format-version 1 --no-deps | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
+}
 
 # The environments set up alongside the build, or why they failed.
 prepared() {
@@ -60,16 +63,16 @@ rust_stage() {
     cargo test --workspace --release
 }
 
-# The README's main-job command builds `problems` without its default
-# features; the workspace's tests build it with them.
-main_job_stage() {
-    echo "==> the main job's build (problems --no-default-features)"
-    cargo check --release -p problems --no-default-features --lib --bin spark
-}
-
+# The CasADi cross-check runs the exporter the build above made (no cargo
+# call, so it starts at once); then the README main job's build, which
+# builds `problems` without its default features (the workspace's tests
+# build it with them). The check comes second so that its hold on cargo's
+# build lock does not delay the wheel build of the python stage.
 casadi_stage() {
     echo "==> CasADi cross-check (casadi/run.sh)"
-    bash casadi/run.sh
+    SPARK_CASADI_EXPORTER="$(cargo_target_dir)/release/spark-casadi-export" bash casadi/run.sh
+    echo "==> the main job's build (problems --no-default-features)"
+    cargo check --release -p problems --no-default-features --lib --bin spark
 }
 
 python_stage() {
@@ -78,16 +81,16 @@ python_stage() {
 }
 
 declare -A pid began
-for stage in rust main_job casadi python; do
+for stage in rust casadi python; do
     began[$stage]=$(stamp)
     "${stage}_stage" >"out/logs/$stage.log" 2>&1 &
     pid[$stage]=$!
 done
-echo "==> stages rust, main_job, casadi and python running side by side (logs in out/logs)"
+echo "==> stages rust, casadi and python running side by side (logs in out/logs)"
 
 # Print each stage's log as it ends, in the order they end.
 failed=()
-remaining=(rust main_job casadi python)
+remaining=(rust casadi python)
 while ((${#remaining[@]} > 0)); do
     running=()
     for stage in "${remaining[@]}"; do running+=("${pid[$stage]}"); done
