@@ -20,45 +20,20 @@
 //! (`CLOCK_THREAD_CPUTIME_ID`), not wall time: the machine is shared, and
 //! CPU time is what stays comparable between runs under load.
 
-use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+use criterion::measurement::WallTime;
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use problems::catalog::SystemKind;
 use problems::peers::dual::{AutoDiff, DualTwin};
 use problems::peers::finite_difference::FiniteDifference;
 use problems::peers::ode;
-use problems::report::clock::thread_cpu_seconds;
 use problems::run::paper_initial_values;
 use problems::systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
 use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 
-/// Criterion measurement by the calling thread's CPU time.
-struct ThreadCpu(WallTime);
-
-impl Measurement for ThreadCpu {
-    type Intermediate = f64;
-    type Value = Duration;
-    fn start(&self) -> f64 {
-        thread_cpu_seconds()
-    }
-    fn end(&self, start: f64) -> Duration {
-        Duration::from_secs_f64((thread_cpu_seconds() - start).max(0.0))
-    }
-    fn add(&self, a: &Duration, b: &Duration) -> Duration {
-        *a + *b
-    }
-    fn zero(&self) -> Duration {
-        Duration::ZERO
-    }
-    fn to_f64(&self, v: &Duration) -> f64 {
-        v.as_nanos() as f64
-    }
-    fn formatter(&self) -> &dyn ValueFormatter {
-        self.0.formatter()
-    }
-}
-
-type C = Criterion<ThreadCpu>;
+#[path = "../common/clock.rs"]
+mod clock;
+use clock::{ThreadCpu, C};
 
 fn start<const N: usize>(kind: SystemKind) -> State<N> {
     let (q, v) = paper_initial_values(kind);

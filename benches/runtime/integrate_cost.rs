@@ -39,7 +39,7 @@ use spark_runtime::{
 
 use std::time::Duration;
 
-#[path = "common/clock.rs"]
+#[path = "../common/clock.rs"]
 mod clock;
 use clock::{thread_cpu_time, ThreadCpu, C};
 

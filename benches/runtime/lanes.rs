@@ -28,7 +28,7 @@ use spark_runtime::{
 
 use std::time::Duration;
 
-#[path = "common/clock.rs"]
+#[path = "../common/clock.rs"]
 mod clock;
 use clock::{ThreadCpu, C};
 

@@ -15,7 +15,7 @@ use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State
 
 use std::time::Duration;
 
-#[path = "common/clock.rs"]
+#[path = "../common/clock.rs"]
 mod clock;
 use clock::{ThreadCpu, C};
 

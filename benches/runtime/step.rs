@@ -21,7 +21,7 @@ use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSys
 
 use std::time::Duration;
 
-#[path = "common/clock.rs"]
+#[path = "../common/clock.rs"]
 mod clock;
 use clock::{ThreadCpu, C};
 

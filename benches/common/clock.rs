@@ -1,37 +1,14 @@
-//! The thread-CPU clock the runtime's benches share: a criterion
-//! [`Measurement`] by the measuring thread's CPU time
-//! (`CLOCK_THREAD_CPUTIME_ID`), not wall time: the machine is shared, and
-//! CPU time is what stays comparable between runs under load.
+//! The criterion measurement every bench shares: the measuring thread's CPU
+//! time (`problems::report::clock`, `CLOCK_THREAD_CPUTIME_ID`), not wall
+//! time: the machine is shared, and CPU time is what stays comparable between
+//! runs under load.
 
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::Criterion;
 use std::time::Duration;
 
-#[repr(C)]
-struct Timespec {
-    tv_sec: i64,
-    tv_nsec: i64,
-}
-
-extern "C" {
-    fn clock_gettime(clock: i32, ts: *mut Timespec) -> i32;
-}
-
-/// `CLOCK_THREAD_CPUTIME_ID` on Linux.
-const THREAD_CPU_CLOCK: i32 = 3;
-
 /// The calling thread's CPU time in seconds (NaN when the clock fails).
-#[allow(dead_code)] // called directly by some benches only
-pub fn thread_cpu_time() -> f64 {
-    let mut ts = Timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: clock_gettime writes one timespec through a valid pointer.
-    let rc = unsafe { clock_gettime(THREAD_CPU_CLOCK, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        f64::NAN
-    }
-}
+pub use problems::report::clock::thread_cpu_seconds as thread_cpu_time;
 
 /// Criterion measurement by the calling thread's CPU time.
 pub struct ThreadCpu(pub WallTime);
