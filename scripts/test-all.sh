@@ -24,12 +24,15 @@ cd "$(dirname "$0")/.."
 # builds pytest asks for inherit it) compiles without thin-local LTO: it is
 # a third of the `problems` crate's compile time, and what the tests check
 # does not depend on it (inlining changes no floating-point result in Rust).
-# The main job keeps it: its steps are 1.3-2.8x faster with it
+# The main job keeps it: its steps are 1.2-2.8x faster with it
 # (docs/performance/README.md, "Build profile").
 export CARGO_PROFILE_RELEASE_LTO=off
 
 stamp() { date +%s.%N; }
 took() { awk -v a="$1" -v b="$(stamp)" 'BEGIN { printf "%.0f s", b - a }'; }
+cargo_target_dir() {
+    cargo metadata --format-version 1 --no-deps | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
+}
 start=$(stamp)
 
 # The Python environments install (from PyPI, when they are missing or
@@ -44,9 +47,6 @@ echo "==> cargo test --workspace --no-run (the build every stage uses)"
 t=$(stamp)
 cargo test --workspace --release --no-run
 echo "    build: $(took "$t")"
-cargo_target_dir() {
-    cargo metadata --format-version 1 --no-deps | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
-}
 
 # The environments set up alongside the build, or why they failed.
 prepared() {

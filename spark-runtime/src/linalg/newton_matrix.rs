@@ -141,20 +141,23 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
         result
     }
 
+    /// The column of the assembled matrix at column `c` of the structured
+    /// factors, whose columns are ordered `(V, v₁, μ)`.
+    fn structured_column(c: usize) -> usize {
+        let (sn, sm) = (Self::SN, S * M);
+        if c < sn {
+            c
+        } else if c < sn + N {
+            c + sm
+        } else {
+            c - N
+        }
+    }
+
     /// [`factor`](Self::factor) with the padded kernel.
     fn factor_padded(lu: &mut PaddedLu<D>, jacobian: &[f64]) -> Result<Factorization, SingularMatrix> {
-        let (sn, sm) = (Self::SN, S * M);
-        // Columns (V, v₁, μ) on the structured path.
-        let structured = std::array::from_fn(|c| {
-            if c < sn {
-                c
-            } else if c < sn + N {
-                c + sm
-            } else {
-                c - N
-            }
-        });
-        if lu.factor(jacobian, &structured, &[sn, sn + N, D]).is_ok() {
+        let sn = Self::SN;
+        if lu.factor(jacobian, &std::array::from_fn(Self::structured_column), &[sn, sn + N, D]).is_ok() {
             return Ok(Factorization::Structured);
         }
         match lu.factor(jacobian, &std::array::from_fn(|c| c), &[D]) {
@@ -165,20 +168,11 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize> NewtonMatri
 
     /// [`factor`](Self::factor) with the row-swapping kernel.
     fn factor_swapping(&mut self) -> Result<Factorization, SingularMatrix> {
-        let (sn, sm) = (Self::SN, S * M);
-        // Columns (V, v₁, μ), each copied with its scale taken from the
-        // assembled matrix: scanning the freshly copied factors instead
-        // waits on the copy's stores (measured: ≈ 40 % of a D = 7
-        // factorization).
-        let scale = copy_columns::<D>(&self.jacobian, &mut self.lu, |c| {
-            if c < sn {
-                c
-            } else if c < sn + N {
-                c + sm
-            } else {
-                c - N
-            }
-        });
+        let sn = Self::SN;
+        // Each column is copied with its scale taken from the assembled
+        // matrix: scanning the freshly copied factors instead waits on the
+        // copy's stores (docs/performance/README.md, "The LU kernels").
+        let scale = copy_columns::<D>(&self.jacobian, &mut self.lu, Self::structured_column);
         if factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[sn, sn + N, D]).is_ok() {
             return Ok(Factorization::Structured);
         }
