@@ -4,11 +4,7 @@
 //! binary because it installs a counting global allocator.
 
 mod large_systems;
-mod newcomer_systems;
 mod runtime_generated;
-mod runtime_orders;
-mod runtime_paper;
 mod scenes_systems;
-mod step_start;
 mod stress_cases;
 mod stress_fuzz;

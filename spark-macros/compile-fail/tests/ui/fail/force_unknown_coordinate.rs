@@ -1,0 +1,14 @@
+use spark_macros::nonholonomic_system;
+
+nonholonomic_system! {
+    pub struct Sleigh {
+        coordinates: [x, y, theta],
+        parameters: { tau = 0.4, c = 0.3, mu = 0.2 },
+        lagrangian: dot(x)^2/2 + dot(y)^2/2 + dot(theta)^2/2,
+        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+        effects: { drive: force { thetaa: tau } },
+        scenes: { Driven = [drive] },
+    }
+}
+
+fn main() {}

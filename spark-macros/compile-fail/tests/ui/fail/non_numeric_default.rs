@@ -1,0 +1,11 @@
+use spark_macros::nonholonomic_system;
+
+nonholonomic_system! {
+    pub struct Particle {
+        coordinates: [x],
+        parameters: { m = "heavy" },
+        lagrangian: m*dot(x)^2/2,
+    }
+}
+
+fn main() {}
