@@ -1,0 +1,17 @@
+//! The runtime's integration tests, in one test binary (the steppers the
+//! files share are compiled and linked once): whole runs through the public
+//! API on systems declared with `nonholonomic_system!` here or in
+//! `spark_runtime::fixtures`. The tests that need the catalogue of
+//! `problems` live in the workspace's `tests/` crate.
+//!
+//! `driver_robustness` installs the binary's global allocator, a thin
+//! wrapper over the system allocator that records each thread's largest
+//! request; the other tests do not observe it.
+
+mod dense_output;
+mod driver_robustness;
+mod events;
+mod newcomer_systems;
+mod orders;
+mod paper;
+mod step_start;
