@@ -49,15 +49,15 @@ echo "==> CasADi translator unit tests"
 
 # --- export from Rust --------------------------------------------------------
 echo "==> exporting derivatives and SPARK steps from Rust"
-# Built exactly as `cargo test --workspace --release --tests` builds it (same
-# profile and feature set), so after the README's test command this is a no-op rather
+# Built exactly as `cargo test --workspace --release` builds it (same profile
+# and feature set), so after the README's test command this is a no-op rather
 # than a second compilation of the workspace. scripts/test-all.sh, which has
 # just built it, names it in SPARK_CASADI_EXPORTER instead: this stage then
 # never waits for another stage's cargo.
 if [[ -n "${SPARK_CASADI_EXPORTER:-}" ]]; then
     exporter=$SPARK_CASADI_EXPORTER
 else
-    cargo test --workspace --release --tests --no-run --quiet
+    cargo test --workspace --release --no-run --quiet
     target_dir=$(cargo metadata --format-version 1 --no-deps |
         "$PY" -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
     exporter="$target_dir/release/spark-casadi-export"

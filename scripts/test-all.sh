@@ -9,10 +9,9 @@
 # The workspace is compiled once, first; then three independent stages run
 # side by side, each into its own log under out/logs, printed whole when the
 # stage ends:
-#   rust    the workspace's tests, then its doctests (the README's among
-#           them);
-#   casadi  the CasADi cross-check (casadi/run.sh), then a `cargo check` of
-#           the README main job's build and of every example;
+#   rust    the workspace's tests;
+#   casadi  the CasADi cross-check (casadi/run.sh), then the README main
+#           job's build (`cargo check`);
 #   python  the Python package (python/run.sh).
 # Cargo holds its build lock only while it compiles, so a stage's tests
 # never wait for another stage's cargo; the stages' cargo calls after the
@@ -44,12 +43,9 @@ casadi_venv=$!
 bash python/run.sh --prepare >out/logs/python-venv.log 2>&1 &
 python_venv=$!
 
-# `--tests` selects every test target and leaves the examples out: they are
-# tools, not tests, and checking them (casadi stage) costs a fraction of
-# building them.
-echo "==> cargo test --workspace --tests --no-run (the build every stage uses)"
+echo "==> cargo test --workspace --no-run (the build every stage uses)"
 t=$(stamp)
-cargo test --workspace --release --tests --no-run
+cargo test --workspace --release --no-run
 echo "    build: $(took "$t")"
 
 # The environments set up alongside the build, or why they failed.
@@ -62,30 +58,21 @@ prepared() {
 prepared "$casadi_venv" out/logs/casadi-venv.log
 prepared "$python_venv" out/logs/python-venv.log
 
-# The doctests run apart from the test targets (`--tests` leaves them out).
-# `--doc` tests every selected library even where `doctest = false`, and
-# builds its dev-dependencies: the packages without doctests (the benches'
-# criterion, the Python bindings' PyO3) are excluded, so this builds nothing
-# the build above did not.
 rust_stage() {
-    echo "==> cargo test --workspace --tests"
-    cargo test --workspace --release --tests
-    echo "==> cargo test --workspace --doc"
-    cargo test --workspace --release --doc --exclude spark-benches --exclude spark-python --exclude spark-python-core
+    echo "==> cargo test --workspace"
+    cargo test --workspace --release
 }
 
 # The CasADi cross-check runs the exporter the build above made (no cargo
-# call, so it starts at once); then a check of the README main job's build,
-# which builds `problems` without its default features (the workspace's
-# tests build it with them), and of the examples. The check comes second so
-# that its hold on cargo's build lock does not delay the wheel build of the
-# python stage.
+# call, so it starts at once); then the README main job's build, which
+# builds `problems` without its default features (the workspace's tests
+# build it with them). The check comes second so that its hold on cargo's
+# build lock does not delay the wheel build of the python stage.
 casadi_stage() {
     echo "==> CasADi cross-check (casadi/run.sh)"
     SPARK_CASADI_EXPORTER="$(cargo_target_dir)/release/spark-casadi-export" bash casadi/run.sh
-    echo "==> the main job's build (problems --no-default-features) and the examples"
-    cargo check --release -p problems -p spark-runtime -p spark-symbolic --no-default-features \
-        --lib --bin spark --examples
+    echo "==> the main job's build (problems --no-default-features)"
+    cargo check --release -p problems --no-default-features --lib --bin spark
 }
 
 python_stage() {
