@@ -11,7 +11,7 @@
 # stage ends:
 #   rust    the workspace's tests;
 #   casadi  the CasADi cross-check (casadi/run.sh), then the README main
-#           job's build (`cargo check`);
+#           job's build (a no-op after the main job);
 #   python  the Python package (python/run.sh).
 # Cargo holds its build lock only while it compiles, so a stage's tests
 # never wait for another stage's cargo; the stages' cargo calls after the
@@ -67,15 +67,18 @@ rust_stage() {
 }
 
 # The CasADi cross-check runs the exporter the build above made (no cargo
-# call, so it starts at once); then the README main job's build, which
-# builds `problems` without its default features (the workspace's tests
-# build it with them). The check comes second so that its hold on cargo's
-# build lock does not delay the wheel build of the python stage.
+# call, so it starts at once); then the README main job's build, exactly as
+# the README runs it: its profile (not this script's overrides) and
+# `problems` without its default features (the workspace's tests build it
+# with them). After the main job it is a no-op; on a clean checkout (CI) it
+# compiles the main job. It comes second so that its hold on cargo's build
+# lock does not delay the wheel build of the python stage.
 casadi_stage() {
     echo "==> CasADi cross-check (casadi/run.sh)"
     SPARK_CASADI_EXPORTER="$(cargo_target_dir)/release/spark-casadi-export" bash casadi/run.sh
-    echo "==> the main job's build (problems --no-default-features)"
-    cargo check --release -p problems --no-default-features --lib --bin spark
+    echo "==> the main job's build (problems --no-default-features, the release profile)"
+    env -u CARGO_PROFILE_RELEASE_LTO -u CARGO_PROFILE_RELEASE_OPT_LEVEL \
+        cargo build --release -p problems --no-default-features --bin spark
 }
 
 python_stage() {
