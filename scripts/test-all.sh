@@ -22,8 +22,8 @@ cd "$(dirname "$0")/.."
 
 # Every cargo call of the test command (the stages' own, maturin's and the
 # builds pytest asks for inherit it) compiles without thin-local LTO (a third
-# of the `problems` crate's compile time) and at opt-level 2 (9 % less CPU
-# time for the whole build than opt-level 3). What the tests check does not
+# of the `problems` crate's compile time) and at opt-level 2 (8 % less CPU
+# time for that crate than opt-level 3). What the tests check does not
 # depend on either: neither inlining nor LLVM's optimization level changes a
 # floating-point result in Rust. The main job keeps opt-level 3 and thin-local LTO: its
 # steps are 1.2-2.8x faster with the LTO (docs/performance/README.md,
