@@ -25,9 +25,9 @@ cd "$(dirname "$0")/.."
 # of the `problems` crate's compile time) and at opt-level 2 (8 % less CPU
 # time for that crate than opt-level 3). What the tests check does not
 # depend on either: neither inlining nor LLVM's optimization level changes a
-# floating-point result in Rust. The main job keeps opt-level 3 and thin-local LTO: its
-# steps are 1.2-2.8x faster with the LTO (docs/performance/README.md,
-# "Build profile").
+# floating-point result in Rust. The main job keeps opt-level 3 and
+# thin-local LTO: its steps are 1.2-2.8x faster with the LTO
+# (docs/performance/README.md, "Build profile").
 export CARGO_PROFILE_RELEASE_LTO=off
 export CARGO_PROFILE_RELEASE_OPT_LEVEL=2
 
