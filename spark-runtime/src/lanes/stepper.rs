@@ -253,7 +253,7 @@ where
             return;
         }
         if self.kernel.is_none() && !self.kernel_refused {
-            self.kernel = Kernel::new(&self.system, state, self.h).map(Box::new);
+            self.kernel = Kernel::new(&self.system, &self.tableau, state, self.h).map(Box::new);
             self.kernel_refused = self.kernel.is_none();
         }
         if let Some(kernel) = self.kernel.as_deref_mut() {

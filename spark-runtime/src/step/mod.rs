@@ -53,7 +53,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 pub(crate) use compensation::two_sum_error;
 pub(crate) use convergence::Contraction;
 pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
-pub(crate) use guess::{EXTRAPOLATION, PAST};
+pub(crate) use guess::{StepPolynomial, EXTRAPOLATION, PAST};
 pub(crate) use lane_handover::LaneContinuation;
 pub(crate) use newton::too_slow;
 
@@ -133,6 +133,12 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     block: Box<[f64]>,
     /// The stage-decoupled Newton matrix's factors (heap, allocated once).
     decoupled: DecoupledMatrix<N, M, S>,
+    /// What the latest solve earned on its final factors and whether they
+    /// were the stage-decoupled matrix's (see `Warm::rate`).
+    solved_rate: (f64, bool),
+    /// The starting guess of a continuing Gauss step (`None` for the other
+    /// families, which extrapolate across steps).
+    step_polynomial: Option<StepPolynomial<S>>,
     /// Steps left on the exact matrix after the stage-decoupled one was slow
     /// or singular ([`Jacobian::StageDecoupled`]).
     exact_steps_left: u32,
@@ -211,6 +217,8 @@ where
             eval: Eval::zeros(),
             block: vec![0.0; N * N].into_boxed_slice(),
             decoupled: DecoupledMatrix::new(),
+            step_polynomial: StepPolynomial::new(&tableau),
+            solved_rate: (f64::NAN, false),
             exact_steps_left: 0,
             quadratic: f64::NAN,
             reusable: None,
@@ -408,7 +416,7 @@ where
                 }
             }
         }
-        Warm::remember(&mut self.warm, state, end, h, z);
+        Warm::remember(&mut self.warm, state, end, h, z, self.solved_rate);
         self.compensation = Some(Compensation { end, carry });
         let mut psi = mu;
         for p in psi.iter_mut() {

@@ -5,6 +5,7 @@
 
 use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
+use super::guess::Warm;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
 use crate::linalg::scaled_update_norm;
@@ -62,12 +63,15 @@ pub struct NewtonOptions {
     pub stagnation_level: f64,
     /// Iteration limit (at most [`HISTORY_CAPACITY`]).
     pub max_iterations: usize,
-    /// Extrapolate the starting guess from the previous step's stages when
-    /// the new step continues it; otherwise start from the consistent
-    /// acceleration at `(t₀, q₀, v₀)`.
+    /// Start from the previous steps when the new step continues them —
+    /// for Gauss methods with `s ≥ 2` the polynomial through the previous
+    /// step's velocities `v₀, V₁…V_s, v₁`, for the other methods the
+    /// extrapolation of the previous solutions — otherwise from the
+    /// consistent acceleration at `(t₀, q₀, v₀)`.
     pub warm_start: bool,
     /// Degree (1..=3) of the polynomial extrapolating the solutions of
-    /// previous equal steps to the next starting guess.
+    /// previous equal steps to the next starting guess (the methods without
+    /// the Gauss step polynomial, see [`warm_start`](Self::warm_start)).
     pub extrapolation_degree: usize,
     /// Energy guard: when the structure facts make `E` a first integral
     /// (autonomous `L`, constraints absent or linear homogeneous in `v` —
@@ -293,6 +297,9 @@ where
         let (mut factored_at, mut refreshed) = (0usize, false);
         let mut max_rate = 0.0f64;
         let mut factorizations = 0usize;
+        // Simplified Newton's floor under its contraction estimate: what the
+        // previous step of this chain earned on the same kind of matrix.
+        let priors = [false, true].map(|d| if simplified { Warm::prior(&self.warm, state, h, d) } else { f64::NAN });
         let mut monitor = Contraction::FRESH;
         let mut g = Vector::<D>::zeros();
         let result = 'solve: {
@@ -321,7 +328,7 @@ where
                 let residual = self.iteration_residual(state, carry, &p0, h, z, jacobians, &mut g)?;
                 if fresh {
                     factorizations += 1;
-                    monitor = Contraction::FRESH;
+                    monitor = Contraction::fresh(priors[usize::from(decoupled)]);
                     factored_at = k;
                     if decoupled && self.factor_decoupled(state, carry, h, z, lean).is_err() {
                         decoupled = false;
@@ -407,6 +414,7 @@ where
         };
         if result.is_ok() {
             self.remember_solve(simplified && max_rate <= REUSE_RATE, h, decoupled);
+            self.solved_rate = (if simplified { monitor.observed() } else { f64::NAN }, decoupled);
         }
         result.map(|()| factorizations)
     }

@@ -7,7 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::Kernel;
-use crate::step::{NewtonOptions, EXTRAPOLATION, PAST};
+use crate::step::{NewtonOptions, StepPolynomial, EXTRAPOLATION, PAST};
 use crate::system::NonholonomicSystem;
 use crate::tableau::{ConditionRows, Tableau};
 
@@ -16,6 +16,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// (`Stepper::starting_guess` on a continuing step of equal size).
     #[inline(always)]
     pub(super) fn starting_guess(&mut self, opts: &NewtonOptions) {
+        if let Some(poly) = self.step_polynomial {
+            self.step_polynomial_guess(&poly);
+            return;
+        }
         let degree = |w: usize| (self.depth[w] - 1).min(opts.extrapolation_degree.clamp(1, PAST - 1));
         let first = (0..W).find(|&w| self.held[w]);
         let uniform = first
@@ -48,6 +52,40 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 let slot = (self.head[w] + k) % PAST;
                 for d in 0..D {
                     self.z[d][w] += *coef * self.past[slot * D + d][w];
+                }
+            }
+        }
+    }
+
+    /// The starting guess of a continuing Gauss step, every held lane from
+    /// its latest two solutions (`StepPolynomial::predict`, in its order of
+    /// operations; the kernel's lanes hold at least two).
+    #[inline(always)]
+    fn step_polynomial_guess(&mut self, poly: &StepPolynomial<S>) {
+        let end = S * (N + M);
+        for w in (0..W).filter(|&w| self.held[w]) {
+            let (last, before) = (self.head[w] * D, ((self.head[w] + 1) % PAST) * D);
+            for i in 0..=S {
+                let (from_start, from_stages, from_end, at) = if i < S {
+                    (poly.stage_from_start[i], &poly.stage_from_stages[i], poly.stage_from_end[i], i * N)
+                } else {
+                    (poly.end_from_start, &poly.end_from_stages, poly.end_from_end, end)
+                };
+                for n in 0..N {
+                    let mut acc = from_start * self.past[before + end + n][w];
+                    for j in 0..S {
+                        acc += from_stages[j] * self.past[last + j * N + n][w];
+                    }
+                    self.z[at + n][w] = acc + from_end * self.past[last + end + n][w];
+                }
+            }
+            for i in 0..S {
+                for m in 0..M {
+                    let mut acc = 0.0;
+                    for j in 0..S {
+                        acc += poly.multipliers[i][j] * self.past[last + S * N + j * M + m][w];
+                    }
+                    self.z[S * N + i * M + m][w] = acc;
                 }
             }
         }

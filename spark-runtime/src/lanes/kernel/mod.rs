@@ -33,7 +33,7 @@ use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
 use crate::step::{
     check_energy, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
-    NewtonOptions, State, PAST,
+    NewtonOptions, State, StepPolynomial, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -118,6 +118,13 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     schur_scale: Box<[L<W>]>,
     /// Scratch for `K_lᵀ` (`N × M`).
     kt: Box<[L<W>]>,
+    /// The starting guess of Gauss steps (`Stepper`'s, from the same tableau).
+    step_polynomial: Option<StepPolynomial<S>>,
+    /// Each lane's prior for its contraction estimate: the largest ratio
+    /// its latest step earned (`Warm::rate`), and what the step being
+    /// committed earned.
+    rate: L<W>,
+    solved_rate: L<W>,
 }
 
 impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> Kernel<N, M, S, D, W> {
@@ -127,7 +134,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// A kernel for steps of size `h` of `system`, whose constant mass
     /// matrix is evaluated at `at`; `None` when that matrix is singular
     /// (the steppers then report it themselves).
-    pub(super) fn new<Sys: NonholonomicSystem<N, M>>(system: &Sys, at: &State<N>, h: f64) -> Option<Self> {
+    pub(super) fn new<Sys: NonholonomicSystem<N, M>>(
+        system: &Sys,
+        tab: &Tableau<S>,
+        at: &State<N>,
+        h: f64,
+    ) -> Option<Self> {
         let mut vals = StageValues::zeros();
         let mut jac = StageJacobians::<N, M>::boxed_zeros();
         system.stage_jacobians_into(at.t, &at.q, &at.v, &Vector::zeros(), &mut vals, &mut jac);
@@ -166,6 +178,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             schur_perm: vec![[0; W]; sm].into_boxed_slice(),
             schur_scale: lanes(sm),
             kt: lanes(N * M),
+            step_polynomial: StepPolynomial::new(tab),
+            rate: [f64::NAN; W],
+            solved_rate: [f64::NAN; W],
         })
     }
 
@@ -187,6 +202,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         self.anchor[w] = c.anchor;
+        self.rate[w] = c.rate;
         (self.head[w], self.depth[w], self.held[w]) = (0, c.depth, true);
     }
 
@@ -210,6 +226,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             anchor: self.anchor[w],
             past,
             depth: self.depth[w],
+            rate: self.rate[w],
         }
     }
 
@@ -273,7 +290,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
-        let mut monitor = [Contraction::FRESH; W];
+        let mut monitor: [Contraction; W] = std::array::from_fn(|w| Contraction::fresh(self.rate[w]));
         let mut prev_update = [f64::NAN; W];
         for k in 0..max_iter {
             self.stage_points(tab);
@@ -336,6 +353,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 out[w] = Outcome::HandBack;
             }
         }
+        self.solved_rate = monitor.map(|m| m.observed());
         self.commit(sys, tab, opts, t, t_next, &mut out);
         out
     }
@@ -366,9 +384,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     }
 
     /// Ends the converged lanes' steps (`Stepper::step` after Newton): the
-    /// compensated `q₁`, `v₁`, the finiteness check, the energy guard and
-    /// the ring of solutions. A lane that fails a check is handed back
-    /// with its state as it was.
+    /// compensated `q₁`, `v₁`, the finiteness check, the energy guard, the
+    /// ring of solutions and the prior of the next step (`solved_rate`, what
+    /// each lane's iteration earned). A lane that fails a check is handed
+    /// back with its state as it was.
     #[inline(always)]
     fn commit<Sys: NonholonomicSystem<N, M>>(
         &mut self,
@@ -449,6 +468,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
             self.head[w] = (self.head[w] + PAST - 1) % PAST;
             self.depth[w] = (self.depth[w] + 1).min(PAST);
+            self.rate[w] = self.solved_rate[w];
             let slot = self.head[w] * D;
             for d in 0..D {
                 self.past[slot + d][w] = self.z[d][w];
