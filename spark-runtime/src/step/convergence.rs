@@ -66,6 +66,7 @@ impl Contraction {
     /// Records the scaled norm of an update computed with the current
     /// factors; returns its ratio to the previous one on them (NaN for the
     /// first).
+    #[inline]
     pub(crate) fn record(&mut self, update: f64) -> f64 {
         self.prev_rate = self.rate;
         self.rate = update / self.last;
@@ -79,6 +80,7 @@ impl Contraction {
     /// The earned contraction estimate: the largest ratio on these factors,
     /// or the prior when that is larger, once three updates on them exist
     /// (NaN before, and NaN when a ratio was).
+    #[inline]
     pub(crate) fn earned(&self) -> f64 {
         if self.updates >= 3 {
             if self.prior > self.max_rate {
@@ -107,6 +109,7 @@ impl Contraction {
     /// tolerance itself (the error left is `θ/(1−θ)·update`, below it for
     /// `θ ≤ ½`), or the remaining error `θ/(1−θ)·update` estimated with an
     /// earned rate `θ < 1` within it. Written so that NaN never converges.
+    #[inline]
     pub(crate) fn converged(&self, update: f64, tolerance: f64) -> bool {
         let theta = self.earned();
         update <= tolerance || (theta < 1.0 && update * theta / (1.0 - theta) <= tolerance)
@@ -115,6 +118,7 @@ impl Contraction {
     /// The stopping rule of the solve's mode: [`Self::converged`] for
     /// simplified Newton, [`full_newton_converged`] on the latest ratio
     /// `rate` for full Newton.
+    #[inline]
     pub(crate) fn converged_in(&self, simplified: bool, update: f64, rate: f64, tolerance: f64) -> bool {
         if simplified {
             self.converged(update, tolerance)

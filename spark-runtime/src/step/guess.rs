@@ -184,17 +184,6 @@ impl<const N: usize, const D: usize> Warm<N, D> {
             }
         }
     }
-
-    /// The prior for a step of size `h` from `state` on the stage-decoupled
-    /// (`decoupled`) or the exact matrix: the rate the previous step earned
-    /// when this step continues it on the same kind of matrix, NaN
-    /// otherwise.
-    pub(super) fn prior(warm: &Option<Self>, state: &State<N>, h: f64, decoupled: bool) -> f64 {
-        match warm {
-            Some(w) if w.end == *state && w.h == h && w.rate_decoupled == decoupled => w.rate,
-            _ => f64::NAN,
-        }
-    }
 }
 
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
@@ -210,10 +199,17 @@ where
     /// previous stage values at the nodes `c_j` is evaluated at the new nodes.
     /// Without a previous step: `V_i = v₀ + c_i h a₀`, `Ψ_i = ψ₀` from the
     /// consistent acceleration and multiplier.
+    ///
+    /// Also sets `self.prior`: what the previous step earned, when this step
+    /// continues it with the same `h` (NaN otherwise).
     pub(super) fn starting_guess(&mut self, state: &State<N>, h: f64) -> (Vector<D>, bool) {
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();
+        self.prior = (f64::NAN, false);
         if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
+            if w.h == h {
+                self.prior = (w.rate, w.rate_decoupled);
+            }
             if w.h == h && w.depth >= 2 {
                 if let Some(poly) = &self.step_polynomial {
                     poly.predict::<N, M, D>(w.back(0), w.back(1), &mut z);

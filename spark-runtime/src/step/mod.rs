@@ -134,8 +134,11 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// The stage-decoupled Newton matrix's factors (heap, allocated once).
     decoupled: DecoupledMatrix<N, M, S>,
     /// What the latest solve earned on its final factors and whether they
-    /// were the stage-decoupled matrix's (see `Warm::rate`).
+    /// were the stage-decoupled matrix's (see `Warm::rate`), and the same of
+    /// the step this one continues (NaN when it continues none of size `h`;
+    /// set with the starting guess).
     solved_rate: (f64, bool),
+    prior: (f64, bool),
     /// The starting guess of a continuing Gauss step (`None` for the other
     /// families, which extrapolate across steps).
     step_polynomial: Option<StepPolynomial<S>>,
@@ -219,6 +222,7 @@ where
             decoupled: DecoupledMatrix::new(),
             step_polynomial: StepPolynomial::new(&tableau),
             solved_rate: (f64::NAN, false),
+            prior: (f64::NAN, false),
             exact_steps_left: 0,
             quadratic: f64::NAN,
             reusable: None,

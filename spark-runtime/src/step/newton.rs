@@ -5,7 +5,6 @@
 
 use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
-use super::guess::Warm;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
 use crate::linalg::scaled_update_norm;
@@ -299,7 +298,8 @@ where
         let mut factorizations = 0usize;
         // Simplified Newton's floor under its contraction estimate: what the
         // previous step of this chain earned on the same kind of matrix.
-        let priors = [false, true].map(|d| if simplified { Warm::prior(&self.warm, state, h, d) } else { f64::NAN });
+        let (prior_rate, prior_decoupled) = self.prior;
+        let prior = |decoupled: bool| if simplified && decoupled == prior_decoupled { prior_rate } else { f64::NAN };
         let mut monitor = Contraction::FRESH;
         let mut g = Vector::<D>::zeros();
         let result = 'solve: {
@@ -328,7 +328,7 @@ where
                 let residual = self.iteration_residual(state, carry, &p0, h, z, jacobians, &mut g)?;
                 if fresh {
                     factorizations += 1;
-                    monitor = Contraction::fresh(priors[usize::from(decoupled)]);
+                    monitor = Contraction::fresh(prior(decoupled));
                     factored_at = k;
                     if decoupled && self.factor_decoupled(state, carry, h, z, lean).is_err() {
                         decoupled = false;
