@@ -8,13 +8,15 @@ use crate::system::{NonholonomicSystem, StageValues, Vector};
 use crate::tableau::{Method, Tableau};
 use crate::State;
 
-/// How many previous solutions the starting-guess extrapolation keeps.
-pub(crate) const PAST: usize = 4;
+/// How many previous solutions the starting-guess extrapolation keeps: the
+/// `d + 1` it extrapolates at degree `d ≤ 3`, and the one before them, whose
+/// end velocity is the oldest one's start velocity.
+pub(crate) const PAST: usize = 5;
 
 /// Newton backward differences: the extrapolation of degree `d` from the
-/// `d + 1` latest solutions takes row `d − 1`, most recent solution first.
-pub(crate) const EXTRAPOLATION: [[f64; PAST]; PAST - 1] =
-    [[2.0, -1.0, 0.0, 0.0], [3.0, -3.0, 1.0, 0.0], [4.0, -6.0, 4.0, -1.0]];
+/// `d + 1` latest solutions takes row `d`, most recent solution first.
+pub(crate) const EXTRAPOLATION: [[f64; PAST - 1]; PAST - 1] =
+    [[1.0, 0.0, 0.0, 0.0], [2.0, -1.0, 0.0, 0.0], [3.0, -3.0, 1.0, 0.0], [4.0, -6.0, 4.0, -1.0]];
 
 /// The starting guess of a Gauss step that continues a step of the same
 /// size: the polynomial through the previous step's start velocity `v₀`, its
@@ -191,10 +193,13 @@ where
     Sys: NonholonomicSystem<N, M>,
 {
     /// The starting guess. When this step continues earlier steps of the
-    /// same size, the stage unknowns are extrapolated across steps by the
-    /// polynomial through the last solutions (the stage values are smooth
-    /// functions of `t₀` for fixed `h`, whatever the method's stage order:
-    /// for Lobatto IIIA-B, `V₁ = V₂ ≈ v(t₀ + h/2)` is not `v` at the nodes).
+    /// same size, a Gauss step with `S ≥ 2` starts from the step polynomial
+    /// ([`StepPolynomial`]); the other methods extrapolate across steps by
+    /// the polynomial through the last solutions (the stage values are
+    /// smooth functions of `t₀` for fixed `h`, whatever the method's stage
+    /// order: for Lobatto IIIA-B, `V₁ = V₂ ≈ v(t₀ + h/2)` is not `v` at the
+    /// nodes), the velocities as increments from the known start velocity
+    /// (the multipliers `μ = hΨ` as they are).
     /// After a change of step size, the interpolating polynomial through the
     /// previous stage values at the nodes `c_j` is evaluated at the new nodes.
     /// Without a previous step: `V_i = v₀ + c_i h a₀`, `Ψ_i = ψ₀` from the
@@ -215,9 +220,20 @@ where
                     poly.predict::<N, M, D>(w.back(0), w.back(1), &mut z);
                     return (z, true);
                 }
-                let degree = (w.depth - 1).min(self.options.extrapolation_degree.clamp(1, PAST - 1));
-                for (k, coef) in EXTRAPOLATION[degree - 1].iter().enumerate().take(degree + 1) {
+                // The velocities' increments from the start velocity,
+                // `V_i − v₀` and `v₁ − v₀`, are `O(h)`: extrapolated and added
+                // to the known `v₀` they gain a power of `h` over the
+                // velocities themselves. Step k's `v₀` is step k+1's `v₁`.
+                let degree = (w.depth - 2).min(self.options.extrapolation_degree.clamp(1, PAST - 2));
+                let end = S * (N + M);
+                let mut start = state.v;
+                for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
                     z += *coef * w.back(k);
+                    start -= *coef * w.back(k + 1).fixed_rows::<N>(end);
+                }
+                for at in (0..S).map(|i| i * N).chain([end]) {
+                    let mut v = z.fixed_rows_mut::<N>(at);
+                    v += &start;
                 }
                 return (z, true);
             }
@@ -270,5 +286,88 @@ where
         }
         z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&(state.v + h * a0));
         (z, false)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Warm, PAST};
+    use crate::fixtures::paper::Particle;
+    use crate::tableau::{Method, Tableau};
+    use crate::{State, Stepper, Vector};
+
+    const N: usize = 3;
+    const S: usize = 3;
+    const D: usize = S * (N + 1) + N;
+
+    /// A stepper of `method` whose warm start holds `past` (most recent
+    /// first), the chain ending at velocity `v`.
+    fn warm_stepper(method: Method, h: f64, v: Vector<N>, past: [Vector<D>; PAST]) -> Stepper<Particle, N, 1, S, D> {
+        let mut stepper = Stepper::<Particle, N, 1, S, D>::new(Particle, Tableau::new(method).unwrap());
+        let end = State::new(0.0, Vector::zeros(), v);
+        stepper.warm = Some(Warm { h, end, past, head: 0, depth: PAST, rate: f64::NAN, rate_decoupled: false });
+        stepper
+    }
+
+    fn assert_close(guess: &Vector<D>, expected: &Vector<D>) {
+        for (g, x) in guess.iter().zip(expected.iter()) {
+            assert!((g - x).abs() <= 1e-12 * (1.0 + x.abs()), "guess {guess:?}\nexpected {expected:?}");
+        }
+    }
+
+    /// Extrapolation across steps (degree 2, Lobatto IIIA-B): exact when
+    /// the velocities' increments from the start velocity and the
+    /// multipliers are quadratic in the step index, although the start
+    /// velocities themselves are cubic (so extrapolating the velocities
+    /// themselves at degree 2 would not be).
+    #[test]
+    fn extrapolated_increments_are_exact_for_quadratic_increments() {
+        let start = |m: f64| Vector::<N>::from_fn(|n, _| (n as f64 + 1.0) * m * m * m - 0.5 * m + n as f64);
+        let increment = |i: usize, m: f64| 0.3 * (i as f64 + 1.0) * m * m - 0.2 * m + 0.1 * i as f64;
+        let multiplier = |i: usize, m: f64| 0.05 * m * m + 0.7 * m - (i as f64);
+        // The solution of the step with index m, which starts at start(m).
+        let z = |m: f64| {
+            let mut z = Vector::<D>::zeros();
+            for i in 0..S {
+                for n in 0..N {
+                    z[i * N + n] = start(m)[n] + increment(i, m) * (n as f64 + 1.0);
+                }
+                z[S * N + i] = multiplier(i, m);
+            }
+            z.fixed_rows_mut::<N>(S * (N + 1)).copy_from(&start(m + 1.0));
+            z
+        };
+        let past = std::array::from_fn(|k| z(-1.0 - k as f64));
+        let mut stepper = warm_stepper(Method::LobattoIIIAB, 0.1, start(0.0), past);
+        let (guess, warm) = stepper.starting_guess(&State::new(0.0, Vector::zeros(), start(0.0)), 0.1);
+        assert!(warm);
+        assert_close(&guess, &z(0.0));
+    }
+
+    /// The step polynomial (Gauss): exact when the velocities are a
+    /// polynomial of degree `S + 1` in time and the multipliers one of
+    /// degree `S − 1`.
+    #[test]
+    fn the_step_polynomial_is_exact_for_polynomial_velocities() {
+        let h = 0.2;
+        let tableau = Tableau::<S>::new(Method::Gauss).unwrap();
+        let c = tableau.c;
+        // Time in units of h, the new step on [0, 1].
+        let velocity = |theta: f64| Vector::<N>::from_fn(|n, _| (theta + n as f64 * 0.3).powi(S as i32 + 1) - theta);
+        let multiplier = |theta: f64| 0.4 * theta * theta - theta + 2.0;
+        let z = |m: f64| {
+            let mut z = Vector::<D>::zeros();
+            for i in 0..S {
+                z.fixed_rows_mut::<N>(i * N).copy_from(&velocity(m + c[i]));
+                z[S * N + i] = multiplier(m + c[i]);
+            }
+            z.fixed_rows_mut::<N>(S * (N + 1)).copy_from(&velocity(m + 1.0));
+            z
+        };
+        let past = std::array::from_fn(|k| z(-1.0 - k as f64));
+        let mut stepper = warm_stepper(Method::Gauss, h, velocity(0.0), past);
+        let (guess, warm) = stepper.starting_guess(&State::new(0.0, Vector::zeros(), velocity(0.0)), h);
+        assert!(warm);
+        assert_close(&guess, &z(0.0));
     }
 }

@@ -70,7 +70,9 @@ pub struct NewtonOptions {
     pub warm_start: bool,
     /// Degree (1..=3) of the polynomial extrapolating the solutions of
     /// previous equal steps to the next starting guess (the methods without
-    /// the Gauss step polynomial, see [`warm_start`](Self::warm_start)).
+    /// the Gauss step polynomial, see [`warm_start`](Self::warm_start)): the
+    /// velocities' increments `V_i − v₀`, `v₁ − v₀` and the multipliers,
+    /// from the latest `degree + 1` steps (fewer at the start of a chain).
     pub extrapolation_degree: usize,
     /// Energy guard: when the structure facts make `E` a first integral
     /// (autonomous `L`, constraints absent or linear homogeneous in `v` —

@@ -20,17 +20,21 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             self.step_polynomial_guess(&poly);
             return;
         }
-        let degree = |w: usize| (self.depth[w] - 1).min(opts.extrapolation_degree.clamp(1, PAST - 1));
+        let degree = |w: usize| (self.depth[w] - 2).min(opts.extrapolation_degree.clamp(1, PAST - 2));
+        let end = S * (N + M);
         let first = (0..W).find(|&w| self.held[w]);
         let uniform = first
             .is_some_and(|f| (0..W).all(|w| !self.held[w] || (degree(w) == degree(f) && self.head[w] == self.head[f])));
+        // The start velocity less the extrapolated previous ones (step k's
+        // `v₀` is step k+1's `v₁`), added to every velocity block.
+        let mut start = *self.v;
         if let (Some(f), true) = (first, uniform) {
             // Every held lane extrapolates alike: whole rows at once (the
             // lanes not held compute garbage nobody reads).
             let (degree, head) = (degree(f), self.head[f]);
             for d in 0..D {
                 let mut z = [0.0; W];
-                for (k, coef) in EXTRAPOLATION[degree - 1].iter().enumerate().take(degree + 1) {
+                for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
                     let past = self.past[((head + k) % PAST) * D + d];
                     for w in 0..W {
                         z[w] += *coef * past[w];
@@ -38,20 +42,39 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 self.z[d] = z;
             }
-            return;
-        }
-        for w in 0..W {
-            if !self.held[w] {
-                continue;
+            for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
+                let slot = ((head + k + 1) % PAST) * D + end;
+                for n in 0..N {
+                    for w in 0..W {
+                        start[n][w] -= *coef * self.past[slot + n][w];
+                    }
+                }
             }
-            let degree = degree(w);
-            for d in 0..D {
-                self.z[d][w] = 0.0;
-            }
-            for (k, coef) in EXTRAPOLATION[degree - 1].iter().enumerate().take(degree + 1) {
-                let slot = (self.head[w] + k) % PAST;
+        } else {
+            for w in 0..W {
+                if !self.held[w] {
+                    continue;
+                }
+                let degree = degree(w);
                 for d in 0..D {
-                    self.z[d][w] += *coef * self.past[slot * D + d][w];
+                    self.z[d][w] = 0.0;
+                }
+                for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
+                    let slot = (self.head[w] + k) % PAST;
+                    for d in 0..D {
+                        self.z[d][w] += *coef * self.past[slot * D + d][w];
+                    }
+                    let before = ((self.head[w] + k + 1) % PAST) * D + end;
+                    for n in 0..N {
+                        start[n][w] -= *coef * self.past[before + n][w];
+                    }
+                }
+            }
+        }
+        for at in (0..S).map(|i| i * N).chain([end]) {
+            for n in 0..N {
+                for w in 0..W {
+                    self.z[at + n][w] += start[n][w];
                 }
             }
         }
