@@ -188,6 +188,18 @@ impl<const N: usize, const D: usize> Warm<N, D> {
     }
 }
 
+/// A step's starting guess.
+pub(super) struct Guess<const D: usize> {
+    pub(super) z: Vector<D>,
+    /// Whether it came from previous steps.
+    pub(super) warm: bool,
+    /// What the step it continues with the same `h` earned on its final
+    /// factors and whether they were the stage-decoupled matrix's
+    /// (`Warm::rate`; NaN when it continues none): simplified Newton's
+    /// floor under its contraction estimate.
+    pub(super) prior: (f64, bool),
+}
+
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
 where
     Sys: NonholonomicSystem<N, M>,
@@ -204,21 +216,15 @@ where
     /// previous stage values at the nodes `c_j` is evaluated at the new nodes.
     /// Without a previous step: `V_i = v₀ + c_i h a₀`, `Ψ_i = ψ₀` from the
     /// consistent acceleration and multiplier.
-    ///
-    /// Also sets `self.prior`: what the previous step earned, when this step
-    /// continues it with the same `h` (NaN otherwise).
-    pub(super) fn starting_guess(&mut self, state: &State<N>, h: f64) -> (Vector<D>, bool) {
+    pub(super) fn starting_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();
-        self.prior = (f64::NAN, false);
         if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
-            if w.h == h {
-                self.prior = (w.rate, w.rate_decoupled);
-            }
+            let prior = if w.h == h { (w.rate, w.rate_decoupled) } else { (f64::NAN, false) };
             if w.h == h && w.depth >= 2 {
                 if let Some(poly) = &self.step_polynomial {
                     poly.predict::<N, M, D>(w.back(0), w.back(1), &mut z);
-                    return (z, true);
+                    return Guess { z, warm: true, prior };
                 }
                 // The velocities' increments from the start velocity,
                 // `V_i − v₀` and `v₁ − v₀`, are `O(h)`: extrapolated and added
@@ -235,7 +241,7 @@ where
                     let mut v = z.fixed_rows_mut::<N>(at);
                     v += &start;
                 }
-                return (z, true);
+                return Guess { z, warm: true, prior };
             }
             let r = h / w.h;
             if r.abs() <= 4.0 {
@@ -270,7 +276,7 @@ where
                         z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&vi);
                     }
                 }
-                return (z, true);
+                return Guess { z, warm: true, prior };
             }
         }
         // Scratch: the work storage's end-point Jacobians (heap, so no N×N
@@ -285,7 +291,7 @@ where
             z.fixed_rows_mut::<M>(S * N + i * M).copy_from(&(psi0 * h));
         }
         z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&(state.v + h * a0));
-        (z, false)
+        Guess { z, warm: false, prior: (f64::NAN, false) }
     }
 }
 
@@ -339,7 +345,8 @@ mod tests {
         };
         let past = std::array::from_fn(|k| z(-1.0 - k as f64));
         let mut stepper = warm_stepper(Method::LobattoIIIAB, 0.1, start(0.0), past);
-        let (guess, warm) = stepper.starting_guess(&State::new(0.0, Vector::zeros(), start(0.0)), 0.1);
+        let super::Guess { z: guess, warm, .. } =
+            stepper.starting_guess(&State::new(0.0, Vector::zeros(), start(0.0)), 0.1);
         assert!(warm);
         assert_close(&guess, &z(0.0));
     }
@@ -366,7 +373,8 @@ mod tests {
         };
         let past = std::array::from_fn(|k| z(-1.0 - k as f64));
         let mut stepper = warm_stepper(Method::Gauss, h, velocity(0.0), past);
-        let (guess, warm) = stepper.starting_guess(&State::new(0.0, Vector::zeros(), velocity(0.0)), h);
+        let super::Guess { z: guess, warm, .. } =
+            stepper.starting_guess(&State::new(0.0, Vector::zeros(), velocity(0.0)), h);
         assert!(warm);
         assert_close(&guess, &z(0.0));
     }

@@ -65,7 +65,8 @@ use crate::tableau::Tableau;
 use cold_start::check_cold_start;
 use compensation::Compensation;
 use equations::{increment, split, Eval, EvalJac};
-use guess::Warm;
+use guess::{Guess, Warm};
+use newton::Solved;
 
 /// A point `(t, q, v)` of the phase space.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -133,12 +134,6 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     block: Box<[f64]>,
     /// The stage-decoupled Newton matrix's factors (heap, allocated once).
     decoupled: DecoupledMatrix<N, M, S>,
-    /// What the latest solve earned on its final factors and whether they
-    /// were the stage-decoupled matrix's (see `Warm::rate`), and the same of
-    /// the step this one continues (NaN when it continues none of size `h`;
-    /// set with the starting guess).
-    solved_rate: (f64, bool),
-    prior: (f64, bool),
     /// The starting guess of a continuing Gauss step (`None` for the other
     /// families, which extrapolate across steps).
     step_polynomial: Option<StepPolynomial<S>>,
@@ -221,8 +216,6 @@ where
             block: vec![0.0; N * N].into_boxed_slice(),
             decoupled: DecoupledMatrix::new(),
             step_polynomial: StepPolynomial::new(&tableau),
-            solved_rate: (f64::NAN, false),
-            prior: (f64::NAN, false),
             exact_steps_left: 0,
             quadratic: f64::NAN,
             reusable: None,
@@ -395,9 +388,9 @@ where
             let tolerance = self.options.consistency_tolerance.max(self.accepted_start_residual);
             check_cold_start::<Sys, N, M>(&self.system, state, h, tolerance, &mut vals, &mut self.work.end)?;
         }
-        let (mut z, warm_started) = self.starting_guess(state, h);
+        let Guess { mut z, warm: warm_started, prior } = self.starting_guess(state, h);
         let carry = self.carry_for(state);
-        let factorizations = self.newton(state, &carry, h, &mut z)?;
+        let Solved { factorizations, rate } = self.newton(state, &carry, h, &mut z, prior)?;
         let iterations = self.history.len();
         let (v, mu) = split::<N, M, S, D>(&z);
         // The increment is summed on its own and added once; what q₁ cannot
@@ -420,7 +413,7 @@ where
                 }
             }
         }
-        Warm::remember(&mut self.warm, state, end, h, z, self.solved_rate);
+        Warm::remember(&mut self.warm, state, end, h, z, rate);
         self.compensation = Some(Compensation { end, carry });
         let mut psi = mu;
         for p in psi.iter_mut() {

@@ -160,6 +160,15 @@ impl Default for NewtonOptions {
     }
 }
 
+/// What a converged Newton solve reports to its step.
+pub(super) struct Solved {
+    pub(super) factorizations: usize,
+    /// The largest ratio of consecutive updates on the final factors (NaN
+    /// for full Newton) and whether they were the stage-decoupled matrix's:
+    /// the next step's prior (`Warm::rate`).
+    pub(super) rate: (f64, bool),
+}
+
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
 where
     Sys: NonholonomicSystem<N, M>,
@@ -234,8 +243,9 @@ where
         Ok(largest)
     }
 
-    /// Newton's method on `G(z) = 0`; records the iterations in `self.history`
-    /// and returns the number of factorizations.
+    /// Newton's method on `G(z) = 0` from the starting guess `z`, with the
+    /// `prior` of that guess ([`Guess`](super::guess::Guess)); records the
+    /// iterations in `self.history`.
     ///
     /// # Stopping
     /// Every update `Δz` is computed with some factors `F` of a Newton
@@ -274,7 +284,8 @@ where
         carry: &Vector<N>,
         h: f64,
         z: &mut Vector<D>,
-    ) -> Result<usize, StepError> {
+        prior: (f64, bool),
+    ) -> Result<Solved, StepError> {
         let t = state.t;
         let opts = self.options;
         let p0 = self.system.momentum(t, &state.q, &state.v);
@@ -300,7 +311,7 @@ where
         let mut factorizations = 0usize;
         // Simplified Newton's floor under its contraction estimate: what the
         // previous step of this chain earned on the same kind of matrix.
-        let (prior_rate, prior_decoupled) = self.prior;
+        let (prior_rate, prior_decoupled) = prior;
         let prior = |decoupled: bool| if simplified && decoupled == prior_decoupled { prior_rate } else { f64::NAN };
         let mut monitor = Contraction::FRESH;
         let mut g = Vector::<D>::zeros();
@@ -416,9 +427,9 @@ where
         };
         if result.is_ok() {
             self.remember_solve(simplified && max_rate <= REUSE_RATE, h, decoupled);
-            self.solved_rate = (if simplified { monitor.observed() } else { f64::NAN }, decoupled);
         }
-        result.map(|()| factorizations)
+        let rate = (if simplified { monitor.observed() } else { f64::NAN }, decoupled);
+        result.map(|()| Solved { factorizations, rate })
     }
 
     /// Full Newton's acceptance before a new Jacobian: the residual at the
