@@ -269,10 +269,10 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             constraint,
             constraint_force,
         } = values;
-        force.fill(0.0);
-        constraint_force.fill(0.0);
-        constraint_q.fill(0.0);
-        constraint_v.fill(0.0);
+        force.as_mut_slice().fill(0.0);
+        constraint_force.as_mut_slice().fill(0.0);
+        constraint_q.as_mut_slice().fill(0.0);
+        constraint_v.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
@@ -470,16 +470,16 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             constraint_force_q,
             constraint_force_v,
         } = jacobians;
-        force.fill(0.0);
-        constraint_force.fill(0.0);
-        momentum_q.fill(0.0);
-        mass.fill(0.0);
-        force_q.fill(0.0);
-        force_v.fill(0.0);
-        constraint_q.fill(0.0);
-        constraint_v.fill(0.0);
-        constraint_force_q.fill(0.0);
-        constraint_force_v.fill(0.0);
+        force.as_mut_slice().fill(0.0);
+        constraint_force.as_mut_slice().fill(0.0);
+        momentum_q.as_mut_slice().fill(0.0);
+        mass.as_mut_slice().fill(0.0);
+        force_q.as_mut_slice().fill(0.0);
+        force_v.as_mut_slice().fill(0.0);
+        constraint_q.as_mut_slice().fill(0.0);
+        constraint_v.as_mut_slice().fill(0.0);
+        constraint_force_q.as_mut_slice().fill(0.0);
+        constraint_force_v.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
