@@ -65,7 +65,8 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
     // the maximum a comparison (a NaN `r` never wins it).
     let mut norm = 0.0f64;
     let mut nan = false;
-    for (d, x) in update.iter().zip(z.iter()) {
+    // Over the slices: nalgebra's element iterators do not vectorize.
+    for (d, x) in update.as_slice().iter().zip(z.as_slice()) {
         let r = d.abs() / (1.0 + x.abs());
         nan |= r.is_nan();
         norm = if r > norm { r } else { norm };

@@ -232,7 +232,7 @@ where
         *g = Self::residual(&self.tableau, p0, h, z, &self.eval);
         // One pass for both: the finiteness test and the largest magnitude.
         let (mut finite, mut largest) = (true, 0.0f64);
-        for x in g.iter() {
+        for x in g.as_slice() {
             finite &= x.is_finite();
             largest = largest.max(x.abs());
         }
