@@ -1,4 +1,5 @@
-//! A step loop to profile: the paper's particle or skate, declared with
+//! A step loop to profile: the paper's particle, skate or McLachlan–Perlmutter
+//! particles (`mp7`, n = 7, from the j = 5 state of Fig. 8.4), declared with
 //! `nonholonomic_system!`, stepped over `t ∈ [0, 10]` from the paper's
 //! initial values, `repeats` times, with one Newton mode, and the mean time
 //! and Newton updates per step printed. Built for `perf record` and
@@ -10,7 +11,7 @@
 //! valgrind --tool=callgrind target/profiling/examples/step_profile skate decoupled 2 200
 //! ```
 //!
-//! Arguments: `particle|skate`, `full|simplified|decoupled` (full Newton,
+//! Arguments: `particle|skate|mp7`, `full|simplified|decoupled` (full Newton,
 //! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
 //! Gauss stages `1..=3`, repeats, and `loop|integrate`: a bare loop of
 //! `Stepper::step` (the default) or one `Stepper::integrate` call per repeat
@@ -45,16 +46,28 @@ nonholonomic_system! {
     }
 }
 
-fn run<Sys: NonholonomicSystem<3, 1>, const S: usize, const D: usize>(
+nonholonomic_system! {
+    /// McLachlan and Perlmutter's particles, `n = 7`, the constraint as the
+    /// paper prints it (paper §8.4).
+    pub struct Mp7 {
+        coordinates: [q1, q2, q3, q4, q5, q6, q7],
+        lagrangian: (dot(q1)^2 + dot(q2)^2 + dot(q3)^2 + dot(q4)^2 + dot(q5)^2 + dot(q6)^2 + dot(q7)^2)/2
+            - (q1^2 + q2^2 + q3^2 + q4^2 + q5^2 + q6^2 + q7^2
+               + q5^2*q6^2 + q2^2*q5^2 + q3^2*q6^2 + q4^2*q7^2)/2,
+        constraints: [ dot(q1) + q5*dot(q5) + q6*dot(q6) + q7*dot(q7) ],
+    }
+}
+
+fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: usize>(
     sys: Sys,
-    start: State<3>,
+    start: State<N>,
     h: f64,
     options: NewtonOptions,
     repeats: usize,
     driver: Driver,
 ) -> Result<(), String> {
     let tableau = Tableau::new(Method::Gauss).map_err(|e| e.to_string())?;
-    let mut stepper = Stepper::<Sys, 3, 1, S, D>::new(sys, tableau).with_options(options);
+    let mut stepper = Stepper::<Sys, N, 1, S, D>::new(sys, tableau).with_options(options);
     let (mut updates, mut steps, mut end) = (0usize, 0usize, start);
     let run_options = RunOptions {
         observe: Observe { energy: false, constraint_residual: false, multipliers: false },
@@ -124,13 +137,21 @@ fn main() -> Result<(), String> {
     };
     let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
     let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    // The paper's j = 5 state of Fig. 8.4.
+    let angle = 5.0 * std::f64::consts::PI / 18.0;
+    let mut mp7 =
+        State::new(0.0, Vector::<7>::from_column_slice(&[angle.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
+    mp7.v[1] = angle.sin();
     match (arg(1, "skate").as_str(), stages) {
-        ("skate", 1) => run::<_, 1, 7>(Skate::default(), skate, 0.1, options, repeats, driver),
-        ("skate", 2) => run::<_, 2, 11>(Skate::default(), skate, 0.1, options, repeats, driver),
-        ("skate", 3) => run::<_, 3, 15>(Skate::default(), skate, 0.1, options, repeats, driver),
-        ("particle", 1) => run::<_, 1, 7>(Particle::default(), particle, 0.2, options, repeats, driver),
-        ("particle", 2) => run::<_, 2, 11>(Particle::default(), particle, 0.2, options, repeats, driver),
-        ("particle", 3) => run::<_, 3, 15>(Particle::default(), particle, 0.2, options, repeats, driver),
-        (system, s) => Err(format!("no case {system} with s = {s}: particle or skate, s = 1..=3")),
+        ("skate", 1) => run::<_, 3, 1, 7>(Skate::default(), skate, 0.1, options, repeats, driver),
+        ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, 0.1, options, repeats, driver),
+        ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, 0.1, options, repeats, driver),
+        ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, 0.2, options, repeats, driver),
+        ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, 0.2, options, repeats, driver),
+        ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, 0.2, options, repeats, driver),
+        ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, 0.05, options, repeats, driver),
+        ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, 0.05, options, repeats, driver),
+        ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, 0.05, options, repeats, driver),
+        (system, s) => Err(format!("no case {system} with s = {s}: particle, skate or mp7, s = 1..=3")),
     }
 }
