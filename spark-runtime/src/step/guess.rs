@@ -147,8 +147,7 @@ pub(super) struct Warm<const N: usize, const D: usize> {
     /// factors (NaN for none, or for full Newton), and whether those were
     /// the stage-decoupled matrix's: the next step's floor under its
     /// contraction estimate ([`Contraction`](super::Contraction)).
-    pub(super) rate: f64,
-    pub(super) rate_decoupled: bool,
+    pub(super) rate: (f64, bool),
 }
 
 impl<const N: usize, const D: usize> Warm<N, D> {
@@ -176,13 +175,12 @@ impl<const N: usize, const D: usize> Warm<N, D> {
                 w.past[w.head] = z;
                 w.depth = (w.depth + 1).min(PAST);
                 w.end = end;
-                (w.rate, w.rate_decoupled) = rate;
+                w.rate = rate;
             }
             None => {
                 let mut past = [Vector::<D>::zeros(); PAST];
                 past[0] = z;
-                let (rate, rate_decoupled) = rate;
-                *warm = Some(Warm { h, end, past, head: 0, depth: 1, rate, rate_decoupled });
+                *warm = Some(Warm { h, end, past, head: 0, depth: 1, rate });
             }
         }
     }
@@ -220,7 +218,7 @@ where
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();
         if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
-            let prior = if w.h == h { (w.rate, w.rate_decoupled) } else { (f64::NAN, false) };
+            let prior = if w.h == h { w.rate } else { (f64::NAN, false) };
             if w.h == h && w.depth >= 2 {
                 if let Some(poly) = &self.step_polynomial {
                     poly.predict::<N, M, D>(w.back(0), w.back(1), &mut z);
@@ -311,7 +309,7 @@ mod tests {
     fn warm_stepper(method: Method, h: f64, v: Vector<N>, past: [Vector<D>; PAST]) -> Stepper<Particle, N, 1, S, D> {
         let mut stepper = Stepper::<Particle, N, 1, S, D>::new(Particle, Tableau::new(method).unwrap());
         let end = State::new(0.0, Vector::zeros(), v);
-        stepper.warm = Some(Warm { h, end, past, head: 0, depth: PAST, rate: f64::NAN, rate_decoupled: false });
+        stepper.warm = Some(Warm { h, end, past, head: 0, depth: PAST, rate: (f64::NAN, false) });
         stepper
     }
 

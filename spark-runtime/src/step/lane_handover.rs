@@ -83,7 +83,7 @@ where
         }
         let (w, c) = (self.warm.as_ref()?, self.compensation.as_ref()?);
         let past = std::array::from_fn(|k| if k < w.depth { *w.back(k) } else { Vector::zeros() });
-        let rate = if w.rate_decoupled { w.rate } else { f64::NAN };
+        let rate = if w.rate.1 { w.rate.0 } else { f64::NAN };
         Some(LaneContinuation { end: *state, h, carry: c.carry, anchor: self.anchor, past, depth: w.depth, rate })
     }
 
@@ -91,15 +91,8 @@ where
     /// `c.end` computes exactly what it would had this stepper taken the
     /// kernel's steps itself.
     pub(crate) fn resume_lane(&mut self, c: &LaneContinuation<N, D>) {
-        self.warm = Some(Warm {
-            h: c.h,
-            end: c.end,
-            past: c.past,
-            head: 0,
-            depth: c.depth.min(PAST),
-            rate: c.rate,
-            rate_decoupled: true,
-        });
+        self.warm =
+            Some(Warm { h: c.h, end: c.end, past: c.past, head: 0, depth: c.depth.min(PAST), rate: (c.rate, true) });
         self.compensation = Some(Compensation { end: c.end, carry: c.carry });
         self.anchor = c.anchor;
         self.reusable = None;
