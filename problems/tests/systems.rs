@@ -137,9 +137,19 @@ fn check<S, const N: usize, const M: usize>(
         sys.stage_values_and_constraint_jacobians(*t, q, v, psi, &mut sv3, &mut k_q, &mut k_v);
         assert_close(&w("fused constraint_q"), &k_q, &h.k_q, TOL);
         assert_close(&w("fused constraint_v"), &k_v, &h.k_v, TOL);
-        for (tag, vals) in
-            [("stage_values", &sv), ("stage_jacobians.0", &sv2), ("values_and_constraint_jacobians", &sv3)]
-        {
+        // The residual's in-place form, into garbage as well.
+        let mut sv4 = sv3;
+        sv4.momentum.fill(f64::NAN);
+        sv4.force.fill(f64::NAN);
+        sv4.constraint.fill(f64::NAN);
+        sv4.constraint_force.fill(f64::NAN);
+        sys.stage_values_into(*t, q, v, psi, &mut sv4);
+        for (tag, vals) in [
+            ("stage_values", &sv),
+            ("stage_jacobians.0", &sv2),
+            ("values_and_constraint_jacobians", &sv3),
+            ("stage_values_into", &sv4),
+        ] {
             assert_close(&w(&format!("{tag}.momentum")), &vals.momentum, &h.p, TOL);
             assert_close(&w(&format!("{tag}.force")), &vals.force, &h.f, TOL);
             assert_close(&w(&format!("{tag}.constraint")), &vals.constraint, &h.k, TOL);

@@ -13,8 +13,9 @@
 //!
 //! Arguments: `particle|skate|mp7`, `full|simplified|decoupled` (full Newton,
 //! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
-//! Gauss stages `1..=3`, repeats, and `loop|integrate`: a bare loop of
-//! `Stepper::step` (the default) or one `Stepper::integrate` call per repeat
+//! Gauss stages `1..=3`, repeats, `loop|integrate` and the step `h`
+//! (default: the paper's). `loop` is a bare loop of
+//! `Stepper::step` (the default), `integrate` one `Stepper::integrate` call per repeat
 //! with the same steps, nothing observed and only the endpoints recorded
 //! (the driver's own cost is the difference of the two). With `SPARK_PRINT_END=1` it also prints
 //! the end state of the last repeat in full precision (to check that two
@@ -115,16 +116,20 @@ fn main() -> Result<(), String> {
     let mut mp7 =
         State::new(0.0, Vector::<7>::from_column_slice(&[angle.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
     mp7.v[1] = angle.sin();
+    // The paper's step unless a sixth argument gives another.
+    let step = |paper: f64| -> Result<f64, String> {
+        args.get(6).map_or(Ok(paper), |h| h.parse().map_err(|e| format!("step: {e}")))
+    };
     match (arg(1, "skate").as_str(), stages) {
-        ("skate", 1) => run::<_, 3, 1, 7>(Skate::default(), skate, 0.1, options, repeats, driver),
-        ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, 0.1, options, repeats, driver),
-        ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, 0.1, options, repeats, driver),
-        ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, 0.2, options, repeats, driver),
-        ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, 0.2, options, repeats, driver),
-        ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, 0.2, options, repeats, driver),
-        ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, 0.05, options, repeats, driver),
-        ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, 0.05, options, repeats, driver),
-        ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, 0.05, options, repeats, driver),
+        ("skate", 1) => run::<_, 3, 1, 7>(Skate::default(), skate, step(0.1)?, options, repeats, driver),
+        ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, step(0.1)?, options, repeats, driver),
+        ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, step(0.1)?, options, repeats, driver),
+        ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
+        ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
+        ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
+        ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
+        ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
+        ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
         (system, s) => Err(format!("no case {system} with s = {s}: particle, skate or mp7, s = 1..=3")),
     }
 }

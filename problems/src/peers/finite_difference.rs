@@ -70,6 +70,9 @@ impl<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize> Nonholonomic
     fn stage_values(&self, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>) -> StageValues<N, M> {
         self.0.stage_values(t, q, v, psi)
     }
+    fn stage_values_into(&self, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>, values: &mut StageValues<N, M>) {
+        self.0.stage_values_into(t, q, v, psi, values)
+    }
 
     fn stage_jacobians(
         &self,

@@ -75,7 +75,8 @@ where
         let carry = self.carry_for(state);
         let mut ev = Eval::zeros();
         Self::evaluate(&self.system, &self.tableau, state, &carry, h, &z, Derivatives::Full(&mut *self.work), &mut ev);
-        let g = Self::residual(&self.tableau, &p0, h, &z, &ev);
+        let mut g = Vector::<D>::zeros();
+        Self::residual(&self.tableau, &p0, h, &z, &ev, &mut g);
         self.assemble_jacobian(h);
         self.reusable = None;
         (&self.newton, g)
@@ -145,7 +146,7 @@ where
                             Some((kv, kq)) => {
                                 system.stage_values_and_constraint_jacobians(t, q, v, psi, out, &mut kq[p], &mut kv[p])
                             }
-                            None => *out = system.stage_values(t, q, v, psi),
+                            None => system.stage_values_into(t, q, v, psi, out),
                         }
                     };
                 for i in 0..S {
@@ -168,9 +169,18 @@ where
         }
     }
 
-    /// The SPARK residual `G(z)` (see the module docs for the row layout).
-    pub(super) fn residual(tab: &Tableau<S>, p0: &Vector<N>, h: f64, z: &Vector<D>, ev: &Eval<N, M, S>) -> Vector<D> {
-        let mut g = Vector::<D>::zeros();
+    /// The SPARK residual `G(z)` (see the module docs for the row layout),
+    /// written into `g` (every entry; returned by value, the `D`-vector was
+    /// copied into place by a `memcpy` call).
+    pub(super) fn residual(
+        tab: &Tableau<S>,
+        p0: &Vector<N>,
+        h: f64,
+        z: &Vector<D>,
+        ev: &Eval<N, M, S>,
+        g: &mut Vector<D>,
+    ) {
+        g.as_mut_slice().fill(0.0);
         let mut row = |i: usize, weights_hat: &[f64; S], weights_tilde: &[f64; S], momentum: &Vector<N>| {
             let mut r = momentum - p0;
             for j in 0..S {
@@ -211,7 +221,6 @@ where
             }
         }
         g.fixed_rows_mut::<M>(D - M).copy_from(&ev.end.constraint);
-        g
     }
 
     /// The exact Jacobian `∂G/∂z`, skipping blocks the structure facts prove zero.
@@ -393,7 +402,8 @@ where
         let carry = self.carry_for(state);
         let mut ev = Eval::zeros();
         Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::Full(&mut *self.work), &mut ev);
-        let g = Self::residual(&self.tableau, &p0, h, z, &ev);
+        let mut g = Vector::<D>::zeros();
+        Self::residual(&self.tableau, &p0, h, z, &ev, &mut g);
         self.assemble_jacobian(h);
         (g, self.newton.matrix().into_owned())
     }
@@ -462,7 +472,9 @@ where
         let mut ev = Eval::zeros();
         let carry = self.carry_for(state);
         Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::None, &mut ev);
-        Self::residual(&self.tableau, &p0, h, z, &ev)
+        let mut g = Vector::<D>::zeros();
+        Self::residual(&self.tableau, &p0, h, z, &ev, &mut g);
+        g
     }
 }
 
@@ -535,6 +547,9 @@ pub(super) fn increment<const N: usize, const S: usize>(
 }
 
 /// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
+/// Inlined: returned from a call, the arrays were copied into place by a
+/// `memcpy` call at every residual evaluation.
+#[inline(always)]
 pub(super) fn split<const N: usize, const M: usize, const S: usize, const D: usize>(
     z: &Vector<D>,
 ) -> ([Vector<N>; S], [Vector<M>; S]) {

@@ -229,7 +229,7 @@ where
             None => Derivatives::None,
         };
         Self::evaluate(&self.system, &self.tableau, state, carry, h, z, derivatives, &mut self.eval);
-        *g = Self::residual(&self.tableau, p0, h, z, &self.eval);
+        Self::residual(&self.tableau, p0, h, z, &self.eval, g);
         // One pass for both: the finiteness test and the largest magnitude.
         let (mut finite, mut largest) = (true, 0.0f64);
         for x in g.as_slice() {

@@ -226,11 +226,13 @@ impl<'a> Gen<'a> {
         (values, jacobians)
     }
 
-    /// Bodies of `stage_values`, `stage_jacobians_into` (writing through
-    /// `&mut` bindings to the caller's `StageValues`/`StageJacobians` fields;
-    /// `stage_jacobians` delegates to it) and the bundle.
+    /// Bodies of `stage_values_into` and `stage_jacobians_into` (writing
+    /// through `&mut` bindings to the caller's `StageValues`/`StageJacobians`
+    /// fields; `stage_values` and `stage_jacobians` delegate to them) and
+    /// the bundle.
     pub(super) fn fused(&mut self) -> (Body, Body, Body) {
         let (values, jacobians) = self.stage_outs();
+        let values: Vec<Out> = values.into_iter().map(|o| o.into_dest(Dest::Write)).collect();
         let sv = self.body("stage_values", Vec::new(), &values, true);
         let mut all = values;
         all.extend(jacobians);

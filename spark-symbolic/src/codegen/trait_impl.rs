@@ -1,6 +1,6 @@
 //! The `NonholonomicSystem` implementation: the bodies of the value and
 //! derivative methods (`lagrangian`, `energy`, `momentum`, …, the fused
-//! `stage_values`, `stage_jacobians_into`,
+//! `stage_values`, `stage_values_into`, `stage_jacobians_into`,
 //! `stage_values_and_constraint_jacobians`) and the `impl` item that holds
 //! them together with the constants, the parameter methods and the effects.
 
@@ -92,8 +92,14 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         }
 
         fn stage_values(#sig, psi: &#rt::Vector<#m>) -> #rt::StageValues<#n, #m> {
+            let mut values = #rt::StageValues::zeros();
+            <Self as #rt::NonholonomicSystem<#n, #m>>::stage_values_into(self, t, q, v, psi, &mut values);
+            values
+        }
+
+        fn stage_values_into(#sig, psi: &#rt::Vector<#m>, values: &mut #rt::StageValues<#n, #m>) {
+            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
             #stage_values
-            #rt::StageValues { momentum, force, constraint, constraint_force }
         }
 
         fn stage_jacobians(#sig, psi: &#rt::Vector<#m>)

@@ -215,10 +215,29 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
         psi: &::spark_runtime::Vector<1>,
     ) -> ::spark_runtime::StageValues<3, 1> {
-        let mut momentum = <::spark_runtime::Vector<3>>::zeros();
-        let mut force = <::spark_runtime::Vector<3>>::zeros();
-        let mut constraint = <::spark_runtime::Vector<1>>::zeros();
-        let mut constraint_force = <::spark_runtime::Vector<3>>::zeros();
+        let mut values = ::spark_runtime::StageValues::zeros();
+        <Self as ::spark_runtime::NonholonomicSystem<
+            3,
+            1,
+        >>::stage_values_into(self, t, q, v, psi, &mut values);
+        values
+    }
+    fn stage_values_into(
+        &self,
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        psi: &::spark_runtime::Vector<1>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+    ) {
+        let ::spark_runtime::StageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        force.as_mut_slice().fill(0.0);
+        constraint_force.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
@@ -231,12 +250,6 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint[0] = s3 * v[1] - s4 * v[0];
         constraint_force[0] = s4 * psi[0];
         constraint_force[1] = -(s3 * psi[0]);
-        ::spark_runtime::StageValues {
-            momentum,
-            force,
-            constraint,
-            constraint_force,
-        }
     }
     fn stage_jacobians(
         &self,
