@@ -78,6 +78,24 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
     }
 }
 
+/// [`scaled_update_norm`] of `update` at the iterate `z − update` it leads
+/// to, without forming that iterate: each `z_i − Δz_i` is the value
+/// `z -= update` stores, so the norm is the same bit for bit.
+pub(crate) fn scaled_update_norm_after<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
+    let mut norm = 0.0f64;
+    let mut nan = false;
+    for (d, x) in update.as_slice().iter().zip(z.as_slice()) {
+        let r = d.abs() / (1.0 + (x - d).abs());
+        nan |= r.is_nan();
+        norm = if r > norm { r } else { norm };
+    }
+    if nan {
+        f64::NAN
+    } else {
+        norm
+    }
+}
+
 /// Whether this CPU has AVX2 and FMA (the detection is cached by std): the
 /// check every use of the kernels compiled for them rests on.
 #[cfg(target_arch = "x86_64")]
@@ -127,5 +145,19 @@ mod tests {
         let mut inf = d;
         inf[1] = f64::INFINITY;
         assert_eq!(scaled_update_norm(&inf, &z), f64::INFINITY);
+    }
+
+    #[test]
+    fn update_norm_after_is_the_norm_at_the_updated_iterate() {
+        let z = Vector::<5>::new(1.0, -3.0, 0.0, 1e-17, 7.25e3);
+        let d = Vector::<5>::new(0.3, -2.0 / 3.0, 1e-9, 1e-17, 1.0 / 7.0);
+        assert_eq!(scaled_update_norm_after(&d, &z).to_bits(), scaled_update_norm(&d, &(z - d)).to_bits());
+        for i in 0..5 {
+            let mut bad = d;
+            bad[i] = f64::NAN;
+            assert!(scaled_update_norm_after(&bad, &z).is_nan(), "NaN at {i} hidden");
+            bad[i] = f64::INFINITY;
+            assert!(!scaled_update_norm_after(&bad, &z).is_finite(), "infinity at {i} hidden");
+        }
     }
 }

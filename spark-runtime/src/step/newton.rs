@@ -7,7 +7,7 @@ use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
-use crate::linalg::scaled_update_norm;
+use crate::linalg::scaled_update_norm_after;
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
 
@@ -356,10 +356,11 @@ where
                 } else {
                     self.newton.solve_in_place(&mut g);
                 }
-                // Only iterations on factors from an earlier iterate may be undone.
-                let z_before = if fresh { None } else { Some(*z) };
-                *z -= g;
-                let update = scaled_update_norm(&g, z);
+                // The update is measured against the iterate it leads to and
+                // applied once it is kept: only iterations on factors from an
+                // earlier iterate may be undone, and an undone one is never
+                // applied (no copy of `z` to restore).
+                let update = scaled_update_norm_after(&g, z);
                 let rate = update / prev_update;
                 monitor.record(update);
                 self.history.push(IterationRecord { residual, update, rate });
@@ -367,7 +368,7 @@ where
                     max_rate = max_rate.max(rate);
                 }
                 let converged = monitor.converged_in(simplified, update, rate, opts.tolerance);
-                if let Some(z_before) = z_before {
+                if !fresh {
                     // Factors from an earlier iterate that grow or contract too
                     // slowly (see `too_slow`): a fresh Jacobian at the last good
                     // iterate, simplified Newton's standard remedy. Not when this
@@ -385,8 +386,8 @@ where
                             // last good iterate.
                             decoupled = false;
                             self.exact_steps_left = EXACT_AFTER_DECOUPLED_FAILS;
-                            if growing {
-                                *z = z_before;
+                            if !growing {
+                                *z -= g;
                             }
                             refresh = true;
                             prev_update = f64::NAN;
@@ -401,8 +402,8 @@ where
                                 fail_nonfinite("update", &self.history)
                             });
                         }
-                        if growing {
-                            *z = z_before;
+                        if !growing {
+                            *z -= g;
                         }
                         refresh = true;
                         prev_update = f64::NAN;
@@ -412,6 +413,7 @@ where
                 if !update.is_finite() {
                     return Err(fail_nonfinite("update", &self.history));
                 }
+                *z -= g;
                 if converged {
                     break 'solve Ok(());
                 }
@@ -449,12 +451,11 @@ where
         let mut g = Vector::<D>::zeros();
         let residual = self.iteration_residual(state, carry, p0, h, z, None, &mut g)?;
         self.newton.solve_in_place(&mut g);
-        let next = *z - g;
-        let update = scaled_update_norm(&g, &next);
+        let update = scaled_update_norm_after(&g, z);
         if !full_newton_accepts_residual(update, prev_update, self.options.tolerance) {
             return Ok(false);
         }
-        *z = next;
+        *z -= g;
         self.history.push(IterationRecord { residual, update, rate: update / prev_update });
         Ok(true)
     }
