@@ -332,15 +332,17 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         }
         let (nm, sm) = (N * M, Self::SM);
         let base = (S + 1) * N;
-        let mut y = *g;
-        let y = y.as_mut_slice();
+        // In place, in the row order `[V | p₁ | constraint rows]` (a copy of
+        // `g` as scratch was a `memcpy` call per update at D ≥ 17); one
+        // rotation at the end gives the order of `z`.
+        let g = g.as_mut_slice();
         // y_i = W_i⁻¹ g_i for the S + 1 velocity blocks.
         for i in 0..=S {
             let b = if self.shared { 0 } else { i };
-            self.solve_block(b, &mut y[i * N..(i + 1) * N]);
+            self.solve_block(b, &mut g[i * N..(i + 1) * N]);
         }
         // Constraint rows: g_c − C y, then Σ⁻¹.
-        let (vel, con) = y.split_at_mut(base);
+        let (vel, con) = g.split_at_mut(base);
         for r in 0..S {
             for i in 0..=S {
                 if !self.c_nonzero[r * (S + 1) + i] {
@@ -357,12 +359,9 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             }
         }
         solve_runtime(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
-        // Velocities: y_i − Σ_l X[i][l] δμ_l, written in the order of z.
-        let g = g.as_mut_slice();
+        // Velocities: y_i − Σ_l X[i][l] δμ_l.
         for i in 0..=S {
-            let out_at = if i < S { i * N } else { S * (N + M) };
-            let out = &mut g[out_at..out_at + N];
-            out.copy_from_slice(&vel[i * N..(i + 1) * N]);
+            let out = &mut vel[i * N..(i + 1) * N];
             for l in 0..S {
                 let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
                 for e in 0..M {
@@ -373,7 +372,8 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 }
             }
         }
-        g[S * N..S * N + sm].copy_from_slice(&con[..sm]);
+        // `[v₁ | δμ]` → `[δμ | v₁]`: the order of `z`.
+        g[S * N..].rotate_left(N);
     }
 }
 
