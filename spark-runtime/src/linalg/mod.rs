@@ -54,6 +54,46 @@ pub(crate) fn column_scale(col: &[f64]) -> f64 {
     col.iter().fold(0.0, |m: f64, x| if x.abs() > m { x.abs() } else { m })
 }
 
+/// The largest of the non-negative `r(0), …, r(n − 1)` (0 when `n = 0`)
+/// and whether any was NaN. Four running maxima, merged at the end: one
+/// maximum carried through the loop is a chain of dependent `maxsd` (and
+/// `f64::max`, which is NaN-aware, adds a blend to each link). A NaN never
+/// wins a comparison, so it shows only in the flag; an infinity is the
+/// maximum. The result does not depend on the order: a maximum is exact.
+#[inline(always)]
+pub(crate) fn largest_and_nan(n: usize, r: impl Fn(usize) -> f64) -> (f64, bool) {
+    const L: usize = 4;
+    let (mut largest, mut nan) = ([0.0f64; L], [false; L]);
+    // Short vectors (D = 7 at n = 3, s = 1) in one plain pass: the four
+    // maxima cost more than the chain they break (measured: +5 % on a
+    // step of the particle).
+    if n < 2 * L {
+        for i in 0..n {
+            let x = r(i);
+            nan[0] |= x.is_nan();
+            largest[0] = if x > largest[0] { x } else { largest[0] };
+        }
+        return (largest[0], nan[0]);
+    }
+    for c in 0..n / L {
+        for k in 0..L {
+            let x = r(c * L + k);
+            nan[k] |= x.is_nan();
+            largest[k] = if x > largest[k] { x } else { largest[k] };
+        }
+    }
+    for i in n / L * L..n {
+        let x = r(i);
+        nan[0] |= x.is_nan();
+        largest[0] = if x > largest[0] { x } else { largest[0] };
+    }
+    let mut best = largest[0];
+    for &x in &largest[1..] {
+        best = if x > best { x } else { best };
+    }
+    (best, nan.contains(&true))
+}
+
 /// `max_i |Δz_i| / (1 + |z_i|)`, NaN as soon as any component is NaN.
 ///
 /// `f64::max` returns the other operand when one is NaN, so a fold with it
@@ -61,20 +101,10 @@ pub(crate) fn column_scale(col: &[f64]) -> f64 {
 /// (or infinite) update is reported by the caller at the iteration where it
 /// appears.
 pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
-    // Branch-free, so that the loop vectorizes: the NaN test is a flag and
-    // the maximum a comparison (a NaN `r` never wins it).
-    let mut norm = 0.0f64;
-    let mut nan = false;
-    // Over the slices: nalgebra's element iterators do not vectorize.
-    for (d, x) in update.as_slice().iter().zip(z.as_slice()) {
-        let r = d.abs() / (1.0 + x.abs());
-        nan |= r.is_nan();
-        norm = if r > norm { r } else { norm };
-    }
-    if nan {
-        f64::NAN
-    } else {
-        norm
+    let (d, x) = (update.as_slice(), z.as_slice());
+    match largest_and_nan(D, |i| d[i].abs() / (1.0 + x[i].abs())) {
+        (_, true) => f64::NAN,
+        (norm, false) => norm,
     }
 }
 
@@ -82,17 +112,10 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
 /// to, without forming that iterate: each `z_i − Δz_i` is the value
 /// `z -= update` stores, so the norm is the same bit for bit.
 pub(crate) fn scaled_update_norm_after<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
-    let mut norm = 0.0f64;
-    let mut nan = false;
-    for (d, x) in update.as_slice().iter().zip(z.as_slice()) {
-        let r = d.abs() / (1.0 + (x - d).abs());
-        nan |= r.is_nan();
-        norm = if r > norm { r } else { norm };
-    }
-    if nan {
-        f64::NAN
-    } else {
-        norm
+    let (d, x) = (update.as_slice(), z.as_slice());
+    match largest_and_nan(D, |i| d[i].abs() / (1.0 + (x[i] - d[i]).abs())) {
+        (_, true) => f64::NAN,
+        (norm, false) => norm,
     }
 }
 
@@ -145,6 +168,26 @@ mod tests {
         let mut inf = d;
         inf[1] = f64::INFINITY;
         assert_eq!(scaled_update_norm(&inf, &z), f64::INFINITY);
+    }
+
+    #[test]
+    fn largest_and_nan_sees_every_entry() {
+        // Short (one pass) and long (four maxima and a remainder) lengths,
+        // the largest entry and a NaN at every position.
+        for n in [0usize, 1, 7, 8, 11, 16, 31] {
+            let x: Vec<f64> = (0..n).map(|i| ((i * 7919) % 13) as f64 * 0.25).collect();
+            let want = x.iter().fold(0.0f64, |m, &v| m.max(v));
+            assert_eq!(largest_and_nan(n, |i| x[i]), (want, false), "n = {n}");
+            for at in 0..n {
+                let mut y = x.clone();
+                y[at] = 1e300;
+                assert_eq!(largest_and_nan(n, |i| y[i]), (1e300, false), "n = {n}, largest at {at}");
+                y[at] = f64::INFINITY;
+                assert_eq!(largest_and_nan(n, |i| y[i]).0, f64::INFINITY, "n = {n}, infinity at {at}");
+                y[at] = f64::NAN;
+                assert!(largest_and_nan(n, |i| y[i]).1, "n = {n}, NaN at {at} hidden");
+            }
+        }
     }
 
     #[test]

@@ -7,7 +7,7 @@ use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
-use crate::linalg::scaled_update_norm_after;
+use crate::linalg::{largest_and_nan, scaled_update_norm_after};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
 
@@ -230,12 +230,13 @@ where
         };
         Self::evaluate(&self.system, &self.tableau, state, carry, h, z, derivatives, &mut self.eval);
         Self::residual(&self.tableau, p0, h, z, &self.eval, g);
-        // One pass for both: the finiteness test and the largest magnitude.
-        let (mut finite, mut largest) = (true, 0.0f64);
-        for x in g.as_slice() {
-            finite &= x.is_finite();
-            largest = largest.max(x.abs());
-        }
+        // One pass for both: the largest magnitude, and the finiteness test
+        // (a NaN raises the flag, an infinity is the largest). As a fold
+        // with `f64::max` this pass was a tenth of an mp7 step of the
+        // stage-decoupled iteration at h = 0.3125 (see `largest_and_nan`).
+        let r = g.as_slice();
+        let (largest, nan) = largest_and_nan(D, |i| r[i].abs());
+        let finite = !nan && largest <= f64::MAX;
         if !finite {
             self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
             return Err(StepError::NonFinite { t: state.t, h, stage: "residual", history: Box::new(self.history) });
