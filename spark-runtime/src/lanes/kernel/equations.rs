@@ -182,11 +182,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 p if p == S => (t + h, S * (N + M)),
                 _ => (t + 0.5 * h, 0),
             };
-            let v: [[f64; W]; N] = std::array::from_fn(|n| self.z[v_at + n]);
+            // The velocities straight from `z` (a copy of `N × W` values
+            // was a `memmove` call per point).
+            let v: &[[f64; W]; N] = self.z[v_at..v_at + N].try_into().expect("N rows of z");
             let psi: [[f64; W]; M] =
                 if p < S { std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z / h)) } else { [[0.0; W]; M] };
             let jacobians = if refresh { Some(&mut self.jacobians[p]) } else { None };
-            sys.stage_values_in_lanes(tp, &self.points[p], &v, &psi, iterating, &mut self.values[p], jacobians);
+            sys.stage_values_in_lanes(tp, &self.points[p], v, &psi, iterating, &mut self.values[p], jacobians);
         }
     }
 

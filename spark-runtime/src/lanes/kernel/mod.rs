@@ -296,15 +296,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             self.stage_points(tab);
             self.evaluate(sys, tab, t, &iterating, k == 0);
             self.residual(tab);
-            let mut finite = [true; W];
+            // `0 · g` is 0 for a finite entry and NaN otherwise: summed in
+            // each lane, a vector add per row instead of per-entry flags.
+            let mut poison = [0.0f64; W];
             for d in 0..D {
                 let g = self.g[d];
                 for w in 0..W {
-                    finite[w] &= g[w].is_finite();
+                    poison[w] += 0.0 * g[w];
                 }
             }
             for w in 0..W {
-                if iterating[w] && !finite[w] {
+                if iterating[w] && poison[w] != 0.0 {
                     (iterating[w], out[w]) = (false, Outcome::HandBack);
                 }
             }
@@ -369,18 +371,21 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     #[inline(always)]
     fn apply_update(&mut self, iterating: &[bool; W]) -> L<W> {
         let mut norm = [0.0f64; W];
-        let mut nan = [false; W];
+        // As in the residual's test: `0 · r` is NaN for a NaN or infinite
+        // ratio, so an infinite update reads NaN here, and the lane goes
+        // back to its stepper either way (its update is not finite).
+        let mut poison = [0.0f64; W];
         for d in 0..D {
             let (mut z, g) = (self.z[d], self.g[d]);
             for w in 0..W {
                 z[w] = if iterating[w] { z[w] - g[w] } else { z[w] };
                 let r = g[w].abs() / (1.0 + z[w].abs());
-                nan[w] |= r.is_nan();
+                poison[w] += 0.0 * r;
                 norm[w] = if r > norm[w] { r } else { norm[w] };
             }
             self.z[d] = z;
         }
-        std::array::from_fn(|w| if nan[w] { f64::NAN } else { norm[w] })
+        std::array::from_fn(|w| if poison[w] != 0.0 { f64::NAN } else { norm[w] })
     }
 
     /// Ends the converged lanes' steps (`Stepper::step` after Newton): the
