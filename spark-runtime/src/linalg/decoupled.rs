@@ -333,7 +333,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         let (nm, sm) = (N * M, Self::SM);
         let base = (S + 1) * N;
         // In place, in the row order `[V | p₁ | constraint rows]` (a copy of
-        // `g` as scratch was a `memcpy` call per update at D ≥ 17); one
+        // `g` as scratch would be a `memcpy` call per update at D ≥ 17); one
         // rotation at the end gives the order of `z`.
         let g = g.as_mut_slice();
         // y_i = W_i⁻¹ g_i for the S + 1 velocity blocks.

@@ -170,8 +170,8 @@ where
     }
 
     /// The SPARK residual `G(z)` (see the module docs for the row layout),
-    /// written into `g` (every entry; returned by value, the `D`-vector was
-    /// copied into place by a `memcpy` call).
+    /// written into `g` (every entry; returned by value, the `D`-vector
+    /// would be copied into place by a `memcpy` call).
     pub(super) fn residual(
         tab: &Tableau<S>,
         p0: &Vector<N>,
@@ -547,8 +547,8 @@ pub(super) fn increment<const N: usize, const S: usize>(
 }
 
 /// Splits `z` into stage velocities and scaled multipliers `μ_i = hΨ_i`.
-/// Inlined: returned from a call, the arrays were copied into place by a
-/// `memcpy` call at every residual evaluation.
+/// Inlined: returned from a call, the arrays would be copied into place by
+/// a `memcpy` call at every residual evaluation.
 #[inline(always)]
 pub(super) fn split<const N: usize, const M: usize, const S: usize, const D: usize>(
     z: &Vector<D>,

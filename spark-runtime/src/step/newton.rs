@@ -232,7 +232,7 @@ where
         Self::residual(&self.tableau, p0, h, z, &self.eval, g);
         // One pass for both: the largest magnitude, and the finiteness test
         // (a NaN raises the flag, an infinity is the largest). As a fold
-        // with `f64::max` this pass was a tenth of an mp7 step of the
+        // with `f64::max` this pass would be a tenth of an mp7 step of the
         // stage-decoupled iteration at h = 0.3125 (see `largest_and_nan`).
         let r = g.as_slice();
         let (largest, nan) = largest_and_nan(D, |i| r[i].abs());

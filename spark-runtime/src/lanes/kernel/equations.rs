@@ -183,7 +183,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 _ => (t + 0.5 * h, 0),
             };
             // The velocities straight from `z` (a copy of `N × W` values
-            // was a `memmove` call per point).
+            // would be a `memmove` call per point).
             let v: &[[f64; W]; N] = self.z[v_at..v_at + N].try_into().expect("N rows of z");
             let psi: [[f64; W]; M] =
                 if p < S { std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z / h)) } else { [[0.0; W]; M] };
