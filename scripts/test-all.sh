@@ -32,9 +32,8 @@ export CARGO_PROFILE_RELEASE_LTO=off
 export CARGO_PROFILE_RELEASE_OPT_LEVEL=2
 # The property tests (the fuzz harness among them) draw their cases from a
 # fixed seed here, so every run of this command meets the same cases and
-# takes the same time: a random draw can meet a step whose halving recovery
-# needs 2^k sub-steps and runs for many minutes (docs/stress/README.md,
-# "Fuzz harness"). Set PROPTEST_RNG_SEED to draw other cases.
+# takes the same time (docs/stress/README.md, "Fuzz harness"). Set
+# PROPTEST_RNG_SEED to draw other cases.
 export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-2}"
 
 stamp() { date +%s.%N; }

@@ -156,7 +156,7 @@ pub use adaptive::{
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
     FailurePolicy, IntegrationError, NoObserver, Observe, Observer, RejectionFloor, RunOptions, RunReport, Sample,
-    Schedule, Trajectory, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    Schedule, SubstepOverrun, Trajectory, DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{

@@ -89,8 +89,9 @@ impl ConsistencyPolicy {
 }
 
 impl RunOptions {
-    /// Checks the consistency policy, `max_halvings ≤ MAX_HALVINGS` and the
-    /// [`RejectionPolicy`] of [`FailurePolicy::Reject`].
+    /// Checks the consistency policy, `max_halvings ≤ MAX_HALVINGS`,
+    /// `max_substeps ≥ 1` and the [`RejectionPolicy`] of
+    /// [`FailurePolicy::Reject`].
     pub fn validate(&self) -> Result<(), OptionError> {
         self.consistency.validate()?;
         if let FailurePolicy::Reject(policy) = self.on_failure {
@@ -102,6 +103,9 @@ impl RunOptions {
                 u64::from(self.max_halvings),
                 "at most MAX_HALVINGS = 60",
             ));
+        }
+        if self.max_substeps == 0 {
+            return Err(OptionError::integer("RunOptions::max_substeps", 0, "at least 1"));
         }
         Ok(())
     }

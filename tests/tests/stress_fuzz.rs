@@ -20,7 +20,7 @@ use problems::systems::{
 use proptest::prelude::*;
 use spark_runtime::{
     ConsistencyPolicy, FailurePolicy, Method, NoObserver, NonholonomicSystem, RejectionPolicy, RunOptions, Schedule,
-    State, Stepper, Tableau, Vector,
+    State, Stepper, Tableau, Vector, DEFAULT_MAX_SUBSTEPS,
 };
 
 /// A float that is usually ordinary and sometimes hostile.
@@ -211,7 +211,8 @@ fn nan_parameter_in_the_constraint_is_an_error() {
 
 /// The input classes beyond one small system and three steps: larger `n`
 /// (McLachlan–Perlmutter particles with n = 17 and 33), step counts from 0
-/// to `usize::MAX`, any `max_halvings` up to `u32::MAX`, sampling intervals
+/// to `usize::MAX`, any `max_halvings` up to `u32::MAX` within sub-step
+/// budgets from 0 (refused) to the default, sampling intervals
 /// from 0 to `usize::MAX`, hostile Newton and consistency options, and the
 /// reference solver with hostile times, states and options.
 #[derive(Clone, Debug)]
@@ -220,6 +221,7 @@ struct Extended {
     large: Option<usize>,
     steps: usize,
     max_halvings: u32,
+    max_substeps: usize,
     record_every: usize,
     consistency_tolerance: f64,
     newton_tolerance: f64,
@@ -241,7 +243,10 @@ fn extended() -> impl Strategy<Value = Extended> {
         input(),
         prop_oneof![3 => Just(None), 1 => prop::sample::select(vec![17usize, 33]).prop_map(Some)],
         counts,
-        prop_oneof![3 => 0u32..=6, 1 => prop::sample::select(vec![60u32, 61, 1075, u32::MAX])],
+        (
+            prop_oneof![3 => 0u32..=6, 1 => prop::sample::select(vec![60u32, 61, 1075, u32::MAX])],
+            prop_oneof![3 => Just(DEFAULT_MAX_SUBSTEPS), 1 => 0usize..=64],
+        ),
         prop_oneof![3 => 0usize..4, 1 => prop::sample::select(vec![7usize, usize::MAX])],
         (wild(), wild(), prop_oneof![3 => 1usize..30, 1 => prop::sample::select(vec![0usize, 1000, usize::MAX])]),
         (any::<bool>(), prop_oneof![2 => Just(Some(1.0)), 1 => Just(None), 1 => wild().prop_map(Some)]),
@@ -252,7 +257,7 @@ fn extended() -> impl Strategy<Value = Extended> {
                 base,
                 large,
                 steps,
-                max_halvings,
+                (max_halvings, max_substeps),
                 record_every,
                 (consistency_tolerance, newton_tolerance, max_iterations),
                 (simplified, energy_drift_limit),
@@ -262,6 +267,7 @@ fn extended() -> impl Strategy<Value = Extended> {
                 large,
                 steps,
                 max_halvings,
+                max_substeps,
                 record_every,
                 consistency_tolerance,
                 newton_tolerance,
@@ -312,8 +318,13 @@ where
     } else {
         ConsistencyPolicy::Error { tolerance: x.consistency_tolerance }
     };
-    let opts =
-        RunOptions { consistency, max_halvings: x.max_halvings, record_every: x.record_every, ..RunOptions::default() };
+    let opts = RunOptions {
+        consistency,
+        max_halvings: x.max_halvings,
+        max_substeps: x.max_substeps,
+        record_every: x.record_every,
+        ..RunOptions::default()
+    };
     let schedule = Schedule::Fixed { h: b.h, steps: bounded_steps(x) };
     match st.integrate(b.t0, &q, &v, schedule, &opts, &mut NoObserver) {
         Ok(traj) => {

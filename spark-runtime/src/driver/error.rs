@@ -51,6 +51,31 @@ pub enum IntegrationError {
         /// The run statistics up to the failure.
         partial: Box<RunReport>,
     },
+    /// Covering a failed step would take more than
+    /// [`RunOptions::max_substeps`](super::RunOptions::max_substeps)
+    /// sub-steps: the step size is far too large for the problem there, or
+    /// the budget too small for the halving or rejection depth allowed.
+    #[error(
+        "step {index} from t = {} (h = {}) needs more than {} sub-steps to recover \
+         (RunOptions::max_substeps): {} accepted up to t = {}, the smallest {}; last failure: {}",
+        Sci(*t),
+        Sci(detail.h),
+        detail.budget,
+        detail.substeps,
+        Sci(detail.substep_t),
+        Sci(detail.smallest),
+        detail.last
+    )]
+    SubstepBudget {
+        /// Index of the failed step (0-based).
+        index: usize,
+        /// Its start time.
+        t: f64,
+        /// How far the recovery got.
+        detail: Box<SubstepOverrun>,
+        /// The run statistics up to the failure.
+        partial: Box<RunReport>,
+    },
 }
 
 /// How a step under [`FailurePolicy::Reject`] reached the floor.
@@ -66,6 +91,23 @@ pub struct RejectionFloor {
     pub floor: f64,
     /// Rejections within the step.
     pub rejections: usize,
+    /// The last Newton failure.
+    pub last: StepError,
+}
+
+/// How a recovering step ran out of [`RunOptions::max_substeps`](super::RunOptions::max_substeps).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SubstepOverrun {
+    /// The step size.
+    pub h: f64,
+    /// The budget.
+    pub budget: usize,
+    /// Sub-steps accepted within the step.
+    pub substeps: usize,
+    /// Where the recovery stopped.
+    pub substep_t: f64,
+    /// The smallest accepted sub-step (0 when none was accepted).
+    pub smallest: f64,
     /// The last Newton failure.
     pub last: StepError,
 }

@@ -1,7 +1,9 @@
 //! What the driver does when a step's Newton iteration fails: the halving
 //! of [`FailurePolicy::Halve`](super::FailurePolicy::Halve) and the
 //! rejection with an adapted sub-step of
-//! [`FailurePolicy::Reject`](super::FailurePolicy::Reject).
+//! [`FailurePolicy::Reject`](super::FailurePolicy::Reject), both within
+//! [`RunOptions::max_substeps`](super::RunOptions::max_substeps) sub-steps
+//! per scheduled step.
 
 use super::*;
 use crate::error::StepError;
@@ -27,9 +29,42 @@ pub(crate) enum StepFailure {
         /// The last Newton failure.
         last: StepError,
     },
+    /// Covering the step would take more than the sub-step budget.
+    Budget {
+        /// The budget.
+        budget: usize,
+        /// Sub-steps accepted.
+        substeps: usize,
+        /// Where the recovery stopped.
+        substep_t: f64,
+        /// The smallest accepted sub-step.
+        smallest: f64,
+        /// The last Newton failure.
+        last: StepError,
+    },
+}
+
+/// The limits of a recovery under [`FailurePolicy::Halve`](super::FailurePolicy::Halve).
+#[derive(Clone, Copy)]
+pub(super) struct Budget {
+    /// [`RunOptions::max_halvings`](super::RunOptions::max_halvings).
+    pub(super) max_halvings: u32,
+    /// [`RunOptions::max_substeps`](super::RunOptions::max_substeps).
+    pub(super) max_substeps: usize,
 }
 
 impl StepFailure {
+    /// The budget ran out at `counts` with `last` the latest failure.
+    fn budget<const N: usize>(budget: usize, counts: &StepCounts<N>, last: StepError) -> Self {
+        StepFailure::Budget {
+            budget,
+            substeps: counts.substeps,
+            substep_t: counts.state.t,
+            smallest: counts.smallest,
+            last,
+        }
+    }
+
     /// The run error of step `index` of size `h` from `t`.
     pub(super) fn into_error(self, index: usize, t: f64, h: f64, partial: RunReport) -> IntegrationError {
         let partial = Box::new(partial);
@@ -39,6 +74,12 @@ impl StepFailure {
                 index,
                 t,
                 detail: Box::new(RejectionFloor { h, substep_t, h_tried, floor, rejections, last }),
+                partial,
+            },
+            StepFailure::Budget { budget, substeps, substep_t, smallest, last } => IntegrationError::SubstepBudget {
+                index,
+                t,
+                detail: Box::new(SubstepOverrun { h, budget, substeps, substep_t, smallest, last }),
                 partial,
             },
         }
@@ -94,8 +135,9 @@ where
 {
     /// One step of size `h` from `state`. A warm-started attempt that fails
     /// is retried once from the cold guess; a sub-step that still fails is
-    /// replaced by two half steps, at most `max_halvings` levels deep and
-    /// only while half of it still changes `t`. `warm`: whether the
+    /// replaced by two half steps, at most `budget.max_halvings` levels
+    /// deep, only while half of it still changes `t` and while the
+    /// sub-steps taken and pending stay within `budget.max_substeps`. `warm`: whether the
     /// stepper continues into `state` (`Stepper::is_warm_for`).
     ///
     /// `on_step(system, start, end, h, result)` sees every accepted
@@ -110,7 +152,7 @@ where
         state: &State<N>,
         h: f64,
         t_target: f64,
-        max_halvings: u32,
+        budget: Budget,
         warm: bool,
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
@@ -134,7 +176,7 @@ where
                     stopped,
                 })
             }
-            Err(first) => self.recover(state, h, t_target, max_halvings, warm, first, on_step),
+            Err(first) => self.recover(state, h, t_target, budget, warm, first, on_step),
         }
     }
 
@@ -150,7 +192,7 @@ where
         state: &State<N>,
         h: f64,
         t_target: f64,
-        max_halvings: u32,
+        budget: Budget,
         warm: bool,
         first: StepError,
         on_step: &mut F,
@@ -158,7 +200,7 @@ where
     where
         F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
     {
-        let max_halvings = max_halvings.min(MAX_HALVINGS);
+        let max_halvings = budget.max_halvings.min(MAX_HALVINGS);
         // Sub-steps still to take, the next one last, with their halving
         // level. A failure replaces its entry by its two halves one level
         // deeper, so the levels increase strictly up the array but for a
@@ -203,6 +245,11 @@ where
                     if out.state.t + half == out.state.t {
                         return Err(StepFailure::Step(e));
                     }
+                    // Every pending entry, the two halves among them, is
+                    // at least one more sub-step.
+                    if out.substeps.saturating_add(len + 1) > budget.max_substeps {
+                        return Err(StepFailure::budget(budget.max_substeps, &out, e));
+                    }
                     out.rejected += 1;
                     self.reset_warm_start();
                     pending[len - 1] = (sub - half, level + 1);
@@ -218,13 +265,15 @@ where
     /// tries `h`; on a Newton failure covers `[t₀, t₀ + h]` with sub-steps
     /// that halve after each failure (the halved one started cold) and
     /// double back after `regrow_after` accepted ones, never below
-    /// [`RejectionPolicy::floor`]. `on_step` as in `robust_step`.
+    /// [`RejectionPolicy::floor`] and in at most `max_substeps` sub-steps.
+    /// `on_step` as in `robust_step`.
     pub(super) fn rejecting_step<F>(
         &mut self,
         state: &State<N>,
         h: f64,
         t_target: f64,
         policy: &RejectionPolicy,
+        max_substeps: usize,
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
     where
@@ -235,6 +284,7 @@ where
         let mut out = StepCounts::start(state);
         let mut sub = h;
         let mut successes = 0usize;
+        let mut last_failure = None;
         // Sub-steps end within a few ulps of t_end; what is left below that
         // is rounding of the accumulated times, not a step to take.
         let slack = 8.0 * f64::EPSILON * t_end.abs().max(h.abs());
@@ -242,6 +292,13 @@ where
             let remaining = t_end - out.state.t;
             if out.substeps > 0 && remaining * h.signum() <= slack {
                 break;
+            }
+            // The step is not covered yet, so a failure has happened and
+            // the rest needs at least one more sub-step.
+            if out.substeps >= max_substeps {
+                if let Some(e) = last_failure.take() {
+                    return Err(StepFailure::budget(max_substeps, &out, e));
+                }
             }
             let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
             match self.step(&out.state, this) {
@@ -278,6 +335,7 @@ where
                         });
                     }
                     sub = next;
+                    last_failure = Some(e);
                 }
             }
         }

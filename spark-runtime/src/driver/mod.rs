@@ -18,8 +18,8 @@ mod failure;
 mod observer;
 mod trajectory;
 
-pub use error::{IntegrationError, RejectionFloor};
-use failure::StepCounts;
+pub use error::{IntegrationError, RejectionFloor, SubstepOverrun};
+use failure::{Budget, StepCounts};
 pub(crate) use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::sample_storage;
@@ -195,6 +195,25 @@ pub struct RunOptions {
     /// What to do when a step fails.
     #[serde(default)]
     pub on_failure: FailurePolicy,
+    /// The most sub-steps that may cover one scheduled step once its Newton
+    /// iteration has failed, under either [`FailurePolicy`] (at least 1).
+    /// Halving `k` levels deep can take `2^k` sub-steps and rejection down
+    /// to a floor of `|h|/f` up to `f` of them, each a Newton solve; a
+    /// recovery that would need more ends the run with
+    /// [`IntegrationError::SubstepBudget`] instead of working on. The
+    /// default, [`DEFAULT_MAX_SUBSTEPS`], is never reached under the default
+    /// policies.
+    #[serde(default = "default_max_substeps")]
+    pub max_substeps: usize,
+}
+
+/// The default [`RunOptions::max_substeps`]: `2^12`, as many sub-steps as
+/// the default [`RejectionPolicy`](crate::RejectionPolicy) floor can take
+/// and 256 times the default halving's 16.
+pub const DEFAULT_MAX_SUBSTEPS: usize = 1 << 12;
+
+fn default_max_substeps() -> usize {
+    DEFAULT_MAX_SUBSTEPS
 }
 
 /// What the driver does when the Newton iteration of a step fails. Either
@@ -237,6 +256,7 @@ impl Default for RunOptions {
             consistency: ConsistencyPolicy::default(),
             max_halvings: DEFAULT_MAX_HALVINGS,
             on_failure: FailurePolicy::Halve,
+            max_substeps: DEFAULT_MAX_SUBSTEPS,
         }
     }
 }
@@ -396,9 +416,12 @@ where
             };
             let taken = match options.on_failure {
                 FailurePolicy::Halve => {
-                    self.robust_step(&state, h, t_target, options.max_halvings, warm_before, &mut on_step)
+                    let budget = Budget { max_halvings: options.max_halvings, max_substeps: options.max_substeps };
+                    self.robust_step(&state, h, t_target, budget, warm_before, &mut on_step)
                 }
-                FailurePolicy::Reject(policy) => self.rejecting_step(&state, h, t_target, &policy, &mut on_step),
+                FailurePolicy::Reject(policy) => {
+                    self.rejecting_step(&state, h, t_target, &policy, options.max_substeps, &mut on_step)
+                }
             };
             // Matched rather than mapped: the accepted outcome is not moved
             // into a second `Result`, and the error is built only on failure.

@@ -10,7 +10,7 @@ use spark_runtime::fixtures::paper::{MobileRobot, Skate};
 use spark_runtime::{
     nonholonomic_system, ConsistencyPolicy, FailurePolicy, IntegrationError, Method, NewtonOptions, NoObserver,
     NonholonomicSystem, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
-    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
 };
 
 /// Records the largest single allocation of this thread.
@@ -548,4 +548,68 @@ fn integrate_takes_the_steps_of_a_bare_step_loop() {
     matches_the_bare_loop::<Skate, 3, 1, 3, 15>(Skate::default(), Method::LobattoIIIAB, skate.0, skate.1, 400);
     let (q0, v0) = speed_start();
     matches_the_bare_loop::<ConstantSpeed, 3, 1, 2, 11>(ConstantSpeed::default(), Method::Gauss, q0, v0, 200);
+}
+
+/// The sub-steps of one recovery are bounded by `RunOptions::max_substeps`
+/// under either failure policy: a spring of stiffness 1e8 stepped at h = 1
+/// converges only on sub-steps thousands of times smaller, so deep halving
+/// (`MAX_HALVINGS`) or a rejection floor of 2⁻⁶⁰·h would cover the step by
+/// that many Newton solves; the run instead reports the budget, with the
+/// accepted sub-steps and the last failure. A budget that the recovery
+/// fits in changes nothing, and a budget of 0 is refused by name.
+#[test]
+fn a_recovery_stays_within_its_substep_budget() {
+    let (q0, v0) = speed_start();
+    let mut stiff = ConstantSpeed::default();
+    stiff.set_parameter("k", 1e14).unwrap();
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] = Stepper::new(stiff, Tableau::new(Method::Gauss).unwrap());
+    let one = Schedule::Fixed { h: 1.0, steps: 3 };
+    let deep = RunOptions { max_halvings: MAX_HALVINGS, ..RunOptions::default() };
+    let deepest = RejectionPolicy { max_halvings: MAX_HALVINGS, min_step: 0.0, regrow_after: 2 };
+    let rejecting = RunOptions { on_failure: FailurePolicy::Reject(deepest), ..RunOptions::default() };
+    for options in [deep, rejecting] {
+        let err = st.integrate(0.0, &q0, &v0, one, &options, &mut NoObserver).unwrap_err();
+        match &err {
+            IntegrationError::SubstepBudget { index: 0, t, detail, partial } => {
+                assert_eq!((*t, detail.h, detail.budget), (0.0, 1.0, DEFAULT_MAX_SUBSTEPS), "{err}");
+                assert!(detail.substeps <= DEFAULT_MAX_SUBSTEPS, "{err}");
+                assert!(detail.substep_t > 0.0 && detail.substep_t < 1.0, "{err}");
+                assert!(detail.smallest > 0.0 && detail.smallest < 1e-3, "{err}");
+                assert_eq!(partial.steps, 0);
+                assert!(err.to_string().contains("RunOptions::max_substeps"), "{err}");
+            }
+            other => panic!("expected the sub-step budget, got {other}"),
+        }
+    }
+
+    // Four halvings take at most 2⁴ sub-steps: a budget of 16 is never
+    // reached and the run is the default's bit for bit; a budget of 1
+    // leaves no room to halve the first failing step.
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let big = Schedule::Fixed { h: 1.5, steps: 40 };
+    let default = st.integrate(0.0, &q0, &v0, big, &RunOptions::default(), &mut NoObserver).unwrap();
+    assert!(default.report.rejected_steps > 0, "{:?}", default.report);
+    let sixteen = RunOptions { max_substeps: 1 << DEFAULT_MAX_HALVINGS, ..RunOptions::default() };
+    let fits = st.integrate(0.0, &q0, &v0, big, &sixteen, &mut NoObserver).unwrap();
+    assert_eq!(fits, default);
+    let one_substep = RunOptions { max_substeps: 1, ..RunOptions::default() };
+    match st.integrate(0.0, &q0, &v0, big, &one_substep, &mut NoObserver) {
+        Err(IntegrationError::SubstepBudget { index, detail, partial, .. }) => {
+            assert_eq!((detail.budget, detail.substeps, partial.steps), (1, 0, index))
+        }
+        other => panic!("expected the sub-step budget, got {other:?}"),
+    }
+    let rejecting_one = RunOptions { max_substeps: 1, ..rejecting };
+    match st.integrate(0.0, &q0, &v0, big, &rejecting_one, &mut NoObserver) {
+        Err(IntegrationError::SubstepBudget { index, detail, partial, .. }) => {
+            assert_eq!((detail.budget, detail.substeps, partial.steps), (1, 1, index))
+        }
+        other => panic!("expected the sub-step budget, got {other:?}"),
+    }
+    let none = RunOptions { max_substeps: 0, ..RunOptions::default() };
+    match st.integrate(0.0, &q0, &v0, big, &none, &mut NoObserver) {
+        Err(IntegrationError::InvalidOption(e)) => assert_eq!(e.option, "RunOptions::max_substeps"),
+        other => panic!("expected an option error, got {other:?}"),
+    }
 }

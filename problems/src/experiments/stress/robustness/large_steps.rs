@@ -170,9 +170,9 @@ fn judge_sweep(c: &mut CaseReport, hs: &[f64], pairs: &[Pair], e0: f64) -> Tally
                 }
                 c.errors.push(format!("protected, h = {h}: {e}"));
                 let before = match e {
-                    IntegrationError::Step { partial, .. } | IntegrationError::Floor { partial, .. } => {
-                        partial.rejected_steps
-                    }
+                    IntegrationError::Step { partial, .. }
+                    | IntegrationError::Floor { partial, .. }
+                    | IntegrationError::SubstepBudget { partial, .. } => partial.rejected_steps,
                     _ => 0,
                 };
                 format!(

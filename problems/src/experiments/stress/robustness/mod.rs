@@ -34,7 +34,8 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
     }
 }
 
-/// The kind of a driver failure (`Step/<kind>`, `Floor/<kind>`, `Initial/<kind>`, `InvalidSchedule`, `InvalidOption`).
+/// The kind of a driver failure (`Step/<kind>`, `Floor/<kind>`, `SubstepBudget/<kind>`, `Initial/<kind>`,
+/// `InvalidSchedule`, `InvalidOption`).
 pub fn integration_error_kind(e: &IntegrationError) -> String {
     match e {
         IntegrationError::InvalidSchedule(_) => "InvalidSchedule".into(),
@@ -42,6 +43,7 @@ pub fn integration_error_kind(e: &IntegrationError) -> String {
         IntegrationError::Initial(s) => format!("Initial/{}", step_error_kind(s)),
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
         IntegrationError::Floor { detail, .. } => format!("Floor/{}", step_error_kind(&detail.last)),
+        IntegrationError::SubstepBudget { detail, .. } => format!("SubstepBudget/{}", step_error_kind(&detail.last)),
     }
 }
 
@@ -62,7 +64,9 @@ fn is_newton_failure(e: &IntegrationError) -> bool {
 /// The index and time of the step a driver failure names.
 fn failed_index(e: &IntegrationError) -> String {
     match e {
-        IntegrationError::Step { index, t, .. } | IntegrationError::Floor { index, t, .. } => {
+        IntegrationError::Step { index, t, .. }
+        | IntegrationError::Floor { index, t, .. }
+        | IntegrationError::SubstepBudget { index, t, .. } => {
             format!("{index} (t = {t})")
         }
         _ => "—".into(),
