@@ -51,3 +51,20 @@ fn multipliers_are_recorded_on_request_without_changing_the_run() {
     let bits = |x: &[f64]| x.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     assert_eq!(bits(&with.psi[0]), bits(&psi));
 }
+
+/// A run or an ensemble whose record would not fit in memory is refused
+/// before any step (it would otherwise step until an allocation failure
+/// aborts the process), with the record interval that fits; the run at
+/// that interval passes the check.
+#[test]
+fn a_record_that_would_not_fit_is_refused_before_any_step() {
+    let huge = RunSpec { steps: 1 << 62, ..RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 20) };
+    let start = std::time::Instant::now();
+    let err = run(&huge, &|_| {}).unwrap_err().to_string();
+    assert!(err.contains("more than the limit") && err.contains("-th step or fewer"), "{err}");
+    let spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 1 << 24);
+    let members = vec![(spec.q0.clone(), spec.v0.clone()); 4096];
+    let err = problems::run::run_ensemble(&spec, &members, Some(1)).unwrap_err().to_string();
+    assert!(err.contains("more than the limit"), "{err}");
+    assert!(start.elapsed().as_secs() < 5, "refused up front, not after stepping");
+}

@@ -17,6 +17,7 @@ Errors are :class:`SparkError` exceptions carrying the Rust message.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -140,6 +141,11 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
     if t_end is None:
         raise SparkError("give steps= or t_end=")
     ratio = (t_end - t0) / h
+    if not math.isfinite(ratio):
+        raise SparkError(
+            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} with h = {h:.6e} is not a finite number of "
+            "steps; give finite t0, t_end and a nonzero h"
+        )
     n = round(ratio)
     if n < 1 or abs(ratio - n) > 1e-9 * n:
         raise SparkError(

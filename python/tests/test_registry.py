@@ -91,3 +91,17 @@ def test_errors_are_python_exceptions_with_the_rust_message():
     # a projected v0 is accepted
     run = spark.integrate("skate", "gauss", 2, 0.1, 10, v0=[0.0, 1.0, 0.0], project_v0=True)
     assert run.constraint.max() < 1e-12
+
+
+def test_a_record_that_would_not_fit_in_memory_is_refused_before_any_step():
+    # 2^62 recorded steps would grow the record until an allocation failure
+    # aborts the interpreter; the request is refused at once with the
+    # `every` that would fit.
+    with pytest.raises(spark.SparkError, match=r"samples .* more than the limit .* record every \d+-th step"):
+        spark.integrate("skate", "gauss", 2, 0.1, 2**62)
+    q0s = np.zeros((200_000, 3))
+    v0s = np.tile([0.0, 0.0, 1.0], (200_000, 1))
+    with pytest.raises(spark.SparkError, match=r"samples .* more than the limit"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 200_000, q0s, v0s)
+    with pytest.raises(spark.SparkError, match="not a finite number of steps"):
+        spark.system("skate").integrate(h=0.1, t_end=float("inf"))

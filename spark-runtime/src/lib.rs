@@ -155,8 +155,9 @@ pub use adaptive::{
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
-    FailurePolicy, IntegrationError, NoObserver, Observe, Observer, RejectionFloor, RunOptions, RunReport, Sample,
-    Schedule, SubstepOverrun, Trajectory, DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
+    check_record_size, record_memory_limit, FailurePolicy, IntegrationError, NoObserver, Observe, Observer,
+    RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule, SubstepOverrun, Trajectory,
+    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{

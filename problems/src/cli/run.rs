@@ -78,46 +78,27 @@ pub struct RunArgs {
     pub project_v0: bool,
 }
 
-/// Fixed cap on the memory the recorded trajectory of `spark run` may take
-/// (samples in the stepper's record, the result columns and the figure's
-/// curves): 4 GiB, lowered to half the available memory when the system
-/// reports it.
-const MAX_TRAJECTORY_MEMORY: u64 = 4 << 30;
-
-/// Half of `MemAvailable` from /proc/meminfo, when the system reports it.
-fn half_available_memory() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib.saturating_mul(1024) / 2)
-}
-
 /// Refuses runs whose recorded trajectory would not fit in memory, or whose
 /// JSON trajectory would be unreasonably large, before any computation.
 fn check_output_size(
-    samples: u64,
+    steps: usize,
     n: usize,
     m: usize,
     holonomic: bool,
     format: Format,
     every: usize,
 ) -> Result<(), String> {
-    // Per sample: the stepper's record (t, q, v, energy, residual,
-    // multipliers, iterations), the result columns, and the figure's points.
-    let per_sample = 8 * (1 + 2 * n as u64 + 4 + m as u64 + 2) + 8 * (2 * n as u64 + 4) + 16 * (2 * n as u64 + 3);
-    let bytes = samples.saturating_mul(per_sample);
-    let limit = half_available_memory().map_or(MAX_TRAJECTORY_MEMORY, |a| a.min(MAX_TRAJECTORY_MEMORY));
-    let thin = |limit_samples: u64| (samples / limit_samples.max(1) + 1).saturating_mul(every as u64);
-    if bytes > limit {
+    // Per sample: the run's record and columns, and the figure's points.
+    let per_sample = crate::run::bytes_per_sample(n, m) + 16 * (2 * n as u64 + 3);
+    if let Err(e) = spark_runtime::check_record_size(steps, every, 1, per_sample) {
         return Err(format!(
-            "the run records {samples:.3e} samples ({:.3e} bytes in memory), more than the limit of {:.3e} bytes; \
+            "the run records {:.3e} samples ({:.3e} bytes in memory), more than the limit of {:.3e} bytes; \
              record fewer with --every {} or more, raise --h, or shorten --t-end",
-            bytes as f64,
-            limit as f64,
-            thin(limit / per_sample),
-            samples = samples as f64,
+            e.samples as f64, e.bytes, e.limit as f64, e.every,
         ));
     }
+    let samples = ((steps / every) as u64).saturating_add(2);
+    let thin = |limit_samples: u64| (samples / limit_samples.max(1) + 1).saturating_mul(every as u64);
     if matches!(format, Format::Json | Format::Both) {
         let json = json_trajectory_bytes(samples, n, holonomic);
         if json > MAX_JSON_TRAJECTORY_BYTES {
@@ -166,8 +147,7 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
         return Err("--every must be at least 1 (1 records every step)".into());
     }
     let steps = step_count(t0, t_end, h)?;
-    let samples = (steps / a.every) as u64 + 2;
-    check_output_size(samples, entry.n, entry.m, entry.effects.holonomic, a.format, a.every)?;
+    check_output_size(steps, entry.n, entry.m, entry.effects.holonomic, a.format, a.every)?;
     let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
     spec.t0 = t0;
     for (flag, what, given) in [("--q0", "q0", &a.q0), ("--v0", "v0", &a.v0)] {

@@ -22,6 +22,9 @@ pub enum EnsembleError {
         /// What the operating system said.
         reason: String,
     },
+    /// The members' recorded samples together would not fit in memory.
+    #[error("{0}")]
+    Record(RunError),
     /// One member's run failed (bad initial state, failed step).
     #[error("member {member}: {source}")]
     Member {
@@ -94,6 +97,8 @@ pub fn run_ensemble_with(
     if members.is_empty() {
         return Err(EnsembleError::NoMembers);
     }
+    let entry = spec.system.entry();
+    check_record_size(spec, members.len(), entry.n, entry.m).map_err(EnsembleError::Record)?;
     let work = || -> Result<Vec<RunResult>, EnsembleError> {
         if spec.multipliers || spec.steps == 0 || check_spec(spec).is_err() {
             return each_member(spec, members, tick);

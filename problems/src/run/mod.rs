@@ -296,7 +296,25 @@ fn check_spec(spec: &RunSpec) -> Result<(), RunError> {
     if spec.stages < min || spec.stages > max {
         return Err(TableauError::UnsupportedStages { method: spec.method, s: spec.stages, min, max }.into());
     }
-    check_parameters(spec.system.entry(), &spec.parameters)
+    let entry = spec.system.entry();
+    check_record_size(spec, 1, entry.n, entry.m)?;
+    check_parameters(entry, &spec.parameters)
+}
+
+/// Bytes one recorded sample of a run takes in memory for a system with
+/// `n` coordinates and `m` constraints: the driver's record (time, state,
+/// energy, residual, multipliers, iterations) and the result's columns.
+pub fn bytes_per_sample(n: usize, m: usize) -> u64 {
+    let (n, m) = (n as u64, m as u64);
+    8 * (1 + 2 * n + 4 + m + 2) + 8 * (2 * n + 4)
+}
+
+/// Refuses `members` runs of `spec` whose recorded samples would not fit
+/// in memory ([`spark_runtime::check_record_size`]): such a run would step
+/// until an allocation failure aborts the process.
+pub fn check_record_size(spec: &RunSpec, members: usize, n: usize, m: usize) -> Result<(), RunError> {
+    spark_runtime::check_record_size(spec.steps, spec.record_every, members, bytes_per_sample(n, m))
+        .map_err(|e| RunError::Invalid(e.to_string()))
 }
 
 /// Looks `name` up in the catalogue and runs it with its defaults (the

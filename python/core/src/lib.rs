@@ -18,9 +18,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    consistent_velocity, integrate_ensemble, ConsistencyPolicy, ConstraintForm, EnsembleRun, IntegrationError, Method,
-    NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State, StepError,
-    Stepper, Structure, SystemSource, Tableau, Vector,
+    check_record_size, consistent_velocity, integrate_ensemble, ConsistencyPolicy, ConstraintForm, EnsembleRun,
+    IntegrationError, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Sample,
+    Schedule, State, StepError, Stepper, Structure, SystemSource, Tableau, Vector,
 };
 
 pub use numpy;
@@ -155,6 +155,15 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Refuses a request whose recorded samples (`members` runs of `r`) would
+/// not fit in memory ([`check_record_size`]): such a run would end in an
+/// allocation failure, which aborts the Python process. Per sample it
+/// counts the driver's record, the result columns and their NumPy copies.
+fn check_record<const N: usize, const M: usize>(r: &IntegrateRequest, members: usize) -> Result<(), Failure> {
+    let per_sample = std::mem::size_of::<Sample<N, M>>() as u64 + 2 * 8 * (2 * N + M + 4) as u64;
+    check_record_size(r.steps, r.every, members, per_sample).map_err(|e| e.to_string())
+}
+
 /// How a request treats an inconsistent `v0`.
 fn consistency(r: &IntegrateRequest) -> ConsistencyPolicy {
     if r.project_v0 {
@@ -207,6 +216,7 @@ where
 {
     let start = std::time::Instant::now();
     check_request(r)?;
+    check_record::<N, M>(r, 1)?;
     let probe: Sys = configured(&r.parameters)?;
     let (q0, v0) = checked_start::<Sys, N, M>(r, &probe, &r.q0, &r.v0)?;
     let consistency = consistency(r);
@@ -284,6 +294,7 @@ where
             r.v0s.len()
         ));
     }
+    check_record::<N, M>(&r.run, r.members)?;
     let member = |j: usize| IntegrateRequest {
         q0: r.q0s[j * N..(j + 1) * N].to_vec(),
         v0: r.v0s[j * N..(j + 1) * N].to_vec(),

@@ -23,7 +23,7 @@ use failure::{Budget, StepCounts};
 pub(crate) use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::sample_storage;
-pub use trajectory::{RunReport, Sample, Trajectory};
+pub use trajectory::{check_record_size, record_memory_limit, RecordTooLarge, RunReport, Sample, Trajectory};
 
 use crate::events::EventFunctions;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};

@@ -2,11 +2,73 @@
 //! every step and the serializable [`Trajectory`] (JSON, CSV).
 
 use super::{Observe, StepCounts};
+use crate::error::Sci;
 use crate::events::EventRecord;
 use crate::initial::consistent_acceleration;
 use crate::step::{State, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
+
+/// The most memory the recorded samples of one request may take before a
+/// front end (the `spark` CLI, the Python package) refuses it up front:
+/// 4 GiB, lowered to half of the memory the system reports available
+/// (`MemAvailable` in `/proc/meminfo`) when that is less. A run that
+/// records more ends in an allocation failure, which aborts the process;
+/// [`Stepper::integrate`] itself records what it is asked to.
+pub fn record_memory_limit() -> u64 {
+    const CAP: u64 = 4 << 30;
+    let half_available = || -> Option<u64> {
+        let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib.saturating_mul(1024) / 2)
+    };
+    half_available().map_or(CAP, |a| a.min(CAP))
+}
+
+/// A request whose recorded samples would not fit in memory (see
+/// [`check_record_size`]).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error(
+    "the run records {} samples ({} bytes in memory), more than the limit of {} bytes (4 GiB or half the \
+     available memory); record every {every}-th step or fewer, or take fewer steps",
+    Sci(*samples as f64),
+    Sci(*bytes),
+    Sci(*limit as f64)
+)]
+pub struct RecordTooLarge {
+    /// Samples the request would record.
+    pub samples: u64,
+    /// Their bytes (a float: the product can exceed `u64`).
+    pub bytes: f64,
+    /// [`record_memory_limit`].
+    pub limit: u64,
+    /// The smallest record interval that fits.
+    pub every: u64,
+}
+
+/// Checks that `members` runs of `steps` steps, each recording every
+/// `every`-th step and both endpoints at `bytes_per_sample` bytes a sample,
+/// fit within [`record_memory_limit`].
+pub fn check_record_size(
+    steps: usize,
+    every: usize,
+    members: usize,
+    bytes_per_sample: u64,
+) -> Result<(), RecordTooLarge> {
+    let (steps, every) = (steps as u64, every.max(1) as u64);
+    let samples = (steps / every).saturating_add(2).saturating_mul(members as u64);
+    let bytes = samples as f64 * bytes_per_sample as f64;
+    let limit = record_memory_limit();
+    if bytes <= limit as f64 {
+        return Ok(());
+    }
+    // Samples per member that fit, the two endpoints among them: an
+    // interval above `steps / room` records at most `room + 1`.
+    let fits = limit / bytes_per_sample.max(1) / members.max(1) as u64;
+    let room = fits.saturating_sub(2).max(1);
+    Err(RecordTooLarge { samples, bytes, limit, every: steps / room + 1 })
+}
 
 /// One recorded point of a trajectory.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

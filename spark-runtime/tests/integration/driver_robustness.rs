@@ -613,3 +613,18 @@ fn a_recovery_stays_within_its_substep_budget() {
         other => panic!("expected an option error, got {other:?}"),
     }
 }
+
+/// A front end refuses a request whose record would not fit in memory
+/// (`check_record_size`): 2⁶² recorded steps are refused, and the record
+/// interval the error names makes the same request fit; a short run fits.
+#[test]
+fn a_record_that_would_not_fit_names_the_interval_that_does() {
+    let per_sample = 200;
+    assert!(spark_runtime::check_record_size(1000, 1, 1, per_sample).is_ok());
+    for (steps, members) in [(1usize << 62, 1usize), (usize::MAX, 1), (1 << 30, 1000)] {
+        let e = spark_runtime::check_record_size(steps, 1, members, per_sample).unwrap_err();
+        assert!(e.bytes > e.limit as f64 && e.limit <= 4 << 30, "{e}");
+        assert!(e.to_string().contains(&format!("record every {}-th step", e.every)), "{e}");
+        assert!(spark_runtime::check_record_size(steps, e.every as usize, members, per_sample).is_ok(), "{e}");
+    }
+}
