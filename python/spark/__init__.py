@@ -137,7 +137,13 @@ def _request(
 
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
     if steps is not None:
-        return int(steps)
+        try:
+            whole = int(steps)
+        except (TypeError, ValueError, OverflowError):
+            whole = None
+        if whole is None or isinstance(steps, bool) or whole != steps:
+            raise SparkError(f"steps = {steps!r} must be a whole number")
+        return whole
     if t_end is None:
         raise SparkError("give steps= or t_end=")
     ratio = (t_end - t0) / h
@@ -273,7 +279,7 @@ class System:
             raise SparkError(
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
             )
-        req = _request(method, s, h, steps, t0, params, every, newton, newton_tol)
+        req = _request(method, s, h, _steps(h, steps, None, t0), t0, params, every, newton, newton_tol)
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
         req["threads"] = threads

@@ -103,5 +103,7 @@ def test_a_record_that_would_not_fit_in_memory_is_refused_before_any_step():
     v0s = np.tile([0.0, 0.0, 1.0], (200_000, 1))
     with pytest.raises(spark.SparkError, match=r"samples .* more than the limit"):
         spark.ensemble("skate", "gauss", 2, 0.1, 200_000, q0s, v0s)
+    with pytest.raises(spark.SparkError, match="must be a whole number"):
+        spark.integrate("skate", "gauss", 2, 0.1, 10.5)
     with pytest.raises(spark.SparkError, match="not a finite number of steps"):
         spark.system("skate").integrate(h=0.1, t_end=float("inf"))
