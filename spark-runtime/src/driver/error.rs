@@ -56,8 +56,8 @@ pub enum IntegrationError {
     /// sub-steps: the step size is far too large for the problem there, or
     /// the budget too small for the halving or rejection depth allowed.
     #[error(
-        "step {index} from t = {} (h = {}) needs more than {} sub-steps to recover \
-         (RunOptions::max_substeps): {} accepted up to t = {}, the smallest {}; last failure: {}",
+        "step {index} from t = {} (h = {}) needs more than {} sub-steps to recover (raise \
+         RunOptions::max_substeps or take smaller steps): {} accepted up to t = {}, the smallest {}; last failure: {}",
         Sci(*t),
         Sci(detail.h),
         detail.budget,
