@@ -173,6 +173,9 @@ fn an_unwritable_out_is_reported_before_any_computation() {
     assert!(!err.contains("violates the constraints"), "the run started before the folder was checked: {err}");
     let err = run_err(&["stress", "--only", "bad_input", "--out", "/proc/spark-no-such-dir/out"]);
     assert!(err.contains("/proc/spark-no-such-dir/out"), "{err}");
+    // A path that is a file, not a folder, is named as such.
+    let err = run_err(&["paper", "--out", "/dev/null"]);
+    assert!(err.contains("/dev/null") && err.contains("not a folder"), "{err}");
 }
 
 #[test]

@@ -38,6 +38,12 @@ pub const TEST_PAUSE_ENV: &str = "SPARK_TEST_PAUSE_AFTER_FIRST_FILE_MS";
 /// Errors while writing output files.
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
+    /// The output path exists and is not a folder (a file, a device).
+    #[error("cannot write into {path}: it exists and is not a folder; give --out a folder (it is created if missing)")]
+    NotAFolder {
+        /// The path.
+        path: PathBuf,
+    },
     /// A file or directory could not be created or written.
     #[error("cannot write {path}: {source}")]
     Io {
@@ -98,6 +104,9 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
 
 /// Creates `dir` and its parents.
 pub fn create_dir(dir: &Path) -> Result<(), OutputError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(OutputError::NotAFolder { path: dir.to_path_buf() });
+    }
     std::fs::create_dir_all(dir).map_err(io(dir))
 }
 
