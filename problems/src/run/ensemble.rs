@@ -97,8 +97,7 @@ pub fn run_ensemble_with(
     if members.is_empty() {
         return Err(EnsembleError::NoMembers);
     }
-    let entry = spec.system.entry();
-    check_record_size(spec, members.len(), entry.n, entry.m).map_err(EnsembleError::Record)?;
+    check_record_size(spec, members.len()).map_err(EnsembleError::Record)?;
     let work = || -> Result<Vec<RunResult>, EnsembleError> {
         if spec.multipliers || spec.steps == 0 || check_spec(spec).is_err() {
             return each_member(spec, members, tick);

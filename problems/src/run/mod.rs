@@ -296,9 +296,8 @@ fn check_spec(spec: &RunSpec) -> Result<(), RunError> {
     if spec.stages < min || spec.stages > max {
         return Err(TableauError::UnsupportedStages { method: spec.method, s: spec.stages, min, max }.into());
     }
-    let entry = spec.system.entry();
-    check_record_size(spec, 1, entry.n, entry.m)?;
-    check_parameters(entry, &spec.parameters)
+    check_record_size(spec, 1)?;
+    check_parameters(spec.system.entry(), &spec.parameters)
 }
 
 /// Bytes one recorded sample of a run takes in memory for a system with
@@ -312,8 +311,9 @@ pub fn bytes_per_sample(n: usize, m: usize) -> u64 {
 /// Refuses `members` runs of `spec` whose recorded samples would not fit
 /// in memory ([`spark_runtime::check_record_size`]): such a run would step
 /// until an allocation failure aborts the process.
-pub fn check_record_size(spec: &RunSpec, members: usize, n: usize, m: usize) -> Result<(), RunError> {
-    spark_runtime::check_record_size(spec.steps, spec.record_every, members, bytes_per_sample(n, m))
+pub fn check_record_size(spec: &RunSpec, members: usize) -> Result<(), RunError> {
+    let entry = spec.system.entry();
+    spark_runtime::check_record_size(spec.steps, spec.record_every, members, bytes_per_sample(entry.n, entry.m))
         .map_err(|e| RunError::Invalid(e.to_string()))
 }
 
