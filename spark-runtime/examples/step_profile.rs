@@ -42,7 +42,7 @@ fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: u
 ) -> Result<(), String> {
     let tableau = Tableau::new(Method::Gauss).map_err(|e| e.to_string())?;
     let mut stepper = Stepper::<Sys, N, 1, S, D>::new(sys, tableau).with_options(options);
-    let (mut updates, mut steps, mut end) = (0usize, 0usize, start);
+    let (mut updates, mut factorizations, mut steps, mut end) = (0usize, 0usize, 0usize, start);
     let run_options = RunOptions {
         observe: Observe { energy: false, constraint_residual: false, multipliers: false },
         record_every: 0,
@@ -58,6 +58,7 @@ fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: u
                 for _ in 0..per_run {
                     let r = stepper.step(&state, h).map_err(|e| e.to_string())?;
                     (state, updates, steps) = (r.state, updates + r.iterations, steps + 1);
+                    factorizations += r.factorizations;
                 }
                 end = state;
             }
@@ -80,7 +81,12 @@ fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: u
         writeln!(out, "end q = {:?}, v = {:?}", end.q.as_slice(), end.v.as_slice()).map_err(|e| e.to_string())?;
     }
     let per_step = (elapsed / steps as f64, updates as f64 / steps as f64);
-    writeln!(out, "{:.1} ns/step, {:.2} Newton updates/step", per_step.0, per_step.1).map_err(|e| e.to_string())
+    write!(out, "{:.1} ns/step, {:.2} Newton updates/step", per_step.0, per_step.1).map_err(|e| e.to_string())?;
+    if let Driver::Loop = driver {
+        // `integrate` reports no factorizations.
+        write!(out, ", {:.2} factorizations/step", factorizations as f64 / steps as f64).map_err(|e| e.to_string())?;
+    }
+    writeln!(out).map_err(|e| e.to_string())
 }
 
 /// What advances the steps.
@@ -127,9 +133,15 @@ fn main() -> Result<(), String> {
         ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
         ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
         ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
+        ("particle", 4) => run::<_, 3, 4, 19>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
+        ("particle", 5) => run::<_, 3, 5, 23>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
         ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
         ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
         ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
-        (system, s) => Err(format!("no case {system} with s = {s}: particle, skate or mp7, s = 1..=3")),
+        ("mp7", 4) => run::<_, 7, 4, 39>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
+        ("mp7", 5) => run::<_, 7, 5, 47>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
+        (system, s) => {
+            Err(format!("no case {system} with s = {s}: particle or mp7 with s = 1..=5, skate with s = 1..=3"))
+        }
     }
 }

@@ -187,9 +187,29 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     pub(super) fn solve(&mut self) {
         let sm = Self::SM;
         let base = (S + 1) * N;
-        self.y.copy_from_slice(&self.g[..]);
-        for i in 0..=S {
-            Self::solve_mass(&self.mass, &mut self.y, i * N);
+        // `y = W⁻¹ g` on the momentum rows, `g` on the constraint rows: a
+        // diagonal mass matrix scales as it copies.
+        match &self.mass {
+            MassSolve::Diagonal(r) => {
+                for i in 0..=S {
+                    for n in 0..N {
+                        let (mut x, rn) = (self.g[i * N + n], r[n]);
+                        for w in 0..W {
+                            x[w] *= rn;
+                        }
+                        self.y[i * N + n] = x;
+                    }
+                }
+                for d in base..D {
+                    self.y[d] = self.g[d];
+                }
+            }
+            MassSolve::Lu { .. } => {
+                self.y.copy_from_slice(&self.g[..]);
+                for i in 0..=S {
+                    Self::solve_mass(&self.mass, &mut self.y, i * N);
+                }
+            }
         }
         let (vel, con) = self.y.split_at_mut(base);
         // Each entry of `con` takes its products in the order of the

@@ -90,6 +90,9 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     v: Box<[L<W>; N]>,
     carry: Box<[L<W>; N]>,
     anchor: [Option<EnergyAnchor<N>>; W],
+    /// Whether lane `w`'s state is its anchor's end state (so the energy
+    /// guard continues the anchor's chain without comparing them).
+    at_anchor: [bool; W],
     /// Ring of the latest solutions: slot `k` at `k·D`; lane `w`'s most
     /// recent is slot `head[w]`.
     past: Box<[L<W>]>,
@@ -161,6 +164,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             v: fixed(),
             carry: fixed(),
             anchor: [None; W],
+            at_anchor: [false; W],
             past: lanes(PAST * D),
             head: [0; W],
             depth: [0; W],
@@ -202,6 +206,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         self.anchor[w] = c.anchor;
+        self.at_anchor[w] = c.anchor.is_some_and(|a| a.end.q == c.end.q && a.end.v == c.end.v);
         self.rate[w] = c.rate;
         (self.head[w], self.depth[w], self.held[w]) = (0, c.depth, true);
     }
@@ -424,27 +429,32 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         let q1_lanes: [L<W>; N] = std::array::from_fn(|n| std::array::from_fn(|w| self.q[n][w] + dq_lanes[n][w]));
         let v1_lanes: [L<W>; N] = std::array::from_fn(|n| self.z[S * (N + M) + n]);
+        // A lane whose `q₁` or `v₁` is not finite goes back (`0 · x` is NaN
+        // exactly for those, as in the residual's test).
+        let mut poison = [0.0f64; W];
+        for n in 0..N {
+            for w in 0..W {
+                poison[w] += 0.0 * q1_lanes[n][w] + 0.0 * v1_lanes[n][w];
+            }
+        }
         let guard = opts.energy_drift_limit.filter(|_| energy_is_invariant::<Sys, N, M>());
         let e1 = guard.map(|_| sys.energy_in_lanes(t + h, &q1_lanes, &v1_lanes, &stepped));
+        let mut kept = [false; W];
         for w in 0..W {
             if !stepped[w] {
                 continue;
             }
-            let dq = self.lane_vector::<N>(&dq_lanes[..], 0, w);
-            let q0 = self.lane_vector::<N>(&self.q[..], 0, w);
-            let q1 = self.lane_vector::<N>(&q1_lanes[..], 0, w);
-            let v1 = self.lane_vector::<N>(&v1_lanes[..], 0, w);
-            if !q1.iter().chain(v1.iter()).all(|x| x.is_finite()) {
+            if poison[w] != 0.0 {
                 out[w] = Outcome::HandBack;
                 continue;
             }
             if let (Some(limit), Some(e1)) = (guard, e1.map(|e| e[w])) {
+                let q1 = self.lane_vector::<N>(&q1_lanes[..], 0, w);
+                let v1 = self.lane_vector::<N>(&v1_lanes[..], 0, w);
                 // The chain the kernel continues, checked in place: what
                 // `check_energy` decides for an anchor at the step's start.
-                let (q, v) = (&self.q, &self.v);
-                let continued = self.anchor[w].as_mut().filter(|a| {
-                    a.scale > 0.0 && a.end.t == t && (0..N).all(|n| a.end.q[n] == q[n][w] && a.end.v[n] == v[n][w])
-                });
+                let at_anchor = self.at_anchor[w];
+                let continued = self.anchor[w].as_mut().filter(|a| a.scale > 0.0 && a.end.t == t && at_anchor);
                 if let Some(a) = continued {
                     if !a.holds(e1, limit) {
                         out[w] = Outcome::HandBack;
@@ -452,6 +462,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                     a.end = State::new(t_next, q1, v1);
                 } else {
+                    let q0 = self.lane_vector::<N>(&self.q[..], 0, w);
                     let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                     let end = State::new(t + h, q1, v1);
                     match check_energy::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, Some(e1), limit) {
@@ -465,18 +476,44 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                 }
             }
-            let carry = crate::step::two_sum_error(&q0, &dq, &q1);
-            for n in 0..N {
-                self.q[n][w] = q1[n];
-                self.v[n][w] = v1[n];
-                self.carry[n][w] = carry[n];
-            }
+            // The anchor's end is the new state exactly when the guard ran.
+            self.at_anchor[w] = guard.is_some();
+            kept[w] = true;
             self.head[w] = (self.head[w] + PAST - 1) % PAST;
             self.depth[w] = (self.depth[w] + 1).min(PAST);
             self.rate[w] = self.solved_rate[w];
-            let slot = self.head[w] * D;
+        }
+        // The kept lanes' new state and carry (`two_sum_error`, lane by lane
+        // the same operations), and their solutions into the ring: whole
+        // rows where every kept lane writes the same slot.
+        for n in 0..N {
+            let (q0, dq, q1, v1) = (self.q[n], dq_lanes[n], q1_lanes[n], v1_lanes[n]);
+            let (mut q, mut v, mut carry) = (q0, self.v[n], self.carry[n]);
+            for w in 0..W {
+                let bb = q1[w] - q0[w];
+                let err = (q0[w] - (q1[w] - bb)) + (dq[w] - bb);
+                q[w] = if kept[w] { q1[w] } else { q[w] };
+                v[w] = if kept[w] { v1[w] } else { v[w] };
+                carry[w] = if kept[w] { err } else { carry[w] };
+            }
+            (self.q[n], self.v[n], self.carry[n]) = (q, v, carry);
+        }
+        let first = (0..W).find(|&w| kept[w]);
+        if let Some(f) = first.filter(|&f| (0..W).all(|w| !kept[w] || self.head[w] == self.head[f])) {
+            let slot = self.head[f] * D;
             for d in 0..D {
-                self.past[slot + d][w] = self.z[d][w];
+                let (z, mut past) = (self.z[d], self.past[slot + d]);
+                for w in 0..W {
+                    past[w] = if kept[w] { z[w] } else { past[w] };
+                }
+                self.past[slot + d] = past;
+            }
+        } else {
+            for w in (0..W).filter(|&w| kept[w]) {
+                let slot = self.head[w] * D;
+                for d in 0..D {
+                    self.past[slot + d][w] = self.z[d][w];
+                }
             }
         }
     }
