@@ -13,9 +13,10 @@
 //!
 //! Arguments: `particle|skate|mp7`, `full|simplified|decoupled` (full Newton,
 //! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
-//! Gauss stages `1..=3`, repeats, `loop|integrate` and the step `h`
-//! (default: the paper's). `loop` is a bare loop of
-//! `Stepper::step` (the default), `integrate` one `Stepper::integrate` call per repeat
+//! Gauss stages (`1..=5` for the particle and mp7, `1..=3` for the skate),
+//! repeats, `loop|integrate` and the step `h` (default: the paper's). `loop`
+//! is a bare loop of `Stepper::step` (the default, which also prints the
+//! factorizations per step), `integrate` one `Stepper::integrate` call per repeat
 //! with the same steps, nothing observed and only the endpoints recorded
 //! (the driver's own cost is the difference of the two). With `SPARK_PRINT_END=1` it also prints
 //! the end state of the last repeat in full precision (to check that two
