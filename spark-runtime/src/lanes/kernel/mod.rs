@@ -383,7 +383,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for d in 0..D {
             let (mut z, g) = (self.z[d], self.g[d]);
             for w in 0..W {
-                z[w] = if iterating[w] { z[w] - g[w] } else { z[w] };
+                // `z − 0` is `z` bit for bit (signed zeros and NaN included),
+                // and the whole row is stored (no masked store).
+                z[w] -= if iterating[w] { g[w] } else { 0.0 };
                 let r = g[w].abs() / (1.0 + z[w].abs());
                 poison[w] += 0.0 * r;
                 norm[w] = if r > norm[w] { r } else { norm[w] };
