@@ -47,7 +47,7 @@ fn every_entry_agrees_with_its_type_and_has_a_consistent_default_state() {
         // Consistency of (t0, q0, v0) is checked by the run itself (it
         // refuses an inconsistent state); one step of Gauss s=1 suffices.
         let spec = RunSpec { steps: 1, ..RunSpec::defaults(e.kind, Method::Gauss, 1) };
-        let r = run(&spec, &|_| {}).unwrap_or_else(|err| panic!("{}: {err}", e.name));
+        let r = run(&spec, &|_| true).unwrap_or_else(|err| panic!("{}: {err}", e.name));
         assert!(r.stats.max_constraint_residual < 1e-12, "{}: |k| = {:e}", e.name, r.stats.max_constraint_residual);
         if e.effects.holonomic {
             assert!(r.stats.max_holonomic_drift.is_some(), "{}: no drift reported", e.name);
@@ -70,7 +70,7 @@ fn every_system_steps_with_every_method_family_and_stage_count() {
     for e in entries() {
         for (method, s) in all_method_variants() {
             let spec = RunSpec { steps: 3, ..RunSpec::defaults(e.kind, method, s) };
-            match run(&spec, &|_| {}) {
+            match run(&spec, &|_| true) {
                 Ok(r) => {
                     runs += 1;
                     assert_eq!(r.stats.steps, 3);
@@ -107,7 +107,7 @@ fn converged_steps_equal_the_tight_solve_in_both_newton_modes() {
     for e in entries() {
         for (method, s) in all_method_variants() {
             let base = RunSpec { steps: 3, ..RunSpec::defaults(e.kind, method, s) };
-            let reference = match run(&RunSpec { newton: tight, ..base.clone() }, &|_| {}) {
+            let reference = match run(&RunSpec { newton: tight, ..base.clone() }, &|_| true) {
                 Ok(r) => r,
                 Err(err) => {
                     failures.push(format!("{} {method} s={s} tight: {err}", e.name));
@@ -121,7 +121,7 @@ fn converged_steps_equal_the_tight_solve_in_both_newton_modes() {
             ] {
                 let newton = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
                 let spec = RunSpec { newton, ..base.clone() };
-                match run(&spec, &|_| {}) {
+                match run(&spec, &|_| true) {
                     Ok(r) => {
                         runs += 1;
                         let d = distance(&r.q, &reference.q).max(distance(&r.v, &reference.v));
@@ -153,7 +153,7 @@ fn holonomic_drift_is_reported_for_holonomic_systems() {
         let kind = SystemKind::parse(name).unwrap();
         let drift = |method, s| {
             let spec = RunSpec { steps: 200, ..RunSpec::defaults(kind, method, s) };
-            let r = run(&spec, &|_| {}).unwrap();
+            let r = run(&spec, &|_| true).unwrap();
             assert_eq!(r.holonomic.len(), r.t.len());
             assert!(r.stats.max_constraint_residual < 1e-13, "{name}: |k| {:e}", r.stats.max_constraint_residual);
             r.stats.max_holonomic_drift.expect("holonomic system reports drift")
@@ -165,7 +165,7 @@ fn holonomic_drift_is_reported_for_holonomic_systems() {
     }
     // Non-holonomic systems report none.
     let skate = RunSpec { steps: 2, ..RunSpec::defaults(SystemKind::Skate, Method::Gauss, 2) };
-    let r = run(&skate, &|_| {}).unwrap();
+    let r = run(&skate, &|_| true).unwrap();
     assert!(r.stats.max_holonomic_drift.is_none() && r.holonomic.is_empty());
 }
 
@@ -194,29 +194,29 @@ fn bad_run_inputs_get_actionable_errors() {
     let skate = || RunSpec { steps: 2, ..RunSpec::defaults(SystemKind::Skate, Method::Gauss, 2) };
     // Unknown parameter, with a suggestion and the list.
     let spec = RunSpec { parameters: vec![("bta".into(), 0.5)], ..skate() };
-    let text = run(&spec, &|_| {}).unwrap_err().to_string();
+    let text = run(&spec, &|_| true).unwrap_err().to_string();
     assert!(
         text.contains("`bta`") && text.contains("did you mean `beta`") && text.contains("m, inertia, g, beta"),
         "{text}"
     );
     // A known parameter is accepted.
-    assert!(run(&RunSpec { parameters: vec![("beta".into(), 0.5)], ..skate() }, &|_| {}).is_ok());
+    assert!(run(&RunSpec { parameters: vec![("beta".into(), 0.5)], ..skate() }, &|_| true).is_ok());
     // Wrong vector length names the coordinates.
-    let text = run(&RunSpec { q0: vec![0.0; 2], ..skate() }, &|_| {}).unwrap_err().to_string();
+    let text = run(&RunSpec { q0: vec![0.0; 2], ..skate() }, &|_| true).unwrap_err().to_string();
     assert!(text.contains("q0 has 2 entries") && text.contains("x, y, theta"), "{text}");
     // Inconsistent velocity: says how to fix it.
-    let err = run(&RunSpec { v0: vec![0.0, 1.0, 0.0], ..skate() }, &|_| {}).unwrap_err();
+    let err = run(&RunSpec { v0: vec![0.0, 1.0, 0.0], ..skate() }, &|_| true).unwrap_err();
     assert!(matches!(err, RunError::InconsistentVelocities { .. }), "{err}");
     assert!(err.to_string().contains("--project-v0"));
     // Inconsistent position of a holonomic system.
     let rod = SystemKind::parse("rod-pendulum-hand").unwrap();
     let spec = RunSpec { q0: vec![1.0, 1.0], v0: vec![0.0, 0.0], ..RunSpec::defaults(rod, Method::Gauss, 2) };
-    let err = run(&spec, &|_| {}).unwrap_err();
+    let err = run(&spec, &|_| true).unwrap_err();
     assert!(matches!(err, RunError::InconsistentPositions { .. }), "{err}");
     // Stage counts: beyond the method's range, and beyond what is compiled.
-    let err = run(&RunSpec { stages: 3, ..RunSpec::defaults(SystemKind::Skate, Method::SymplecticEulerI, 3) }, &|_| {});
+    let err = run(&RunSpec { stages: 3, ..RunSpec::defaults(SystemKind::Skate, Method::SymplecticEulerI, 3) }, &|_| true);
     assert!(matches!(err, Err(RunError::Tableau(_))));
-    let err = run(&RunSpec { stages: 6, ..RunSpec::defaults(SystemKind::Skate, Method::Gauss, 6) }, &|_| {});
+    let err = run(&RunSpec { stages: 6, ..RunSpec::defaults(SystemKind::Skate, Method::Gauss, 6) }, &|_| true);
     assert!(matches!(err, Err(RunError::StagesNotCompiled { stages: 6, max: MAX_DISPATCH_STAGES, .. })), "{err:?}");
 }
 

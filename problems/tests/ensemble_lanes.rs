@@ -5,7 +5,7 @@
 
 use problems::catalog::SystemKind;
 use problems::run::{run, run_ensemble, run_ensemble_with, EnsembleError, RunError, RunResult, RunSpec};
-use spark_runtime::{ConsistencyPolicy, Method, NewtonMode, LANES};
+use spark_runtime::{ConsistencyPolicy, IntegrationError, Method, NewtonMode, LANES};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// `a` and `b` equal bit for bit, entry by entry.
@@ -61,7 +61,7 @@ fn check_against_solo_runs(spec: &RunSpec, members: &[(Vec<f64>, Vec<f64>)], sam
     let pool = run_ensemble(spec, members, None).unwrap();
     assert_eq!(one.len(), members.len());
     for (j, (q0, v0)) in members.iter().enumerate() {
-        let alone = run(&RunSpec { q0: q0.clone(), v0: v0.clone(), ..spec.clone() }, &|_| {}).unwrap();
+        let alone = run(&RunSpec { q0: q0.clone(), v0: v0.clone(), ..spec.clone() }, &|_| true).unwrap();
         assert_eq!(alone.t.len(), samples, "member {j}: samples");
         agrees(&one[j], &alone, &format!("member {j}"));
         for other in [&two[j], &pool[j]] {
@@ -134,9 +134,37 @@ fn ensemble_ticks_count_every_member_step() {
     let done = AtomicU64::new(0);
     let tick = |n: u64| {
         done.fetch_add(n, Ordering::Relaxed);
+        true
     };
     run_ensemble_with(&mp7_spec("mp7-nh", 300, 100), &members, Some(2), &tick).unwrap();
     assert_eq!(done.load(Ordering::Relaxed), 5 * 300);
+}
+
+/// The step at which a stopped member's error says it stopped (whichever
+/// member the error names: every member stops).
+fn stopped_at(e: &EnsembleError) -> Option<usize> {
+    match e {
+        EnsembleError::Member {
+            source: RunError::Integration { source: IntegrationError::Stopped { steps, .. }, .. }, ..
+        } => Some(*steps),
+        _ => None,
+    }
+}
+
+#[test]
+fn an_ensemble_stops_at_the_first_tick_that_says_so() {
+    // Lanes: five members take 5 member-steps per step, so the first tick
+    // comes after the 820th step (4100 ≥ 4096).
+    let never_ending = mp7_spec("mp7-nh", 1 << 40, 1 << 30);
+    let e = run_ensemble_with(&never_ending, &mp7_members(5), Some(2), &|_| false).unwrap_err();
+    assert_eq!(stopped_at(&e), Some(820), "{e}");
+    assert!(e.to_string().contains("stopped by its observer"), "{e}");
+    // Each member alone (a system without lanes): its run's first tick.
+    let mut skate = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 1 << 40);
+    skate.record_every = 1 << 30;
+    let members = vec![(vec![0.0; 3], vec![0.0, 0.0, 1.0]); 3];
+    let e = run_ensemble_with(&skate, &members, Some(2), &|_| false).unwrap_err();
+    assert_eq!(stopped_at(&e), Some(4096), "{e}");
 }
 
 #[test]
@@ -155,7 +183,7 @@ fn an_inconsistent_member_is_reported_with_its_index() {
     let mut spec = mp7_spec("mp7-nh", 50, 10);
     spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
     let out = run_ensemble(&spec, &members, None).unwrap();
-    let alone = run(&RunSpec { q0: members[4].0.clone(), v0: members[4].1.clone(), ..spec.clone() }, &|_| {}).unwrap();
+    let alone = run(&RunSpec { q0: members[4].0.clone(), v0: members[4].1.clone(), ..spec.clone() }, &|_| true).unwrap();
     agrees(&out[4], &alone, "projected member 4");
     let clean = run_ensemble(&mp7_spec("mp7-nh", 50, 10), &mp7_members(6), None).unwrap();
     assert_eq!(out[3].q, clean[3].q, "member 3 does not see member 4");
@@ -189,7 +217,7 @@ fn multipliers_go_through_the_per_member_runs() {
     spec.multipliers = true;
     let out = run_ensemble(&spec, &members, None).unwrap();
     for (j, (q0, v0)) in members.iter().enumerate() {
-        let alone = run(&RunSpec { q0: q0.clone(), v0: v0.clone(), ..spec.clone() }, &|_| {}).unwrap();
+        let alone = run(&RunSpec { q0: q0.clone(), v0: v0.clone(), ..spec.clone() }, &|_| true).unwrap();
         assert_eq!(out[j].psi.len(), 1);
         assert_eq!(out[j].psi, alone.psi, "member {j}: psi");
         assert_eq!(out[j].q, alone.q, "member {j}: q");

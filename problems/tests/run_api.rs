@@ -1,9 +1,10 @@
 //! The non-generic run API that `spark run` and the Python extension call:
-//! multipliers recorded on request (ensembles: `ensemble_lanes.rs`).
+//! multipliers recorded on request, records that cannot fit refused, runs
+//! stopped by their progress callback (ensembles: `ensemble_lanes.rs`).
 
 use problems::catalog::SystemKind;
-use problems::run::{run, RunResult, RunSpec};
-use spark_runtime::{Method, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector};
+use problems::run::{run, RunError, RunResult, RunSpec};
+use spark_runtime::{IntegrationError, Method, NoObserver, Observe, RunOptions, Schedule, Stepper, Tableau, Vector};
 
 /// The recorded samples of two runs are the same, bit for bit.
 fn same_samples(a: &RunResult, b: &RunResult, what: &str) {
@@ -19,11 +20,11 @@ fn same_samples(a: &RunResult, b: &RunResult, what: &str) {
 #[test]
 fn multipliers_are_recorded_on_request_without_changing_the_run() {
     let spec = RunSpec { steps: 20, ..RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 20) };
-    let plain = run(&spec, &|_| {}).unwrap();
+    let plain = run(&spec, &|_| true).unwrap();
     assert!(plain.psi.is_empty());
     let json = serde_json::to_value(&plain).unwrap();
     assert!(json.get("psi").is_none(), "spark run's JSON has no psi unless asked for");
-    let with = run(&RunSpec { multipliers: true, ..spec.clone() }, &|_| {}).unwrap();
+    let with = run(&RunSpec { multipliers: true, ..spec.clone() }, &|_| true).unwrap();
     same_samples(&plain, &with, "multipliers recorded");
     assert_eq!(with.psi.len(), 1);
     assert_eq!(with.psi[0].len(), with.t.len());
@@ -60,11 +61,30 @@ fn multipliers_are_recorded_on_request_without_changing_the_run() {
 fn a_record_that_would_not_fit_is_refused_before_any_step() {
     let huge = RunSpec { steps: 1 << 62, ..RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 20) };
     let start = std::time::Instant::now();
-    let err = run(&huge, &|_| {}).unwrap_err().to_string();
+    let err = run(&huge, &|_| true).unwrap_err().to_string();
     assert!(err.contains("more than the limit") && err.contains("-th step or fewer"), "{err}");
     let spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 1 << 24);
     let members = vec![(spec.q0.clone(), spec.v0.clone()); 4096];
     let err = problems::run::run_ensemble(&spec, &members, Some(1)).unwrap_err().to_string();
     assert!(err.contains("more than the limit"), "{err}");
     assert!(start.elapsed().as_secs() < 5, "refused up front, not after stepping");
+}
+
+#[test]
+fn a_run_stops_at_the_first_progress_tick_that_says_so() {
+    let mut spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 1 << 40);
+    spec.record_every = 1 << 30;
+    let ticks = std::sync::atomic::AtomicUsize::new(0);
+    let tick = |n: u64| {
+        assert_eq!(n, 4096);
+        ticks.fetch_add(1, std::sync::atomic::Ordering::Relaxed) < 2
+    };
+    match run(&spec, &tick) {
+        Err(RunError::Integration { source: IntegrationError::Stopped { steps, t, .. }, .. }) => {
+            // The third tick said stop.
+            assert_eq!(steps, 3 * 4096);
+            assert!((t - 0.1 * steps as f64).abs() < 1e-9, "t = {t}");
+        }
+        other => panic!("expected a stopped run, got {other:?}"),
+    }
 }

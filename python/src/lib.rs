@@ -155,7 +155,7 @@ fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> 
     let spec = run_spec(e, &read_request(py, request)?);
     let c = detached(py, || {
         let start = Instant::now();
-        let result = run(&spec, &|_| {}).map_err(|err| message(&err))?;
+        let result = run(&spec, &|_| true).map_err(|err| message(&err))?;
         Ok(columns(result, e.m, start.elapsed().as_secs_f64()))
     })?;
     columns_to_py(py, c)

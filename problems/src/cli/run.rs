@@ -176,7 +176,10 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     let mut out = OutputDir::open(&a.out).map_err(|e| e.to_string())?;
     let progress = Progress::on_terminal();
     let bar = progress.bar(&format!("{} {} s={}", entry.name, method, a.stages), steps as u64);
-    let result = run(&spec, &|n| bar.inc(n)).map_err(|e| e.to_string())?;
+    let result = run(&spec, &|n| {
+        bar.inc(n);
+        true
+    }).map_err(|e| e.to_string())?;
     bar.finish_and_clear();
     let stem = format!("{}_{}_s{}", entry.name, method.key(), a.stages);
     let e = |e: OutputError| e.to_string();

@@ -368,7 +368,10 @@ pub fn run_paper(cfg: &PaperConfig, progress: &Progress) -> Result<PaperReport, 
         .map(|u| {
             let first = &jobs[u[0]];
             let (figure, bar) = (FIGURES[first.figure], &bars[first.figure]);
-            let tick = |n| bar.inc(n);
+            let tick = |n| {
+                bar.inc(n);
+                true
+            };
             let result = if first.reading.is_none() {
                 run(&first.spec, &tick).map(|r| vec![r]).map_err(|source| PaperError::Run { figure, source })
             } else {

@@ -47,11 +47,13 @@ pub fn run_ensemble(
     members: &[(Vec<f64>, Vec<f64>)],
     threads: Option<usize>,
 ) -> Result<Vec<RunResult>, EnsembleError> {
-    run_ensemble_with(spec, members, threads, &|_| {})
+    run_ensemble_with(spec, members, threads, &|_| true)
 }
 
 /// [`run_ensemble`], calling `tick` with the member steps done (every few
-/// thousand and at the end), for progress bars.
+/// thousand and at the end), for progress bars; when it answers `false`
+/// the members still running stop with [`IntegrationError::Stopped`](spark_runtime::IntegrationError::Stopped)
+/// ([`EnsembleError::Member`] names the first).
 ///
 /// # Lanes
 /// The members run in SIMD lane groups of [`LANES`] on the lane stepper of
@@ -298,14 +300,23 @@ where
         }
         done += running;
         if done >= TICK_EVERY {
-            tick(done as u64);
+            let go_on = tick(done as u64);
             done = 0;
+            if !go_on {
+                // Every member still running stops here, as its solo run would.
+                let stopped = |j: usize| {
+                    let t = lanes.state(j).map_or(spec.t0, |s| s.t);
+                    let source = IntegrationError::Stopped { steps: k + 1, t, partial: Box::default() };
+                    RunError::Integration { system: key, method: spec.method, stages: S, source }
+                };
+                return (0..starts.len()).map(|j| Err(stopped(j))).collect();
+            }
         }
         if running == 0 {
             break;
         }
     }
-    tick(done as u64);
+    let _ = tick(done as u64);
     let share = starts.len() as u32;
     let wall_time = wall_start.elapsed() / share;
     let cpu_time = match (cpu_start, thread_cpu_time()) {
@@ -319,7 +330,9 @@ where
             if r.failed {
                 let q0 = starts[j].q.as_slice().to_vec();
                 let v0 = starts[j].v.as_slice().to_vec();
-                return run(&RunSpec { q0, v0, ..spec.clone() }, &|_| {});
+                // Alone it reports no progress (its steps are counted) but
+                // still stops when asked.
+                return run(&RunSpec { q0, v0, ..spec.clone() }, &|_| tick(0));
             }
             let steps = spec.steps;
             let iterations = lanes.total_iterations(j).unwrap_or(0);

@@ -271,8 +271,11 @@ fn seconds<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> 
 }
 
 /// Called with the number of steps done since the previous call (every few
-/// thousand steps and at the end), for progress bars.
-pub type Tick<'a> = &'a (dyn Fn(u64) + Sync);
+/// thousand steps and at the end), for progress bars; returns whether the
+/// run goes on. `false` stops it within a few thousand steps, with
+/// [`IntegrationError::Stopped`] as the run's error (for each member of an
+/// ensemble): how a front end lets its user interrupt a long run.
+pub type Tick<'a> = &'a (dyn Fn(u64) -> bool + Sync);
 
 /// How often the progress callback fires.
 const TICK_EVERY: usize = 4096;
@@ -321,7 +324,7 @@ pub fn check_record_size(spec: &RunSpec, members: usize) -> Result<(), RunError>
 /// shortest way to integrate a system by name).
 pub fn run_by_name(name: &str, method: Method, stages: usize) -> Result<RunResult, RunError> {
     let kind = lookup(name)?.kind;
-    run(&RunSpec::defaults(kind, method, stages), &|_| {})
+    run(&RunSpec::defaults(kind, method, stages), &|_| true)
 }
 
 /// Rejects parameter names the system does not have, with a suggestion.
@@ -400,6 +403,8 @@ struct RunObserver<'a> {
     tick: Tick<'a>,
     count: usize,
     max_holonomic_drift: f64,
+    /// What the latest tick answered.
+    go_on: bool,
 }
 
 impl<const N: usize, const M: usize> spark_runtime::Observer<N, M> for RunObserver<'_> {
@@ -409,8 +414,11 @@ impl<const N: usize, const M: usize> spark_runtime::Observer<N, M> for RunObserv
         }
         self.count += 1;
         if self.count.is_multiple_of(TICK_EVERY) {
-            (self.tick)(TICK_EVERY as u64);
+            self.go_on = (self.tick)(TICK_EVERY as u64);
         }
+    }
+    fn stop_requested(&mut self) -> bool {
+        !self.go_on
     }
 }
 
@@ -485,7 +493,7 @@ where
     let e0 = probe.energy(spec.t0, &q0, &v0);
     // The driver's report covers energy and residual at every step; the
     // observer adds the holonomic drift and the progress ticks.
-    let mut observer = RunObserver { tick, count: 0, max_holonomic_drift: drift(spec.t0, &q0) };
+    let mut observer = RunObserver { tick, count: 0, max_holonomic_drift: drift(spec.t0, &q0), go_on: true };
     let options = RunOptions {
         observe: Observe { energy: true, constraint_residual: true, multipliers: spec.multipliers },
         record_every: spec.record_every,
@@ -513,7 +521,7 @@ where
         (Some(a), Some(b)) if b >= a => Some(b - a),
         _ => None,
     };
-    tick((observer.count % TICK_EVERY) as u64);
+    let _ = tick((observer.count % TICK_EVERY) as u64);
     let holonomic =
         if Sys::HAS_HOLONOMIC { traj.samples.iter().map(|s| drift(s.t, &s.q)).collect() } else { Vec::new() };
     let stats = RunStats {

@@ -3,7 +3,7 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, finish, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
+    accept, finish, After, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
     AdaptiveRun, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
@@ -224,10 +224,12 @@ where
         report.newton_iterations += r.iterations;
         let pieces = [(dir * this, &r)];
         let taken = Taken { start: state, pieces: &pieces, this, iterations: r.iterations, last };
-        let done;
-        (state, done) = accept(stepper, rec, observer, &mut report, taken, t_end);
-        if done {
-            return Ok(report);
+        let after;
+        (state, after) = accept(stepper, rec, observer, &mut report, taken, t_end);
+        match after {
+            After::Continue => {}
+            After::Done => return Ok(report),
+            After::Stopped => return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(report) }),
         }
         // The reversed run walks t backwards, so G changes sign with dir.
         let (_, g) = density_and_rate(stepper.system(), density, &state)?;

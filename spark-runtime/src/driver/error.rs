@@ -76,6 +76,17 @@ pub enum IntegrationError {
         /// The run statistics up to the failure.
         partial: Box<RunReport>,
     },
+    /// The observer asked the run to stop
+    /// ([`Observer::stop_requested`](super::Observer::stop_requested)).
+    #[error("stopped by its observer after {steps} steps, at t = {}", Sci(*t))]
+    Stopped {
+        /// Steps accepted, the last one included.
+        steps: usize,
+        /// Where the last one ended.
+        t: f64,
+        /// The run statistics up to there.
+        partial: Box<RunReport>,
+    },
 }
 
 /// How a step under [`FailurePolicy::Reject`] reached the floor.

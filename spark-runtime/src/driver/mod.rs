@@ -434,7 +434,8 @@ where
             next.t = t_target;
             report.count(&counts, warm_before);
             if let Some(at) = dense_run.terminal {
-                observer.accepted(self.system(), &at, iters);
+                // The run ends here whatever the observer asks.
+                let _ = observer.accepted(self.system(), &at, iters);
                 report.terminal_event = dense_run.terminal_event();
                 if sampled.is_none() || !matches!(samples.last(), Some(s) if s.t == at.t) {
                     let s = self.sample(&at, &options.observe, iters);
@@ -444,7 +445,7 @@ where
                 state = at;
                 break;
             }
-            observer.accepted(self.system(), &next, iters);
+            let stop = observer.accepted(self.system(), &next, iters);
             let last = k + 1 == steps;
             if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
                 let s = self.sample(&next, &options.observe, iters);
@@ -459,6 +460,9 @@ where
                 self.retarget_warm_start(&next);
             }
             state = next;
+            if stop && !last {
+                return Err(IntegrationError::Stopped { steps: k + 1, t: state.t, partial: Box::new(report) });
+            }
         }
         let _ = state;
         report.events = dense_run.located.len();

@@ -31,6 +31,16 @@ pub trait Observer<const N: usize, const M: usize> {
     fn observe_dense<const S: usize>(&mut self, step: &DenseStep<'_, N, S>) {
         let _ = step;
     }
+    /// Asked after each accepted step, once [`observe`](Self::observe) has
+    /// seen it: `true` ends the run there with
+    /// [`IntegrationError::Stopped`](crate::IntegrationError::Stopped) (or
+    /// [`AdaptiveError::Stopped`](crate::AdaptiveError::Stopped)). This is
+    /// how a front end lets its user interrupt a long run; a run that should
+    /// end at a state of the system declares a terminal event instead. The
+    /// default never stops.
+    fn stop_requested(&mut self) -> bool {
+        false
+    }
 }
 
 /// An observer that does nothing.
@@ -55,8 +65,9 @@ impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> 
 pub(crate) trait StepObserver<Sys, const N: usize, const M: usize, const S: usize> {
     /// [`Observer::DENSE`].
     fn wants_dense(&self) -> bool;
-    /// [`Observer::observe`].
-    fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize);
+    /// [`Observer::observe`], then [`Observer::stop_requested`]: whether
+    /// the run ends here.
+    fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) -> bool;
     /// [`Observer::observe_dense`].
     fn dense_step(&mut self, step: &DenseStep<'_, N, S>);
 }
@@ -70,8 +81,9 @@ where
         O::DENSE
     }
 
-    fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) {
-        self.observe(system, state, iterations)
+    fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) -> bool {
+        self.observe(system, state, iterations);
+        self.stop_requested()
     }
 
     fn dense_step(&mut self, step: &DenseStep<'_, N, S>) {

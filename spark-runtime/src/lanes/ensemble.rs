@@ -46,6 +46,32 @@ pub fn integrate_ensemble<Sys, const N: usize, const M: usize, const S: usize, c
 where
     Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
 {
+    integrate_ensemble_until::<Sys, N, M, S, D>(system, tableau, options, starts, h, steps, sample_every, &|| false)
+}
+
+/// Steps a lane group takes between two calls of the `stop` of
+/// [`integrate_ensemble_until`].
+const STOP_CHECK_EVERY: usize = 1024;
+
+/// [`integrate_ensemble`] that asks `stop` (from every lane group's
+/// thread) every [`STOP_CHECK_EVERY`] steps and ends with
+/// [`LaneError::Stopped`] once it says so: how a front end lets its user
+/// interrupt a long ensemble. The members' samples are those of
+/// [`integrate_ensemble`] up to there, bit for bit.
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_ensemble_until<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    system: &Sys,
+    tableau: Tableau<S>,
+    options: NewtonOptions,
+    starts: &[State<N>],
+    h: f64,
+    steps: usize,
+    sample_every: usize,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<Vec<EnsembleRun<N>>, LaneError>
+where
+    Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
+{
     let Some(first) = starts.first() else { return Ok(Vec::new()) };
     if h == 0.0 || !h.is_finite() {
         return Err(LaneError::StepSize { h });
@@ -62,13 +88,18 @@ where
                 .iter()
                 .map(|s| EnsembleRun { samples: vec![*s], steps: 0, iterations: 0, failure: None })
                 .collect();
-            // Lane after lane up to the next sample (see `advance_by`).
+            // Lane after lane up to the next sample (see `advance_by`), at
+            // most `STOP_CHECK_EVERY` steps at a time.
             let mut done = 0;
             while done < steps {
                 let chunk = if sample_every == 0 { steps - done } else { sample_every - done % sample_every };
-                let chunk = chunk.min(steps - done);
+                let chunk = chunk.min(steps - done).min(STOP_CHECK_EVERY);
                 let running = lanes.advance_by(chunk);
                 done += chunk;
+                if stop() {
+                    return Err(LaneError::Stopped { steps: done });
+                }
+                let sampled = done == steps || (sample_every != 0 && done.is_multiple_of(sample_every));
                 for (j, run) in runs.iter_mut().enumerate() {
                     if run.failure.is_some() {
                         continue;
@@ -82,7 +113,7 @@ where
                         Some(LaneStatus::Running) => {
                             run.steps = done;
                             run.iterations = lanes.total_iterations(j).unwrap_or(0);
-                            if let Some(s) = lanes.state(j) {
+                            if let Some(s) = lanes.state(j).filter(|_| sampled) {
                                 run.samples.push(*s);
                             }
                         }

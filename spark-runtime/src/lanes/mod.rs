@@ -47,6 +47,6 @@ mod stepper;
 mod tests;
 pub(crate) mod values;
 
-pub use ensemble::{integrate_ensemble, EnsembleRun};
+pub use ensemble::{integrate_ensemble, integrate_ensemble_until, EnsembleRun};
 pub use stepper::{LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
 pub use values::{LaneConstraintJacobians, LaneStageValues};

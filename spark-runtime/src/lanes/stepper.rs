@@ -43,6 +43,13 @@ pub enum LaneError {
         /// The step size asked for.
         h: f64,
     },
+    /// The caller asked the ensemble to stop
+    /// ([`integrate_ensemble_until`](super::integrate_ensemble_until)).
+    #[error("stopped by its caller after {steps} steps")]
+    Stopped {
+        /// Steps every running member of the group that saw the request had taken.
+        steps: usize,
+    },
 }
 
 /// How a member ended its steps: the step that failed and its error.

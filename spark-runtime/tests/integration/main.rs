@@ -15,3 +15,4 @@ mod newcomer_systems;
 mod orders;
 mod paper;
 mod step_start;
+mod stop_requests;

@@ -35,7 +35,7 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
 }
 
 /// The kind of a driver failure (`Step/<kind>`, `Floor/<kind>`, `SubstepBudget/<kind>`, `Initial/<kind>`,
-/// `InvalidSchedule`, `InvalidOption`).
+/// `InvalidSchedule`, `InvalidOption`, `Stopped`).
 pub fn integration_error_kind(e: &IntegrationError) -> String {
     match e {
         IntegrationError::InvalidSchedule(_) => "InvalidSchedule".into(),
@@ -44,6 +44,7 @@ pub fn integration_error_kind(e: &IntegrationError) -> String {
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
         IntegrationError::Floor { detail, .. } => format!("Floor/{}", step_error_kind(&detail.last)),
         IntegrationError::SubstepBudget { detail, .. } => format!("SubstepBudget/{}", step_error_kind(&detail.last)),
+        IntegrationError::Stopped { .. } => "Stopped".into(),
     }
 }
 
