@@ -214,7 +214,8 @@ fn bad_run_inputs_get_actionable_errors() {
     let err = run(&spec, &|_| true).unwrap_err();
     assert!(matches!(err, RunError::InconsistentPositions { .. }), "{err}");
     // Stage counts: beyond the method's range, and beyond what is compiled.
-    let err = run(&RunSpec { stages: 3, ..RunSpec::defaults(SystemKind::Skate, Method::SymplecticEulerI, 3) }, &|_| true);
+    let err =
+        run(&RunSpec { stages: 3, ..RunSpec::defaults(SystemKind::Skate, Method::SymplecticEulerI, 3) }, &|_| true);
     assert!(matches!(err, Err(RunError::Tableau(_))));
     let err = run(&RunSpec { stages: 6, ..RunSpec::defaults(SystemKind::Skate, Method::Gauss, 6) }, &|_| true);
     assert!(matches!(err, Err(RunError::StagesNotCompiled { stages: 6, max: MAX_DISPATCH_STAGES, .. })), "{err:?}");

@@ -145,7 +145,8 @@ fn ensemble_ticks_count_every_member_step() {
 fn stopped_at(e: &EnsembleError) -> Option<usize> {
     match e {
         EnsembleError::Member {
-            source: RunError::Integration { source: IntegrationError::Stopped { steps, .. }, .. }, ..
+            source: RunError::Integration { source: IntegrationError::Stopped { steps, .. }, .. },
+            ..
         } => Some(*steps),
         _ => None,
     }
@@ -183,7 +184,8 @@ fn an_inconsistent_member_is_reported_with_its_index() {
     let mut spec = mp7_spec("mp7-nh", 50, 10);
     spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
     let out = run_ensemble(&spec, &members, None).unwrap();
-    let alone = run(&RunSpec { q0: members[4].0.clone(), v0: members[4].1.clone(), ..spec.clone() }, &|_| true).unwrap();
+    let alone =
+        run(&RunSpec { q0: members[4].0.clone(), v0: members[4].1.clone(), ..spec.clone() }, &|_| true).unwrap();
     agrees(&out[4], &alone, "projected member 4");
     let clean = run_ensemble(&mp7_spec("mp7-nh", 50, 10), &mp7_members(6), None).unwrap();
     assert_eq!(out[3].q, clean[3].q, "member 3 does not see member 4");

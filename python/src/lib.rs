@@ -5,7 +5,7 @@
 //! systems, and the DSL check that `spark.compile` runs before it calls
 //! cargo.
 //!
-//! Runs go through `problems::run::run` and `problems::run::run_ensemble`,
+//! Runs go through `problems::run::run` and `problems::run::run_ensemble_with`,
 //! the non-generic entry points `spark run` uses: every (system, s) stepper
 //! is compiled once, in `problems`, and this crate holds no generic
 //! instantiation per system. It shares the request parsing and the result
@@ -14,14 +14,15 @@
 //! same dicts.
 
 use problems::catalog::{entries, lookup, SystemEntry, MAX_DISPATCH_STAGES};
-use problems::run::{run, run_ensemble, EnsembleError, RunError, RunResult, RunSpec};
+use problems::run::{run, run_ensemble_with, EnsembleError, RunError, RunResult, RunSpec};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
-    columns_to_py, detached, ensemble_to_py, facts_to_py, read_ensemble, read_request, spark_error, Columns, Failure,
-    IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
+    columns_to_py, ensemble_to_py, facts_to_py, interruptible, read_ensemble, read_request, spark_error, Columns,
+    Failure, IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
 };
 use spark_runtime::{ConsistencyPolicy, Method};
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 pyo3::create_exception!(
@@ -153,9 +154,9 @@ fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDic
 fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
     let e = entry(py, name)?;
     let spec = run_spec(e, &read_request(py, request)?);
-    let c = detached(py, || {
+    let c = interruptible(py, |stop| {
         let start = Instant::now();
-        let result = run(&spec, &|_| true).map_err(|err| message(&err))?;
+        let result = run(&spec, &|_| !stop.load(Ordering::Relaxed)).map_err(|err| message(&err))?;
         Ok(columns(result, e.m, start.elapsed().as_secs_f64()))
     })?;
     columns_to_py(py, c)
@@ -181,8 +182,9 @@ fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> P
     let row = |x: &[f64], j: usize| x[j * e.n..(j + 1) * e.n].to_vec();
     let members: Vec<(Vec<f64>, Vec<f64>)> = (0..r.members).map(|j| (row(&r.q0s, j), row(&r.v0s, j))).collect();
     let spec = run_spec(e, &r.run);
-    let runs = detached(py, || {
-        let results = run_ensemble(&spec, &members, r.threads).map_err(|err| ensemble_message(&err))?;
+    let runs = interruptible(py, |stop| {
+        let go_on = |_| !stop.load(Ordering::Relaxed);
+        let results = run_ensemble_with(&spec, &members, r.threads, &go_on).map_err(|err| ensemble_message(&err))?;
         Ok(results
             .into_iter()
             .map(|result| {

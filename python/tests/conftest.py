@@ -5,7 +5,10 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -44,3 +47,31 @@ def run_cli(exe: Path, out: Path, system: str, *args: str) -> dict[str, np.ndarr
     cols = {name: np.array([float(r[i]) for r in body]) for i, name in enumerate(header)}
     cols["e0"] = json.loads((out / "report.json").read_text())["stats"]["e0"]
     return cols
+
+
+def interrupt_after_start(script: str, delay: float = 1.0, timeout: float = 60.0) -> tuple[float, str]:
+    """Runs `script` in a fresh interpreter; once it prints `running` (just
+    before its long call) and `delay` seconds have passed, sends it SIGINT
+    (Ctrl-C). Returns the seconds from the signal to its exit and its
+    stderr; fails if it exits successfully or before the signal."""
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-u", "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        line = proc.stdout.readline()
+        assert line.strip() == "running", f"no start line: {line!r}; stderr: {proc.stderr.read()}"
+        time.sleep(delay)
+        assert proc.poll() is None, f"the run ended before the signal: {proc.stderr.read()}"
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=timeout)
+        took = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode != 0, f"exited with 0 after SIGINT; stderr: {err}"
+    return took, err

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import spark
-from conftest import REPO
+from conftest import REPO, interrupt_after_start
 
 
 def declaration(type_name: str) -> str:
@@ -68,6 +68,25 @@ def test_cached_module_loads_without_cargo(cache):
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert float(done.stdout) > 0.9
+
+
+def test_ctrl_c_stops_a_long_run_of_a_compiled_system(cache):
+    """A run and an ensemble of the module built above, interrupted."""
+    load = textwrap.dedent(
+        f"""
+        import numpy as np, spark, sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_compile import declaration
+        s = spark.compile(declaration("Skate"), cache_dir={str(cache)!r})
+        print("running")
+        """
+    )
+    long_run = 's.integrate("gauss", 2, 0.1, 2**40, q0=[0, 0, 0], v0=[0, 0, 1], every=2**30)\n'
+    ensemble = 's.ensemble("gauss", 2, 0.1, 2**40, np.zeros((9, 3)), np.array([[0, 0, 1.0]] * 9), every=2**30)\n'
+    for call in (long_run, ensemble):
+        took, err = interrupt_after_start(load + call)
+        assert "KeyboardInterrupt" in err, err
+        assert took < 10.0, f"{took:.1f} s from Ctrl-C to exit"
 
 
 BAD = """

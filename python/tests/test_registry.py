@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import spark
-from conftest import run_cli
+from conftest import interrupt_after_start, run_cli
 
 
 def test_every_registered_system_is_listed_with_its_facts():
@@ -107,3 +107,27 @@ def test_a_record_that_would_not_fit_in_memory_is_refused_before_any_step():
         spark.integrate("skate", "gauss", 2, 0.1, 10.5)
     with pytest.raises(spark.SparkError, match="not a finite number of steps"):
         spark.system("skate").integrate(h=0.1, t_end=float("inf"))
+
+
+LONG_RUNS = {
+    "run": 'spark.integrate("skate", "gauss", 2, 0.1, 2**40, every=2**30)',
+    # Lanes: eight McLachlan-Perlmutter members.
+    "lane ensemble": (
+        "q0s = np.array([[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]] * 8)\n"
+        "v0s = np.zeros((8, 7)); v0s[:, 1] = np.linspace(0.0, 0.5, 8)\n"
+        'spark.ensemble("mp7", "lobatto-iiia-b", 2, 0.05, 2**40, q0s, v0s, every=2**30, newton="simplified")'
+    ),
+    # Each member alone (the skate has no lane kernel).
+    "member runs": (
+        "q0s = np.zeros((3, 3)); v0s = np.array([[0, 0, 1.0]] * 3)\n"
+        'spark.ensemble("skate", "gauss", 2, 0.1, 2**40, q0s, v0s, every=2**30)'
+    ),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(LONG_RUNS))
+def test_ctrl_c_stops_a_long_run(kind):
+    script = "import numpy as np, spark\nprint('running')\n" + LONG_RUNS[kind] + "\n"
+    took, err = interrupt_after_start(script)
+    assert "KeyboardInterrupt" in err, err
+    assert took < 10.0, f"{kind}: {took:.1f} s from Ctrl-C to exit"

@@ -166,8 +166,8 @@ pub use events::{
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use lanes::{
-    integrate_ensemble, integrate_ensemble_until, EnsembleRun, LaneConstraintJacobians, LaneError, LaneFailure, LaneStageValues, LaneStatus,
-    LaneStepper, LANES,
+    integrate_ensemble, integrate_ensemble_until, EnsembleRun, LaneConstraintJacobians, LaneError, LaneFailure,
+    LaneStageValues, LaneStatus, LaneStepper, LANES,
 };
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 pub use rejection::RejectionPolicy;

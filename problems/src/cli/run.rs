@@ -179,7 +179,8 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     let result = run(&spec, &|n| {
         bar.inc(n);
         true
-    }).map_err(|e| e.to_string())?;
+    })
+    .map_err(|e| e.to_string())?;
     bar.finish_and_clear();
     let stem = format!("{}_{}_s{}", entry.name, method.key(), a.stages);
     let e = |e: OutputError| e.to_string();

@@ -18,10 +18,13 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    check_record_size, consistent_velocity, integrate_ensemble, ConsistencyPolicy, ConstraintForm, EnsembleRun,
-    IntegrationError, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Sample,
+    check_record_size, consistent_velocity, integrate_ensemble_until, ConsistencyPolicy, ConstraintForm, EnsembleRun,
+    IntegrationError, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer, RunOptions, Sample,
     Schedule, State, StepError, Stepper, Structure, SystemSource, Tableau, Vector,
 };
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{channel, RecvTimeoutError};
+use std::time::Duration;
 
 pub use numpy;
 pub use pyo3;
@@ -208,8 +211,12 @@ where
 
 /// Integrates one run with stepper type `Stepper<Sys, N, M, S, D>`: the same
 /// steps, options and observations as `spark run` (`problems::run::run_with`).
+///
+/// `stop` set (by [`interruptible`], when the user interrupts) ends the run
+/// after the step it is noticed at, with an error.
 pub fn integrate<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     r: &IntegrateRequest,
+    stop: &AtomicBool,
 ) -> Result<Columns, Failure>
 where
     Sys: NonholonomicSystem<N, M> + Default,
@@ -229,7 +236,7 @@ where
         ..RunOptions::default()
     };
     let traj = stepper
-        .integrate(r.t0, &q0, &v0, Schedule::Fixed { h: r.h, steps: r.steps }, &options, &mut NoObserver)
+        .integrate(r.t0, &q0, &v0, Schedule::Fixed { h: r.h, steps: r.steps }, &options, &mut StopFlag(stop))
         .map_err(|e: IntegrationError| format!("{} s = {}: {e}", r.method, S))?;
     let samples = &traj.samples;
     let k = samples.len();
@@ -279,9 +286,11 @@ where
 /// [`integrate`] rejects before stepping, and a member whose lane fails (it
 /// runs again alone, so the driver's cold retry and step halving apply and
 /// the member gets [`integrate`]'s result or error). Each member's
-/// `seconds` is an equal share of the ensemble's wall time.
+/// `seconds` is an equal share of the ensemble's wall time. `stop` ends
+/// every member as in [`integrate`].
 pub fn ensemble<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     r: &EnsembleRequest,
+    stop: &AtomicBool,
 ) -> Result<Vec<Columns>, Failure>
 where
     Sys: NonholonomicSystem<N, M> + Default + Clone + Send + Sync,
@@ -300,7 +309,7 @@ where
         v0: r.v0s[j * N..(j + 1) * N].to_vec(),
         ..r.run.clone()
     };
-    let alone = |j: usize| integrate::<Sys, N, M, S, D>(&member(j)).map_err(|e| format!("member {j}: {e}"));
+    let alone = |j: usize| integrate::<Sys, N, M, S, D>(&member(j), stop).map_err(|e| format!("member {j}: {e}"));
     let work = || -> Result<Vec<Columns>, Failure> {
         let lanes = if r.run.multipliers || check_request(&r.run).is_err() {
             None
@@ -318,7 +327,7 @@ where
                 Ok(State::new(r.run.t0, q0, v0))
             })
             .collect::<Result<Vec<State<N>>, Failure>>()?;
-        let runs = integrate_ensemble::<Sys, N, M, S, D>(
+        let runs = integrate_ensemble_until::<Sys, N, M, S, D>(
             &probe,
             tableau,
             r.run.newton,
@@ -326,6 +335,7 @@ where
             r.run.h,
             r.run.steps,
             r.run.every,
+            &|| stop.load(Ordering::Relaxed),
         )
         .map_err(|e| e.to_string())?;
         let seconds = start.elapsed().as_secs_f64() / r.members as f64;
@@ -655,9 +665,68 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
     Ok(d)
 }
 
-/// Runs `work` with the GIL released and turns its failure into `SparkError`.
-pub fn detached<T: Send>(py: Python<'_>, work: impl FnOnce() -> Result<T, Failure> + Send) -> PyResult<T> {
-    py.detach(work).map_err(|e| spark_error(py, e))
+/// An observer that asks the run to stop once `stop` is set.
+struct StopFlag<'a>(&'a AtomicBool);
+
+impl<const N: usize, const M: usize> Observer<N, M> for StopFlag<'_> {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, _: &State<N>, _: usize) {}
+    fn stop_requested(&mut self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+}
+
+/// How often the waiting Python thread checks for signals (Ctrl-C).
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// Stack of the thread a run works on: the size of a main thread's.
+const WORKER_STACK: usize = 8 << 20;
+
+/// Runs `work` on a thread of its own while the calling Python thread,
+/// the GIL released, waits for it and checks Python's signal handlers
+/// every [`SIGNAL_POLL`]: when one raises (Ctrl-C raises
+/// `KeyboardInterrupt`) it sets `work`'s stop flag, waits for the run to
+/// notice it (within a few thousand steps) and raises what the handler
+/// raised. A failure of `work` becomes `SparkError`.
+pub fn interruptible<T: Send>(
+    py: Python<'_>,
+    work: impl FnOnce(&AtomicBool) -> Result<T, Failure> + Send,
+) -> PyResult<T> {
+    let stop = AtomicBool::new(false);
+    let (flag, (tx, rx)) = (&stop, channel());
+    std::thread::scope(|scope| {
+        let worker = std::thread::Builder::new()
+            .name("spark-run".into())
+            .stack_size(WORKER_STACK)
+            .spawn_scoped(scope, move || {
+                // The receiver is gone only when the caller has stopped waiting.
+                let _ = tx.send(work(flag));
+            })
+            .map_err(|e| spark_error(py, format!("could not start the run's thread: {e}")))?;
+        let mut rx = rx;
+        loop {
+            // The receiver moves into the wait and back: it is `Send`, not `Sync`.
+            let got;
+            (rx, got) = py.detach(move || {
+                let got = rx.recv_timeout(SIGNAL_POLL);
+                (rx, got)
+            });
+            match got {
+                Ok(result) => return result.map_err(|e| spark_error(py, e)),
+                Err(RecvTimeoutError::Timeout) => {
+                    if let Err(raised) = py.check_signals() {
+                        flag.store(true, Ordering::Relaxed);
+                        // Joined here, so a panic in it is not re-raised by the scope.
+                        let _ = py.detach(|| worker.join());
+                        return Err(raised);
+                    }
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    let _ = py.detach(|| worker.join());
+                    return Err(spark_error(py, "the run's thread ended without a result (it panicked)".to_string()));
+                }
+            }
+        }
+    })
 }
 
 /// A list of strings as a Python list (for `names()`).
@@ -675,13 +744,16 @@ macro_rules! export_system {
     ($module:ident, $ty:ty, $n:literal, $m:literal) => {
         mod __spark_dispatch {
             use super::*;
-            pub fn integrate(r: &$crate::IntegrateRequest) -> ::core::result::Result<$crate::Columns, $crate::Failure> {
+            pub fn integrate(
+                r: &$crate::IntegrateRequest,
+                stop: &::std::sync::atomic::AtomicBool,
+            ) -> ::core::result::Result<$crate::Columns, $crate::Failure> {
                 match r.stages {
-                    1 => $crate::integrate::<$ty, $n, $m, 1, { $n + $m + $n }>(r),
-                    2 => $crate::integrate::<$ty, $n, $m, 2, { 2 * ($n + $m) + $n }>(r),
-                    3 => $crate::integrate::<$ty, $n, $m, 3, { 3 * ($n + $m) + $n }>(r),
-                    4 => $crate::integrate::<$ty, $n, $m, 4, { 4 * ($n + $m) + $n }>(r),
-                    5 => $crate::integrate::<$ty, $n, $m, 5, { 5 * ($n + $m) + $n }>(r),
+                    1 => $crate::integrate::<$ty, $n, $m, 1, { $n + $m + $n }>(r, stop),
+                    2 => $crate::integrate::<$ty, $n, $m, 2, { 2 * ($n + $m) + $n }>(r, stop),
+                    3 => $crate::integrate::<$ty, $n, $m, 3, { 3 * ($n + $m) + $n }>(r, stop),
+                    4 => $crate::integrate::<$ty, $n, $m, 4, { 4 * ($n + $m) + $n }>(r, stop),
+                    5 => $crate::integrate::<$ty, $n, $m, 5, { 5 * ($n + $m) + $n }>(r, stop),
                     s => ::core::result::Result::Err(::std::format!(
                         "s = {s} is not compiled into this module; supported: s = 1..=5"
                     )),
@@ -689,13 +761,14 @@ macro_rules! export_system {
             }
             pub fn ensemble(
                 r: &$crate::EnsembleRequest,
+                stop: &::std::sync::atomic::AtomicBool,
             ) -> ::core::result::Result<::std::vec::Vec<$crate::Columns>, $crate::Failure> {
                 match r.run.stages {
-                    1 => $crate::ensemble::<$ty, $n, $m, 1, { $n + $m + $n }>(r),
-                    2 => $crate::ensemble::<$ty, $n, $m, 2, { 2 * ($n + $m) + $n }>(r),
-                    3 => $crate::ensemble::<$ty, $n, $m, 3, { 3 * ($n + $m) + $n }>(r),
-                    4 => $crate::ensemble::<$ty, $n, $m, 4, { 4 * ($n + $m) + $n }>(r),
-                    5 => $crate::ensemble::<$ty, $n, $m, 5, { 5 * ($n + $m) + $n }>(r),
+                    1 => $crate::ensemble::<$ty, $n, $m, 1, { $n + $m + $n }>(r, stop),
+                    2 => $crate::ensemble::<$ty, $n, $m, 2, { 2 * ($n + $m) + $n }>(r, stop),
+                    3 => $crate::ensemble::<$ty, $n, $m, 3, { 3 * ($n + $m) + $n }>(r, stop),
+                    4 => $crate::ensemble::<$ty, $n, $m, 4, { 4 * ($n + $m) + $n }>(r, stop),
+                    5 => $crate::ensemble::<$ty, $n, $m, 5, { 5 * ($n + $m) + $n }>(r, stop),
                     s => ::core::result::Result::Err(::std::format!(
                         "s = {s} is not compiled into this module; supported: s = 1..=5"
                     )),
@@ -716,7 +789,7 @@ macro_rules! export_system {
             request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_request(py, request)?;
-            let c = $crate::detached(py, || __spark_dispatch::integrate(&r))?;
+            let c = $crate::interruptible(py, |stop| __spark_dispatch::integrate(&r, stop))?;
             $crate::columns_to_py(py, c)
         }
 
@@ -726,7 +799,7 @@ macro_rules! export_system {
             request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_ensemble(py, request)?;
-            let c = $crate::detached(py, || __spark_dispatch::ensemble(&r))?;
+            let c = $crate::interruptible(py, |stop| __spark_dispatch::ensemble(&r, stop))?;
             $crate::ensemble_to_py(py, c)
         }
 

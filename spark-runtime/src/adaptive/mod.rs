@@ -617,9 +617,7 @@ where
                     match after {
                         After::Continue => {}
                         After::Done => return Ok(report),
-                        After::Stopped => {
-                            return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(report) })
-                        }
+                        After::Stopped => return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(report) }),
                     }
                     let mut factor = if err == 0.0 {
                         options.max_factor

@@ -3,8 +3,8 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, finish, After, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
-    AdaptiveRun, Recorder, Taken,
+    accept, finish, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
+    AdaptiveRun, After, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
 use crate::events::EventFunctions;
