@@ -89,7 +89,7 @@ use crate::initial::{consistent_acceleration, ConsistencyPolicy};
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
-use run::{accept, finish, start, After, Recorder, Taken};
+use run::{accept, finish, start, Recorder, Taken};
 
 /// Options of a tolerance-driven run.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -612,12 +612,10 @@ where
                     let [first, second] = &halves.results;
                     let pieces = [(halves.sizes[0], first), (halves.sizes[1], second)];
                     let taken = Taken { start: state, pieces: &pieces, this, iterations: est.iterations, last };
-                    let after;
-                    (state, after) = accept(stepper, rec, observer, &mut report, taken, t_end);
-                    match after {
-                        After::Continue => {}
-                        After::Done => return Ok(report),
-                        After::Stopped => return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(report) }),
+                    let done;
+                    (state, done) = accept(stepper, rec, observer, &mut report, taken, t_end)?;
+                    if done {
+                        return Ok(report);
                     }
                     let mut factor = if err == 0.0 {
                         options.max_factor

@@ -4,7 +4,7 @@
 
 use super::{
     accept, finish, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
-    AdaptiveRun, After, Recorder, Taken,
+    AdaptiveRun, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
 use crate::events::EventFunctions;
@@ -224,12 +224,10 @@ where
         report.newton_iterations += r.iterations;
         let pieces = [(dir * this, &r)];
         let taken = Taken { start: state, pieces: &pieces, this, iterations: r.iterations, last };
-        let after;
-        (state, after) = accept(stepper, rec, observer, &mut report, taken, t_end);
-        match after {
-            After::Continue => {}
-            After::Done => return Ok(report),
-            After::Stopped => return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(report) }),
+        let done;
+        (state, done) = accept(stepper, rec, observer, &mut report, taken, t_end)?;
+        if done {
+            return Ok(report);
         }
         // The reversed run walks t backwards, so G changes sign with dir.
         let (_, g) = density_and_rate(stepper.system(), density, &state)?;

@@ -112,23 +112,13 @@ pub(super) struct Taken<'r, const N: usize, const M: usize, const S: usize> {
     pub(super) last: bool,
 }
 
-/// How a run goes on after an accepted step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum After {
-    /// To the next step.
-    Continue,
-    /// It ends here: the last step, or a terminal event.
-    Done,
-    /// Its observer asked it to stop ([`Observer::stop_requested`]).
-    Stopped,
-}
-
 /// Accepts `step` (the last step lands exactly on `t_end`): hands each
 /// piece's continuous extension to the events and the observer of the
 /// dense output, counts the step in `report`, records and observes it.
-/// Returns the state the next step starts from and how the run goes on
-/// (after a terminal event the state is the event's, the step's last
-/// sample).
+/// Returns the state the next step starts from and whether the run ends
+/// there (the last step, or a terminal event: then the state is the
+/// event's, the step's last sample), or [`AdaptiveError::Stopped`] when
+/// the observer asks to stop ([`Observer::stop_requested`]).
 pub(super) fn accept<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
     rec: &mut Recorder<'_, Sys, N, M, S>,
@@ -136,13 +126,13 @@ pub(super) fn accept<Sys, O, const N: usize, const M: usize, const S: usize, con
     report: &mut AdaptiveReport,
     step: Taken<'_, N, M, S>,
     t_end: f64,
-) -> (State<N>, After)
+) -> Result<(State<N>, bool), AdaptiveError>
 where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
     let Some(&(_, result)) = step.pieces.last() else {
-        return (step.start, After::Continue);
+        return Ok((step.start, false));
     };
     let mut state = result.state;
     if step.last {
@@ -162,19 +152,17 @@ where
         rec.run.terminal_event = rec.dense.terminal_event();
         let s = stepper.sample(&at, &rec.observe, iterations);
         rec.push(s);
-        return (at, After::Done);
+        return Ok((at, true));
     }
     observer.observe(stepper.system(), &state, iterations);
     if step.last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
         let s = stepper.sample(&state, &rec.observe, iterations);
         rec.push(s);
     }
-    let after = match (step.last, observer.stop_requested()) {
-        (true, _) => After::Done,
-        (false, true) => After::Stopped,
-        (false, false) => After::Continue,
-    };
-    (state, after)
+    if !step.last && observer.stop_requested() {
+        return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(*report) });
+    }
+    Ok((state, step.last))
 }
 
 /// The continuous extension of the pieces of accepted step `k`, the last
