@@ -692,7 +692,8 @@ pub fn interruptible<T: Send>(
     work: impl FnOnce(&AtomicBool) -> Result<T, Failure> + Send,
 ) -> PyResult<T> {
     let stop = AtomicBool::new(false);
-    let (flag, (tx, rx)) = (&stop, channel());
+    let flag = &stop;
+    let (tx, mut rx) = channel();
     std::thread::scope(|scope| {
         let worker = std::thread::Builder::new()
             .name("spark-run".into())
@@ -702,7 +703,6 @@ pub fn interruptible<T: Send>(
                 let _ = tx.send(work(flag));
             })
             .map_err(|e| spark_error(py, format!("could not start the run's thread: {e}")))?;
-        let mut rx = rx;
         loop {
             // The receiver moves into the wait and back: it is `Send`, not `Sync`.
             let got;

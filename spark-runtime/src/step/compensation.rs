@@ -43,10 +43,15 @@ where
 /// TwoSum: no assumption on the magnitudes of `a` and `b`).
 #[inline(always)]
 pub(crate) fn two_sum_error<const N: usize>(a: &Vector<N>, b: &Vector<N>, s: &Vector<N>) -> Vector<N> {
-    Vector::<N>::from_fn(|i, _| {
-        let bb = s[i] - a[i];
-        (a[i] - (s[i] - bb)) + (b[i] - bb)
-    })
+    Vector::<N>::from_fn(|i, _| two_sum_error_of(a[i], b[i], s[i]))
+}
+
+/// [`two_sum_error`] of one component (the lane kernel applies it row by
+/// row).
+#[inline(always)]
+pub(crate) fn two_sum_error_of(a: f64, b: f64, s: f64) -> f64 {
+    let bb = s - a;
+    (a - (s - bb)) + (b - bb)
 }
 
 /// Round-off over long runs (see [`Compensation`]).

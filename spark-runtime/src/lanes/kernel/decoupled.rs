@@ -12,17 +12,22 @@ use crate::linalg::solve_in_place;
 use crate::tableau::{ConditionRows, Tableau};
 
 impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> Kernel<N, M, S, D, W> {
+    /// One row of lane values times a diagonal mass matrix's reciprocal.
+    #[inline(always)]
+    fn scaled(mut x: L<W>, reciprocal: f64) -> L<W> {
+        for xw in x.iter_mut() {
+            *xw *= reciprocal;
+        }
+        x
+    }
+
     /// `x ← W⁻¹ x` for the `N` lane values at `at` of `x`.
     #[inline(always)]
     pub(super) fn solve_mass(mass: &MassSolve, x: &mut [L<W>], at: usize) {
         match mass {
             MassSolve::Diagonal(r) => {
                 for n in 0..N {
-                    let (mut xn, rn) = (x[at + n], r[n]);
-                    for w in 0..W {
-                        xn[w] *= rn;
-                    }
-                    x[at + n] = xn;
+                    x[at + n] = Self::scaled(x[at + n], r[n]);
                 }
             }
             MassSolve::Lu { lu, perm } => {
@@ -193,11 +198,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             MassSolve::Diagonal(r) => {
                 for i in 0..=S {
                     for n in 0..N {
-                        let (mut x, rn) = (self.g[i * N + n], r[n]);
-                        for w in 0..W {
-                            x[w] *= rn;
-                        }
-                        self.y[i * N + n] = x;
+                        self.y[i * N + n] = Self::scaled(self.g[i * N + n], r[n]);
                     }
                 }
                 for d in base..D {

@@ -32,8 +32,8 @@ use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
 use crate::step::{
-    check_energy, energy_is_invariant, too_slow, Contraction, EnergyAnchor, EnergyCheck, LaneContinuation,
-    NewtonOptions, State, StepPolynomial, PAST,
+    check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor, EnergyCheck,
+    LaneContinuation, NewtonOptions, State, StepPolynomial, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -485,15 +485,14 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             self.depth[w] = (self.depth[w] + 1).min(PAST);
             self.rate[w] = self.solved_rate[w];
         }
-        // The kept lanes' new state and carry (`two_sum_error`, lane by lane
-        // the same operations), and their solutions into the ring: whole
-        // rows where every kept lane writes the same slot.
+        // The kept lanes' new state and carry (the stepper's TwoSum), and
+        // their solutions into the ring: whole rows where every kept lane
+        // writes the same slot.
         for n in 0..N {
             let (q0, dq, q1, v1) = (self.q[n], dq_lanes[n], q1_lanes[n], v1_lanes[n]);
             let (mut q, mut v, mut carry) = (q0, self.v[n], self.carry[n]);
             for w in 0..W {
-                let bb = q1[w] - q0[w];
-                let err = (q0[w] - (q1[w] - bb)) + (dq[w] - bb);
+                let err = two_sum_error_of(q0[w], dq[w], q1[w]);
                 q[w] = if kept[w] { q1[w] } else { q[w] };
                 v[w] = if kept[w] { v1[w] } else { v[w] };
                 carry[w] = if kept[w] { err } else { carry[w] };
