@@ -65,7 +65,8 @@ pub enum SystemError {
 pub struct IterationRecord {
     /// Max-norm of the residual before the update.
     pub residual: f64,
-    /// Scaled max-norm of the update (`|Δz_i| / (1 + |z_i|)`).
+    /// Scaled max-norm of the update (`|Δz_i| / (1 + |z_i|)`, `z` the iterate
+    /// after the first update on the current factors).
     pub update: f64,
     /// Contraction rate `‖Δz_k‖ / ‖Δz_{k−1}‖` (NaN on the first iteration).
     pub rate: f64,

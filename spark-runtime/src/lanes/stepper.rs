@@ -2,7 +2,7 @@
 //! Newton options and step size) advanced in lock-step on fixed steps, with
 //! a status per member.
 
-use super::kernel::{Kernel, Outcome};
+use super::kernel::{Kernel, Outcome, Simd};
 use crate::step::{NewtonOptions, State, Stepper};
 use crate::system::NonholonomicSystem;
 use crate::tableau::Tableau;
@@ -92,6 +92,8 @@ pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, cons
     /// found singular.
     kernel: Option<Box<Kernel<N, M, S, D, W>>>,
     kernel_refused: bool,
+    /// The instruction set the kernel is compiled for.
+    simd: Simd,
     /// Whether the lanes may use the kernel at all ([`Self::without_kernel`]).
     kernel_enabled: bool,
     /// Whether this run's lanes use it: more than half the lanes hold a
@@ -123,6 +125,7 @@ where
             options,
             kernel: None,
             kernel_refused: false,
+            simd: Simd::detect(),
             kernel_enabled: true,
             kernel_for_run: false,
             states: [State::new(0.0, nalgebra::zero(), nalgebra::zero()); W],
@@ -134,6 +137,14 @@ where
             h: 0.0,
             steps: 0,
         }
+    }
+
+    /// The kernel compiled for `simd` or the widest set below it that this
+    /// CPU has (to test every build of the kernel on one machine).
+    #[cfg(test)]
+    pub(super) fn with_simd(mut self, simd: Simd) -> Self {
+        self.simd = simd.min(Simd::detect());
+        self
     }
 
     /// Every lane steps alone, by its own stepper, never in the kernel:
@@ -260,7 +271,7 @@ where
             return;
         }
         if self.kernel.is_none() && !self.kernel_refused {
-            self.kernel = Kernel::new(&self.system, &self.tableau, state, self.h).map(Box::new);
+            self.kernel = Kernel::new(&self.system, &self.tableau, state, self.h, self.simd).map(Box::new);
             self.kernel_refused = self.kernel.is_none();
         }
         if let Some(kernel) = self.kernel.as_deref_mut() {

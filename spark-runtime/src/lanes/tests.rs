@@ -282,3 +282,27 @@ fn lanes_the_kernel_hands_back_match_each_member_alone() {
     let runs = compare::<_, 7, 1, 2, 23>(MpParticles, Method::LobattoIIIAB, guard, &starts, 0.05, 300, 25);
     assert!(runs.iter().any(|r| matches!(r.failure, Some(LaneFailure { error: StepError::EnergyDrift { .. }, .. }))));
 }
+
+/// Every build of the kernel (baseline, AVX2, AVX-512, as far as this CPU
+/// has them) steps eight McLachlan–Perlmutter members bit for bit as each
+/// member alone, with the kernel taking the steps.
+#[test]
+fn every_build_of_the_kernel_matches_each_member_alone() {
+    use super::kernel::Simd;
+    let (starts, h, steps) = (mp_starts(8), 0.05, 300);
+    let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+    let alone: Vec<_> =
+        starts.iter().map(|s| solo::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), *s, h, steps, 0)).collect();
+    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+        let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(MpParticles, tab, fig84()).with_simd(simd);
+        lanes.start(&starts, h).unwrap();
+        assert_eq!(lanes.advance_by(steps), 8, "{simd:?}: every lane runs");
+        for (j, run) in alone.iter().enumerate() {
+            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
+            let bits = |s: &State<7>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
+            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
+            assert_eq!(lanes.total_iterations(j), Some(run.iterations), "{simd:?}, member {j}");
+            assert!(lanes.kernel_steps(j).unwrap() + 2 >= steps, "{simd:?}, member {j}: the kernel stepped little");
+        }
+    }
+}

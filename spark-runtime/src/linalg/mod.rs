@@ -108,12 +108,24 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
     }
 }
 
-/// [`scaled_update_norm`] of `update` at the iterate `z − update` it leads
-/// to, without forming that iterate: each `z_i − Δz_i` is the value
-/// `z -= update` stores, so the norm is the same bit for bit.
-pub(crate) fn scaled_update_norm_after<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> f64 {
-    let (d, x) = (update.as_slice(), z.as_slice());
-    match largest_and_nan(D, |i| d[i].abs() / (1.0 + (x[i] - d[i]).abs())) {
+/// The weights `1/(1 + |z_i − Δz_i|)` of the scaled update norm at the
+/// iterate `z − update` an update leads to, without forming that iterate:
+/// each `z_i − Δz_i` is the value `z -= update` stores.
+pub(crate) fn update_weights_after<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> Vector<D> {
+    Vector::<D>::from_fn(|i, _| 1.0 / (1.0 + (z[i] - update[i]).abs()))
+}
+
+/// `max_i |Δz_i| · w_i`, NaN as soon as any product is NaN (a NaN update,
+/// or an infinite one with a zero weight); an infinite update with a
+/// nonzero weight is infinite.
+///
+/// Newton's updates are measured with the weights [`update_weights_after`]
+/// of the first update on each set of factors: the scale of the unknowns
+/// does not change while an iteration converges, and the norm then costs a
+/// product per component instead of a division.
+pub(crate) fn weighted_update_norm<const D: usize>(update: &Vector<D>, weights: &Vector<D>) -> f64 {
+    let (d, w) = (update.as_slice(), weights.as_slice());
+    match largest_and_nan(D, |i| d[i].abs() * w[i]) {
         (_, true) => f64::NAN,
         (norm, false) => norm,
     }
@@ -124,6 +136,16 @@ pub(crate) fn scaled_update_norm_after<const D: usize>(update: &Vector<D>, z: &V
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn avx2_fma_available() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// Whether this CPU has AVX-512 F, VL and DQ besides AVX2 and FMA: the
+/// check the lane kernel's eight-lane build rests on.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn avx512_available() -> bool {
+    avx2_fma_available()
+        && std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512vl")
+        && std::arch::is_x86_feature_detected!("avx512dq")
 }
 
 /// Matrices shared by the tests of the kernels.
@@ -191,16 +213,26 @@ mod tests {
     }
 
     #[test]
-    fn update_norm_after_is_the_norm_at_the_updated_iterate() {
+    fn weighted_norm_at_the_updated_iterate_is_the_scaled_norm_there() {
         let z = Vector::<5>::new(1.0, -3.0, 0.0, 1e-17, 7.25e3);
         let d = Vector::<5>::new(0.3, -2.0 / 3.0, 1e-9, 1e-17, 1.0 / 7.0);
-        assert_eq!(scaled_update_norm_after(&d, &z).to_bits(), scaled_update_norm(&d, &(z - d)).to_bits());
+        let weights = update_weights_after(&d, &z);
+        let (x, norm) = (z - d, weighted_update_norm(&d, &weights));
+        for i in 0..5 {
+            assert_eq!(weights[i].to_bits(), (1.0 / (1.0 + x[i].abs())).to_bits());
+        }
+        // A product with the reciprocal is the quotient to within one rounding.
+        let quotient = scaled_update_norm(&d, &x);
+        assert!((norm - quotient).abs() <= 2.0 * f64::EPSILON * quotient, "{norm} against {quotient}");
         for i in 0..5 {
             let mut bad = d;
             bad[i] = f64::NAN;
-            assert!(scaled_update_norm_after(&bad, &z).is_nan(), "NaN at {i} hidden");
+            assert!(weighted_update_norm(&bad, &weights).is_nan(), "NaN at {i} hidden");
             bad[i] = f64::INFINITY;
-            assert!(!scaled_update_norm_after(&bad, &z).is_finite(), "infinity at {i} hidden");
+            assert!(!weighted_update_norm(&bad, &weights).is_finite(), "infinity at {i} hidden");
+            let mut infinite_iterate = weights;
+            infinite_iterate[i] = 0.0;
+            assert!(weighted_update_norm(&bad, &infinite_iterate).is_nan(), "∞ · 0 at {i} hidden");
         }
     }
 }

@@ -136,7 +136,6 @@ fn flat_mut(lanes: &mut [Lane]) -> &mut [f64] {
 /// a global `target-cpu` rustc targets SSE2. It is written with
 /// intrinsics (four `f64` per vector): left to itself, LLVM fully unrolls
 /// its constant-length loops and then keeps most of them scalar.
-/// (AVX-512 intrinsics would need Rust 1.89; the workspace declares 1.80.)
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use super::{Lane, Singular, LANE, PADDED_MAX};

@@ -111,7 +111,10 @@ where
         match jac {
             Derivatives::Full(jac) => {
                 for i in 0..S {
-                    let psi = mu[i] / h;
+                    // `Ψ = μ/h` as a product with `1/h`, one rounding more
+                    // than the quotient and no division per entry (the lane
+                    // kernel forms it alike).
+                    let psi = mu[i] * (1.0 / h);
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
                     // In place, into the heap work storage: no N×N value on the stack.
                     let (vals, jac_i) = (&mut ev.stages[i], &mut *jac.stages[i]);
@@ -150,7 +153,7 @@ where
                         }
                     };
                 for i in 0..S {
-                    let psi = mu[i] / h;
+                    let psi = mu[i] * (1.0 / h);
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
                     values_at(i, ti, &qi, &v[i], &psi, &mut ev.stages[i]);
                     if Sys::HAS_FORCING {

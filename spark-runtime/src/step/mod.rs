@@ -356,7 +356,8 @@ where
     /// with [`StepError::DependentConstraints`].
     ///
     /// Newton stops when an update is within [`NewtonOptions::tolerance`]
-    /// (scaled, `|Δz_i|/(1+|z_i|)`), or when the error left after it is,
+    /// (scaled, `|Δz_i|/(1+|z_i|)` at the first iterate on the current
+    /// factors), or when the error left after it is,
     /// estimated from a contraction rate: for full Newton the ratio of its
     /// last two updates, for simplified Newton a rate earned over three
     /// updates on the same frozen factors. Full Newton also stops, before

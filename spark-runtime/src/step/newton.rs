@@ -7,7 +7,7 @@ use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
-use crate::linalg::{largest_and_nan, scaled_update_norm_after};
+use crate::linalg::{largest_and_nan, update_weights_after, weighted_update_norm};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
 
@@ -55,7 +55,8 @@ pub struct NewtonOptions {
     /// Full or simplified Newton.
     pub mode: NewtonMode,
     /// Target for the estimated remaining error of the scaled unknowns
-    /// (`|Δz_i| / (1 + |z_i|)`); default `16 ε ≈ 3.6e-15`.
+    /// (`|Δz_i| / (1 + |z_i|)`, `z` the iterate after the first update on
+    /// the current factors); default `16 ε ≈ 3.6e-15`.
     pub tolerance: f64,
     /// Updates below this level that stop contracting are round-off
     /// stagnation and are accepted; above it they count as divergence.
@@ -316,6 +317,9 @@ where
         let prior = |decoupled: bool| if simplified && decoupled == prior_decoupled { prior_rate } else { f64::NAN };
         let mut monitor = Contraction::FRESH;
         let mut g = Vector::<D>::zeros();
+        // The update norm's weights, taken at the first update on each set
+        // of factors (`weighted_update_norm`).
+        let mut weights = Vector::<D>::zeros();
         let result = 'solve: {
             for k in 0..max_iter {
                 // After the first update, the latest step's ratio
@@ -325,7 +329,7 @@ where
                 if !simplified
                     && k > 0
                     && worth_testing(c, prev_update, opts.tolerance)
-                    && self.accepts_on_residual(state, carry, &p0, h, z, prev_update)?
+                    && self.accepts_on_residual(state, carry, &p0, h, z, (&weights, prev_update))?
                 {
                     break 'solve Ok(());
                 }
@@ -361,7 +365,10 @@ where
                 // applied once it is kept: only iterations on factors from an
                 // earlier iterate may be undone, and an undone one is never
                 // applied (no copy of `z` to restore).
-                let update = scaled_update_norm_after(&g, z);
+                if fresh || k == 0 {
+                    weights = update_weights_after(&g, z);
+                }
+                let update = weighted_update_norm(&g, &weights);
                 let rate = update / prev_update;
                 monitor.record(update);
                 self.history.push(IterationRecord { residual, update, rate });
@@ -439,7 +446,9 @@ where
     /// new iterate `z`, solved with the factors of the previous one, is a
     /// simplified Newton update; when it is within the tolerance it is
     /// applied and ends the solve before a new Jacobian is evaluated and
-    /// factored (see "Stopping"). Returns whether it did.
+    /// factored (see "Stopping"). It is measured with the weights of the
+    /// update before it, on the same factors, and compared with that
+    /// update's norm. Returns whether it did.
     fn accepts_on_residual(
         &mut self,
         state: &State<N>,
@@ -447,12 +456,12 @@ where
         p0: &Vector<N>,
         h: f64,
         z: &mut Vector<D>,
-        prev_update: f64,
+        (weights, prev_update): (&Vector<D>, f64),
     ) -> Result<bool, StepError> {
         let mut g = Vector::<D>::zeros();
         let residual = self.iteration_residual(state, carry, p0, h, z, None, &mut g)?;
         self.newton.solve_in_place(&mut g);
-        let update = scaled_update_norm_after(&g, z);
+        let update = weighted_update_norm(&g, weights);
         if !full_newton_accepts_residual(update, prev_update, self.options.tolerance) {
             return Ok(false);
         }

@@ -185,8 +185,11 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             // The velocities straight from `z` (a copy of `N × W` values
             // would be a `memmove` call per point).
             let v: &[[f64; W]; N] = self.z[v_at..v_at + N].try_into().expect("N rows of z");
-            let psi: [[f64; W]; M] =
-                if p < S { std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z / h)) } else { [[0.0; W]; M] };
+            let psi: [[f64; W]; M] = if p < S {
+                std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z * (1.0 / h)))
+            } else {
+                [[0.0; W]; M]
+            };
             let jacobians = if refresh { Some(&mut self.jacobians[p]) } else { None };
             sys.stage_values_in_lanes(tp, &self.points[p], v, &psi, iterating, &mut self.values[p], jacobians);
         }

@@ -1,7 +1,8 @@
 //! The structure-of-arrays kernel of a lane group: the steps of up to `W`
 //! members in one Newton iteration, every array laid out `[entry][lane]`
-//! so that one instruction advances every lane (four `f64` per AVX2
-//! register; the kernel is compiled for AVX2 where the CPU has it).
+//! so that one instruction advances every lane (eight `f64` per AVX-512
+//! register, four per AVX2 one; the kernel is compiled for the widest of
+//! the two that the CPU has).
 //!
 //! # What it computes
 //! The kernel repeats, operation for operation and in the same order, the
@@ -40,6 +41,34 @@ use crate::tableau::Tableau;
 
 /// One `f64` per lane.
 type L<const W: usize> = [f64; W];
+
+/// The instruction set a kernel step is compiled for, chosen once per
+/// lane group from what the CPU has (ordered from the narrowest).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub(super) enum Simd {
+    /// The build's baseline.
+    Baseline,
+    /// AVX2 and FMA.
+    Avx2,
+    /// AVX-512 F, VL, DQ (with AVX2 and FMA): a row of eight lanes is one register.
+    Avx512,
+}
+
+impl Simd {
+    /// The widest set this CPU has.
+    pub(super) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if crate::linalg::avx512_available() {
+                return Simd::Avx512;
+            }
+            if crate::linalg::avx2_fma_available() {
+                return Simd::Avx2;
+            }
+        }
+        Simd::Baseline
+    }
+}
 
 /// `n` zeroed lane values on the heap.
 fn lanes<const W: usize>(n: usize) -> Box<[L<W>]> {
@@ -80,7 +109,7 @@ enum MassSolve {
 /// it allocated once by [`Kernel::new`].
 #[derive(Clone, Debug)]
 pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D: usize, const W: usize> {
-    avx2: bool,
+    simd: Simd,
     mass: MassSolve,
     h: f64,
     /// Which lanes the kernel holds.
@@ -101,6 +130,8 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// The unknowns, the residual (then the update) and the solve's scratch.
     z: Box<[L<W>; D]>,
     g: Box<[L<W>; D]>,
+    /// The update norm's weights `1/(1 + |z_i|)` at the step's first iterate.
+    weights: Box<[L<W>; D]>,
     y: Box<[L<W>]>,
     p0: Box<[L<W>; N]>,
     /// Positions of the evaluation points: stages `0..S`, the end `S`, the
@@ -142,6 +173,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         tab: &Tableau<S>,
         at: &State<N>,
         h: f64,
+        simd: Simd,
     ) -> Option<Self> {
         let mut vals = StageValues::zeros();
         let mut jac = StageJacobians::<N, M>::boxed_zeros();
@@ -153,10 +185,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         };
         let (p, sm) = (Self::POINTS, Self::SM);
         Some(Kernel {
-            #[cfg(target_arch = "x86_64")]
-            avx2: crate::linalg::avx2_fma_available(),
-            #[cfg(not(target_arch = "x86_64"))]
-            avx2: false,
+            simd,
             mass,
             h,
             held: [false; W],
@@ -170,6 +199,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             depth: [0; W],
             z: fixed(),
             g: fixed(),
+            weights: fixed(),
             y: lanes(D),
             p0: fixed(),
             points: vec![[[0.0; W]; N]; p].into_boxed_slice(),
@@ -247,10 +277,31 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         t_next: f64,
     ) -> [Outcome; W] {
         #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: `avx2` is set only where the CPU has AVX2 and FMA.
-            return unsafe { self.step_avx2(sys, tab, opts, t, t_next) };
+        match self.simd {
+            // SAFETY: `Simd::detect` chose these only where the CPU has them.
+            Simd::Avx512 => return unsafe { self.step_avx512(sys, tab, opts, t, t_next) },
+            Simd::Avx2 => return unsafe { self.step_avx2(sys, tab, opts, t, t_next) },
+            Simd::Baseline => {}
         }
+        self.step_body(sys, tab, opts, t, t_next)
+    }
+
+    /// [`Self::step`] compiled for AVX-512 (the same operations: no
+    /// contraction into fused multiply-adds, so every lane is bit for bit
+    /// the scalar stepper).
+    ///
+    /// # Safety
+    /// AVX-512 F, VL, DQ, AVX2 and FMA must be available.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512dq")]
+    unsafe fn step_avx512<Sys: NonholonomicSystem<N, M>>(
+        &mut self,
+        sys: &Sys,
+        tab: &Tableau<S>,
+        opts: &NewtonOptions,
+        t: f64,
+        t_next: f64,
+    ) -> [Outcome; W] {
         self.step_body(sys, tab, opts, t, t_next)
     }
 
@@ -319,7 +370,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 self.factor(tab, &mut iterating, &mut out);
             }
             self.solve();
-            let update = self.apply_update(&iterating);
+            let update = self.apply_update(&iterating, k == 0);
             for w in 0..W {
                 if !iterating[w] {
                     continue;
@@ -374,7 +425,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// `z ← z − Δz` in the iterating lanes; each lane's scaled update norm
     /// (`linalg::scaled_update_norm`).
     #[inline(always)]
-    fn apply_update(&mut self, iterating: &[bool; W]) -> L<W> {
+    fn apply_update(&mut self, iterating: &[bool; W], first: bool) -> L<W> {
         let mut norm = [0.0f64; W];
         // As in the residual's test: `0 · r` is NaN for a NaN or infinite
         // ratio, so an infinite update reads NaN here, and the lane goes
@@ -386,7 +437,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 // `z − 0` is `z` bit for bit (signed zeros and NaN included),
                 // and the whole row is stored (no masked store).
                 z[w] -= if iterating[w] { g[w] } else { 0.0 };
-                let r = g[w].abs() / (1.0 + z[w].abs());
+            }
+            if first {
+                let mut weight = [0.0; W];
+                for w in 0..W {
+                    weight[w] = 1.0 / (1.0 + z[w].abs());
+                }
+                self.weights[d] = weight;
+            }
+            let weight = self.weights[d];
+            for w in 0..W {
+                let r = g[w].abs() * weight[w];
                 poison[w] += 0.0 * r;
                 norm[w] = if r > norm[w] { r } else { norm[w] };
             }
