@@ -108,18 +108,23 @@ pub(crate) fn scaled_update_norm<const D: usize>(update: &Vector<D>, z: &Vector<
     }
 }
 
-/// The weights `1/(1 + |z_i − Δz_i|)` of the scaled update norm at the
-/// iterate `z − update` an update leads to, without forming that iterate:
-/// each `z_i − Δz_i` is the value `z -= update` stores.
-pub(crate) fn update_weights_after<const D: usize>(update: &Vector<D>, z: &Vector<D>) -> Vector<D> {
-    Vector::<D>::from_fn(|i, _| 1.0 / (1.0 + (z[i] - update[i]).abs()))
+/// Sets `weights` to `1/(1 + |z_i − Δz_i|)`, the scaled update norm's
+/// weights at the iterate `z − update` an update leads to (each
+/// `z_i − Δz_i` is the value `z -= update` stores), and returns
+/// [`weighted_update_norm`] of `update` with them.
+pub(crate) fn weigh_and_norm<const D: usize>(update: &Vector<D>, z: &Vector<D>, weights: &mut Vector<D>) -> f64 {
+    let (d, x, w) = (update.as_slice(), z.as_slice(), weights.as_mut_slice());
+    for i in 0..D {
+        w[i] = 1.0 / (1.0 + (x[i] - d[i]).abs());
+    }
+    weighted_update_norm(update, weights)
 }
 
 /// `max_i |Δz_i| · w_i`, NaN as soon as any product is NaN (a NaN update,
 /// or an infinite one with a zero weight); an infinite update with a
 /// nonzero weight is infinite.
 ///
-/// Newton's updates are measured with the weights [`update_weights_after`]
+/// Newton's updates are measured with the weights of [`weigh_and_norm`]
 /// of the first update on each set of factors: the scale of the unknowns
 /// does not change while an iteration converges, and the norm then costs a
 /// product per component instead of a division.
@@ -216,11 +221,13 @@ mod tests {
     fn weighted_norm_at_the_updated_iterate_is_the_scaled_norm_there() {
         let z = Vector::<5>::new(1.0, -3.0, 0.0, 1e-17, 7.25e3);
         let d = Vector::<5>::new(0.3, -2.0 / 3.0, 1e-9, 1e-17, 1.0 / 7.0);
-        let weights = update_weights_after(&d, &z);
-        let (x, norm) = (z - d, weighted_update_norm(&d, &weights));
+        let mut weights = Vector::<5>::zeros();
+        let norm = weigh_and_norm(&d, &z, &mut weights);
+        let x = z - d;
         for i in 0..5 {
             assert_eq!(weights[i].to_bits(), (1.0 / (1.0 + x[i].abs())).to_bits());
         }
+        assert_eq!(norm.to_bits(), weighted_update_norm(&d, &weights).to_bits());
         // A product with the reciprocal is the quotient to within one rounding.
         let quotient = scaled_update_norm(&d, &x);
         assert!((norm - quotient).abs() <= 2.0 * f64::EPSILON * quotient, "{norm} against {quotient}");

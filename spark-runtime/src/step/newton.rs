@@ -7,7 +7,7 @@ use super::convergence::{full_newton_accepts_residual, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
-use crate::linalg::{largest_and_nan, update_weights_after, weighted_update_norm};
+use crate::linalg::{largest_and_nan, weigh_and_norm, weighted_update_norm};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
 
@@ -365,10 +365,8 @@ where
                 // applied once it is kept: only iterations on factors from an
                 // earlier iterate may be undone, and an undone one is never
                 // applied (no copy of `z` to restore).
-                if fresh || k == 0 {
-                    weights = update_weights_after(&g, z);
-                }
-                let update = weighted_update_norm(&g, &weights);
+                let update =
+                    if fresh || k == 0 { weigh_and_norm(&g, z, &mut weights) } else { weighted_update_norm(&g, &weights) };
                 let rate = update / prev_update;
                 monitor.record(update);
                 self.history.push(IterationRecord { residual, update, rate });
