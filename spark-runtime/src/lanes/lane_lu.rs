@@ -9,7 +9,7 @@
 type L<const W: usize> = [f64; W];
 
 /// Factors the `n × n` matrices of the lanes marked in `live` in place
-/// (`P A = L U`); a lane whose matrix is singular by `factor_runtime`'s
+/// (`P A = L U`, `1/u_kk` on the diagonal as `factor_runtime` stores it); a lane whose matrix is singular by `factor_runtime`'s
 /// test is cleared from `live`. Lanes not live compute values nobody reads.
 #[inline(always)]
 pub(super) fn factor<const W: usize>(
@@ -63,6 +63,7 @@ pub(super) fn factor<const W: usize>(
         for w in 0..W {
             rpiv[w] = 1.0 / pivot[w];
         }
+        lu[k * n + k] = rpiv;
         for i in k + 1..n {
             let mut x = lu[k * n + i];
             for w in 0..W {
@@ -108,9 +109,9 @@ pub(super) fn solve<const W: usize>(lu: &[L<W>], n: usize, perm: &[[usize; W]], 
         }
     }
     for j in (0..n).rev() {
-        let (mut bj, d) = (b[j], lu[j * n + j]);
+        let (mut bj, r) = (b[j], lu[j * n + j]);
         for w in 0..W {
-            bj[w] /= d[w];
+            bj[w] *= r[w];
         }
         b[j] = bj;
         for i in 0..j {

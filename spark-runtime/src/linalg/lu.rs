@@ -140,7 +140,9 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
 /// Factors the `n × n` column-major matrix in `lu` in place (`P A = L U`,
 /// partial pivoting over all rows), for sizes known only at run time (the
 /// Schur complement of the stage-decoupled Newton matrix is `S·M` square);
-/// `scale` is scratch of at least `n` entries.
+/// `scale` is scratch of at least `n` entries. The diagonal of the factors
+/// holds the reciprocals `1/u_kk` of `U`'s diagonal, which the elimination
+/// forms anyway, so that a solve multiplies instead of dividing.
 /// The singularity test is [`factor_in_place`]'s: a pivot below `64 ε`
 /// times its column's largest magnitude.
 pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
@@ -187,6 +189,7 @@ fn factor_sized(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64])
             }
         }
         let rpiv = 1.0 / lu[k * n + k];
+        lu[k * n + k] = rpiv;
         for x in lu[k * n + k + 1..(k + 1) * n].iter_mut() {
             *x *= rpiv;
         }
@@ -236,7 +239,7 @@ fn solve_sized(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
         }
     }
     for j in (0..n).rev() {
-        b[j] /= lu[j * n + j];
+        b[j] *= lu[j * n + j];
         let bj = b[j];
         for (x, u) in b[..j].iter_mut().zip(&lu[j * n..j * n + j]) {
             *x -= u * bj;

@@ -500,11 +500,29 @@ pub(crate) fn too_slow(
 ) -> bool {
     let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
     // `judged` is NaN until the factors have a rate: then the last test is
-    // false, and `powi` (a library call) is not worth making.
+    // false, and the power is not worth taking.
     rate.is_nan()
         || rate >= 1.0
         || judged > limit
-        || (!judged.is_nan() && update * judged.powi(remaining + 1) / (1.0 - judged) > tolerance)
+        || (!judged.is_nan() && update * power(judged, remaining + 1) / (1.0 - judged) > tolerance)
+}
+
+/// `x^k` for `k ≥ 0` by repeated squaring, inline: `f64::powi` with an
+/// exponent known only at run time is a library call, which the lane
+/// kernel would make once per lane and update.
+#[inline(always)]
+fn power(mut x: f64, mut k: i32) -> f64 {
+    let mut r = 1.0;
+    while k > 0 {
+        if k & 1 == 1 {
+            r *= x;
+        }
+        k >>= 1;
+        if k > 0 {
+            x *= x;
+        }
+    }
+    r
 }
 
 /// How far above the tolerance a predicted next update may be for full
