@@ -9,9 +9,9 @@ use crate::tableau::Tableau;
 use crate::StepError;
 
 /// Members per lane group of [`integrate_ensemble`](crate::integrate_ensemble):
-/// two 256-bit (AVX2) vectors of four `f64` per row, so each operation of
-/// the kernel has two independent vectors in flight (eight lanes stepped
-/// 1.2× faster per member than two groups of four in
+/// one 512-bit (AVX-512) vector of `f64` per row, or two 256-bit (AVX2) ones
+/// with two independent vectors in flight (eight lanes stepped 1.3× faster
+/// per member than two groups of four in
 /// `cargo bench -p spark-benches --bench lanes`).
 pub const LANES: usize = 8;
 

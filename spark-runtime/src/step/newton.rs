@@ -365,8 +365,11 @@ where
                 // applied once it is kept: only iterations on factors from an
                 // earlier iterate may be undone, and an undone one is never
                 // applied (no copy of `z` to restore).
-                let update =
-                    if fresh || k == 0 { weigh_and_norm(&g, z, &mut weights) } else { weighted_update_norm(&g, &weights) };
+                let update = if fresh || k == 0 {
+                    weigh_and_norm(&g, z, &mut weights)
+                } else {
+                    weighted_update_norm(&g, &weights)
+                };
                 let rate = update / prev_update;
                 monitor.record(update);
                 self.history.push(IterationRecord { residual, update, rate });
