@@ -9,8 +9,9 @@
 type L<const W: usize> = [f64; W];
 
 /// Factors the `n × n` matrices of the lanes marked in `live` in place
-/// (`P A = L U`, `1/u_kk` on the diagonal as `factor_runtime` stores it); a lane whose matrix is singular by `factor_runtime`'s
-/// test is cleared from `live`. Lanes not live compute values nobody reads.
+/// (`P A = L U`, with `1/u_kk` on the diagonal as `factor_runtime` stores
+/// it); a lane whose matrix is singular by `factor_runtime`'s test is
+/// cleared from `live`. Lanes not live compute values nobody reads.
 #[inline(always)]
 pub(super) fn factor<const W: usize>(
     lu: &mut [L<W>],

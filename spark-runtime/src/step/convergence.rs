@@ -1,6 +1,6 @@
 //! Newton's stopping rule: the contraction monitor of simplified Newton
 //! and full Newton's rule, on the scaled update norms of
-//! [`scaled_update_norm`](crate::linalg::scaled_update_norm).
+//! [`weighted_update_norm`](crate::linalg::weighted_update_norm).
 
 /// What the updates computed with one set of Newton factors tell about
 /// their contraction, and the stopping rule built on it.

@@ -422,8 +422,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         Vector::from_fn(|n, _| x[at + n][w])
     }
 
-    /// `z ← z − Δz` in the iterating lanes; each lane's scaled update norm
-    /// (`linalg::scaled_update_norm`).
+    /// `z ← z − Δz` in the iterating lanes; each lane's scaled update norm,
+    /// with the weights taken at the iterate the `first` update leads to
+    /// (`linalg::weigh_and_norm`) and kept for the later ones
+    /// (`linalg::weighted_update_norm`).
     #[inline(always)]
     fn apply_update(&mut self, iterating: &[bool; W], first: bool) -> L<W> {
         let mut norm = [0.0f64; W];
