@@ -1,5 +1,6 @@
-//! Newton's stopping rule: the contraction monitor of simplified Newton
-//! and full Newton's rule, on the scaled update norms of
+//! Newton's stopping rule — the contraction monitor of simplified Newton
+//! and full Newton's rule — and the rule that gives up on factors too slow
+//! to keep ([`too_slow`]), on the scaled update norms of
 //! [`weighted_update_norm`](crate::linalg::weighted_update_norm).
 
 /// What the updates computed with one set of Newton factors tell about
@@ -161,4 +162,56 @@ pub(super) fn full_newton_converged(update: f64, rate: f64, tolerance: f64) -> b
 /// never ends here. Written so that NaN never converges.
 pub(super) fn full_newton_accepts_residual(update: f64, prev_update: f64, tolerance: f64) -> bool {
     update <= tolerance && update <= 0.5 * prev_update
+}
+
+/// Contraction rate above which an iteration on factors from an earlier
+/// iterate (simplified Newton) triggers a fresh Jacobian.
+const REFRESH_RATE: f64 = 0.5;
+/// Contraction rate above which the stage-decoupled matrix gives way to the
+/// exact one: a refresh cannot speed it up (the couplings it drops set the
+/// rate), and at 1/8 per update it still needs no more iterations than the
+/// exact matrix's factorization costs.
+const DECOUPLED_RATE: f64 = 0.125;
+
+/// Whether an iteration on factors from an earlier iterate is too slow to
+/// keep: it grows, contracts slower than its limit, or too slowly to reach
+/// `tolerance` within the `remaining` iterations. The stage-decoupled matrix
+/// is judged on the rate it keeps to over two updates (one ratio says
+/// little) against `DECOUPLED_RATE`, and gives way to the exact matrix: a
+/// refresh of it cannot change the rate its dropped couplings set. A
+/// refresh, rather than crawling into `MaxIterations`, keeps simplified
+/// Newton from reporting a divergence that full Newton would not have.
+pub(crate) fn too_slow(
+    monitor: &Contraction,
+    decoupled: bool,
+    update: f64,
+    rate: f64,
+    remaining: i32,
+    tolerance: f64,
+) -> bool {
+    let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
+    // `judged` is NaN until the factors have a rate: then the last test is
+    // false, and the power is not worth taking.
+    rate.is_nan()
+        || rate >= 1.0
+        || judged > limit
+        || (!judged.is_nan() && update * power(judged, remaining + 1) / (1.0 - judged) > tolerance)
+}
+
+/// `x^k` for `k ≥ 0` by repeated squaring, inline: `f64::powi` with an
+/// exponent known only at run time is a library call, which the lane
+/// kernel would make once per lane and update.
+#[inline(always)]
+fn power(mut x: f64, mut k: i32) -> f64 {
+    let mut r = 1.0;
+    while k > 0 {
+        if k & 1 == 1 {
+            r *= x;
+        }
+        k >>= 1;
+        if k > 0 {
+            x *= x;
+        }
+    }
+    r
 }

@@ -3,7 +3,7 @@
 //! simplified Newton matrix and its fall-back from the stage-decoupled to
 //! the exact matrix, and the typed errors it ends with.
 
-use super::convergence::{full_newton_accepts_residual, Contraction};
+use super::convergence::{full_newton_accepts_residual, too_slow, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
@@ -132,14 +132,6 @@ fn default_consistency_tolerance() -> f64 {
 /// Largest contraction rate of a step with which simplified Newton keeps
 /// its factorization for the next step.
 const REUSE_RATE: f64 = 0.2;
-/// Contraction rate above which an iteration on factors from an earlier
-/// iterate (simplified Newton) triggers a fresh Jacobian.
-const REFRESH_RATE: f64 = 0.5;
-/// Contraction rate above which the stage-decoupled matrix gives way to the
-/// exact one: a refresh cannot speed it up (the couplings it drops set the
-/// rate), and at 1/8 per update it still needs no more iterations than the
-/// exact matrix's factorization costs.
-const DECOUPLED_RATE: f64 = 0.125;
 /// Steps a stepper stays on the exact matrix after the stage-decoupled one
 /// was slow or singular (the next steps are much like this one).
 const EXACT_AFTER_DECOUPLED_FAILS: u32 = 32;
@@ -483,49 +475,6 @@ where
             self.quadratic = r[1].update / (r[0].update * r[0].update);
         }
     }
-}
-
-/// Whether an iteration on factors from an earlier iterate is too slow to
-/// keep: it grows, contracts slower than its limit, or too slowly to reach
-/// `tolerance` within the `remaining` iterations. The stage-decoupled matrix
-/// is judged on the rate it keeps to over two updates (one ratio says
-/// little) against `DECOUPLED_RATE`, and gives way to the exact matrix: a
-/// refresh of it cannot change the rate its dropped couplings set. A
-/// refresh, rather than crawling into `MaxIterations`, keeps simplified
-/// Newton from reporting a divergence that full Newton would not have.
-pub(crate) fn too_slow(
-    monitor: &Contraction,
-    decoupled: bool,
-    update: f64,
-    rate: f64,
-    remaining: i32,
-    tolerance: f64,
-) -> bool {
-    let (judged, limit) = if decoupled { (monitor.sustained(), DECOUPLED_RATE) } else { (rate, REFRESH_RATE) };
-    // `judged` is NaN until the factors have a rate: then the last test is
-    // false, and the power is not worth taking.
-    rate.is_nan()
-        || rate >= 1.0
-        || judged > limit
-        || (!judged.is_nan() && update * power(judged, remaining + 1) / (1.0 - judged) > tolerance)
-}
-
-/// `x^k` for `k ≥ 0` by repeated squaring, inline: `f64::powi` with an
-/// exponent known only at run time is a library call, which the lane
-/// kernel would make once per lane and update.
-#[inline(always)]
-fn power(mut x: f64, mut k: i32) -> f64 {
-    let mut r = 1.0;
-    while k > 0 {
-        if k & 1 == 1 {
-            r *= x;
-        }
-        k >>= 1;
-        if k > 0 {
-            x *= x;
-        }
-    }
-    r
 }
 
 /// How far above the tolerance a predicted next update may be for full
