@@ -376,10 +376,13 @@ where
                     // iteration is accepted anyway, at round-off level, or on the
                     // first iteration of an earlier step's factors (no rate yet).
                     let remaining = (max_iter - 1 - k) as i32;
-                    let too_slow = too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance);
                     let round_off = update <= opts.stagnation_level;
                     let first_stale = k == 0 && update.is_finite();
-                    if too_slow && !converged && !round_off && !first_stale {
+                    if !converged
+                        && !round_off
+                        && !first_stale
+                        && too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance)
+                    {
                         let growing = rate.is_nan() || rate >= 1.0;
                         if decoupled {
                             // The dropped couplings are not small at this

@@ -186,10 +186,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
     }
 
-    /// Overwrites the residual `g` with the update `J̃⁻¹ g`
-    /// (`DecoupledMatrix::solve_in_place`).
+    /// The update `Δz = J̃⁻¹ g` of the residual `g`
+    /// (`DecoupledMatrix::solve_in_place`), applied to `z` row by row as
+    /// the solve produces it (`Kernel::update_row`); returns each lane's
+    /// scaled update norm (NaN for a lane whose update is not finite).
     #[inline(always)]
-    pub(super) fn solve(&mut self) {
+    pub(super) fn solve_and_update(&mut self, iterating: &[bool; W], first: bool) -> L<W> {
         let sm = Self::SM;
         let base = (S + 1) * N;
         // `y = W⁻¹ g` on the momentum rows, `g` on the constraint rows: a
@@ -234,6 +236,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         lane_lu::solve(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
+        let (mut norm, mut poison) = ([0.0f64; W], [0.0f64; W]);
+        let (z, weights) = (&mut self.z, &mut self.weights);
         for i in 0..=S {
             let out_at = if i < S { i * N } else { S * (N + M) };
             for n in 0..N {
@@ -247,11 +251,14 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                         }
                     }
                 }
-                self.g[out_at + n] = acc;
+                let d = out_at + n;
+                Self::update_row(&mut z[d], &mut weights[d], &acc, iterating, first, (&mut norm, &mut poison));
             }
         }
         for e in 0..sm {
-            self.g[S * N + e] = con[e];
+            let d = S * N + e;
+            Self::update_row(&mut z[d], &mut weights[d], &con[e], iterating, first, (&mut norm, &mut poison));
         }
+        std::array::from_fn(|w| if poison[w] != 0.0 { f64::NAN } else { norm[w] })
     }
 }

@@ -28,20 +28,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // The start velocity less the extrapolated previous ones (step k's
         // `v₀` is step k+1's `v₁`), added to every velocity block.
         let mut start = *self.v;
+        // The rows of `z` that hold velocities, with their coordinate.
+        let coordinate = |d: usize| if d < S * N { Some(d % N) } else { d.checked_sub(end) };
         if let (Some(f), true) = (first, uniform) {
             // Every held lane extrapolates alike: whole rows at once (the
-            // lanes not held compute garbage nobody reads).
+            // lanes not held compute garbage nobody reads), each row's sum
+            // and its start velocity in one pass, so a row is stored once.
             let (degree, head) = (degree(f), self.head[f]);
-            for d in 0..D {
-                let mut z = [0.0; W];
-                for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
-                    let past = self.past[((head + k) % PAST) * D + d];
-                    for w in 0..W {
-                        z[w] += *coef * past[w];
-                    }
-                }
-                self.z[d] = z;
-            }
             for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
                 let slot = ((head + k + 1) % PAST) * D + end;
                 for n in 0..N {
@@ -50,11 +43,23 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                 }
             }
-        } else {
-            for w in 0..W {
-                if !self.held[w] {
-                    continue;
+            for d in 0..D {
+                let mut z = [0.0; W];
+                for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
+                    let past = self.past[((head + k) % PAST) * D + d];
+                    for w in 0..W {
+                        z[w] += *coef * past[w];
+                    }
                 }
+                if let Some(n) = coordinate(d) {
+                    for w in 0..W {
+                        z[w] += start[n][w];
+                    }
+                }
+                self.z[d] = z;
+            }
+        } else {
+            for w in (0..W).filter(|&w| self.held[w]) {
                 let degree = degree(w);
                 for d in 0..D {
                     self.z[d][w] = 0.0;
@@ -69,12 +74,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                         start[n][w] -= *coef * self.past[before + n][w];
                     }
                 }
-            }
-        }
-        for at in (0..S).map(|i| i * N).chain([end]) {
-            for n in 0..N {
-                for w in 0..W {
-                    self.z[at + n][w] += start[n][w];
+                for d in 0..D {
+                    if let Some(n) = coordinate(d) {
+                        self.z[d][w] += start[n][w];
+                    }
                 }
             }
         }
@@ -195,10 +198,20 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
     }
 
-    /// The residual of eq. (6.1) into `g` (`Stepper::residual`).
+    /// The residual of eq. (6.1) into `g` (`Stepper::residual`), and the
+    /// sum of `0 · g_d` over its rows in each lane: 0 where every entry is
+    /// finite, NaN otherwise (summed as the rows are stored: read back
+    /// afterwards, each row would wait on its own store).
     #[inline(always)]
-    pub(super) fn residual(&mut self, tab: &Tableau<S>) {
+    pub(super) fn residual(&mut self, tab: &Tableau<S>) -> [f64; W] {
         let h = self.h;
+        let mut poison = [0.0f64; W];
+        let mut put = |g: &mut [[f64; W]; D], d: usize, r: [f64; W]| {
+            for w in 0..W {
+                poison[w] += 0.0 * r[w];
+            }
+            g[d] = r;
+        };
         for i in 0..=S {
             let (hat, tilde) = if i < S { (&tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b_hat, &tab.b_tilde) };
             for n in 0..N {
@@ -221,7 +234,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                         }
                     }
                 }
-                self.g[i * N + n] = r;
+                put(&mut self.g, i * N + n, r);
             }
         }
         let base = S * N + N;
@@ -236,30 +249,30 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                                 k[w] += c * con[w];
                             }
                         }
-                        self.g[base + r * M + m] = k;
+                        put(&mut self.g, base + r * M + m, k);
                     }
                 }
             }
             ConditionRows::MidpointConstraint => {
                 for r in 0..S.saturating_sub(1) {
                     for m in 0..M {
-                        self.g[base + r * M + m] = if r == 0 { self.values[S + 1].constraint[m] } else { [0.0; W] };
+                        let row = if r == 0 { self.values[S + 1].constraint[m] } else { [0.0; W] };
+                        put(&mut self.g, base + r * M + m, row);
                     }
                 }
             }
             ConditionRows::EqualMultipliers => {
                 for r in 0..S.saturating_sub(1) {
                     for m in 0..M {
-                        for w in 0..W {
-                            self.g[base + r * M + m][w] =
-                                self.z[S * N + r * M + m][w] - self.z[S * N + (r + 1) * M + m][w];
-                        }
+                        let (a, b) = (self.z[S * N + r * M + m], self.z[S * N + (r + 1) * M + m]);
+                        put(&mut self.g, base + r * M + m, std::array::from_fn(|w| a[w] - b[w]));
                     }
                 }
             }
         }
         for m in 0..M {
-            self.g[D - M + m] = self.values[S].constraint[m];
+            put(&mut self.g, D - M + m, self.values[S].constraint[m]);
         }
+        poison
     }
 }

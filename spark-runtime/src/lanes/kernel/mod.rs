@@ -351,16 +351,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for k in 0..max_iter {
             self.stage_points(tab);
             self.evaluate(sys, tab, t, &iterating, k == 0);
-            self.residual(tab);
-            // `0 · g` is 0 for a finite entry and NaN otherwise: summed in
-            // each lane, a vector add per row instead of per-entry flags.
-            let mut poison = [0.0f64; W];
-            for d in 0..D {
-                let g = self.g[d];
-                for w in 0..W {
-                    poison[w] += 0.0 * g[w];
-                }
-            }
+            let poison = self.residual(tab);
             for w in 0..W {
                 if iterating[w] && poison[w] != 0.0 {
                     (iterating[w], out[w]) = (false, Outcome::HandBack);
@@ -369,8 +360,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             if k == 0 {
                 self.factor(tab, &mut iterating, &mut out);
             }
-            self.solve();
-            let update = self.apply_update(&iterating, k == 0);
+            let update = self.solve_and_update(&iterating, k == 0);
             for w in 0..W {
                 if !iterating[w] {
                     continue;
@@ -379,10 +369,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 let rate = update / prev_update[w];
                 monitor[w].record(update);
                 let converged = monitor[w].converged(update, opts.tolerance);
-                if k > 0 {
+                // The stepper's test, asked only of a lane it could stop.
+                if k > 0 && !converged && update > opts.stagnation_level {
                     let remaining = (max_iter - 1 - k) as i32;
-                    let slow = too_slow(&monitor[w], true, update, rate, remaining, opts.tolerance);
-                    if slow && !converged && update > opts.stagnation_level {
+                    if too_slow(&monitor[w], true, update, rate, remaining, opts.tolerance) {
                         (iterating[w], out[w]) = (false, Outcome::HandBack);
                         continue;
                     }
@@ -422,40 +412,43 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         Vector::from_fn(|n, _| x[at + n][w])
     }
 
-    /// `z ← z − Δz` in the iterating lanes; each lane's scaled update norm,
-    /// with the weights taken at the iterate the `first` update leads to
-    /// (`linalg::weigh_and_norm`) and kept for the later ones
-    /// (`linalg::weighted_update_norm`).
+    /// Row `d` of the update, `Δz_d`: `z_d ← z_d − Δz_d` in the iterating
+    /// lanes, its scaled size folded into each lane's `norm` (and `0·r`
+    /// into `poison`), with the weight taken at the new `z_d` when `first`
+    /// (`linalg::weigh_and_norm`) and kept for the later updates
+    /// (`linalg::weighted_update_norm`). A maximum and a NaN test do not
+    /// depend on the order of the rows, so the solve applies each row as it
+    /// produces it.
     #[inline(always)]
-    fn apply_update(&mut self, iterating: &[bool; W], first: bool) -> L<W> {
-        let mut norm = [0.0f64; W];
-        // As in the residual's test: `0 · r` is NaN for a NaN or infinite
-        // ratio, so an infinite update reads NaN here, and the lane goes
-        // back to its stepper either way (its update is not finite).
-        let mut poison = [0.0f64; W];
-        for d in 0..D {
-            let (mut z, g) = (self.z[d], self.g[d]);
-            for w in 0..W {
-                // `z − 0` is `z` bit for bit (signed zeros and NaN included),
-                // and the whole row is stored (no masked store).
-                z[w] -= if iterating[w] { g[w] } else { 0.0 };
-            }
-            if first {
-                let mut weight = [0.0; W];
-                for w in 0..W {
-                    weight[w] = 1.0 / (1.0 + z[w].abs());
-                }
-                self.weights[d] = weight;
-            }
-            let weight = self.weights[d];
-            for w in 0..W {
-                let r = g[w].abs() * weight[w];
-                poison[w] += 0.0 * r;
-                norm[w] = if r > norm[w] { r } else { norm[w] };
-            }
-            self.z[d] = z;
+    fn update_row(
+        z: &mut L<W>,
+        weight: &mut L<W>,
+        update: &L<W>,
+        iterating: &[bool; W],
+        first: bool,
+        (norm, poison): (&mut L<W>, &mut L<W>),
+    ) {
+        let mut next = *z;
+        for w in 0..W {
+            // `z − 0` is `z` bit for bit (signed zeros and NaN included),
+            // and the whole row is stored (no masked store).
+            next[w] -= if iterating[w] { update[w] } else { 0.0 };
         }
-        std::array::from_fn(|w| if poison[w] != 0.0 { f64::NAN } else { norm[w] })
+        if first {
+            for w in 0..W {
+                weight[w] = 1.0 / (1.0 + next[w].abs());
+            }
+        }
+        for w in 0..W {
+            // As in the residual's test: `0 · r` is NaN for a NaN or
+            // infinite ratio, so an infinite update reads NaN here, and the
+            // lane goes back to its stepper either way (its update is not
+            // finite).
+            let r = update[w].abs() * weight[w];
+            poison[w] += 0.0 * r;
+            norm[w] = if r > norm[w] { r } else { norm[w] };
+        }
+        *z = next;
     }
 
     /// Ends the converged lanes' steps (`Stepper::step` after Newton): the
