@@ -10,7 +10,7 @@ use crate::StepError;
 
 /// Members per lane group of [`integrate_ensemble`](crate::integrate_ensemble):
 /// one 512-bit (AVX-512) vector of `f64` per row, or two 256-bit (AVX2) ones
-/// with two independent vectors in flight (eight lanes stepped 1.2× faster
+/// with two independent vectors in flight (eight lanes stepped 1.3× faster
 /// per member than two groups of four in
 /// `cargo bench -p spark-benches --bench lanes`).
 pub const LANES: usize = 8;
