@@ -127,7 +127,8 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     past: Box<[L<W>]>,
     head: [usize; W],
     depth: [usize; W],
-    /// The unknowns, the residual (then the update) and the solve's scratch.
+    /// The unknowns, the residual and the solve's scratch (the update is
+    /// applied to `z` as the solve produces it).
     z: Box<[L<W>; D]>,
     g: Box<[L<W>; D]>,
     /// The update norm's weights `1/(1 + |z_i|)` at the step's first iterate.
@@ -412,7 +413,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         Vector::from_fn(|n, _| x[at + n][w])
     }
 
-    /// Row `d` of the update, `Δz_d`: `z_d ← z_d − Δz_d` in the iterating
+    /// One row of the update, `Δz_d`: `z_d ← z_d − Δz_d` in the iterating
     /// lanes, its scaled size folded into each lane's `norm` (and `0·r`
     /// into `poison`), with the weight taken at the new `z_d` when `first`
     /// (`linalg::weigh_and_norm`) and kept for the later updates
