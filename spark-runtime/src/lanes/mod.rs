@@ -22,8 +22,8 @@
 //! bit for bit, including steps the kernel hands back.
 //!
 //! # What it costs
-//! The kernel's rows of `W` lanes vectorize (it is compiled for AVX-512 or AVX2 where
-//! the CPU has it), and so do the system's stage values where
+//! The kernel's rows of `W` lanes vectorize (it is compiled for AVX-512 or
+//! AVX2 where the CPU has it), and so do the system's stage values where
 //! `nonholonomic_system!` generates them in lane form
 //! ([`NonholonomicSystem::stage_values_in_lanes`](crate::NonholonomicSystem::stage_values_in_lanes),
 //! `values`); a hand-written system's run lane by lane. Eight

@@ -51,8 +51,7 @@ mod newton;
 pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use compensation::{two_sum_error, two_sum_error_of};
-pub(crate) use convergence::too_slow;
-pub(crate) use convergence::Contraction;
+pub(crate) use convergence::{too_slow, Contraction};
 pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
 pub(crate) use guess::{StepPolynomial, EXTRAPOLATION, PAST};
 pub(crate) use lane_handover::LaneContinuation;

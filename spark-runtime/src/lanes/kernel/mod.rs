@@ -131,7 +131,8 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// applied to `z` as the solve produces it).
     z: Box<[L<W>; D]>,
     g: Box<[L<W>; D]>,
-    /// The update norm's weights `1/(1 + |z_i|)` at the step's first iterate.
+    /// The update norm's weights `1/(1 + |z_i|)` at the iterate the step's
+    /// first update leads to.
     weights: Box<[L<W>; D]>,
     y: Box<[L<W>]>,
     p0: Box<[L<W>; N]>,
