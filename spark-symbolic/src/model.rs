@@ -412,6 +412,18 @@ fn lower_components(g: &mut Graph, lower: &mut Lowerer, xs: &[Option<SrcExpr>]) 
 }
 
 impl Model {
+    /// Whether `L` is separable and its stiffness `∂(∇_q L)/∂q` is a
+    /// constant matrix (it may depend on parameters) that is not identically
+    /// zero, as for a quadratic potential: the stage-decoupled Newton matrix
+    /// then keeps the couplings it makes between stages exactly.
+    pub fn constant_stiffness(&self) -> bool {
+        let g = &self.graph;
+        let entries = || self.force_q.iter().flatten();
+        self.structure.separable
+            && entries().all(|&x| g.deps(x).parameters_only())
+            && !entries().all(|&x| g.is_const(x, 0.0))
+    }
+
     /// Rejects declarations whose equations of motion cannot determine the
     /// accelerations at any point, because the SPARK Newton matrix (and the
     /// saddle-point matrix `[[∇²_vv L, Kᵀ],[K, 0]]` of paper assumption 2.4)

@@ -2,7 +2,7 @@
 //! stay in their lane; the requests a lane group refuses.
 
 use super::*;
-use crate::fixtures::paper::{MobileRobot, MpParticles, Skate};
+use crate::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
 use crate::{
     Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepError, Stepper, Tableau, Vector,
 };
@@ -86,6 +86,24 @@ where
         assert_same(run, &alone, &format!("{} {method} s={S} member {j}", Sys::SOURCE.name));
     }
     runs
+}
+
+/// A constant stiffness (the particle's `U = q₁² + q₂²`) couples the
+/// stages of the stage-decoupled matrix, which the lane kernel does not
+/// repeat: its members are stepped by their own steppers, each bit for bit
+/// its solo run.
+#[test]
+fn constant_stiffness_members_are_stepped_alone() {
+    let starts: Vec<_> = (0..5)
+        .map(|j| State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0 + 0.1 * j as f64, 0.0)))
+        .collect();
+    let runs = compare::<_, 3, 1, 2, 11>(Particle, Method::Gauss, fig84(), &starts, 0.2, 200, 50);
+    assert!(runs.iter().all(|r| r.failure.is_none() && r.samples.len() == 5));
+    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+    let mut lanes = LaneStepper::<Particle, 3, 1, 2, 11, 8>::new(Particle, tab, fig84());
+    lanes.start(&starts, 0.2).unwrap();
+    lanes.advance_by(20);
+    assert!((0..starts.len()).all(|j| lanes.kernel_steps(j) == Some(0)));
 }
 
 /// McLachlan–Perlmutter starts: the fixed `q₀` with `v₀ = (0, β, 0, …)`

@@ -3,7 +3,8 @@
 //! size, fixed or known at run time; [`padded_lu`]: the padded, swap-free
 //! AVX2+FMA kernel of the small Newton matrices) and the two Newton
 //! matrices built on them ([`newton_matrix`]: the exact Jacobian;
-//! [`decoupled`]: the stage-decoupled matrix).
+//! [`decoupled`]: the stage-decoupled matrix, with `stiff_stages` for the
+//! stage blocks it keeps for a constant stiffness).
 //!
 //! Pivots may be confined to row blocks ("block pivoting"): column `k` looks
 //! for its pivot only in rows `k..end`, where `end` is the end of the block
@@ -22,6 +23,7 @@ pub(crate) mod decoupled;
 mod lu;
 pub(crate) mod newton_matrix;
 mod padded_lu;
+mod stiff_stages;
 
 pub(crate) use lu::{factor_in_place, factor_runtime, solve_in_place, solve_runtime, Lu};
 pub(crate) use padded_lu::PaddedLu;

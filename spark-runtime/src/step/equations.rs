@@ -370,6 +370,9 @@ where
         let work = &mut *self.work;
         if !lean {
             copy_constraint_jacobians(work, dec);
+            if Sys::CONSTANT_STIFFNESS {
+                dec.set_stiffness(&work.stages[0].force_q);
+            }
             let masses = Masses::PerPoint { stages: &work.stages, end: &work.end };
             let nonideal = Sys::HAS_NONIDEAL_FORCE.then_some(&work.nonideal_psi[..]);
             return dec.factor(tab, h, masses, nonideal);
@@ -385,6 +388,9 @@ where
         let sys = &self.system;
         let mut vals = StageValues::zeros();
         sys.stage_jacobians_into(t1, &q1, &v1, &Vector::zeros(), &mut vals, &mut work.end);
+        if Sys::CONSTANT_STIFFNESS {
+            dec.set_stiffness(&work.end.force_q);
+        }
         dec.factor(tab, h, Masses::Constant(&work.end.mass), None)
     }
 }
@@ -429,6 +435,9 @@ where
             &mut approx,
             |i| if i < S { work.stages[i].mass } else { work.end.mass },
         );
+        if Sys::CONSTANT_STIFFNESS {
+            keep_stiffness_blocks::<N, M, S, D>(&mut approx, &self.tableau, h, &work.stages[0].force_q);
+        }
         if lean {
             // A lean refresh takes the constraint Jacobians its evaluation
             // wrote (here: those of the full evaluation at the same `z`).
@@ -494,6 +503,29 @@ fn decouple_velocity_blocks<const N: usize, const M: usize, const S: usize, cons
             let col = if l < S { l * N } else { S * (N + M) };
             let block = if i == l { mass(i) } else { Matrix::<N, N>::zeros() };
             j.fixed_view_mut::<N, N>(i * N, col).copy_from(&block);
+        }
+    }
+}
+
+/// Adds to the stage-decoupled matrix `j` the couplings of a constant
+/// stiffness `F_q`: `−h² (ÂA)_ik F_q` in stage row `i`, velocity column `k`,
+/// and `−h² (b̂ᵀA)_k F_q` in the end row.
+#[cfg(test)]
+fn keep_stiffness_blocks<const N: usize, const M: usize, const S: usize, const D: usize>(
+    j: &mut Matrix<D, D>,
+    tab: &Tableau<S>,
+    h: f64,
+    fq: &Matrix<N, N>,
+) {
+    for k in 0..S {
+        for i in 0..=S {
+            let coef: f64 = if i < S {
+                (0..S).map(|m| tab.a_hat[i][m] * tab.a[m][k]).sum()
+            } else {
+                (0..S).map(|m| tab.b_hat[m] * tab.a[m][k]).sum()
+            };
+            let mut blk = j.fixed_view_mut::<N, N>(i * N, k * N);
+            blk -= (h * h * coef) * fq;
         }
     }
 }

@@ -213,7 +213,7 @@ where
             }),
             eval: Eval::zeros(),
             block: vec![0.0; N * N].into_boxed_slice(),
-            decoupled: DecoupledMatrix::new(),
+            decoupled: DecoupledMatrix::new(Sys::CONSTANT_STIFFNESS),
             step_polynomial: StepPolynomial::new(&tableau),
             exact_steps_left: 0,
             quadratic: f64::NAN,

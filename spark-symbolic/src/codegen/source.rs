@@ -19,7 +19,8 @@ fn form_tokens(rt: &TokenStream, f: ConstraintForm) -> TokenStream {
     }
 }
 
-/// `const STRUCTURE`, `const SOURCE` and `const OPERATIONS`.
+/// `const STRUCTURE`, `const SOURCE`, `const OPERATIONS` and, when the
+/// model proves it, `const CONSTANT_STIFFNESS`.
 pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Model, ops: &Operations) -> TokenStream {
     let structure = model.structure;
     let b = |x: bool| if x { quote!(true) } else { quote!(false) };
@@ -36,6 +37,11 @@ pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Mo
         Literal::usize_unsuffixed(ops.bundle),
     );
     let source = source_const(rt, spec, model);
+    let stiffness = model.constant_stiffness().then(|| {
+        quote!(
+            const CONSTANT_STIFFNESS: bool = true;
+        )
+    });
     quote! {
         const STRUCTURE: #rt::Structure = #rt::Structure {
             lagrangian_autonomous: #la,
@@ -50,6 +56,7 @@ pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Mo
             stage_jacobians: #o_sj,
             bundle: #o_b,
         };
+        #stiffness
     }
 }
 

@@ -1,0 +1,215 @@
+//! The velocity blocks of the stage-decoupled Newton matrix for a system
+//! with a constant stiffness `F_q = ∂(∇_q L)/∂q` (a quadratic potential) and
+//! a constant mass matrix `W`: the stage rows' block
+//! `T = I ⊗ W − h² (ÂA) ⊗ F_q` (`S·N` square, every stage coupled to every
+//! other through `Q_j = q₀ + h Σ_k a_jk V_k`) and the end row's coupling
+//! `−h² (b̂ᵀA)_k F_q` to stage `k` beside `W` on `v₁`. The blocks depend on
+//! `h` only, so they are factored once per step size and kept.
+//!
+//! Two forms: when `W` and `F_q` are both diagonal (a potential that is a
+//! sum of squares of the coordinates), `T` splits into one `S × S` block
+//! `W_cc I − h² F_q,cc ÂA` per coordinate, kept as its inverse (an
+//! `S × S` product per coordinate and solve; a coordinate without stiffness
+//! is its reciprocal mass); otherwise `T` is one dense LU, used up to
+//! `S·N = DENSE_MAX` (beyond it a refactorization at every change of `h`
+//! would cost more than the updates it saves, and the couplings are dropped
+//! as for any other system).
+
+use super::{factor_runtime, solve_runtime, Singular};
+use crate::tableau::Tableau;
+
+/// The largest `S·N` for which a non-diagonal `T` is kept as a dense LU.
+pub(crate) const DENSE_MAX: usize = 64;
+
+/// The stage blocks of a constant stiffness (see the module docs); empty
+/// storage when the system has none.
+#[derive(Clone, Debug)]
+pub(crate) struct StiffStages<const N: usize, const S: usize> {
+    /// `F_q` (`N × N`, column-major) and whether it holds the system's.
+    stiffness: Box<[f64]>,
+    set: bool,
+    /// The step size of the kept factors (NaN: none).
+    h: f64,
+    /// `h² (b̂ᵀA)_k`: the end row's coefficient on stage `k`.
+    end_coupling: Box<[f64]>,
+    /// `W` and `F_q` are diagonal: per coordinate `c`, the inverse of its
+    /// `S × S` block (row-major, at `c·S·S`) when `F_q,cc ≠ 0`, else the
+    /// coordinate's reciprocal mass in `rmass[c]`.
+    by_coordinate: bool,
+    inverse: Box<[f64]>,
+    stiff: Box<[bool]>,
+    rmass: Box<[f64]>,
+    /// Otherwise: the LU factors of `T`.
+    lu: Box<[f64]>,
+    perm: Box<[usize]>,
+    scale: Box<[f64]>,
+}
+
+impl<const N: usize, const S: usize> StiffStages<N, S> {
+    /// Storage (heap, allocated once); empty unless `keep`.
+    pub(crate) fn new(keep: bool) -> Self {
+        let sn = if keep { S * N } else { 0 };
+        let dense = if sn <= DENSE_MAX { sn } else { 0 };
+        let (n, s) = if keep { (N, S) } else { (0, 0) };
+        StiffStages {
+            stiffness: vec![0.0; n * n].into_boxed_slice(),
+            set: false,
+            h: f64::NAN,
+            end_coupling: vec![0.0; s].into_boxed_slice(),
+            by_coordinate: false,
+            inverse: vec![0.0; n * s * s].into_boxed_slice(),
+            stiff: vec![false; n].into_boxed_slice(),
+            rmass: vec![0.0; n].into_boxed_slice(),
+            lu: vec![0.0; dense * dense].into_boxed_slice(),
+            perm: vec![0; dense].into_boxed_slice(),
+            scale: vec![0.0; dense].into_boxed_slice(),
+        }
+    }
+
+    /// Sets the system's stiffness `F_q` (ignored without storage); the
+    /// factors are made again only when it changed.
+    pub(crate) fn set(&mut self, stiffness: &[f64]) {
+        if self.stiffness.is_empty() {
+            return;
+        }
+        if !(self.set && *self.stiffness == *stiffness) {
+            self.stiffness.copy_from_slice(stiffness);
+            self.h = f64::NAN;
+        }
+        self.set = true;
+    }
+
+    /// Forgets the stiffness and the factors (the system or its mass matrix
+    /// changed).
+    pub(crate) fn invalidate(&mut self) {
+        self.set = false;
+        self.h = f64::NAN;
+    }
+
+    /// Forgets the factors (the mass matrix changed).
+    pub(crate) fn mass_changed(&mut self) {
+        self.h = f64::NAN;
+    }
+
+    /// Makes the blocks of step size `h` with the constant mass matrix `w`
+    /// (`N × N`, column-major, regular), unless they are kept. `Ok(false)`:
+    /// no stiffness is set or a non-diagonal `T` is too large to keep, and
+    /// the couplings are dropped.
+    pub(crate) fn factor(&mut self, tab: &Tableau<S>, h: f64, w: &[f64]) -> Result<bool, Singular> {
+        if !self.set {
+            return Ok(false);
+        }
+        if self.h.to_bits() == h.to_bits() {
+            return Ok(true);
+        }
+        self.h = f64::NAN;
+        let h2 = h * h;
+        // (ÂA)_ik and h² (b̂ᵀA)_k.
+        let aa = |i: usize, k: usize| -> f64 { (0..S).map(|j| tab.a_hat[i][j] * tab.a[j][k]).sum() };
+        for k in 0..S {
+            self.end_coupling[k] = h2 * (0..S).map(|j| tab.b_hat[j] * tab.a[j][k]).sum::<f64>();
+        }
+        let fq = &self.stiffness;
+        let diagonal = |m: &[f64]| (0..N * N).all(|k| k % (N + 1) == 0 || m[k] == 0.0);
+        // The per-coordinate blocks live in fixed arrays of 8 × 8.
+        self.by_coordinate = S <= 8 && diagonal(w) && diagonal(fq);
+        if self.by_coordinate {
+            let mut block = [0.0; 64];
+            let (mut perm, mut scale) = ([0usize; 8], [0.0; 8]);
+            for c in 0..N {
+                let (wc, fc) = (w[c * (N + 1)], fq[c * (N + 1)]);
+                self.stiff[c] = fc != 0.0;
+                if wc == 0.0 || !wc.is_finite() {
+                    return Err(Singular { column: c, pivot: wc.abs() });
+                }
+                self.rmass[c] = 1.0 / wc;
+                if !self.stiff[c] {
+                    continue;
+                }
+                // Column-major S × S block, factored, then its inverse
+                // column by column (row-major in `inverse`: row i is
+                // contiguous for the products of `solve`).
+                for k in 0..S {
+                    for i in 0..S {
+                        let mass = if i == k { wc } else { 0.0 };
+                        block[k * S + i] = mass - h2 * aa(i, k) * fc;
+                    }
+                }
+                factor_runtime(&mut block[..S * S], S, &mut perm[..S], &mut scale[..S])
+                    .map_err(|e| Singular { column: e.column * N + c, ..e })?;
+                for k in 0..S {
+                    let mut e = [0.0; 8];
+                    e[k] = 1.0;
+                    solve_runtime(&block[..S * S], S, &perm[..S], &mut e[..S]);
+                    for (i, x) in e[..S].iter().enumerate() {
+                        self.inverse[(c * S + i) * S + k] = *x;
+                    }
+                }
+            }
+        } else {
+            let sn = S * N;
+            if sn > DENSE_MAX {
+                return Ok(false);
+            }
+            for k in 0..S {
+                for i in 0..S {
+                    let coef = h2 * aa(i, k);
+                    for c in 0..N {
+                        let col = &mut self.lu[(k * N + c) * sn + i * N..][..N];
+                        for (r, x) in col.iter_mut().enumerate() {
+                            let mass = if i == k { w[c * N + r] } else { 0.0 };
+                            *x = mass - coef * fq[c * N + r];
+                        }
+                    }
+                }
+            }
+            factor_runtime(&mut self.lu, sn, &mut self.perm, &mut self.scale)?;
+        }
+        self.h = h;
+        Ok(true)
+    }
+
+    /// `y ← T⁻¹ y` for the stage part `y` (`S·N`, stage by stage).
+    pub(crate) fn solve_stages(&self, y: &mut [f64]) {
+        if !self.by_coordinate {
+            solve_runtime(&self.lu, S * N, &self.perm, y);
+            return;
+        }
+        for c in 0..N {
+            if !self.stiff[c] {
+                let r = self.rmass[c];
+                for i in 0..S {
+                    y[i * N + c] *= r;
+                }
+                continue;
+            }
+            let mut x = [0.0; 8];
+            for i in 0..S {
+                x[i] = y[i * N + c];
+            }
+            let inv = &self.inverse[c * S * S..(c + 1) * S * S];
+            for i in 0..S {
+                let row = &inv[i * S..(i + 1) * S];
+                y[i * N + c] = row.iter().zip(&x[..S]).map(|(a, b)| a * b).sum();
+            }
+        }
+    }
+
+    /// `end += Σ_k h² (b̂ᵀA)_k F_q y_k` for the stage part `y`: the end
+    /// row's right-hand side once the stages are solved (`W` then gives
+    /// `v₁`'s part).
+    pub(crate) fn add_end_coupling(&self, y: &[f64], end: &mut [f64]) {
+        let fq = &self.stiffness;
+        for (k, &ck) in self.end_coupling.iter().enumerate() {
+            if ck == 0.0 {
+                continue;
+            }
+            for (c, yc) in y[k * N..(k + 1) * N].iter().enumerate() {
+                let s = ck * yc;
+                for (d, f) in end.iter_mut().zip(&fq[c * N..(c + 1) * N]) {
+                    *d += f * s;
+                }
+            }
+        }
+    }
+}
