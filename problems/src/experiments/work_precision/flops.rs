@@ -63,9 +63,14 @@ impl NewtonPath {
 ///   forms `W⁻¹Kᵀ` with the reciprocal diagonal (`2s(s+1)nm`), the
 ///   constraint blocks and the Schur complement (`2s²(s+1)nm²`) and factors
 ///   it (`⅔(sm)³`); an update costs `(s+1)n` for `W⁻¹`, `4s(s+1)nm` for the
-///   two block products and `2(sm)²` for the Schur solve.
+///   two block products and `2(sm)²` for the Schur solve. With a kept
+///   constant stiffness (`stiff`) the stage blocks are solved instead with
+///   one `s × s` inverse per coordinate (`2s²n`, counting every coordinate
+///   as stiff) and the end row's coupling (`2sn²`), in each update and for
+///   each of the `sm` columns of `W⁻¹Kᵀ`.
 pub fn flops_per_step(
     path: NewtonPath,
+    stiff: bool,
     (n, m, s): (usize, usize, usize),
     (values, jacobians): (usize, usize),
     iterations: f64,
@@ -80,12 +85,16 @@ pub fn flops_per_step(
         }
         NewtonPath::Structured => {
             let sm = s * m;
+            // `W⁻¹` of one vector of all points, and of the `sm` columns of `Kᵀ`.
+            let (velocity, columns) = if stiff {
+                let w = 2.0 * s * s * n + 2.0 * s * n * n + n;
+                (w, sm * w)
+            } else {
+                ((s + 1.0) * n, 2.0 * s * (s + 1.0) * n * m)
+            };
             (
-                (s + 1.0) * jacobians as f64
-                    + 2.0 * s * (s + 1.0) * n * m
-                    + 2.0 * s * s * (s + 1.0) * n * m * m
-                    + 2.0 / 3.0 * sm * sm * sm,
-                (s + 1.0) * n + 4.0 * s * (s + 1.0) * n * m + 2.0 * sm * sm,
+                (s + 1.0) * jacobians as f64 + columns + 2.0 * s * s * (s + 1.0) * n * m * m + 2.0 / 3.0 * sm * sm * sm,
+                velocity + 4.0 * s * (s + 1.0) * n * m + 2.0 * sm * sm,
             )
         }
     };
