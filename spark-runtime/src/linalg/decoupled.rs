@@ -301,6 +301,18 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// point's is `W⁻¹ (b̃_l kt + Σ_k h² (b̂ᵀA)_k F_q x_k)`.
     fn coupled_columns(&mut self, tab: &Tableau<S>, l: usize, kt: &Matrix<N, M>) {
         let nm = N * M;
+        if let Some(g) = self.stiff.columns() {
+            // By coordinate: X[i][l][c, e] = g[c][l][i] · K_lᵀ[c, e].
+            for i in 0..=S {
+                let x = &mut self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                for (xe, ke) in x.chunks_exact_mut(N).zip(kt.as_slice().chunks_exact(N)) {
+                    for (c, (d, k)) in xe.iter_mut().zip(ke).enumerate() {
+                        *d = g[(c * S + l) * (S + 1) + i] * k;
+                    }
+                }
+            }
+            return;
+        }
         for e in 0..M {
             let col = &kt.as_slice()[e * N..(e + 1) * N];
             for i in 0..S {
@@ -308,12 +320,11 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                     *d = tab.a_tilde[i][l] * k;
                 }
             }
-            self.stiff.solve_stages(&mut self.coupled_rhs);
             let mut end = [0.0; N];
             for (d, k) in end.iter_mut().zip(col) {
                 *d = tab.b_tilde[l] * k;
             }
-            self.stiff.add_end_coupling(&self.coupled_rhs, &mut end);
+            self.stiff.solve_stages(&mut self.coupled_rhs, &mut end);
             self.solve_block(0, &mut end);
             for i in 0..=S {
                 let src = if i < S { &self.coupled_rhs[i * N..(i + 1) * N] } else { &end[..] };
@@ -412,8 +423,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         if self.coupled {
             // y_V = T⁻¹ g_V, then y₁ = W⁻¹ (g₁ + Σ_k h² (b̂ᵀA)_k F_q y_k).
             let (stages, end) = g.split_at_mut(S * N);
-            self.stiff.solve_stages(stages);
-            self.stiff.add_end_coupling(stages, &mut end[..N]);
+            self.stiff.solve_stages(stages, &mut end[..N]);
             self.solve_block(0, &mut end[..N]);
         } else {
             // y_i = W_i⁻¹ g_i for the S + 1 velocity blocks.

@@ -37,6 +37,11 @@ pub(crate) struct StiffStages<const N: usize, const S: usize> {
     /// coordinate's reciprocal mass in `rmass[c]`.
     by_coordinate: bool,
     inverse: Box<[f64]>,
+    /// Per coordinate: `g[c][l][i]` (at `(c·S + l)·(S+1) + i`) with
+    /// `(A⁻¹B)[i][l][c, e] = g[c][l][i] · K_l[e, c]` — point `i`'s velocity
+    /// response in coordinate `c` to multiplier `l` — so a refresh forms
+    /// `A⁻¹B` by products, without solves.
+    columns: Box<[f64]>,
     stiff: Box<[bool]>,
     rmass: Box<[f64]>,
     /// Otherwise: the LU factors of `T`.
@@ -58,6 +63,7 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
             end_coupling: vec![0.0; s].into_boxed_slice(),
             by_coordinate: false,
             inverse: vec![0.0; n * s * s].into_boxed_slice(),
+            columns: vec![0.0; n * s * (s + 1)].into_boxed_slice(),
             stiff: vec![false; n].into_boxed_slice(),
             rmass: vec![0.0; n].into_boxed_slice(),
             lu: vec![0.0; dense * dense].into_boxed_slice(),
@@ -124,6 +130,13 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
                 }
                 self.rmass[c] = 1.0 / wc;
                 if !self.stiff[c] {
+                    // T's block is `W_cc I`: `g[c][l] = (ã_il / W_cc)_i, b̃_l / W_cc`.
+                    for l in 0..S {
+                        let g = &mut self.columns[(c * S + l) * (S + 1)..][..S + 1];
+                        for (i, x) in g.iter_mut().enumerate() {
+                            *x = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] } * self.rmass[c];
+                        }
+                    }
                     continue;
                 }
                 // Column-major S × S block, factored, then its inverse
@@ -144,6 +157,18 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
                     for (i, x) in e[..S].iter().enumerate() {
                         self.inverse[(c * S + i) * S + k] = *x;
                     }
+                }
+                // g[c][l] = T_c⁻¹ (ã_il)_i, and the end point's
+                // (b̃_l + F_q,cc Σ_k h² (b̂ᵀA)_k g[c][l][k]) / W_cc.
+                for l in 0..S {
+                    let inv = &self.inverse[c * S * S..(c + 1) * S * S];
+                    let g = &mut self.columns[(c * S + l) * (S + 1)..][..S + 1];
+                    let mut coupling = 0.0;
+                    for i in 0..S {
+                        g[i] = (0..S).map(|k| inv[i * S + k] * tab.a_tilde[k][l]).sum();
+                        coupling += self.end_coupling[i] * g[i];
+                    }
+                    g[S] = (tab.b_tilde[l] + fc * coupling) * self.rmass[c];
                 }
             }
         } else {
@@ -169,14 +194,35 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         Ok(true)
     }
 
-    /// `y ← T⁻¹ y` for the stage part `y` (`S·N`, stage by stage).
-    pub(crate) fn solve_stages(&self, y: &mut [f64]) {
+    /// The coefficients `g` of `A⁻¹B` (see the field), when `T` splits by
+    /// coordinate.
+    pub(crate) fn columns(&self) -> Option<&[f64]> {
+        self.by_coordinate.then_some(&self.columns[..])
+    }
+
+    /// `y ← T⁻¹ y` for the stage part `y` (`S·N`, stage by stage), then
+    /// `end += Σ_k h² (b̂ᵀA)_k F_q y_k`: the end row's right-hand side once
+    /// the stages are solved (`W` then gives `v₁`'s part).
+    pub(crate) fn solve_stages(&self, y: &mut [f64], end: &mut [f64]) {
         if !self.by_coordinate {
             solve_runtime(&self.lu, S * N, &self.perm, y);
+            let fq = &self.stiffness;
+            for (k, &ck) in self.end_coupling.iter().enumerate() {
+                if ck == 0.0 {
+                    continue;
+                }
+                for (c, yc) in y[k * N..(k + 1) * N].iter().enumerate() {
+                    let s = ck * yc;
+                    for (d, f) in end.iter_mut().zip(&fq[c * N..(c + 1) * N]) {
+                        *d += f * s;
+                    }
+                }
+            }
             return;
         }
         for c in 0..N {
             if !self.stiff[c] {
+                // No stiffness on `c`: its mass alone, no end coupling.
                 let r = self.rmass[c];
                 for i in 0..S {
                     y[i * N + c] *= r;
@@ -188,28 +234,14 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
                 x[i] = y[i * N + c];
             }
             let inv = &self.inverse[c * S * S..(c + 1) * S * S];
+            let mut coupling = 0.0;
             for i in 0..S {
                 let row = &inv[i * S..(i + 1) * S];
-                y[i * N + c] = row.iter().zip(&x[..S]).map(|(a, b)| a * b).sum();
+                let yi: f64 = row.iter().zip(&x[..S]).map(|(a, b)| a * b).sum();
+                y[i * N + c] = yi;
+                coupling += self.end_coupling[i] * yi;
             }
-        }
-    }
-
-    /// `end += Σ_k h² (b̂ᵀA)_k F_q y_k` for the stage part `y`: the end
-    /// row's right-hand side once the stages are solved (`W` then gives
-    /// `v₁`'s part).
-    pub(crate) fn add_end_coupling(&self, y: &[f64], end: &mut [f64]) {
-        let fq = &self.stiffness;
-        for (k, &ck) in self.end_coupling.iter().enumerate() {
-            if ck == 0.0 {
-                continue;
-            }
-            for (c, yc) in y[k * N..(k + 1) * N].iter().enumerate() {
-                let s = ck * yc;
-                for (d, f) in end.iter_mut().zip(&fq[c * N..(c + 1) * N]) {
-                    *d += f * s;
-                }
-            }
+            end[c] += self.stiffness[c * (N + 1)] * coupling;
         }
     }
 }
