@@ -89,21 +89,37 @@ where
 }
 
 /// A constant stiffness (the particle's `U = q₁² + q₂²`) couples the
-/// stages of the stage-decoupled matrix, which the lane kernel does not
-/// repeat: its members are stepped by their own steppers, each bit for bit
-/// its solo run.
+/// stages of the stage-decoupled matrix coordinate by coordinate: the
+/// kernel keeps the couplings as the steppers do, takes every step after
+/// the two that start the extrapolation, and each member is bit for bit its
+/// solo run.
 #[test]
-fn constant_stiffness_members_are_stepped_alone() {
+fn constant_stiffness_members_in_lanes_match_each_member_alone() {
     let starts: Vec<_> = (0..5)
         .map(|j| State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0 + 0.1 * j as f64, 0.0)))
         .collect();
-    let runs = compare::<_, 3, 1, 2, 11>(Particle, Method::Gauss, fig84(), &starts, 0.2, 200, 50);
-    assert!(runs.iter().all(|r| r.failure.is_none() && r.samples.len() == 5));
+    for method in [Method::Gauss, Method::LobattoIIIAB] {
+        let runs = compare::<_, 3, 1, 2, 11>(Particle, method, fig84(), &starts, 0.2, 200, 50);
+        assert!(runs.iter().all(|r| r.failure.is_none() && r.samples.len() == 5), "{method}");
+    }
+    let runs = compare::<_, 3, 1, 4, 19>(Particle, Method::Gauss, fig84(), &starts, 0.2, 200, 0);
+    assert!(runs.iter().all(|r| r.failure.is_none()));
+    // Every build of the kernel (the solve of the stage blocks runs in it).
+    use super::kernel::Simd;
     let tab = Tableau::<2>::new(Method::Gauss).unwrap();
-    let mut lanes = LaneStepper::<Particle, 3, 1, 2, 11, 8>::new(Particle, tab, fig84());
-    lanes.start(&starts, 0.2).unwrap();
-    lanes.advance_by(20);
-    assert!((0..starts.len()).all(|j| lanes.kernel_steps(j) == Some(0)));
+    let alone: Vec<_> =
+        starts.iter().map(|s| solo::<_, 3, 1, 2, 11>(&Particle, tab, fig84(), *s, 0.2, 20, 0)).collect();
+    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+        let mut lanes = LaneStepper::<Particle, 3, 1, 2, 11, 8>::new(Particle, tab, fig84()).with_simd(simd);
+        lanes.start(&starts, 0.2).unwrap();
+        lanes.advance_by(20);
+        for (j, run) in alone.iter().enumerate() {
+            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
+            let bits = |s: &State<3>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
+            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
+            assert_eq!(lanes.kernel_steps(j), Some(18), "{simd:?}, member {j}");
+        }
+    }
 }
 
 /// McLachlan–Perlmutter starts: the fixed `q₀` with `v₀ = (0, β, 0, …)`

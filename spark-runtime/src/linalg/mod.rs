@@ -23,7 +23,7 @@ pub(crate) mod decoupled;
 mod lu;
 pub(crate) mod newton_matrix;
 mod padded_lu;
-mod stiff_stages;
+pub(crate) mod stiff_stages;
 
 pub(crate) use lu::{factor_in_place, factor_runtime, solve_in_place, solve_runtime, Lu};
 pub(crate) use padded_lu::PaddedLu;

@@ -46,13 +46,11 @@ where
 {
     /// Whether the system's structure lets the lane kernel step it at all:
     /// a stage-decoupled matrix whose velocity blocks are one constant mass
-    /// matrix (not coupled by a constant stiffness), no external and no
-    /// non-ideal force.
-    pub(crate) const LANE_KERNEL: bool = Self::LEAN_DECOUPLED
-        && Sys::STRUCTURE.constant_mass_matrix
-        && !Sys::CONSTANT_STIFFNESS
-        && !Sys::HAS_FORCING
-        && !Sys::HAS_NONIDEAL_FORCE;
+    /// matrix (coupled by a constant stiffness only coordinate by
+    /// coordinate, which the kernel checks when it is made), no external
+    /// and no non-ideal force.
+    pub(crate) const LANE_KERNEL: bool =
+        Self::LEAN_DECOUPLED && Sys::STRUCTURE.constant_mass_matrix && !Sys::HAS_FORCING && !Sys::HAS_NONIDEAL_FORCE;
 
     /// Whether the next step from `state` with size `h` starts on the path
     /// the lane kernel repeats (see the module docs): simplified Newton on

@@ -622,8 +622,9 @@ nonholonomic_system! {
     /// A sleigh whose kinetic energy couples the blade's speed and turning
     /// through a constant off-diagonal mass (`c ẋ θ̇`): a constant mass
     /// matrix that is not diagonal, so the lane kernel solves with its LU
-    /// factors. The quartic term keeps the stiffness non-constant (a
-    /// quadratic potential alone would be stepped member by member).
+    /// factors. The quartic term keeps the stiffness non-constant: with a
+    /// quadratic potential alone, this mass matrix would couple the stages
+    /// densely, which the kernel leaves to the members' own steppers.
     pub struct CoupledSleigh {
         coordinates: [x, y, theta],
         parameters: { m = 1.0, inertia = 0.5, c = 0.2 },

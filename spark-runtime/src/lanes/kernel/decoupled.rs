@@ -55,6 +55,22 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // X[i][l] = coef_il · W⁻¹ K_lᵀ.
         let kt = &mut self.kt;
         for l in 0..S {
+            if let Some(g) = self.stiff.columns().filter(|_| self.coupled) {
+                // A constant stiffness by coordinate: X[i][l][n, e] = g[n][l][i] · K_l[e, n].
+                for i in 0..=S {
+                    for e in 0..M {
+                        for n in 0..N {
+                            let (gi, k) = (g[(n * S + l) * (S + 1) + i], self.jacobians[l].constraint_v[n][e]);
+                            let mut x = [0.0; W];
+                            for w in 0..W {
+                                x[w] = gi * k[w];
+                            }
+                            self.x[i * S + l][e][n] = x;
+                        }
+                    }
+                }
+                continue;
+            }
             for e in 0..M {
                 for n in 0..N {
                     kt[e * N + n] = self.jacobians[l].constraint_v[n][e];
@@ -197,6 +213,27 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // `y = W⁻¹ g` on the momentum rows, `g` on the constraint rows: a
         // diagonal mass matrix scales as it copies.
         match &self.mass {
+            MassSolve::Diagonal(r) if self.coupled => {
+                // The stage blocks of a constant stiffness and the end row,
+                // lane by lane with the steppers' own solve.
+                let col = &mut self.stiff_column;
+                for w in 0..W {
+                    for d in 0..base {
+                        col[d] = self.g[d][w];
+                    }
+                    let (stages, end) = col.split_at_mut(S * N);
+                    self.stiff.solve_stages(stages, end);
+                    for (x, rn) in end.iter_mut().zip(r.iter()) {
+                        *x *= rn;
+                    }
+                    for d in 0..base {
+                        self.y[d][w] = col[d];
+                    }
+                }
+                for d in base..D {
+                    self.y[d] = self.g[d];
+                }
+            }
             MassSolve::Diagonal(r) => {
                 for i in 0..=S {
                     for n in 0..N {

@@ -32,6 +32,7 @@ mod equations;
 use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
+use crate::linalg::stiff_stages::StiffStages;
 use crate::step::{
     check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor, EnergyCheck,
     LaneContinuation, NewtonOptions, State, StepPolynomial, PAST,
@@ -112,6 +113,12 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     simd: Simd,
     mass: MassSolve,
     h: f64,
+    /// The stage blocks of a constant stiffness, made as the steppers make
+    /// them (`linalg::stiff_stages`), whether they are kept, and one lane's
+    /// velocity rows for their solve.
+    stiff: StiffStages<N, S>,
+    coupled: bool,
+    stiff_column: Box<[f64]>,
     /// Which lanes the kernel holds.
     held: [bool; W],
     /// The state where each lane's latest step ended, and its carry.
@@ -185,11 +192,22 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             true => MassSolve::Diagonal(rdiag.into()),
             false => MassSolve::Lu { lu: lu.into(), perm: perm.into() },
         };
+        // A constant stiffness is kept as the steppers keep it; the kernel
+        // repeats only its per-coordinate form (a diagonal mass matrix).
+        let mut stiff = StiffStages::new(Sys::CONSTANT_STIFFNESS);
+        stiff.set(jac.force_q.as_slice());
+        let coupled = stiff.factor(tab, h, jac.mass.as_slice()).ok()?;
+        if coupled && stiff.columns().is_none() {
+            return None;
+        }
         let (p, sm) = (Self::POINTS, Self::SM);
         Some(Kernel {
             simd,
             mass,
             h,
+            stiff,
+            coupled,
+            stiff_column: vec![0.0; (S + 1) * N].into_boxed_slice(),
             held: [false; W],
             q: fixed(),
             v: fixed(),
