@@ -199,11 +199,14 @@ def check_structure(system: CasadiSystem, claims: Dict, values: List[Dict[str, n
             return True
         return all(float(np.max(np.abs(np.asarray(val[k])), initial=0.0)) <= TOLERANCE for k in keys for val in values)
 
+    separable = all_zero(["momentum_q", "force_v"])
     facts = {
         "lagrangian_autonomous": all_zero(["lagrangian_t", "momentum_t", "force_t"]),
         "constraints_autonomous": all_zero(["constraint_t"]),
-        "separable": all_zero(["momentum_q", "force_v"]),
+        "separable": separable,
         "constant_mass_matrix": all_zero(["mass_matrix_dtqv"]),
+        # The stiffness ∂(∇_q L)/∂q: constant and not zero (a quadratic potential).
+        "constant_stiffness": separable and all_zero(["force_q_dtqv"]) and not all_zero(["force_q"]),
     }
     for key, holds in facts.items():
         claimed = bool(claims.get(key))

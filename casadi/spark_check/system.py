@@ -159,6 +159,7 @@ class CasadiSystem:
         # Quantities the structure-fact check needs.
         mass = self.sym["mass_matrix"]
         self.sym["mass_matrix_dtqv"] = ca.jacobian(ca.vec(mass), ca.vertcat(t, q, v))
+        self.sym["force_q_dtqv"] = ca.jacobian(ca.vec(self.sym["force_q"]), ca.vertcat(t, q, v))
         self.sym["constraint_v_v"] = ca.jacobian(ca.vec(self.k_v), v)
         self.sym["constraint_at_zero_velocity"] = ca.substitute(self.k, v, ca.SX.zeros(n))
         names = list(self.sym)

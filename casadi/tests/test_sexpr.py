@@ -135,12 +135,35 @@ class Structure(unittest.TestCase):
         honest = {"lagrangian_autonomous": False, "constraints_autonomous": False, "constant_mass_matrix": False,
                   "separable": False, "constraint_form": "Nonlinear"}
         self.assertEqual(self.run_check(honest).structure_failures, [])
-        for key in ("lagrangian_autonomous", "constraints_autonomous", "constant_mass_matrix", "separable"):
+        for key in ("lagrangian_autonomous", "constraints_autonomous", "constant_mass_matrix", "separable",
+                    "constant_stiffness"):
             with self.subTest(key=key):
                 self.assertEqual(len(self.run_check(dict(honest, **{key: True})).structure_failures), 1)
         for form in ("None", "Linear", "Affine"):
             with self.subTest(form=form):
                 self.assertEqual(len(self.run_check(dict(honest, constraint_form=form)).structure_failures), 1)
+
+    def test_a_quadratic_potential_has_a_constant_stiffness(self):
+        from spark_check import compare
+
+        source = {
+            "name": "Spring",
+            "coordinates": ["x", "y"],
+            "parameters": [],
+            "lagrangian": "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2))) (+ (^ (q x) 2) (* (q x) (q y))))",
+            "constraints": ["(- (v y) (* (q x) (v x)))"],
+        }
+        system = CasadiSystem(source)
+        values = [{k: np.array(v) for k, v in system.evaluate(0.3, [0.1, 0.2], [0.3, -0.4], [], [0.5]).items()}]
+        honest = {"lagrangian_autonomous": True, "constraints_autonomous": True, "constant_mass_matrix": True,
+                  "separable": True, "constraint_form": "Linear", "constant_stiffness": True}
+        result = compare.SystemResult("t", 2, 1, 1, 0)
+        compare.check_structure(system, honest, values, result)
+        self.assertEqual((result.structure_failures, result.structure_notes), ([], []))
+        result = compare.SystemResult("t", 2, 1, 1, 0)
+        compare.check_structure(system, dict(honest, constant_stiffness=False), values, result)
+        self.assertEqual(len(result.structure_notes), 1)
+        self.assertIn("constant_stiffness", result.structure_notes[0])
 
 
 class Steps(unittest.TestCase):

@@ -204,6 +204,7 @@ where
         source: SourceExport::of::<S, N, M>(),
         parameter_values: system.parameter_values(),
         structure: S::STRUCTURE,
+        constant_stiffness: S::CONSTANT_STIFFNESS,
         operations: S::OPERATIONS,
         effects: EffectsExport::of::<S, N, M>(),
         points,

@@ -87,6 +87,9 @@ pub struct SystemExport {
     pub parameter_values: Vec<f64>,
     /// Structure facts the generator claims (the Python side checks them).
     pub structure: Structure,
+    /// `CONSTANT_STIFFNESS`: the generator's claim that `∂(∇_q L)/∂q` is a
+    /// nonzero constant (checked beside the structure facts).
+    pub constant_stiffness: bool,
     /// Operation counts of the generated code.
     pub operations: OperationCounts,
     /// Which optional effects the trait implementation declares.
