@@ -9,7 +9,9 @@
 //! own: its warm start, energy anchor, round-off compensation and Newton
 //! options belong to it alone. Where a member's next step takes the path
 //! the kernel repeats — simplified Newton on the stage-decoupled matrix of
-//! a system with a constant mass matrix, warm-started by extrapolation, the
+//! a system with a constant mass matrix (and, for a constant stiffness, a
+//! diagonal one, whose stage couplings the kernel keeps coordinate by
+//! coordinate as the steppers do), warm-started by extrapolation, the
 //! path of every step but the first two of an ensemble like Fig. 8.4's —
 //! the kernel takes it, with the same operations in the same order; any
 //! other step, and any step in which the stepper would decide something

@@ -36,7 +36,11 @@ pub enum Jacobian {
     /// between the velocity unknowns of different stages dropped and each
     /// stage's own velocity block replaced by its mass matrix, eliminated down
     /// to an `S·M × S·M` Schur complement in the multipliers (see
-    /// `linalg/decoupled.rs` in the crate source). The step
+    /// `linalg/decoupled.rs` in the crate source). For a system with a
+    /// constant stiffness ([`NonholonomicSystem::CONSTANT_STIFFNESS`], a
+    /// quadratic potential) and a constant mass matrix it keeps the
+    /// couplings that stiffness makes between stages, factored once per step
+    /// size. The step
     /// switches to [`Jacobian::Exact`] when the iteration contracts slower
     /// than 1/8 per update or the decoupled matrix is singular, and stays on
     /// the exact matrix for the next 32 steps.
