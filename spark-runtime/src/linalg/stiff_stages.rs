@@ -11,15 +11,17 @@
 //! `W_cc I − h² F_q,cc ÂA` per coordinate, kept as its inverse (an
 //! `S × S` product per coordinate and solve; a coordinate without stiffness
 //! is its reciprocal mass); otherwise `T` is one dense LU, used up to
-//! `S·N = DENSE_MAX` (beyond it a refactorization at every change of `h`
-//! would cost more than the updates it saves, and the couplings are dropped
-//! as for any other system).
+//! `S·N = DENSE_MAX`. Beyond it the couplings are dropped as for any other
+//! system: a run whose `h` changes at every step (error control) factors
+//! `T` at every step, `⅔(S·N)³` flops, where the dropped form's refresh
+//! costs a few products of `S·N·M` (the per-coordinate form's factors cost
+//! `N·S³`).
 
 use super::{factor_runtime, solve_runtime, Singular};
 use crate::tableau::Tableau;
 
 /// The largest `S·N` for which a non-diagonal `T` is kept as a dense LU.
-pub(crate) const DENSE_MAX: usize = 64;
+pub(crate) const DENSE_MAX: usize = 16;
 
 /// The stage blocks of a constant stiffness (see the module docs); empty
 /// storage when the system has none.
