@@ -47,9 +47,10 @@ impl NewtonPath {
 }
 
 /// Floating-point operations of one step that makes `iterations` updates
-/// and `factorizations` factorizations on `path`, counted from the
-/// algorithm (`n`, `m`, `s`, `D = s(n+m)+n`, `V`, `J` the operations of the
-/// generated `stage_values` and `stage_jacobians`):
+/// and `factorizations` factorizations on `path` for `Sys` with `S`
+/// stages, counted from the algorithm (`n`, `m`, `s`, `D = s(n+m)+n`, `V`,
+/// `J` the operations of the generated `stage_values` and
+/// `stage_jacobians`):
 ///
 /// - every update evaluates the residual: `(s+1)·V` at the stage points and
 ///   the end point, `2s(s+1)n` to form the stage points and `4s(s+1)n` for
@@ -64,19 +65,22 @@ impl NewtonPath {
 ///   constraint blocks and the Schur complement (`2s²(s+1)nm²`) and factors
 ///   it (`⅔(sm)³`); an update costs `(s+1)n` for `W⁻¹`, `4s(s+1)nm` for the
 ///   two block products and `2(sm)²` for the Schur solve. With a kept
-///   constant stiffness (`stiff`) the stage blocks are solved instead with
-///   one `s × s` inverse per coordinate (`2s²n`, counting every coordinate
-///   as stiff) and the end row's coupling (`2sn²`), in each update and for
-///   each of the `sm` columns of `W⁻¹Kᵀ`.
-pub fn flops_per_step(
+///   constant stiffness (`CONSTANT_STIFFNESS`, counted in its
+///   per-coordinate form with every coordinate stiff) an update solves the
+///   stage blocks with one `s × s` inverse per coordinate and forms the end
+///   row's coupling (`2s²n + 2sn + n`), and a factorization forms
+///   `A⁻¹Kᵀ` from the kept coefficients (`s(s+1)nm`).
+pub fn flops_per_step<Sys, const N: usize, const M: usize, const S: usize>(
     path: NewtonPath,
-    stiff: bool,
-    (n, m, s): (usize, usize, usize),
-    (values, jacobians): (usize, usize),
     iterations: f64,
     factorizations: f64,
-) -> f64 {
-    let (n, m, s) = (n as f64, m as f64, s as f64);
+) -> f64
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let (values, jacobians) = (Sys::OPERATIONS.stage_values, Sys::OPERATIONS.stage_jacobians);
+    let stiff = Sys::CONSTANT_STIFFNESS;
+    let (n, m, s) = (N as f64, M as f64, S as f64);
     let d = s * (n + m) + n;
     let residual = (s + 1.0) * values as f64 + 6.0 * s * (s + 1.0) * n;
     let (factor, solve) = match path {
@@ -87,8 +91,7 @@ pub fn flops_per_step(
             let sm = s * m;
             // `W⁻¹` of one vector of all points, and of the `sm` columns of `Kᵀ`.
             let (velocity, columns) = if stiff {
-                let w = 2.0 * s * s * n + 2.0 * s * n * n + n;
-                (w, sm * w)
+                (2.0 * s * s * n + 2.0 * s * n + n, s * (s + 1.0) * n * m)
             } else {
                 ((s + 1.0) * n, 2.0 * s * (s + 1.0) * n * m)
             };

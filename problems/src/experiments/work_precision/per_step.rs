@@ -144,15 +144,7 @@ where
     let mut counting = Stepper::<Sys, N, M, S, D>::new(Sys::default(), tableau).with_options(opts);
     let (iterations, factorizations) = newton_work(&mut counting, State::new(0.0, q0, v0), h, steps)
         .map_err(|e| format!("{} {label}: {e}", entry.name))?;
-    let ops = Sys::OPERATIONS;
-    let flops = flops_per_step(
-        path,
-        Sys::CONSTANT_STIFFNESS,
-        (N, M, S),
-        (ops.stage_values, ops.stage_jacobians),
-        iterations,
-        factorizations,
-    );
+    let flops = flops_per_step::<Sys, N, M, S>(path, iterations, factorizations);
     Ok(SparkRun {
         time_per_step: cpu / steps as f64,
         iterations: traj.report.newton_iterations_mean,

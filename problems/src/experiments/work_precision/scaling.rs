@@ -133,14 +133,7 @@ where
         let (iterations, factorizations) =
             newton_work(&mut stepper::<Sys, N, M, S, D>(path)?, State::new(0.0, q0, v0), h, steps).ok()?;
         let time_per_step = timed::<Sys, N, M, S, D>(path, repeats)?;
-        let flops = flops_per_step(
-            path,
-            Sys::CONSTANT_STIFFNESS,
-            (N, M, S),
-            (ops.stage_values, ops.stage_jacobians),
-            iterations,
-            factorizations,
-        );
+        let flops = flops_per_step::<Sys, N, M, S>(path, iterations, factorizations);
         paths.push(PathRun {
             path,
             time_per_step,
