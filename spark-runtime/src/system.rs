@@ -232,6 +232,15 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     const SOURCE: SystemSource;
     /// Operation counts of the generated code (zero for hand-written systems).
     const OPERATIONS: OperationCounts;
+    /// A structure fact beside [`STRUCTURE`](Self::STRUCTURE):
+    /// `L` is separable and its stiffness `∂(∇_q L)/∂q` is a constant matrix,
+    /// not identically zero (a quadratic potential; the matrix may depend on
+    /// parameters). The stage-decoupled Newton matrix then keeps the
+    /// couplings between stages that this matrix makes, instead of dropping
+    /// them with the other `O(h²)` terms; `nonholonomic_system!` proves it.
+    /// A wrong `true` costs convergence speed, never accuracy: the matrix
+    /// only steers the iteration.
+    const CONSTANT_STIFFNESS: bool = false;
 
     /// Current values of the runtime parameters, in the order of
     /// [`SystemSource::parameters`].
@@ -368,15 +377,6 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     }
 
     // ---- Optional effects (all default to "absent"; see the module docs). ----
-
-    /// `L` is separable and its stiffness `∂(∇_q L)/∂q` is a constant matrix,
-    /// not identically zero (a quadratic potential; the matrix may depend on
-    /// parameters). The stage-decoupled Newton matrix then keeps the
-    /// couplings between stages that this matrix makes, instead of dropping
-    /// them with the other `O(h²)` terms; `nonholonomic_system!` proves it.
-    /// A wrong `true` costs convergence speed, never accuracy: the matrix
-    /// only steers the iteration.
-    const CONSTANT_STIFFNESS: bool = false;
 
     /// The system has an external generalized force `f(t,q,v)`
     /// ([`external_force`](Self::external_force)). When `false` the stepper

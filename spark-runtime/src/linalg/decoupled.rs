@@ -225,17 +225,13 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         // with the stiffness kept, X = A⁻¹ B of the coupled blocks instead.
         let nm = N * M;
         for l in 0..S {
-            if self.coupled {
-                let mut kt = self.constraint_v[l].transpose();
-                if let Some(np) = nonideal_psi {
-                    kt -= &np[l];
-                }
-                self.coupled_columns(tab, l, &kt);
-                continue;
-            }
             let mut kt = self.constraint_v[l].transpose();
             if let Some(np) = nonideal_psi {
                 kt -= &np[l];
+            }
+            if self.coupled {
+                self.coupled_columns(tab, l, &kt);
+                continue;
             }
             if self.shared {
                 for col in kt.as_mut_slice().chunks_exact_mut(N) {
