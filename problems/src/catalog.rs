@@ -150,6 +150,8 @@ pub struct SystemEntry {
     pub m: usize,
     /// Structure facts proved by the macro (or declared by hand).
     pub structure: Structure,
+    /// `CONSTANT_STIFFNESS` (a quadratic potential).
+    pub constant_stiffness: bool,
     /// Optional effects.
     pub effects: Effects,
     /// Coordinate names.
@@ -397,6 +399,7 @@ macro_rules! catalog {
             n: $n,
             m: $m,
             structure: <$ty as NonholonomicSystem<$n, $m>>::STRUCTURE,
+            constant_stiffness: <$ty as NonholonomicSystem<$n, $m>>::CONSTANT_STIFFNESS,
             effects: Effects {
                 forcing: <$ty as NonholonomicSystem<$n, $m>>::HAS_FORCING,
                 nonideal: <$ty as NonholonomicSystem<$n, $m>>::HAS_NONIDEAL_FORCE,

@@ -19,6 +19,9 @@ def test_every_registered_system_is_listed_with_its_facts():
     assert skate.coordinates == ["x", "y", "theta"]
     assert set(skate.parameters) == {"m", "inertia", "g", "beta"}
     assert skate.structure["constraint_form"] == "linear"
+    # The particle's potential q₁² + q₂² is quadratic; the skate's is linear.
+    assert spark.system("particle").structure["constant_stiffness"]
+    assert not skate.structure["constant_stiffness"]
     assert skate.effects == {"forcing": False, "nonideal": False, "holonomic": False}
     assert spark.system("rod-pendulum").effects["holonomic"]
     keys = [m[0] for m in spark.methods()]

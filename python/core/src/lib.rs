@@ -412,6 +412,8 @@ pub struct SystemFacts {
     pub parameter_values: Vec<f64>,
     /// Structure facts.
     pub structure: Structure,
+    /// `CONSTANT_STIFFNESS`: a quadratic potential.
+    pub constant_stiffness: bool,
     /// External force `f(t, q, v)`.
     pub forcing: bool,
     /// Non-ideal constraint force.
@@ -432,6 +434,7 @@ impl SystemFacts {
             m: M,
             parameter_values: Sys::default().parameter_values(),
             structure: Sys::STRUCTURE,
+            constant_stiffness: Sys::CONSTANT_STIFFNESS,
             forcing: Sys::HAS_FORCING,
             nonideal: Sys::HAS_NONIDEAL_FORCE,
             holonomic: Sys::HAS_HOLONOMIC,
@@ -467,6 +470,7 @@ pub fn facts_to_py<'py>(py: Python<'py>, facts: &SystemFacts) -> PyResult<Bound<
     st.set_item("constraints_autonomous", s.constraints_autonomous)?;
     st.set_item("constant_mass_matrix", s.constant_mass_matrix)?;
     st.set_item("separable", s.separable)?;
+    st.set_item("constant_stiffness", facts.constant_stiffness)?;
     st.set_item(
         "constraint_form",
         match s.constraint_form {
