@@ -42,7 +42,7 @@
 //! a step allocates nothing, and no `N × N` value goes on the stack.
 
 use super::stiff_stages::StiffStages;
-use super::{column_scales, factor_in_place, factor_runtime, solve_in_place, solve_runtime, Singular};
+use super::{column_scales, factor_in_place, factor_runtime, is_diagonal, solve_in_place, solve_runtime, Singular};
 use crate::system::{Matrix, StageJacobians, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 
@@ -119,7 +119,7 @@ pub(crate) fn factor_mass<const N: usize>(
     lu: &mut [f64],
     perm: &mut [usize],
 ) -> Result<bool, Singular> {
-    if !(0..N * N).all(|k| k % (N + 1) == 0 || mass[k] == 0.0) {
+    if !is_diagonal::<N>(mass) {
         DecoupledMatrix::<N, 0, 1>::factor_block(lu, perm, mass)?;
         return Ok(false);
     }

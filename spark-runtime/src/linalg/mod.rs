@@ -30,6 +30,12 @@ pub(crate) use padded_lu::PaddedLu;
 
 use crate::system::Vector;
 
+/// Whether the `N × N` column-major matrix `m` is diagonal (every
+/// off-diagonal entry zero).
+pub(crate) fn is_diagonal<const N: usize>(m: &[f64]) -> bool {
+    (0..N * N).all(|k| k % (N + 1) == 0 || m[k] == 0.0)
+}
+
 /// A pivot that is zero or negligible relative to its column's magnitude.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Singular {

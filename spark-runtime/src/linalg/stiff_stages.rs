@@ -17,7 +17,7 @@
 //! costs a few products of `S·N·M` (the per-coordinate form's factors cost
 //! `N·S³`).
 
-use super::{factor_runtime, solve_runtime, Singular};
+use super::{factor_runtime, is_diagonal, solve_runtime, Singular};
 use crate::tableau::Tableau;
 
 /// The largest `S·N` for which a non-diagonal `T` is kept as a dense LU.
@@ -118,9 +118,8 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
             self.end_coupling[k] = h2 * (0..S).map(|j| tab.b_hat[j] * tab.a[j][k]).sum::<f64>();
         }
         let fq = &self.stiffness;
-        let diagonal = |m: &[f64]| (0..N * N).all(|k| k % (N + 1) == 0 || m[k] == 0.0);
         // The per-coordinate blocks live in fixed arrays of 8 × 8.
-        self.by_coordinate = S <= 8 && diagonal(w) && diagonal(fq);
+        self.by_coordinate = S <= 8 && is_diagonal::<N>(w) && is_diagonal::<N>(fq);
         if self.by_coordinate {
             let mut block = [0.0; 64];
             let (mut perm, mut scale) = ([0usize; 8], [0.0; 8]);
