@@ -173,7 +173,8 @@ use proc_macro::TokenStream;
 /// The struct with one `pub f64` field per parameter, `Default` (the
 /// declared defaults), `new()`, the constants `N` and `M`, and the
 /// `NonholonomicSystem<N, M>` implementation, including the structure facts
-/// the macro proved (`STRUCTURE`), the source expressions in neutral text
+/// the macro proved (`STRUCTURE`, and `CONSTANT_STIFFNESS` for a quadratic
+/// potential), the source expressions in neutral text
 /// (`SOURCE`) and the operation counts (`OPERATIONS`). See the expansion of a
 /// declaration with
 /// `cargo run -p spark-symbolic --example expand -- <file.rs> <StructName>`.

@@ -42,7 +42,11 @@ pub fn list_table() -> String {
             constraint_text(e),
             if e.structure.lagrangian_autonomous { "no" } else { "yes" },
             if e.structure.constant_mass_matrix { "const" } else { "q,v" },
-            if e.structure.separable { "yes" } else { "no" },
+            match (e.structure.separable, e.constant_stiffness) {
+                (true, true) => "quad",
+                (true, false) => "yes",
+                (false, _) => "no",
+            },
             e.effects_text(),
             if e.operations.stage_jacobians == 0 {
                 "hand".to_string()
@@ -55,7 +59,8 @@ pub fn list_table() -> String {
     }
     let _ = writeln!(
         s,
-        "\n(L(t): Lagrangian depends on t; mass: ∇²_vv L constant or not; sep.: L = T(v) − U(q); \
+        "\n(L(t): Lagrangian depends on t; mass: ∇²_vv L constant or not; sep.: L = T(v) − U(q), \
+         `quad` with U quadratic (a constant stiffness); \
          ops: operations of the generated stage_jacobians, `hand` for hand-written types)\n"
     );
     for e in entries() {
