@@ -16,6 +16,10 @@
 //! - `lanes/mp7/ensemble-2-threads`: [`integrate_ensemble`] on a pool of
 //!   two threads, by wall time.
 //!
+//! The same one-core cases for eight members of the paper's particle
+//! (`particle`, `n = 3`, `h = 0.2`), whose quadratic potential the
+//! stage-decoupled matrix and the kernel keep (`CONSTANT_STIFFNESS`).
+//!
 //! Run with `cargo bench -p spark-benches --bench lanes`.
 
 use criterion::measurement::WallTime;
@@ -44,6 +48,14 @@ fn tableau() -> Tableau<2> {
     Tableau::new(Method::LobattoIIIAB).unwrap()
 }
 
+/// Eight particle members: `q₀ = (1, 0, 0)`, `v₀ = (0, 1 + 0.05 j, 0)`
+/// (consistent: `k = v₃ − q₂ v₁`).
+fn particle_starts() -> Vec<State<3>> {
+    (0..MEMBERS)
+        .map(|j| State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0 + 0.05 * j as f64, 0.0)))
+        .collect()
+}
+
 fn starts() -> Vec<State<7>> {
     let q0 = Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
     (0..MEMBERS)
@@ -67,23 +79,35 @@ nonholonomic_system! {
     }
 }
 
-fn one_core(c: &mut C) {
-    one_core_for(c, "mp7", Mp7::default());
-    one_core_for(c, "mp7-hand-written", MpParticles);
+nonholonomic_system! {
+    /// The paper's nonholonomic particle (`problems`' `NonholonomicParticle`).
+    pub struct Particle {
+        coordinates: [x, y, z],
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2),
+        constraints: [ dot(z) - y*dot(x) ],
+    }
 }
 
-fn one_core_for<Sys: NonholonomicSystem<7, 1> + Clone>(c: &mut C, system: &str, sys: Sys) {
-    let starts = starts();
+fn one_core(c: &mut C) {
+    one_core_for::<_, 7, 23>(c, "mp7", Mp7::default(), &starts(), H);
+    one_core_for::<_, 7, 23>(c, "mp7-hand-written", MpParticles, &starts(), H);
+    one_core_for::<_, 3, 11>(c, "particle", Particle::default(), &particle_starts(), 0.2);
+}
+
+fn one_core_for<Sys, const N: usize, const D: usize>(c: &mut C, system: &str, sys: Sys, starts: &[State<N>], h: f64)
+where
+    Sys: NonholonomicSystem<N, 1> + Clone,
+{
     let mut steppers: Vec<_> =
-        (0..MEMBERS).map(|_| Stepper::<_, 7, 1, 2, 23>::new(sys.clone(), tableau()).with_options(options())).collect();
+        (0..MEMBERS).map(|_| Stepper::<_, N, 1, 2, D>::new(sys.clone(), tableau()).with_options(options())).collect();
     c.bench_function(&format!("lanes/{system}/sequential"), |b| {
         b.iter(|| {
             let mut acc = 0.0;
-            for (st, start) in steppers.iter_mut().zip(&starts) {
+            for (st, start) in steppers.iter_mut().zip(starts) {
                 st.reset_warm_start();
                 let mut s = *start;
                 for _ in 0..STEPS {
-                    s = st.step(&s, H).unwrap().state;
+                    s = st.step(&s, h).unwrap().state;
                 }
                 acc += s.q[0];
             }
@@ -91,12 +115,12 @@ fn one_core_for<Sys: NonholonomicSystem<7, 1> + Clone>(c: &mut C, system: &str, 
         })
     });
     let mut groups: Vec<_> =
-        (0..2).map(|_| LaneStepper::<_, 7, 1, 2, 23, 4>::new(sys.clone(), tableau(), options())).collect();
+        (0..2).map(|_| LaneStepper::<_, N, 1, 2, D, 4>::new(sys.clone(), tableau(), options())).collect();
     c.bench_function(&format!("lanes/{system}/lanes-4x2"), |b| {
         b.iter(|| {
             let mut acc = 0.0;
             for (lanes, chunk) in groups.iter_mut().zip(starts.chunks(4)) {
-                lanes.start(chunk, H).unwrap();
+                lanes.start(chunk, h).unwrap();
                 lanes.advance_by(STEPS);
                 acc += lanes.state(0).unwrap().q[0];
             }
@@ -104,11 +128,11 @@ fn one_core_for<Sys: NonholonomicSystem<7, 1> + Clone>(c: &mut C, system: &str, 
         })
     });
     for (case, kernel) in [("lanes-8", true), ("lanes-8-without-kernel", false)] {
-        let lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(sys.clone(), tableau(), options());
+        let lanes = LaneStepper::<_, N, 1, 2, D, 8>::new(sys.clone(), tableau(), options());
         let mut lanes = if kernel { lanes } else { lanes.without_kernel() };
         c.bench_function(&format!("lanes/{system}/{case}"), |b| {
             b.iter(|| {
-                lanes.start(&starts, H).unwrap();
+                lanes.start(starts, h).unwrap();
                 lanes.advance_by(STEPS);
                 black_box(lanes.state(0).unwrap().q[0])
             })
