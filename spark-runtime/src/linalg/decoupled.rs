@@ -41,7 +41,7 @@
 //! Every array is allocated once, on the heap, by [`DecoupledMatrix::new`]:
 //! a step allocates nothing, and no `N × N` value goes on the stack.
 
-use super::stiff_stages::StiffStages;
+use super::stiff_stages::{StiffStages, DENSE_MAX};
 use super::{column_scales, factor_in_place, factor_runtime, is_diagonal, solve_in_place, solve_runtime, Singular};
 use crate::system::{Matrix, StageJacobians, Vector};
 use crate::tableau::{ConditionRows, Tableau};
@@ -85,7 +85,7 @@ pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize
     factored: bool,
     /// The stage blocks of a constant stiffness (empty storage unless the
     /// system declares `CONSTANT_STIFFNESS`), and a scratch vector of `S·N`
-    /// for the columns of `T⁻¹ B`.
+    /// for the columns of `T⁻¹ B` in their dense form.
     stiff: StiffStages<N, S>,
     coupled_rhs: Box<[f64]>,
     /// The latest factorization keeps the stiffness couplings (a shared
@@ -143,7 +143,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// stiffness.
     pub(crate) fn new(keep_stiffness: bool) -> Self {
         let sm = Self::SM;
-        let sn = if keep_stiffness { S * N } else { 0 };
+        let sn = if keep_stiffness && S * N <= DENSE_MAX { S * N } else { 0 };
         DecoupledMatrix {
             w: vec![0.0; (S + 1) * N * N].into_boxed_slice(),
             w_perm: vec![0; (S + 1) * N].into_boxed_slice(),

@@ -87,8 +87,7 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         self.set = true;
     }
 
-    /// Forgets the stiffness and the factors (the system or its mass matrix
-    /// changed).
+    /// Forgets the stiffness and the factors (the system changed).
     pub(crate) fn invalidate(&mut self) {
         self.set = false;
         self.h = f64::NAN;

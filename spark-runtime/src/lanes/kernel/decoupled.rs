@@ -55,7 +55,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // X[i][l] = coef_il · W⁻¹ K_lᵀ.
         let kt = &mut self.kt;
         for l in 0..S {
-            if let Some(g) = self.stiff.columns().filter(|_| self.coupled) {
+            if let Some(g) = self.stiff.columns() {
                 // A constant stiffness by coordinate: X[i][l][n, e] = g[n][l][i] · K_l[e, n].
                 for i in 0..=S {
                     for e in 0..M {
@@ -213,7 +213,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // `y = W⁻¹ g` on the momentum rows, `g` on the constraint rows: a
         // diagonal mass matrix scales as it copies.
         match &self.mass {
-            MassSolve::Diagonal(r) if self.coupled => {
+            MassSolve::Diagonal(r) if self.stiff.columns().is_some() => {
                 // The stage blocks of a constant stiffness and the end row,
                 // lane by lane with the steppers' own solve.
                 let col = &mut self.stiff_column;

@@ -114,10 +114,9 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     mass: MassSolve,
     h: f64,
     /// The stage blocks of a constant stiffness, made as the steppers make
-    /// them (`linalg::stiff_stages`), whether they are kept, and one lane's
-    /// velocity rows for their solve.
+    /// them (`linalg::stiff_stages`; kept exactly when their per-coordinate
+    /// coefficients exist), and one lane's velocity rows for their solve.
     stiff: StiffStages<N, S>,
-    coupled: bool,
     stiff_column: Box<[f64]>,
     /// Which lanes the kernel holds.
     held: [bool; W],
@@ -206,7 +205,6 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             mass,
             h,
             stiff,
-            coupled,
             stiff_column: vec![0.0; (S + 1) * N].into_boxed_slice(),
             held: [false; W],
             q: fixed(),
