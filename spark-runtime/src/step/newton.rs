@@ -78,6 +78,9 @@ pub struct NewtonOptions {
     /// the Gauss step polynomial, see [`warm_start`](Self::warm_start)): the
     /// velocities' increments `V_i − v₀`, `v₁ − v₀` and the multipliers,
     /// from the latest `degree + 1` steps (fewer at the start of a chain).
+    /// Default 3: at the paper's step sizes it takes up to 0.7 fewer
+    /// stage-decoupled updates per step than degree 2 (docs/performance,
+    /// "The starting guess").
     pub extrapolation_degree: usize,
     /// Energy guard: when the structure facts make `E` a first integral
     /// (autonomous `L`, constraints absent or linear homogeneous in `v` —
@@ -148,7 +151,7 @@ impl Default for NewtonOptions {
             stagnation_level: 1e-12,
             max_iterations: 20,
             warm_start: true,
-            extrapolation_degree: 2,
+            extrapolation_degree: 3,
             reuse_factorization: default_reuse(),
             energy_drift_limit: default_energy_drift_limit(),
             consistency_tolerance: default_consistency_tolerance(),
