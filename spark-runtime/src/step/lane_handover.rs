@@ -36,8 +36,11 @@ pub(crate) struct LaneContinuation<const N: usize, const D: usize> {
     /// How many of `past` hold solutions (at least 2 for the kernel).
     pub(crate) depth: usize,
     /// The largest ratio of consecutive updates the latest step earned on
-    /// the stage-decoupled matrix (NaN for none): the next step's prior.
-    pub(crate) rate: f64,
+    /// its final factors (NaN for none), and whether those were the
+    /// stage-decoupled matrix's: the next step's prior (`Warm::rate`). A
+    /// step handed back can end on the exact matrix, where the prior of an
+    /// exact-matrix step is the floor, as in the member's stepper alone.
+    pub(crate) rate: (f64, bool),
 }
 
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
@@ -85,16 +88,22 @@ where
         }
         let (w, c) = (self.warm.as_ref()?, self.compensation.as_ref()?);
         let past = std::array::from_fn(|k| if k < w.depth { *w.back(k) } else { Vector::zeros() });
-        let rate = if w.rate.1 { w.rate.0 } else { f64::NAN };
-        Some(LaneContinuation { end: *state, h, carry: c.carry, anchor: self.anchor, past, depth: w.depth, rate })
+        Some(LaneContinuation {
+            end: *state,
+            h,
+            carry: c.carry,
+            anchor: self.anchor,
+            past,
+            depth: w.depth,
+            rate: w.rate,
+        })
     }
 
     /// Takes over a continuation the lane kernel built: the next step from
     /// `c.end` computes exactly what it would had this stepper taken the
     /// kernel's steps itself.
     pub(crate) fn resume_lane(&mut self, c: &LaneContinuation<N, D>) {
-        self.warm =
-            Some(Warm { h: c.h, end: c.end, past: c.past, head: 0, depth: c.depth.min(PAST), rate: (c.rate, true) });
+        self.warm = Some(Warm { h: c.h, end: c.end, past: c.past, head: 0, depth: c.depth.min(PAST), rate: c.rate });
         self.compensation = Some(Compensation { end: c.end, carry: c.carry });
         self.anchor = c.anchor;
         self.reusable = None;

@@ -163,9 +163,12 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// The starting guess of Gauss steps (`Stepper`'s, from the same tableau).
     step_polynomial: Option<StepPolynomial<S>>,
     /// Each lane's prior for its contraction estimate: the largest ratio
-    /// its latest step earned (`Warm::rate`), and what the step being
-    /// committed earned.
+    /// its latest step earned and whether on the stage-decoupled matrix
+    /// (`Warm::rate`; the kernel's own steps always are, a step its stepper
+    /// took may have ended on the exact matrix, whose prior goes back with
+    /// the lane), and what the step being committed earned.
     rate: L<W>,
+    rate_decoupled: [bool; W],
     solved_rate: L<W>,
 }
 
@@ -232,6 +235,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             kt: lanes(N * M),
             step_polynomial: StepPolynomial::new(tab),
             rate: [f64::NAN; W],
+            rate_decoupled: [false; W],
             solved_rate: [f64::NAN; W],
         })
     }
@@ -255,7 +259,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         self.anchor[w] = c.anchor;
         self.at_anchor[w] = c.anchor.is_some_and(|a| a.end.q == c.end.q && a.end.v == c.end.v);
-        self.rate[w] = c.rate;
+        (self.rate[w], self.rate_decoupled[w]) = c.rate;
         (self.head[w], self.depth[w], self.held[w]) = (0, c.depth, true);
     }
 
@@ -279,7 +283,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             anchor: self.anchor[w],
             past,
             depth: self.depth[w],
-            rate: self.rate[w],
+            rate: (self.rate[w], self.rate_decoupled[w]),
         }
     }
 
@@ -364,7 +368,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
-        let mut monitor: [Contraction; W] = std::array::from_fn(|w| Contraction::fresh(self.rate[w]));
+        // The prior of the stage-decoupled matrix only, as in `Stepper::newton`.
+        let mut monitor: [Contraction; W] =
+            std::array::from_fn(|w| Contraction::fresh(if self.rate_decoupled[w] { self.rate[w] } else { f64::NAN }));
         let mut prev_update = [f64::NAN; W];
         for k in 0..max_iter {
             self.stage_points(tab);
@@ -557,7 +563,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             kept[w] = true;
             self.head[w] = (self.head[w] + PAST - 1) % PAST;
             self.depth[w] = (self.depth[w] + 1).min(PAST);
-            self.rate[w] = self.solved_rate[w];
+            (self.rate[w], self.rate_decoupled[w]) = (self.solved_rate[w], true);
         }
         // The kept lanes' new state and carry (the stepper's TwoSum), and
         // their solutions into the ring: whole rows where every kept lane
