@@ -299,24 +299,31 @@ fn mp_particles_in_lanes_match_the_driver() {
 /// to the exact matrix for a while), and the energy guard is tight enough
 /// to refuse some members. Every lane still matches its member alone, bit
 /// for bit, and the kernel took some of the steps and not all. Both
-/// starting guesses: Gauss s = 2's step polynomial and Lobatto IIIA-B's
-/// extrapolation across steps, where a step handed back right after the
-/// stepper's own steps on the exact matrix carries their prior.
+/// starting guesses: extrapolation across steps (Gauss s = 2, Lobatto
+/// IIIA-B s = 2), where a step handed back right after the stepper's own
+/// steps on the exact matrix carries their prior, and Gauss s = 3's step
+/// polynomial.
 #[test]
 fn lanes_the_kernel_hands_back_match_each_member_alone() {
-    let starts = mp_starts(6);
-    for method in [Method::Gauss, Method::LobattoIIIAB] {
-        let tab = Tableau::<2>::new(method).unwrap();
-        for (h, steps) in [(0.6, 120), (0.45, 200)] {
-            let runs = compare::<_, 7, 1, 2, 23>(MpParticles, method, fig84(), &starts, h, steps, 10);
-            let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 4>::new(MpParticles, tab, fig84());
+    fn handed_back<const S: usize, const D: usize>(method: Method, starts: &[State<7>], runs: &[(f64, usize)]) {
+        let tab = Tableau::<S>::new(method).unwrap();
+        for &(h, steps) in runs {
+            let runs = compare::<_, 7, 1, S, D>(MpParticles, method, fig84(), starts, h, steps, 10);
+            let mut lanes = LaneStepper::<_, 7, 1, S, D, 4>::new(MpParticles, tab, fig84());
             lanes.start(&starts[..4], h).unwrap();
             lanes.advance_by(steps);
             let kernel: usize = (0..4).map(|j| lanes.kernel_steps(j).unwrap()).sum();
             let stepped: usize = runs[..4].iter().map(|r| r.steps).sum();
-            assert!(kernel > 0 && kernel + 8 < stepped, "{method:?}, h = {h}: kernel took {kernel} of {stepped} steps");
+            assert!(
+                kernel > 0 && kernel + 8 < stepped,
+                "{method:?} s = {S}, h = {h}: kernel took {kernel} of {stepped}"
+            );
         }
     }
+    let starts = mp_starts(6);
+    handed_back::<2, 23>(Method::Gauss, &starts, &[(0.6, 120), (0.45, 200)]);
+    handed_back::<2, 23>(Method::LobattoIIIAB, &starts, &[(0.6, 120), (0.45, 200)]);
+    handed_back::<3, 31>(Method::Gauss, &starts, &[(0.6, 120), (0.75, 100)]);
     let guard = NewtonOptions { energy_drift_limit: Some(1e-9), ..fig84() };
     let runs = compare::<_, 7, 1, 2, 23>(MpParticles, Method::LobattoIIIAB, guard, &starts, 0.05, 300, 25);
     assert!(runs.iter().any(|r| matches!(r.failure, Some(LaneFailure { error: StepError::EnergyDrift { .. }, .. }))));

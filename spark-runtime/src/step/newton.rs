@@ -68,7 +68,7 @@ pub struct NewtonOptions {
     /// Iteration limit (at most [`HISTORY_CAPACITY`]).
     pub max_iterations: usize,
     /// Start from the previous steps when the new step continues them —
-    /// for Gauss methods with `s ≥ 2` the polynomial through the previous
+    /// for Gauss methods with `s ≥ 3` the polynomial through the previous
     /// step's velocities `v₀, V₁…V_s, v₁`, for the other methods the
     /// extrapolation of the previous solutions — otherwise from the
     /// consistent acceleration at `(t₀, q₀, v₀)`.
