@@ -305,9 +305,9 @@ fn mp_particles_in_lanes_match_the_driver() {
 /// polynomial.
 #[test]
 fn lanes_the_kernel_hands_back_match_each_member_alone() {
-    fn handed_back<const S: usize, const D: usize>(method: Method, starts: &[State<7>], runs: &[(f64, usize)]) {
+    fn handed_back<const S: usize, const D: usize>(method: Method, starts: &[State<7>], sizes: &[(f64, usize)]) {
         let tab = Tableau::<S>::new(method).unwrap();
-        for &(h, steps) in runs {
+        for &(h, steps) in sizes {
             let runs = compare::<_, 7, 1, S, D>(MpParticles, method, fig84(), starts, h, steps, 10);
             let mut lanes = LaneStepper::<_, 7, 1, S, D, 4>::new(MpParticles, tab, fig84());
             lanes.start(&starts[..4], h).unwrap();
