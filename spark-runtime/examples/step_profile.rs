@@ -14,7 +14,8 @@
 //! Arguments: `particle|skate|mp7`, `full|simplified|decoupled` (full Newton,
 //! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
 //! Gauss stages (`1..=5` for the particle and mp7, `1..=3` for the skate),
-//! repeats, `loop|integrate` and the step `h` (default: the paper's). `loop`
+//! repeats, `loop|integrate`, the step `h` (default: the paper's) and the
+//! starting guess's extrapolation degree (default: `NewtonOptions`'s). `loop`
 //! is a bare loop of `Stepper::step` (the default, which also prints the
 //! factorizations per step), `integrate` one `Stepper::integrate` call per repeat
 //! with the same steps, nothing observed and only the endpoints recorded
@@ -108,7 +109,14 @@ fn main() -> Result<(), String> {
         "decoupled" => (NewtonMode::Simplified, Jacobian::StageDecoupled),
         other => return Err(format!("unknown Newton mode {other:?}: full, simplified or decoupled")),
     };
-    let options = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
+    let defaults = NewtonOptions::default();
+    // The extrapolation degree of the starting guess, when a seventh
+    // argument gives one (after the step).
+    let extrapolation_degree = match args.get(7) {
+        Some(d) => d.parse().map_err(|e| format!("extrapolation degree: {e}"))?,
+        None => defaults.extrapolation_degree,
+    };
+    let options = NewtonOptions { mode, jacobian, extrapolation_degree, ..defaults };
     let stages: usize = arg(3, "2").parse().map_err(|e| format!("stages: {e}"))?;
     let repeats: usize = arg(4, "2000").parse().map_err(|e| format!("repeats: {e}"))?;
     let driver = match arg(5, "loop").as_str() {
