@@ -167,8 +167,7 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// (`Warm::rate`; the kernel's own steps always are, a step its stepper
     /// took may have ended on the exact matrix, whose prior goes back with
     /// the lane), and what the step being committed earned.
-    rate: L<W>,
-    rate_decoupled: [bool; W],
+    rate: [(f64, bool); W],
     solved_rate: L<W>,
 }
 
@@ -234,8 +233,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             schur_scale: lanes(sm),
             kt: lanes(N * M),
             step_polynomial: StepPolynomial::new(tab),
-            rate: [f64::NAN; W],
-            rate_decoupled: [false; W],
+            rate: [(f64::NAN, false); W],
             solved_rate: [f64::NAN; W],
         })
     }
@@ -259,7 +257,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         self.anchor[w] = c.anchor;
         self.at_anchor[w] = c.anchor.is_some_and(|a| a.end.q == c.end.q && a.end.v == c.end.v);
-        (self.rate[w], self.rate_decoupled[w]) = c.rate;
+        self.rate[w] = c.rate;
         (self.head[w], self.depth[w], self.held[w]) = (0, c.depth, true);
     }
 
@@ -283,7 +281,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             anchor: self.anchor[w],
             past,
             depth: self.depth[w],
-            rate: (self.rate[w], self.rate_decoupled[w]),
+            rate: self.rate[w],
         }
     }
 
@@ -370,7 +368,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
         // The prior of the stage-decoupled matrix only, as in `Stepper::newton`.
         let mut monitor: [Contraction; W] =
-            std::array::from_fn(|w| Contraction::fresh(if self.rate_decoupled[w] { self.rate[w] } else { f64::NAN }));
+            std::array::from_fn(|w| Contraction::fresh(if self.rate[w].1 { self.rate[w].0 } else { f64::NAN }));
         let mut prev_update = [f64::NAN; W];
         for k in 0..max_iter {
             self.stage_points(tab);
@@ -563,7 +561,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             kept[w] = true;
             self.head[w] = (self.head[w] + PAST - 1) % PAST;
             self.depth[w] = (self.depth[w] + 1).min(PAST);
-            (self.rate[w], self.rate_decoupled[w]) = (self.solved_rate[w], true);
+            self.rate[w] = (self.solved_rate[w], true);
         }
         // The kept lanes' new state and carry (the stepper's TwoSum), and
         // their solutions into the ring: whole rows where every kept lane
