@@ -376,6 +376,86 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         crate::lanes::values::energy_lane_by_lane(self, t, q, v, lanes)
     }
 
+    // ---- Parameter terms (none by default). ----
+
+    /// How many parameter terms [`parameter_terms`](Self::parameter_terms)
+    /// writes: the parameter-only subexpressions of the functions a step
+    /// evaluates at every iterate (the skate's `m g sin β`). `0` (the
+    /// default) when there are none.
+    const PARAMETER_TERMS: usize = 0;
+
+    /// Writes the [`PARAMETER_TERMS`](Self::PARAMETER_TERMS) parameter terms
+    /// into `terms[..PARAMETER_TERMS]` (nothing when `terms` is shorter),
+    /// for the `*_with_terms` functions. They depend on the parameters
+    /// alone: a caller computes them once per change of the parameters
+    /// instead of at every evaluation, as the stepper does.
+    fn parameter_terms(&self, terms: &mut [f64]) {
+        let _ = terms;
+    }
+
+    /// [`energy`](Self::energy) with the parameter terms `terms` given
+    /// (as [`parameter_terms`](Self::parameter_terms) wrote them for the
+    /// current parameters): the same bits, without recomputing them. With
+    /// a `terms` shorter than [`PARAMETER_TERMS`](Self::PARAMETER_TERMS) it
+    /// computes its own. The default calls `energy`; `nonholonomic_system!`
+    /// generates a body that reads the terms.
+    fn energy_with_terms(&self, terms: &[f64], t: f64, q: &Vector<N>, v: &Vector<N>) -> f64 {
+        let _ = terms;
+        self.energy(t, q, v)
+    }
+
+    /// [`stage_values_into`](Self::stage_values_into) with the parameter
+    /// terms given (see [`energy_with_terms`](Self::energy_with_terms)).
+    #[allow(clippy::too_many_arguments)]
+    fn stage_values_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+        values: &mut StageValues<N, M>,
+    ) {
+        let _ = terms;
+        self.stage_values_into(t, q, v, psi, values);
+    }
+
+    /// [`stage_values_and_constraint_jacobians`](Self::stage_values_and_constraint_jacobians)
+    /// with the parameter terms given (see
+    /// [`energy_with_terms`](Self::energy_with_terms)).
+    #[allow(clippy::too_many_arguments)]
+    fn stage_values_and_constraint_jacobians_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+        values: &mut StageValues<N, M>,
+        constraint_q: &mut Matrix<M, N>,
+        constraint_v: &mut Matrix<M, N>,
+    ) {
+        let _ = terms;
+        self.stage_values_and_constraint_jacobians(t, q, v, psi, values, constraint_q, constraint_v);
+    }
+
+    /// [`stage_jacobians_into`](Self::stage_jacobians_into) with the
+    /// parameter terms given (see [`energy_with_terms`](Self::energy_with_terms)).
+    #[allow(clippy::too_many_arguments)]
+    fn stage_jacobians_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        psi: &Vector<M>,
+        values: &mut StageValues<N, M>,
+        jacobians: &mut StageJacobians<N, M>,
+    ) {
+        let _ = terms;
+        self.stage_jacobians_into(t, q, v, psi, values, jacobians);
+    }
+
     // ---- Optional effects (all default to "absent"; see the module docs). ----
 
     /// The system has an external generalized force `f(t,q,v)`

@@ -262,6 +262,28 @@ impl R {
         }
     }
 
+    /// Marks in `used` the shared values `sK`, `K < used.len()`, that this
+    /// expression reads.
+    fn mark_shared(&self, used: &mut [bool]) {
+        match self {
+            R::Shared(k, _) => {
+                if let Some(u) = used.get_mut(*k) {
+                    *u = true;
+                }
+            }
+            R::Lit(_) | R::Var(..) => {}
+            R::Bin(_, a, b) => {
+                a.mark_shared(used);
+                b.mark_shared(used);
+            }
+            R::Neg(a) | R::Powi(a, _) => a.mark_shared(used),
+            R::Method(a, _, xs) => {
+                a.mark_shared(used);
+                xs.iter().for_each(|x| x.mark_shared(used));
+            }
+        }
+    }
+
     fn wrap(&self, min: u8, mode: Mode) -> TokenStream {
         let t = self.tokens(mode);
         if self.prec() < min {
@@ -359,6 +381,8 @@ pub struct Emitted {
     /// How many of the first `lets` depend on parameters only.
     scalar_lets: usize,
     lets: Vec<R>,
+    /// The node each of `lets` binds.
+    let_nodes: Vec<NodeId>,
     /// Every output's place, with its expression (`None`: structurally zero).
     outputs: Vec<(Place, Option<R>)>,
 }
@@ -374,6 +398,38 @@ impl Emitted {
             shared.push(x);
         }
         self.outputs.iter().map(|(_, e)| e.as_ref().map_or(0.0, |e| e.eval(env, &shared))).collect()
+    }
+
+    /// The parameter terms of this body: the parameter-only shared values
+    /// that the rest of the body reads (those read only by other
+    /// parameter-only values are not), in the order they are bound. A
+    /// caller that computes them once per change of the parameters can
+    /// run [`statements_with_terms`](Self::statements_with_terms) instead.
+    pub fn parameter_terms(&self) -> Vec<NodeId> {
+        let mut used = vec![false; self.scalar_lets];
+        for e in &self.lets[self.scalar_lets..] {
+            e.mark_shared(&mut used);
+        }
+        for e in self.outputs.iter().filter_map(|(_, e)| e.as_ref()) {
+            e.mark_shared(&mut used);
+        }
+        (0..self.scalar_lets).filter(|&k| used[k]).map(|k| self.let_nodes[k]).collect()
+    }
+
+    /// The statements with every [parameter term](Self::parameter_terms)
+    /// read from `terms[index[node]]` (a slice in scope) instead of
+    /// computed, and the other parameter-only values left out: the same
+    /// operations on the same values for every other statement. `None`
+    /// when `index` lacks a term.
+    pub fn statements_with_terms(&self, index: &HashMap<NodeId, usize>) -> Option<Vec<TokenStream>> {
+        let mut loads = Vec::new();
+        for node in self.parameter_terms() {
+            let k = self.let_nodes.iter().position(|&n| n == node)?;
+            let (name, i) = (format_ident!("s{}", k), Literal::usize_unsuffixed(*index.get(&node)?));
+            loads.push(quote!(let #name = terms[#i];));
+        }
+        loads.extend(self.statements[self.scalar_lets..].iter().cloned());
+        Some(loads)
     }
 
     /// The statements with shared values kept in an array `w` (`w[k] = …;`
@@ -671,5 +727,5 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
             }
         }
     }
-    Emitted { statements, ops, shared: lets.len(), scalar_lets, lets: lets_r, outputs: outputs_r }
+    Emitted { statements, ops, shared: lets.len(), scalar_lets, lets: lets_r, let_nodes: lets, outputs: outputs_r }
 }

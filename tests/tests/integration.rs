@@ -4,6 +4,7 @@
 //! binary because it installs a counting global allocator.
 
 mod large_systems;
+mod parameter_terms;
 mod runtime_generated;
 mod scenes_systems;
 mod stress_cases;

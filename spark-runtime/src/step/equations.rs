@@ -74,7 +74,18 @@ where
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let carry = self.carry_for(state);
         let mut ev = Eval::zeros();
-        Self::evaluate(&self.system, &self.tableau, state, &carry, h, &z, Derivatives::Full(&mut *self.work), &mut ev);
+        let terms = super::usable_terms(&self.terms, self.terms_stale);
+        Self::evaluate(
+            &self.system,
+            terms,
+            &self.tableau,
+            state,
+            &carry,
+            h,
+            &z,
+            Derivatives::Full(&mut *self.work),
+            &mut ev,
+        );
         let mut g = Vector::<D>::zeros();
         Self::residual(&self.tableau, &p0, h, &z, &ev, &mut g);
         self.assemble_jacobian(h);
@@ -87,6 +98,7 @@ where
     #[allow(clippy::too_many_arguments)]
     pub(super) fn evaluate(
         system: &Sys,
+        terms: &[f64],
         tab: &Tableau<S>,
         state: &State<N>,
         carry: &Vector<N>,
@@ -118,7 +130,7 @@ where
                     let (ti, qi) = (state.t + tab.c[i] * h, stage_q(i));
                     // In place, into the heap work storage: no N×N value on the stack.
                     let (vals, jac_i) = (&mut ev.stages[i], &mut *jac.stages[i]);
-                    system.stage_jacobians_into(ti, &qi, &v[i], &psi, vals, jac_i);
+                    system.stage_jacobians_with_terms(terms, ti, &qi, &v[i], &psi, vals, jac_i);
                     if Sys::HAS_FORCING {
                         system.add_external_force_jacobians(ti, &qi, &v[i], vals, jac_i);
                     }
@@ -127,12 +139,12 @@ where
                         system.add_nonideal_force_jacobians(ti, &qi, &v[i], &psi, vals, jac_i, psi_jac);
                     }
                 }
-                system.stage_jacobians_into(t1, &q1, &v1, &zero_m, &mut ev.end, &mut jac.end);
+                system.stage_jacobians_with_terms(terms, t1, &q1, &v1, &zero_m, &mut ev.end, &mut jac.end);
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
                     let mj = jac.mid.get_or_insert_with(StageJacobians::boxed_zeros);
                     let mv = ev.mid.insert(StageValues::zeros());
-                    system.stage_jacobians_into(tm, &qm, &v[0], &zero_m, mv, mj);
+                    system.stage_jacobians_with_terms(terms, tm, &qm, &v[0], &zero_m, mv, mj);
                 }
             }
             values_only => {
@@ -146,10 +158,10 @@ where
                 let mut values_at =
                     |p: usize, t: f64, q: &Vector<N>, v: &Vector<N>, psi: &Vector<M>, out: &mut StageValues<N, M>| {
                         match &mut constraint_jacobians {
-                            Some((kv, kq)) => {
-                                system.stage_values_and_constraint_jacobians(t, q, v, psi, out, &mut kq[p], &mut kv[p])
-                            }
-                            None => system.stage_values_into(t, q, v, psi, out),
+                            Some((kv, kq)) => system.stage_values_and_constraint_jacobians_with_terms(
+                                terms, t, q, v, psi, out, &mut kq[p], &mut kv[p],
+                            ),
+                            None => system.stage_values_with_terms(terms, t, q, v, psi, out),
                         }
                     };
                 for i in 0..S {
@@ -410,7 +422,18 @@ where
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let carry = self.carry_for(state);
         let mut ev = Eval::zeros();
-        Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::Full(&mut *self.work), &mut ev);
+        let terms = super::usable_terms(&self.terms, self.terms_stale);
+        Self::evaluate(
+            &self.system,
+            terms,
+            &self.tableau,
+            state,
+            &carry,
+            h,
+            z,
+            Derivatives::Full(&mut *self.work),
+            &mut ev,
+        );
         let mut g = Vector::<D>::zeros();
         Self::residual(&self.tableau, &p0, h, z, &ev, &mut g);
         self.assemble_jacobian(h);
@@ -483,7 +506,17 @@ where
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let mut ev = Eval::zeros();
         let carry = self.carry_for(state);
-        Self::evaluate(&self.system, &self.tableau, state, &carry, h, z, Derivatives::None, &mut ev);
+        Self::evaluate(
+            &self.system,
+            super::usable_terms(&self.terms, self.terms_stale),
+            &self.tableau,
+            state,
+            &carry,
+            h,
+            z,
+            Derivatives::None,
+            &mut ev,
+        );
         let mut g = Vector::<D>::zeros();
         Self::residual(&self.tableau, &p0, h, z, &ev, &mut g);
         g

@@ -147,6 +147,15 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// set) holds factors that simplified Newton may reuse on the next
     /// continuing step (`None`: evaluate afresh).
     reusable: Option<(f64, bool)>,
+    /// The system's parameter terms
+    /// ([`NonholonomicSystem::parameter_terms`]), which the residual and the
+    /// energy guard read instead of recomputing them at every evaluation
+    /// (heap, allocated once; empty for a system without any).
+    terms: Box<[f64]>,
+    /// [`Stepper::system_mut`] lent the system out, so `terms` may not be
+    /// its terms any more: evaluations pass no terms (the system then
+    /// computes its own) until the next step recomputes them.
+    terms_stale: bool,
     /// Where the energy guard's chain of continued steps began.
     anchor: Option<EnergyAnchor<N>>,
     /// The Newton iterations of the latest step (kept here rather than in
@@ -167,6 +176,16 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// accepted the initial state with, so a cold start within the run is
     /// not refused for a residual the run's own check let through.
     accepted_start_residual: f64,
+}
+
+/// The parameter terms to evaluate with: none (the system then computes its
+/// own) while they may be stale (see `Stepper::terms_stale`).
+fn usable_terms(terms: &[f64], stale: bool) -> &[f64] {
+    if stale {
+        &[]
+    } else {
+        terms
+    }
 }
 
 /// The part of a stepper's state that links a step to the previous one
@@ -199,8 +218,12 @@ where
     /// Newton options. Fails to compile unless `D == S·(N+M)+N`.
     pub fn new(system: Sys, tableau: Tableau<S>) -> Self {
         const { assert!(D == S * (N + M) + N, "Stepper: D must equal S*(N+M)+N; use the Stepper! macro") };
+        let mut terms = vec![0.0; Sys::PARAMETER_TERMS].into_boxed_slice();
+        system.parameter_terms(&mut terms);
         Stepper {
             system,
+            terms,
+            terms_stale: false,
             tableau,
             options: NewtonOptions::default(),
             warm: None,
@@ -258,6 +281,7 @@ where
         self.decoupled.invalidate();
         self.anchor = None;
         self.compensation = None;
+        self.terms_stale = true;
         &mut self.system
     }
 
@@ -372,6 +396,10 @@ where
     pub fn step(&mut self, state: &State<N>, h: f64) -> Result<StepResult<N, M, S>, StepError> {
         let t0 = state.t;
         self.check_options()?;
+        if self.terms_stale {
+            self.system.parameter_terms(&mut self.terms);
+            self.terms_stale = false;
+        }
         if h == 0.0 || !h.is_finite() {
             return Err(StepError::InvalidStep { t: t0, h, reason: "step size must be finite and nonzero" });
         }
@@ -406,7 +434,8 @@ where
             return Err(StepError::NonFinite { t: t0, h, stage: "step result", history: Box::new(self.history) });
         }
         if let (Some(limit), true) = (self.options.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
-            match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, None, limit) {
+            let e1 = self.system.energy_with_terms(&self.terms, end.t, &end.q, &end.v);
+            match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, Some(e1), limit) {
                 EnergyCheck::Accept(a) => self.anchor = Some(a),
                 EnergyCheck::Drift(a, energy) => {
                     return Err(StepError::EnergyDrift { t: t0, h, energy0: a.energy, energy, bound: limit * a.scale });

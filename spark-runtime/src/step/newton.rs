@@ -228,7 +228,8 @@ where
             },
             None => Derivatives::None,
         };
-        Self::evaluate(&self.system, &self.tableau, state, carry, h, z, derivatives, &mut self.eval);
+        let terms = super::usable_terms(&self.terms, self.terms_stale);
+        Self::evaluate(&self.system, terms, &self.tableau, state, carry, h, z, derivatives, &mut self.eval);
         Self::residual(&self.tableau, p0, h, z, &self.eval, g);
         // One pass for both: the largest magnitude, and the finiteness test
         // (a NaN raises the flag, an infinity is the largest). As a fold

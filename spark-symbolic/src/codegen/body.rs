@@ -117,6 +117,19 @@ impl<'a> Gen<'a> {
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         let Emitted { ops, shared, .. } = emitted;
         let statements = &emitted.statements;
+        let decls = self.decls(outs);
+        let has_lets = entries.iter().any(|(t, _)| matches!(t, Target::Let(_)));
+        // Helpers take `(t, q, v)`; `holonomic_residual` has no `v` to pass.
+        if statements.len() <= SPLIT_STATEMENTS || has_lets || fname == "holonomic_residual" {
+            return (quote!(#(#decls)* #(#statements)*), ops);
+        }
+        (self.split(fname, decls, emitted.statements_in_array(), shared, outs, psi), ops)
+    }
+
+    /// The declarations `outs` need before their stores: a local's
+    /// `zeros()`, or the zeroing of caller storage whose structural zeros
+    /// the stores skip.
+    pub(super) fn decls(&self, outs: &[Out]) -> Vec<TokenStream> {
         let graph = &self.model.graph;
         let decls = outs.iter().filter_map(|o| {
             let (name, ty) = (&o.name, &o.ty);
@@ -131,13 +144,7 @@ impl<'a> Gen<'a> {
                 Dest::Write | Dest::Add => None,
             }
         });
-        let decls: Vec<TokenStream> = decls.collect();
-        let has_lets = entries.iter().any(|(t, _)| matches!(t, Target::Let(_)));
-        // Helpers take `(t, q, v)`; `holonomic_residual` has no `v` to pass.
-        if statements.len() <= SPLIT_STATEMENTS || has_lets || fname == "holonomic_residual" {
-            return (quote!(#(#decls)* #(#statements)*), ops);
-        }
-        (self.split(fname, decls, emitted.statements_in_array(), shared, outs, psi), ops)
+        decls.collect()
     }
 
     /// A body that computes the single output `out` and returns it by value.
@@ -204,7 +211,7 @@ impl<'a> Gen<'a> {
         }
     }
 
-    fn stage_outs(&self) -> (Vec<Out>, Vec<Out>) {
+    pub(super) fn stage_outs(&self) -> (Vec<Out>, Vec<Out>) {
         let (n, m) = (self.n.clone(), self.m.clone());
         let md = &*self.model;
         let values = vec![

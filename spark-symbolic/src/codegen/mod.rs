@@ -4,7 +4,8 @@
 //! and the inherent `N`/`M`/`new`; the `NonholonomicSystem` implementation
 //! is assembled from [`source`] (`STRUCTURE`, `SOURCE`, `OPERATIONS`),
 //! [`params`] (`parameter_values`, `set_parameter`), [`trait_impl`] (the
-//! value and derivative methods) and [`effects`] (forces, holonomic
+//! value and derivative methods), [`terms`] (the parameter terms computed
+//! once per change of the parameters) and [`effects`] (forces, holonomic
 //! residual, events).
 //!
 //! The declaration is validated before it gets here
@@ -15,6 +16,7 @@ mod effects;
 mod item;
 mod params;
 mod source;
+mod terms;
 mod trait_impl;
 
 use crate::model::Model;

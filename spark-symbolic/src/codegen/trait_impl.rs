@@ -1,7 +1,8 @@
 //! The `NonholonomicSystem` implementation: the bodies of the value and
 //! derivative methods (`lagrangian`, `energy`, `momentum`, …, the fused
 //! `stage_values`, `stage_values_into`, `stage_jacobians_into`,
-//! `stage_values_and_constraint_jacobians`) and the `impl` item that holds
+//! `stage_values_and_constraint_jacobians`, with their parameter-term
+//! variants from [`super::terms`]) and the `impl` item that holds
 //! them together with the constants, the parameter methods and the effects.
 
 use super::body::{Body, Gen};
@@ -42,6 +43,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
     let fused = gen.fused();
     let (values_and_constraint_jacobians, _) = gen.values_and_constraint_jacobians();
     let in_lanes = lanes_method(gen);
+    let with_terms = super::terms::methods(gen);
     let (stage_values, stage_jacobians) = (&fused.0 .0, &fused.1 .0);
     let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
     let sig = quote!(&self, t: f64, q: &#rt::Vector<#n>, v: &#rt::Vector<#n>);
@@ -124,6 +126,8 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         }
 
         #in_lanes
+
+        #with_terms
 
         fn stage_jacobians_into(#sj_sig) {
             let #rt::StageValues { momentum, force, constraint, constraint_force } = values;

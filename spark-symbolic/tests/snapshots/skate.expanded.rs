@@ -458,6 +458,191 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             }
         }
     }
+    const PARAMETER_TERMS: usize = 1;
+    fn parameter_terms(&self, terms: &mut [f64]) {
+        let ::core::option::Option::Some(terms) = terms.get_mut(..1) else { return };
+        let s0 = self.m * self.g;
+        let s1 = self.beta.sin();
+        let s2 = s0 * s1;
+        terms[0] = s2;
+    }
+    fn energy_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+    ) -> f64 {
+        let mut own = [0.0f64; 1];
+        let terms: &[f64] = match terms.get(..1) {
+            ::core::option::Option::Some(terms) => terms,
+            ::core::option::Option::None => {
+                <Self as ::spark_runtime::NonholonomicSystem<
+                    3,
+                    1,
+                >>::parameter_terms(self, &mut own);
+                &own
+            }
+        };
+        let s2 = terms[0];
+        let energy: f64 = 0.5
+            * (self.m * (v[0] * v[0] + v[1] * v[1]) + self.inertia * (v[2] * v[2]))
+            - s2 * q[0];
+        energy
+    }
+    fn stage_values_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        psi: &::spark_runtime::Vector<1>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+    ) {
+        let mut own = [0.0f64; 1];
+        let terms: &[f64] = match terms.get(..1) {
+            ::core::option::Option::Some(terms) => terms,
+            ::core::option::Option::None => {
+                <Self as ::spark_runtime::NonholonomicSystem<
+                    3,
+                    1,
+                >>::parameter_terms(self, &mut own);
+                &own
+            }
+        };
+        let ::spark_runtime::StageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        force.as_mut_slice().fill(0.0);
+        constraint_force.as_mut_slice().fill(0.0);
+        let s2 = terms[0];
+        let s3 = q[2].cos();
+        let s4 = q[2].sin();
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        force[0] = s2;
+        constraint[0] = s3 * v[1] - s4 * v[0];
+        constraint_force[0] = s4 * psi[0];
+        constraint_force[1] = -(s3 * psi[0]);
+    }
+    fn stage_values_and_constraint_jacobians_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        psi: &::spark_runtime::Vector<1>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+        constraint_q: &mut ::spark_runtime::Matrix<1, 3>,
+        constraint_v: &mut ::spark_runtime::Matrix<1, 3>,
+    ) {
+        let mut own = [0.0f64; 1];
+        let terms: &[f64] = match terms.get(..1) {
+            ::core::option::Option::Some(terms) => terms,
+            ::core::option::Option::None => {
+                <Self as ::spark_runtime::NonholonomicSystem<
+                    3,
+                    1,
+                >>::parameter_terms(self, &mut own);
+                &own
+            }
+        };
+        let ::spark_runtime::StageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        force.as_mut_slice().fill(0.0);
+        constraint_force.as_mut_slice().fill(0.0);
+        constraint_q.as_mut_slice().fill(0.0);
+        constraint_v.as_mut_slice().fill(0.0);
+        let s2 = terms[0];
+        let s3 = q[2].cos();
+        let s4 = q[2].sin();
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        force[0] = s2;
+        constraint[0] = s3 * v[1] - s4 * v[0];
+        constraint_force[0] = s4 * psi[0];
+        constraint_force[1] = -(s3 * psi[0]);
+        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
+        constraint_v[(0, 0)] = -s4;
+        constraint_v[(0, 1)] = s3;
+    }
+    fn stage_jacobians_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        psi: &::spark_runtime::Vector<1>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+        jacobians: &mut ::spark_runtime::StageJacobians<3, 1>,
+    ) {
+        let mut own = [0.0f64; 1];
+        let terms: &[f64] = match terms.get(..1) {
+            ::core::option::Option::Some(terms) => terms,
+            ::core::option::Option::None => {
+                <Self as ::spark_runtime::NonholonomicSystem<
+                    3,
+                    1,
+                >>::parameter_terms(self, &mut own);
+                &own
+            }
+        };
+        let ::spark_runtime::StageValues {
+            momentum,
+            force,
+            constraint,
+            constraint_force,
+        } = values;
+        let ::spark_runtime::StageJacobians {
+            momentum_q,
+            mass,
+            force_q,
+            force_v,
+            constraint_q,
+            constraint_v,
+            constraint_force_q,
+            constraint_force_v,
+        } = jacobians;
+        force.as_mut_slice().fill(0.0);
+        constraint_force.as_mut_slice().fill(0.0);
+        momentum_q.as_mut_slice().fill(0.0);
+        mass.as_mut_slice().fill(0.0);
+        force_q.as_mut_slice().fill(0.0);
+        force_v.as_mut_slice().fill(0.0);
+        constraint_q.as_mut_slice().fill(0.0);
+        constraint_v.as_mut_slice().fill(0.0);
+        constraint_force_q.as_mut_slice().fill(0.0);
+        constraint_force_v.as_mut_slice().fill(0.0);
+        let s2 = terms[0];
+        let s3 = q[2].cos();
+        let s4 = q[2].sin();
+        let s5 = s4 * psi[0];
+        let s6 = s3 * psi[0];
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        force[0] = s2;
+        constraint[0] = s3 * v[1] - s4 * v[0];
+        constraint_force[0] = s5;
+        constraint_force[1] = -s6;
+        mass[(0, 0)] = self.m;
+        mass[(1, 1)] = self.m;
+        mass[(2, 2)] = self.inertia;
+        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
+        constraint_v[(0, 0)] = -s4;
+        constraint_v[(0, 1)] = s3;
+        constraint_force_q[(0, 2)] = s6;
+        constraint_force_q[(1, 2)] = s5;
+    }
     fn stage_jacobians_into(
         &self,
         t: f64,
