@@ -255,7 +255,8 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.write_constraint_blocks(tab, h);
         // Σ = E − Σ_i C[r][i] X[i][l], block (r, l) of M × M.
         let sm = Self::SM;
-        self.schur.fill(0.0);
+        // Through a slice of constant length: inline stores, not a `memset` call.
+        self.schur[..Self::SM * Self::SM].fill(0.0);
         if tab.conditions == ConditionRows::EqualMultipliers {
             for r in 0..S.saturating_sub(1) {
                 for d in 0..M {
@@ -370,7 +371,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// written exactly as the exact Newton matrix has them.
     fn write_constraint_blocks(&mut self, tab: &Tableau<S>, h: f64) {
         let mn = M * N;
-        self.c_nonzero.fill(false);
+        self.c_nonzero[..S * (S + 1)].fill(false);
         let (kv, kq) = (&self.constraint_v, &self.constraint_q);
         let mut put = |r: usize, i: usize, blk: &Matrix<M, N>| {
             let at = (r * (S + 1) + i) * mn;

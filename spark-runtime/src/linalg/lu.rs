@@ -145,6 +145,7 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
 /// forms anyway, so that a solve multiplies instead of dividing.
 /// The singularity test is [`factor_in_place`]'s: a pivot below `64 ε`
 /// times its column's largest magnitude.
+#[inline]
 pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
     // The Schur complements met in practice are a few multipliers square:
     // each small size gets its own copy of the elimination with `n` a
@@ -208,6 +209,7 @@ fn factor_sized(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64])
 }
 
 /// Overwrites `b` with `A⁻¹ b` from the factors of [`factor_runtime`].
+#[inline]
 pub(crate) fn solve_runtime(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
     // Small sizes as in `factor_runtime`: the general loops' slicing and
     // bounds checks cost more than the arithmetic there.
