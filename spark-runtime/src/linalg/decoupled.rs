@@ -429,14 +429,18 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 self.solve_block(b, &mut g[i * N..(i + 1) * N]);
             }
         }
-        // Constraint rows: g_c − C y, then Σ⁻¹.
+        // Constraint rows: g_c − C y, then Σ⁻¹. Slices of constant length,
+        // so that the block indexing needs no bounds checks.
         let (vel, con) = g.split_at_mut(base);
+        let (vel, con) = (&mut vel[..base], &mut con[..sm]);
+        let (c_all, c_nonzero) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)]);
+        let x_all = &self.x[..(S + 1) * S * nm];
         for r in 0..S {
             for i in 0..=S {
-                if !self.c_nonzero[r * (S + 1) + i] {
+                if !c_nonzero[r * (S + 1) + i] {
                     continue;
                 }
-                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                let c = &c_all[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
                 let yi = &vel[i * N..(i + 1) * N];
                 let out = &mut con[r * M..(r + 1) * M];
                 for (k, yk) in yi.iter().enumerate() {
@@ -446,12 +450,12 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 }
             }
         }
-        solve_runtime(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
+        solve_runtime(&self.schur, sm, &self.schur_perm, con);
         // Velocities: y_i − Σ_l X[i][l] δμ_l.
         for i in 0..=S {
             let out = &mut vel[i * N..(i + 1) * N];
             for l in 0..S {
-                let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                let x = &x_all[(i * S + l) * nm..(i * S + l + 1) * nm];
                 for e in 0..M {
                     let mu = con[l * M + e];
                     for (o, xk) in out.iter_mut().zip(&x[e * N..(e + 1) * N]) {

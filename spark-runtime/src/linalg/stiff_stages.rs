@@ -220,28 +220,31 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
             }
             return;
         }
+        // Slices of constant length: the indexing below is then within
+        // bounds by construction, and the loops unroll (at S = 1, N = 3 the
+        // checked form cost a third of a stage-decoupled update's solve).
+        let (y, end) = (&mut y[..S * N], &mut end[..N]);
+        let (stiff, rmass, stiffness) = (&self.stiff[..N], &self.rmass[..N], &self.stiffness[..N * N]);
+        let (coupling_of, inverse) = (&self.end_coupling[..S], &self.inverse[..N * S * S]);
         for c in 0..N {
-            if !self.stiff[c] {
+            if !stiff[c] {
                 // No stiffness on `c`: its mass alone, no end coupling.
-                let r = self.rmass[c];
+                let r = rmass[c];
                 for i in 0..S {
                     y[i * N + c] *= r;
                 }
                 continue;
             }
-            let mut x = [0.0; 8];
-            for i in 0..S {
-                x[i] = y[i * N + c];
-            }
-            let inv = &self.inverse[c * S * S..(c + 1) * S * S];
+            let x: [f64; S] = std::array::from_fn(|i| y[i * N + c]);
+            let inv = &inverse[c * S * S..(c + 1) * S * S];
             let mut coupling = 0.0;
             for i in 0..S {
                 let row = &inv[i * S..(i + 1) * S];
-                let yi: f64 = row.iter().zip(&x[..S]).map(|(a, b)| a * b).sum();
+                let yi: f64 = row.iter().zip(&x).map(|(a, b)| a * b).sum();
                 y[i * N + c] = yi;
-                coupling += self.end_coupling[i] * yi;
+                coupling += coupling_of[i] * yi;
             }
-            end[c] += self.stiffness[c * (N + 1)] * coupling;
+            end[c] += stiffness[c * (N + 1)] * coupling;
         }
     }
 }
