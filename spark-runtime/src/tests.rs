@@ -348,6 +348,18 @@ fn failures_are_typed_errors() {
     assert!(matches!(st.step(&s, f64::NAN), Err(StepError::InvalidStep { .. })));
     let bad = State::new(0.0, V::<3>::new(f64::NAN, 0.0, 0.0), s.v);
     assert!(matches!(st.step(&bad, 0.1), Err(StepError::InvalidStep { .. })));
+    for x in [f64::INFINITY, f64::NEG_INFINITY] {
+        let bad_q = State::new(0.0, V::<3>::new(0.0, x, 0.0), s.v);
+        let bad_v = State::new(0.0, s.q, V::<3>::new(0.0, 0.0, x));
+        for bad in [bad_q, bad_v] {
+            assert!(matches!(st.step(&bad, 0.1), Err(StepError::InvalidStep { .. })), "{bad:?}");
+        }
+    }
+    // A continued step passes the checks, a non-finite copy of its end does not.
+    let end = st.step(&s, 0.1).unwrap().state;
+    assert!(st.step(&end, 0.1).is_ok());
+    let bad = State::new(end.t, end.q, V::<3>::new(end.v[0], f64::NAN, end.v[2]));
+    assert!(matches!(st.step(&bad, 0.1), Err(StepError::InvalidStep { .. })));
     // A huge step on the stiff quartic MP potential: Newton cannot converge.
     let mut mp = Stepper::<_, 7, 1, 2, 23>::new(MpParticles, tab(Method::Gauss));
     let q = V::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]);
