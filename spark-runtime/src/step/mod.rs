@@ -464,10 +464,13 @@ where
     }
 }
 
-/// Whether every component of `q` and `v` is finite, without a branch per
-/// component: `x − x` is `+0` for a finite `x` and NaN for `±∞` and NaN.
+/// Whether every component of `q` and `v` is finite: one comparison per
+/// component, combined without a branch or a chain of dependent additions.
 #[inline(always)]
 fn is_finite<const N: usize>(q: &Vector<N>, v: &Vector<N>) -> bool {
-    let zero = q.iter().zip(v.iter()).fold(0.0, |acc, (a, b)| acc + (a - a) + (b - b));
-    zero == 0.0
+    let mut finite = true;
+    for i in 0..N {
+        finite &= q[i].is_finite() & v[i].is_finite();
+    }
+    finite
 }
