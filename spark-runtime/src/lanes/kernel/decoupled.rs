@@ -235,14 +235,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
             }
             MassSolve::Diagonal(r) => {
+                // Constant lengths: no bounds test or reload per row.
+                let y: &mut [L<W>; D] = (&mut self.y[..D]).try_into().expect("D rows");
+                let r: &[f64; N] = r[..N].try_into().expect("N reciprocals");
                 for i in 0..=S {
                     for n in 0..N {
-                        self.y[i * N + n] = Self::scaled(self.g[i * N + n], r[n]);
+                        y[i * N + n] = Self::scaled(self.g[i * N + n], r[n]);
                     }
                 }
-                for d in base..D {
-                    self.y[d] = self.g[d];
-                }
+                y[base..].copy_from_slice(&self.g[base..]);
             }
             MassSolve::Lu { .. } => {
                 self.y.copy_from_slice(&self.g[..]);

@@ -6,7 +6,7 @@
 // Stage and lane loops index several parallel arrays with one index.
 #![allow(clippy::needless_range_loop)]
 
-use super::Kernel;
+use super::{Kernel, L};
 use crate::step::{NewtonOptions, StepPolynomial, EXTRAPOLATION, PAST};
 use crate::system::NonholonomicSystem;
 use crate::tableau::{ConditionRows, Tableau};
@@ -35,18 +35,37 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             // lanes not held compute garbage nobody reads), each row's sum
             // and its start velocity in one pass, so a row is stored once.
             let (degree, head) = (degree(f), self.head[f]);
-            for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
-                let slot = ((head + k + 1) % PAST) * D + end;
-                for n in 0..N {
+            // Each previous solution as an array of constant length, so the
+            // row loops carry no bounds checks and vectorize across lanes.
+            let solution = |k: usize| -> &[L<W>; D] {
+                let slot = ((head + k) % PAST) * D;
+                self.past[slot..slot + D].try_into().expect("a ring slot holds D rows")
+            };
+            let coefs = &EXTRAPOLATION[degree][..=degree];
+            let mut slots = [solution(0); PAST - 1];
+            for (k, slot) in slots.iter_mut().enumerate() {
+                *slot = solution(k + 1);
+            }
+            // Row by row with one row of lanes in flight (a whole `N × W`
+            // block in flight is split into scalars and not vectorized);
+            // each entry sees the terms in the same order.
+            for n in 0..N {
+                let mut row = start[n];
+                for (coef, before) in coefs.iter().zip(&slots) {
+                    let before = before[end + n];
                     for w in 0..W {
-                        start[n][w] -= *coef * self.past[slot + n][w];
+                        row[w] -= *coef * before[w];
                     }
                 }
+                start[n] = row;
+            }
+            for (k, slot) in slots.iter_mut().enumerate() {
+                *slot = solution(k);
             }
             for d in 0..D {
                 let mut z = [0.0; W];
-                for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
-                    let past = self.past[((head + k) % PAST) * D + d];
+                for (coef, past) in coefs.iter().zip(&slots) {
+                    let past = past[d];
                     for w in 0..W {
                         z[w] += *coef * past[w];
                     }
