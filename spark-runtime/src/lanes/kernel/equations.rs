@@ -42,16 +42,14 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 self.past[slot..slot + D].try_into().expect("a ring slot holds D rows")
             };
             let coefs = &EXTRAPOLATION[degree][..=degree];
-            let mut slots = [solution(0); PAST - 1];
-            for (k, slot) in slots.iter_mut().enumerate() {
-                *slot = solution(k + 1);
-            }
+            let latest: [&[L<W>; D]; PAST - 1] = std::array::from_fn(solution);
+            let previous: [&[L<W>; D]; PAST - 1] = std::array::from_fn(|k| solution(k + 1));
             // Row by row with one row of lanes in flight (a whole `N × W`
             // block in flight is split into scalars and not vectorized);
             // each entry sees the terms in the same order.
             for n in 0..N {
                 let mut row = start[n];
-                for (coef, before) in coefs.iter().zip(&slots) {
+                for (coef, before) in coefs.iter().zip(&previous) {
                     let before = before[end + n];
                     for w in 0..W {
                         row[w] -= *coef * before[w];
@@ -59,12 +57,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 start[n] = row;
             }
-            for (k, slot) in slots.iter_mut().enumerate() {
-                *slot = solution(k);
-            }
             for d in 0..D {
                 let mut z = [0.0; W];
-                for (coef, past) in coefs.iter().zip(&slots) {
+                for (coef, past) in coefs.iter().zip(&latest) {
                     let past = past[d];
                     for w in 0..W {
                         z[w] += *coef * past[w];
