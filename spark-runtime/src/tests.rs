@@ -524,3 +524,24 @@ fn failed_steps_are_retried_as_half_steps_when_allowed() {
     assert_eq!(tr.samples.last().unwrap().t, 8.0);
     assert!(tr.report.max_constraint_residual <= 1e-14);
 }
+
+#[test]
+fn states_compare_like_their_components() {
+    let a = State::new(0.5, V::<3>::new(1.0, -0.0, 2.0), V::<3>::new(0.0, 3.0, -4.0));
+    assert_eq!(a, a);
+    // Signed zeros compare equal, as `f64` does.
+    assert_eq!(a, State::new(0.5, V::<3>::new(1.0, 0.0, 2.0), V::<3>::new(-0.0, 3.0, -4.0)));
+    assert_ne!(a, State { t: 0.25, ..a });
+    for i in 0..3 {
+        for x in [7.0, f64::NAN] {
+            let (mut q, mut v) = (a.q, a.v);
+            q[i] = x;
+            v[i] = x;
+            assert_ne!(a, State { q, ..a });
+            assert_ne!(a, State { v, ..a });
+        }
+    }
+    // A NaN never compares equal, not even to itself.
+    let nan = State { t: f64::NAN, ..a };
+    assert_ne!(nan, nan);
+}

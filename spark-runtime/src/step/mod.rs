@@ -68,7 +68,7 @@ use guess::{Guess, Warm};
 use newton::Solved;
 
 /// A point `(t, q, v)` of the phase space.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct State<const N: usize> {
     /// Time.
     pub t: f64,
@@ -76,6 +76,20 @@ pub struct State<const N: usize> {
     pub q: Vector<N>,
     /// Generalized velocities.
     pub v: Vector<N>,
+}
+
+/// Equal when `t` and every component of `q` and `v` compare equal (so never
+/// with a NaN), as a derived comparison would be. A step compares its start
+/// with the previous step's end several times, so the comparisons are
+/// combined with bitwise `&` rather than a branch each.
+impl<const N: usize> PartialEq for State<N> {
+    fn eq(&self, other: &Self) -> bool {
+        let mut equal = self.t == other.t;
+        for i in 0..N {
+            equal &= (self.q[i] == other.q[i]) & (self.v[i] == other.v[i]);
+        }
+        equal
+    }
 }
 
 impl<const N: usize> State<N> {
