@@ -77,9 +77,12 @@ pub(super) fn factor<const W: usize>(
             for i in k + 1..n {
                 let (mut x, l) = (lu[j * n + i], lu[k * n + i]);
                 for w in 0..W {
-                    // The scalar kernel skips a zero `u_kj`: a select keeps
-                    // that lane's entry as it was.
-                    x[w] = if ukj[w] != 0.0 { x[w] - l[w] * ukj[w] } else { x[w] };
+                    // The scalar kernel skips a zero `u_kj`: the update is
+                    // formed in every lane and a select keeps that lane's
+                    // entry as it was (a conditional product is compiled
+                    // to a branch per lane).
+                    let updated = x[w] - l[w] * ukj[w];
+                    x[w] = if ukj[w] != 0.0 { updated } else { x[w] };
                 }
                 lu[j * n + i] = x;
             }

@@ -118,8 +118,12 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                             for k in 0..N {
                                 let (xk, ck) = (x[e][k], c[k][m]);
                                 for w in 0..W {
-                                    // The scalar assembly skips a zero `X` entry.
-                                    acc[w] = if xk[w] != 0.0 { acc[w] - ck[w] * xk[w] } else { acc[w] };
+                                    // The scalar assembly skips a zero `X` entry:
+                                    // the product is formed in every lane and
+                                    // selected (a conditional product is
+                                    // compiled to a branch per lane).
+                                    let updated = acc[w] - ck[w] * xk[w];
+                                    acc[w] = if xk[w] != 0.0 { updated } else { acc[w] };
                                 }
                             }
                             schur[at] = acc;
