@@ -4,15 +4,19 @@
 //! stepped `repeats` times either in one `LaneStepper` of eight lanes
 //! (`lanes`) or by eight steppers one member after another (`sequential`);
 //! prints the wall time per repeat in milliseconds and the sum of the
-//! members' end `q₁` over the repeats (the same bits in both modes). Built for `valgrind
-//! --tool=callgrind` (instruction counts compare two builds of the kernel
-//! exactly; valgrind runs the kernel's AVX2 build) and for alternated timing
-//! runs of two builds:
+//! members' end `q₁` over the repeats (the same bits in both modes).
+//!
+//! Built for alternated timing runs of two builds (release) and for
+//! `valgrind --tool=callgrind` (the profiling build; instruction counts
+//! compare two builds of the kernel exactly, and valgrind runs the
+//! kernel's AVX2 build):
 //!
 //! ```sh
 //! cargo build --release -p spark-runtime --example lanes_profile
 //! target/release/examples/lanes_profile lanes 10
 //! target/release/examples/lanes_profile sequential 4
+//! cargo build --profile profiling -p spark-runtime --example lanes_profile
+//! valgrind --tool=callgrind target/profiling/examples/lanes_profile lanes 20
 //! ```
 
 use spark_runtime::{Jacobian, LaneStepper, Method, NewtonMode, NewtonOptions, State, Stepper, Tableau, Vector};
