@@ -13,7 +13,8 @@
 //!
 //! Arguments: `particle|skate|mp7`, `full|simplified|decoupled` (full Newton,
 //! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
-//! Gauss stages (`1..=5` for the particle and mp7, `1..=3` for the skate),
+//! stages (`1..=5` for the particle and mp7, `1..=4` for the skate: Gauss, or
+//! Lobatto IIIA-B with an `L` before the count, as in `L3`),
 //! repeats, `loop|integrate`, the step `h` (default: the paper's) and the
 //! starting guess's extrapolation degree (default: `NewtonOptions`'s). `loop`
 //! is a bare loop of `Stepper::step` (the default, which also prints the
@@ -38,11 +39,12 @@ fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: u
     sys: Sys,
     start: State<N>,
     h: f64,
+    method: Method,
     options: NewtonOptions,
     repeats: usize,
     driver: Driver,
 ) -> Result<(), String> {
-    let tableau = Tableau::new(Method::Gauss).map_err(|e| e.to_string())?;
+    let tableau = Tableau::new(method).map_err(|e| e.to_string())?;
     let mut stepper = Stepper::<Sys, N, 1, S, D>::new(sys, tableau).with_options(options);
     let (mut updates, mut factorizations, mut steps, mut end) = (0usize, 0usize, 0usize, start);
     let run_options = RunOptions {
@@ -117,7 +119,12 @@ fn main() -> Result<(), String> {
         None => defaults.extrapolation_degree,
     };
     let options = NewtonOptions { mode, jacobian, extrapolation_degree, ..defaults };
-    let stages: usize = arg(3, "2").parse().map_err(|e| format!("stages: {e}"))?;
+    let stages_arg = arg(3, "2");
+    let (method, count) = match stages_arg.strip_prefix('L') {
+        Some(count) => (Method::LobattoIIIAB, count),
+        None => (Method::Gauss, stages_arg.as_str()),
+    };
+    let stages: usize = count.parse().map_err(|e| format!("stages: {e}"))?;
     let repeats: usize = arg(4, "2000").parse().map_err(|e| format!("repeats: {e}"))?;
     let driver = match arg(5, "loop").as_str() {
         "loop" => Driver::Loop,
@@ -136,21 +143,22 @@ fn main() -> Result<(), String> {
         args.get(6).map_or(Ok(paper), |h| h.parse().map_err(|e| format!("step: {e}")))
     };
     match (arg(1, "skate").as_str(), stages) {
-        ("skate", 1) => run::<_, 3, 1, 7>(Skate::default(), skate, step(0.1)?, options, repeats, driver),
-        ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, step(0.1)?, options, repeats, driver),
-        ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, step(0.1)?, options, repeats, driver),
-        ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
-        ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
-        ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
-        ("particle", 4) => run::<_, 3, 4, 19>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
-        ("particle", 5) => run::<_, 3, 5, 23>(Particle::default(), particle, step(0.2)?, options, repeats, driver),
-        ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
-        ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
-        ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
-        ("mp7", 4) => run::<_, 7, 4, 39>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
-        ("mp7", 5) => run::<_, 7, 5, 47>(Mp7::default(), mp7, step(0.05)?, options, repeats, driver),
+        ("skate", 1) => run::<_, 3, 1, 7>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 4) => run::<_, 3, 4, 19>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
+        ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
+        ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
+        ("particle", 4) => run::<_, 3, 4, 19>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
+        ("particle", 5) => run::<_, 3, 5, 23>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
+        ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 4) => run::<_, 7, 4, 39>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 5) => run::<_, 7, 5, 47>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
         (system, s) => {
-            Err(format!("no case {system} with s = {s}: particle or mp7 with s = 1..=5, skate with s = 1..=3"))
+            Err(format!("no case {system} with s = {s}: particle or mp7 with s = 1..=5, skate with s = 1..=4"))
         }
     }
 }

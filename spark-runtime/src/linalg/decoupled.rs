@@ -241,7 +241,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             for i in 0..=S {
                 let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
                 let at = (i * S + l) * nm;
-                let dst = &mut self.x[at..at + nm];
+                let dst = &mut self.x[..(S + 1) * S * nm][at..at + nm];
                 for (d, k) in dst.iter_mut().zip(kt.as_slice()) {
                     *d = coef * k;
                 }
@@ -255,33 +255,39 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.write_constraint_blocks(tab, h);
         // Σ = E − Σ_i C[r][i] X[i][l], block (r, l) of M × M.
         let sm = Self::SM;
-        // Through a slice of constant length: inline stores, not a `memset` call.
-        self.schur[..Self::SM * Self::SM].fill(0.0);
+        // Slices of constant length: inline stores, not a `memset` call, and
+        // block indexing without bounds checks.
+        let (c_all, c_nonzero) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)]);
+        let x_all = &self.x[..(S + 1) * S * nm];
+        let schur = &mut self.schur[..Self::SM * Self::SM];
+        schur.fill(0.0);
         if tab.conditions == ConditionRows::EqualMultipliers {
             for r in 0..S.saturating_sub(1) {
                 for d in 0..M {
-                    self.schur[(r * M + d) * sm + r * M + d] = 1.0;
-                    self.schur[((r + 1) * M + d) * sm + r * M + d] = -1.0;
+                    schur[(r * M + d) * sm + r * M + d] = 1.0;
+                    schur[((r + 1) * M + d) * sm + r * M + d] = -1.0;
                 }
             }
         }
         for r in 0..S {
             for i in 0..=S {
-                if !self.c_nonzero[r * (S + 1) + i] {
+                if !c_nonzero[r * (S + 1) + i] {
                     continue;
                 }
-                let c = &self.c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+                let c = &c_all[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
                 for l in 0..S {
-                    let x = &self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
+                    let x = &x_all[(i * S + l) * nm..(i * S + l + 1) * nm];
                     // Column e of block (r, l): −C[r][i] · X[i][l][:, e].
                     for e in 0..M {
                         let xe = &x[e * N..(e + 1) * N];
-                        let col = &mut self.schur[(l * M + e) * sm + r * M..(l * M + e) * sm + (r + 1) * M];
-                        for (k, xk) in xe.iter().enumerate() {
-                            if *xk != 0.0 {
-                                for (s, ck) in col.iter_mut().zip(&c[k * M..(k + 1) * M]) {
-                                    *s -= ck * xk;
-                                }
+                        let col = &mut schur[(l * M + e) * sm + r * M..(l * M + e) * sm + (r + 1) * M];
+                        for (k, &xk) in xe.iter().enumerate() {
+                            // A zero entry of X (a structural zero of K)
+                            // adds nothing: the product is formed and
+                            // selected, not branched around.
+                            for (s, ck) in col.iter_mut().zip(&c[k * M..(k + 1) * M]) {
+                                let updated = *s - ck * xk;
+                                *s = if xk != 0.0 { updated } else { *s };
                             }
                         }
                     }

@@ -153,14 +153,66 @@ pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale
     // the same order as the general one.
     match n {
         0 => Ok(()), // No multipliers (an unconstrained system): nothing to factor.
-        1 => factor_sized(lu, 1, perm, scale),
-        2 => factor_sized(lu, 2, perm, scale),
-        3 => factor_sized(lu, 3, perm, scale),
-        4 => factor_sized(lu, 4, perm, scale),
-        5 => factor_sized(lu, 5, perm, scale),
-        6 => factor_sized(lu, 6, perm, scale),
+        1 => factor_fixed::<1>(lu, perm, scale),
+        2 => factor_fixed::<2>(lu, perm, scale),
+        3 => factor_fixed::<3>(lu, perm, scale),
+        4 => factor_fixed::<4>(lu, perm, scale),
+        5 => factor_fixed::<5>(lu, perm, scale),
+        6 => factor_fixed::<6>(lu, perm, scale),
+        7 => factor_fixed::<7>(lu, perm, scale),
+        8 => factor_fixed::<8>(lu, perm, scale),
         _ => factor_sized(lu, n, perm, scale),
     }
+}
+
+/// [`factor_sized`] for a size known at compile time: the matrix as `K`
+/// columns of `K` entries, so every loop has a constant trip count and
+/// every index a constant bound (the slice form keeps iterator and
+/// bounds-check bookkeeping that costs more than a small matrix's
+/// arithmetic). The same operations in the same order.
+#[inline(always)]
+fn factor_fixed<const K: usize>(lu: &mut [f64], perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
+    let (cols, _) = lu[..K * K].as_chunks_mut::<K>();
+    let cols: &mut [[f64; K]; K] = cols.try_into().expect("K columns of K entries");
+    let perm: &mut [usize; K] = (&mut perm[..K]).try_into().expect("K pivots");
+    let scale: &mut [f64; K] = (&mut scale[..K]).try_into().expect("K scales");
+    for (sk, col) in scale.iter_mut().zip(cols.iter()) {
+        *sk = super::column_scale(col);
+    }
+    for k in 0..K {
+        let (mut p, mut best) = (k, cols[k][k].abs());
+        for r in k + 1..K {
+            if cols[k][r].abs() > best {
+                (p, best) = (r, cols[k][r].abs());
+            }
+        }
+        let threshold = 64.0 * f64::EPSILON * scale[k];
+        if best.is_nan() || threshold.is_nan() || best <= threshold {
+            return Err(Singular { column: k, pivot: best });
+        }
+        perm[k] = p;
+        if p != k {
+            for col in cols.iter_mut() {
+                col.swap(k, p);
+            }
+        }
+        let rpiv = 1.0 / cols[k][k];
+        cols[k][k] = rpiv;
+        for r in k + 1..K {
+            cols[k][r] *= rpiv;
+        }
+        let lower = cols[k];
+        for col in cols[k + 1..].iter_mut() {
+            let ukj = col[k];
+            // A zero `u_kj` changes nothing: the products are formed and
+            // selected rather than branched around.
+            for r in k + 1..K {
+                let updated = col[r] - lower[r] * ukj;
+                col[r] = if ukj != 0.0 { updated } else { col[r] };
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The body of [`factor_runtime`], inlined into each size it is called with.
@@ -214,13 +266,43 @@ pub(crate) fn solve_runtime(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64])
     // Small sizes as in `factor_runtime`: the general loops' slicing and
     // bounds checks cost more than the arithmetic there.
     match n {
-        1 => solve_sized(lu, 1, perm, b),
-        2 => solve_sized(lu, 2, perm, b),
-        3 => solve_sized(lu, 3, perm, b),
-        4 => solve_sized(lu, 4, perm, b),
-        5 => solve_sized(lu, 5, perm, b),
-        6 => solve_sized(lu, 6, perm, b),
+        1 => solve_fixed::<1>(lu, perm, b),
+        2 => solve_fixed::<2>(lu, perm, b),
+        3 => solve_fixed::<3>(lu, perm, b),
+        4 => solve_fixed::<4>(lu, perm, b),
+        5 => solve_fixed::<5>(lu, perm, b),
+        6 => solve_fixed::<6>(lu, perm, b),
+        7 => solve_fixed::<7>(lu, perm, b),
+        8 => solve_fixed::<8>(lu, perm, b),
         _ => solve_sized(lu, n, perm, b),
+    }
+}
+
+/// [`solve_sized`] for a size known at compile time, as
+/// [`factor_fixed`]: the same operations in the same order.
+#[inline(always)]
+fn solve_fixed<const K: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
+    let (cols, _) = lu[..K * K].as_chunks::<K>();
+    let cols: &[[f64; K]; K] = cols.try_into().expect("K columns of K entries");
+    let perm: &[usize; K] = perm[..K].try_into().expect("K pivots");
+    let b: &mut [f64; K] = (&mut b[..K]).try_into().expect("K entries");
+    for (k, &p) in perm.iter().enumerate() {
+        if p != k {
+            b.swap(k, p);
+        }
+    }
+    for j in 0..K {
+        let bj = b[j];
+        for r in j + 1..K {
+            b[r] -= cols[j][r] * bj;
+        }
+    }
+    for j in (0..K).rev() {
+        b[j] *= cols[j][j];
+        let bj = b[j];
+        for r in 0..j {
+            b[r] -= cols[j][r] * bj;
+        }
     }
 }
 
