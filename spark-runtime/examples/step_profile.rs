@@ -147,11 +147,21 @@ fn main() -> Result<(), String> {
         ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
         ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
         ("skate", 4) => run::<_, 3, 4, 19>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
-        ("particle", 1) => run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
-        ("particle", 2) => run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
-        ("particle", 3) => run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
-        ("particle", 4) => run::<_, 3, 4, 19>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
-        ("particle", 5) => run::<_, 3, 5, 23>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver),
+        ("particle", 1) => {
+            run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+        }
+        ("particle", 2) => {
+            run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+        }
+        ("particle", 3) => {
+            run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+        }
+        ("particle", 4) => {
+            run::<_, 3, 4, 19>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+        }
+        ("particle", 5) => {
+            run::<_, 3, 5, 23>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+        }
         ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
         ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
         ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
