@@ -414,6 +414,60 @@ mod tests {
         assert!(factor_runtime(&mut [], 0, &mut [], &mut []).is_ok());
     }
 
+    /// The fixed-size copies (sizes up to 8) perform the general
+    /// elimination's operations in the same order: the same factors,
+    /// pivots and solutions bit for bit, on matrices with zero entries
+    /// (the skipped `u_kj`), a zero leading entry (a row swap), a singular
+    /// one and a NaN; sizes 9 and 10 take the general loop. The solutions
+    /// also agree with nalgebra's.
+    #[test]
+    fn fixed_size_copies_equal_the_general_elimination() {
+        fn check(n: usize, seed: u64) {
+            let mut x = seed | 1;
+            let mut next = || {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+            };
+            let mut a: Vec<f64> = (0..n * n).map(|_| next()).collect();
+            for k in (0..n * n).step_by(3) {
+                a[k] = 0.0;
+            }
+            let b: Vec<f64> = (0..n).map(|_| next()).collect();
+            let (mut lu, mut perm, mut scale) = (a.clone(), vec![0usize; n], vec![0.0; n]);
+            let (mut lu_g, mut perm_g, mut scale_g) = (a.clone(), vec![0usize; n], vec![0.0; n]);
+            let fixed = factor_runtime(&mut lu, n, &mut perm, &mut scale);
+            let general = factor_sized(&mut lu_g, n, &mut perm_g, &mut scale_g);
+            assert_eq!(fixed.is_ok(), general.is_ok(), "n = {n}");
+            if fixed.is_err() {
+                return;
+            }
+            assert_eq!(perm, perm_g, "n = {n}");
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&lu), bits(&lu_g), "n = {n}: factors");
+            let (mut y, mut y_g) = (b.clone(), b.clone());
+            solve_runtime(&lu, n, &perm, &mut y);
+            solve_sized(&lu_g, n, &perm_g, &mut y_g);
+            assert_eq!(bits(&y), bits(&y_g), "n = {n}: solution");
+            let dense = nalgebra::DMatrix::from_column_slice(n, n, &a);
+            let want = dense.lu().solve(&nalgebra::DVector::from_column_slice(&b)).expect("regular");
+            let err = y.iter().zip(want.iter()).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-10 * want.amax().max(1.0), "n = {n}: {err:e} from nalgebra");
+        }
+        for n in 1..=10 {
+            for seed in 1..=20 {
+                check(n, seed * 7919 + n as u64);
+            }
+            // A singular matrix and a NaN are refused by both.
+            for bad in [0.0, f64::NAN] {
+                let mut a = vec![bad; n * n];
+                let (mut perm, mut scale) = (vec![0usize; n], vec![0.0; n]);
+                assert!(factor_runtime(&mut a, n, &mut perm, &mut scale).is_err(), "n = {n}, {bad}");
+            }
+        }
+    }
+
     #[test]
     fn solves_a_pivoting_system() {
         let a = Matrix::<3, 3>::new(0.0, 2.0, 1.0, 1.0, 1.0, 0.0, 3.0, 0.0, 1.0);
