@@ -12,7 +12,7 @@ use crate::step::{Jacobian, NewtonMode, NewtonOptions};
 impl NewtonOptions {
     /// Checks every field against its allowed range: `tolerance` and
     /// `stagnation_level` finite and non-negative, `max_iterations` in
-    /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=3`,
+    /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=5`,
     /// `energy_drift_limit` (when set) finite and positive, and no
     /// [`Jacobian::StageDecoupled`] with [`NewtonMode::Full`].
     pub fn validate(&self) -> Result<(), OptionError> {
@@ -37,11 +37,11 @@ impl NewtonOptions {
                 "between 1 and HISTORY_CAPACITY = 32",
             ));
         }
-        if !(1..=3).contains(&self.extrapolation_degree) {
+        if !(1..=5).contains(&self.extrapolation_degree) {
             return Err(OptionError::integer(
                 "NewtonOptions::extrapolation_degree",
                 self.extrapolation_degree as u64,
-                "1, 2 or 3",
+                "between 1 and 5",
             ));
         }
         if self.consistency_tolerance.is_nan() || self.consistency_tolerance < 0.0 {

@@ -9,14 +9,46 @@ use crate::tableau::{Method, Tableau};
 use crate::State;
 
 /// How many previous solutions the starting-guess extrapolation keeps: the
-/// `d + 1` it extrapolates at degree `d ≤ 3`, and the one before them, whose
+/// `d + 1` it extrapolates at degree `d ≤ 5`, and the one before them, whose
 /// end velocity is the oldest one's start velocity.
-pub(crate) const PAST: usize = 5;
+pub(crate) const PAST: usize = 7;
+
+/// The degree a step falls back to when Newton fails from a guess of higher
+/// degree (`Stepper::step`): the highest that no measured step size made
+/// worse than a lower one (docs/performance/README.md, "The starting
+/// guess").
+pub(crate) const SAFE_EXTRAPOLATION_DEGREE: usize = 3;
+
+/// The largest contraction rate a step may have earned (`Warm::rate`) for
+/// the next step of the same size to extrapolate above
+/// [`SAFE_EXTRAPOLATION_DEGREE`]. The rate grows with `h` as the quality of
+/// an extrapolation across steps falls: on the particle and the
+/// McLachlan–Perlmutter particles, degree 5 takes fewer updates than
+/// degree 3 where the stage-decoupled rates stay below about 1e-2
+/// (h ≤ 0.2, h ≤ 0.1) and more where they run at 2e-2 to 0.3 (mp7 at
+/// h = 0.3, 0.6).
+pub(crate) const HIGH_DEGREE_RATE: f64 = 1e-2;
+
+/// The degree of the extrapolation across steps from `depth` solutions in
+/// the ring, at most `configured`, and at most
+/// [`SAFE_EXTRAPOLATION_DEGREE`] after a step whose rate `prior_rate` was
+/// above [`HIGH_DEGREE_RATE`] (NaN, no rate earned, is not). The lane
+/// kernel chooses its lanes' degrees with this function too.
+pub(crate) fn extrapolation_degree(depth: usize, configured: usize, prior_rate: f64) -> usize {
+    let limit = if prior_rate > HIGH_DEGREE_RATE { configured.min(SAFE_EXTRAPOLATION_DEGREE) } else { configured };
+    (depth - 2).min(limit.clamp(1, PAST - 2))
+}
 
 /// Newton backward differences: the extrapolation of degree `d` from the
 /// `d + 1` latest solutions takes row `d`, most recent solution first.
-pub(crate) const EXTRAPOLATION: [[f64; PAST - 1]; PAST - 1] =
-    [[1.0, 0.0, 0.0, 0.0], [2.0, -1.0, 0.0, 0.0], [3.0, -3.0, 1.0, 0.0], [4.0, -6.0, 4.0, -1.0]];
+pub(crate) const EXTRAPOLATION: [[f64; PAST - 1]; PAST - 1] = [
+    [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [2.0, -1.0, 0.0, 0.0, 0.0, 0.0],
+    [3.0, -3.0, 1.0, 0.0, 0.0, 0.0],
+    [4.0, -6.0, 4.0, -1.0, 0.0, 0.0],
+    [5.0, -10.0, 10.0, -5.0, 1.0, 0.0],
+    [6.0, -15.0, 20.0, -15.0, 6.0, -1.0],
+];
 
 /// The starting guess of a Gauss step that continues a step of the same
 /// size: the polynomial through the previous step's start velocity `v₀`, its
@@ -198,6 +230,8 @@ pub(super) struct Guess<const D: usize> {
     /// (`Warm::rate`; NaN when it continues none): simplified Newton's
     /// floor under its contraction estimate.
     pub(super) prior: (f64, bool),
+    /// The degree of the extrapolation across steps it came from (0: none).
+    pub(super) degree: usize,
 }
 
 impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
@@ -217,6 +251,12 @@ where
     /// Without a previous step: `V_i = v₀ + c_i h a₀`, `Ψ_i = ψ₀` from the
     /// consistent acceleration and multiplier.
     pub(super) fn starting_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
+        self.starting_guess_up_to(state, h, self.options.extrapolation_degree)
+    }
+
+    /// [`starting_guess`](Self::starting_guess) with the extrapolation
+    /// across steps at degree `max_degree` at most.
+    pub(super) fn starting_guess_up_to(&mut self, state: &State<N>, h: f64, max_degree: usize) -> Guess<D> {
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();
         if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
@@ -224,13 +264,13 @@ where
             if w.h == h && w.depth >= 2 {
                 if let Some(poly) = &self.step_polynomial {
                     poly.predict::<N, M, D>(w.back(0), w.back(1), &mut z);
-                    return Guess { z, warm: true, prior };
+                    return Guess { z, warm: true, prior, degree: 0 };
                 }
                 // The velocities' increments from the start velocity,
                 // `V_i − v₀` and `v₁ − v₀`, are `O(h)`: extrapolated and added
                 // to the known `v₀` they gain a power of `h` over the
                 // velocities themselves. Step k's `v₀` is step k+1's `v₁`.
-                let degree = (w.depth - 2).min(self.options.extrapolation_degree.clamp(1, PAST - 2));
+                let degree = extrapolation_degree(w.depth, max_degree, w.rate.0);
                 let end = S * (N + M);
                 let mut start = state.v;
                 for (k, coef) in EXTRAPOLATION[degree].iter().enumerate().take(degree + 1) {
@@ -241,7 +281,7 @@ where
                     let mut v = z.fixed_rows_mut::<N>(at);
                     v += &start;
                 }
-                return Guess { z, warm: true, prior };
+                return Guess { z, warm: true, prior, degree };
             }
             let r = h / w.h;
             if r.abs() <= 4.0 {
@@ -276,7 +316,7 @@ where
                         z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&vi);
                     }
                 }
-                return Guess { z, warm: true, prior };
+                return Guess { z, warm: true, prior, degree: 0 };
             }
         }
         // Scratch: the work storage's end-point Jacobians (heap, so no N×N
@@ -291,7 +331,7 @@ where
             z.fixed_rows_mut::<M>(S * N + i * M).copy_from(&(psi0 * h));
         }
         z.fixed_rows_mut::<N>(S * (N + M)).copy_from(&(state.v + h * a0));
-        Guess { z, warm: false, prior: (f64::NAN, false) }
+        Guess { z, warm: false, prior: (f64::NAN, false), degree: 0 }
     }
 }
 

@@ -53,7 +53,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 pub(crate) use compensation::{two_sum_error, two_sum_error_of};
 pub(crate) use convergence::{too_slow, Contraction};
 pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
-pub(crate) use guess::{StepPolynomial, EXTRAPOLATION, PAST};
+pub(crate) use guess::{extrapolation_degree, StepPolynomial, EXTRAPOLATION, PAST};
 pub(crate) use lane_handover::LaneContinuation;
 
 use crate::error::{NewtonHistory, StepError};
@@ -64,7 +64,7 @@ use crate::tableau::Tableau;
 use cold_start::check_cold_start;
 use compensation::Compensation;
 use equations::{increment, split, Eval, EvalJac};
-use guess::{Guess, Warm};
+use guess::{Guess, Warm, SAFE_EXTRAPOLATION_DEGREE};
 use newton::Solved;
 
 /// A point `(t, q, v)` of the phase space.
@@ -436,8 +436,19 @@ where
                 Vector::zeros()
             }
         };
-        let Guess { mut z, warm: warm_started, prior } = self.starting_guess(state, h);
-        let Solved { factorizations, rate } = self.newton(state, &carry, h, &mut z, prior)?;
+        let Guess { mut z, warm: warm_started, prior, degree } = self.starting_guess(state, h);
+        let Solved { factorizations, rate } = match self.newton(state, &carry, h, &mut z, prior) {
+            // An extrapolation of high degree is the closer guess while the
+            // solution is smooth on the scale of h, and can be far off where
+            // it is not: a step it fails is solved again from the guess of
+            // degree `SAFE_EXTRAPOLATION_DEGREE`, so that the higher degree
+            // never turns a step that one solves into a failure.
+            Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
+                z = self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE).z;
+                self.newton(state, &carry, h, &mut z, prior)?
+            }
+            solved => solved?,
+        };
         let iterations = self.history.len();
         let (v, mu) = split::<N, M, S, D>(&z);
         // The increment is summed on its own and added once; what q₁ cannot

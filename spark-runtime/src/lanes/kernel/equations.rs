@@ -7,7 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{Kernel, L};
-use crate::step::{NewtonOptions, StepPolynomial, EXTRAPOLATION, PAST};
+use crate::step::{extrapolation_degree, NewtonOptions, StepPolynomial, EXTRAPOLATION, PAST};
 use crate::system::NonholonomicSystem;
 use crate::tableau::{ConditionRows, Tableau};
 
@@ -20,7 +20,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             self.step_polynomial_guess(&poly);
             return;
         }
-        let degree = |w: usize| (self.depth[w] - 2).min(opts.extrapolation_degree.clamp(1, PAST - 2));
+        let degree = |w: usize| extrapolation_degree(self.depth[w], opts.extrapolation_degree, self.rate[w].0);
         let end = S * (N + M);
         let first = (0..W).find(|&w| self.held[w]);
         let uniform = first
