@@ -1,6 +1,7 @@
 //! Updates per step and contraction rates of the stage-decoupled iteration
 //! with the starting guess extrapolated across steps at degree 3 and at
-//! degree 5, over a range of step sizes: the particle (Gauss s = 1) and
+//! degree 5, over a range of step sizes: the skate (Gauss s = 1, Lobatto
+//! IIIA-B s = 2), the particle (Gauss s = 1) and
 //! the McLachlan–Perlmutter particles (n = 7, Gauss and Lobatto IIIA-B
 //! s = 2), over `t ∈ [0, 10]` from the paper's initial values. For each
 //! run it prints the Newton updates and factorizations per step and the
@@ -16,7 +17,7 @@ use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSys
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{Mp7, Particle};
+use paper_systems::{Mp7, Particle, Skate};
 
 fn report<Sys, const N: usize, const S: usize, const D: usize>(
     name: &str,
@@ -68,6 +69,11 @@ fn main() -> Result<(), String> {
     let mut mp7 =
         State::new(0.0, Vector::<7>::from_column_slice(&[angle.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
     mp7.v[1] = angle.sin();
+    let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    for h in [0.05, 0.1, 0.2] {
+        report::<_, 3, 1, 7>("skate, Gauss s = 1", &Skate::default(), skate, h, Method::Gauss)?;
+        report::<_, 3, 2, 11>("skate, Lobatto IIIA-B s = 2", &Skate::default(), skate, h, Method::LobattoIIIAB)?;
+    }
     for h in [0.1, 0.2, 0.4, 0.7] {
         report::<_, 3, 1, 7>("particle, Gauss s = 1", &Particle::default(), particle, h, Method::Gauss)?;
     }

@@ -19,23 +19,28 @@ pub(crate) const PAST: usize = 7;
 /// guess").
 pub(crate) const SAFE_EXTRAPOLATION_DEGREE: usize = 3;
 
-/// The largest contraction rate a step may have earned (`Warm::rate`) for
-/// the next step of the same size to extrapolate above
-/// [`SAFE_EXTRAPOLATION_DEGREE`]. The rate grows with `h` as the quality of
-/// an extrapolation across steps falls: on the particle and the
-/// McLachlan–Perlmutter particles, degree 5 takes fewer updates than
-/// degree 3 where the stage-decoupled rates stay below about 1e-2
-/// (h ≤ 0.2, h ≤ 0.1) and more where they run at 2e-2 to 0.3 (mp7 at
-/// h = 0.3, 0.6).
-pub(crate) const HIGH_DEGREE_RATE: f64 = 1e-2;
+/// The contraction rates (`Warm::rate`, the largest ratio of consecutive
+/// updates a step took on its final factors) after which the next step of
+/// the same size extrapolates above [`SAFE_EXTRAPOLATION_DEGREE`]. Above
+/// the range the guess across steps is poor: the rate grows with `h` as
+/// the extrapolation's quality falls, and on the McLachlan–Perlmutter
+/// particles degree 5 takes more updates than degree 3 where the
+/// stage-decoupled rates run at 2e-2 to 0.3 (h = 0.3, 0.6), fewer where
+/// they stay below 1e-2 (h ≤ 0.1; the particle at h ≤ 0.2). Below it the
+/// step's second update was already round-off (the skate's rates are
+/// 1e-16 to 1e-11): one update converges, and a closer guess saves none.
+/// NaN (no rate earned, or a step that ended on fresh factors) is outside.
+pub(crate) const HIGH_DEGREE_RATES: std::ops::RangeInclusive<f64> = 1e-8..=1e-2;
 
 /// The degree of the extrapolation across steps from `depth` solutions in
-/// the ring, at most `configured`, and at most
-/// [`SAFE_EXTRAPOLATION_DEGREE`] after a step whose rate `prior_rate` was
-/// above [`HIGH_DEGREE_RATE`] (NaN, no rate earned, is not). The lane
-/// kernel chooses its lanes' degrees with this function too.
+/// the ring: at most `configured`, and at most
+/// [`SAFE_EXTRAPOLATION_DEGREE`] unless the previous step's rate
+/// `prior_rate` is in [`HIGH_DEGREE_RATES`]. The lane kernel chooses its
+/// lanes' degrees with this function too.
+#[inline(always)]
 pub(crate) fn extrapolation_degree(depth: usize, configured: usize, prior_rate: f64) -> usize {
-    let limit = if prior_rate > HIGH_DEGREE_RATE { configured.min(SAFE_EXTRAPOLATION_DEGREE) } else { configured };
+    let limit =
+        if HIGH_DEGREE_RATES.contains(&prior_rate) { configured } else { configured.min(SAFE_EXTRAPOLATION_DEGREE) };
     (depth - 2).min(limit.clamp(1, PAST - 2))
 }
 
@@ -255,7 +260,10 @@ where
     }
 
     /// [`starting_guess`](Self::starting_guess) with the extrapolation
-    /// across steps at degree `max_degree` at most.
+    /// across steps at degree `max_degree` at most. Inlined into both its
+    /// callers (a second, cold caller would otherwise leave it out of line,
+    /// its `D`-vector result copied on every step).
+    #[inline(always)]
     pub(super) fn starting_guess_up_to(&mut self, state: &State<N>, h: f64, max_degree: usize) -> Guess<D> {
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();

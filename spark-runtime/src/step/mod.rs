@@ -436,18 +436,20 @@ where
                 Vector::zeros()
             }
         };
-        let Guess { mut z, warm: warm_started, prior, degree } = self.starting_guess(state, h);
-        let Solved { factorizations, rate } = match self.newton(state, &carry, h, &mut z, prior) {
-            // An extrapolation of high degree is the closer guess while the
-            // solution is smooth on the scale of h, and can be far off where
-            // it is not: a step it fails is solved again from the guess of
-            // degree `SAFE_EXTRAPOLATION_DEGREE`, so that the higher degree
-            // never turns a step that one solves into a failure.
-            Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
-                z = self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE).z;
-                self.newton(state, &carry, h, &mut z, prior)?
+        let Guess { mut z, warm: warm_started, mut prior, mut degree } = self.starting_guess(state, h);
+        // An extrapolation of high degree is the closer guess while the
+        // solution is smooth on the scale of h, and can be far off where it
+        // is not: a step it fails is solved again from the guess of degree
+        // `SAFE_EXTRAPOLATION_DEGREE`, so that the higher degree never turns
+        // a step that one solves into a failure. (One call of the solve, in
+        // a loop: a second call site made LLVM leave it out of line.)
+        let Solved { factorizations, rate } = loop {
+            match self.newton(state, &carry, h, &mut z, prior) {
+                Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
+                    Guess { z, prior, degree, .. } = self.safe_degree_guess(state, h);
+                }
+                solved => break solved?,
             }
-            solved => solved?,
         };
         let iterations = self.history.len();
         let (v, mu) = split::<N, M, S, D>(&z);
@@ -486,6 +488,20 @@ where
             factorizations,
             warm_started,
         })
+    }
+}
+
+impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    /// The guess of degree `SAFE_EXTRAPOLATION_DEGREE` at most, for a
+    /// step solved again (`Stepper::step`): out of line and cold, so that
+    /// the hot path keeps the one inlined copy of the guess.
+    #[cold]
+    #[inline(never)]
+    fn safe_degree_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
+        self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE)
     }
 }
 
