@@ -259,6 +259,16 @@ where
         self.starting_guess_up_to(state, h, self.options.extrapolation_degree)
     }
 
+    /// The guess of degree [`SAFE_EXTRAPOLATION_DEGREE`] at most, for a
+    /// step solved again after Newton failed from a higher one
+    /// (`Stepper::step`): out of line and cold, so that the hot path keeps
+    /// the one inlined copy of the guess.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn safe_degree_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
+        self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE)
+    }
+
     /// [`starting_guess`](Self::starting_guess) with the extrapolation
     /// across steps at degree `max_degree` at most. Inlined into both its
     /// callers (a second, cold caller would otherwise leave it out of line,

@@ -491,20 +491,6 @@ where
     }
 }
 
-impl<Sys, const N: usize, const M: usize, const S: usize, const D: usize> Stepper<Sys, N, M, S, D>
-where
-    Sys: NonholonomicSystem<N, M>,
-{
-    /// The guess of degree `SAFE_EXTRAPOLATION_DEGREE` at most, for a
-    /// step solved again (`Stepper::step`): out of line and cold, so that
-    /// the hot path keeps the one inlined copy of the guess.
-    #[cold]
-    #[inline(never)]
-    fn safe_degree_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
-        self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE)
-    }
-}
-
 /// Whether every component of `q` and `v` is finite: one comparison per
 /// component, combined without a branch or a chain of dependent additions.
 #[inline(always)]
