@@ -22,15 +22,18 @@ pub(crate) const SAFE_EXTRAPOLATION_DEGREE: usize = 3;
 /// The contraction rates (`Warm::rate`, the largest ratio of consecutive
 /// updates a step took on its final factors) after which the next step of
 /// the same size extrapolates above [`SAFE_EXTRAPOLATION_DEGREE`]. Above
-/// the range the guess across steps is poor: the rate grows with `h` as
+/// the bound the guess across steps is poor: the rate grows with `h` as
 /// the extrapolation's quality falls, and on the McLachlan–Perlmutter
 /// particles degree 5 takes more updates than degree 3 where the
 /// stage-decoupled rates run at 2e-2 to 0.3 (h = 0.3, 0.6), fewer where
-/// they stay below 1e-2 (h ≤ 0.1; the particle at h ≤ 0.2). Below it the
-/// step's second update was already round-off (the skate's rates are
-/// 1e-16 to 1e-11): one update converges, and a closer guess saves none.
-/// NaN (no rate earned, or a step that ended on fresh factors) is outside.
-pub(crate) const HIGH_DEGREE_RATES: std::ops::RangeInclusive<f64> = 1e-8..=1e-2;
+/// they stay below 1e-2 (h ≤ 0.1; the particle at h ≤ 0.2). No lower
+/// bound: a step that converged in one update has a round-off rate (the
+/// skate's are 1e-16 to 1e-11) and a closer guess saves it nothing, but
+/// members of one lane group whose rates straddle such a bound would
+/// extrapolate at different degrees, which the lane kernel does lane by
+/// lane (Fig. 8.4's LDA ensembles took half as long again). NaN (no rate
+/// earned, or a step that ended on fresh factors) is outside.
+pub(crate) const HIGH_DEGREE_RATES: std::ops::RangeInclusive<f64> = 0.0..=1e-2;
 
 /// The degree of the extrapolation across steps from `depth` solutions in
 /// the ring: at most `configured`, and at most
