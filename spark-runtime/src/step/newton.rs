@@ -78,12 +78,14 @@ pub struct NewtonOptions {
     /// the Gauss step polynomial, see [`warm_start`](Self::warm_start)): the
     /// velocities' increments `V_i − v₀`, `v₁ − v₀` and the multipliers,
     /// from the latest `degree + 1` steps (fewer at the start of a chain).
-    /// Default 5: at the paper's step sizes it takes up to 0.7 fewer
-    /// stage-decoupled updates per step than degree 3 (docs/performance,
-    /// "The starting guess"). A step that Newton fails from a guess of
-    /// degree above 3 is solved again from the guess of degree 3, so the
-    /// higher degree costs a failed attempt where it is far off, never a
-    /// failure.
+    /// Default 5: at the paper's step sizes it takes 0.6–0.8 fewer
+    /// stage-decoupled updates per step than degree 3 on the particle and
+    /// the McLachlan–Perlmutter particles (docs/performance, "The starting
+    /// guess"). Degrees above 3 are used only after a step whose update
+    /// ratio is at most 1e-2 (above, the guess across steps is poor), and a
+    /// step that Newton fails from them is solved again from the guess of
+    /// degree 3, so the higher degree costs a failed attempt where it is
+    /// far off, never a failure.
     pub extrapolation_degree: usize,
     /// Energy guard: when the structure facts make `E` a first integral
     /// (autonomous `L`, constraints absent or linear homogeneous in `v` —
