@@ -13,11 +13,11 @@
 //! cargo run --release -p spark-runtime --example extrapolation_degree
 //! ```
 
-use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
+use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau};
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{Mp7, Particle, Skate};
+use paper_systems::{mp7_start, particle_start, skate_start, Mp7, Particle, Skate};
 
 fn report<Sys, const N: usize, const S: usize, const D: usize>(
     name: &str,
@@ -63,13 +63,9 @@ where
 }
 
 fn main() -> Result<(), String> {
-    let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    // The paper's j = 5 state of Fig. 8.4.
-    let angle = 5.0 * std::f64::consts::PI / 18.0;
-    let mut mp7 =
-        State::new(0.0, Vector::<7>::from_column_slice(&[angle.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
-    mp7.v[1] = angle.sin();
-    let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    let particle = particle_start();
+    let mp7 = mp7_start();
+    let skate = skate_start();
     for h in [0.05, 0.1, 0.2] {
         report::<_, 3, 1, 7>("skate, Gauss s = 1", &Skate::default(), skate, h, Method::Gauss)?;
         report::<_, 3, 2, 11>("skate, Lobatto IIIA-B s = 2", &Skate::default(), skate, h, Method::LobattoIIIAB)?;

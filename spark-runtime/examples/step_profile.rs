@@ -28,12 +28,12 @@ use std::io::Write;
 
 use spark_runtime::{
     Jacobian, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State,
-    Stepper, Tableau, Vector,
+    Stepper, Tableau,
 };
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{Mp7, Particle, Skate};
+use paper_systems::{mp7_start, particle_start, skate_start, Mp7, Particle, Skate};
 
 fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: usize>(
     sys: Sys,
@@ -131,13 +131,9 @@ fn main() -> Result<(), String> {
         "integrate" => Driver::Integrate,
         other => return Err(format!("unknown driver {other:?}: loop or integrate")),
     };
-    let skate = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-    let particle = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    // The paper's j = 5 state of Fig. 8.4.
-    let angle = 5.0 * std::f64::consts::PI / 18.0;
-    let mut mp7 =
-        State::new(0.0, Vector::<7>::from_column_slice(&[angle.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
-    mp7.v[1] = angle.sin();
+    let skate = skate_start();
+    let particle = particle_start();
+    let mp7 = mp7_start();
     // The paper's step unless a sixth argument gives another.
     let step = |paper: f64| -> Result<f64, String> {
         args.get(6).map_or(Ok(paper), |h| h.parse().map_err(|e| format!("step: {e}")))

@@ -1,9 +1,30 @@
-//! The paper's four systems declared with `nonholonomic_system!`, shared by
-//! the profiling examples (`step_profile`, `driver_cost`) so that both time
-//! the same generated code. Each example uses some of them.
+//! The paper's four systems declared with `nonholonomic_system!`, and the
+//! initial values the examples start them from, shared by the profiling
+//! examples (`step_profile`, `driver_cost`, `lanes_profile`,
+//! `extrapolation_degree`) so that they time the same generated code. Each
+//! example uses some of them.
 #![allow(dead_code)]
 
-use spark_runtime::nonholonomic_system;
+use spark_runtime::{nonholonomic_system, State, Vector};
+
+/// The particle's initial values (§8.1).
+pub fn particle_start() -> State<3> {
+    State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0))
+}
+
+/// The skate's initial values (§8.2).
+pub fn skate_start() -> State<3> {
+    State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0))
+}
+
+/// The McLachlan–Perlmutter particles' state `j = 5` of Fig. 8.4.
+pub fn mp7_start() -> State<7> {
+    let angle = 5.0 * std::f64::consts::PI / 18.0;
+    let mut start =
+        State::new(0.0, Vector::<7>::from_column_slice(&[angle.cos(), 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::zeros());
+    start.v[1] = angle.sin();
+    start
+}
 
 nonholonomic_system! {
     /// The nonholonomic particle (§8.1).

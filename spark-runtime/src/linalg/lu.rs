@@ -148,9 +148,9 @@ fn solve_in_place_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usiz
 #[inline]
 pub(crate) fn factor_runtime(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
     // The Schur complements met in practice are a few multipliers square:
-    // each small size gets its own copy of the elimination with `n` a
-    // constant (loops unrolled, slices unchecked), the same operations in
-    // the same order as the general one.
+    // each size up to 8 gets its own copy of the elimination on fixed-size
+    // columns (`factor_fixed`), the same operations in the same order as
+    // the general one.
     match n {
         0 => Ok(()), // No multipliers (an unconstrained system): nothing to factor.
         1 => factor_fixed::<1>(lu, perm, scale),
@@ -218,7 +218,8 @@ fn factor_fixed<const K: usize>(lu: &mut [f64], perm: &mut [usize], scale: &mut 
     Ok(())
 }
 
-/// The body of [`factor_runtime`], inlined into each size it is called with.
+/// The general elimination of [`factor_runtime`], for sizes above 8 (and
+/// the reference its fixed-size copies are tested against).
 #[inline(always)]
 fn factor_sized(lu: &mut [f64], n: usize, perm: &mut [usize], scale: &mut [f64]) -> Result<(), Singular> {
     let lu = &mut lu[..n * n];
@@ -309,7 +310,8 @@ fn solve_fixed<const K: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
     }
 }
 
-/// The body of [`solve_runtime`], inlined into each size it is called with.
+/// The general solve of [`solve_runtime`], for sizes above 8 (and the
+/// reference its fixed-size copies are tested against).
 #[inline(always)]
 fn solve_sized(lu: &[f64], n: usize, perm: &[usize], b: &mut [f64]) {
     let lu = &lu[..n * n];
@@ -389,7 +391,7 @@ mod x86 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::linalg::test_matrices::{nalgebra_solve, random_matrix};
+    use crate::linalg::test_matrices::{nalgebra_solve, random_matrix, random_values};
 
     #[test]
     fn runtime_sized_lu_pivots_refuses_singular_and_accepts_empty() {
@@ -423,18 +425,12 @@ mod tests {
     #[test]
     fn fixed_size_copies_equal_the_general_elimination() {
         fn check(n: usize, seed: u64) {
-            let mut x = seed | 1;
-            let mut next = || {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-            };
-            let mut a: Vec<f64> = (0..n * n).map(|_| next()).collect();
+            let mut values = random_values(seed, n * n + n);
+            let b = values.split_off(n * n);
+            let mut a = values;
             for k in (0..n * n).step_by(3) {
                 a[k] = 0.0;
             }
-            let b: Vec<f64> = (0..n).map(|_| next()).collect();
             let (mut lu, mut perm, mut scale) = (a.clone(), vec![0usize; n], vec![0.0; n]);
             let (mut lu_g, mut perm_g, mut scale_g) = (a.clone(), vec![0usize; n], vec![0.0; n]);
             let fixed = factor_runtime(&mut lu, n, &mut perm, &mut scale);

@@ -166,15 +166,25 @@ pub(crate) fn avx512_available() -> bool {
 mod test_matrices {
     use crate::system::{Matrix, Vector};
 
+    /// The next entry in `[−1, 1)` of a xorshift sequence with state `x`.
+    fn xorshift(x: &mut u64) -> f64 {
+        *x ^= *x << 13;
+        *x ^= *x >> 7;
+        *x ^= *x << 17;
+        (*x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+
     /// A deterministic random matrix (xorshift), entries in `[−1, 1)`.
     pub(crate) fn random_matrix<const D: usize>(seed: u64) -> Matrix<D, D> {
         let mut x = seed | 1;
-        Matrix::<D, D>::from_fn(|_, _| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        })
+        Matrix::<D, D>::from_fn(|_, _| xorshift(&mut x))
+    }
+
+    /// `count` deterministic random values (the sequence of
+    /// [`random_matrix`]), for sizes known at run time.
+    pub(crate) fn random_values(seed: u64, count: usize) -> Vec<f64> {
+        let mut x = seed | 1;
+        (0..count).map(|_| xorshift(&mut x)).collect()
     }
 
     /// nalgebra's LU solve (dynamic sizes: its static LU needs typenum sizes).

@@ -436,7 +436,7 @@ where
                 Vector::zeros()
             }
         };
-        let Guess { mut z, warm: warm_started, mut prior, mut degree } = self.starting_guess(state, h);
+        let Guess { mut z, warm: warm_started, prior, mut degree } = self.starting_guess(state, h);
         // An extrapolation of high degree is the closer guess while the
         // solution is smooth on the scale of h, and can be far off where it
         // is not: a step it fails is solved again from the guess of degree
@@ -446,7 +446,7 @@ where
         let Solved { factorizations, rate } = loop {
             match self.newton(state, &carry, h, &mut z, prior) {
                 Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
-                    Guess { z, prior, degree, .. } = self.safe_degree_guess(state, h);
+                    Guess { z, degree, .. } = self.safe_degree_guess(state, h);
                 }
                 solved => break solved?,
             }
