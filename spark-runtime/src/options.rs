@@ -7,12 +7,12 @@ use crate::driver::{FailurePolicy, RunOptions, MAX_HALVINGS};
 use crate::error::{OptionError, HISTORY_CAPACITY};
 use crate::initial::ConsistencyPolicy;
 use crate::rejection::RejectionPolicy;
-use crate::step::{Jacobian, NewtonMode, NewtonOptions};
+use crate::step::{Jacobian, NewtonMode, NewtonOptions, MAX_EXTRAPOLATION_DEGREE};
 
 impl NewtonOptions {
     /// Checks every field against its allowed range: `tolerance` and
     /// `stagnation_level` finite and non-negative, `max_iterations` in
-    /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=5`,
+    /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=MAX_EXTRAPOLATION_DEGREE`,
     /// `energy_drift_limit` (when set) finite and positive, and no
     /// [`Jacobian::StageDecoupled`] with [`NewtonMode::Full`].
     pub fn validate(&self) -> Result<(), OptionError> {
@@ -37,11 +37,11 @@ impl NewtonOptions {
                 "between 1 and HISTORY_CAPACITY = 32",
             ));
         }
-        if !(1..=5).contains(&self.extrapolation_degree) {
+        if !(1..=MAX_EXTRAPOLATION_DEGREE).contains(&self.extrapolation_degree) {
             return Err(OptionError::integer(
                 "NewtonOptions::extrapolation_degree",
                 self.extrapolation_degree as u64,
-                "between 1 and 5",
+                "between 1 and MAX_EXTRAPOLATION_DEGREE = 5",
             ));
         }
         if self.consistency_tolerance.is_nan() || self.consistency_tolerance < 0.0 {

@@ -8,10 +8,16 @@ use crate::system::{NonholonomicSystem, StageValues, Vector};
 use crate::tableau::{Method, Tableau};
 use crate::State;
 
-/// How many previous solutions the starting-guess extrapolation keeps: the
-/// `d + 1` it extrapolates at degree `d ≤ 5`, and the one before them, whose
-/// end velocity is the oldest one's start velocity.
-pub(crate) const PAST: usize = 7;
+/// The highest degree of the extrapolation across steps.
+pub(crate) const MAX_EXTRAPOLATION_DEGREE: usize = 5;
+
+/// How many previous solutions the starting-guess ring holds: at least the
+/// `d + 1` it extrapolates at degree `d ≤ MAX_EXTRAPOLATION_DEGREE` and the
+/// one before them, whose end velocity is the oldest one's start velocity;
+/// rounded up to a power of two, so that an index into the ring is a mask
+/// (a remainder by 7 cost the skate's Gauss s = 1 step 140 instructions of
+/// its 3244).
+pub(crate) const PAST: usize = (MAX_EXTRAPOLATION_DEGREE + 2).next_power_of_two();
 
 /// The degree a step falls back to when Newton fails from a guess of higher
 /// degree (`Stepper::step`): the highest that no measured step size made
@@ -44,12 +50,12 @@ pub(crate) const HIGH_DEGREE_RATES: std::ops::RangeInclusive<f64> = 0.0..=1e-2;
 pub(crate) fn extrapolation_degree(depth: usize, configured: usize, prior_rate: f64) -> usize {
     let limit =
         if HIGH_DEGREE_RATES.contains(&prior_rate) { configured } else { configured.min(SAFE_EXTRAPOLATION_DEGREE) };
-    (depth - 2).min(limit.clamp(1, PAST - 2))
+    (depth - 2).min(limit.clamp(1, MAX_EXTRAPOLATION_DEGREE))
 }
 
 /// Newton backward differences: the extrapolation of degree `d` from the
 /// `d + 1` latest solutions takes row `d`, most recent solution first.
-pub(crate) const EXTRAPOLATION: [[f64; PAST - 1]; PAST - 1] = [
+pub(crate) const EXTRAPOLATION: [[f64; MAX_EXTRAPOLATION_DEGREE + 1]; MAX_EXTRAPOLATION_DEGREE + 1] = [
     [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
     [2.0, -1.0, 0.0, 0.0, 0.0, 0.0],
     [3.0, -3.0, 1.0, 0.0, 0.0, 0.0],

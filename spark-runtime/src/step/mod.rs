@@ -53,7 +53,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 pub(crate) use compensation::{two_sum_error, two_sum_error_of};
 pub(crate) use convergence::{too_slow, Contraction};
 pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
-pub(crate) use guess::{extrapolation_degree, StepPolynomial, EXTRAPOLATION, PAST};
+pub(crate) use guess::{extrapolation_degree, StepPolynomial, EXTRAPOLATION, MAX_EXTRAPOLATION_DEGREE, PAST};
 pub(crate) use lane_handover::LaneContinuation;
 
 use crate::error::{NewtonHistory, StepError};

@@ -7,7 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{Kernel, L};
-use crate::step::{extrapolation_degree, NewtonOptions, StepPolynomial, EXTRAPOLATION, PAST};
+use crate::step::{extrapolation_degree, NewtonOptions, StepPolynomial, EXTRAPOLATION, MAX_EXTRAPOLATION_DEGREE, PAST};
 use crate::system::NonholonomicSystem;
 use crate::tableau::{ConditionRows, Tableau};
 
@@ -42,8 +42,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 self.past[slot..slot + D].try_into().expect("a ring slot holds D rows")
             };
             let coefs = &EXTRAPOLATION[degree][..=degree];
-            let latest: [&[L<W>; D]; PAST - 1] = std::array::from_fn(solution);
-            let previous: [&[L<W>; D]; PAST - 1] = std::array::from_fn(|k| solution(k + 1));
+            let latest: [&[L<W>; D]; MAX_EXTRAPOLATION_DEGREE + 1] = std::array::from_fn(solution);
+            let previous: [&[L<W>; D]; MAX_EXTRAPOLATION_DEGREE + 1] = std::array::from_fn(|k| solution(k + 1));
             // Row by row with one row of lanes in flight (a whole `N × W`
             // block in flight is split into scalars and not vectorized);
             // each entry sees the terms in the same order.
