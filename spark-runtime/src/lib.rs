@@ -148,6 +148,7 @@ pub mod system;
 pub mod tableau;
 #[cfg(test)]
 mod tests;
+pub mod trig;
 
 pub use adaptive::{
     integrate_adaptive, integrate_adaptive_with_events, integrate_reversible, integrate_reversible_with_events,

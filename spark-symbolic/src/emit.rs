@@ -16,12 +16,17 @@
 //! (`a − b` instead of `a + (−b)`) is just the subtraction. Each shared
 //! subexpression is counted once. Zero outputs are not written (the output
 //! was created by `zeros()`), so they cost nothing.
+//!
+//! **Sine–cosine pairs.** When a body uses both `sin x` and `cos x` of one
+//! node `x`, both are bound, next to each other, by one call of the
+//! runtime's `trig::sin_cos` (one argument reduction for the two; counted
+//! as the two calls it replaces). A lone `sin` or `cos` stays the method.
 
 use crate::graph::{Deps, Graph, Node, NodeId, Var};
 use crate::simplify::is_int;
 use proc_macro2::{Ident, Literal, Span, TokenStream};
 use quote::{format_ident, quote};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 /// How the rendered code uses a node: the children listed here are the ones
 /// the code refers to, which is what CSE counts.
@@ -385,11 +390,18 @@ pub struct Emitted {
     let_nodes: Vec<NodeId>,
     /// Every output's place, with its expression (`None`: structurally zero).
     outputs: Vec<(Place, Option<R>)>,
+    /// The indices `k` of the `lets` that are a sine whose cosine is `k + 1`
+    /// (see the module documentation).
+    pairs: HashSet<usize>,
+    /// The runtime crate's path, for `trig::sin_cos`.
+    runtime: TokenStream,
 }
 
 impl Emitted {
     /// Evaluates the emitted code at a point, interpreting exactly the
-    /// operations written (for tests of the emitter against the graph).
+    /// operations written (for tests of the emitter against the graph),
+    /// except that a sine–cosine pair is the platform's `sin` and `cos`
+    /// (the runtime's `sin_cos` is within 1 ulp of them).
     /// Returns one value per output, `0` for outputs not written.
     pub fn evaluate(&self, env: &dyn Fn(Var) -> f64) -> Vec<f64> {
         let mut shared = Vec::with_capacity(self.lets.len());
@@ -437,6 +449,13 @@ impl Emitted {
     /// into helper functions that share `w`.
     pub fn statements_in_array(&self) -> Vec<TokenStream> {
         let lets = self.lets.iter().enumerate().map(|(k, e)| {
+            if let Some(call) = self.pair_call(k, Mode::Array) {
+                let (k, k1) = (Literal::usize_unsuffixed(k), Literal::usize_unsuffixed(k + 1));
+                return quote!((w[#k], w[#k1]) = #call;);
+            }
+            if self.pairs.contains(&k.wrapping_sub(1)) {
+                return quote!();
+            }
             let k = Literal::usize_unsuffixed(k);
             let t = e.tokens(Mode::Array);
             quote!(w[#k] = #t;)
@@ -470,6 +489,23 @@ impl Emitted {
         let mode = Mode::Lane { scalar: self.scalar_lets };
         let lets = self.lets.iter().enumerate().map(|(k, e)| {
             let name = format_ident!("s{}", k);
+            if let Some(call) = self.pair_call(k, mode) {
+                let cosine = format_ident!("s{}", k + 1);
+                return if k < self.scalar_lets {
+                    quote!(let (#name, #cosine) = #call;)
+                } else {
+                    quote! {
+                        let mut #name = [0.0f64; W];
+                        let mut #cosine = [0.0f64; W];
+                        for w in 0..W {
+                            (#name[w], #cosine[w]) = #call;
+                        }
+                    }
+                };
+            }
+            if self.pairs.contains(&k.wrapping_sub(1)) {
+                return quote!();
+            }
             let t = e.tokens(mode);
             if k < self.scalar_lets {
                 quote!(let #name = #t;)
@@ -508,6 +544,43 @@ impl Emitted {
         });
         lets.chain(outs).collect()
     }
+
+    /// `trig::sin_cos(x)` when let `k` is the sine of a pair, `x` written
+    /// as `mode` says.
+    fn pair_call(&self, k: usize, mode: Mode) -> Option<TokenStream> {
+        pair_call(&self.runtime, &self.lets[k], self.pairs.contains(&k), mode)
+    }
+}
+
+/// `runtime::trig::sin_cos(x)` for the sine `e = x.sin()` of a pair
+/// (`paired`), `x` written as `mode` says; `None` for any other let.
+fn pair_call(runtime: &TokenStream, e: &R, paired: bool, mode: Mode) -> Option<TokenStream> {
+    match e {
+        R::Method(x, "sin", _) if paired => {
+            let x = x.tokens(mode);
+            Some(quote!(#runtime::trig::sin_cos(#x)))
+        }
+        _ => None,
+    }
+}
+
+/// The sine–cosine pairs among the nodes of a body: each member mapped to
+/// `(sine, cosine)`.
+fn sine_cosine_pairs(views: &HashMap<NodeId, View>) -> HashMap<NodeId, (NodeId, NodeId)> {
+    let argument = |v: &View, name: &str| match v {
+        View::Method(f, xs) if *f == name && xs.len() == 1 => Some(xs[0]),
+        _ => None,
+    };
+    let cosines: HashMap<NodeId, NodeId> =
+        views.iter().filter_map(|(&n, v)| argument(v, "cos").map(|x| (x, n))).collect();
+    let mut pairs = HashMap::new();
+    for (&n, v) in views {
+        if let Some(&c) = argument(v, "sin").and_then(|x| cosines.get(&x)) {
+            pairs.insert(n, (n, c));
+            pairs.insert(c, (n, c));
+        }
+    }
+    pairs
 }
 
 /// Where a rendered output is written: a `let`, or entry `i` (row `i`,
@@ -556,6 +629,9 @@ impl Place {
 pub struct Inputs<'a> {
     /// Parameter field names, by index.
     pub parameters: &'a [Ident],
+    /// The runtime crate's path (`::spark_runtime` unless the declaration
+    /// says otherwise), for the functions generated code calls.
+    pub runtime: &'a TokenStream,
 }
 
 impl Inputs<'_> {
@@ -677,11 +753,33 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
             views.insert(n, v);
         }
     }
-    // Pass 2: which nodes become `let`s, parameter-only ones first.
-    let bound = |n: &NodeId| !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only());
+    // Pass 2: which nodes become `let`s, parameter-only ones first; both
+    // members of a sine–cosine pair are, next to each other where the
+    // first of them was (both follow their argument).
+    let pairs = sine_cosine_pairs(&views);
+    let bound = |n: &NodeId| {
+        !matches!(views[n], View::Leaf) && (refs[n] >= 2 || g.deps(*n).parameters_only() || pairs.contains_key(n))
+    };
     let mut lets: Vec<NodeId> = order.iter().copied().filter(|n| bound(n) && g.deps(*n).parameters_only()).collect();
     let scalar_lets = lets.len();
     lets.extend(order.iter().copied().filter(|n| bound(n) && !g.deps(*n).parameters_only()));
+    let mut placed = HashSet::new();
+    let mut paired_lets = HashSet::new();
+    let mut ordered = Vec::with_capacity(lets.len());
+    for n in lets {
+        if !placed.insert(n) {
+            continue;
+        }
+        match pairs.get(&n) {
+            Some(&(sine, cosine)) => {
+                placed.extend([sine, cosine]);
+                paired_lets.insert(ordered.len());
+                ordered.extend([sine, cosine]);
+            }
+            None => ordered.push(n),
+        }
+    }
+    let lets = ordered;
     let mut em = Emitter { views, names: HashMap::new(), order: HashMap::new(), inputs };
     let mut lets_r = Vec::new();
     let mut outputs_r = Vec::new();
@@ -691,8 +789,16 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         let e = em.render(g, n, true);
         ops += e.ops();
         let name = format_ident!("s{}", k);
-        let t = e.tokens(Mode::Plain);
-        statements.push(quote!(let #name = #t;));
+        if let Some(call) = pair_call(inputs.runtime, &e, paired_lets.contains(&k), Mode::Plain) {
+            let cosine = format_ident!("s{}", k + 1);
+            statements.push(quote!(let (#name, #cosine) = #call;));
+        } else if !paired_lets.contains(&k.wrapping_sub(1)) {
+            let t = e.tokens(Mode::Plain);
+            statements.push(quote!(let #name = #t;));
+        } else {
+            // The cosine, bound with its sine.
+            statements.push(quote!());
+        }
         em.names.insert(n, name);
         em.order.insert(n, k);
         lets_r.push(e);
@@ -727,5 +833,15 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
             }
         }
     }
-    Emitted { statements, ops, shared: lets.len(), scalar_lets, lets: lets_r, let_nodes: lets, outputs: outputs_r }
+    Emitted {
+        statements,
+        ops,
+        shared: lets.len(),
+        scalar_lets,
+        lets: lets_r,
+        let_nodes: lets,
+        outputs: outputs_r,
+        pairs: paired_lets,
+        runtime: inputs.runtime.clone(),
+    }
 }

@@ -289,7 +289,8 @@ proptest! {
             .enumerate()
             .map(|(k, &n)| (Target::Store(proc_macro2::Ident::new("out", proc_macro2::Span::call_site()), k, None), n))
             .collect();
-        let emitted = emit(&mut g, &targets, &Inputs { parameters: &[] });
+        let runtime = quote::quote!(::spark_runtime);
+        let emitted = emit(&mut g, &targets, &Inputs { parameters: &[], runtime: &runtime });
         let values = emitted.evaluate(&env);
         for (k, &n) in outputs.iter().enumerate() {
             let want = g.eval(n, &env);

@@ -20,7 +20,8 @@ fn render(g: &mut Graph, outs: &[NodeId]) -> (String, usize) {
         .enumerate()
         .map(|(i, &n)| (Target::Let(Ident::new(&format!("r{i}"), Span::call_site())), n))
         .collect();
-    let e = emit(g, &targets, &Inputs { parameters: &params });
+    let runtime = quote::quote!(::spark_runtime);
+    let e = emit(g, &targets, &Inputs { parameters: &params, runtime: &runtime });
     let code: String = e.statements.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" ");
     (code.chars().filter(|c| !c.is_whitespace()).collect(), e.ops)
 }
@@ -130,4 +131,27 @@ fn shared_subexpressions_are_bound_once_and_parameters_hoisted() {
     let (code, ops) = render(&mut g, &[t1, t2]);
     assert_eq!(code, "lets0=self.m*self.g;letr0:f64=s0*q[0];letr1:f64=s0*q[1];");
     assert_eq!(ops, 3);
+}
+
+#[test]
+fn a_sine_and_cosine_of_one_angle_are_one_call() {
+    let mut g = Graph::new();
+    let (a, b) = (x(&mut g), y(&mut g));
+    // cos x is used first and once, sin x once: both are bound together,
+    // where the first of them was, by one call of the runtime's pair.
+    let c = g.call(Fun::Cos, &[a]);
+    let s = g.call(Fun::Sin, &[a]);
+    let o1 = g.mul2(c, b);
+    let o2 = g.sub(s, b);
+    let (code, ops) = render(&mut g, &[o1, o2]);
+    assert_eq!(code, "let(s0,s1)=::spark_runtime::trig::sin_cos(q[0]);letr0:f64=q[1]*s1;letr1:f64=s0-q[1];");
+    assert_eq!(ops, 4, "the pair counts as the two calls it replaces");
+    // The pair's argument is bound first; a lone sine stays the method.
+    let ab = g.add2(a, b);
+    let (s, c, lone) = (g.call(Fun::Sin, &[ab]), g.call(Fun::Cos, &[ab]), g.call(Fun::Sin, &[b]));
+    let sum = g.add(&[s, c, lone]);
+    assert_eq!(
+        one(&mut g, sum),
+        "lets0=q[0]+q[1];let(s1,s2)=::spark_runtime::trig::sin_cos(s0);letr0:f64=s1+s2+q[1].sin();"
+    );
 }

@@ -113,7 +113,7 @@ impl<'a> Gen<'a> {
         for o in outs {
             entries.extend(o.entries.iter().cloned());
         }
-        let inputs = Inputs { parameters: &self.params };
+        let inputs = Inputs { parameters: &self.params, runtime: &self.rt };
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         let Emitted { ops, shared, .. } = emitted;
         let statements = &emitted.statements;
@@ -291,7 +291,7 @@ impl<'a> Gen<'a> {
     }
 
     fn lane_statements(&mut self, entries: Vec<(Target, NodeId)>) -> Option<TokenStream> {
-        let inputs = Inputs { parameters: &self.params };
+        let inputs = Inputs { parameters: &self.params, runtime: &self.rt };
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         if emitted.statements.len() > SPLIT_STATEMENTS {
             return None;
@@ -326,7 +326,7 @@ impl<'a> Gen<'a> {
             self.matrix("kt_psi_v", &kt_psi_v, &n),
         ];
         let l = vec![(Target::Let(format_ident!("lagrangian")), md.lagrangian)];
-        let inputs = Inputs { parameters: &self.params };
+        let inputs = Inputs { parameters: &self.params, runtime: &self.rt };
         let mut entries = l;
         for o in &bundle_outs {
             entries.extend(o.entries.iter().cloned());

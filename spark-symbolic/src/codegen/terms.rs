@@ -37,7 +37,8 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
     let bodies = [(entries(&values), &values[..]), (entries(&fused), &fused[..]), (entries(&all), &all[..])];
 
     let params = gen.params.clone();
-    let inputs = Inputs { parameters: &params };
+    let runtime = gen.rt.clone();
+    let inputs = Inputs { parameters: &params, runtime: &runtime };
     let mut emitted: Vec<Emitted> = Vec::new();
     for (e, _) in &bodies {
         emitted.push(emit(&mut gen.model.graph, e, &inputs));

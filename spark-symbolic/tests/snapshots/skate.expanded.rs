@@ -167,7 +167,8 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
     ) -> ::spark_runtime::Vector<1> {
         let mut constraint = <::spark_runtime::Vector<1>>::zeros();
-        constraint[0] = q[2].cos() * v[1] - q[2].sin() * v[0];
+        let (s0, s1) = ::spark_runtime::trig::sin_cos(q[2]);
+        constraint[0] = s1 * v[1] - s0 * v[0];
         constraint
     }
     fn constraint_q(
@@ -177,7 +178,8 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
     ) -> ::spark_runtime::Matrix<1, 3> {
         let mut constraint_q = <::spark_runtime::Matrix<1, 3>>::zeros();
-        constraint_q[(0, 2)] = -(q[2].sin() * v[1]) - q[2].cos() * v[0];
+        let (s0, s1) = ::spark_runtime::trig::sin_cos(q[2]);
+        constraint_q[(0, 2)] = -(s0 * v[1]) - s1 * v[0];
         constraint_q
     }
     fn constraint_v(
@@ -187,8 +189,9 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
     ) -> ::spark_runtime::Matrix<1, 3> {
         let mut constraint_v = <::spark_runtime::Matrix<1, 3>>::zeros();
-        constraint_v[(0, 0)] = -q[2].sin();
-        constraint_v[(0, 1)] = q[2].cos();
+        let (s0, s1) = ::spark_runtime::trig::sin_cos(q[2]);
+        constraint_v[(0, 0)] = -s0;
+        constraint_v[(0, 1)] = s1;
         constraint_v
     }
     fn time_derivatives(
@@ -241,15 +244,14 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let s3 = q[2].cos();
-        let s4 = q[2].sin();
+        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
         force[0] = s2;
-        constraint[0] = s3 * v[1] - s4 * v[0];
-        constraint_force[0] = s4 * psi[0];
-        constraint_force[1] = -(s3 * psi[0]);
+        constraint[0] = s4 * v[1] - s3 * v[0];
+        constraint_force[0] = s3 * psi[0];
+        constraint_force[1] = -(s4 * psi[0]);
     }
     fn stage_jacobians(
         &self,
@@ -289,18 +291,17 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let s3 = q[2].cos();
-        let s4 = q[2].sin();
+        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
         force[0] = s2;
-        constraint[0] = s3 * v[1] - s4 * v[0];
-        constraint_force[0] = s4 * psi[0];
-        constraint_force[1] = -(s3 * psi[0]);
-        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
-        constraint_v[(0, 0)] = -s4;
-        constraint_v[(0, 1)] = s3;
+        constraint[0] = s4 * v[1] - s3 * v[0];
+        constraint_force[0] = s3 * psi[0];
+        constraint_force[1] = -(s4 * psi[0]);
+        constraint_q[(0, 2)] = -(s3 * v[1]) - s4 * v[0];
+        constraint_v[(0, 0)] = -s3;
+        constraint_v[(0, 1)] = s4;
     }
     #[inline(always)]
     #[allow(clippy::needless_range_loop, unused_variables, unused_mut)]
@@ -353,12 +354,9 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
                 let s1 = self.beta.sin();
                 let s2 = s0 * s1;
                 let mut s3 = [0.0f64; W];
-                for w in 0..W {
-                    s3[w] = q[2][w].cos();
-                }
                 let mut s4 = [0.0f64; W];
                 for w in 0..W {
-                    s4[w] = q[2][w].sin();
+                    (s3[w], s4[w]) = ::spark_runtime::trig::sin_cos(q[2][w]);
                 }
                 for w in 0..W {
                     momentum[0][w] = self.m * v[0][w];
@@ -379,13 +377,13 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
                     force[2][w] = 0.0;
                 }
                 for w in 0..W {
-                    constraint[0][w] = s3[w] * v[1][w] - s4[w] * v[0][w];
+                    constraint[0][w] = s4[w] * v[1][w] - s3[w] * v[0][w];
                 }
                 for w in 0..W {
-                    constraint_force[0][w] = s4[w] * psi[0][w];
+                    constraint_force[0][w] = s3[w] * psi[0][w];
                 }
                 for w in 0..W {
-                    constraint_force[1][w] = -(s3[w] * psi[0][w]);
+                    constraint_force[1][w] = -(s4[w] * psi[0][w]);
                 }
                 for w in 0..W {
                     constraint_force[2][w] = 0.0;
@@ -400,12 +398,9 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
                 let s1 = self.beta.sin();
                 let s2 = s0 * s1;
                 let mut s3 = [0.0f64; W];
-                for w in 0..W {
-                    s3[w] = q[2][w].cos();
-                }
                 let mut s4 = [0.0f64; W];
                 for w in 0..W {
-                    s4[w] = q[2][w].sin();
+                    (s3[w], s4[w]) = ::spark_runtime::trig::sin_cos(q[2][w]);
                 }
                 for w in 0..W {
                     momentum[0][w] = self.m * v[0][w];
@@ -426,13 +421,13 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
                     force[2][w] = 0.0;
                 }
                 for w in 0..W {
-                    constraint[0][w] = s3[w] * v[1][w] - s4[w] * v[0][w];
+                    constraint[0][w] = s4[w] * v[1][w] - s3[w] * v[0][w];
                 }
                 for w in 0..W {
-                    constraint_force[0][w] = s4[w] * psi[0][w];
+                    constraint_force[0][w] = s3[w] * psi[0][w];
                 }
                 for w in 0..W {
-                    constraint_force[1][w] = -(s3[w] * psi[0][w]);
+                    constraint_force[1][w] = -(s4[w] * psi[0][w]);
                 }
                 for w in 0..W {
                     constraint_force[2][w] = 0.0;
@@ -444,13 +439,13 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
                     constraint_q[1][0][w] = 0.0;
                 }
                 for w in 0..W {
-                    constraint_q[2][0][w] = -(s4[w] * v[1][w]) - s3[w] * v[0][w];
+                    constraint_q[2][0][w] = -(s3[w] * v[1][w]) - s4[w] * v[0][w];
                 }
                 for w in 0..W {
-                    constraint_v[0][0][w] = -s4[w];
+                    constraint_v[0][0][w] = -s3[w];
                 }
                 for w in 0..W {
-                    constraint_v[1][0][w] = s3[w];
+                    constraint_v[1][0][w] = s4[w];
                 }
                 for w in 0..W {
                     constraint_v[2][0][w] = 0.0;
@@ -519,15 +514,14 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         force.as_mut_slice().fill(0.0);
         constraint_force.as_mut_slice().fill(0.0);
         let s2 = terms[0];
-        let s3 = q[2].cos();
-        let s4 = q[2].sin();
+        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
         force[0] = s2;
-        constraint[0] = s3 * v[1] - s4 * v[0];
-        constraint_force[0] = s4 * psi[0];
-        constraint_force[1] = -(s3 * psi[0]);
+        constraint[0] = s4 * v[1] - s3 * v[0];
+        constraint_force[0] = s3 * psi[0];
+        constraint_force[1] = -(s4 * psi[0]);
     }
     fn stage_values_and_constraint_jacobians_with_terms(
         &self,
@@ -562,18 +556,17 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_q.as_mut_slice().fill(0.0);
         constraint_v.as_mut_slice().fill(0.0);
         let s2 = terms[0];
-        let s3 = q[2].cos();
-        let s4 = q[2].sin();
+        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
         force[0] = s2;
-        constraint[0] = s3 * v[1] - s4 * v[0];
-        constraint_force[0] = s4 * psi[0];
-        constraint_force[1] = -(s3 * psi[0]);
-        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
-        constraint_v[(0, 0)] = -s4;
-        constraint_v[(0, 1)] = s3;
+        constraint[0] = s4 * v[1] - s3 * v[0];
+        constraint_force[0] = s3 * psi[0];
+        constraint_force[1] = -(s4 * psi[0]);
+        constraint_q[(0, 2)] = -(s3 * v[1]) - s4 * v[0];
+        constraint_v[(0, 0)] = -s3;
+        constraint_v[(0, 1)] = s4;
     }
     fn stage_jacobians_with_terms(
         &self,
@@ -623,23 +616,22 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_force_q.as_mut_slice().fill(0.0);
         constraint_force_v.as_mut_slice().fill(0.0);
         let s2 = terms[0];
-        let s3 = q[2].cos();
-        let s4 = q[2].sin();
-        let s5 = s4 * psi[0];
-        let s6 = s3 * psi[0];
+        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let s5 = s3 * psi[0];
+        let s6 = s4 * psi[0];
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
         force[0] = s2;
-        constraint[0] = s3 * v[1] - s4 * v[0];
+        constraint[0] = s4 * v[1] - s3 * v[0];
         constraint_force[0] = s5;
         constraint_force[1] = -s6;
         mass[(0, 0)] = self.m;
         mass[(1, 1)] = self.m;
         mass[(2, 2)] = self.inertia;
-        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
-        constraint_v[(0, 0)] = -s4;
-        constraint_v[(0, 1)] = s3;
+        constraint_q[(0, 2)] = -(s3 * v[1]) - s4 * v[0];
+        constraint_v[(0, 0)] = -s3;
+        constraint_v[(0, 1)] = s4;
         constraint_force_q[(0, 2)] = s6;
         constraint_force_q[(1, 2)] = s5;
     }
@@ -681,23 +673,22 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let s3 = q[2].cos();
-        let s4 = q[2].sin();
-        let s5 = s4 * psi[0];
-        let s6 = s3 * psi[0];
+        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let s5 = s3 * psi[0];
+        let s6 = s4 * psi[0];
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
         force[0] = s2;
-        constraint[0] = s3 * v[1] - s4 * v[0];
+        constraint[0] = s4 * v[1] - s3 * v[0];
         constraint_force[0] = s5;
         constraint_force[1] = -s6;
         mass[(0, 0)] = self.m;
         mass[(1, 1)] = self.m;
         mass[(2, 2)] = self.inertia;
-        constraint_q[(0, 2)] = -(s4 * v[1]) - s3 * v[0];
-        constraint_v[(0, 0)] = -s4;
-        constraint_v[(0, 1)] = s3;
+        constraint_q[(0, 2)] = -(s3 * v[1]) - s4 * v[0];
+        constraint_v[(0, 0)] = -s3;
+        constraint_v[(0, 1)] = s4;
         constraint_force_q[(0, 2)] = s6;
         constraint_force_q[(1, 2)] = s5;
     }

@@ -1,0 +1,196 @@
+//! The sine and cosine of one angle together, for the code
+//! `nonholonomic_system!` generates.
+//!
+//! A body that needs both `sin θ` and `cos θ` (the skate's and the mobile
+//! robot's constraints, every rotation) gets them from one call of
+//! [`sin_cos`]: the argument is reduced by `π/2` once and both of fdlibm's
+//! kernel polynomials run on the reduced value. The platform's libm pays
+//! ≈ 136 instructions for the pair (glibc's `sincos`, into which LLVM fuses
+//! the two calls); this pays ≈ 90, inline, which is 5 % of the skate's
+//! Gauss s = 1 step (docs/performance/README.md, "The sine–cosine pair").
+//!
+//! The reduction is fdlibm's `__rem_pio2` medium case, as musl and the
+//! `libm` crate have it: `x = n·π/2 + y`, with `π/2` in parts of 33 bits and
+//! a second and a third round where the first cancels, exact for
+//! `|x| < 2²⁰·π/2`. The reduced head and tail go into `__kernel_sin` and
+//! `__kernel_cos`, and the quadrant `n mod 4` picks which of the two is the
+//! sine and the signs. Each result is within 1 ulp of the correctly rounded
+//! value, as fdlibm's are; the tests compare with the platform's `sin` and
+//! `cos`. Larger, infinite and NaN arguments go to the platform's
+//! functions.
+
+// The constants are fdlibm's as published, digit for digit, so that a
+// reader can check them against the source; they round to the same doubles.
+#![allow(clippy::excessive_precision)]
+
+/// `__kernel_sin` coefficients (fdlibm).
+const S1: f64 = -1.666_666_666_666_663_243_48e-1;
+const S2: f64 = 8.333_333_333_322_489_461_24e-3;
+const S3: f64 = -1.984_126_982_985_794_931_34e-4;
+const S4: f64 = 2.755_731_370_707_006_767_89e-6;
+const S5: f64 = -2.505_076_025_340_686_341_95e-8;
+const S6: f64 = 1.589_690_995_211_550_102_21e-10;
+/// `__kernel_cos` coefficients (fdlibm).
+const C1: f64 = 4.166_666_666_666_660_190_37e-2;
+const C2: f64 = -1.388_888_888_887_410_957_49e-3;
+const C3: f64 = 2.480_158_728_947_672_941_78e-5;
+const C4: f64 = -2.755_731_435_139_066_330_35e-7;
+const C5: f64 = 2.087_572_321_298_174_827_90e-9;
+const C6: f64 = -1.135_964_755_778_819_482_65e-11;
+/// `1.5 · 2⁵²`: adding and subtracting it rounds to an integer.
+const TO_INT: f64 = 1.5 / f64::EPSILON;
+/// `2/π` rounded (fdlibm's `invpio2`, 0x3FE45F306DC9C883).
+const INV_PIO2: f64 = std::f64::consts::FRAC_2_PI;
+/// `π/2` in parts of 33 bits (`PIO2_k`) and their tails (`PIO2_kT`).
+const PIO2_1: f64 = 1.570_796_326_734_125_614_17;
+const PIO2_1T: f64 = 6.077_100_506_506_192_249_32e-11;
+const PIO2_2: f64 = 6.077_100_506_303_965_976_60e-11;
+const PIO2_2T: f64 = 2.022_266_248_795_950_631_54e-21;
+const PIO2_3: f64 = 2.022_266_248_711_166_455_80e-21;
+const PIO2_3T: f64 = 8.478_427_660_368_899_569_97e-32;
+/// The high word of `2²⁰·π/2`: the reduction is exact below it.
+const MEDIUM_LIMIT: u32 = 0x4139_21fb;
+
+/// `(sin x, cos x)`, each within 1 ulp of the exact value.
+#[inline(never)]
+pub fn sin_cos(x: f64) -> (f64, f64) {
+    let ix = (x.to_bits() >> 32) as u32 & 0x7fff_ffff;
+    if ix >= MEDIUM_LIMIT {
+        return platform_sin_cos(x);
+    }
+    let (n, y, tail) = reduce(x);
+    let (s, c) = (kernel_sin(y, tail), kernel_cos(y, tail));
+    // Quadrant n: sin x = (s, c, −s, −c)[n mod 4] and
+    // cos x = (c, −s, −c, s)[n mod 4], the swap and the signs as bits.
+    let (sin, cos) = if n & 1 == 0 { (s, c) } else { (c, s) };
+    let sign_sin = ((n as u64) & 2) << 62;
+    let sign_cos = (((n + 1) as u64) & 2) << 62;
+    (f64::from_bits(sin.to_bits() ^ sign_sin), f64::from_bits(cos.to_bits() ^ sign_cos))
+}
+
+/// Large, infinite or NaN arguments: the platform's reduction, out of the
+/// inlined path.
+#[cold]
+#[inline(never)]
+fn platform_sin_cos(x: f64) -> (f64, f64) {
+    x.sin_cos()
+}
+
+/// `x = n·π/2 + (y + tail)` with `|y| ≤ π/4` (nearly: `n` is rounded to
+/// nearest), for `|x| < 2²⁰·π/2`: fdlibm's rounds, the second and third
+/// only where the one before cancelled more than 16, then 49 bits of `x`'s
+/// exponent.
+#[inline(always)]
+fn reduce(x: f64) -> (i64, f64, f64) {
+    let f_n = (x * INV_PIO2 + TO_INT) - TO_INT;
+    let n = f_n as i64;
+    let exponent = |y: f64| ((y.to_bits() >> 52) & 0x7ff) as i64;
+    let ex = exponent(x);
+    let mut r = x - f_n * PIO2_1;
+    let mut w = f_n * PIO2_1T;
+    let mut y = r - w;
+    if ex - exponent(y) > 16 {
+        (r, w, y) = further_rounds(f_n, ex, r);
+    }
+    (n, y, (r - y) - w)
+}
+
+/// The second and, where it cancels too, third round of the reduction,
+/// from the first round's remainder `r1`.
+#[cold]
+#[inline(never)]
+fn further_rounds(f_n: f64, ex: i64, r1: f64) -> (f64, f64, f64) {
+    let exponent = |y: f64| ((y.to_bits() >> 52) & 0x7ff) as i64;
+    let t = f_n * PIO2_2;
+    let r = r1 - t;
+    let w = f_n * PIO2_2T - ((r1 - r) - t);
+    let y = r - w;
+    if ex - exponent(y) <= 49 {
+        return (r, w, y);
+    }
+    let t = f_n * PIO2_3;
+    let r3 = r - t;
+    let w = f_n * PIO2_3T - ((r - r3) - t);
+    (r3, w, r3 - w)
+}
+
+/// `sin(x + y)` for `|x| ≤ π/4`, `y` the tail of `x` (fdlibm's
+/// `__kernel_sin` with a tail).
+#[inline(always)]
+fn kernel_sin(x: f64, y: f64) -> f64 {
+    let z = x * x;
+    let w = z * z;
+    let r = S2 + z * (S3 + z * S4) + z * w * (S5 + z * S6);
+    let v = z * x;
+    x - ((z * (0.5 * y - v * r) - y) - v * S1)
+}
+
+/// `cos(x + y)` for `|x| ≤ π/4` (fdlibm's `__kernel_cos`).
+#[inline(always)]
+fn kernel_cos(x: f64, y: f64) -> f64 {
+    let z = x * x;
+    let w = z * z;
+    let r = z * (C1 + z * (C2 + z * C3)) + w * w * (C4 + z * (C5 + z * C6));
+    let hz = 0.5 * z;
+    let w = 1.0 - hz;
+    w + (((1.0 - w) - hz) + (z * r - x * y))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sin_cos;
+
+    /// Distance in units in the last place (0 for equal values, NaN
+    /// included, and for `±0`).
+    fn ulps(a: f64, b: f64) -> u64 {
+        if a == b || (a.is_nan() && b.is_nan()) {
+            return 0;
+        }
+        (a.to_bits() as i64).abs_diff(b.to_bits() as i64)
+    }
+
+    /// The larger of the sine's and the cosine's distances from the
+    /// platform's.
+    fn distance(x: f64) -> u64 {
+        let (s, c) = sin_cos(x);
+        ulps(s, x.sin()).max(ulps(c, x.cos()))
+    }
+
+    /// Within 1 ulp of the platform's `sin` and `cos` (themselves within
+    /// 1 ulp of the exact value) on a million arguments in [−100, 100],
+    /// 200 000 up to the range limit, and the 200 doubles around each of
+    /// 4000 multiples of π/2, where the first and second rounds of the
+    /// reduction cancel.
+    #[test]
+    fn sine_and_cosine_are_within_one_ulp_of_the_platforms() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = || {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut args: Vec<f64> = (0..1_000_000).map(|_| (uniform() - 0.5) * 200.0).collect();
+        args.extend((0..200_000).map(|_| (uniform() - 0.5) * 3.2e6));
+        for k in -2000i64..2000 {
+            let m = k as f64 * std::f64::consts::FRAC_PI_2;
+            args.extend((-100i64..100).map(|d| f64::from_bits(m.to_bits().wrapping_add_signed(d))));
+        }
+        let (worst, at) = args.iter().map(|&x| (distance(x), x)).fold((0, 0.0), |a, b| if b.0 > a.0 { b } else { a });
+        assert!(worst <= 1, "{worst} ulps at x = {at:e}");
+        let differ = args.iter().filter(|&&x| distance(x) > 0).count();
+        assert!(differ < args.len() / 20, "{differ} of {} differ from the platform's", args.len());
+    }
+
+    #[test]
+    fn special_arguments_keep_their_values() {
+        for x in [1e-300, -1e-300, 5e-324, 1e-8, 0.785, 2.357, 1e300, -1e300, 1.7e6, f64::MAX] {
+            assert!(distance(x) <= 1, "x = {x:e}");
+        }
+        assert_eq!(sin_cos(0.0).0.to_bits(), 0.0f64.to_bits());
+        assert_eq!(sin_cos(-0.0).0.to_bits(), (-0.0f64).to_bits());
+        assert_eq!(sin_cos(0.0).1, 1.0);
+        for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let (s, c) = sin_cos(x);
+            assert!(s.is_nan() && c.is_nan(), "x = {x}");
+        }
+    }
+}
