@@ -6,8 +6,10 @@
 //! [`sin_cos`]: the argument is reduced by `π/2` once and both of fdlibm's
 //! kernel polynomials run on the reduced value. The platform's libm pays
 //! ≈ 136 instructions for the pair (glibc's `sincos`, into which LLVM fuses
-//! the two calls); this pays ≈ 90, inline, which is 5 % of the skate's
-//! Gauss s = 1 step (docs/performance/README.md, "The sine–cosine pair").
+//! the two calls); this pays ≈ 100, 4 % of the skate's Gauss s = 1 step
+//! (docs/performance/README.md, "The sine–cosine pair"). It is out of
+//! line: inlined, it grows the generated stage functions past LLVM's
+//! inlining threshold, and their calls cost more than the pair saves.
 //!
 //! The reduction is fdlibm's `__rem_pio2` medium case, as musl and the
 //! `libm` crate have it: `x = n·π/2 + y`, with `π/2` in parts of 33 bits and
