@@ -1,5 +1,6 @@
-//! A step loop to profile: the paper's particle, skate or McLachlan–Perlmutter
-//! particles (`mp7`, n = 7, from the j = 5 state of Fig. 8.4), declared with
+//! A step loop to profile: the paper's particle, skate, mobile robot or
+//! McLachlan–Perlmutter particles (`mp7`, n = 7, from the j = 5 state of
+//! Fig. 8.4), declared with
 //! `nonholonomic_system!`, stepped over `t ∈ [0, 10]` from the paper's
 //! initial values, `repeats` times, with one Newton mode, and the mean time
 //! and Newton updates per step printed. Built for `perf record` and
@@ -11,9 +12,10 @@
 //! valgrind --tool=callgrind target/profiling/examples/step_profile skate decoupled 2 200
 //! ```
 //!
-//! Arguments: `particle|skate|mp7`, `full|simplified|decoupled` (full Newton,
-//! simplified Newton on the exact Jacobian, on the stage-decoupled matrix),
-//! stages (`1..=5` for the particle and mp7, `1..=4` for the skate: Gauss, or
+//! Arguments: `particle|skate|robot|mp7`, `full|simplified|decoupled` (full
+//! Newton, simplified Newton on the exact Jacobian, on the stage-decoupled
+//! matrix), stages (`1..=5` for the particle and mp7, `1..=4` for the skate
+//! and the robot: Gauss, or
 //! Lobatto IIIA-B with an `L` before the count, as in `L3`),
 //! repeats, `loop|integrate`, the step `h` (default: the paper's) and the
 //! starting guess's extrapolation degree (default: `NewtonOptions`'s). `loop`
@@ -33,9 +35,9 @@ use spark_runtime::{
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{mp7_start, particle_start, skate_start, Mp7, Particle, Skate};
+use paper_systems::{mp7_start, particle_start, robot_start, skate_start, MobileRobot, Mp7, Particle, Skate};
 
-fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: usize>(
+fn run<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize, const S: usize, const D: usize>(
     sys: Sys,
     start: State<N>,
     h: f64,
@@ -45,7 +47,7 @@ fn run<Sys: NonholonomicSystem<N, 1>, const N: usize, const S: usize, const D: u
     driver: Driver,
 ) -> Result<(), String> {
     let tableau = Tableau::new(method).map_err(|e| e.to_string())?;
-    let mut stepper = Stepper::<Sys, N, 1, S, D>::new(sys, tableau).with_options(options);
+    let mut stepper = Stepper::<Sys, N, M, S, D>::new(sys, tableau).with_options(options);
     let (mut updates, mut factorizations, mut steps, mut end) = (0usize, 0usize, 0usize, start);
     let run_options = RunOptions {
         observe: Observe { energy: false, constraint_residual: false, multipliers: false },
@@ -134,37 +136,50 @@ fn main() -> Result<(), String> {
     let skate = skate_start();
     let particle = particle_start();
     let mp7 = mp7_start();
+    let robot = robot_start();
     // The paper's step unless a sixth argument gives another.
     let step = |paper: f64| -> Result<f64, String> {
         args.get(6).map_or(Ok(paper), |h| h.parse().map_err(|e| format!("step: {e}")))
     };
     match (arg(1, "skate").as_str(), stages) {
-        ("skate", 1) => run::<_, 3, 1, 7>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
-        ("skate", 2) => run::<_, 3, 2, 11>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
-        ("skate", 3) => run::<_, 3, 3, 15>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
-        ("skate", 4) => run::<_, 3, 4, 19>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 1) => run::<_, 3, 1, 1, 7>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 2) => run::<_, 3, 1, 2, 11>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 3) => run::<_, 3, 1, 3, 15>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
+        ("skate", 4) => run::<_, 3, 1, 4, 19>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
         ("particle", 1) => {
-            run::<_, 3, 1, 7>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+            run::<_, 3, 1, 1, 7>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
         }
         ("particle", 2) => {
-            run::<_, 3, 2, 11>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+            run::<_, 3, 1, 2, 11>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
         }
         ("particle", 3) => {
-            run::<_, 3, 3, 15>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+            run::<_, 3, 1, 3, 15>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
         }
         ("particle", 4) => {
-            run::<_, 3, 4, 19>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+            run::<_, 3, 1, 4, 19>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
         }
         ("particle", 5) => {
-            run::<_, 3, 5, 23>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
+            run::<_, 3, 1, 5, 23>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
         }
-        ("mp7", 1) => run::<_, 7, 1, 15>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 2) => run::<_, 7, 2, 23>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 3) => run::<_, 7, 3, 31>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 4) => run::<_, 7, 4, 39>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 5) => run::<_, 7, 5, 47>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("robot", 1) => {
+            run::<_, 4, 2, 1, 10>(MobileRobot::default(), robot, step(0.2)?, method, options, repeats, driver)
+        }
+        ("robot", 2) => {
+            run::<_, 4, 2, 2, 16>(MobileRobot::default(), robot, step(0.2)?, method, options, repeats, driver)
+        }
+        ("robot", 3) => {
+            run::<_, 4, 2, 3, 22>(MobileRobot::default(), robot, step(0.2)?, method, options, repeats, driver)
+        }
+        ("robot", 4) => {
+            run::<_, 4, 2, 4, 28>(MobileRobot::default(), robot, step(0.2)?, method, options, repeats, driver)
+        }
+        ("mp7", 1) => run::<_, 7, 1, 1, 15>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 2) => run::<_, 7, 1, 2, 23>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 3) => run::<_, 7, 1, 3, 31>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 4) => run::<_, 7, 1, 4, 39>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 5) => run::<_, 7, 1, 5, 47>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
         (system, s) => {
-            Err(format!("no case {system} with s = {s}: particle or mp7 with s = 1..=5, skate with s = 1..=4"))
+            Err(format!("no case {system} with s = {s}: particle or mp7 with s = 1..=5, skate or robot with s = 1..=4"))
         }
     }
 }

@@ -17,6 +17,11 @@ pub fn skate_start() -> State<3> {
     State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0))
 }
 
+/// The mobile robot's initial values (§8.3).
+pub fn robot_start() -> State<4> {
+    State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0))
+}
+
 /// The McLachlan–Perlmutter particles' state `j = 5` of Fig. 8.4.
 pub fn mp7_start() -> State<7> {
     let angle = 5.0 * std::f64::consts::PI / 18.0;
