@@ -52,11 +52,19 @@ const PIO2_3: f64 = 2.022_266_248_711_166_455_80e-21;
 const PIO2_3T: f64 = 8.478_427_660_368_899_569_97e-32;
 /// The high word of `2²⁰·π/2`: the reduction is exact below it.
 const MEDIUM_LIMIT: u32 = 0x4139_21fb;
+/// The high word of `2⁻²⁷`: below it `sin x` rounds to `x` and `cos x` to 1
+/// (fdlibm's tests are `2⁻²⁶` and `2⁻²⁷·√2`).
+const TINY_LIMIT: u32 = 0x3e40_0000;
 
 /// `(sin x, cos x)`, each within 1 ulp of the exact value.
 #[inline(never)]
 pub fn sin_cos(x: f64) -> (f64, f64) {
     let ix = (x.to_bits() >> 32) as u32 & 0x7fff_ffff;
+    if ix < TINY_LIMIT {
+        // What the kernels round to, at once: an angle that stays at zero
+        // (the robot's heading) is common.
+        return (x, 1.0);
+    }
     if ix >= MEDIUM_LIMIT {
         return platform_sin_cos(x);
     }
@@ -190,6 +198,11 @@ mod tests {
         assert_eq!(sin_cos(0.0).0.to_bits(), 0.0f64.to_bits());
         assert_eq!(sin_cos(-0.0).0.to_bits(), (-0.0f64).to_bits());
         assert_eq!(sin_cos(0.0).1, 1.0);
+        // Either side of the tiny-argument bound: the kernels' values.
+        let bound = f64::from_bits(0x3e40_0000_0000_0000);
+        for x in [bound, f64::from_bits(bound.to_bits() - 1), -bound, 1e-20] {
+            assert_eq!(sin_cos(x), (x.sin(), x.cos()), "x = {x:e}");
+        }
         for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
             let (s, c) = sin_cos(x);
             assert!(s.is_nan() && c.is_nan(), "x = {x}");
