@@ -15,8 +15,8 @@ pub(crate) const MAX_EXTRAPOLATION_DEGREE: usize = 5;
 /// `d + 1` it extrapolates at degree `d ≤ MAX_EXTRAPOLATION_DEGREE` and the
 /// one before them, whose end velocity is the oldest one's start velocity;
 /// rounded up to a power of two, so that an index into the ring is a mask
-/// (a remainder by 7 cost the skate's Gauss s = 1 step 140 instructions of
-/// its 3244).
+/// (a remainder by 7 cost the skate's Gauss s = 1 step ≈ 110 instructions
+/// of its 3244).
 pub(crate) const PAST: usize = (MAX_EXTRAPOLATION_DEGREE + 2).next_power_of_two();
 
 /// The degree a step falls back to when Newton fails from a guess of higher
