@@ -14,7 +14,8 @@
 //! mass matrices (polar particle, cart-pendulum without constraints), a
 //! time-dependent mass, every documented function (including `atan`,
 //! `asin`, `acos`), physics-style parameter names, a scene with a
-//! time-dependent holonomic rail and a chain with n = 12.
+//! time-dependent holonomic rail, a chain with n = 12 and eight angles
+//! coupled through their sines and cosines.
 
 use spark_runtime::reference::{integrate_at, ReferenceOptions};
 use spark_runtime::{
@@ -143,6 +144,20 @@ nonholonomic_system! {
             - kk/2*(q1^2 + (q2-q1)^2 + (q3-q2)^2 + (q4-q3)^2 + (q5-q4)^2 + (q6-q5)^2 + (q7-q6)^2
             + (q8-q7)^2 + (q9-q8)^2 + (q10-q9)^2 + (q11-q10)^2 + (q12-q11)^2) - (q1^4 + q12^4)/4,
         constraints: [ dot(q12) - q1*dot(q2) + q3*dot(q4) ],
+    }
+}
+
+nonholonomic_system! {
+    /// Eight angles coupled through their sines and cosines in the kinetic
+    /// and potential energy and the constraints: bodies long enough to be
+    /// cut into helpers, each angle's sine and cosine one `sin_cos` call.
+    pub struct TrigChain8 {
+        coordinates: [a, b, c, d, e, f, g, k],
+        lagrangian: (dot(a)^2 + dot(b)^2 + dot(c)^2 + dot(d)^2 + dot(e)^2 + dot(f)^2 + dot(g)^2 + dot(k)^2)/2
+            + 0.3*cos(a)*cos(b)*dot(a)*dot(b) + 0.2*sin(b)*sin(c)*dot(c)^2 + 0.3*cos(c)*sin(d)*dot(d)*dot(e)
+            + 0.2*sin(e)*cos(f)*dot(f)^2 + 0.3*cos(g)*sin(k)*dot(g)*dot(k)
+            + cos(a)*cos(k) + cos(d)*sin(g) - sin(b)*cos(e),
+        constraints: [ cos(a)*dot(b) - sin(a)*dot(c), sin(e)*dot(f) + cos(e)*dot(g) ],
     }
 }
 
@@ -396,13 +411,14 @@ fn all_reports() -> Vec<(Report, bool)> {
             ),
             true,
         ),
+        (measure!(TrigChain8::default(), 8, 2, [0.0; 8], [0.5, 0.0, 0.4, 0.3, 0.2, 0.6, 0.0, 0.1]), true),
         (measure!(BeadOnRail::default(), 3, 1, [0.5, 0.0, 0.1], [0.3, 0.75, 0.2]), false),
         (measure!(BeadOnCord::default(), 3, 1, [0.5, 0.0, 0.1], [0.3, 0.2, 0.3 * sqrt109]), false),
         (measure!(BeadPushed::default(), 3, 2, [0.5, 0.0, 0.1], [0.3, 0.75, 0.3 * sqrt109]), false),
     ]
 }
 
-/// One test for the whole table, so the 14 references and 56 runs are
+/// One test for the whole table, so the 15 references and 60 runs are
 /// computed once; every failure is collected and reported together.
 #[test]
 fn newcomer_systems_have_exact_derivatives_order_four_and_round_off_constraints() {
