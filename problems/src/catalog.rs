@@ -2,7 +2,7 @@
 //! dispatch from run-time choices (system, stage count) to the
 //! monomorphized code.
 //!
-//! Each entry is declared once in the [`catalog!`] list at the bottom of this
+//! Each entry is declared once in the `catalog!` list at the bottom of this
 //! file: the type, `N`, `M`, the command-line name, a one-line description, a
 //! consistent default initial state and a default step and final time.
 //! Everything else (structure facts, effects, coordinates, parameters,
@@ -50,7 +50,7 @@ pub trait StageVisitor<Sys, const N: usize, const M: usize> {
 }
 
 /// The stage-count dispatch of one registered type (implemented by the
-/// [`catalog!`] list; do not implement it by hand).
+/// `catalog!` list; do not implement it by hand).
 pub trait Dispatch<const N: usize, const M: usize>: Registered<N, M> {
     /// Calls `visitor.visit::<S, D>()` for `S = stages`, or says which stage
     /// counts are compiled in.

@@ -328,7 +328,7 @@ where
 }
 
 /// One SPARK step of `method` with `S` stages (`D = S(N+M)+N`, see
-/// [`Stepper`]) from `(t0, q0, v0)`, with the stepper's default Newton
+/// [`Stepper`](struct@spark_runtime::Stepper)) from `(t0, q0, v0)`, with the stepper's default Newton
 /// options and a cold start. `v0` is first made consistent (projected onto
 /// `k(t0, q0, ·) = 0`) so that the step starts where the stepper expects.
 #[allow(clippy::too_many_arguments)]

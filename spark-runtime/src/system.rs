@@ -618,7 +618,7 @@ pub struct EventSpec {
     /// counted and reported).
     pub terminal: bool,
     /// The event function in the neutral text form of
-    /// [`SystemSource`](crate::SystemSource) (empty for run-time events).
+    /// [`SystemSource`] (empty for run-time events).
     pub source: &'static str,
 }
 

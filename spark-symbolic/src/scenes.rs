@@ -25,7 +25,7 @@ fn err<T>(span: proc_macro2::Span, message: impl Into<String>) -> Result<T, Spec
 
 /// The base declaration followed by one spec per scene (just the base for
 /// a declaration without scenes). Every effect is checked once, selected or
-/// not (see [`check_lowerable`]).
+/// not (see `check_lowerable`).
 pub fn desugar(declaration: Declaration) -> Result<Vec<SystemSpec>, SpecError> {
     let Declaration { base, effects, scenes } = declaration;
     if scenes.is_empty() {

@@ -3,7 +3,7 @@
 //! so nothing here writes to standard output; progress bars go to standard
 //! error.
 //!
-//! [`Cli`] and [`Command`] are the grammar, [`run`] the dispatch; the
+//! [`Cli`] and [`Command`] are the grammar, [`run`](fn@run) the dispatch; the
 //! subcommands live in [`list`], [`run`](mod@run), [`paper`], [`section`],
 //! [`stress`] and [`work_precision`].
 

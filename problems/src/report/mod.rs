@@ -1,6 +1,6 @@
 //! What the experiments and the command line turn runs into: figures
 //! ([`plot`]), output folders and their files ([`files`]), statistics
-//! ([`stats`]), number formats ([`format`]), the thread-CPU clock
+//! ([`stats`]), number formats ([`format`](mod@format)), the thread-CPU clock
 //! ([`clock`]) and progress bars ([`progress`]). Nothing here imports
 //! another wing of the crate: runs, experiments and the command line use it.
 

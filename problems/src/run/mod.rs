@@ -2,7 +2,7 @@
 //! step, interval, parameters and initial values.
 //!
 //! The systems, their defaults and the dispatch from run-time `(system, s)`
-//! to the const-generic [`Stepper`] live in [`crate::catalog`]; this module
+//! to the const-generic [`Stepper`](struct@spark_runtime::Stepper) live in [`crate::catalog`]; this module
 //! says what one run does for a given stepper type ([`run_with`]).
 //!
 //! [`run`] (one run) and [`run_ensemble`] (one run per initial state, the
@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 
 /// The registered default initial values of `kind` (the paper's for its four
 /// systems; for `mp7` the member `j = 0` of the §8.4 ensemble, see
-/// [`mp7_initial_values`]).
+/// [`mp7_initial_values`](crate::systems::paper::mp7_initial_values)).
 pub fn paper_initial_values(kind: SystemKind) -> (Vec<f64>, Vec<f64>) {
     let e = kind.entry();
     (e.q0.to_vec(), e.v0.to_vec())

@@ -280,7 +280,7 @@ where
 }
 
 /// Integrates every member of `r`: in SIMD lane groups through
-/// [`integrate_ensemble`] (the groups in parallel, rayon), each member's
+/// [`integrate_ensemble`](spark_runtime::integrate_ensemble) (the groups in parallel, rayon), each member's
 /// columns computed from its samples as [`integrate`] computes them. A
 /// member agrees with [`integrate`] for it alone to the Newton tolerance
 /// per step, whatever the thread count.
@@ -598,7 +598,7 @@ const WORKER_STACK: usize = 8 << 20;
 
 /// Runs `work` on a thread of its own while the calling Python thread,
 /// the GIL released, waits for it and checks Python's signal handlers
-/// every [`SIGNAL_POLL`]: when one raises (Ctrl-C raises
+/// every `SIGNAL_POLL`: when one raises (Ctrl-C raises
 /// `KeyboardInterrupt`) it sets `work`'s stop flag, waits for the run to
 /// notice it (within a few thousand steps) and raises what the handler
 /// raised. A failure of `work` becomes `SparkError`.

@@ -423,7 +423,7 @@ pub enum AdaptiveError {
         partial: Box<AdaptiveReport>,
     },
     /// The observer asked the run to stop
-    /// ([`Observer::stop_requested`](crate::Observer::stop_requested)).
+    /// ([`crate::Observer::stop_requested`]).
     #[error("stopped by its observer at t = {}", Sci(*t))]
     Stopped {
         /// Where the last accepted step ended.

@@ -28,7 +28,7 @@ pub enum IntegrationError {
         /// The trajectory up to the failure.
         partial: Box<RunReport>,
     },
-    /// Under [`FailurePolicy::Reject`], Newton kept failing down to the
+    /// Under [`FailurePolicy::Reject`](crate::FailurePolicy::Reject), Newton kept failing down to the
     /// smallest sub-step allowed.
     #[error(
         "step {index} from t = {} (h = {}) still fails at t = {} with sub-step {} at the floor {} \
@@ -89,7 +89,7 @@ pub enum IntegrationError {
     },
 }
 
-/// How a step under [`FailurePolicy::Reject`] reached the floor.
+/// How a step under [`FailurePolicy::Reject`](crate::FailurePolicy::Reject) reached the floor.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RejectionFloor {
     /// The step size.
@@ -98,7 +98,7 @@ pub struct RejectionFloor {
     pub substep_t: f64,
     /// The last sub-step size tried.
     pub h_tried: f64,
-    /// The floor (see [`RejectionPolicy::floor`]).
+    /// The floor (see [`RejectionPolicy::floor`](crate::RejectionPolicy::floor)).
     pub floor: f64,
     /// Rejections within the step.
     pub rejections: usize,

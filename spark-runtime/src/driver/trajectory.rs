@@ -101,7 +101,7 @@ pub struct RunReport {
     /// Largest Newton iteration count of one step.
     pub newton_iterations_max: usize,
     /// Rejected (sub-)steps: each Newton failure followed by smaller
-    /// sub-steps (a halving, or a rejection under [`FailurePolicy::Reject`]).
+    /// sub-steps (a halving, or a rejection under [`FailurePolicy::Reject`](crate::FailurePolicy::Reject)).
     pub rejected_steps: usize,
     /// Accepted sub-steps: one per scheduled step that succeeds at once,
     /// more where failures cut it.

@@ -54,7 +54,7 @@ where
 const STOP_CHECK_EVERY: usize = 1024;
 
 /// [`integrate_ensemble`] that asks `stop` (from every lane group's
-/// thread) every [`STOP_CHECK_EVERY`] steps and ends with
+/// thread) every 1024 steps (`STOP_CHECK_EVERY`) and ends with
 /// [`LaneError::Stopped`] once it says so: how a front end lets its user
 /// interrupt a long ensemble. The members' samples are those of
 /// [`integrate_ensemble`] up to there, bit for bit.

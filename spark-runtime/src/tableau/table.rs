@@ -12,9 +12,9 @@ use super::{ConditionRows, Tableau};
 /// nested arrays.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct TableauTable {
-    /// The method's key ([`Method::key`]), e.g. `"lobatto-iiia-b"`.
+    /// The method's key ([`Method::key`](crate::Method::key)), e.g. `"lobatto-iiia-b"`.
     pub key: &'static str,
-    /// The method's table label ([`Method::label`]), e.g. `"Lobatto IIIA-B s=2"`.
+    /// The method's table label ([`Method::label`](crate::Method::label)), e.g. `"Lobatto IIIA-B s=2"`.
     pub label: String,
     /// Number of stages `s`.
     pub stages: usize,

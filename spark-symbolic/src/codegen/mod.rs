@@ -1,11 +1,11 @@
 //! Code generation: the items generated for one declaration, one module per
-//! item. [`body`] emits method bodies from the model's graph (and splits
-//! long ones into helpers); [`item`] is the parameter struct, its `Default`
+//! item. `body` emits method bodies from the model's graph (and splits
+//! long ones into helpers); `item` is the parameter struct, its `Default`
 //! and the inherent `N`/`M`/`new`; the `NonholonomicSystem` implementation
-//! is assembled from [`source`] (`STRUCTURE`, `SOURCE`, `OPERATIONS`),
-//! [`params`] (`parameter_values`, `set_parameter`), [`trait_impl`] (the
-//! value and derivative methods), [`terms`] (the parameter terms computed
-//! once per change of the parameters) and [`effects`] (forces, holonomic
+//! is assembled from `source` (`STRUCTURE`, `SOURCE`, `OPERATIONS`),
+//! `params` (`parameter_values`, `set_parameter`), `trait_impl` (the
+//! value and derivative methods), `terms` (the parameter terms computed
+//! once per change of the parameters) and `effects` (forces, holonomic
 //! residual, events).
 //!
 //! The declaration is validated before it gets here

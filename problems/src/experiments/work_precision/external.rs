@@ -47,7 +47,7 @@ struct Input<'a> {
 /// One peer method: its label, tableau and the step counts to run.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MethodInput {
-    /// Label ([`Method::label`]).
+    /// Label ([`Method::label`](spark_runtime::Method::label)).
     pub label: String,
     /// The coefficients.
     pub tableau: TableauTable,

@@ -1,5 +1,5 @@
 //! Scaling with the system size: McLachlan–Perlmutter particles for
-//! `n = 5, 9, 17, 33, 65, 129` ([`scaling_systems`](super::scaling_systems)),
+//! `n = 5, 9, 17, 33, 65, 129` (`scaling_systems`),
 //! Gauss SPARK `s = 2` (and `s = 5` for the large-`D` end): time per step on
 //! the dense paths (full and simplified Newton on the exact `D × D`
 //! Jacobian, `D = s(n+1)+n`) and on the structured one (the stage-decoupled
