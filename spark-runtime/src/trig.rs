@@ -79,7 +79,7 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
 }
 
 /// Large, infinite or NaN arguments: the platform's reduction, out of the
-/// inlined path.
+/// common path.
 #[cold]
 #[inline(never)]
 fn platform_sin_cos(x: f64) -> (f64, f64) {
@@ -94,7 +94,6 @@ fn platform_sin_cos(x: f64) -> (f64, f64) {
 fn reduce(x: f64) -> (i64, f64, f64) {
     let f_n = (x * INV_PIO2 + TO_INT) - TO_INT;
     let n = f_n as i64;
-    let exponent = |y: f64| ((y.to_bits() >> 52) & 0x7ff) as i64;
     let ex = exponent(x);
     let mut r = x - f_n * PIO2_1;
     let mut w = f_n * PIO2_1T;
@@ -110,7 +109,6 @@ fn reduce(x: f64) -> (i64, f64, f64) {
 #[cold]
 #[inline(never)]
 fn further_rounds(f_n: f64, ex: i64, r1: f64) -> (f64, f64, f64) {
-    let exponent = |y: f64| ((y.to_bits() >> 52) & 0x7ff) as i64;
     let t = f_n * PIO2_2;
     let r = r1 - t;
     let w = f_n * PIO2_2T - ((r1 - r) - t);
@@ -122,6 +120,13 @@ fn further_rounds(f_n: f64, ex: i64, r1: f64) -> (f64, f64, f64) {
     let r3 = r - t;
     let w = f_n * PIO2_3T - ((r - r3) - t);
     (r3, w, r3 - w)
+}
+
+/// The biased exponent of `y`: how many bits a round of the reduction
+/// cancelled is `exponent(x) − exponent(y)`.
+#[inline(always)]
+fn exponent(y: f64) -> i64 {
+    ((y.to_bits() >> 52) & 0x7ff) as i64
 }
 
 /// `sin(x + y)` for `|x| ≤ π/4`, `y` the tail of `x` (fdlibm's
@@ -149,6 +154,7 @@ fn kernel_cos(x: f64, y: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::sin_cos;
+    use crate::linalg::test_matrices::random_values;
 
     /// Distance in units in the last place (0 for equal values, NaN
     /// included, and for `±0`).
@@ -173,13 +179,8 @@ mod tests {
     /// reduction cancel.
     #[test]
     fn sine_and_cosine_are_within_one_ulp_of_the_platforms() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut uniform = || {
-            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let mut args: Vec<f64> = (0..1_000_000).map(|_| (uniform() - 0.5) * 200.0).collect();
-        args.extend((0..200_000).map(|_| (uniform() - 0.5) * 3.2e6));
+        let mut args: Vec<f64> = random_values(0x2545_f491_4f6c_dd1d, 1_000_000).iter().map(|u| u * 100.0).collect();
+        args.extend(random_values(0x9e37_79b9_7f4a_7c15, 200_000).iter().map(|u| u * 1.6e6));
         for k in -2000i64..2000 {
             let m = k as f64 * std::f64::consts::FRAC_PI_2;
             args.extend((-100i64..100).map(|d| f64::from_bits(m.to_bits().wrapping_add_signed(d))));

@@ -453,7 +453,7 @@ impl Emitted {
                 let (k, k1) = (Literal::usize_unsuffixed(k), Literal::usize_unsuffixed(k + 1));
                 return quote!((w[#k], w[#k1]) = #call;);
             }
-            if self.pairs.contains(&k.wrapping_sub(1)) {
+            if is_pair_cosine(&self.pairs, k) {
                 return quote!();
             }
             let k = Literal::usize_unsuffixed(k);
@@ -503,7 +503,7 @@ impl Emitted {
                     }
                 };
             }
-            if self.pairs.contains(&k.wrapping_sub(1)) {
+            if is_pair_cosine(&self.pairs, k) {
                 return quote!();
             }
             let t = e.tokens(mode);
@@ -562,6 +562,12 @@ fn pair_call(runtime: &TokenStream, e: &R, paired: bool, mode: Mode) -> Option<T
         }
         _ => None,
     }
+}
+
+/// Whether let `k` is the cosine of a pair, bound with the sine before it
+/// (`pairs`: the sines' indices).
+fn is_pair_cosine(pairs: &HashSet<usize>, k: usize) -> bool {
+    k > 0 && pairs.contains(&(k - 1))
 }
 
 /// The sine–cosine pairs among the nodes of a body: each member mapped to
@@ -792,7 +798,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         if let Some(call) = pair_call(inputs.runtime, &e, paired_lets.contains(&k), Mode::Plain) {
             let cosine = format_ident!("s{}", k + 1);
             statements.push(quote!(let (#name, #cosine) = #call;));
-        } else if !paired_lets.contains(&k.wrapping_sub(1)) {
+        } else if !is_pair_cosine(&paired_lets, k) {
             let t = e.tokens(Mode::Plain);
             statements.push(quote!(let #name = #t;));
         } else {

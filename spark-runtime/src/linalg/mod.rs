@@ -161,9 +161,10 @@ pub(crate) fn avx512_available() -> bool {
         && std::arch::is_x86_feature_detected!("avx512dq")
 }
 
-/// Matrices shared by the tests of the kernels.
+/// Matrices and random values shared by the tests of the kernels (and of
+/// `trig`).
 #[cfg(test)]
-mod test_matrices {
+pub(crate) mod test_matrices {
     use crate::system::{Matrix, Vector};
 
     /// The next entry in `[−1, 1)` of a xorshift sequence with state `x`.
