@@ -241,6 +241,15 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     /// A wrong `true` costs convergence speed, never accuracy: the matrix
     /// only steers the iteration.
     const CONSTANT_STIFFNESS: bool = false;
+    /// A structure fact beside [`STRUCTURE`](Self::STRUCTURE): `L` is
+    /// separable and its stiffness `∂(∇_q L)/∂q` is a diagonal matrix that
+    /// depends on the configuration (a potential that is a sum of
+    /// functions of one coordinate each). With a constant diagonal mass
+    /// matrix, the stage-decoupled Newton matrix then keeps the couplings
+    /// between stages made by the stiffness at each stage point, evaluated
+    /// at every refresh. As for [`CONSTANT_STIFFNESS`](Self::CONSTANT_STIFFNESS),
+    /// a wrong `true` costs convergence speed, never accuracy.
+    const DIAGONAL_STIFFNESS: bool = false;
 
     /// Current values of the runtime parameters, in the order of
     /// [`SystemSource::parameters`].

@@ -424,6 +424,25 @@ impl Model {
             && !entries().all(|&x| g.is_const(x, 0.0))
     }
 
+    /// Whether `L` is separable and its stiffness `∂(∇_q L)/∂q` is diagonal
+    /// (every off-diagonal entry simplifies to 0), depends on the
+    /// configuration and is not identically zero, as for a potential that is
+    /// a sum of functions of one coordinate each (the mobile robot's
+    /// `10 sin φ`): the stage-decoupled Newton matrix then keeps the
+    /// couplings between stages that the stiffness at each stage point makes.
+    pub fn diagonal_stiffness(&self) -> bool {
+        let g = &self.graph;
+        let off_diagonal_zero = self
+            .force_q
+            .iter()
+            .enumerate()
+            .all(|(r, row)| row.iter().enumerate().all(|(c, &x)| r == c || g.is_const(x, 0.0)));
+        self.structure.separable
+            && off_diagonal_zero
+            && !self.constant_stiffness()
+            && !self.force_q.iter().flatten().all(|&x| g.is_const(x, 0.0))
+    }
+
     /// Rejects declarations whose equations of motion cannot determine the
     /// accelerations at any point, because the SPARK Newton matrix (and the
     /// saddle-point matrix `[[∇²_vv L, Kᵀ],[K, 0]]` of paper assumption 2.4)

@@ -173,6 +173,13 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.stiff.set(stiffness.as_slice());
     }
 
+    /// Sets the stiffness `F_q` at stage point `stage` (its diagonal; a
+    /// system with a diagonal, point-dependent stiffness), whose couplings
+    /// later factorizations keep (ignored unless made with `keep_stiffness`).
+    pub(crate) fn set_stage_stiffness(&mut self, stage: usize, stiffness: &Matrix<N, N>) {
+        self.stiff.set_stage(stage, stiffness.as_slice());
+    }
+
     /// Forgets the cached mass-matrix factors (the system may have changed).
     pub(crate) fn invalidate(&mut self) {
         self.w_valid = false;

@@ -16,12 +16,37 @@
 //! `T` at every step, `⅔(S·N)³` flops, where the dropped form's refresh
 //! costs a few products of `S·N·M` (the per-coordinate form's factors cost
 //! `N·S³`).
+//!
+//! A diagonal stiffness that depends on the configuration (the mobile
+//! robot's `10 sin φ`) is kept per stage point instead: with a diagonal `W`,
+//! coordinate `c`'s block is `W_cc I − h² Â diag(F_q,cc(Q_j)) A` and the end
+//! row's coupling `h² Σ_j b̂_j F_q,cc(Q_j) a_jk`, made again at every
+//! refresh from the stiffness at that iterate's stage points
+//! ([`kept_stiffness_points`] says which points enter).
 
 use super::{factor_runtime, is_diagonal, solve_runtime, Singular};
 use crate::tableau::Tableau;
 
 /// The largest `S·N` for which a non-diagonal `T` is kept as a dense LU.
 pub(crate) const DENSE_MAX: usize = 16;
+
+/// Whether the stiffness at each stage point `j` is kept (a diagonal,
+/// point-dependent stiffness): it enters stage row `i`'s block on stage `k`
+/// as `h² â_ij F_q(Q_j) a_jk` and the end row's as `h² b̂_j F_q(Q_j) a_jk`,
+/// so only through a nonzero row `j` of `A` and a nonzero column `j` of `Â`
+/// or entry `b̂_j`. Lobatto IIIA-B's first point (`Q₁ = q₀`, row 1 of IIIA
+/// zero) never enters. When `ÂA = 0` (Lobatto IIIA-B s = 2) the stiffness
+/// couples no two stages, only the end row to them, and none is kept: with
+/// it the robot's step took as many updates (2.98) at twice the refresh.
+/// A point not kept is not evaluated for its stiffness.
+pub(crate) fn kept_stiffness_points<const S: usize>(tab: &Tableau<S>) -> [bool; S] {
+    let couples_stages = (0..S).any(|i| (0..S).any(|k| (0..S).any(|l| tab.a_hat[i][l] * tab.a[l][k] != 0.0)));
+    std::array::from_fn(|j| {
+        couples_stages
+            && tab.a[j].iter().any(|&a| a != 0.0)
+            && ((0..S).any(|i| tab.a_hat[i][j] != 0.0) || tab.b_hat[j] != 0.0)
+    })
+}
 
 /// The stage blocks of a constant stiffness (see the module docs); empty
 /// storage when the system has none.
@@ -30,6 +55,13 @@ pub(crate) struct StiffStages<const N: usize, const S: usize> {
     /// `F_q` (`N × N`, column-major) and whether it holds the system's.
     stiffness: Box<[f64]>,
     set: bool,
+    /// The stiffness is diagonal and taken at each stage point: stage `j`'s
+    /// diagonal at `j·N` of `stage_stiffness` (set by [`Self::set_stage`]).
+    per_stage: bool,
+    stage_stiffness: Box<[f64]>,
+    /// Per stage stiffness, the end row's coefficient on stage `k` in
+    /// coordinate `c` (at `c·S + k`): `h² Σ_j b̂_j F_q,cc(Q_j) a_jk`.
+    end_by_coordinate: Box<[f64]>,
     /// The step size of the kept factors (NaN: none).
     h: f64,
     /// `h² (b̂ᵀA)_k`: the end row's coefficient on stage `k`.
@@ -61,6 +93,9 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         StiffStages {
             stiffness: vec![0.0; n * n].into_boxed_slice(),
             set: false,
+            per_stage: false,
+            stage_stiffness: vec![0.0; s * n].into_boxed_slice(),
+            end_by_coordinate: vec![0.0; n * s].into_boxed_slice(),
             h: f64::NAN,
             end_coupling: vec![0.0; s].into_boxed_slice(),
             by_coordinate: false,
@@ -87,9 +122,30 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         self.set = true;
     }
 
+    /// Sets the diagonal of the stiffness `F_q` at stage point `stage`
+    /// (`N × N`, column-major; its off-diagonal entries are not read),
+    /// ignored without storage. The blocks then use each stage's own
+    /// stiffness, and the factors are made again only when one changed.
+    pub(crate) fn set_stage(&mut self, stage: usize, stiffness: &[f64]) {
+        if self.stage_stiffness.is_empty() {
+            return;
+        }
+        let diagonal = &mut self.stage_stiffness[stage * N..(stage + 1) * N];
+        for (c, d) in diagonal.iter_mut().enumerate() {
+            let f = stiffness[c * (N + 1)];
+            if d.to_bits() != f.to_bits() || !self.per_stage {
+                *d = f;
+                self.h = f64::NAN;
+            }
+        }
+        self.per_stage = true;
+        self.set = true;
+    }
+
     /// Forgets the stiffness and the factors (the system changed).
     pub(crate) fn invalidate(&mut self) {
         self.set = false;
+        self.per_stage = false;
         self.h = f64::NAN;
     }
 
@@ -118,13 +174,19 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         }
         let fq = &self.stiffness;
         // The per-coordinate blocks live in fixed arrays of 8 × 8.
-        self.by_coordinate = S <= 8 && is_diagonal::<N>(w) && is_diagonal::<N>(fq);
+        self.by_coordinate = S <= 8 && is_diagonal::<N>(w) && (self.per_stage || is_diagonal::<N>(fq));
+        if self.per_stage && !self.by_coordinate {
+            // A stiffness per stage is kept by coordinate only.
+            return Ok(false);
+        }
         if self.by_coordinate {
             let mut block = [0.0; 64];
             let (mut perm, mut scale) = ([0usize; 8], [0.0; 8]);
             for c in 0..N {
                 let (wc, fc) = (w[c * (N + 1)], fq[c * (N + 1)]);
-                self.stiff[c] = fc != 0.0;
+                // Coordinate `c`'s stiffness at stage point `j`.
+                let stage_f = |j: usize| if self.per_stage { self.stage_stiffness[j * N + c] } else { fc };
+                self.stiff[c] = (0..S).any(|j| stage_f(j) != 0.0);
                 if wc == 0.0 || !wc.is_finite() {
                     return Err(Singular { column: c, pivot: wc.abs() });
                 }
@@ -145,7 +207,18 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
                 for k in 0..S {
                     for i in 0..S {
                         let mass = if i == k { wc } else { 0.0 };
-                        block[k * S + i] = mass - h2 * aa(i, k) * fc;
+                        block[k * S + i] = if self.per_stage {
+                            // ∂F(Q_j)/∂V_k = h a_jk F_q(Q_j), weighed by â_ij.
+                            mass - h2 * (0..S).map(|j| tab.a_hat[i][j] * stage_f(j) * tab.a[j][k]).sum::<f64>()
+                        } else {
+                            mass - h2 * aa(i, k) * fc
+                        };
+                    }
+                }
+                if self.per_stage {
+                    for k in 0..S {
+                        self.end_by_coordinate[c * S + k] =
+                            h2 * (0..S).map(|j| tab.b_hat[j] * stage_f(j) * tab.a[j][k]).sum::<f64>();
                     }
                 }
                 factor_runtime(&mut block[..S * S], S, &mut perm[..S], &mut scale[..S])
@@ -166,9 +239,14 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
                     let mut coupling = 0.0;
                     for i in 0..S {
                         g[i] = (0..S).map(|k| inv[i * S + k] * tab.a_tilde[k][l]).sum();
-                        coupling += self.end_coupling[i] * g[i];
+                        coupling += if self.per_stage {
+                            self.end_by_coordinate[c * S + i] * g[i]
+                        } else {
+                            self.end_coupling[i] * g[i]
+                        };
                     }
-                    g[S] = (tab.b_tilde[l] + fc * coupling) * self.rmass[c];
+                    let end = if self.per_stage { coupling } else { fc * coupling };
+                    g[S] = (tab.b_tilde[l] + end) * self.rmass[c];
                 }
             }
         } else {
@@ -237,6 +315,18 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
             }
             let x: [f64; S] = std::array::from_fn(|i| y[i * N + c]);
             let inv = &inverse[c * S * S..(c + 1) * S * S];
+            if self.per_stage {
+                let coupling_of = &self.end_by_coordinate[c * S..(c + 1) * S];
+                let mut coupling = 0.0;
+                for i in 0..S {
+                    let row = &inv[i * S..(i + 1) * S];
+                    let yi: f64 = row.iter().zip(&x).map(|(a, b)| a * b).sum();
+                    y[i * N + c] = yi;
+                    coupling += coupling_of[i] * yi;
+                }
+                end[c] += coupling;
+                continue;
+            }
             let mut coupling = 0.0;
             for i in 0..S {
                 let row = &inv[i * S..(i + 1) * S];
@@ -246,5 +336,85 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
             }
             end[c] += stiffness[c * (N + 1)] * coupling;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::linalg::test_matrices::random_values;
+    use crate::tableau::Method;
+    use nalgebra::{DMatrix, DVector};
+
+    /// The stage solve and the end row's coupling with a stiffness per stage
+    /// point, against `T` assembled densely from its definition
+    /// `T_ik = δ_ik W − h² Σ_j â_ij F_q(Q_j) a_jk` and the end row's
+    /// `Σ_k h² Σ_j b̂_j F_q(Q_j) a_jk y_k`.
+    fn per_stage_solve_matches_dense<const S: usize>(method: Method) {
+        const N: usize = 3;
+        let tab = Tableau::<S>::new(method).unwrap();
+        let h = 0.2;
+        let w = [2.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.5];
+        let r = random_values(7 + S as u64, S * N + S * N + N);
+        // Coordinate 1 has no stiffness at any point.
+        let f = |j: usize, c: usize| if c == 1 { 0.0 } else { 40.0 * r[j * N + c] };
+        let mut stiff = StiffStages::<N, S>::new(true);
+        for j in 0..S {
+            let mut fq = [0.0; N * N];
+            for c in 0..N {
+                fq[c * (N + 1)] = f(j, c);
+            }
+            // Off-diagonal entries are not read.
+            fq[1] = 1e3;
+            stiff.set_stage(j, &fq);
+        }
+        assert!(stiff.factor(&tab, h, &w).unwrap());
+        let mut t = DMatrix::<f64>::zeros(S * N, S * N);
+        for i in 0..S {
+            for k in 0..S {
+                for c in 0..N {
+                    let coupling: f64 = (0..S).map(|j| tab.a_hat[i][j] * f(j, c) * tab.a[j][k]).sum();
+                    let mass = if i == k { w[c * (N + 1)] } else { 0.0 };
+                    t[(i * N + c, k * N + c)] = mass - h * h * coupling;
+                }
+            }
+        }
+        let y0 = &r[S * N..2 * S * N];
+        let end0 = &r[2 * S * N..];
+        let expected = t.lu().solve(&DVector::from_column_slice(y0)).unwrap();
+        let mut y = y0.to_vec();
+        let mut end = end0.to_vec();
+        stiff.solve_stages(&mut y, &mut end);
+        for (a, b) in y.iter().zip(expected.iter()) {
+            assert!((a - b).abs() <= 1e-13 * b.abs().max(1.0), "{method:?} s = {S}: {a} vs {b}");
+        }
+        for c in 0..N {
+            let coupling: f64 = (0..S)
+                .map(|k| {
+                    (0..S).map(|j| h * h * tab.b_hat[j] * f(j, c) * tab.a[j][k]).sum::<f64>() * expected[k * N + c]
+                })
+                .sum();
+            let want = end0[c] + coupling;
+            assert!((end[c] - want).abs() <= 1e-13 * want.abs().max(1.0), "{method:?} s = {S}, end {c}");
+        }
+    }
+
+    #[test]
+    fn a_stiffness_per_stage_point_solves_as_its_assembled_blocks() {
+        per_stage_solve_matches_dense::<1>(Method::Gauss);
+        per_stage_solve_matches_dense::<2>(Method::Gauss);
+        per_stage_solve_matches_dense::<4>(Method::Gauss);
+        per_stage_solve_matches_dense::<3>(Method::LobattoIIIAB);
+        per_stage_solve_matches_dense::<4>(Method::LobattoIIIAB);
+    }
+
+    #[test]
+    fn lobatto_s2_keeps_no_stiffness_point_and_gauss_keeps_every_one() {
+        let l2 = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+        assert_eq!(kept_stiffness_points(&l2), [false, false]);
+        let l3 = Tableau::<3>::new(Method::LobattoIIIAB).unwrap();
+        assert_eq!(kept_stiffness_points(&l3), [false, true, true]);
+        let g3 = Tableau::<3>::new(Method::Gauss).unwrap();
+        assert_eq!(kept_stiffness_points(&g3), [true, true, true]);
     }
 }

@@ -10,6 +10,7 @@
 use super::Stepper;
 use crate::linalg::decoupled::{DecoupledMatrix, Masses};
 use crate::linalg::newton_matrix::NewtonMatrix;
+use crate::linalg::stiff_stages::kept_stiffness_points;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 use crate::State;
@@ -384,20 +385,42 @@ where
             copy_constraint_jacobians(work, dec);
             if Sys::CONSTANT_STIFFNESS {
                 dec.set_stiffness(&work.stages[0].force_q);
+            } else if Sys::DIAGONAL_STIFFNESS {
+                let kept = kept_stiffness_points(tab);
+                for (j, stage) in work.stages.iter().enumerate() {
+                    if kept[j] {
+                        dec.set_stage_stiffness(j, &stage.force_q);
+                    }
+                }
             }
             let masses = Masses::PerPoint { stages: &work.stages, end: &work.end };
             let nonideal = Sys::HAS_NONIDEAL_FORCE.then_some(&work.nonideal_psi[..]);
             return dec.factor(tab, h, masses, nonideal);
+        }
+        let (v, mu) = split::<N, M, S, D>(z);
+        let sys = &self.system;
+        if Sys::DIAGONAL_STIFFNESS {
+            // The stiffness at each stage point of this iterate, from the
+            // stage Jacobians into the heap work storage.
+            let mut vals = StageValues::zeros();
+            let kept = kept_stiffness_points(tab);
+            for (j, stage) in work.stages.iter_mut().enumerate() {
+                if !kept[j] {
+                    continue;
+                }
+                let (tj, qj) = (state.t + tab.c[j] * h, state.q + increment(carry, h, &tab.a[j], &v));
+                let psi = mu[j] * (1.0 / h);
+                sys.stage_jacobians_into(tj, &qj, &v[j], &psi, &mut vals, stage);
+                dec.set_stage_stiffness(j, &stage.force_q);
+            }
         }
         if dec.has_constant_mass() {
             return dec.factor(tab, h, Masses::Cached, None);
         }
         // The mass matrix is constant: one evaluation into the heap work
         // storage (no N×N value on the stack) gives it for every block.
-        let (v, _) = split::<N, M, S, D>(z);
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let (t1, q1) = (state.t + h, state.q + increment(carry, h, &tab.b, &v));
-        let sys = &self.system;
         let mut vals = StageValues::zeros();
         sys.stage_jacobians_into(t1, &q1, &v1, &Vector::zeros(), &mut vals, &mut work.end);
         if Sys::CONSTANT_STIFFNESS {

@@ -250,7 +250,7 @@ where
             }),
             eval: Eval::zeros(),
             block: vec![0.0; N * N].into_boxed_slice(),
-            decoupled: DecoupledMatrix::new(Sys::CONSTANT_STIFFNESS),
+            decoupled: DecoupledMatrix::new(Sys::CONSTANT_STIFFNESS || Sys::DIAGONAL_STIFFNESS),
             step_polynomial: StepPolynomial::new(&tableau),
             exact_steps_left: 0,
             quadratic: f64::NAN,

@@ -20,7 +20,7 @@ fn form_tokens(rt: &TokenStream, f: ConstraintForm) -> TokenStream {
 }
 
 /// `const STRUCTURE`, `const SOURCE`, `const OPERATIONS` and, when the
-/// model proves it, `const CONSTANT_STIFFNESS`.
+/// model proves it, `const CONSTANT_STIFFNESS` or `const DIAGONAL_STIFFNESS`.
 pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Model, ops: &Operations) -> TokenStream {
     let structure = model.structure;
     let b = |x: bool| if x { quote!(true) } else { quote!(false) };
@@ -37,11 +37,17 @@ pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Mo
         Literal::usize_unsuffixed(ops.bundle),
     );
     let source = source_const(rt, spec, model);
-    let stiffness = model.constant_stiffness().then(|| {
+    let stiffness = if model.constant_stiffness() {
         quote!(
             const CONSTANT_STIFFNESS: bool = true;
         )
-    });
+    } else if model.diagonal_stiffness() {
+        quote!(
+            const DIAGONAL_STIFFNESS: bool = true;
+        )
+    } else {
+        quote!()
+    };
     quote! {
         const STRUCTURE: #rt::Structure = #rt::Structure {
             lagrangian_autonomous: #la,

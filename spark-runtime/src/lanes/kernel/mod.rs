@@ -32,7 +32,8 @@ mod equations;
 use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
-use crate::linalg::stiff_stages::StiffStages;
+use crate::linalg::is_diagonal;
+use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
     check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor, EnergyCheck,
     LaneContinuation, NewtonOptions, State, StepPolynomial, PAST,
@@ -193,6 +194,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             true => MassSolve::Diagonal(rdiag.into()),
             false => MassSolve::Lu { lu: lu.into(), perm: perm.into() },
         };
+        // A stiffness per stage point, which the steppers keep with a
+        // diagonal mass matrix at the tableau's coupling points, is not
+        // repeated: the members step alone.
+        if Sys::DIAGONAL_STIFFNESS
+            && is_diagonal::<N>(jac.mass.as_slice())
+            && kept_stiffness_points(tab).iter().any(|&kept| kept)
+        {
+            return None;
+        }
         // A constant stiffness is kept as the steppers keep it; the kernel
         // repeats only its per-coordinate form (a diagonal mass matrix).
         let mut stiff = StiffStages::new(Sys::CONSTANT_STIFFNESS);
