@@ -107,7 +107,11 @@ def check_system(entry: Dict, perturb_path: Optional[str], corrupt: Optional[str
             for i, sym in zip(system.holonomic_rows, symbolic)
         )
         result.structure_notes.append(f"holonomic rows {system.holonomic_rows}: {rows or 'none (all rows are 0)'}")
-    claims = dict(entry["structure"], constant_stiffness=entry.get("constant_stiffness", False))
+    claims = dict(
+        entry["structure"],
+        constant_stiffness=entry.get("constant_stiffness", False),
+        diagonal_stiffness=entry.get("diagonal_stiffness", False),
+    )
     compare.check_structure(system, claims, casadi_values, result)
     compare.check_effect_flags(system, entry.get("effects", {}), result)
     result.rust_ops = {k: int(v) for k, v in entry.get("operations", {}).items()}

@@ -199,6 +199,17 @@ def check_structure(system: CasadiSystem, claims: Dict, values: List[Dict[str, n
             return True
         return all(float(np.max(np.abs(np.asarray(val[k])), initial=0.0)) <= TOLERANCE for k in keys for val in values)
 
+    def off_diagonal_zero(key) -> bool:
+        # Structurally, or numerically at every sample point.
+        sym = system.sym[key]
+        if all(sym[r, c].is_zero() for r in range(sym.size1()) for c in range(sym.size2()) if r != c):
+            return True
+        for val in values:
+            m = np.asarray(val[key])
+            if float(np.max(np.abs(m - np.diag(np.diag(m))), initial=0.0)) > TOLERANCE:
+                return False
+        return True
+
     separable = all_zero(["momentum_q", "force_v"])
     facts = {
         "lagrangian_autonomous": all_zero(["lagrangian_t", "momentum_t", "force_t"]),
@@ -207,6 +218,11 @@ def check_structure(system: CasadiSystem, claims: Dict, values: List[Dict[str, n
         "constant_mass_matrix": all_zero(["mass_matrix_dtqv"]),
         # The stiffness ∂(∇_q L)/∂q: constant and not zero (a quadratic potential).
         "constant_stiffness": separable and all_zero(["force_q_dtqv"]) and not all_zero(["force_q"]),
+        # Diagonal, not constant and not zero (a sum of functions of one coordinate each).
+        "diagonal_stiffness": separable
+        and off_diagonal_zero("force_q")
+        and not all_zero(["force_q_dtqv"])
+        and not all_zero(["force_q"]),
     }
     for key, holds in facts.items():
         claimed = bool(claims.get(key))

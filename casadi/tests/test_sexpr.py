@@ -165,6 +165,34 @@ class Structure(unittest.TestCase):
         self.assertEqual(len(result.structure_notes), 1)
         self.assertIn("constant_stiffness", result.structure_notes[0])
 
+    def test_a_sum_of_one_coordinate_potentials_has_a_diagonal_stiffness(self):
+        from spark_check import compare
+
+        def check(potential, claimed):
+            source = {
+                "name": "Crank",
+                "coordinates": ["x", "y"],
+                "parameters": [],
+                "lagrangian": f"(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2))) {potential})",
+                "constraints": ["(- (v y) (* (q x) (v x)))"],
+            }
+            system = CasadiSystem(source)
+            values = [{k: np.array(v) for k, v in system.evaluate(0.3, [0.1, 0.2], [0.3, -0.4], [], [0.5]).items()}]
+            claims = {"lagrangian_autonomous": True, "constraints_autonomous": True, "constant_mass_matrix": True,
+                      "separable": True, "constraint_form": "Linear", "diagonal_stiffness": claimed}
+            result = compare.SystemResult("t", 2, 1, 1, 0)
+            compare.check_structure(system, claims, values, result)
+            return result.structure_failures, result.structure_notes
+
+        diagonal = "(+ (cos (q x)) (^ (q y) 4))"
+        self.assertEqual(check(diagonal, True), ([], []))
+        failures, notes = check(diagonal, False)
+        self.assertEqual((len(failures), len(notes)), (0, 1))
+        self.assertIn("diagonal_stiffness", notes[0])
+        failures, _ = check("(* (cos (q x)) (^ (q y) 2))", True)
+        self.assertEqual(len(failures), 1)
+        self.assertIn("diagonal_stiffness", failures[0])
+
 
 class Steps(unittest.TestCase):
     PARTICLE = {

@@ -152,6 +152,9 @@ pub struct SystemEntry {
     pub structure: Structure,
     /// `CONSTANT_STIFFNESS` (a quadratic potential).
     pub constant_stiffness: bool,
+    /// `DIAGONAL_STIFFNESS` (a potential that is a sum of functions of one
+    /// coordinate each, not quadratic).
+    pub diagonal_stiffness: bool,
     /// Optional effects.
     pub effects: Effects,
     /// Coordinate names.
@@ -400,6 +403,7 @@ macro_rules! catalog {
             m: $m,
             structure: <$ty as NonholonomicSystem<$n, $m>>::STRUCTURE,
             constant_stiffness: <$ty as NonholonomicSystem<$n, $m>>::CONSTANT_STIFFNESS,
+            diagonal_stiffness: <$ty as NonholonomicSystem<$n, $m>>::DIAGONAL_STIFFNESS,
             effects: Effects {
                 forcing: <$ty as NonholonomicSystem<$n, $m>>::HAS_FORCING,
                 nonideal: <$ty as NonholonomicSystem<$n, $m>>::HAS_NONIDEAL_FORCE,

@@ -130,6 +130,7 @@ fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDic
         parameter_values: e.default_parameters().into_iter().map(|(_, value)| value).collect(),
         structure: e.structure,
         constant_stiffness: e.constant_stiffness,
+        diagonal_stiffness: e.diagonal_stiffness,
         forcing: e.effects.forcing,
         nonideal: e.effects.nonideal,
         holonomic: e.effects.holonomic,

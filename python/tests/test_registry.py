@@ -22,6 +22,9 @@ def test_every_registered_system_is_listed_with_its_facts():
     # The particle's potential q₁² + q₂² is quadratic; the skate's is linear.
     assert spark.system("particle").structure["constant_stiffness"]
     assert not skate.structure["constant_stiffness"]
+    assert spark.system("robot").structure["diagonal_stiffness"]
+    assert not skate.structure["diagonal_stiffness"]
+    assert not spark.system("particle").structure["diagonal_stiffness"]
     assert skate.effects == {"forcing": False, "nonideal": False, "holonomic": False}
     assert spark.system("rod-pendulum").effects["holonomic"]
     keys = [m[0] for m in spark.methods()]

@@ -42,10 +42,11 @@ pub fn list_table() -> String {
             constraint_text(e),
             if e.structure.lagrangian_autonomous { "no" } else { "yes" },
             if e.structure.constant_mass_matrix { "const" } else { "q,v" },
-            match (e.structure.separable, e.constant_stiffness) {
-                (true, true) => "quad",
-                (true, false) => "yes",
-                (false, _) => "no",
+            match (e.structure.separable, e.constant_stiffness, e.diagonal_stiffness) {
+                (true, true, _) => "quad",
+                (true, false, true) => "diag",
+                (true, false, false) => "yes",
+                (false, _, _) => "no",
             },
             e.effects_text(),
             if e.operations.stage_jacobians == 0 {
@@ -60,7 +61,8 @@ pub fn list_table() -> String {
     let _ = writeln!(
         s,
         "\n(L(t): Lagrangian depends on t; mass: ∇²_vv L constant or not; sep.: L = T(v) − U(q), \
-         `quad` with U quadratic (a constant stiffness); \
+         `quad` with U quadratic (a constant stiffness), `diag` with U a sum of functions of one \
+         coordinate each (a diagonal stiffness); \
          ops: operations of the generated stage_jacobians, `hand` for hand-written types)\n"
     );
     for e in entries() {

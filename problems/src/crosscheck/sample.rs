@@ -205,6 +205,7 @@ where
         parameter_values: system.parameter_values(),
         structure: S::STRUCTURE,
         constant_stiffness: S::CONSTANT_STIFFNESS,
+        diagonal_stiffness: S::DIAGONAL_STIFFNESS,
         operations: S::OPERATIONS,
         effects: EffectsExport::of::<S, N, M>(),
         points,

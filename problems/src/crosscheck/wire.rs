@@ -90,6 +90,9 @@ pub struct SystemExport {
     /// `CONSTANT_STIFFNESS`: the generator's claim that `∂(∇_q L)/∂q` is a
     /// nonzero constant (checked beside the structure facts).
     pub constant_stiffness: bool,
+    /// `DIAGONAL_STIFFNESS`: the claim that `∂(∇_q L)/∂q` is diagonal, not
+    /// constant and not zero (checked beside the structure facts).
+    pub diagonal_stiffness: bool,
     /// Operation counts of the generated code.
     pub operations: OperationCounts,
     /// Which optional effects the trait implementation declares.

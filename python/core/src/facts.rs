@@ -21,6 +21,9 @@ pub struct SystemFacts {
     pub structure: Structure,
     /// `CONSTANT_STIFFNESS`: a quadratic potential.
     pub constant_stiffness: bool,
+    /// `DIAGONAL_STIFFNESS`: a potential that is a sum of functions of one
+    /// coordinate each, not quadratic.
+    pub diagonal_stiffness: bool,
     /// External force `f(t, q, v)`.
     pub forcing: bool,
     /// Non-ideal constraint force.
@@ -42,6 +45,7 @@ impl SystemFacts {
             parameter_values: Sys::default().parameter_values(),
             structure: Sys::STRUCTURE,
             constant_stiffness: Sys::CONSTANT_STIFFNESS,
+            diagonal_stiffness: Sys::DIAGONAL_STIFFNESS,
             forcing: Sys::HAS_FORCING,
             nonideal: Sys::HAS_NONIDEAL_FORCE,
             holonomic: Sys::HAS_HOLONOMIC,
@@ -78,6 +82,7 @@ pub fn facts_to_py<'py>(py: Python<'py>, facts: &SystemFacts) -> PyResult<Bound<
     st.set_item("constant_mass_matrix", s.constant_mass_matrix)?;
     st.set_item("separable", s.separable)?;
     st.set_item("constant_stiffness", facts.constant_stiffness)?;
+    st.set_item("diagonal_stiffness", facts.diagonal_stiffness)?;
     st.set_item(
         "constraint_form",
         match s.constraint_form {
