@@ -397,13 +397,13 @@ where
             let nonideal = Sys::HAS_NONIDEAL_FORCE.then_some(&work.nonideal_psi[..]);
             return dec.factor(tab, h, masses, nonideal);
         }
-        let (v, mu) = split::<N, M, S, D>(z);
         let sys = &self.system;
-        if Sys::DIAGONAL_STIFFNESS {
-            // The stiffness at each stage point of this iterate, from the
-            // stage Jacobians into the heap work storage.
+        let kept = if Sys::DIAGONAL_STIFFNESS { kept_stiffness_points(tab) } else { [false; S] };
+        if kept.contains(&true) {
+            // The stiffness at each kept stage point of this iterate, from
+            // the stage Jacobians into the heap work storage.
+            let (v, mu) = split::<N, M, S, D>(z);
             let mut vals = StageValues::zeros();
-            let kept = kept_stiffness_points(tab);
             for (j, stage) in work.stages.iter_mut().enumerate() {
                 if !kept[j] {
                     continue;
@@ -419,6 +419,7 @@ where
         }
         // The mass matrix is constant: one evaluation into the heap work
         // storage (no N×N value on the stack) gives it for every block.
+        let (v, _) = split::<N, M, S, D>(z);
         let v1 = z.fixed_rows::<N>(S * (N + M)).into_owned();
         let (t1, q1) = (state.t + h, state.q + increment(carry, h, &tab.b, &v));
         let mut vals = StageValues::zeros();
