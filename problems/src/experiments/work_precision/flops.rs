@@ -69,7 +69,10 @@ impl NewtonPath {
 ///   per-coordinate form with every coordinate stiff) an update solves the
 ///   stage blocks with one `s × s` inverse per coordinate and forms the end
 ///   row's coupling (`2s²n + 2sn + n`), and a factorization forms
-///   `A⁻¹Kᵀ` from the kept coefficients (`s(s+1)nm`).
+///   `A⁻¹Kᵀ` from the kept coefficients (`s(s+1)nm`). A stiffness kept at
+///   each stage point (`DIAGONAL_STIFFNESS`) is solved alike, and each
+///   factorization also forms its blocks `Â diag(F_q,cc) A` and their
+///   inverses (`4s³n`).
 pub fn flops_per_step<Sys, const N: usize, const M: usize, const S: usize>(
     path: NewtonPath,
     iterations: f64,
@@ -79,7 +82,8 @@ where
     Sys: NonholonomicSystem<N, M>,
 {
     let (values, jacobians) = (Sys::OPERATIONS.stage_values, Sys::OPERATIONS.stage_jacobians);
-    let stiff = Sys::CONSTANT_STIFFNESS;
+    let per_stage = Sys::DIAGONAL_STIFFNESS;
+    let stiff = Sys::CONSTANT_STIFFNESS || per_stage;
     let (n, m, s) = (N as f64, M as f64, S as f64);
     let d = s * (n + m) + n;
     let residual = (s + 1.0) * values as f64 + 6.0 * s * (s + 1.0) * n;
@@ -95,8 +99,13 @@ where
             } else {
                 ((s + 1.0) * n, 2.0 * s * (s + 1.0) * n * m)
             };
+            let blocks = if per_stage { 4.0 * s * s * s * n } else { 0.0 };
             (
-                (s + 1.0) * jacobians as f64 + columns + 2.0 * s * s * (s + 1.0) * n * m * m + 2.0 / 3.0 * sm * sm * sm,
+                (s + 1.0) * jacobians as f64
+                    + columns
+                    + blocks
+                    + 2.0 * s * s * (s + 1.0) * n * m * m
+                    + 2.0 / 3.0 * sm * sm * sm,
                 velocity + 4.0 * s * (s + 1.0) * n * m + 2.0 * sm * sm,
             )
         }
