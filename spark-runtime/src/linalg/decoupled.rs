@@ -187,6 +187,12 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.stiff.invalidate();
     }
 
+    /// Whether a stiffness per stage point can be kept: by coordinate only,
+    /// so not once a kept constant mass matrix is known to be full.
+    pub(crate) fn may_keep_stage_stiffness(&self) -> bool {
+        !self.w_valid || self.diagonal
+    }
+
     /// Whether the factors of a constant mass matrix are kept, so that
     /// [`Masses::Cached`] may stand for it.
     pub(crate) fn has_constant_mass(&self) -> bool {

@@ -398,7 +398,10 @@ where
             return dec.factor(tab, h, masses, nonideal);
         }
         let sys = &self.system;
-        let kept = if Sys::DIAGONAL_STIFFNESS { kept_stiffness_points(tab) } else { [false; S] };
+        // A full mass matrix keeps no stiffness per stage point: after the
+        // first refresh has factored it, none is evaluated.
+        let keeps = Sys::DIAGONAL_STIFFNESS && dec.may_keep_stage_stiffness();
+        let kept = if keeps { kept_stiffness_points(tab) } else { [false; S] };
         if kept.contains(&true) {
             // The stiffness at each kept stage point of this iterate, from
             // the stage Jacobians into the heap work storage.
