@@ -251,6 +251,16 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     /// a wrong `true` costs convergence speed, never accuracy.
     const DIAGONAL_STIFFNESS: bool = false;
 
+    /// The diagonal of the stiffness `F_q = ∂(∇_q L)/∂q` at `(t, q, v)`
+    /// alone, when the system provides it: `nonholonomic_system!` does for
+    /// a [`DIAGONAL_STIFFNESS`](Self::DIAGONAL_STIFFNESS) system, whose
+    /// stage-decoupled refresh reads it at each stage point. `None` (the
+    /// default): the refresh takes it from the stage Jacobians.
+    fn stiffness_diagonal(&self, t: f64, q: &Vector<N>, v: &Vector<N>) -> Option<Vector<N>> {
+        let _ = (t, q, v);
+        None
+    }
+
     /// Current values of the runtime parameters, in the order of
     /// [`SystemSource::parameters`].
     fn parameter_values(&self) -> Vec<f64>;

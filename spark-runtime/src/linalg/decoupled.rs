@@ -177,7 +177,13 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// system with a diagonal, point-dependent stiffness), whose couplings
     /// later factorizations keep (ignored unless made with `keep_stiffness`).
     pub(crate) fn set_stage_stiffness(&mut self, stage: usize, stiffness: &Matrix<N, N>) {
-        self.stiff.set_stage(stage, stiffness.as_slice());
+        let diagonal = Vector::<N>::from_fn(|c, _| stiffness[(c, c)]);
+        self.stiff.set_stage(stage, diagonal.as_slice());
+    }
+
+    /// [`Self::set_stage_stiffness`] from the diagonal alone.
+    pub(crate) fn set_stage_stiffness_diagonal(&mut self, stage: usize, diagonal: &Vector<N>) {
+        self.stiff.set_stage(stage, diagonal.as_slice());
     }
 
     /// Forgets the cached mass-matrix factors (the system may have changed).

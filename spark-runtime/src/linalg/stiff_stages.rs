@@ -122,17 +122,16 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         self.set = true;
     }
 
-    /// Sets the diagonal of the stiffness `F_q` at stage point `stage`
-    /// (`N × N`, column-major; its off-diagonal entries are not read),
-    /// ignored without storage. The blocks then use each stage's own
-    /// stiffness, and the factors are made again only when one changed.
-    pub(crate) fn set_stage(&mut self, stage: usize, stiffness: &[f64]) {
+    /// Sets the diagonal `F_q,cc` (`N` entries) of the stiffness at stage
+    /// point `stage`, ignored without storage. The blocks then use each
+    /// stage's own stiffness, and the factors are made again only when one
+    /// changed.
+    pub(crate) fn set_stage(&mut self, stage: usize, diagonal_of_stiffness: &[f64]) {
         if self.stage_stiffness.is_empty() {
             return;
         }
         let diagonal = &mut self.stage_stiffness[stage * N..(stage + 1) * N];
-        for (c, d) in diagonal.iter_mut().enumerate() {
-            let f = stiffness[c * (N + 1)];
+        for (d, &f) in diagonal.iter_mut().zip(diagonal_of_stiffness) {
             if d.to_bits() != f.to_bits() || !self.per_stage {
                 *d = f;
                 self.h = f64::NAN;
@@ -360,13 +359,8 @@ mod tests {
         let f = |j: usize, c: usize| if c == 1 { 0.0 } else { 40.0 * r[j * N + c] };
         let mut stiff = StiffStages::<N, S>::new(true);
         for j in 0..S {
-            let mut fq = [0.0; N * N];
-            for c in 0..N {
-                fq[c * (N + 1)] = f(j, c);
-            }
-            // Off-diagonal entries are not read.
-            fq[1] = 1e3;
-            stiff.set_stage(j, &fq);
+            let diagonal: [f64; N] = std::array::from_fn(|c| f(j, c));
+            stiff.set_stage(j, &diagonal);
         }
         assert!(stiff.factor(&tab, h, &w).unwrap());
         let mut t = DMatrix::<f64>::zeros(S * N, S * N);

@@ -412,6 +412,10 @@ where
                     continue;
                 }
                 let (tj, qj) = (state.t + tab.c[j] * h, state.q + increment(carry, h, &tab.a[j], &v));
+                if let Some(diagonal) = sys.stiffness_diagonal(tj, &qj, &v[j]) {
+                    dec.set_stage_stiffness_diagonal(j, &diagonal);
+                    continue;
+                }
                 let psi = mu[j] * (1.0 / h);
                 sys.stage_jacobians_into(tj, &qj, &v[j], &psi, &mut vals, stage);
                 dec.set_stage_stiffness(j, &stage.force_q);

@@ -780,6 +780,20 @@ fn a_diagonal_stiffness_is_kept_at_each_stage_point() {
         <RollingDiskIncline as NonholonomicSystem<4, 2>>::DIAGONAL_STIFFNESS,
     ];
     assert_eq!(proved, [true, false, false, false], "the crank's, the oscillators' and the disk's stiffness");
+    // The generated diagonal alone equals the stage Jacobians' `F_q` diagonal.
+    let crank = CrankedWheel::default();
+    for k in 0..5 {
+        let x = 0.7 * k as f64 - 1.3;
+        let (q, v) = (Vector::<4>::new(x, 0.2, -x, 2.0 * x), Vector::<4>::new(0.1, x, 0.3, -0.5));
+        let (_, jac) = crank.stage_jacobians(0.0, &q, &v, &Vector::<2>::new(0.4, -0.2));
+        let diagonal = crank.stiffness_diagonal(0.0, &q, &v).expect("generated for a diagonal stiffness");
+        for c in 0..4 {
+            let want = jac.force_q[(c, c)];
+            assert!((diagonal[c] - want).abs() <= 1e-15 * want.abs().max(1.0), "F_q[{c}][{c}] at x = {x}");
+        }
+    }
+    let (q, v) = (Vector::<4>::new(0.1, 0.2, 0.3, 0.4), Vector::<4>::new(0.5, 0.1, 0.2, 0.3));
+    assert!(RollingDiskIncline::default().stiffness_diagonal(0.0, &q, &v).is_none());
     let tab = Tableau::<3>::new(Method::Gauss).unwrap();
     let stepper = |opts: NewtonOptions| Stepper::<_, 4, 2, 3, 22>::new(CrankedWheel::default(), tab).with_options(opts);
     let simplified = |jacobian| NewtonOptions { mode: NewtonMode::Simplified, jacobian, ..NewtonOptions::default() };

@@ -29,6 +29,13 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
     let constraint_q = gen.returning("constraint_q", o);
     let o = gen.matrix("constraint_v", &gen.model.constraint_v.clone(), &m);
     let constraint_v = gen.returning("constraint_v", o);
+    // The diagonal of `F_q` alone, for the stage-decoupled refresh of a
+    // system whose stiffness it keeps at each stage point.
+    let stiffness = gen.model.diagonal_stiffness().then(|| {
+        let diagonal: Vec<_> = gen.model.force_q.iter().enumerate().map(|(i, row)| row[i]).collect();
+        let o = gen.vector("stiffness", &diagonal, &n);
+        gen.returning("stiffness_diagonal", o)
+    });
 
     let md = &*gen.model;
     let td_outs = vec![
@@ -53,6 +60,13 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         values: &mut #rt::StageValues<#n, #m>,
         jacobians: &mut #rt::StageJacobians<#n, #m>
     );
+    let stiffness_diagonal = stiffness.map(|body| {
+        quote! {
+            fn stiffness_diagonal(#sig) -> Option<#rt::Vector<#n>> {
+                Some({ #body })
+            }
+        }
+    });
     let methods = quote! {
         fn lagrangian(#sig) -> f64 {
             #lagrangian
@@ -87,6 +101,8 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         fn constraint_v(#sig) -> #rt::Matrix<#m, #n> {
             #constraint_v
         }
+
+        #stiffness_diagonal
 
         fn time_derivatives(#sig) -> #rt::TimeDerivatives<#n, #m> {
             #time_derivatives
