@@ -143,56 +143,43 @@ class Structure(unittest.TestCase):
             with self.subTest(form=form):
                 self.assertEqual(len(self.run_check(dict(honest, constraint_form=form)).structure_failures), 1)
 
-    def test_a_quadratic_potential_has_a_constant_stiffness(self):
+    @staticmethod
+    def potential_check(potential, claims):
+        """Failures and notes of `claims` for `L = |v|²/2 − U(q)` in the plane
+        with the constraint `v_y = x v_x`."""
         from spark_check import compare
 
         source = {
-            "name": "Spring",
+            "name": "Potential",
             "coordinates": ["x", "y"],
             "parameters": [],
-            "lagrangian": "(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2))) (+ (^ (q x) 2) (* (q x) (q y))))",
+            "lagrangian": f"(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2))) {potential})",
             "constraints": ["(- (v y) (* (q x) (v x)))"],
         }
         system = CasadiSystem(source)
         values = [{k: np.array(v) for k, v in system.evaluate(0.3, [0.1, 0.2], [0.3, -0.4], [], [0.5]).items()}]
         honest = {"lagrangian_autonomous": True, "constraints_autonomous": True, "constant_mass_matrix": True,
-                  "separable": True, "constraint_form": "Linear", "constant_stiffness": True}
+                  "separable": True, "constraint_form": "Linear"}
         result = compare.SystemResult("t", 2, 1, 1, 0)
-        compare.check_structure(system, honest, values, result)
-        self.assertEqual((result.structure_failures, result.structure_notes), ([], []))
-        result = compare.SystemResult("t", 2, 1, 1, 0)
-        compare.check_structure(system, dict(honest, constant_stiffness=False), values, result)
-        self.assertEqual(len(result.structure_notes), 1)
-        self.assertIn("constant_stiffness", result.structure_notes[0])
+        compare.check_structure(system, dict(honest, **claims), values, result)
+        return result.structure_failures, result.structure_notes
+
+    def test_a_quadratic_potential_has_a_constant_stiffness(self):
+        quadratic = "(+ (^ (q x) 2) (* (q x) (q y)))"
+        self.assertEqual(self.potential_check(quadratic, {"constant_stiffness": True}), ([], []))
+        failures, notes = self.potential_check(quadratic, {"constant_stiffness": False})
+        self.assertEqual((len(failures), len(notes)), (0, 1))
+        self.assertIn("constant_stiffness", notes[0])
 
     def test_a_sum_of_one_coordinate_potentials_has_a_diagonal_stiffness(self):
-        from spark_check import compare
-
-        def check(potential, claimed):
-            source = {
-                "name": "Crank",
-                "coordinates": ["x", "y"],
-                "parameters": [],
-                "lagrangian": f"(- (* 0.5 (+ (^ (v x) 2) (^ (v y) 2))) {potential})",
-                "constraints": ["(- (v y) (* (q x) (v x)))"],
-            }
-            system = CasadiSystem(source)
-            values = [{k: np.array(v) for k, v in system.evaluate(0.3, [0.1, 0.2], [0.3, -0.4], [], [0.5]).items()}]
-            claims = {"lagrangian_autonomous": True, "constraints_autonomous": True, "constant_mass_matrix": True,
-                      "separable": True, "constraint_form": "Linear", "diagonal_stiffness": claimed}
-            result = compare.SystemResult("t", 2, 1, 1, 0)
-            compare.check_structure(system, claims, values, result)
-            return result.structure_failures, result.structure_notes
-
         diagonal = "(+ (cos (q x)) (^ (q y) 4))"
-        self.assertEqual(check(diagonal, True), ([], []))
-        failures, notes = check(diagonal, False)
+        self.assertEqual(self.potential_check(diagonal, {"diagonal_stiffness": True}), ([], []))
+        failures, notes = self.potential_check(diagonal, {"diagonal_stiffness": False})
         self.assertEqual((len(failures), len(notes)), (0, 1))
         self.assertIn("diagonal_stiffness", notes[0])
-        failures, _ = check("(* (cos (q x)) (^ (q y) 2))", True)
+        failures, _ = self.potential_check("(* (cos (q x)) (^ (q y) 2))", {"diagonal_stiffness": True})
         self.assertEqual(len(failures), 1)
         self.assertIn("diagonal_stiffness", failures[0])
-
 
 class Steps(unittest.TestCase):
     PARTICLE = {

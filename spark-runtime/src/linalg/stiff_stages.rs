@@ -312,30 +312,32 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
                 }
                 continue;
             }
-            let x: [f64; S] = std::array::from_fn(|i| y[i * N + c]);
             let inv = &inverse[c * S * S..(c + 1) * S * S];
+            // The end row's coefficients: per stage point they hold the
+            // stiffness already; a constant one multiplies their sum.
             if self.per_stage {
-                let coupling_of = &self.end_by_coordinate[c * S..(c + 1) * S];
-                let mut coupling = 0.0;
-                for i in 0..S {
-                    let row = &inv[i * S..(i + 1) * S];
-                    let yi: f64 = row.iter().zip(&x).map(|(a, b)| a * b).sum();
-                    y[i * N + c] = yi;
-                    coupling += coupling_of[i] * yi;
-                }
-                end[c] += coupling;
-                continue;
+                end[c] += solve_coordinate::<N, S>(inv, c, y, &self.end_by_coordinate[c * S..(c + 1) * S]);
+            } else {
+                end[c] += stiffness[c * (N + 1)] * solve_coordinate::<N, S>(inv, c, y, coupling_of);
             }
-            let mut coupling = 0.0;
-            for i in 0..S {
-                let row = &inv[i * S..(i + 1) * S];
-                let yi: f64 = row.iter().zip(&x).map(|(a, b)| a * b).sum();
-                y[i * N + c] = yi;
-                coupling += coupling_of[i] * yi;
-            }
-            end[c] += stiffness[c * (N + 1)] * coupling;
         }
     }
+}
+
+/// `y_c ← T_c⁻¹ y_c` for coordinate `c` of the stage part `y` (stage by
+/// stage, `inv` the block's inverse, row-major), returning
+/// `Σ_i coupling_of[i] y_i,c`.
+#[inline(always)]
+fn solve_coordinate<const N: usize, const S: usize>(inv: &[f64], c: usize, y: &mut [f64], coupling_of: &[f64]) -> f64 {
+    let x: [f64; S] = std::array::from_fn(|i| y[i * N + c]);
+    let mut coupling = 0.0;
+    for i in 0..S {
+        let row = &inv[i * S..(i + 1) * S];
+        let yi: f64 = row.iter().zip(&x).map(|(a, b)| a * b).sum();
+        y[i * N + c] = yi;
+        coupling += coupling_of[i] * yi;
+    }
+    coupling
 }
 
 #[cfg(test)]
