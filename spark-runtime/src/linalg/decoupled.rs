@@ -173,16 +173,10 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.stiff.set(stiffness.as_slice());
     }
 
-    /// Sets the stiffness `F_q` at stage point `stage` (its diagonal; a
+    /// Sets the diagonal of the stiffness `F_q` at stage point `stage` (a
     /// system with a diagonal, point-dependent stiffness), whose couplings
     /// later factorizations keep (ignored unless made with `keep_stiffness`).
-    pub(crate) fn set_stage_stiffness(&mut self, stage: usize, stiffness: &Matrix<N, N>) {
-        let diagonal = Vector::<N>::from_fn(|c, _| stiffness[(c, c)]);
-        self.stiff.set_stage(stage, diagonal.as_slice());
-    }
-
-    /// [`Self::set_stage_stiffness`] from the diagonal alone.
-    pub(crate) fn set_stage_stiffness_diagonal(&mut self, stage: usize, diagonal: &Vector<N>) {
+    pub(crate) fn set_stage_stiffness(&mut self, stage: usize, diagonal: &Vector<N>) {
         self.stiff.set_stage(stage, diagonal.as_slice());
     }
 

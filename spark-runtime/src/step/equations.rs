@@ -10,7 +10,6 @@
 use super::Stepper;
 use crate::linalg::decoupled::{DecoupledMatrix, Masses};
 use crate::linalg::newton_matrix::NewtonMatrix;
-use crate::linalg::stiff_stages::kept_stiffness_points;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::{ConditionRows, Tableau};
 use crate::State;
@@ -386,10 +385,9 @@ where
             if Sys::CONSTANT_STIFFNESS {
                 dec.set_stiffness(&work.stages[0].force_q);
             } else if Sys::DIAGONAL_STIFFNESS {
-                let kept = kept_stiffness_points(tab);
                 for (j, stage) in work.stages.iter().enumerate() {
-                    if kept[j] {
-                        dec.set_stage_stiffness(j, &stage.force_q);
+                    if self.stiffness_points[j] {
+                        dec.set_stage_stiffness(j, &stage.force_q.diagonal());
                     }
                 }
             }
@@ -400,9 +398,8 @@ where
         let sys = &self.system;
         // A full mass matrix keeps no stiffness per stage point: after the
         // first refresh has factored it, none is evaluated.
-        let keeps = Sys::DIAGONAL_STIFFNESS && dec.may_keep_stage_stiffness();
-        let kept = if keeps { kept_stiffness_points(tab) } else { [false; S] };
-        if kept.contains(&true) {
+        let kept = self.stiffness_points;
+        if Sys::DIAGONAL_STIFFNESS && kept.contains(&true) && dec.may_keep_stage_stiffness() {
             // The stiffness at each kept stage point of this iterate, from
             // the stage Jacobians into the heap work storage.
             let (v, mu) = split::<N, M, S, D>(z);
@@ -413,12 +410,12 @@ where
                 }
                 let (tj, qj) = (state.t + tab.c[j] * h, state.q + increment(carry, h, &tab.a[j], &v));
                 if let Some(diagonal) = sys.stiffness_diagonal(tj, &qj, &v[j]) {
-                    dec.set_stage_stiffness_diagonal(j, &diagonal);
+                    dec.set_stage_stiffness(j, &diagonal);
                     continue;
                 }
                 let psi = mu[j] * (1.0 / h);
                 sys.stage_jacobians_into(tj, &qj, &v[j], &psi, &mut vals, stage);
-                dec.set_stage_stiffness(j, &stage.force_q);
+                dec.set_stage_stiffness(j, &stage.force_q.diagonal());
             }
         }
         if dec.has_constant_mass() {

@@ -59,6 +59,7 @@ pub(crate) use lane_handover::LaneContinuation;
 use crate::error::{NewtonHistory, StepError};
 use crate::linalg::decoupled::DecoupledMatrix;
 use crate::linalg::newton_matrix::NewtonMatrix;
+use crate::linalg::stiff_stages::kept_stiffness_points;
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
 use cold_start::check_cold_start;
@@ -150,6 +151,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// The starting guess of a continuing Gauss step (`None` for the other
     /// families, which extrapolate across steps).
     step_polynomial: Option<StepPolynomial<S>>,
+    /// The stage points whose stiffness the stage-decoupled matrix keeps
+    /// (`kept_stiffness_points`; none unless `Sys::DIAGONAL_STIFFNESS`),
+    /// fixed with the tableau.
+    stiffness_points: [bool; S],
     /// Steps left on the exact matrix after the stage-decoupled one was slow
     /// or singular ([`Jacobian::StageDecoupled`]).
     exact_steps_left: u32,
@@ -252,6 +257,7 @@ where
             block: vec![0.0; N * N].into_boxed_slice(),
             decoupled: DecoupledMatrix::new(Sys::CONSTANT_STIFFNESS || Sys::DIAGONAL_STIFFNESS),
             step_polynomial: StepPolynomial::new(&tableau),
+            stiffness_points: if Sys::DIAGONAL_STIFFNESS { kept_stiffness_points(&tableau) } else { [false; S] },
             exact_steps_left: 0,
             quadratic: f64::NAN,
             reusable: None,
