@@ -102,6 +102,9 @@ pub(crate) struct StepCounts<const N: usize> {
     pub(crate) cold_retries: usize,
     /// The per-sub-step callback asked to stop (a terminal event).
     pub(crate) stopped: bool,
+    /// The first attempt started from the previous step's solutions (the
+    /// stepper continued into the step's start).
+    pub(crate) warm: bool,
 }
 
 impl<const N: usize> StepCounts<N> {
@@ -115,6 +118,7 @@ impl<const N: usize> StepCounts<N> {
             smallest: 0.0,
             cold_retries: 0,
             stopped: false,
+            warm: false,
         }
     }
 
@@ -137,8 +141,7 @@ where
     /// is retried once from the cold guess; a sub-step that still fails is
     /// replaced by two half steps, at most `budget.max_halvings` levels
     /// deep, only while half of it still changes `t` and while the
-    /// sub-steps taken and pending stay within `budget.max_substeps`. `warm`: whether the
-    /// stepper continues into `state` (`Stepper::is_warm_for`).
+    /// sub-steps taken and pending stay within `budget.max_substeps`.
     ///
     /// `on_step(system, start, end, h, result)` sees every accepted
     /// sub-step (the last one with its end time pinned to `t_target`); when
@@ -153,7 +156,6 @@ where
         h: f64,
         t_target: f64,
         budget: Budget,
-        warm: bool,
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
     where
@@ -174,9 +176,15 @@ where
                     smallest: h.abs(),
                     cold_retries: 0,
                     stopped,
+                    warm: r.warm_started,
                 })
             }
-            Err(first) => self.recover(state, h, t_target, budget, warm, first, on_step),
+            // A failed step leaves what it continued in place, so whether
+            // the attempt was warm is still known after it.
+            Err(first) => {
+                let warm = self.is_warm_for(state);
+                self.recover(state, h, t_target, budget, warm, first, on_step)
+            }
         }
     }
 
@@ -208,7 +216,7 @@ where
         let mut pending = [(0.0f64, 0u32); MAX_HALVINGS as usize + 1];
         pending[0] = (h, 0);
         let mut len = 1;
-        let mut out = StepCounts::start(state);
+        let mut out = StepCounts { warm, ..StepCounts::start(state) };
         // The outcome of the whole step's attempt, already taken once.
         let mut taken = Some((warm, first));
         while len > 0 {
@@ -281,7 +289,7 @@ where
     {
         let t_end = state.t + h;
         let floor = policy.floor(h);
-        let mut out = StepCounts::start(state);
+        let mut out = StepCounts { warm: self.is_warm_for(state), ..StepCounts::start(state) };
         let mut sub = h;
         let mut successes = 0usize;
         let mut last_failure = None;

@@ -403,7 +403,6 @@ where
         let dense = dense_run.is_needed();
         for k in 0..steps {
             let (h, t_target) = schedule.step(k, steps, t0, state.t);
-            let warm_before = self.is_warm_for(&state);
             let mut step_iterations = 0usize;
             // The test of `dense` is all a sub-step costs here when the run
             // needs no continuous extension; the rest is out of line.
@@ -417,7 +416,7 @@ where
             let taken = match options.on_failure {
                 FailurePolicy::Halve => {
                     let budget = Budget { max_halvings: options.max_halvings, max_substeps: options.max_substeps };
-                    self.robust_step(&state, h, t_target, budget, warm_before, &mut on_step)
+                    self.robust_step(&state, h, t_target, budget, &mut on_step)
                 }
                 FailurePolicy::Reject(policy) => {
                     self.rejecting_step(&state, h, t_target, &policy, options.max_substeps, &mut on_step)
@@ -432,7 +431,7 @@ where
             let (mut next, iters) = (counts.state, counts.iterations);
             // Accumulating t0 + Σh drifts; pin t to the scheduled value.
             next.t = t_target;
-            report.count(&counts, warm_before);
+            report.count(&counts);
             if let Some(at) = dense_run.terminal {
                 // The run ends here whatever the observer asks.
                 let _ = observer.accepted(self.system(), &at, iters);

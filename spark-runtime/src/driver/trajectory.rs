@@ -244,10 +244,9 @@ impl RunReport {
         }
     }
 
-    /// Counts one scheduled step taken as `counts`; `warm_before`: whether
-    /// its first attempt was warm-started.
-    pub(super) fn count<const N: usize>(&mut self, counts: &StepCounts<N>, warm_before: bool) {
-        if !warm_before || counts.rejected > 0 || counts.cold_retries > 0 {
+    /// Counts one scheduled step taken as `counts`.
+    pub(super) fn count<const N: usize>(&mut self, counts: &StepCounts<N>) {
+        if !counts.warm || counts.rejected > 0 || counts.cold_retries > 0 {
             self.cold_starts += 1;
         }
         self.steps += 1;

@@ -22,20 +22,20 @@ where
 }
 
 /// The energy at the start of a chain of continued steps, against which the
-/// guard measures drift.
+/// guard measures drift. It belongs to the chain that ends where the
+/// stepper's latest step ended (the stepper keeps that end once, for
+/// everything a continuing step takes over); a step that does not continue
+/// that chain starts a new one.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct EnergyAnchor<const N: usize> {
-    /// The end of the last accepted step of the chain (a step continues the
-    /// chain when it starts there).
-    pub(crate) end: State<N>,
-    /// `E` there.
+pub(crate) struct EnergyAnchor {
+    /// `E` where the chain began.
     pub(crate) energy: f64,
     /// `|E| + |p·v|` there: the energy's own size (`p·v = 2T` for a
     /// quadratic kinetic energy), the unit in which drift is measured.
     pub(crate) scale: f64,
 }
 
-impl<const N: usize> EnergyAnchor<N> {
+impl EnergyAnchor {
     /// Whether the energy `e1` at the end of a step is within `limit` of
     /// this anchor's (with the round-off floor of [`check_energy`]); a NaN
     /// energy is not.
@@ -45,26 +45,28 @@ impl<const N: usize> EnergyAnchor<N> {
     }
 
     /// An anchor at `state`.
-    pub(crate) fn at<Sys, const M: usize>(sys: &Sys, state: &State<N>) -> Self
+    pub(crate) fn at<Sys, const N: usize, const M: usize>(sys: &Sys, state: &State<N>) -> Self
     where
         Sys: NonholonomicSystem<N, M>,
     {
         let energy = sys.energy(state.t, &state.q, &state.v);
         let pv = sys.momentum(state.t, &state.q, &state.v).dot(&state.v);
-        EnergyAnchor { end: *state, energy, scale: energy.abs() + pv.abs() }
+        EnergyAnchor { energy, scale: energy.abs() + pv.abs() }
     }
 }
 
-/// Outcome of the energy guard for one step.
-pub(crate) enum EnergyCheck<const N: usize> {
-    /// Within the limit; the anchor to keep for the next step.
-    Accept(EnergyAnchor<N>),
-    /// `|E₁ − E_anchor| > limit · scale`: the anchor and `E₁`.
-    Drift(EnergyAnchor<N>, f64),
+/// A step the guard refuses: the anchor of its chain and the energy `E₁` at
+/// its end, `|E₁ − E_anchor| > limit · scale`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct EnergyDrift {
+    pub(crate) anchor: EnergyAnchor,
+    pub(crate) energy: f64,
 }
 
-/// Checks the end `end` of a step from `start` against the anchor of the
-/// chain it continues (a new anchor at `start` when it continues none).
+/// Checks the end `end` of a step from `start` against `anchor`, the anchor
+/// of the chain the step continues (`None`: it continues none, and a new
+/// chain begins at `start`). On success `anchor` is the anchor of the chain
+/// that now ends at `end`; a refused step leaves it as it was.
 ///
 /// An anchor whose scale is zero (at rest where `E = 0`) measures nothing,
 /// so the chain re-anchors at the next state instead. A round-off floor of
@@ -74,27 +76,29 @@ pub(crate) enum EnergyCheck<const N: usize> {
 /// [`NonholonomicSystem::energy`] computes it); `None` computes it here.
 pub(crate) fn check_energy<Sys, const N: usize, const M: usize>(
     sys: &Sys,
-    anchor: Option<&EnergyAnchor<N>>,
+    anchor: &mut Option<EnergyAnchor>,
     start: &State<N>,
     end: &State<N>,
     e1: Option<f64>,
     limit: f64,
-) -> EnergyCheck<N>
+) -> Result<(), EnergyDrift>
 where
     Sys: NonholonomicSystem<N, M>,
 {
-    let a = match anchor.filter(|a| a.end == *start && a.scale > 0.0) {
-        Some(a) => *a,
-        None => EnergyAnchor::at::<Sys, M>(sys, start),
+    let a = match anchor.filter(|a| a.scale > 0.0) {
+        Some(a) => a,
+        None => EnergyAnchor::at::<Sys, N, M>(sys, start),
     };
     if a.scale == 0.0 {
-        return EnergyCheck::Accept(EnergyAnchor::at::<Sys, M>(sys, end));
+        *anchor = Some(EnergyAnchor::at::<Sys, N, M>(sys, end));
+        return Ok(());
     }
     let e1 = e1.unwrap_or_else(|| sys.energy(end.t, &end.q, &end.v));
     if a.holds(e1, limit) {
-        EnergyCheck::Accept(EnergyAnchor { end: *end, ..a })
+        *anchor = Some(a);
+        Ok(())
     } else {
-        EnergyCheck::Drift(a, e1)
+        Err(EnergyDrift { anchor: a, energy: e1 })
     }
 }
 

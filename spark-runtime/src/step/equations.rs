@@ -70,7 +70,7 @@ where
     /// [`NewtonMatrix::factor`] and [`NewtonMatrix::solve_in_place`] on a
     /// clone. The stepper's warm start is left as it was.
     pub fn newton_matrix(&mut self, state: &State<N>, h: f64) -> (&NewtonMatrix<N, M, S, D>, Vector<D>) {
-        let z = self.starting_guess(state, h).z;
+        let z = self.starting_guess(state, h, self.continues(state)).z;
         let p0 = self.system.momentum(state.t, &state.q, &state.v);
         let carry = self.carry_for(state);
         let mut ev = Eval::zeros();

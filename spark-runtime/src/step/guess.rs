@@ -177,15 +177,14 @@ impl<const S: usize> StepPolynomial<S> {
     }
 }
 
-/// The previous steps, kept for extrapolating the next starting guess.
+/// The previous steps, kept for extrapolating the next starting guess: the
+/// steps of the chain that ends where the stepper's latest step ended.
 ///
 /// Updated in place after every step (a ring of the last solutions, not a
 /// shifted array rebuilt per step: that copy was `PAST·D` doubles).
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Warm<const N: usize, const D: usize> {
+pub(super) struct Warm<const D: usize> {
     pub(super) h: f64,
-    /// Where the latest of these steps ended.
-    pub(super) end: State<N>,
     /// Solutions `z` of the last `depth` consecutive steps of size `h`; the
     /// most recent is `past[head]`, the one before `past[(head + 1) % PAST]`.
     pub(super) past: [Vector<D>; PAST],
@@ -198,37 +197,29 @@ pub(super) struct Warm<const N: usize, const D: usize> {
     pub(super) rate: (f64, bool),
 }
 
-impl<const N: usize, const D: usize> Warm<N, D> {
+impl<const D: usize> Warm<D> {
     /// The `k`-th most recent solution (`k < depth`).
     pub(super) fn back(&self, k: usize) -> &Vector<D> {
         &self.past[(self.head + k) % PAST]
     }
 
-    /// Keeps the solution `z` of the step of size `h` from `start` to `end`:
-    /// in the ring of `warm` when the step continues it with the same `h`,
-    /// otherwise as the first solution of a new ring.
+    /// Keeps the solution `z` of a step of size `h`: in the ring of `warm`
+    /// when the step `continues` its chain with the same `h`, otherwise as
+    /// the first solution of a new ring.
     /// `rate`: what the step's solve earned on its final factors, and
     /// whether they were the stage-decoupled matrix's.
-    pub(super) fn remember(
-        warm: &mut Option<Self>,
-        start: &State<N>,
-        end: State<N>,
-        h: f64,
-        z: Vector<D>,
-        rate: (f64, bool),
-    ) {
-        match warm.as_mut().filter(|w| w.end == *start && w.h == h) {
+    pub(super) fn remember(warm: &mut Option<Self>, continues: bool, h: f64, z: Vector<D>, rate: (f64, bool)) {
+        match warm.as_mut().filter(|w| continues && w.h == h) {
             Some(w) => {
                 w.head = (w.head + PAST - 1) % PAST;
                 w.past[w.head] = z;
                 w.depth = (w.depth + 1).min(PAST);
-                w.end = end;
                 w.rate = rate;
             }
             None => {
                 let mut past = [Vector::<D>::zeros(); PAST];
                 past[0] = z;
-                *warm = Some(Warm { h, end, past, head: 0, depth: 1, rate });
+                *warm = Some(Warm { h, past, head: 0, depth: 1, rate });
             }
         }
     }
@@ -264,8 +255,10 @@ where
     /// previous stage values at the nodes `c_j` is evaluated at the new nodes.
     /// Without a previous step: `V_i = v₀ + c_i h a₀`, `Ψ_i = ψ₀` from the
     /// consistent acceleration and multiplier.
-    pub(super) fn starting_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
-        self.starting_guess_up_to(state, h, self.options.extrapolation_degree)
+    /// `continues`: the step starts where the latest one ended
+    /// ([`Stepper::continues`]).
+    pub(super) fn starting_guess(&mut self, state: &State<N>, h: f64, continues: bool) -> Guess<D> {
+        self.starting_guess_up_to(state, h, self.options.extrapolation_degree, continues)
     }
 
     /// The guess of degree [`SAFE_EXTRAPOLATION_DEGREE`] at most, for a
@@ -274,8 +267,8 @@ where
     /// the one inlined copy of the guess.
     #[cold]
     #[inline(never)]
-    pub(super) fn safe_degree_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
-        self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE)
+    pub(super) fn safe_degree_guess(&mut self, state: &State<N>, h: f64, continues: bool) -> Guess<D> {
+        self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE, continues)
     }
 
     /// [`starting_guess`](Self::starting_guess) with the extrapolation
@@ -283,10 +276,16 @@ where
     /// callers (a second, cold caller would otherwise leave it out of line,
     /// its `D`-vector result copied on every step).
     #[inline(always)]
-    pub(super) fn starting_guess_up_to(&mut self, state: &State<N>, h: f64, max_degree: usize) -> Guess<D> {
+    pub(super) fn starting_guess_up_to(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        max_degree: usize,
+        continues: bool,
+    ) -> Guess<D> {
         let c = &self.tableau.c;
         let mut z = Vector::<D>::zeros();
-        if let Some(w) = self.warm.as_ref().filter(|w| self.options.warm_start && w.end == *state) {
+        if let Some(w) = self.warm.as_ref().filter(|_| continues && self.options.warm_start) {
             let prior = if w.h == h { w.rate } else { (f64::NAN, false) };
             if w.h == h && w.depth >= 2 {
                 if let Some(poly) = &self.step_polynomial {
@@ -366,6 +365,7 @@ where
 mod tests {
     use super::{Warm, PAST};
     use crate::fixtures::paper::Particle;
+    use crate::step::compensation::Compensation;
     use crate::tableau::{Method, Tableau};
     use crate::{State, Stepper, Vector};
 
@@ -378,7 +378,8 @@ mod tests {
     fn warm_stepper(method: Method, h: f64, v: Vector<N>, past: [Vector<D>; PAST]) -> Stepper<Particle, N, 1, S, D> {
         let mut stepper = Stepper::<Particle, N, 1, S, D>::new(Particle, Tableau::new(method).unwrap());
         let end = State::new(0.0, Vector::zeros(), v);
-        stepper.warm = Some(Warm { h, end, past, head: 0, depth: PAST, rate: (f64::NAN, false) });
+        stepper.warm = Some(Warm { h, past, head: 0, depth: PAST, rate: (f64::NAN, false) });
+        stepper.compensation = Some(Compensation { end, carry: Vector::zeros() });
         stepper
     }
 
@@ -413,7 +414,7 @@ mod tests {
         let past = std::array::from_fn(|k| z(-1.0 - k as f64));
         let mut stepper = warm_stepper(Method::LobattoIIIAB, 0.1, start(0.0), past);
         let super::Guess { z: guess, warm, .. } =
-            stepper.starting_guess(&State::new(0.0, Vector::zeros(), start(0.0)), 0.1);
+            stepper.starting_guess(&State::new(0.0, Vector::zeros(), start(0.0)), 0.1, true);
         assert!(warm);
         assert_close(&guess, &z(0.0));
     }
@@ -441,7 +442,7 @@ mod tests {
         let past = std::array::from_fn(|k| z(-1.0 - k as f64));
         let mut stepper = warm_stepper(Method::Gauss, h, velocity(0.0), past);
         let super::Guess { z: guess, warm, .. } =
-            stepper.starting_guess(&State::new(0.0, Vector::zeros(), velocity(0.0)), h);
+            stepper.starting_guess(&State::new(0.0, Vector::zeros(), velocity(0.0)), h, true);
         assert!(warm);
         assert_close(&guess, &z(0.0));
     }

@@ -29,8 +29,10 @@ pub(crate) struct LaneContinuation<const N: usize, const D: usize> {
     pub(crate) h: f64,
     /// `(q₀ + Δq) − q₁` of the latest step (compensated summation).
     pub(crate) carry: Vector<N>,
-    /// The energy guard's anchor (`None` with the guard off or before a check).
-    pub(crate) anchor: Option<EnergyAnchor<N>>,
+    /// The energy guard's anchor of the chain that ends at `end` (`None`
+    /// with the guard off, before a check, or for a chain that ends
+    /// elsewhere).
+    pub(crate) anchor: Option<EnergyAnchor>,
     /// Solutions `z` of the latest `depth` steps, most recent first.
     pub(crate) past: [Vector<D>; PAST],
     /// How many of `past` hold solutions (at least 2 for the kernel).
@@ -76,8 +78,8 @@ where
             && !o.reuse_factorization
             && o.warm_start
             && self.exact_steps_left == 0
-            && self.warm.as_ref().is_some_and(|w| w.end == *state && w.h == h && w.depth >= 2)
-            && self.compensation.as_ref().is_some_and(|c| c.end == *state)
+            && self.warm.as_ref().is_some_and(|w| w.h == h && w.depth >= 2)
+            && self.continues(state)
     }
 
     /// The continuation of the step that ended at `state`, when
@@ -103,7 +105,7 @@ where
     /// `c.end` computes exactly what it would had this stepper taken the
     /// kernel's steps itself.
     pub(crate) fn resume_lane(&mut self, c: &LaneContinuation<N, D>) {
-        self.warm = Some(Warm { h: c.h, end: c.end, past: c.past, head: 0, depth: c.depth.min(PAST), rate: c.rate });
+        self.warm = Some(Warm { h: c.h, past: c.past, head: 0, depth: c.depth.min(PAST), rate: c.rate });
         self.compensation = Some(Compensation { end: c.end, carry: c.carry });
         self.anchor = c.anchor;
         self.reusable = None;

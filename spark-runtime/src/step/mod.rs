@@ -52,7 +52,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use compensation::{two_sum_error, two_sum_error_of};
 pub(crate) use convergence::{too_slow, Contraction};
-pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor, EnergyCheck};
+pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor};
 pub(crate) use guess::{extrapolation_degree, StepPolynomial, EXTRAPOLATION, MAX_EXTRAPOLATION_DEGREE, PAST};
 pub(crate) use lane_handover::LaneContinuation;
 
@@ -134,7 +134,7 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     system: Sys,
     tableau: Tableau<S>,
     options: NewtonOptions,
-    warm: Option<Warm<N, D>>,
+    warm: Option<Warm<D>>,
     /// The Newton matrix and its factors (heap, allocated once).
     newton: NewtonMatrix<N, M, S, D>,
     /// Stage Jacobians of the latest full evaluation (heap, allocated once:
@@ -175,8 +175,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// its terms any more: evaluations pass no terms (the system then
     /// computes its own) until the next step recomputes them.
     terms_stale: bool,
-    /// Where the energy guard's chain of continued steps began.
-    anchor: Option<EnergyAnchor<N>>,
+    /// Where the energy guard's chain of continued steps began: the chain
+    /// that ends where `compensation` says the latest step ended (`None`
+    /// after a step the guard did not check).
+    anchor: Option<EnergyAnchor>,
     /// The Newton iterations of the latest step (kept here rather than in
     /// every [`StepResult`]: 32 records are ≈ 0.8 KB to move per step).
     history: NewtonHistory,
@@ -184,8 +186,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// entries of this tableau and system; then [`Self::assemble_jacobian`]
     /// overwrites only the blocks that change.
     pattern_written: bool,
-    /// The round-off the latest step's `q₁` could not hold (compensated
-    /// summation, see [`Compensation`]).
+    /// Where the latest step ended and the round-off its `q₁` could not
+    /// hold (compensated summation, see [`Compensation`]): a step from that
+    /// state continues it, and takes over `warm` and `anchor` too, which
+    /// belong to that end (`None` before a first step).
     compensation: Option<Compensation<N>>,
     /// Whether `options` passed [`NewtonOptions::validate`]; cleared by
     /// every way of changing them, so the check runs once per change, not
@@ -211,8 +215,8 @@ fn usable_terms(terms: &[f64], stale: bool) -> &[f64] {
 /// (see [`Stepper::continuation`]).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Continuation<const N: usize, const D: usize> {
-    warm: Option<Warm<N, D>>,
-    anchor: Option<EnergyAnchor<N>>,
+    warm: Option<Warm<D>>,
+    anchor: Option<EnergyAnchor>,
     compensation: Option<Compensation<N>>,
 }
 
@@ -316,20 +320,20 @@ where
         &self.history
     }
 
+    /// Whether a step from `state` continues the latest step (it starts
+    /// where that step ended).
+    pub(crate) fn continues(&self, state: &State<N>) -> bool {
+        self.compensation.as_ref().is_some_and(|c| c.end == *state)
+    }
+
     /// Whether a step from `state` would be warm-started.
     pub(crate) fn is_warm_for(&self, state: &State<N>) -> bool {
-        self.options.warm_start && self.warm.as_ref().is_some_and(|w| w.end == *state)
+        self.options.warm_start && self.warm.is_some() && self.continues(state)
     }
 
     /// Declares that `state` (the last step's result with its time pinned to
     /// the schedule) continues the last step.
     pub(crate) fn retarget_warm_start(&mut self, state: &State<N>) {
-        if let Some(w) = self.warm.as_mut() {
-            w.end = *state;
-        }
-        if let Some(a) = self.anchor.as_mut() {
-            a.end = *state;
-        }
         if let Some(c) = self.compensation.as_mut() {
             c.end = *state;
         }
@@ -442,7 +446,9 @@ where
                 Vector::zeros()
             }
         };
-        let Guess { mut z, warm: warm_started, prior, mut degree } = self.starting_guess(state, h);
+        // The warm start and the energy anchor belong to that state too.
+        let continues = continued.is_some();
+        let Guess { mut z, warm: warm_started, prior, mut degree } = self.starting_guess(state, h, continues);
         // An extrapolation of high degree is the closer guess while the
         // solution is smooth on the scale of h, and can be far off where it
         // is not: a step it fails is solved again from the guess of degree
@@ -452,7 +458,7 @@ where
         let Solved { factorizations, rate } = loop {
             match self.newton(state, &carry, h, &mut z, prior) {
                 Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
-                    Guess { z, degree, .. } = self.safe_degree_guess(state, h);
+                    Guess { z, degree, .. } = self.safe_degree_guess(state, h, continues);
                 }
                 solved => break solved?,
             }
@@ -473,14 +479,18 @@ where
         }
         if let (Some(limit), true) = (self.options.energy_drift_limit, energy_is_invariant::<Sys, N, M>()) {
             let e1 = self.system.energy_with_terms(&self.terms, end.t, &end.q, &end.v);
-            match check_energy::<Sys, N, M>(&self.system, self.anchor.as_ref(), state, &end, Some(e1), limit) {
-                EnergyCheck::Accept(a) => self.anchor = Some(a),
-                EnergyCheck::Drift(a, energy) => {
-                    return Err(StepError::EnergyDrift { t: t0, h, energy0: a.energy, energy, bound: limit * a.scale });
-                }
+            // A refused step leaves the stepper's anchor as it was.
+            let mut anchor = self.anchor.filter(|_| continues);
+            if let Err(d) = check_energy::<Sys, N, M>(&self.system, &mut anchor, state, &end, Some(e1), limit) {
+                let (energy0, bound) = (d.anchor.energy, limit * d.anchor.scale);
+                return Err(StepError::EnergyDrift { t: t0, h, energy0, energy: d.energy, bound });
             }
+            self.anchor = anchor;
+        } else {
+            // No chain ends here: the next checked step begins one.
+            self.anchor = None;
         }
-        Warm::remember(&mut self.warm, state, end, h, z, rate);
+        Warm::remember(&mut self.warm, continues, h, z, rate);
         self.compensation = Some(Compensation { end, carry });
         let mut psi = mu;
         for p in psi.iter_mut() {

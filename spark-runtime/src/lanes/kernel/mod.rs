@@ -35,8 +35,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::is_diagonal;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
-    check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor, EnergyCheck,
-    LaneContinuation, NewtonOptions, State, StepPolynomial, PAST,
+    check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor, LaneContinuation,
+    NewtonOptions, State, StepPolynomial, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -125,9 +125,12 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     q: Box<[L<W>; N]>,
     v: Box<[L<W>; N]>,
     carry: Box<[L<W>; N]>,
-    anchor: [Option<EnergyAnchor<N>>; W],
-    /// Whether lane `w`'s state is its anchor's end state (so the energy
-    /// guard continues the anchor's chain without comparing them).
+    /// Each lane's energy anchor and the time of the state its chain ends
+    /// at (meaningful with the anchor only).
+    anchor: [Option<EnergyAnchor>; W],
+    anchor_t: [f64; W],
+    /// Whether lane `w`'s state is where its anchor's chain ends (so the
+    /// energy guard continues that chain without comparing states).
     at_anchor: [bool; W],
     /// Ring of the latest solutions: slot `k` at `k·D`; lane `w`'s most
     /// recent is slot `head[w]`.
@@ -223,6 +226,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             v: fixed(),
             carry: fixed(),
             anchor: [None; W],
+            anchor_t: [0.0; W],
             at_anchor: [false; W],
             past: lanes(PAST * D),
             head: [0; W],
@@ -265,8 +269,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 self.past[k * D + d][w] = c.past[k][d];
             }
         }
+        // The continuation's anchor belongs to the chain ending at `c.end`.
         self.anchor[w] = c.anchor;
-        self.at_anchor[w] = c.anchor.is_some_and(|a| a.end.q == c.end.q && a.end.v == c.end.v);
+        self.anchor_t[w] = c.end.t;
+        self.at_anchor[w] = c.anchor.is_some();
         self.rate[w] = c.rate;
         (self.head[w], self.depth[w], self.held[w]) = (0, c.depth, true);
     }
@@ -288,7 +294,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             end: self.state(w, t),
             h: self.h,
             carry: Vector::from_fn(|n, _| self.carry[n][w]),
-            anchor: self.anchor[w],
+            anchor: self.anchor[w].filter(|_| self.at_anchor[w] && self.anchor_t[w] == t),
             past,
             depth: self.depth[w],
             rate: self.rate[w],
@@ -543,28 +549,25 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 let v1 = self.lane_vector::<N>(&v1_lanes[..], 0, w);
                 // The chain the kernel continues, checked in place: what
                 // `check_energy` decides for an anchor at the step's start.
-                let at_anchor = self.at_anchor[w];
-                let continued = self.anchor[w].as_mut().filter(|a| a.scale > 0.0 && a.end.t == t && at_anchor);
+                let at_anchor = self.at_anchor[w] && self.anchor_t[w] == t;
+                let continued = self.anchor[w].filter(|a| a.scale > 0.0 && at_anchor);
                 if let Some(a) = continued {
                     if !a.holds(e1, limit) {
                         out[w] = Outcome::HandBack;
                         continue;
                     }
-                    a.end = State::new(t_next, q1, v1);
                 } else {
                     let q0 = self.lane_vector::<N>(&self.q[..], 0, w);
                     let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                     let end = State::new(t + h, q1, v1);
-                    match check_energy::<Sys, N, M>(sys, self.anchor[w].as_ref(), &start, &end, Some(e1), limit) {
-                        EnergyCheck::Accept(a) => {
-                            self.anchor[w] = Some(EnergyAnchor { end: State { t: t_next, ..end }, ..a })
-                        }
-                        EnergyCheck::Drift(..) => {
-                            out[w] = Outcome::HandBack;
-                            continue;
-                        }
+                    let mut anchor = self.anchor[w].filter(|_| at_anchor);
+                    if check_energy::<Sys, N, M>(sys, &mut anchor, &start, &end, Some(e1), limit).is_err() {
+                        out[w] = Outcome::HandBack;
+                        continue;
                     }
+                    self.anchor[w] = anchor;
                 }
+                self.anchor_t[w] = t_next;
             }
             // The anchor's end is the new state exactly when the guard ran.
             self.at_anchor[w] = guard.is_some();
