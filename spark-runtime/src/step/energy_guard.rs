@@ -66,40 +66,63 @@ pub(crate) struct EnergyDrift {
 /// Checks the end `end` of a step from `start` against `anchor`, the anchor
 /// of the chain the step continues (`None`: it continues none, and a new
 /// chain begins at `start`). On success `anchor` is the anchor of the chain
-/// that now ends at `end`; a refused step leaves it as it was.
+/// that now ends at `end`; after a refusal the caller keeps the anchor it
+/// had (a new chain may have been written to `anchor`).
 ///
 /// An anchor whose scale is zero (at rest where `E = 0`) measures nothing,
 /// so the chain re-anchors at the next state instead. A round-off floor of
 /// `64 ε |E₁|` keeps huge energy offsets from tripping the test.
 ///
-/// `e1` is the energy at `end` when the caller has it already (as
-/// [`NonholonomicSystem::energy`] computes it); `None` computes it here.
+/// `e1` is the energy at `end` (as [`NonholonomicSystem::energy`]
+/// computes it). Inlined: a continued chain costs the test and nothing
+/// else; a new chain is made out of line.
+#[inline(always)]
 pub(crate) fn check_energy<Sys, const N: usize, const M: usize>(
     sys: &Sys,
     anchor: &mut Option<EnergyAnchor>,
     start: &State<N>,
     end: &State<N>,
-    e1: Option<f64>,
+    e1: f64,
     limit: f64,
 ) -> Result<(), EnergyDrift>
 where
     Sys: NonholonomicSystem<N, M>,
 {
-    let a = match anchor.filter(|a| a.scale > 0.0) {
-        Some(a) => a,
-        None => EnergyAnchor::at::<Sys, N, M>(sys, start),
+    let a = match anchor {
+        Some(a) if a.scale > 0.0 => *a,
+        _ => match begin_chain::<Sys, N, M>(sys, anchor, start, end) {
+            Some(a) => a,
+            None => return Ok(()),
+        },
     };
-    if a.scale == 0.0 {
-        *anchor = Some(EnergyAnchor::at::<Sys, N, M>(sys, end));
-        return Ok(());
-    }
-    let e1 = e1.unwrap_or_else(|| sys.energy(end.t, &end.q, &end.v));
     if a.holds(e1, limit) {
-        *anchor = Some(a);
         Ok(())
     } else {
         Err(EnergyDrift { anchor: a, energy: e1 })
     }
+}
+
+/// The anchor of a new chain at `start`, also kept in `anchor`; when its
+/// scale is zero, `anchor` becomes one at `end` instead and there is
+/// nothing to check (`None`).
+#[cold]
+#[inline(never)]
+fn begin_chain<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    anchor: &mut Option<EnergyAnchor>,
+    start: &State<N>,
+    end: &State<N>,
+) -> Option<EnergyAnchor>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let a = EnergyAnchor::at::<Sys, N, M>(sys, start);
+    if a.scale == 0.0 {
+        *anchor = Some(EnergyAnchor::at::<Sys, N, M>(sys, end));
+        return None;
+    }
+    *anchor = Some(a);
+    Some(a)
 }
 
 #[cfg(test)]

@@ -481,7 +481,7 @@ where
             let e1 = self.system.energy_with_terms(&self.terms, end.t, &end.q, &end.v);
             // A refused step leaves the stepper's anchor as it was.
             let mut anchor = self.anchor.filter(|_| continues);
-            if let Err(d) = check_energy::<Sys, N, M>(&self.system, &mut anchor, state, &end, Some(e1), limit) {
+            if let Err(d) = check_energy::<Sys, N, M>(&self.system, &mut anchor, state, &end, e1, limit) {
                 let (energy0, bound) = (d.anchor.energy, limit * d.anchor.scale);
                 return Err(StepError::EnergyDrift { t: t0, h, energy0, energy: d.energy, bound });
             }

@@ -561,7 +561,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                     let end = State::new(t + h, q1, v1);
                     let mut anchor = self.anchor[w].filter(|_| at_anchor);
-                    if check_energy::<Sys, N, M>(sys, &mut anchor, &start, &end, Some(e1), limit).is_err() {
+                    if check_energy::<Sys, N, M>(sys, &mut anchor, &start, &end, e1, limit).is_err() {
                         out[w] = Outcome::HandBack;
                         continue;
                     }
