@@ -208,6 +208,7 @@ impl<const D: usize> Warm<D> {
     /// the first solution of a new ring.
     /// `rate`: what the step's solve earned on its final factors, and
     /// whether they were the stage-decoupled matrix's.
+    #[inline(always)]
     pub(super) fn remember(warm: &mut Option<Self>, continues: bool, h: f64, z: Vector<D>, rate: (f64, bool)) {
         match warm.as_mut().filter(|w| continues && w.h == h) {
             Some(w) => {
