@@ -195,7 +195,9 @@ where
         ev: &Eval<N, M, S>,
         g: &mut Vector<D>,
     ) {
-        g.as_mut_slice().fill(0.0);
+        // Every row is written below (the methods with a midpoint
+        // constraint have S = 2: one condition row block), so `g` is not
+        // cleared first.
         let mut row = |i: usize, weights_hat: &[f64; S], weights_tilde: &[f64; S], momentum: &Vector<N>| {
             let mut r = momentum - p0;
             for j in 0..S {
@@ -223,11 +225,10 @@ where
                     g.fixed_rows_mut::<M>(base + r * M).copy_from(&k);
                 }
             }
-            ConditionRows::MidpointConstraint => {
-                if let Some(mid) = &ev.mid {
-                    g.fixed_rows_mut::<M>(base).copy_from(&mid.constraint);
-                }
-            }
+            ConditionRows::MidpointConstraint => match &ev.mid {
+                Some(mid) => g.fixed_rows_mut::<M>(base).copy_from(&mid.constraint),
+                None => g.fixed_rows_mut::<M>(base).fill(0.0),
+            },
             ConditionRows::EqualMultipliers => {
                 for r in 0..S.saturating_sub(1) {
                     let d = z.fixed_rows::<M>(S * N + r * M) - z.fixed_rows::<M>(S * N + (r + 1) * M);
