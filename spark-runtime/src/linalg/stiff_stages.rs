@@ -280,6 +280,7 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
     /// `y ← T⁻¹ y` for the stage part `y` (`S·N`, stage by stage), then
     /// `end += Σ_k h² (b̂ᵀA)_k F_q y_k`: the end row's right-hand side once
     /// the stages are solved (`W` then gives `v₁`'s part).
+    #[inline]
     pub(crate) fn solve_stages(&self, y: &mut [f64], end: &mut [f64]) {
         if !self.by_coordinate {
             solve_runtime(&self.lu, S * N, &self.perm, y);
