@@ -143,9 +143,9 @@ where
     /// deep, only while half of it still changes `t` and while the
     /// sub-steps taken and pending stay within `budget.max_substeps`.
     ///
-    /// `on_step(system, start, end, h, result)` sees every accepted
-    /// sub-step (the last one with its end time pinned to `t_target`); when
-    /// it returns `true` the step stops there.
+    /// `on_step(system, start, end_t, h, result)` sees every accepted
+    /// sub-step, `end_t` the time of its end (the last one's pinned to
+    /// `t_target`); when it returns `true` the step stops there.
     ///
     /// A step that succeeds at once costs one call of [`Stepper::step`] and
     /// nothing more: the retry and the halving are set up only after a
@@ -159,15 +159,13 @@ where
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
     where
-        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+        F: FnMut(&Sys, &State<N>, f64, f64, &StepResult<N, M, S>) -> bool,
     {
         // Borrowed where accepted: the step's result is not moved out of
         // the `Result` (a copy of every stage value) on the common path.
         match self.step(state, h) {
             Ok(ref r) => {
-                let mut end = r.state;
-                end.t = t_target;
-                let stopped = on_step(self.system(), state, &end, h, r);
+                let stopped = on_step(self.system(), state, t_target, h, r);
                 Ok(StepCounts {
                     state: r.state,
                     iterations: r.iterations,
@@ -206,7 +204,7 @@ where
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
     where
-        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+        F: FnMut(&Sys, &State<N>, f64, f64, &StepResult<N, M, S>) -> bool,
     {
         let max_halvings = budget.max_halvings.min(MAX_HALVINGS);
         // Sub-steps still to take, the next one last, with their halving
@@ -236,11 +234,8 @@ where
             match result {
                 Ok(r) => {
                     len -= 1;
-                    let mut end = r.state;
-                    if len == 0 {
-                        end.t = t_target;
-                    }
-                    let stop = on_step(self.system(), &out.state, &end, sub, &r);
+                    let end_t = if len == 0 { t_target } else { r.state.t };
+                    let stop = on_step(self.system(), &out.state, end_t, sub, &r);
                     out.accept(r.state, r.iterations, sub);
                     if stop {
                         out.stopped = true;
@@ -285,7 +280,7 @@ where
         on_step: &mut F,
     ) -> Result<StepCounts<N>, StepFailure>
     where
-        F: FnMut(&Sys, &State<N>, &State<N>, f64, &StepResult<N, M, S>) -> bool,
+        F: FnMut(&Sys, &State<N>, f64, f64, &StepResult<N, M, S>) -> bool,
     {
         let t_end = state.t + h;
         let floor = policy.floor(h);
@@ -311,11 +306,8 @@ where
             let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
             match self.step(&out.state, this) {
                 Ok(r) => {
-                    let mut end = r.state;
-                    if (t_end - r.state.t) * h.signum() <= slack {
-                        end.t = t_target;
-                    }
-                    let stop = on_step(self.system(), &out.state, &end, this, &r);
+                    let end_t = if (t_end - r.state.t) * h.signum() <= slack { t_target } else { r.state.t };
+                    let stop = on_step(self.system(), &out.state, end_t, this, &r);
                     out.accept(r.state, r.iterations, this);
                     if stop {
                         out.stopped = true;

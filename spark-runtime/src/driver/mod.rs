@@ -406,9 +406,10 @@ where
             let mut step_iterations = 0usize;
             // The test of `dense` is all a sub-step costs here when the run
             // needs no continuous extension; the rest is out of line.
-            let mut on_step = |sys: &Sys, start: &State<N>, end: &State<N>, sub: f64, r: &StepResult<N, M, S>| {
+            let mut on_step = |sys: &Sys, start: &State<N>, end_t: f64, sub: f64, r: &StepResult<N, M, S>| {
                 dense && {
                     step_iterations += r.iterations;
+                    let end = &State { t: end_t, ..r.state };
                     let at = Accepted { k, iterations: step_iterations, start, end, sub, result: r };
                     dense_run.accepted(sys, at, observer, &mut samples, &mut report)
                 }
