@@ -139,11 +139,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for n in 0..N {
             let mut d = self.carry[n];
             for j in 0..S {
-                if weights[j] != 0.0 {
-                    let c = h * weights[j];
-                    for w in 0..W {
-                        d[w] += c * self.z[j * N + n][w];
-                    }
+                let c = h * weights[j];
+                for w in 0..W {
+                    d[w] += c * self.z[j * N + n][w];
                 }
             }
             let q = self.q[n];
@@ -235,17 +233,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     r[w] = momentum[w] - p0[w];
                 }
                 for j in 0..S {
-                    if hat[j] != 0.0 {
-                        let (c, f) = (h * hat[j], self.values[j].force[n]);
-                        for w in 0..W {
-                            r[w] -= c * f[w];
-                        }
+                    let (c, f) = (h * hat[j], self.values[j].force[n]);
+                    for w in 0..W {
+                        r[w] -= c * f[w];
                     }
-                    if tilde[j] != 0.0 {
-                        let (c, f) = (h * tilde[j], self.values[j].constraint_force[n]);
-                        for w in 0..W {
-                            r[w] -= c * f[w];
-                        }
+                    let (c, f) = (h * tilde[j], self.values[j].constraint_force[n]);
+                    for w in 0..W {
+                        r[w] -= c * f[w];
                     }
                 }
                 put(&mut self.g, i * N + n, r);

@@ -513,13 +513,11 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // the stepper's order of operations.
         let mut dq_lanes: [L<W>; N] = *self.carry;
         for j in 0..S {
-            if tab.b[j] != 0.0 {
-                let c = h * tab.b[j];
-                for n in 0..N {
-                    let z = self.z[j * N + n];
-                    for w in 0..W {
-                        dq_lanes[n][w] += c * z[w];
-                    }
+            let c = h * tab.b[j];
+            for n in 0..N {
+                let z = self.z[j * N + n];
+                for w in 0..W {
+                    dq_lanes[n][w] += c * z[w];
                 }
             }
         }
