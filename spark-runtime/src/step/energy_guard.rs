@@ -159,4 +159,42 @@ mod tests {
         }
         assert!((Particle.energy(s.t, &s.q, &s.v) - e0).abs() < 1e-2 * e0);
     }
+
+    /// The anchor belongs to the chain that ends where the stepper's latest
+    /// step ended: continued steps keep it, a step the guard does not check
+    /// ends the chain, and a step from another state begins a new one at
+    /// its start, even after the driver's retargeting of the latest end.
+    #[test]
+    fn the_anchor_follows_the_chain_of_the_latest_step() {
+        use crate::fixtures::paper::Particle;
+        use crate::{NewtonOptions, Stepper, Tableau};
+        let start = State::new(0.0, Vector::<3>::new(1.0, 0.5, 0.0), Vector::<3>::new(0.0, 0.3, 0.0));
+        let mut st = Stepper::<_, 3, 1, 2, 11>::new(Particle, Tableau::new(crate::Method::LobattoIIIAB).unwrap());
+        let energy = |s: &State<3>| Particle.energy(s.t, &s.q, &s.v);
+        let mut s = start;
+        for _ in 0..5 {
+            s = st.step(&s, 0.3).unwrap().state;
+        }
+        // The energy drifts from step to step at this h, so anchors at
+        // different states hold different energies.
+        assert_ne!(energy(&s), energy(&start));
+        assert_eq!(st.anchor.map(|a| a.energy), Some(energy(&start)));
+        // Unchecked: no chain ends here.
+        st.options_mut().energy_drift_limit = None;
+        s = st.step(&s, 0.3).unwrap().state;
+        assert_eq!(st.anchor, None);
+        // Checked again: a new chain from this step's start, which the
+        // retargeted end (the time pinned) continues.
+        *st.options_mut() = NewtonOptions::default();
+        let begun = s;
+        s = st.step(&s, 0.3).unwrap().state;
+        assert_eq!(st.anchor.map(|a| a.energy), Some(energy(&begun)));
+        s.t = 2.1;
+        st.retarget_warm_start(&s);
+        st.step(&s, 0.3).unwrap();
+        assert_eq!(st.anchor.map(|a| a.energy), Some(energy(&begun)));
+        // A step from elsewhere begins its own chain.
+        st.step(&start, 0.3).unwrap();
+        assert_eq!(st.anchor.map(|a| a.energy), Some(energy(&start)));
+    }
 }
