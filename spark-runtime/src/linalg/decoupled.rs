@@ -402,11 +402,11 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 for r in 0..S.saturating_sub(1) {
                     for l in 0..S {
                         let mut blk = tab.omega[r][l] * kv[l];
+                        // Every term, a zero product `ω_rm a_ml` too (see
+                        // `step::equations::increment`).
                         for m in 0..S {
                             let c = tab.omega[r][m] * tab.a[m][l];
-                            if c != 0.0 {
-                                blk += (h * c) * kq[m];
-                            }
+                            blk += (h * c) * kq[m];
                         }
                         put(r, l, &blk);
                     }

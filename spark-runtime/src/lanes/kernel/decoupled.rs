@@ -165,11 +165,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                             }
                             for m in 0..S {
                                 let cm = tab.omega[r][m] * tab.a[m][l];
-                                if cm != 0.0 {
-                                    let (hc, k) = (h * cm, kq(m, e));
-                                    for w in 0..W {
-                                        blk[w] += hc * k[w];
-                                    }
+                                let (hc, k) = (h * cm, kq(m, e));
+                                for w in 0..W {
+                                    blk[w] += hc * k[w];
                                 }
                             }
                             put(r, l, e, blk);
