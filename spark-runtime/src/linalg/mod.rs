@@ -20,10 +20,13 @@
 //! paper's systems (D = 19..47).
 
 pub(crate) mod decoupled;
+mod largest_magnitude;
 mod lu;
 pub(crate) mod newton_matrix;
 mod padded_lu;
 pub(crate) mod stiff_stages;
+
+pub(crate) use largest_magnitude::largest_magnitude;
 
 pub(crate) use lu::{factor_in_place, factor_runtime, solve_in_place, solve_runtime, Lu};
 pub(crate) use padded_lu::PaddedLu;
@@ -137,8 +140,7 @@ pub(crate) fn weigh_and_norm<const D: usize>(update: &Vector<D>, z: &Vector<D>, 
 /// does not change while an iteration converges, and the norm then costs a
 /// product per component instead of a division.
 pub(crate) fn weighted_update_norm<const D: usize>(update: &Vector<D>, weights: &Vector<D>) -> f64 {
-    let (d, w) = (update.as_slice(), weights.as_slice());
-    match largest_and_nan(D, |i| d[i].abs() * w[i]) {
+    match largest_magnitude(update.as_slice(), Some(weights.as_slice())) {
         (_, true) => f64::NAN,
         (norm, false) => norm,
     }

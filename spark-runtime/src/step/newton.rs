@@ -7,7 +7,7 @@ use super::convergence::{full_newton_accepts_residual, too_slow, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
-use crate::linalg::{largest_and_nan, weigh_and_norm, weighted_update_norm};
+use crate::linalg::{largest_magnitude, weigh_and_norm, weighted_update_norm};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
 
@@ -240,8 +240,7 @@ where
         // (a NaN raises the flag, an infinity is the largest). As a fold
         // with `f64::max` this pass would be a tenth of an mp7 step of the
         // stage-decoupled iteration at h = 0.3125 (see `largest_and_nan`).
-        let r = g.as_slice();
-        let (largest, nan) = largest_and_nan(D, |i| r[i].abs());
+        let (largest, nan) = largest_magnitude(g.as_slice(), None);
         let finite = !nan && largest <= f64::MAX;
         if !finite {
             self.history.push(IterationRecord { residual: f64::NAN, update: f64::NAN, rate: f64::NAN });
