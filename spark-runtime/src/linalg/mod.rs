@@ -4,7 +4,9 @@
 //! AVX2+FMA kernel of the small Newton matrices) and the two Newton
 //! matrices built on them ([`newton_matrix`]: the exact Jacobian;
 //! [`decoupled`]: the stage-decoupled matrix, with `stiff_stages` for the
-//! stage blocks it keeps for a constant stiffness).
+//! stage blocks it keeps for a constant stiffness), and the largest
+//! magnitudes that Newton's residual and update norms take
+//! (`largest_magnitude`).
 //!
 //! Pivots may be confined to row blocks ("block pivoting"): column `k` looks
 //! for its pivot only in rows `k..end`, where `end` is the end of the block
