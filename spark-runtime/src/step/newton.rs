@@ -239,7 +239,8 @@ where
         // One pass for both: the largest magnitude, and the finiteness test
         // (a NaN raises the flag, an infinity is the largest). As a fold
         // with `f64::max` this pass would be a tenth of an mp7 step of the
-        // stage-decoupled iteration at h = 0.3125 (see `largest_and_nan`).
+        // stage-decoupled iteration at h = 0.3125 (see `largest_and_nan`,
+        // the scalar form of `largest_magnitude`).
         let (largest, nan) = largest_magnitude(g.as_slice(), None);
         let finite = !nan && largest <= f64::MAX;
         if !finite {
