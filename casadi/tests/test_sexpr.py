@@ -164,19 +164,18 @@ class Structure(unittest.TestCase):
         compare.check_structure(system, dict(honest, **claims), values, result)
         return result.structure_failures, result.structure_notes
 
-    def test_a_quadratic_potential_has_a_constant_stiffness(self):
-        quadratic = "(+ (^ (q x) 2) (* (q x) (q y)))"
-        self.assertEqual(self.potential_check(quadratic, {"constant_stiffness": True}), ([], []))
-        failures, notes = self.potential_check(quadratic, {"constant_stiffness": False})
+    def assert_fact_holds(self, potential, fact):
+        """The claimed `fact` of `potential` holds; not claimed, it is noted as missed."""
+        self.assertEqual(self.potential_check(potential, {fact: True}), ([], []))
+        failures, notes = self.potential_check(potential, {fact: False})
         self.assertEqual((len(failures), len(notes)), (0, 1))
-        self.assertIn("constant_stiffness", notes[0])
+        self.assertIn(fact, notes[0])
+
+    def test_a_quadratic_potential_has_a_constant_stiffness(self):
+        self.assert_fact_holds("(+ (^ (q x) 2) (* (q x) (q y)))", "constant_stiffness")
 
     def test_a_sum_of_one_coordinate_potentials_has_a_diagonal_stiffness(self):
-        diagonal = "(+ (cos (q x)) (^ (q y) 4))"
-        self.assertEqual(self.potential_check(diagonal, {"diagonal_stiffness": True}), ([], []))
-        failures, notes = self.potential_check(diagonal, {"diagonal_stiffness": False})
-        self.assertEqual((len(failures), len(notes)), (0, 1))
-        self.assertIn("diagonal_stiffness", notes[0])
+        self.assert_fact_holds("(+ (cos (q x)) (^ (q y) 4))", "diagonal_stiffness")
         failures, _ = self.potential_check("(* (cos (q x)) (^ (q y) 2))", {"diagonal_stiffness": True})
         self.assertEqual(len(failures), 1)
         self.assertIn("diagonal_stiffness", failures[0])

@@ -125,13 +125,12 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     q: Box<[L<W>; N]>,
     v: Box<[L<W>; N]>,
     carry: Box<[L<W>; N]>,
-    /// Each lane's energy anchor and the time of the state its chain ends
-    /// at (meaningful with the anchor only).
+    /// Each lane's energy anchor, of the chain that ends at the lane's
+    /// state (`None` after a step the guard did not check), and the time of
+    /// that state (meaningful with the anchor only): the energy guard
+    /// continues the chain without comparing states.
     anchor: [Option<EnergyAnchor>; W],
     anchor_t: [f64; W],
-    /// Whether lane `w`'s state is where its anchor's chain ends (so the
-    /// energy guard continues that chain without comparing states).
-    at_anchor: [bool; W],
     /// Ring of the latest solutions: slot `k` at `k·D`; lane `w`'s most
     /// recent is slot `head[w]`.
     past: Box<[L<W>]>,
@@ -227,7 +226,6 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             carry: fixed(),
             anchor: [None; W],
             anchor_t: [0.0; W],
-            at_anchor: [false; W],
             past: lanes(PAST * D),
             head: [0; W],
             depth: [0; W],
@@ -272,7 +270,6 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // The continuation's anchor belongs to the chain ending at `c.end`.
         self.anchor[w] = c.anchor;
         self.anchor_t[w] = c.end.t;
-        self.at_anchor[w] = c.anchor.is_some();
         self.rate[w] = c.rate;
         (self.head[w], self.depth[w], self.held[w]) = (0, c.depth, true);
     }
@@ -294,7 +291,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             end: self.state(w, t),
             h: self.h,
             carry: Vector::from_fn(|n, _| self.carry[n][w]),
-            anchor: self.anchor[w].filter(|_| self.at_anchor[w] && self.anchor_t[w] == t),
+            anchor: self.anchor[w].filter(|_| self.anchor_t[w] == t),
             past,
             depth: self.depth[w],
             rate: self.rate[w],
@@ -543,22 +540,20 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 continue;
             }
             if let (Some(limit), Some(e1)) = (guard, e1.map(|e| e[w])) {
-                let q1 = self.lane_vector::<N>(&q1_lanes[..], 0, w);
-                let v1 = self.lane_vector::<N>(&v1_lanes[..], 0, w);
                 // The chain the kernel continues, checked in place: what
                 // `check_energy` decides for an anchor at the step's start.
-                let at_anchor = self.at_anchor[w] && self.anchor_t[w] == t;
-                let continued = self.anchor[w].filter(|a| a.scale > 0.0 && at_anchor);
-                if let Some(a) = continued {
+                let mut anchor = self.anchor[w].filter(|_| self.anchor_t[w] == t);
+                if let Some(a) = anchor.filter(|a| a.scale > 0.0) {
                     if !a.holds(e1, limit) {
                         out[w] = Outcome::HandBack;
                         continue;
                     }
                 } else {
+                    let q1 = self.lane_vector::<N>(&q1_lanes[..], 0, w);
+                    let v1 = self.lane_vector::<N>(&v1_lanes[..], 0, w);
                     let q0 = self.lane_vector::<N>(&self.q[..], 0, w);
                     let start = State::new(t, q0, self.lane_vector::<N>(&self.v[..], 0, w));
                     let end = State::new(t + h, q1, v1);
-                    let mut anchor = self.anchor[w].filter(|_| at_anchor);
                     if check_energy::<Sys, N, M>(sys, &mut anchor, &start, &end, e1, limit).is_err() {
                         out[w] = Outcome::HandBack;
                         continue;
@@ -566,9 +561,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     self.anchor[w] = anchor;
                 }
                 self.anchor_t[w] = t_next;
+            } else {
+                // No chain ends here: the next checked step begins one.
+                self.anchor[w] = None;
             }
-            // The anchor's end is the new state exactly when the guard ran.
-            self.at_anchor[w] = guard.is_some();
             kept[w] = true;
             self.head[w] = (self.head[w] + PAST - 1) % PAST;
             self.depth[w] = (self.depth[w] + 1).min(PAST);
