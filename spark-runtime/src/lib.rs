@@ -96,6 +96,7 @@
 //!             force: self.force(t, q, v),
 //!             constraint: self.constraint(t, q, v),
 //!             constraint_force: -(self.constraint_v(t, q, v).transpose() * psi),
+//!             ..StageValues::zeros()
 //!         }
 //!     }
 //!     fn stage_jacobians(&self, t: f64, q: &V3, v: &V3, psi: &Vector<1>) -> (StageValues<3, 1>, StageJacobians<3, 1>) {

@@ -72,6 +72,10 @@ pub struct StageValues<const N: usize, const M: usize> {
     pub constraint: Vector<M>,
     /// `R = −K(t,q,v)ᵀ ψ`.
     pub constraint_force: Vector<N>,
+    /// The sine–cosine pairs the generated functions computed at this
+    /// point, kept for the next evaluation there (a cache: it changes no
+    /// value and compares equal; hand-written systems leave it alone).
+    pub sin_cos_memo: crate::trig::SinCosMemo,
 }
 
 /// First derivatives of the [`StageValues`] with respect to `q` and `v`:
@@ -104,6 +108,7 @@ impl<const N: usize, const M: usize> StageValues<N, M> {
             force: Vector::zeros(),
             constraint: Vector::zeros(),
             constraint_force: Vector::zeros(),
+            sin_cos_memo: crate::trig::SinCosMemo::default(),
         }
     }
 }

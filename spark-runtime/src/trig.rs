@@ -78,6 +78,56 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
     (f64::from_bits(sin.to_bits() ^ sign_sin), f64::from_bits(cos.to_bits() ^ sign_cos))
 }
 
+/// How many sine–cosine pairs of one body a [`SinCosMemo`] keeps (the
+/// generated code gives the first this many pair arguments of a system a
+/// slot each; further pairs are computed at every call).
+pub const SIN_COS_SLOTS: usize = 4;
+
+/// The latest sine–cosine pair of each slot with its argument, kept at one
+/// evaluation point (`StageValues::sin_cos_memo`) from one evaluation to the
+/// next: a Newton iteration evaluates the same point again and again, and
+/// an angle its updates leave unchanged to the last bit (the skate's
+/// heading, whose equation is linear; Lobatto's first stage point, which is
+/// the step's start) needs no new argument reduction and polynomials.
+/// Keyed by the argument's bits, so a hit returns exactly what [`sin_cos`]
+/// would: the memo changes no result. A cache, not part of any value: two
+/// memos always compare equal.
+#[derive(Clone, Copy, Debug)]
+pub struct SinCosMemo {
+    /// `(x.to_bits(), sin x, cos x)` per slot.
+    entries: [(u64, f64, f64); SIN_COS_SLOTS],
+}
+
+impl Default for SinCosMemo {
+    /// Every slot holds the pair of `+0`, which [`sin_cos`] returns as
+    /// `(0, 1)`: a valid entry, so no slot needs a flag.
+    fn default() -> Self {
+        SinCosMemo { entries: [(0, 0.0, 1.0); SIN_COS_SLOTS] }
+    }
+}
+
+impl PartialEq for SinCosMemo {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl SinCosMemo {
+    /// `(sin x, cos x)`, from slot `slot` when it holds `x` (bit for bit),
+    /// otherwise computed by [`sin_cos`] and kept there. A slot past
+    /// [`SIN_COS_SLOTS`] keeps nothing.
+    #[inline(always)]
+    pub fn sin_cos(&mut self, slot: usize, x: f64) -> (f64, f64) {
+        let Some(entry) = self.entries.get_mut(slot) else { return sin_cos(x) };
+        if entry.0 == x.to_bits() {
+            return (entry.1, entry.2);
+        }
+        let (s, c) = sin_cos(x);
+        *entry = (x.to_bits(), s, c);
+        (s, c)
+    }
+}
+
 /// Large, infinite or NaN arguments: the platform's reduction, out of the
 /// common path.
 #[cold]
@@ -153,7 +203,7 @@ fn kernel_cos(x: f64, y: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::sin_cos;
+    use super::{sin_cos, SinCosMemo, SIN_COS_SLOTS};
     use crate::linalg::test_matrices::random_values;
 
     /// Distance in units in the last place (0 for equal values, NaN
@@ -189,6 +239,29 @@ mod tests {
         assert!(worst <= 1, "{worst} ulps at x = {at:e}");
         let differ = args.iter().filter(|&&x| distance(x) > 0).count();
         assert!(differ < args.len() / 20, "{differ} of {} differ from the platform's", args.len());
+    }
+
+    /// The memo returns the computed pair bit for bit, from every slot, for
+    /// a repeated argument, a changed one, the default entry's `+0` and
+    /// `−0`, and NaN (whose bits match themselves but whose pair is NaN
+    /// anyway); a slot past the last keeps nothing and still computes.
+    #[test]
+    fn the_memo_returns_what_sin_cos_computes() {
+        let bits = |(s, c): (f64, f64)| (s.to_bits(), c.to_bits());
+        let mut memo = SinCosMemo::default();
+        let args = [0.0, -0.0, 0.3, 0.3, 1e-9, 2.5, 2.5, -7.25, f64::NAN, f64::NAN, 1e7, 0.0];
+        for slot in 0..SIN_COS_SLOTS + 1 {
+            for &x in &args {
+                assert_eq!(bits(memo.sin_cos(slot, x)), bits(sin_cos(x)), "slot {slot}, x = {x:e}");
+            }
+        }
+        // Two slots keep their own arguments.
+        let mut memo = SinCosMemo::default();
+        for &x in &args {
+            assert_eq!(bits(memo.sin_cos(0, x)), bits(sin_cos(x)));
+            assert_eq!(bits(memo.sin_cos(1, -x)), bits(sin_cos(-x)));
+        }
+        assert_eq!(memo, SinCosMemo::default(), "memos compare equal whatever they hold");
     }
 
     #[test]

@@ -26,6 +26,7 @@ use crate::graph::{Deps, Graph, Node, NodeId, Var};
 use crate::simplify::is_int;
 use proc_macro2::{Ident, Literal, Span, TokenStream};
 use quote::{format_ident, quote};
+use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
 
 /// How the rendered code uses a node: the children listed here are the ones
@@ -564,6 +565,31 @@ fn pair_call(runtime: &TokenStream, e: &R, paired: bool, mode: Mode) -> Option<T
     }
 }
 
+/// `sin_cos_memo.sin_cos(slot, x)` for the sine `e = x.sin()` (node
+/// `sine`) of a pair whose argument depends on the point (`paired`), in a
+/// body with a memo (see [`Inputs::sin_cos_memo`]); `None` otherwise.
+fn memo_call(
+    inputs: &Inputs<'_>,
+    views: &HashMap<NodeId, View>,
+    sine: NodeId,
+    e: &R,
+    paired: bool,
+) -> Option<TokenStream> {
+    let (R::Method(x, "sin", _), true, Some(slots)) = (e, paired, inputs.sin_cos_memo) else { return None };
+    let View::Method(_, args) = views.get(&sine)? else { return None };
+    let argument = *args.first()?;
+    let mut slots = slots.borrow_mut();
+    let slot = match slots.iter().position(|&a| a == argument) {
+        Some(slot) => slot,
+        None => {
+            slots.push(argument);
+            slots.len() - 1
+        }
+    };
+    let (slot, x) = (Literal::usize_unsuffixed(slot), x.tokens(Mode::Plain));
+    Some(quote!(sin_cos_memo.sin_cos(#slot, #x)))
+}
+
 /// Whether let `k` is the cosine of a pair, bound with the sine before it
 /// (`pairs`: the sines' indices).
 fn is_pair_cosine(pairs: &HashSet<usize>, k: usize) -> bool {
@@ -638,6 +664,12 @@ pub struct Inputs<'a> {
     /// The runtime crate's path (`::spark_runtime` unless the declaration
     /// says otherwise), for the functions generated code calls.
     pub runtime: &'a TokenStream,
+    /// For the bodies that evaluate a stage point (a `sin_cos_memo:
+    /// &mut SinCosMemo` in scope): the arguments of the sine–cosine pairs
+    /// met so far, a pair's memo slot being its argument's place here,
+    /// shared by the system's bodies so that each gives an angle the same
+    /// slot. `None`: pairs are computed at every call.
+    pub sin_cos_memo: Option<&'a RefCell<Vec<NodeId>>>,
 }
 
 impl Inputs<'_> {
@@ -795,7 +827,9 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         let e = em.render(g, n, true);
         ops += e.ops();
         let name = format_ident!("s{}", k);
-        if let Some(call) = pair_call(inputs.runtime, &e, paired_lets.contains(&k), Mode::Plain) {
+        if let Some(call) = memo_call(inputs, &em.views, n, &e, paired_lets.contains(&k) && k >= scalar_lets)
+            .or_else(|| pair_call(inputs.runtime, &e, paired_lets.contains(&k), Mode::Plain))
+        {
             let cosine = format_ident!("s{}", k + 1);
             statements.push(quote!(let (#name, #cosine) = #call;));
         } else if !is_pair_cosine(&paired_lets, k) {

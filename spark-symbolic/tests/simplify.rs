@@ -21,7 +21,7 @@ fn render(g: &mut Graph, outs: &[NodeId]) -> (String, usize) {
         .map(|(i, &n)| (Target::Let(Ident::new(&format!("r{i}"), Span::call_site())), n))
         .collect();
     let runtime = quote::quote!(::spark_runtime);
-    let e = emit(g, &targets, &Inputs { parameters: &params, runtime: &runtime });
+    let e = emit(g, &targets, &Inputs { parameters: &params, runtime: &runtime, sin_cos_memo: None });
     let code: String = e.statements.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" ");
     (code.chars().filter(|c| !c.is_whitespace()).collect(), e.ops)
 }

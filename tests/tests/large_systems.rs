@@ -296,6 +296,7 @@ impl<const N: usize> NonholonomicSystem<N, 1> for MpLarge<N> {
             force: Self::force_of(q),
             constraint: self.constraint(t, q, v),
             constraint_force: -psi[0] * r,
+            ..StageValues::zeros()
         }
     }
     fn stage_jacobians(

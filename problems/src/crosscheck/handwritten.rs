@@ -133,6 +133,7 @@ impl NonholonomicSystem<2, 1> for Rheonomic {
             force: self.force(t, q, v),
             constraint: self.constraint(t, q, v),
             constraint_force: -self.constraint_v(t, q, v).transpose() * psi,
+            ..StageValues::zeros()
         }
     }
 

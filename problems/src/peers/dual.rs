@@ -173,7 +173,7 @@ impl<L: DualLagrangian<N, M>, const N: usize, const M: usize> NonholonomicSystem
         let (_, momentum) = grad_v(&self.0, t, q, v);
         let (_, force) = grad_q(&self.0, t, q, v);
         let (constraint, k_v) = jac_v(&self.0, t, q, v);
-        StageValues { momentum, force, constraint, constraint_force: -(k_v.transpose() * psi) }
+        StageValues { momentum, force, constraint, constraint_force: -(k_v.transpose() * psi), ..StageValues::zeros() }
     }
 
     fn stage_jacobians(
@@ -203,7 +203,7 @@ impl<L: DualLagrangian<N, M>, const N: usize, const M: usize> NonholonomicSystem
             *v,
             *q,
         );
-        let values = StageValues { momentum, force, constraint, constraint_force: -kt_psi };
+        let values = StageValues { momentum, force, constraint, constraint_force: -kt_psi, ..StageValues::zeros() };
         let jacobians = StageJacobians {
             momentum_q,
             mass,

@@ -87,6 +87,7 @@ impl<const N: usize, const M: usize> NonholonomicSystem<N, M> for Analytic<N, M>
             force: self.force(t, q, v),
             constraint: self.constraint(t, q, v),
             constraint_force: -self.constraint_v(t, q, v).transpose() * psi,
+            ..StageValues::zeros()
         }
     }
     fn stage_jacobians(

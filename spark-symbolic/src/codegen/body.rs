@@ -8,6 +8,7 @@ use crate::graph::NodeId;
 use crate::model::{Model, NodeMatrix};
 use proc_macro2::{Ident, Literal, TokenStream};
 use quote::{format_ident, quote};
+use std::cell::RefCell;
 
 use super::SPLIT_STATEMENTS;
 
@@ -77,6 +78,9 @@ pub(super) struct Gen<'a> {
     pub(super) n: Literal,
     pub(super) m: Literal,
     pub(super) helpers: Vec<TokenStream>,
+    /// The memo slots of the stage bodies' sine–cosine pairs, by argument
+    /// (see [`Inputs::sin_cos_memo`]).
+    pub(super) sin_cos_slots: RefCell<Vec<NodeId>>,
 }
 
 impl<'a> Gen<'a> {
@@ -89,6 +93,7 @@ impl<'a> Gen<'a> {
             n: Literal::usize_unsuffixed(n),
             m: Literal::usize_unsuffixed(m),
             helpers: Vec::new(),
+            sin_cos_slots: RefCell::new(Vec::new()),
         }
     }
 
@@ -109,11 +114,25 @@ impl<'a> Gen<'a> {
     /// `lets`, splitting it into helpers when it is large. Returns the
     /// statements and the operation count.
     pub(super) fn body(&mut self, fname: &str, lets: Vec<(Target, NodeId)>, outs: &[Out], psi: bool) -> Body {
+        self.body_with_memo(fname, lets, outs, psi, false)
+    }
+
+    /// [`body`](Self::body), its sine–cosine pairs kept in the stage point's
+    /// `sin_cos_memo` when `memo` (the stage bodies, which have one in scope).
+    pub(super) fn body_with_memo(
+        &mut self,
+        fname: &str,
+        lets: Vec<(Target, NodeId)>,
+        outs: &[Out],
+        psi: bool,
+        memo: bool,
+    ) -> Body {
         let mut entries = lets;
         for o in outs {
             entries.extend(o.entries.iter().cloned());
         }
-        let inputs = Inputs { parameters: &self.params, runtime: &self.rt };
+        let slots = memo.then_some(&self.sin_cos_slots);
+        let inputs = Inputs { parameters: &self.params, runtime: &self.rt, sin_cos_memo: slots };
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         let Emitted { ops, shared, .. } = emitted;
         let statements = &emitted.statements;
@@ -240,11 +259,11 @@ impl<'a> Gen<'a> {
     pub(super) fn fused(&mut self) -> (Body, Body, Body) {
         let (values, jacobians) = self.stage_outs();
         let values: Vec<Out> = values.into_iter().map(|o| o.into_dest(Dest::Write)).collect();
-        let sv = self.body("stage_values", Vec::new(), &values, true);
+        let sv = self.body_with_memo("stage_values", Vec::new(), &values, true, true);
         let mut all = values;
         all.extend(jacobians);
         let all: Vec<Out> = all.into_iter().map(|o| o.into_dest(Dest::Write)).collect();
-        let sj = self.body("stage_jacobians", Vec::new(), &all, true);
+        let sj = self.body_with_memo("stage_jacobians", Vec::new(), &all, true, true);
         (sv, sj, self.bundle())
     }
 
@@ -259,7 +278,7 @@ impl<'a> Gen<'a> {
         outs.push(self.matrix("constraint_q", &md.constraint_q, &m));
         outs.push(self.matrix("constraint_v", &md.constraint_v, &m));
         let outs: Vec<Out> = outs.into_iter().map(|o| o.into_dest(Dest::Write)).collect();
-        self.body("stage_values_and_constraint_jacobians", Vec::new(), &outs, true)
+        self.body_with_memo("stage_values_and_constraint_jacobians", Vec::new(), &outs, true, true)
     }
 
     /// The two bodies of `stage_values_in_lanes` in lane form (see
@@ -291,7 +310,7 @@ impl<'a> Gen<'a> {
     }
 
     fn lane_statements(&mut self, entries: Vec<(Target, NodeId)>) -> Option<TokenStream> {
-        let inputs = Inputs { parameters: &self.params, runtime: &self.rt };
+        let inputs = Inputs { parameters: &self.params, runtime: &self.rt, sin_cos_memo: None };
         let emitted = emit(&mut self.model.graph, &entries, &inputs);
         if emitted.statements.len() > SPLIT_STATEMENTS {
             return None;
@@ -326,7 +345,7 @@ impl<'a> Gen<'a> {
             self.matrix("kt_psi_v", &kt_psi_v, &n),
         ];
         let l = vec![(Target::Let(format_ident!("lagrangian")), md.lagrangian)];
-        let inputs = Inputs { parameters: &self.params, runtime: &self.rt };
+        let inputs = Inputs { parameters: &self.params, runtime: &self.rt, sin_cos_memo: None };
         let mut entries = l;
         for o in &bundle_outs {
             entries.extend(o.entries.iter().cloned());

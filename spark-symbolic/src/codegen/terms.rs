@@ -38,11 +38,12 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
 
     let params = gen.params.clone();
     let runtime = gen.rt.clone();
-    let inputs = Inputs { parameters: &params, runtime: &runtime };
+    let stage = Inputs { parameters: &params, runtime: &runtime, sin_cos_memo: Some(&gen.sin_cos_slots) };
     let mut emitted: Vec<Emitted> = Vec::new();
     for (e, _) in &bodies {
-        emitted.push(emit(&mut gen.model.graph, e, &inputs));
+        emitted.push(emit(&mut gen.model.graph, e, &stage));
     }
+    let inputs = Inputs { sin_cos_memo: None, ..stage };
     emitted.push(emit(&mut gen.model.graph, &energy, &inputs));
     if emitted.iter().any(|e| e.statements.len() > SPLIT_STATEMENTS) {
         return quote!();
@@ -102,7 +103,7 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
 
         fn stage_values_with_terms(#sig, psi: &#rt::Vector<#m>, values: &mut #rt::StageValues<#n, #m>) {
             #terms_or_own
-            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             #values_with
         }
 
@@ -114,7 +115,7 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
             constraint_v: &mut #rt::Matrix<#m, #n>
         ) {
             #terms_or_own
-            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             #fused_with
         }
 
@@ -125,7 +126,7 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
             jacobians: &mut #rt::StageJacobians<#n, #m>
         ) {
             #terms_or_own
-            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             let #rt::StageJacobians {
                 momentum_q, mass, force_q, force_v, constraint_q, constraint_v,
                 constraint_force_q, constraint_force_v,

@@ -116,7 +116,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         }
 
         fn stage_values_into(#sig, psi: &#rt::Vector<#m>, values: &mut #rt::StageValues<#n, #m>) {
-            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             #stage_values
         }
 
@@ -137,7 +137,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
             constraint_q: &mut #rt::Matrix<#m, #n>,
             constraint_v: &mut #rt::Matrix<#m, #n>
         ) {
-            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             #values_and_constraint_jacobians
         }
 
@@ -146,7 +146,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         #with_terms
 
         fn stage_jacobians_into(#sj_sig) {
-            let #rt::StageValues { momentum, force, constraint, constraint_force } = values;
+            let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             let #rt::StageJacobians {
                 momentum_q, mass, force_q, force_v, constraint_q, constraint_v,
                 constraint_force_q, constraint_force_v,

@@ -238,13 +238,14 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             force,
             constraint,
             constraint_force,
+            sin_cos_memo,
         } = values;
         force.as_mut_slice().fill(0.0);
         constraint_force.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
@@ -283,6 +284,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             force,
             constraint,
             constraint_force,
+            sin_cos_memo,
         } = values;
         force.as_mut_slice().fill(0.0);
         constraint_force.as_mut_slice().fill(0.0);
@@ -291,7 +293,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
@@ -510,11 +512,12 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             force,
             constraint,
             constraint_force,
+            sin_cos_memo,
         } = values;
         force.as_mut_slice().fill(0.0);
         constraint_force.as_mut_slice().fill(0.0);
         let s2 = terms[0];
-        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
@@ -550,13 +553,14 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             force,
             constraint,
             constraint_force,
+            sin_cos_memo,
         } = values;
         force.as_mut_slice().fill(0.0);
         constraint_force.as_mut_slice().fill(0.0);
         constraint_q.as_mut_slice().fill(0.0);
         constraint_v.as_mut_slice().fill(0.0);
         let s2 = terms[0];
-        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         momentum[0] = self.m * v[0];
         momentum[1] = self.m * v[1];
         momentum[2] = self.inertia * v[2];
@@ -594,6 +598,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             force,
             constraint,
             constraint_force,
+            sin_cos_memo,
         } = values;
         let ::spark_runtime::StageJacobians {
             momentum_q,
@@ -616,7 +621,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_force_q.as_mut_slice().fill(0.0);
         constraint_force_v.as_mut_slice().fill(0.0);
         let s2 = terms[0];
-        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         let s5 = s3 * psi[0];
         let s6 = s4 * psi[0];
         momentum[0] = self.m * v[0];
@@ -649,6 +654,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
             force,
             constraint,
             constraint_force,
+            sin_cos_memo,
         } = values;
         let ::spark_runtime::StageJacobians {
             momentum_q,
@@ -673,7 +679,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         let s0 = self.m * self.g;
         let s1 = self.beta.sin();
         let s2 = s0 * s1;
-        let (s3, s4) = ::spark_runtime::trig::sin_cos(q[2]);
+        let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         let s5 = s3 * psi[0];
         let s6 = s4 * psi[0];
         momentum[0] = self.m * v[0];
