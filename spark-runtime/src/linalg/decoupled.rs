@@ -73,13 +73,20 @@ pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize
     /// [`factor`](Self::factor).
     pub(crate) constraint_v: Box<[Matrix<M, N>]>,
     pub(crate) constraint_q: Box<[Matrix<M, N>]>,
-    /// `X[i][l] = W_i⁻¹ B[i][l]` (`N × M`), at `(i·S + l)·N·M`.
+    /// `X = W⁻¹B`, `(S+1)·N × S·M`, by rows: entry `(k, e)` of block
+    /// `X[i][l] = W_i⁻¹ B[i][l]` (`N × M`) at `(i·N + k)·S·M + l·M + e`, so
+    /// that the Schur complement's rows and the solve's velocity rows are
+    /// sums of whole rows of `X`.
     x: Box<[f64]>,
     /// `C[r][i]` (`M × N`), at `(r·(S+1) + i)·M·N`, and which are nonzero.
     c: Box<[f64]>,
     c_nonzero: Box<[bool]>,
-    /// LU factors of `Σ = E − C X` (`S·M` square) and its scratch.
+    /// Every written entry of `C` is finite (see `factor`).
+    c_finite: bool,
+    /// LU factors of `Σ = E − C X` (`S·M` square) and its scratch; `rows`
+    /// holds `Σ` by rows while it is assembled.
     schur: Box<[f64]>,
+    rows: Box<[f64]>,
     schur_perm: Box<[usize]>,
     schur_scale: Box<[f64]>,
     factored: bool,
@@ -157,7 +164,9 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             x: vec![0.0; (S + 1) * S * N * M].into_boxed_slice(),
             c: vec![0.0; S * (S + 1) * M * N].into_boxed_slice(),
             c_nonzero: vec![false; S * (S + 1)].into_boxed_slice(),
+            c_finite: true,
             schur: vec![0.0; sm * sm].into_boxed_slice(),
+            rows: vec![0.0; sm * sm].into_boxed_slice(),
             schur_perm: vec![0; sm].into_boxed_slice(),
             schur_scale: vec![0.0; sm].into_boxed_slice(),
             factored: false,
@@ -236,7 +245,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.coupled = self.shared && self.stiff.factor(tab, h, &self.w_source)?;
         // X[i][l] = coef_il · W_i⁻¹ (K_lᵀ − ∂N_l/∂ψ), coef = ã_il (b̃_l for i = S);
         // with the stiffness kept, X = A⁻¹ B of the coupled blocks instead.
-        let nm = N * M;
+        let (nm, sm) = (N * M, Self::SM);
         for l in 0..S {
             let mut kt = self.constraint_v[l].transpose();
             if let Some(np) = nonideal_psi {
@@ -253,58 +262,45 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             }
             for i in 0..=S {
                 let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
-                let at = (i * S + l) * nm;
-                let dst = &mut self.x[..(S + 1) * S * nm][at..at + nm];
-                for (d, k) in dst.iter_mut().zip(kt.as_slice()) {
-                    *d = coef * k;
-                }
-                if !self.shared && coef != 0.0 {
-                    for col in dst.chunks_exact_mut(N) {
-                        solve_in_place::<N>(&self.w[i * nn..(i + 1) * nn], &self.w_perm[i * N..(i + 1) * N], col);
+                for (e, ke) in kt.as_slice().chunks_exact(N).enumerate() {
+                    let mut col = [0.0; N];
+                    for (d, k) in col.iter_mut().zip(ke) {
+                        *d = coef * k;
+                    }
+                    if !self.shared && coef != 0.0 {
+                        solve_in_place::<N>(&self.w[i * nn..(i + 1) * nn], &self.w_perm[i * N..(i + 1) * N], &mut col);
+                    }
+                    let x_all = &mut self.x[..(S + 1) * N * sm];
+                    for (k, v) in col.into_iter().enumerate() {
+                        x_all[(i * N + k) * sm + l * M + e] = v;
                     }
                 }
             }
         }
         self.write_constraint_blocks(tab, h);
-        // Σ = E − Σ_i C[r][i] X[i][l], block (r, l) of M × M.
-        let sm = Self::SM;
-        // Slices of constant length: inline stores, not a `memset` call, and
-        // block indexing without bounds checks.
+        // Σ = E − Σ_i C[r][i] X[i][·], row by row: row (r, d) less
+        // C[r][i][d, k] times row (i, k) of X, in the order i, then k, for
+        // every entry (the order of the block form). Slices of constant
+        // length: inline stores, not a `memset` call, and row indexing
+        // without bounds checks.
         let (c_all, c_nonzero) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)]);
-        let x_all = &self.x[..(S + 1) * S * nm];
-        let schur = &mut self.schur[..Self::SM * Self::SM];
-        schur.fill(0.0);
+        let x_all = &self.x[..(S + 1) * N * sm];
+        let rows = &mut self.rows[..sm * sm];
+        rows.fill(0.0);
         if tab.conditions == ConditionRows::EqualMultipliers {
             for r in 0..S.saturating_sub(1) {
                 for d in 0..M {
-                    schur[(r * M + d) * sm + r * M + d] = 1.0;
-                    schur[((r + 1) * M + d) * sm + r * M + d] = -1.0;
+                    rows[(r * M + d) * sm + r * M + d] = 1.0;
+                    rows[(r * M + d) * sm + (r + 1) * M + d] = -1.0;
                 }
             }
         }
-        for r in 0..S {
-            for i in 0..=S {
-                if !c_nonzero[r * (S + 1) + i] {
-                    continue;
-                }
-                let c = &c_all[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
-                for l in 0..S {
-                    let x = &x_all[(i * S + l) * nm..(i * S + l + 1) * nm];
-                    // Column e of block (r, l): −C[r][i] · X[i][l][:, e].
-                    for e in 0..M {
-                        let xe = &x[e * N..(e + 1) * N];
-                        let col = &mut schur[(l * M + e) * sm + r * M..(l * M + e) * sm + (r + 1) * M];
-                        for (k, &xk) in xe.iter().enumerate() {
-                            // A zero entry of X (a structural zero of K)
-                            // adds nothing: the product is formed and
-                            // selected, not branched around.
-                            for (s, ck) in col.iter_mut().zip(&c[k * M..(k + 1) * M]) {
-                                let updated = *s - ck * xk;
-                                *s = if xk != 0.0 { updated } else { *s };
-                            }
-                        }
-                    }
-                }
+        schur_rows::<N, M, S>(rows, c_all, c_nonzero, x_all, self.c_finite);
+        // The LU factors Σ by columns.
+        let schur = &mut self.schur[..sm * sm];
+        for (j, col) in schur.chunks_exact_mut(sm).enumerate() {
+            for (a, row) in col.iter_mut().zip(rows.chunks_exact(sm)) {
+                *a = row[j];
             }
         }
         factor_runtime(&mut self.schur, sm, &mut self.schur_perm, &mut self.schur_scale)?;
@@ -316,14 +312,13 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// (`N × M`), the stage part solves `T x = (ã_il kt)_i` and the end
     /// point's is `W⁻¹ (b̃_l kt + Σ_k h² (b̂ᵀA)_k F_q x_k)`.
     fn coupled_columns(&mut self, tab: &Tableau<S>, l: usize, kt: &Matrix<N, M>) {
-        let nm = N * M;
+        let sm = Self::SM;
         if let Some(g) = self.stiff.columns() {
             // By coordinate: X[i][l][c, e] = g[c][l][i] · K_lᵀ[c, e].
             for i in 0..=S {
-                let x = &mut self.x[(i * S + l) * nm..(i * S + l + 1) * nm];
-                for (xe, ke) in x.chunks_exact_mut(N).zip(kt.as_slice().chunks_exact(N)) {
-                    for (c, (d, k)) in xe.iter_mut().zip(ke).enumerate() {
-                        *d = g[(c * S + l) * (S + 1) + i] * k;
+                for (e, ke) in kt.as_slice().chunks_exact(N).enumerate() {
+                    for (c, k) in ke.iter().enumerate() {
+                        self.x[(i * N + c) * sm + l * M + e] = g[(c * S + l) * (S + 1) + i] * k;
                     }
                 }
             }
@@ -342,10 +337,8 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             }
             self.stiff.solve_stages(&mut self.coupled_rhs, &mut end);
             self.solve_block(0, &mut end);
-            for i in 0..=S {
-                let src = if i < S { &self.coupled_rhs[i * N..(i + 1) * N] } else { &end[..] };
-                let at = (i * S + l) * nm + e * N;
-                self.x[at..at + N].copy_from_slice(src);
+            for (q, &v) in self.coupled_rhs[..S * N].iter().chain(&end).enumerate() {
+                self.x[q * sm + l * M + e] = v;
             }
         }
     }
@@ -392,10 +385,14 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         let mn = M * N;
         self.c_nonzero[..S * (S + 1)].fill(false);
         let (kv, kq) = (&self.constraint_v, &self.constraint_q);
+        // NaN exactly when a written entry is not finite (`x·0` is NaN for
+        // an infinite or NaN `x`, 0 otherwise).
+        let mut probe = 0.0;
         let mut put = |r: usize, i: usize, blk: &Matrix<M, N>| {
             let at = (r * (S + 1) + i) * mn;
             self.c[at..at + mn].copy_from_slice(blk.as_slice());
             self.c_nonzero[r * (S + 1) + i] = true;
+            probe += blk.sum() * 0.0;
         };
         match tab.conditions {
             ConditionRows::Omega => {
@@ -421,6 +418,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             put(S - 1, l, &((h * tab.b[l]) * kq[S]));
         }
         put(S - 1, S, &kv[S]);
+        self.c_finite = probe == 0.0;
     }
 
     /// Overwrites `g` (a residual, rows in the stepper's order) with the
@@ -453,7 +451,6 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         let (vel, con) = g.split_at_mut(base);
         let (vel, con) = (&mut vel[..base], &mut con[..sm]);
         let (c_all, c_nonzero) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)]);
-        let x_all = &self.x[..(S + 1) * S * nm];
         for r in 0..S {
             for i in 0..=S {
                 if !c_nonzero[r * (S + 1) + i] {
@@ -470,21 +467,61 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             }
         }
         solve_runtime(&self.schur, sm, &self.schur_perm, con);
-        // Velocities: y_i − Σ_l X[i][l] δμ_l.
-        for i in 0..=S {
-            let out = &mut vel[i * N..(i + 1) * N];
-            for l in 0..S {
-                let x = &x_all[(i * S + l) * nm..(i * S + l + 1) * nm];
-                for e in 0..M {
-                    let mu = con[l * M + e];
-                    for (o, xk) in out.iter_mut().zip(&x[e * N..(e + 1) * N]) {
-                        *o -= xk * mu;
-                    }
-                }
+        // Velocities: y_i − Σ_l X[i][l] δμ_l, each entry less one row of X
+        // times δμ (multiplier l, then e).
+        let x_all = &self.x[..base * sm];
+        for (o, x) in vel.iter_mut().zip(x_all.chunks_exact(sm)) {
+            for (xk, mu) in x.iter().zip(&*con) {
+                *o -= xk * mu;
             }
         }
         // `[v₁ | δμ]` → `[δμ | v₁]`: the order of `z`.
         g[S * N..].rotate_left(N);
+    }
+}
+
+/// Subtracts `C X` from the Schur complement held by rows in `rows`: row
+/// `(r, d)` less `C[r][i][d, k]` times row `(i, k)` of `X`, in the order i,
+/// then k, for every entry (the order of the block form `Σ_i C[r][i]
+/// X[i][l]`). Its own function, out of line, so that the slices are known
+/// not to overlap: the rows stay in registers between their products.
+#[inline(never)]
+fn schur_rows<const N: usize, const M: usize, const S: usize>(
+    rows: &mut [f64],
+    c: &[f64],
+    c_nonzero: &[bool],
+    x: &[f64],
+    c_finite: bool,
+) {
+    let (nm, sm) = (N * M, S * M);
+    for r in 0..S {
+        for i in 0..=S {
+            if !c_nonzero[r * (S + 1) + i] {
+                continue;
+            }
+            let c = &c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+            for (k, x) in x[i * N * sm..(i + 1) * N * sm].chunks_exact(sm).enumerate() {
+                for d in 0..M {
+                    let (ck, row) = (c[k * M + d], &mut rows[(r * M + d) * sm..(r * M + d + 1) * sm]);
+                    if c_finite {
+                        // A zero entry of X (a structural zero of K)
+                        // subtracts a zero product: the entry, never −0 (it
+                        // starts at +0 or ±1, and a difference is −0 only
+                        // from −0), keeps its bits.
+                        for (s, xk) in row.iter_mut().zip(x) {
+                            *s -= ck * xk;
+                        }
+                    } else {
+                        // An infinite entry of C times a zero entry of X
+                        // would be NaN: those products are left out.
+                        for (s, &xk) in row.iter_mut().zip(x) {
+                            let updated = *s - ck * xk;
+                            *s = if xk != 0.0 { updated } else { *s };
+                        }
+                    }
+                }
+            }
+        }
     }
 }
 
