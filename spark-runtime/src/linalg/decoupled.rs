@@ -446,37 +446,51 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 self.solve_block(b, &mut g[i * N..(i + 1) * N]);
             }
         }
-        // Constraint rows: g_c − C y, then Σ⁻¹. Slices of constant length,
-        // so that the block indexing needs no bounds checks.
         let (vel, con) = g.split_at_mut(base);
-        let (vel, con) = (&mut vel[..base], &mut con[..sm]);
-        let (c_all, c_nonzero) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)]);
-        for r in 0..S {
-            for i in 0..=S {
-                if !c_nonzero[r * (S + 1) + i] {
-                    continue;
-                }
-                let c = &c_all[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
-                let yi = &vel[i * N..(i + 1) * N];
-                let out = &mut con[r * M..(r + 1) * M];
-                for (k, yk) in yi.iter().enumerate() {
-                    for (o, ck) in out.iter_mut().zip(&c[k * M..(k + 1) * M]) {
-                        *o -= ck * yk;
-                    }
-                }
-            }
-        }
-        solve_runtime(&self.schur, sm, &self.schur_perm, con);
-        // Velocities: y_i − Σ_l X[i][l] δμ_l, each entry less one row of X
-        // times δμ (multiplier l, then e).
-        let x_all = &self.x[..base * sm];
-        for (o, x) in vel.iter_mut().zip(x_all.chunks_exact(sm)) {
-            for (xk, mu) in x.iter().zip(&*con) {
-                *o -= xk * mu;
-            }
-        }
+        let (c, c_nonzero, x) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)], &self.x[..base * sm]);
+        solve_multipliers::<N, M, S>(&mut vel[..base], &mut con[..sm], c, c_nonzero, x, &self.schur, &self.schur_perm);
         // `[v₁ | δμ]` → `[δμ | v₁]`: the order of `z`.
         g[S * N..].rotate_left(N);
+    }
+}
+
+/// The constraint rows of the stage-decoupled solve, after the velocity
+/// blocks: `con ← Σ⁻¹ (con − C vel)`, then `vel ← vel − X con`; each entry's
+/// products in the order of the block forms (point i, then coordinate k;
+/// multiplier l, then e). Slices of constant length, so that the block
+/// indexing needs no bounds checks; out of line, so that they are known not
+/// to overlap and an entry stays in a register between its products.
+#[inline(never)]
+fn solve_multipliers<const N: usize, const M: usize, const S: usize>(
+    vel: &mut [f64],
+    con: &mut [f64],
+    c: &[f64],
+    c_nonzero: &[bool],
+    x: &[f64],
+    schur: &[f64],
+    schur_perm: &[usize],
+) {
+    let (nm, sm) = (N * M, S * M);
+    for r in 0..S {
+        for i in 0..=S {
+            if !c_nonzero[r * (S + 1) + i] {
+                continue;
+            }
+            let c = &c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+            let yi = &vel[i * N..(i + 1) * N];
+            let out = &mut con[r * M..(r + 1) * M];
+            for (k, yk) in yi.iter().enumerate() {
+                for (o, ck) in out.iter_mut().zip(&c[k * M..(k + 1) * M]) {
+                    *o -= ck * yk;
+                }
+            }
+        }
+    }
+    solve_runtime(schur, sm, schur_perm, con);
+    for (o, x) in vel.iter_mut().zip(x.chunks_exact(sm)) {
+        for (xk, mu) in x.iter().zip(&*con) {
+            *o -= xk * mu;
+        }
     }
 }
 
