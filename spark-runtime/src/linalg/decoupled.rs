@@ -83,6 +83,9 @@ pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize
     c_nonzero: Box<[bool]>,
     /// Every written entry of `C` is finite (see `factor`).
     c_finite: bool,
+    /// `W⁻¹ (K_lᵀ − ∂N_l/∂ψ)` (`N × M`) of each stage `l` at `l·N·M`, for a
+    /// shared mass matrix.
+    kt: Box<[f64]>,
     /// LU factors of `Σ = E − C X` (`S·M` square) and its scratch; `rows`
     /// holds `Σ` by rows while it is assembled.
     schur: Box<[f64]>,
@@ -165,6 +168,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             c: vec![0.0; S * (S + 1) * M * N].into_boxed_slice(),
             c_nonzero: vec![false; S * (S + 1)].into_boxed_slice(),
             c_finite: true,
+            kt: vec![0.0; S * N * M].into_boxed_slice(),
             schur: vec![0.0; sm * sm].into_boxed_slice(),
             rows: vec![0.0; sm * sm].into_boxed_slice(),
             schur_perm: vec![0; sm].into_boxed_slice(),
@@ -251,6 +255,11 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             if let Some(np) = nonideal_psi {
                 kt -= &np[l];
             }
+            if self.coupled && self.stiff.columns().is_some() {
+                // By coordinate (below, with every stage's `K_lᵀ`).
+                self.kt[l * nm..(l + 1) * nm].copy_from_slice(kt.as_slice());
+                continue;
+            }
             if self.coupled {
                 self.coupled_columns(tab, l, &kt);
                 continue;
@@ -259,6 +268,8 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 for col in kt.as_mut_slice().chunks_exact_mut(N) {
                     self.solve_block(0, col);
                 }
+                self.kt[l * nm..(l + 1) * nm].copy_from_slice(kt.as_slice());
+                continue;
             }
             for i in 0..=S {
                 let coef = if i < S { tab.a_tilde[i][l] } else { tab.b_tilde[l] };
@@ -267,7 +278,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                     for (d, k) in col.iter_mut().zip(ke) {
                         *d = coef * k;
                     }
-                    if !self.shared && coef != 0.0 {
+                    if coef != 0.0 {
                         solve_in_place::<N>(&self.w[i * nn..(i + 1) * nn], &self.w_perm[i * N..(i + 1) * N], &mut col);
                     }
                     let x_all = &mut self.x[..(S + 1) * N * sm];
@@ -276,6 +287,11 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                     }
                 }
             }
+        }
+        if self.shared && !self.coupled {
+            shared_mass_rows::<N, M, S>(&mut self.x[..(S + 1) * N * sm], &self.kt[..S * nm], tab);
+        } else if let (true, Some(g)) = (self.coupled, self.stiff.columns()) {
+            coordinate_rows::<N, M, S>(&mut self.x[..(S + 1) * N * sm], &self.kt[..S * nm], g);
         }
         self.write_constraint_blocks(tab, h);
         // Σ = E − Σ_i C[r][i] X[i][·], row by row: row (r, d) less
@@ -313,17 +329,6 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// point's is `W⁻¹ (b̃_l kt + Σ_k h² (b̂ᵀA)_k F_q x_k)`.
     fn coupled_columns(&mut self, tab: &Tableau<S>, l: usize, kt: &Matrix<N, M>) {
         let sm = Self::SM;
-        if let Some(g) = self.stiff.columns() {
-            // By coordinate: X[i][l][c, e] = g[c][l][i] · K_lᵀ[c, e].
-            for i in 0..=S {
-                for (e, ke) in kt.as_slice().chunks_exact(N).enumerate() {
-                    for (c, k) in ke.iter().enumerate() {
-                        self.x[(i * N + c) * sm + l * M + e] = g[(c * S + l) * (S + 1) + i] * k;
-                    }
-                }
-            }
-            return;
-        }
         for e in 0..M {
             let col = &kt.as_slice()[e * N..(e + 1) * N];
             for i in 0..S {
@@ -451,6 +456,47 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         solve_multipliers::<N, M, S>(&mut vel[..base], &mut con[..sm], c, c_nonzero, x, &self.schur, &self.schur_perm);
         // `[v₁ | δμ]` → `[δμ | v₁]`: the order of `z`.
         g[S * N..].rotate_left(N);
+    }
+}
+
+/// The rows of `X` for a shared mass matrix: `X[i][l] = coef_il · kt_l`,
+/// `coef = ã_il` (`b̃_l` for `i = S`), with `kt_l = W⁻¹ (K_lᵀ − ∂N_l/∂ψ)` at
+/// `l·N·M` of `kt`; row `(i, k)` at a time. Out of line, so that the rows
+/// written are known not to overlap what is read.
+#[inline(never)]
+fn shared_mass_rows<const N: usize, const M: usize, const S: usize>(x: &mut [f64], kt: &[f64], tab: &Tableau<S>) {
+    let (nm, sm) = (N * M, S * M);
+    let (x, kt) = (&mut x[..(S + 1) * N * sm], &kt[..S * nm]);
+    for (i, rows) in x.chunks_exact_mut(N * sm).enumerate() {
+        let coefs = if i < S { &tab.a_tilde[i] } else { &tab.b_tilde };
+        for (k, row) in rows.chunks_exact_mut(sm).enumerate() {
+            for (l, coef) in coefs.iter().enumerate() {
+                for e in 0..M {
+                    row[l * M + e] = coef * kt[l * nm + e * N + k];
+                }
+            }
+        }
+    }
+}
+
+/// The rows of `X` for a constant stiffness kept by coordinate:
+/// `X[i][l][c, e] = g[c][l][i] · K_lᵀ[c, e]`, with `K_lᵀ` (`N × M`) at
+/// `l·N·M` of `kt` and `g` the coordinates' stage columns
+/// (`StiffStages::columns`); row `(i, c)` at a time, out of line as
+/// [`shared_mass_rows`].
+#[inline(never)]
+fn coordinate_rows<const N: usize, const M: usize, const S: usize>(x: &mut [f64], kt: &[f64], g: &[f64]) {
+    let (nm, sm) = (N * M, S * M);
+    let (x, kt, g) = (&mut x[..(S + 1) * N * sm], &kt[..S * nm], &g[..N * S * (S + 1)]);
+    for (i, rows) in x.chunks_exact_mut(N * sm).enumerate() {
+        for (c, row) in rows.chunks_exact_mut(sm).enumerate() {
+            for l in 0..S {
+                let gi = g[(c * S + l) * (S + 1) + i];
+                for e in 0..M {
+                    row[l * M + e] = gi * kt[l * nm + e * N + c];
+                }
+            }
+        }
     }
 }
 
