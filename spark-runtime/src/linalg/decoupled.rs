@@ -785,4 +785,32 @@ mod tests {
         let k = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
         assert!(matches!(st.step(&k, 0.1), Err(StepError::InvalidOption(_))));
     }
+
+    /// An infinite entry of `k_q` where `K` has a structural zero (a
+    /// constraint not differentiable in a coordinate its velocity leaves
+    /// out) multiplies zero entries of `X` only: the products are left out,
+    /// as the block form leaves them, and the Schur complement stays finite.
+    /// The same matrix with that entry finite takes the path without the
+    /// exclusion and gives the same factors bit for bit.
+    #[test]
+    fn an_infinite_constraint_derivative_against_a_structural_zero_is_left_out() {
+        use super::{DecoupledMatrix, Masses};
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let identity = nalgebra::Matrix3::<f64>::identity();
+        let factors = |kq_y: f64| {
+            let mut m = DecoupledMatrix::<3, 1, 2>::new(false);
+            for p in 0..4 {
+                m.constraint_v[p] = nalgebra::Matrix1x3::new(1.0, 0.0, 0.5);
+                m.constraint_q[p] = nalgebra::Matrix1x3::new(0.25, kq_y, 0.0);
+            }
+            m.factor(&tab, 0.1, Masses::Constant(&identity), None).map(|()| (m.c_finite, m.schur.to_vec()))
+        };
+        let (finite, exact) = factors(0.0).expect("a regular Schur complement");
+        assert!(finite);
+        let (finite, excluded) = factors(f64::INFINITY).expect("the infinite entry is left out");
+        assert!(!finite);
+        assert!(excluded.iter().all(|x| x.is_finite()), "{excluded:?}");
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&excluded), bits(&exact));
+    }
 }
