@@ -506,6 +506,25 @@ fn coordinate_rows<const N: usize, const M: usize, const S: usize>(x: &mut [f64]
     }
 }
 
+/// Calls `f(r, i, C[r][i])` for every nonzero block of `C` (`M × N`,
+/// column-major), row block `r` by row block, point `i` by point: the
+/// order every product with `C` keeps.
+#[inline(always)]
+fn for_each_constraint_block<const N: usize, const M: usize, const S: usize>(
+    c: &[f64],
+    c_nonzero: &[bool],
+    mut f: impl FnMut(usize, usize, &[f64]),
+) {
+    let nm = N * M;
+    for r in 0..S {
+        for i in 0..=S {
+            if c_nonzero[r * (S + 1) + i] {
+                f(r, i, &c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm]);
+            }
+        }
+    }
+}
+
 /// The constraint rows of the stage-decoupled solve, after the velocity
 /// blocks: `con ← Σ⁻¹ (con − C vel)`, then `vel ← vel − X con`; each entry's
 /// products in the order of the block forms (point i, then coordinate k;
@@ -524,22 +543,16 @@ fn solve_multipliers<const N: usize, const M: usize, const S: usize>(
     schur: &[f64],
     schur_perm: &[usize],
 ) {
-    let (nm, sm) = (N * M, S * M);
-    for r in 0..S {
-        for i in 0..=S {
-            if !c_nonzero[r * (S + 1) + i] {
-                continue;
-            }
-            let c = &c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
-            let yi = &vel[i * N..(i + 1) * N];
-            let out = &mut con[r * M..(r + 1) * M];
-            for (k, yk) in yi.iter().enumerate() {
-                for (o, ck) in out.iter_mut().zip(&c[k * M..(k + 1) * M]) {
-                    *o -= ck * yk;
-                }
+    let sm = S * M;
+    for_each_constraint_block::<N, M, S>(c, c_nonzero, |r, i, c| {
+        let yi = &vel[i * N..(i + 1) * N];
+        let out = &mut con[r * M..(r + 1) * M];
+        for (k, yk) in yi.iter().enumerate() {
+            for (o, ck) in out.iter_mut().zip(&c[k * M..(k + 1) * M]) {
+                *o -= ck * yk;
             }
         }
-    }
+    });
     solve_runtime(schur, sm, schur_perm, con);
     for (o, x) in vel.iter_mut().zip(x.chunks_exact(sm)) {
         for (xk, mu) in x.iter().zip(&*con) {
@@ -573,36 +586,30 @@ fn schur_rows_inline<const N: usize, const M: usize, const S: usize>(
     x: &[f64],
     c_finite: bool,
 ) {
-    let (nm, sm) = (N * M, S * M);
-    for r in 0..S {
-        for i in 0..=S {
-            if !c_nonzero[r * (S + 1) + i] {
-                continue;
-            }
-            let c = &c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
-            for (k, x) in x[i * N * sm..(i + 1) * N * sm].chunks_exact(sm).enumerate() {
-                for d in 0..M {
-                    let (ck, row) = (c[k * M + d], &mut rows[(r * M + d) * sm..(r * M + d + 1) * sm]);
-                    if c_finite {
-                        // A zero entry of X (a structural zero of K)
-                        // subtracts a zero product: the entry, never −0 (it
-                        // starts at +0 or ±1, and a difference is −0 only
-                        // from −0), keeps its bits.
-                        for (s, xk) in row.iter_mut().zip(x) {
-                            *s -= ck * xk;
-                        }
-                    } else {
-                        // An infinite entry of C times a zero entry of X
-                        // would be NaN: those products are left out.
-                        for (s, &xk) in row.iter_mut().zip(x) {
-                            let updated = *s - ck * xk;
-                            *s = if xk != 0.0 { updated } else { *s };
-                        }
+    let sm = S * M;
+    for_each_constraint_block::<N, M, S>(c, c_nonzero, |r, i, c| {
+        for (k, x) in x[i * N * sm..(i + 1) * N * sm].chunks_exact(sm).enumerate() {
+            for d in 0..M {
+                let (ck, row) = (c[k * M + d], &mut rows[(r * M + d) * sm..(r * M + d + 1) * sm]);
+                if c_finite {
+                    // A zero entry of X (a structural zero of K) subtracts a
+                    // zero product: the entry, never −0 (it starts at +0 or
+                    // ±1, and a difference is −0 only from −0), keeps its
+                    // bits.
+                    for (s, xk) in row.iter_mut().zip(x) {
+                        *s -= ck * xk;
+                    }
+                } else {
+                    // An infinite entry of C times a zero entry of X would
+                    // be NaN: those products are left out.
+                    for (s, &xk) in row.iter_mut().zip(x) {
+                        let updated = *s - ck * xk;
+                        *s = if xk != 0.0 { updated } else { *s };
                     }
                 }
             }
         }
-    }
+    });
 }
 
 #[cfg(test)]
