@@ -247,6 +247,12 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             }
         }
         self.coupled = self.shared && self.stiff.factor(tab, h, &self.w_source)?;
+        if Self::SM == 0 {
+            // No multipliers (an unconstrained system): the velocity blocks
+            // are the whole matrix.
+            self.factored = true;
+            return Ok(());
+        }
         // X[i][l] = coef_il · W_i⁻¹ (K_lᵀ − ∂N_l/∂ψ), coef = ã_il (b̃_l for i = S);
         // with the stiffness kept, X = A⁻¹ B of the coupled blocks instead.
         let (nm, sm) = (N * M, Self::SM);
@@ -459,7 +465,17 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         }
         let (vel, con) = g.split_at_mut(base);
         let (c, c_nonzero, x) = (&self.c[..S * (S + 1) * nm], &self.c_nonzero[..S * (S + 1)], &self.x[..base * sm]);
-        solve_multipliers::<N, M, S>(&mut vel[..base], &mut con[..sm], c, c_nonzero, x, &self.schur, &self.schur_perm);
+        if sm > 0 {
+            solve_multipliers::<N, M, S>(
+                &mut vel[..base],
+                &mut con[..sm],
+                c,
+                c_nonzero,
+                x,
+                &self.schur,
+                &self.schur_perm,
+            );
+        }
         // `[v₁ | δμ]` → `[δμ | v₁]`: the order of `z`.
         g[S * N..].rotate_left(N);
     }
@@ -791,6 +807,21 @@ mod tests {
         let mut st = Skate2::new(Skate::default(), Tableau::new(Method::Gauss).unwrap()).with_options(opts);
         let k = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
         assert!(matches!(st.step(&k, 0.1), Err(StepError::InvalidOption(_))));
+    }
+
+    /// A system without constraints has no multipliers: the matrix is its
+    /// velocity blocks, and the solve divides by the mass.
+    #[test]
+    fn an_unconstrained_system_solves_by_its_mass_alone() {
+        use super::{DecoupledMatrix, Masses};
+        let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+        let mass = nalgebra::Matrix3::<f64>::from_diagonal(&nalgebra::Vector3::new(2.0, 4.0, 8.0));
+        let mut m = DecoupledMatrix::<3, 0, 2>::new(false);
+        m.factor(&tab, 0.1, Masses::Constant(&mass), None).expect("a regular mass matrix");
+        let mut g = Vector::<9>::from_fn(|i, _| i as f64 + 1.0);
+        m.solve_in_place(&mut g);
+        let expected = Vector::<9>::from_fn(|i, _| (i as f64 + 1.0) / mass[(i % 3, i % 3)]);
+        assert_eq!(g, expected);
     }
 
     /// An infinite entry of `k_q` where `K` has a structural zero (a
