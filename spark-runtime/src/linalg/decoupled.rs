@@ -67,6 +67,10 @@ pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize
     /// without the triangular sweeps over zeros.
     diagonal: bool,
     w_rdiag: Box<[f64]>,
+    /// The shared mass matrix is the identity (every reciprocal exactly 1,
+    /// as for unit masses and inertias): its solves change no bit, and are
+    /// skipped.
+    identity: bool,
     w_valid: bool,
     /// `K = k_v` and `k_q` at the stages (`0..S`), the end point (`S`) and
     /// the midpoint (`S + 1`), written by the caller before
@@ -161,6 +165,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             w_source: vec![0.0; N * N].into_boxed_slice(),
             diagonal: false,
             w_rdiag: vec![0.0; N].into_boxed_slice(),
+            identity: false,
             w_valid: false,
             constraint_v: vec![Matrix::zeros(); S + 2].into_boxed_slice(),
             constraint_q: vec![Matrix::zeros(); S + 2].into_boxed_slice(),
@@ -238,6 +243,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 } else {
                     self.shared = false;
                     self.diagonal = false;
+                    self.identity = false;
                     self.w_valid = false;
                     for i in 0..=S {
                         let (lu, perm) = (&mut self.w[i * nn..(i + 1) * nn], &mut self.w_perm[i * N..(i + 1) * N]);
@@ -368,6 +374,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
             self.w_valid = false;
             self.stiff.mass_changed();
             self.diagonal = factor_mass::<N>(mass, &mut self.w_rdiag, &mut self.w[..N * N], &mut self.w_perm[..N])?;
+            self.identity = self.diagonal && self.w_rdiag[..N].iter().all(|&r| r == 1.0);
             self.w_source.copy_from_slice(mass);
             self.w_valid = true;
         }
@@ -378,6 +385,10 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
     /// for every block when `shared`).
     #[inline(always)]
     fn solve_block(&self, b: usize, x: &mut [f64]) {
+        if self.identity {
+            // `x · 1` is `x`, NaN and signed zeros included.
+            return;
+        }
         if self.diagonal {
             for (xi, r) in x[..N].iter_mut().zip(self.w_rdiag.iter()) {
                 *xi *= r;
@@ -807,6 +818,36 @@ mod tests {
         let mut st = Skate2::new(Skate::default(), Tableau::new(Method::Gauss).unwrap()).with_options(opts);
         let k = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
         assert!(matches!(st.step(&k, 0.1), Err(StepError::InvalidOption(_))));
+    }
+
+    /// An identity mass matrix skips its solves, bit for bit what the
+    /// products with its reciprocals give; a diagonal one a rounding away
+    /// from it does not.
+    #[test]
+    fn an_identity_mass_matrix_skips_its_solves_bit_for_bit() {
+        use super::{DecoupledMatrix, Masses};
+        let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+        let factored = |mass: &nalgebra::Matrix3<f64>| {
+            let mut m = DecoupledMatrix::<3, 1, 2>::new(false);
+            for p in 0..4 {
+                m.constraint_v[p] = nalgebra::Matrix1x3::new(1.0, -0.5, 0.25);
+                m.constraint_q[p] = nalgebra::Matrix1x3::new(0.5, 2.0, -1.0);
+            }
+            m.factor(&tab, 0.1, Masses::Constant(mass), None).expect("regular");
+            m
+        };
+        let identity = factored(&nalgebra::Matrix3::identity());
+        assert!(identity.identity);
+        let mut products = identity.clone();
+        products.identity = false;
+        let g = Vector::<11>::from_fn(|i, _| [-0.0, 1.5, f64::NAN, 3.25e-300, -7.0][i % 5]);
+        let (mut a, mut b) = (g, g);
+        identity.solve_in_place(&mut a);
+        products.solve_in_place(&mut b);
+        let bits = |v: &Vector<11>| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a), bits(&b));
+        let near = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 1.0 + f64::EPSILON, 1.0));
+        assert!(!factored(&near).identity);
     }
 
     /// A system without constraints has no multipliers: the matrix is its
