@@ -87,8 +87,9 @@ pub(crate) struct DecoupledMatrix<const N: usize, const M: usize, const S: usize
     c_nonzero: Box<[bool]>,
     /// Every written entry of `C` is finite (see `factor`).
     c_finite: bool,
-    /// `W⁻¹ (K_lᵀ − ∂N_l/∂ψ)` (`N × M`) of each stage `l` at `l·N·M`, for a
-    /// shared mass matrix.
+    /// Each stage's `W⁻¹ (K_lᵀ − ∂N_l/∂ψ)` (`N × M`, at `l·N·M`) for a
+    /// shared mass matrix, or its `K_lᵀ` for a stiffness kept by
+    /// coordinate: what the rows of `X` are written from.
     kt: Box<[f64]>,
     /// LU factors of `Σ = E − C X` (`S·M` square) and its scratch; `rows`
     /// holds `Σ` by rows while it is assembled.
