@@ -19,9 +19,10 @@
    with the right-hand side and its Jacobian as CasADi functions (compiled
    expression graphs called from Python), over a tolerance sweep.
 
-With ``--per-step`` only the Newton-LU peer runs, once per method at the one
-step count given, and the output is JSON (times, residual evaluations and
-factorizations per step, end state) for `spark work-precision --per-step`.
+With ``--per-step`` only the two CasADi C peers run, once per method at the
+one step count given, and the output is JSON (times, residual evaluations
+and factorizations per step, end state; each row names its ``solver``) for
+`spark work-precision --per-step`.
 
 Usage: peers.py --input problem.json --output points.csv --build DIR [--per-step]
 """
@@ -249,16 +250,45 @@ def newton_lu_points(inp, system, build):
     return out
 
 
+def qr_run(exe: Path, steps: int, inp) -> dict:
+    """One per-step figure of the Newton-QR peer: its driver's median over
+    repeats, as many as make ``min_timing`` seconds of runs (at least
+    ``repeats``), after one untimed run that sizes them."""
+    def run(repeats: int):
+        args = [str(exe), str(steps), str(repeats), repr(inp["final_time"])]
+        args += [repr(x) for x in inp["q0"]] + [repr(x) for x in inp["v0"]]
+        args += [repr(x) for x in inp["parameter_values"]]
+        return subprocess.run(args, check=True, capture_output=True, text=True).stdout.split()
+    n = len(inp["q0"])
+    first = run(1)
+    once = max(float(first[2 * n + 1]), 1e-9)
+    repeats = int(min(max(inp["repeats"], math.ceil(inp.get("min_timing", 0.0) / once)), 100_000))
+    res = run(repeats)
+    q, v = [float(x) for x in res[:n]], [float(x) for x in res[n:2 * n]]
+    iterations, failed = float(res[2 * n + 2]), bool(int(res[2 * n + 3]))
+    return {
+        "solver": QR_SOLVER, "steps": steps, "failed": failed or not all(math.isfinite(x) for x in q + v),
+        "repeats": repeats, "wall_time": float(res[2 * n]), "cpu_time": float(res[2 * n + 1]),
+        # Each iteration evaluates the residual and its Jacobian and solves by QR.
+        "evaluations_per_step": iterations, "factorizations_per_step": iterations, "q": q, "v": v,
+    }
+
+
 def per_step_rows(inp, system, build):
-    """The Newton-LU peer's per-step figures at each method's step count, for `spark work-precision --per-step`."""
+    """Both CasADi peers' per-step figures at each method's step count, for `spark work-precision --per-step`:
+    the Newton-LU peer's, then the Newton-QR peer's, each row naming its ``solver``."""
     rows = []
     for m, steps, r in newton_lu_runs(inp, system, build):
         rows.append({
-            "method": m["label"], "steps": steps, "failed": r.failed, "repeats": r.repeats,
-            "wall_time": r.wall, "cpu_time": r.cpu,
+            "solver": newton_lu.SOLVER, "method": m["label"], "steps": steps, "failed": r.failed,
+            "repeats": r.repeats, "wall_time": r.wall, "cpu_time": r.cpu,
             "evaluations_per_step": r.evaluations_per_step, "factorizations_per_step": r.factorizations_per_step,
             "q": r.q, "v": r.v,
         })
+    for m in inp["methods"]:
+        exe = build_newton(system, m["tableau"], build, m["label"])
+        for steps in m["steps"]:
+            rows.append({"method": m["label"], **qr_run(exe, steps, inp)})
     return rows
 
 
@@ -324,7 +354,7 @@ def main() -> int:
     ap.add_argument("--output", required=True, type=Path)
     ap.add_argument("--build", required=True, type=Path)
     ap.add_argument("--skip-casadi", action="store_true")
-    ap.add_argument("--per-step", action="store_true", help="only the Newton-LU peer's per-step figures, as JSON")
+    ap.add_argument("--per-step", action="store_true", help="only the CasADi C peers' per-step figures, as JSON")
     a = ap.parse_args()
     inp = json.loads(a.input.read_text())
     system = CasadiSystem(inp)

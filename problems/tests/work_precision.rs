@@ -92,6 +92,7 @@ mod sweep {
 
 mod per_step {
     use problems::catalog::SystemKind;
+    use problems::experiments::work_precision::external::{self, PeerStepRun};
     use problems::experiments::work_precision::per_step::*;
     use problems::experiments::work_precision::WorkPrecisionConfig;
 
@@ -107,12 +108,81 @@ mod per_step {
             assert!(r.decoupled.time_per_step > 0.0, "{r:?}");
             assert!(r.full.iterations >= 1.0, "{r:?}");
             assert!(r.peer.as_ref().is_err_and(|e| e.contains("no Python")), "{r:?}");
+            assert!(r.qr_peer.as_ref().is_err_and(|e| e.contains("no Python")), "{r:?}");
         }
         let md = per_step_markdown(&rows);
         assert!(md.contains("| skate | 0.1 | Gauss s=2 |"), "{md}");
         assert!(md.contains("not measured"), "{md}");
+        // No peer measured: no summary line.
+        assert!(!md.contains("geometric mean |\n|---|---|---|---|---|---|\n|"), "{md}");
         cfg.systems = vec![SystemKind::Sleigh];
         assert!(measure_per_step(&cfg, &|_| {}).is_err());
+    }
+
+    /// A SPARK run of `time_per_step` seconds a step.
+    fn spark(time_per_step: f64) -> SparkRun {
+        SparkRun {
+            time_per_step,
+            iterations: 2.0,
+            factorizations: 1.0,
+            flops_per_step: 1.0,
+            repeats: 1,
+            q: vec![0.0],
+            v: vec![0.0],
+        }
+    }
+
+    fn peer(solver: &str, ns_per_step: f64, steps: usize) -> Result<PeerStepRun, String> {
+        Ok(PeerStepRun {
+            solver: solver.into(),
+            method: "m".into(),
+            steps,
+            failed: false,
+            repeats: 1,
+            wall_time: 0.0,
+            cpu_time: ns_per_step * 1e-9 * steps as f64,
+            evaluations_per_step: 2.0,
+            factorizations_per_step: 1.0,
+            q: vec![0.0],
+            v: vec![0.0],
+        })
+    }
+
+    /// The summary's geometric means, ranges and counts at the targets, from
+    /// rows whose ratios are known: 2× and 1.2× the Newton-LU peer (mean
+    /// √2.4, one at 1.5×), 8× and 4× the Newton-QR peer (mean √32, one at
+    /// 5×); a row without the QR peer is left out of its line.
+    #[test]
+    fn the_summary_gives_geometric_means_and_counts_at_the_targets() {
+        let row = |lu: f64, qr: Option<f64>| PerStepRow {
+            system: "s",
+            method: "m".into(),
+            h: 0.1,
+            steps: 10,
+            full: spark(200e-9),
+            simplified: spark(200e-9),
+            decoupled: spark(100e-9),
+            peer: peer(external::CASADI_NEWTON_LU, lu, 10),
+            qr_peer: qr.map_or_else(|| Err("not run".into()), |t| peer(external::CASADI_NEWTON_QR, t, 10)),
+        };
+        let rows = [row(200.0, Some(800.0)), row(120.0, Some(400.0)), row(150.0, None)];
+        let s = per_step_summary(&rows[..2]);
+        let lu = format!(
+            "| CasADi C (Newton-LU) | stage-decoupled | 2 | {:.2} | 1.20–2.00 | 1 at 1.5× or more |",
+            2.4f64.sqrt()
+        );
+        assert!(s.contains(&lu), "{s}");
+        let full =
+            format!("| CasADi C (Newton-LU) | full | 2 | {:.2} | 0.60–1.00 | 0 at 1.5× or more |", 0.6f64.sqrt());
+        assert!(s.contains(&full), "{s}");
+        let qr = format!(
+            "| CasADi C (Newton-QR) | stage-decoupled | 2 | {:.2} | 4.00–8.00 | 1 at 5× or more |",
+            32f64.sqrt()
+        );
+        assert!(s.contains(&qr), "{s}");
+        let with_missing = per_step_summary(&rows);
+        assert!(with_missing.contains("| CasADi C (Newton-LU) | stage-decoupled | 3 |"), "{with_missing}");
+        assert!(with_missing.contains("| CasADi C (Newton-QR) | stage-decoupled | 2 |"), "{with_missing}");
     }
 }
 

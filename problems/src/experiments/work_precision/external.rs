@@ -58,6 +58,8 @@ pub struct MethodInput {
 /// What `peers.py --per-step` measured for one method with the Newton-LU peer.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PeerStepRun {
+    /// The peer: [`CASADI_NEWTON_LU`] or [`CASADI_NEWTON_QR`].
+    pub solver: String,
     /// Method label.
     pub method: String,
     /// Steps over `[0, T]`.
@@ -117,9 +119,9 @@ pub fn run(
     reader.deserialize::<Point>().collect::<Result<Vec<_>, _>>().map_err(|e| format!("{}: {e}", output_path.display()))
 }
 
-/// Runs only the Newton-LU peer (`peers.py --per-step`) on `problem`, each
-/// method at its step counts, and returns what it measured. `problem`'s
-/// reference end state is not used.
+/// Runs only the two CasADi C peers, Newton-LU and Newton-QR (`peers.py
+/// --per-step`), on `problem`, each method at its step counts, and returns
+/// what they measured. `problem`'s reference end state is not used.
 pub fn run_per_step(
     python: &Path,
     script: &Path,
@@ -130,7 +132,7 @@ pub fn run_per_step(
     cfg: &WorkPrecisionConfig,
 ) -> Result<Vec<PeerStepRun>, String> {
     let dir = out.join("per-step");
-    let output_path = dir.join(format!("{}-newton-lu.json", kind.key()));
+    let output_path = dir.join(format!("{}-casadi-peers.json", kind.key()));
     run_script(python, script, &dir, kind, problem, methods, cfg, &output_path, &["--per-step"])?;
     let text = std::fs::read_to_string(&output_path).map_err(|e| format!("{}: {e}", output_path.display()))?;
     serde_json::from_str(&text).map_err(|e| format!("{}: {e}", output_path.display()))

@@ -1,6 +1,6 @@
-//! Time per step at the paper's step sizes, SPARK against the Newton-LU
-//! CasADi peer, measured side by side in one run (`spark work-precision
-//! --per-step`).
+//! Time per step at the paper's step sizes, SPARK against the two CasADi C
+//! peers (Newton-LU and Newton-QR), measured side by side in one run
+//! (`spark work-precision --per-step`).
 //!
 //! For each of the paper's systems at its step size (particle `h = 0.2`,
 //! skate `h = 0.1`, robot `h = 0.2`, McLachlan–Perlmutter particles `n = 7`
@@ -12,11 +12,14 @@
 //! Newton: stage-decoupled where the structure facts allow it, exact
 //! otherwise), timed by the thread's CPU time (median of repeats); then
 //! `casadi/peers/peers.py --per-step` runs the Newton-LU peer
-//! ([`super::external::CASADI_NEWTON_LU`]) on the same steps, timed by the
+//! ([`super::external::CASADI_NEWTON_LU`]) and the Newton-QR peer
+//! ([`super::external::CASADI_NEWTON_QR`]) on the same steps, timed by the
 //! same clock. The table gives nanoseconds per step, the Newton iterations of
-//! each, the peer's residual evaluations and factorizations per step, and how
-//! far the peer's end state is from SPARK's (both solve the same equations,
-//! so this is round-off accumulated over the run).
+//! each, the Newton-LU peer's residual evaluations and factorizations per
+//! step, and how far its end state is from SPARK's (both solve the same
+//! equations, so this is round-off accumulated over the run); a summary
+//! under it gives the geometric means of the ratios and how many cases
+//! reach the targets.
 
 use super::external::{self, MethodInput, PeerStepRun};
 use super::flops::{flops_per_step, newton_work, NewtonPath};
@@ -89,8 +92,10 @@ pub struct PerStepRow {
     /// SPARK, simplified Newton with `Jacobian::Auto` (the stage-decoupled
     /// matrix where the structure facts allow it).
     pub decoupled: SparkRun,
-    /// The Newton-LU peer (`None` with the reason when it did not run).
+    /// The Newton-LU peer (`Err` with the reason when it did not run).
     pub peer: Result<PeerStepRun, String>,
+    /// The Newton-QR peer (`Err` with the reason when it did not run).
+    pub qr_peer: Result<PeerStepRun, String>,
 }
 
 impl PerStepRow {
@@ -244,10 +249,10 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
             methods.push(MethodInput { label: label.clone(), tableau, steps: vec![steps] });
             spark.push((label, runs));
         }
-        let peer: Result<Vec<PeerStepRun>, String> = match &cfg.python {
+        let peers: Result<Vec<PeerStepRun>, String> = match &cfg.python {
             None => Err("not run (no Python interpreter configured)".into()),
             Some(python) => {
-                progress(&format!("{}: {}", entry.name, external::CASADI_NEWTON_LU));
+                progress(&format!("{}: {}, {}", entry.name, external::CASADI_NEWTON_LU, external::CASADI_NEWTON_QR));
                 let problem = Problem {
                     system: entry.name,
                     q0: entry.q0.to_vec(),
@@ -260,21 +265,70 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
             }
         };
         for (label, [full, simplified, decoupled]) in spark {
-            let peer = match &peer {
+            let peer = |solver: &str| match &peers {
                 Err(e) => Err(e.clone()),
-                Ok(list) => match list.iter().find(|p| p.method == label && p.steps == steps) {
-                    None => Err(format!("the peer returned no run of {label}")),
-                    Some(p) if p.failed => Err(format!("the peer's Newton did not meet its stop rule on {label}")),
+                Ok(list) => match list.iter().find(|p| p.solver == solver && p.method == label && p.steps == steps) {
+                    None => Err(format!("{solver} returned no run of {label}")),
+                    Some(p) if p.failed => Err(format!("{solver}'s Newton did not meet its stop rule on {label}")),
                     Some(p) => Ok(p.clone()),
                 },
             };
-            rows.push(PerStepRow { system: entry.name, method: label, h, steps, full, simplified, decoupled, peer });
+            let (peer, qr_peer) = (peer(external::CASADI_NEWTON_LU), peer(external::CASADI_NEWTON_QR));
+            rows.push(PerStepRow {
+                system: entry.name,
+                method: label,
+                h,
+                steps,
+                full,
+                simplified,
+                decoupled,
+                peer,
+                qr_peer,
+            });
         }
     }
     if rows.is_empty() {
         return Err("--per-step measures the paper's systems (particle, skate, robot, mp7); none selected".into());
     }
     Ok(rows)
+}
+
+/// A peer's time per step over SPARK's, for a run that measured it.
+fn ratio(peer: &Result<PeerStepRun, String>, steps: usize, spark: &SparkRun) -> Option<f64> {
+    peer.as_ref().ok().map(|p| p.cpu_time / steps as f64 / spark.time_per_step)
+}
+
+/// The summary under the table: for each peer and SPARK mode, the geometric
+/// mean of the ratios (peer time over SPARK's), their range, and how many
+/// cases reach the target (1.5× the Newton-LU peer, 5× the Newton-QR peer).
+pub fn per_step_summary(rows: &[PerStepRow]) -> String {
+    let mut s = String::from(
+        "\nPeer time over SPARK's per step (> 1: SPARK is faster), over the cases each peer measured:\n\n\
+         | peer | SPARK | cases | geometric mean | range | cases at the target |\n|---|---|---|---|---|---|\n",
+    );
+    type Mode = fn(&PerStepRow) -> &SparkRun;
+    type Peer = fn(&PerStepRow) -> &Result<PeerStepRun, String>;
+    let modes: [(&str, Mode); 3] =
+        [("full", |r| &r.full), ("simplified", |r| &r.simplified), ("stage-decoupled", |r| &r.decoupled)];
+    let peers: [(&str, Peer, f64); 2] =
+        [(external::CASADI_NEWTON_LU, |r| &r.peer, 1.5), (external::CASADI_NEWTON_QR, |r| &r.qr_peer, 5.0)];
+    for (peer_name, peer, target) in peers {
+        for (mode, run) in modes {
+            let ratios: Vec<f64> = rows.iter().filter_map(|r| ratio(peer(r), r.steps, run(r))).collect();
+            if ratios.is_empty() {
+                continue;
+            }
+            let geometric = (ratios.iter().map(|x| x.ln()).sum::<f64>() / ratios.len() as f64).exp();
+            let (lo, hi) = ratios.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+            let reached = ratios.iter().filter(|&&x| x >= target).count();
+            let _ = writeln!(
+                s,
+                "| {peer_name} | {mode} | {} | {geometric:.2} | {lo:.2}–{hi:.2} | {reached} at {target}× or more |",
+                ratios.len()
+            );
+        }
+    }
+    s
 }
 
 fn ns(seconds: f64) -> String {
@@ -289,9 +343,10 @@ pub fn per_step_markdown(rows: &[PerStepRow]) -> String {
         "| system | h | method | Newton-LU peer ns/step | peer evaluations / factorizations per step | \
          SPARK full ns/step (iterations) | SPARK simplified ns/step (iterations) | \
          SPARK simplified, stage-decoupled ns/step (iterations) | peer / full | peer / simplified | \
-         peer / stage-decoupled | end state, peer − SPARK |"
+         peer / stage-decoupled | end state, peer − SPARK | Newton-QR peer ns/step | \
+         QR peer / stage-decoupled |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in rows {
         let full = format!("{} ({:.2})", ns(r.full.time_per_step), r.full.iterations);
         let simplified = format!("{} ({:.2})", ns(r.simplified.time_per_step), r.simplified.iterations);
@@ -310,12 +365,21 @@ pub fn per_step_markdown(rows: &[PerStepRow]) -> String {
             }
             Err(e) => (format!("not measured: {e}"), "–".into(), "–".into(), "–".into(), "–".into(), "–".into()),
         };
+        let (qr, rq) = match &r.qr_peer {
+            Ok(p) => {
+                let t = p.cpu_time / r.steps as f64;
+                (ns(t), format!("{:.2}", t / r.decoupled.time_per_step))
+            }
+            Err(e) => (format!("not measured: {e}"), "–".into()),
+        };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {peer} | {counts} | {full} | {simplified} | {decoupled} | {rf} | {rs} | {rd} | {diff} |",
+            "| {} | {} | {} | {peer} | {counts} | {full} | {simplified} | {decoupled} | {rf} | {rs} | {rd} | {diff} \
+             | {qr} | {rq} |",
             r.system, r.h, r.method
         );
     }
+    s.push_str(&per_step_summary(rows));
     let _ = writeln!(
         s,
         "\nSPARK's Newton work per step (updates / factorizations), the flops it implies \
