@@ -286,9 +286,14 @@ def per_step_rows(inp, system, build):
             "q": r.q, "v": r.v,
         })
     for m in inp["methods"]:
-        exe = build_newton(system, m["tableau"], build, m["label"])
-        for steps in m["steps"]:
-            rows.append({"method": m["label"], **qr_run(exe, steps, inp)})
+        # A Newton-QR method that does not build or run is left out (the
+        # table then says the peer returned no run of it), not the rows above.
+        try:
+            exe = build_newton(system, m["tableau"], build, m["label"])
+            for steps in m["steps"]:
+                rows.append({"method": m["label"], **qr_run(exe, steps, inp)})
+        except (subprocess.CalledProcessError, OSError, ValueError, IndexError) as e:
+            print(f"{QR_SOLVER} {m['label']}: {e}", file=sys.stderr)
     return rows
 
 
