@@ -165,7 +165,7 @@ mod per_step {
             peer: peer(external::CASADI_NEWTON_LU, lu, 10),
             qr_peer: qr.map_or_else(|| Err("not run".into()), |t| peer(external::CASADI_NEWTON_QR, t, 10)),
         };
-        let rows = [row(200.0, Some(800.0)), row(120.0, Some(400.0)), row(150.0, None)];
+        let rows = [row(200.0, Some(800.0)), row(120.0, Some(400.0)), row(160.0, None)];
         let s = per_step_summary(&rows[..2]);
         let lu = format!(
             "| CasADi C (Newton-LU) | stage-decoupled | 2 | {:.2} | 1.20–2.00 | 1 at 1.5× or more |",
@@ -181,8 +181,38 @@ mod per_step {
         );
         assert!(s.contains(&qr), "{s}");
         let with_missing = per_step_summary(&rows);
+        assert!(per_round_markdown(&[rows.to_vec()]).contains("| 1 | 1.57 (2 of 3 at 1.5×) | 5.66 (1 of 2 at 5×) |"));
         assert!(with_missing.contains("| CasADi C (Newton-LU) | stage-decoupled | 3 |"), "{with_missing}");
         assert!(with_missing.contains("| CasADi C (Newton-QR) | stage-decoupled | 2 |"), "{with_missing}");
+    }
+
+    /// Each entry's minimum over rounds: the faster SPARK run of each
+    /// variant and the faster measured peer, a peer measured in one round
+    /// only taken from it, rows matched by system and method.
+    #[test]
+    fn rounds_keep_each_entrys_minimum() {
+        let row = |full: f64, decoupled: f64, lu: Result<PeerStepRun, String>| PerStepRow {
+            system: "s",
+            method: "m".into(),
+            h: 0.1,
+            steps: 10,
+            full: spark(full),
+            simplified: spark(5e-7),
+            decoupled: spark(decoupled),
+            peer: lu,
+            qr_peer: Err("not run".into()),
+        };
+        let a = vec![row(3e-7, 1e-7, peer(external::CASADI_NEWTON_LU, 200.0, 10))];
+        let b = vec![row(2e-7, 1.5e-7, Err("the peer failed".into()))];
+        let c = vec![row(4e-7, 0.9e-7, peer(external::CASADI_NEWTON_LU, 150.0, 10))];
+        let min = minimum_over_rounds(&[a.clone(), b.clone(), c]);
+        assert_eq!(min.len(), 1);
+        assert_eq!((min[0].full.time_per_step, min[0].decoupled.time_per_step), (2e-7, 0.9e-7));
+        assert_eq!(min[0].peer.as_ref().map(|p| p.cpu_time), Ok(150.0 * 1e-9 * 10.0));
+        assert!(min[0].qr_peer.is_err());
+        let min = minimum_over_rounds(&[b, a]);
+        assert_eq!(min[0].peer.as_ref().map(|p| p.cpu_time), Ok(200.0 * 1e-9 * 10.0), "an Err round gives way");
+        assert!(minimum_over_rounds(&[]).is_empty());
     }
 }
 

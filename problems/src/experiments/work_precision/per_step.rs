@@ -331,6 +331,80 @@ pub fn per_step_summary(rows: &[PerStepRow]) -> String {
     s
 }
 
+/// The table measured `rounds` times (`spark work-precision --per-step
+/// --rounds R`): SPARK and the peers in every round, so that a change of the
+/// machine's load reaches both. Returns the rows of the minima over the
+/// rounds ([`minimum_over_rounds`]) and every round's rows.
+pub fn measure_rounds(
+    cfg: &WorkPrecisionConfig,
+    rounds: usize,
+    progress: &dyn Fn(&str),
+) -> Result<(Vec<PerStepRow>, Vec<Vec<PerStepRow>>), String> {
+    let mut all = Vec::with_capacity(rounds);
+    for round in 1..=rounds.max(1) {
+        let label = |msg: &str| {
+            if rounds > 1 {
+                progress(&format!("round {round} of {rounds}: {msg}"))
+            } else {
+                progress(msg)
+            }
+        };
+        all.push(measure_per_step(cfg, &label)?);
+    }
+    Ok((minimum_over_rounds(&all), all))
+}
+
+/// Each entry's minimum over the rounds: per SPARK variant the run of the
+/// round that took least time per step, per peer the measured run of least
+/// time (a peer measured in no round keeps the first round's reason).
+/// Rounds are [`measure_per_step`]'s rows, in its order.
+pub fn minimum_over_rounds(rounds: &[Vec<PerStepRow>]) -> Vec<PerStepRow> {
+    let Some((first, rest)) = rounds.split_first() else { return Vec::new() };
+    let faster = |a: &mut SparkRun, b: &SparkRun| {
+        if b.time_per_step < a.time_per_step {
+            *a = b.clone();
+        }
+    };
+    let faster_peer = |a: &mut Result<PeerStepRun, String>, b: &Result<PeerStepRun, String>| match (&*a, b) {
+        (Ok(x), Ok(y)) if y.cpu_time < x.cpu_time => *a = b.clone(),
+        (Err(_), Ok(_)) => *a = b.clone(),
+        _ => {}
+    };
+    let mut out = first.clone();
+    for round in rest {
+        for (o, r) in out.iter_mut().zip(round).filter(|(o, r)| o.system == r.system && o.method == r.method) {
+            faster(&mut o.full, &r.full);
+            faster(&mut o.simplified, &r.simplified);
+            faster(&mut o.decoupled, &r.decoupled);
+            faster_peer(&mut o.peer, &r.peer);
+            faster_peer(&mut o.qr_peer, &r.qr_peer);
+        }
+    }
+    out
+}
+
+/// Each round's geometric means of the stage-decoupled mode against each
+/// peer, and its cases at the targets: how far the rounds spread.
+pub fn per_round_markdown(rounds: &[Vec<PerStepRow>]) -> String {
+    let mut s = String::from(
+        "\nEach round, stage-decoupled SPARK: geometric mean of the peer's time over SPARK's \
+         (cases at the target):\n\n| round | CasADi C (Newton-LU) | CasADi C (Newton-QR) |\n|---|---|---|\n",
+    );
+    for (k, rows) in rounds.iter().enumerate() {
+        let line = |peer: fn(&PerStepRow) -> &Result<PeerStepRun, String>, target: f64| {
+            let ratios: Vec<f64> = rows.iter().filter_map(|r| ratio(peer(r), r.steps, &r.decoupled)).collect();
+            if ratios.is_empty() {
+                return "–".to_string();
+            }
+            let geometric = (ratios.iter().map(|x| x.ln()).sum::<f64>() / ratios.len() as f64).exp();
+            let reached = ratios.iter().filter(|&&x| x >= target).count();
+            format!("{geometric:.2} ({reached} of {} at {target}×)", ratios.len())
+        };
+        let _ = writeln!(s, "| {} | {} | {} |", k + 1, line(|r| &r.peer, 1.5), line(|r| &r.qr_peer, 5.0));
+    }
+    s
+}
+
 fn ns(seconds: f64) -> String {
     format!("{:.0}", seconds * 1e9)
 }
