@@ -19,6 +19,10 @@ pub trait Observer<const N: usize, const M: usize> {
     /// (sub-)step ([`observe_dense`](Self::observe_dense)). When `false`
     /// (the default) the driver builds none for it.
     const DENSE: bool = false;
+    /// The observer watches the accepted steps ([`observe`](Self::observe)
+    /// and [`stop_requested`](Self::stop_requested)). When `false` the
+    /// driver calls neither ([`NoObserver`]); the default is `true`.
+    const STEPS: bool = true;
     /// Called after each accepted step with the system, the new state and
     /// the Newton iteration count.
     fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, system: &Sys, state: &State<N>, iterations: usize);
@@ -48,6 +52,7 @@ pub trait Observer<const N: usize, const M: usize> {
 pub struct NoObserver;
 
 impl<const N: usize, const M: usize> Observer<N, M> for NoObserver {
+    const STEPS: bool = false;
     fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, _: &State<N>, _: usize) {}
 }
 
@@ -65,6 +70,8 @@ impl<const N: usize, const M: usize, F: FnMut(&State<N>, usize)> Observer<N, M> 
 pub(crate) trait StepObserver<Sys, const N: usize, const M: usize, const S: usize> {
     /// [`Observer::DENSE`].
     fn wants_dense(&self) -> bool;
+    /// [`Observer::STEPS`].
+    fn wants_steps(&self) -> bool;
     /// [`Observer::observe`], then [`Observer::stop_requested`]: whether
     /// the run ends here.
     fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) -> bool;
@@ -79,6 +86,10 @@ where
 {
     fn wants_dense(&self) -> bool {
         O::DENSE
+    }
+
+    fn wants_steps(&self) -> bool {
+        O::STEPS
     }
 
     fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) -> bool {

@@ -144,3 +144,38 @@ fn an_ensemble_stops_when_asked_and_is_otherwise_unchanged_by_the_checks() {
     );
     assert_eq!(stopped, Err(LaneError::Stopped { steps: 1024 }));
 }
+
+/// An observer that declares it watches no step (`Observer::STEPS = false`)
+/// is never called, not even asked to stop, and the run is the one
+/// `NoObserver` gets, bit for bit.
+#[test]
+fn an_observer_that_watches_no_step_is_not_called() {
+    struct Unwatching {
+        called: usize,
+    }
+    impl Observer<3, 1> for Unwatching {
+        const STEPS: bool = false;
+        fn observe<Sys: NonholonomicSystem<3, 1>>(&mut self, _: &Sys, _: &State<3>, _: usize) {
+            self.called += 1;
+        }
+        fn stop_requested(&mut self) -> bool {
+            self.called += 1;
+            true
+        }
+    }
+    let (q0, v0) = (Vector::<3>::from(Q0), Vector::<3>::from(V0));
+    let schedule = Schedule::Fixed { h: 0.1, steps: 50 };
+    let options = RunOptions { record_every: 1, ..RunOptions::default() };
+    let mut observer = Unwatching { called: 0 };
+    let run = skate_stepper().integrate(0.0, &q0, &v0, schedule, &options, &mut observer).unwrap();
+    assert_eq!(observer.called, 0);
+    let quiet = skate_stepper().integrate(0.0, &q0, &v0, schedule, &options, &mut spark_runtime::NoObserver).unwrap();
+    let bits = |t: &spark_runtime::Trajectory<3, 1>| {
+        t.samples
+            .iter()
+            .flat_map(|s| [s.t].into_iter().chain(s.q.iter().copied()).chain(s.v.iter().copied()).map(f64::to_bits))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&run), bits(&quiet));
+    assert_eq!(run.samples.len(), 51);
+}
