@@ -293,6 +293,11 @@ pub fn measure_per_step(cfg: &WorkPrecisionConfig, progress: &dyn Fn(&str)) -> R
     Ok(rows)
 }
 
+/// The geometric mean of positive ratios.
+fn geometric_mean(ratios: &[f64]) -> f64 {
+    (ratios.iter().map(|x| x.ln()).sum::<f64>() / ratios.len() as f64).exp()
+}
+
 /// A peer's time per step over SPARK's, for a run that measured it.
 fn ratio(peer: &Result<PeerStepRun, String>, steps: usize, spark: &SparkRun) -> Option<f64> {
     peer.as_ref().ok().map(|p| p.cpu_time / steps as f64 / spark.time_per_step)
@@ -318,7 +323,7 @@ pub fn per_step_summary(rows: &[PerStepRow]) -> String {
             if ratios.is_empty() {
                 continue;
             }
-            let geometric = (ratios.iter().map(|x| x.ln()).sum::<f64>() / ratios.len() as f64).exp();
+            let geometric = geometric_mean(&ratios);
             let (lo, hi) = ratios.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
             let reached = ratios.iter().filter(|&&x| x >= target).count();
             let _ = writeln!(
@@ -396,7 +401,7 @@ pub fn per_round_markdown(rounds: &[Vec<PerStepRow>]) -> String {
             if ratios.is_empty() {
                 return "–".to_string();
             }
-            let geometric = (ratios.iter().map(|x| x.ln()).sum::<f64>() / ratios.len() as f64).exp();
+            let geometric = geometric_mean(&ratios);
             let reached = ratios.iter().filter(|&&x| x >= target).count();
             format!("{geometric:.2} ({reached} of {} at {target}×)", ratios.len())
         };
