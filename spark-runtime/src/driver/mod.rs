@@ -446,11 +446,8 @@ where
                 state = at;
                 break;
             }
-            // The whole end state, then its time pinned (accumulating
-            // t0 + Σh drifts). Copied field by field after `t`, each 16-byte
-            // read straddled two of the stores that had just written the
-            // counts, which the processor does not forward: ≈ 5 ns a step of
-            // the skate's Gauss s = 1 (docs/performance, "Driver cost").
+            // The step's end, its time pinned to the scheduled value
+            // (accumulating t0 + Σh drifts).
             state = counts.state;
             state.t = t_target;
             let stop = watched && observer.accepted(self.system(), &state, iters);
