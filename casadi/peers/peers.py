@@ -205,21 +205,27 @@ def build_newton(system: CasadiSystem, tableau, build: Path, label: str) -> Path
     return exe
 
 
+def run_qr_driver(exe: Path, steps: int, repeats: int, inp):
+    """One call of the Newton-QR driver: ``(q, v, wall, cpu, iterations per step, failed)``, the
+    times the medians of ``repeats`` runs."""
+    args = [str(exe), str(steps), str(repeats), repr(inp["final_time"])]
+    args += [repr(x) for x in inp["q0"]] + [repr(x) for x in inp["v0"]]
+    args += [repr(x) for x in inp["parameter_values"]]
+    res = subprocess.run(args, check=True, capture_output=True, text=True).stdout.split()
+    n = len(inp["q0"])
+    q, v = [float(x) for x in res[:n]], [float(x) for x in res[n:2 * n]]
+    failed = bool(int(res[2 * n + 3])) or not all(math.isfinite(x) for x in q + v)
+    return q, v, float(res[2 * n]), float(res[2 * n + 1]), float(res[2 * n + 2]), failed
+
+
 def casadi_points(inp, system, build):
     out = []
     T = inp["final_time"]
     for m in inp["methods"]:
         exe = build_newton(system, m["tableau"], build, m["label"])
         for steps in m["steps"]:
-            args = [str(exe), str(steps), str(max(1, inp["repeats"])), repr(T)]
-            args += [repr(x) for x in inp["q0"]] + [repr(x) for x in inp["v0"]]
-            args += [repr(x) for x in inp["parameter_values"]]
-            res = subprocess.run(args, check=True, capture_output=True, text=True).stdout.split()
-            n = system.n
-            q, v = [float(x) for x in res[:n]], [float(x) for x in res[n:2 * n]]
-            wall, cpu = float(res[2 * n]), float(res[2 * n + 1])
-            iters, failed = float(res[2 * n + 2]), int(res[2 * n + 3])
-            if failed or not all(math.isfinite(x) for x in q + v):
+            q, v, wall, cpu, iters, failed = run_qr_driver(exe, steps, max(1, inp["repeats"]), inp)
+            if failed:
                 continue
             out.append(point(inp, QR_SOLVER, m["label"], int(m["tableau"]["stages"]), T / steps, steps,
                              q, v, wall, cpu, iters, inp["repeats"]))
@@ -254,21 +260,12 @@ def qr_run(exe: Path, steps: int, inp) -> dict:
     """One per-step figure of the Newton-QR peer: its driver's median over
     repeats, as many as make ``min_timing`` seconds of runs (at least
     ``repeats``), after one untimed run that sizes them."""
-    def run(repeats: int):
-        args = [str(exe), str(steps), str(repeats), repr(inp["final_time"])]
-        args += [repr(x) for x in inp["q0"]] + [repr(x) for x in inp["v0"]]
-        args += [repr(x) for x in inp["parameter_values"]]
-        return subprocess.run(args, check=True, capture_output=True, text=True).stdout.split()
-    n = len(inp["q0"])
-    first = run(1)
-    once = max(float(first[2 * n + 1]), 1e-9)
+    once = max(run_qr_driver(exe, steps, 1, inp)[3], 1e-9)
     repeats = int(min(max(inp["repeats"], math.ceil(inp.get("min_timing", 0.0) / once)), 100_000))
-    res = run(repeats)
-    q, v = [float(x) for x in res[:n]], [float(x) for x in res[n:2 * n]]
-    iterations, failed = float(res[2 * n + 2]), bool(int(res[2 * n + 3]))
+    q, v, wall, cpu, iterations, failed = run_qr_driver(exe, steps, repeats, inp)
     return {
-        "solver": QR_SOLVER, "steps": steps, "failed": failed or not all(math.isfinite(x) for x in q + v),
-        "repeats": repeats, "wall_time": float(res[2 * n]), "cpu_time": float(res[2 * n + 1]),
+        "solver": QR_SOLVER, "steps": steps, "failed": failed, "repeats": repeats, "wall_time": wall,
+        "cpu_time": cpu,
         # Each iteration evaluates the residual and its Jacobian and solves by QR.
         "evaluations_per_step": iterations, "factorizations_per_step": iterations, "q": q, "v": v,
     }
