@@ -149,6 +149,10 @@ pub mod system;
 pub mod tableau;
 #[cfg(test)]
 mod tests;
+// Unit tests declare systems with `nonholonomic_system!`, whose expansion
+// names this crate by its path.
+#[cfg(test)]
+extern crate self as spark_runtime;
 pub mod trig;
 
 pub use adaptive::{
@@ -176,8 +180,8 @@ pub use rejection::RejectionPolicy;
 pub use spark_macros::nonholonomic_system;
 pub use step::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};
 pub use system::{
-    ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, OperationCounts, StageJacobians, StageValues,
-    Structure, SystemSource, TimeDerivatives, Vector,
+    ConstraintForm, Matrix, NonholonomicSystem, NonidealJacobians, Nonlinearity, OperationCounts, StageJacobians,
+    StageValues, Structure, SystemSource, TimeDerivatives, Vector,
 };
 pub use tableau::{
     CoefficientFamily, ConditionEquation, ConditionRows, Method, Tableau, TableauError, TableauTable, MAX_STAGES,

@@ -60,6 +60,41 @@ impl Structure {
     }
 }
 
+/// Where a system's step equations are not affine in their unknowns, as
+/// `nonholonomic_system!` proves it from the symbolic Jacobians.
+///
+/// The unknowns of a step fall into groups: coordinate `c` (numbered `c`:
+/// the stage velocities `V_i[c]`, which `Q_i[c]` follows, and `v₁[c]`) and
+/// constraint `j` (numbered `N + j`: its multipliers at every stage). The
+/// residual's mixed second derivative in the unknowns of groups `a` and `b`
+/// vanishes unless `(a, b)` is in [`pairs`](Self::pairs). So when a Newton
+/// update leaves every group of some member of each pair unchanged, the
+/// equations are affine along it, and an update computed with the exact
+/// Jacobian at its starting iterate lands on the solution up to the linear
+/// solve's round-off (see the stopping rule of [`Stepper::step`](crate::Stepper::step)).
+///
+/// A hand-written system may leave it out ([`NonholonomicSystem::NONLINEARITY`]
+/// is `None`): its steps then confirm every update as before. A wrong
+/// declaration — a missing pair — makes the stepper accept a step that is
+/// not converged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Nonlinearity {
+    /// Pairs `(a, b)`, `a ≤ b`, of groups (coordinates `0..N`, constraints
+    /// `N..N+M`) in which some function of the step — momentum, force,
+    /// constraint, constraint force, external or non-ideal force — has a
+    /// mixed second derivative that is not identically zero; `(a, a)` when
+    /// it is not affine in group `a` alone.
+    pub pairs: &'static [(u32, u32)],
+    /// Coordinates `c` whose column of the stiffness `∂F/∂q` is not
+    /// identically zero: columns whose couplings between stages the
+    /// stage-decoupled Newton matrix drops unless it keeps the stiffness.
+    pub stiffness_columns: &'static [u32],
+    /// Coordinates `c` whose column of `∂R/∂q` (`R = −Kᵀψ`, the constraint
+    /// force) is not identically zero: columns whose couplings between
+    /// stages the stage-decoupled Newton matrix drops.
+    pub constraint_force_columns: &'static [u32],
+}
+
 /// Values at one stage point `(T_i, Q_i, V_i, Ψ_i)`: what one residual
 /// evaluation of the SPARK equations needs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -255,6 +290,10 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     /// at every refresh. As for [`CONSTANT_STIFFNESS`](Self::CONSTANT_STIFFNESS),
     /// a wrong `true` costs convergence speed, never accuracy.
     const DIAGONAL_STIFFNESS: bool = false;
+    /// Where the step's equations are not affine in their unknowns
+    /// ([`Nonlinearity`]); `nonholonomic_system!` proves it. `None` (the
+    /// default) claims nothing: every Newton update is confirmed.
+    const NONLINEARITY: Option<Nonlinearity> = None;
 
     /// The diagonal of the stiffness `F_q = ∂(∇_q L)/∂q` at `(t, q, v)`
     /// alone, when the system provides it: `nonholonomic_system!` does for

@@ -19,6 +19,7 @@ pub mod emit;
 pub mod graph;
 pub mod lower;
 pub mod model;
+pub mod nonlinearity;
 pub mod pretty;
 pub mod scenes;
 pub mod simplify;

@@ -218,6 +218,15 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
         self.w_valid
     }
 
+    /// Whether the latest factors keep the stiffness's couplings exactly
+    /// (a constant stiffness, or a diagonal one at every stage point that
+    /// enters, with a constant mass matrix): then the force terms of the
+    /// exact Jacobian are all in the matrix, and only the constraint
+    /// force's are dropped.
+    pub(crate) fn keeps_stiffness(&self) -> bool {
+        self.coupled
+    }
+
     /// Factors the stage-decoupled matrix of a step of size `h`, from the
     /// constraint Jacobians in `constraint_v` / `constraint_q`, the velocity
     /// blocks `masses` and, for a non-ideal force, `∂N/∂ψ` at the stages.

@@ -1,7 +1,10 @@
-//! Newton's stopping rule — the contraction monitor of simplified Newton
-//! and full Newton's rule — and the rule that gives up on factors too slow
-//! to keep ([`too_slow`]), on the scaled update norms of
+//! Newton's stopping rule — the contraction monitor of simplified Newton,
+//! full Newton's rule and the acceptance of an update along which the
+//! equations are affine ([`affine_along`]) — and the rule that gives up on
+//! factors too slow to keep ([`too_slow`]), on the scaled update norms of
 //! [`weighted_update_norm`](crate::linalg::weighted_update_norm).
+
+use crate::system::{Nonlinearity, Vector};
 
 /// What the updates computed with one set of Newton factors tell about
 /// their contraction, and the stopping rule built on it.
@@ -214,4 +217,70 @@ fn power(mut x: f64, mut k: i32) -> f64 {
         }
     }
     r
+}
+
+/// Whether an update `update`, computed with factors of the Newton matrix
+/// at the iterate it starts from, ends the solve because the step's
+/// equations are affine in what it moved: for every pair of
+/// [`Nonlinearity::pairs`], the update of one of its two groups is within
+/// `tolerance` (scaled by `weights`, as [`weighted_update_norm`](crate::linalg::weighted_update_norm)
+/// measures updates). The update of the stage-decoupled matrix
+/// (`decoupled`, for a system whose structure facts leave it only the force
+/// terms to drop) must also be within it on the coordinates whose columns
+/// that matrix approximates: those of [`Nonlinearity::constraint_force_columns`],
+/// and of [`Nonlinearity::stiffness_columns`] unless it keeps the stiffness
+/// (`stiffness_kept`). The layout of the unknowns is
+/// `z = [V_1..V_S | μ_1..μ_S | v₁]`.
+///
+/// # Why such an update ends the solve
+/// Let `C` be the groups whose update is within the tolerance and `A` the
+/// rest. No pair lies within `A`, so the residual's second derivative
+/// `G''[x, y]` vanishes for `x`, `y` both in `A`, at every point. With
+/// `Δ = Δ_C + Δ_A` the update from `z`, Taylor's formula leaves
+/// `G(z + Δ) = G(z) + J(z)Δ + R`, `|R| ≤ ½‖G''‖·‖Δ_C‖·(‖Δ_C‖ + 2‖Δ_A‖)`.
+/// The matrix `F` of the update has the exact Jacobian's columns in `A`
+/// (the exact matrix always; the stage-decoupled one when every column it
+/// approximates lies in `C`), so `JΔ = FΔ + (J − F)Δ_C = −G(z) + (J − F)Δ_C`
+/// and the new iterate's error is `J⁻¹G(z + Δ) = J⁻¹(R + (J − F)Δ_C)`:
+/// at most `θ·‖Δ_C‖` with `θ = O(‖J⁻¹‖‖G''‖‖Δ‖)` Newton's contraction (and,
+/// for the stage-decoupled matrix, its own `O(h²)` one). So the error left
+/// is below the tolerance whenever the iteration contracts, by the same
+/// argument that lets an update within the tolerance end the solve — but
+/// here only the curved part of the update has to be that small: the
+/// affine part is solved exactly, up to the linear solve's round-off, which
+/// a confirming update (one step of iterative refinement in working
+/// precision) would not improve.
+///
+/// Such updates occur where the starting guess is within round-off in the
+/// groups the equations are curved in: the heading of the skate (§8.2) and
+/// of a rolling disk, whose rates are constant, or every group of a system
+/// whose equations are affine altogether (no pairs).
+#[inline]
+pub(crate) fn affine_along<const N: usize, const M: usize, const S: usize, const D: usize>(
+    update: &Vector<D>,
+    weights: &Vector<D>,
+    tolerance: f64,
+    nonlinearity: &Nonlinearity,
+    decoupled: bool,
+    stiffness_kept: bool,
+) -> bool {
+    // NaN counts as moved.
+    let moved_at = |i: usize| {
+        let scaled = update[i].abs() * weights[i];
+        scaled > tolerance || scaled.is_nan()
+    };
+    let moved = |group: u32| {
+        let group = group as usize;
+        if group < N {
+            (0..S).any(|i| moved_at(i * N + group)) || moved_at(S * (N + M) + group)
+        } else {
+            let j = group - N;
+            j >= M || (0..S).any(|i| moved_at(S * N + i * M + j))
+        }
+    };
+    let still = |columns: &[u32]| columns.iter().all(|&c| !moved(c));
+    nonlinearity.pairs.iter().all(|&(a, b)| !moved(a) || !moved(b))
+        && (!decoupled
+            || (still(nonlinearity.constraint_force_columns)
+                && (stiffness_kept || still(nonlinearity.stiffness_columns))))
 }

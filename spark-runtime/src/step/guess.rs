@@ -82,14 +82,15 @@ pub(crate) const EXTRAPOLATION: [[f64; MAX_EXTRAPOLATION_DEGREE + 1]; MAX_EXTRAP
 /// order, which the lane kernel repeats operation for operation.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct StepPolynomial<const S: usize> {
-    /// Weights of `v₀`, of the `V_j` and of `v₁` in the new `V_i`.
+    /// Weights of the increments `v₀ − v₁` and `V_j − v₁` of the previous
+    /// step (from its end velocity `v₁`, the new step's start) in the new
+    /// `V_i − v₁`: the Lagrange basis at `1 + c_i` of the nodes `0`, the
+    /// `c_j` and `1` (whose own increment is 0).
     pub(crate) stage_from_start: [f64; S],
     pub(crate) stage_from_stages: [[f64; S]; S],
-    pub(crate) stage_from_end: [f64; S],
-    /// The same for the new `v₁`.
+    /// The same for the new end velocity, at `2`.
     pub(crate) end_from_start: f64,
     pub(crate) end_from_stages: [f64; S],
-    pub(crate) end_from_end: f64,
     /// Weights of the previous `μ_j` in the new `μ_i`.
     pub(crate) multipliers: [[f64; S]; S],
 }
@@ -121,16 +122,13 @@ impl<const S: usize> StepPolynomial<S> {
         let mut p = StepPolynomial {
             stage_from_start: [0.0; S],
             stage_from_stages: [[0.0; S]; S],
-            stage_from_end: [0.0; S],
             end_from_start: basis(2.0, 0),
             end_from_stages: [0.0; S],
-            end_from_end: basis(2.0, S + 1),
             multipliers: [[0.0; S]; S],
         };
         for i in 0..S {
             let theta = 1.0 + c[i];
             p.stage_from_start[i] = basis(theta, 0);
-            p.stage_from_end[i] = basis(theta, S + 1);
             for j in 0..S {
                 p.stage_from_stages[i][j] = basis(theta, j + 1);
                 p.multipliers[i][j] = stage_basis(theta, j);
@@ -152,17 +150,22 @@ impl<const S: usize> StepPolynomial<S> {
         let end = S * (N + M);
         let (last, before, out) = (last.as_slice(), before.as_slice(), z.as_mut_slice());
         for i in 0..=S {
-            let (from_start, from_stages, from_end, at) = if i < S {
-                (self.stage_from_start[i], &self.stage_from_stages[i], self.stage_from_end[i], i * N)
+            let (from_start, from_stages, at) = if i < S {
+                (self.stage_from_start[i], &self.stage_from_stages[i], i * N)
             } else {
-                (self.end_from_start, &self.end_from_stages, self.end_from_end, end)
+                (self.end_from_start, &self.end_from_stages, end)
             };
+            // As increments from the new start velocity `v₀ = last[end..]`
+            // (the basis sums to 1): a velocity constant across the steps is
+            // predicted exactly, so that an update can find the equations
+            // affine along it (`convergence::affine_along`).
             for n in 0..N {
-                let mut acc = from_start * before[end + n];
+                let v0 = last[end + n];
+                let mut acc = from_start * (before[end + n] - v0);
                 for j in 0..S {
-                    acc += from_stages[j] * last[j * N + n];
+                    acc += from_stages[j] * (last[j * N + n] - v0);
                 }
-                out[at + n] = acc + from_end * last[end + n];
+                out[at + n] = v0 + acc;
             }
         }
         for i in 0..S {

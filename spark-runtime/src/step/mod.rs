@@ -39,6 +39,8 @@
 // Stage loops index several parallel arrays (c, a, b, stage values) with one index.
 #![allow(clippy::needless_range_loop)]
 
+#[cfg(test)]
+mod affine_tests;
 mod cold_start;
 mod compensation;
 mod convergence;
@@ -51,7 +53,7 @@ mod newton;
 pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use compensation::{two_sum_error, two_sum_error_of};
-pub(crate) use convergence::{too_slow, Contraction};
+pub(crate) use convergence::{affine_along, too_slow, Contraction};
 pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor};
 pub(crate) use guess::{extrapolation_degree, StepPolynomial, EXTRAPOLATION, MAX_EXTRAPOLATION_DEGREE, PAST};
 pub(crate) use lane_handover::LaneContinuation;
@@ -199,6 +201,11 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// accepted the initial state with, so a cold start within the run is
     /// not refused for a residual the run's own check let through.
     accepted_start_residual: f64,
+    /// Tests only: confirm every update, as if the system declared no
+    /// [`Nonlinearity`](crate::Nonlinearity), for references that do not
+    /// rest on the affine acceptance they check.
+    #[cfg(test)]
+    always_confirm: bool,
 }
 
 /// The parameter terms to evaluate with: none (the system then computes its
@@ -226,7 +233,7 @@ where
 {
     /// Whether the structure facts make the couplings the stage-decoupled
     /// matrix drops `O(h²)` ([`Jacobian::Auto`]).
-    const DECOUPLES: bool = Sys::STRUCTURE.separable
+    pub(crate) const DECOUPLES: bool = Sys::STRUCTURE.separable
         && Sys::STRUCTURE.constraint_matrix_velocity_free()
         && !Sys::HAS_FORCING
         && !Sys::HAS_NONIDEAL_FORCE;
@@ -271,6 +278,8 @@ where
             compensation: None,
             options_checked: false,
             accepted_start_residual: 0.0,
+            #[cfg(test)]
+            always_confirm: false,
         }
     }
 

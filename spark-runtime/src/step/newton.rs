@@ -3,7 +3,7 @@
 //! simplified Newton matrix and its fall-back from the stage-decoupled to
 //! the exact matrix, and the typed errors it ends with.
 
-use super::convergence::{full_newton_accepts_residual, too_slow, Contraction};
+use super::convergence::{affine_along, full_newton_accepts_residual, too_slow, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
@@ -431,7 +431,7 @@ where
                     return Err(fail_nonfinite("update", &self.history));
                 }
                 *z -= g;
-                if converged {
+                if converged || (fresh && self.lands_on_solution(&g, &weights, decoupled)) {
                     break 'solve Ok(());
                 }
                 if k > 0 && rate >= 1.0 {
@@ -477,6 +477,34 @@ where
         *z -= g;
         self.history.push(IterationRecord { residual, update, rate: update / prev_update });
         Ok(true)
+    }
+
+    /// Whether the update `g` (scaled by `weights`), computed with factors
+    /// evaluated at the iterate it started from, ends the solve because
+    /// the equations are affine in what it moved beyond the tolerance
+    /// ([`affine_along`], on the system's [`Nonlinearity`](crate::Nonlinearity)).
+    #[inline]
+    fn lands_on_solution(&self, g: &Vector<D>, weights: &Vector<D>, decoupled: bool) -> bool {
+        #[cfg(test)]
+        if self.always_confirm {
+            return false;
+        }
+        match Self::affine_rule(decoupled) {
+            Some(nonlinearity) => {
+                let kept = decoupled && self.decoupled.keeps_stiffness();
+                affine_along::<N, M, S, D>(g, weights, self.options.tolerance, &nonlinearity, decoupled, kept)
+            }
+            None => false,
+        }
+    }
+
+    /// The nonlinearity an update of the exact (or, `decoupled`, the
+    /// stage-decoupled) matrix may be accepted on ([`affine_along`]): the
+    /// system's, when it declares one. The stage-decoupled matrix qualifies
+    /// only where the structure facts make it the exact Jacobian with the
+    /// force terms of some columns dropped (`DECOUPLES`).
+    pub(crate) fn affine_rule(decoupled: bool) -> Option<crate::Nonlinearity> {
+        Sys::NONLINEARITY.filter(|_| !decoupled || Self::DECOUPLES)
     }
 
     /// What a converged solve leaves for the next step: simplified Newton's

@@ -713,9 +713,9 @@ nonholonomic_system! {
 /// The macro proves a constant stiffness for a quadratic potential (and not
 /// for a quartic one), and the stage-decoupled matrix keeps its couplings:
 /// for these linear equations, whose only `O(h²)` terms are the stiffness's,
-/// it is the exact matrix, so simplified Newton on it takes the same two
-/// updates per step as on the exact one (the second confirms the first) and
-/// its steps equal tightly converged ones.
+/// it is the exact matrix, so simplified Newton on it takes as few updates
+/// per step as on the exact one (one: the equations are affine, see
+/// `Nonlinearity`) and its steps equal tightly converged ones.
 #[test]
 fn a_constant_stiffness_is_kept_by_the_stage_decoupled_matrix() {
     use spark_runtime::{Jacobian, NewtonMode, NewtonOptions};

@@ -1,10 +1,12 @@
 //! The constants of the trait implementation that describe the declaration
 //! rather than compute with it: `STRUCTURE` (what the model proved),
 //! `SOURCE` (the neutral S-expression text of every expression, for peers
-//! such as the CasADi cross-check) and `OPERATIONS` (the operation counts).
+//! such as the CasADi cross-check), `OPERATIONS` (the operation counts) and
+//! `NONLINEARITY` (where the step's equations are not affine).
 
 use super::Operations;
 use crate::model::{ConstraintForm, Model};
+use crate::nonlinearity::Nonlinearity;
 use crate::source::{constraint_sexprs, holonomic_sexprs, sexpr};
 use crate::spec::{SrcExpr, SystemSpec};
 use proc_macro2::{Literal, TokenStream};
@@ -19,8 +21,9 @@ fn form_tokens(rt: &TokenStream, f: ConstraintForm) -> TokenStream {
     }
 }
 
-/// `const STRUCTURE`, `const SOURCE`, `const OPERATIONS` and, when the
-/// model proves it, `const CONSTANT_STIFFNESS` or `const DIAGONAL_STIFFNESS`.
+/// `const STRUCTURE`, `const SOURCE`, `const OPERATIONS`,
+/// `const NONLINEARITY` and, when the model proves it,
+/// `const CONSTANT_STIFFNESS` or `const DIAGONAL_STIFFNESS`.
 pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Model, ops: &Operations) -> TokenStream {
     let structure = model.structure;
     let b = |x: bool| if x { quote!(true) } else { quote!(false) };
@@ -37,6 +40,7 @@ pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Mo
         Literal::usize_unsuffixed(ops.bundle),
     );
     let source = source_const(rt, spec, model);
+    let nonlinearity = nonlinearity_const(rt, model);
     let stiffness = if model.constant_stiffness() {
         quote!(
             const CONSTANT_STIFFNESS: bool = true;
@@ -63,6 +67,25 @@ pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Mo
             bundle: #o_b,
         };
         #stiffness
+        #nonlinearity
+    }
+}
+
+/// `const NONLINEARITY`: the curved pairs of variable groups and the
+/// coordinates whose position enters the force or the constraint force
+/// ([`Nonlinearity`]).
+fn nonlinearity_const(rt: &TokenStream, model: &Model) -> TokenStream {
+    let Nonlinearity { pairs, stiffness_columns, constraint_force_columns } = Nonlinearity::of(model);
+    let (a, b): (Vec<_>, Vec<_>) =
+        pairs.into_iter().map(|(a, b)| (Literal::u32_unsuffixed(a), Literal::u32_unsuffixed(b))).unzip();
+    let stiffness = stiffness_columns.into_iter().map(Literal::u32_unsuffixed);
+    let constraint_force = constraint_force_columns.into_iter().map(Literal::u32_unsuffixed);
+    quote! {
+        const NONLINEARITY: ::core::option::Option<#rt::Nonlinearity> = ::core::option::Option::Some(#rt::Nonlinearity {
+            pairs: &[#((#a, #b)),*],
+            stiffness_columns: &[#(#stiffness),*],
+            constraint_force_columns: &[#(#constraint_force),*],
+        });
     }
 }
 

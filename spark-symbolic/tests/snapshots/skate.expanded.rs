@@ -66,6 +66,11 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         stage_jacobians: 19,
         bundle: 30,
     };
+    const NONLINEARITY: ::core::option::Option<::spark_runtime::Nonlinearity> = ::core::option::Option::Some(::spark_runtime::Nonlinearity {
+        pairs: &[(0, 2), (1, 2), (2, 2), (2, 3)],
+        stiffness_columns: &[],
+        constraint_force_columns: &[2],
+    });
     fn parameter_values(&self) -> ::std::vec::Vec<f64> {
         ::std::vec![self.m, self.inertia, self.g, self.beta]
     }

@@ -278,6 +278,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         lane_lu::solve(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
         let (mut norm, mut poison) = ([0.0f64; W], [0.0f64; W]);
         let (z, weights) = (&mut self.z, &mut self.weights);
+        // The first update, for the affine acceptance (`first_update_lands`).
+        let keep = first && !self.first_update.is_empty();
         for i in 0..=S {
             let out_at = if i < S { i * N } else { S * (N + M) };
             for n in 0..N {
@@ -293,11 +295,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 let d = out_at + n;
                 Self::update_row(&mut z[d], &mut weights[d], &acc, iterating, first, (&mut norm, &mut poison));
+                if keep {
+                    self.first_update[d] = acc;
+                }
             }
         }
         for e in 0..sm {
             let d = S * N + e;
             Self::update_row(&mut z[d], &mut weights[d], &con[e], iterating, first, (&mut norm, &mut poison));
+            if keep {
+                self.first_update[d] = con[e];
+            }
         }
         std::array::from_fn(|w| if poison[w] != 0.0 { f64::NAN } else { norm[w] })
     }

@@ -106,17 +106,18 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for w in (0..W).filter(|&w| self.held[w]) {
             let (last, before) = (self.head[w] * D, ((self.head[w] + 1) % PAST) * D);
             for i in 0..=S {
-                let (from_start, from_stages, from_end, at) = if i < S {
-                    (poly.stage_from_start[i], &poly.stage_from_stages[i], poly.stage_from_end[i], i * N)
+                let (from_start, from_stages, at) = if i < S {
+                    (poly.stage_from_start[i], &poly.stage_from_stages[i], i * N)
                 } else {
-                    (poly.end_from_start, &poly.end_from_stages, poly.end_from_end, end)
+                    (poly.end_from_start, &poly.end_from_stages, end)
                 };
                 for n in 0..N {
-                    let mut acc = from_start * self.past[before + end + n][w];
+                    let v0 = self.past[last + end + n][w];
+                    let mut acc = from_start * (self.past[before + end + n][w] - v0);
                     for j in 0..S {
-                        acc += from_stages[j] * self.past[last + j * N + n][w];
+                        acc += from_stages[j] * (self.past[last + j * N + n][w] - v0);
                     }
-                    self.z[at + n][w] = acc + from_end * self.past[last + end + n][w];
+                    self.z[at + n][w] = v0 + acc;
                 }
             }
             for i in 0..S {

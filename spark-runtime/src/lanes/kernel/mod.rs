@@ -35,8 +35,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::is_diagonal;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
-    check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor, LaneContinuation,
-    NewtonOptions, State, StepPolynomial, PAST,
+    affine_along, check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor,
+    LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -119,6 +119,8 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// coefficients exist), and one lane's velocity rows for their solve.
     stiff: StiffStages<N, S>,
     stiff_column: Box<[f64]>,
+    /// Whether `stiff` keeps a stiffness (`DecoupledMatrix::keeps_stiffness`).
+    stiffness_kept: bool,
     /// Which lanes the kernel holds.
     held: [bool; W],
     /// The state where each lane's latest step ended, and its carry.
@@ -143,6 +145,9 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// The update norm's weights `1/(1 + |z_i|)` at the iterate the step's
     /// first update leads to.
     weights: Box<[L<W>; D]>,
+    /// The step's first update, kept when the system's nonlinearity may
+    /// accept it (`step::affine_along`; empty otherwise).
+    first_update: Box<[L<W>]>,
     y: Box<[L<W>]>,
     p0: Box<[L<W>; N]>,
     /// Positions of the evaluation points: stages `0..S`, the end `S`, the
@@ -220,6 +225,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             h,
             stiff,
             stiff_column: vec![0.0; (S + 1) * N].into_boxed_slice(),
+            stiffness_kept: coupled,
             held: [false; W],
             q: fixed(),
             v: fixed(),
@@ -232,6 +238,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             z: fixed(),
             g: fixed(),
             weights: fixed(),
+            first_update: lanes(if Stepper::<Sys, N, M, S, D>::affine_rule(true).is_some() { D } else { 0 }),
             y: lanes(D),
             p0: fixed(),
             points: vec![[[0.0; W]; N]; p].into_boxed_slice(),
@@ -379,6 +386,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
+        let affine = Stepper::<Sys, N, M, S, D>::affine_rule(true);
         // The prior of the stage-decoupled matrix only, as in `Stepper::newton`.
         let mut monitor: [Contraction; W] =
             std::array::from_fn(|w| Contraction::fresh(if self.rate[w].1 { self.rate[w].0 } else { f64::NAN }));
@@ -414,7 +422,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 let stop = if !update.is_finite() {
                     Some(Outcome::HandBack)
-                } else if converged {
+                } else if converged || (k == 0 && self.first_update_lands(affine.as_ref(), w, opts.tolerance)) {
                     Some(Outcome::Stepped(k + 1))
                 } else if k > 0 && rate >= 1.0 {
                     Some(if update <= opts.stagnation_level { Outcome::Stepped(k + 1) } else { Outcome::HandBack })
@@ -439,6 +447,17 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         self.solved_rate = monitor.map(|m| m.observed());
         self.commit(sys, tab, opts, t, t_next, &mut out);
         out
+    }
+
+    /// Whether lane `w`'s first update, on factors evaluated at the step's
+    /// first iterate, ends its solve as the stepper's would
+    /// (`step::affine_along` on the stage-decoupled matrix).
+    #[inline(always)]
+    fn first_update_lands(&self, affine: Option<&crate::Nonlinearity>, w: usize, tolerance: f64) -> bool {
+        let Some(nonlinearity) = affine else { return false };
+        let update = Vector::<D>::from_fn(|d, _| self.first_update[d][w]);
+        let weights = Vector::<D>::from_fn(|d, _| self.weights[d][w]);
+        affine_along::<N, M, S, D>(&update, &weights, tolerance, nonlinearity, true, self.stiffness_kept)
     }
 
     /// Lane `w` of the `N` values at `at` of `x`.
