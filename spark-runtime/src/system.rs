@@ -85,6 +85,15 @@ pub struct Nonlinearity {
     /// mixed second derivative that is not identically zero; `(a, a)` when
     /// it is not affine in group `a` alone.
     pub pairs: &'static [(u32, u32)],
+    /// Some set of groups covers every pair, and its rows (the momentum
+    /// rows of its coordinates, the constraint rows of its constraints) are
+    /// affine in, and depend only on, its own groups. A Newton update with
+    /// a matrix exact in those rows solves those groups exactly, so the next
+    /// update, on factors evaluated at the new iterate, is accepted
+    /// ([`affine_along`](crate::Stepper::step)): simplified Newton refreshes
+    /// its factors after a first update that was not. It only steers the
+    /// iteration: a wrong `true` costs a factorization, never accuracy.
+    pub closed_affine_cover: bool,
     /// Coordinates `c` whose column of the stiffness `∂F/∂q` is not
     /// identically zero: columns whose couplings between stages the
     /// stage-decoupled Newton matrix drops unless it keeps the stiffness.

@@ -34,6 +34,10 @@ pub struct Nonlinearity {
     /// derivative that is not identically zero; `(a, a)` when it is not
     /// affine in group `a` alone. Sorted.
     pub pairs: Vec<(u32, u32)>,
+    /// Some set of groups covers every pair, and its rows (the momentum
+    /// rows of its coordinates, the constraint rows of its constraints) are
+    /// affine in, and depend only on, its own groups.
+    pub closed_affine_cover: bool,
     /// Coordinates `c` whose column of the stiffness `∂F/∂q` is not
     /// identically zero. Sorted.
     pub stiffness_columns: Vec<u32>,
@@ -113,39 +117,61 @@ impl Nonlinearity {
         let mut groups = Groups::new(&model.graph, n);
         let mut pairs = BTreeSet::new();
         // Every Jacobian block of a function of the step, with what names
-        // the variable each entry differentiates by.
+        // the variable each entry differentiates by and whether its rows
+        // are the constraint rows (the others: the momentum rows of a
+        // coordinate).
         let blocks = [
-            (&model.momentum_q, By::Column),
-            (&model.mass, By::Column),
-            (&model.force_q, By::Column),
-            (&model.force_v, By::Column),
-            (&model.constraint_q, By::Column),
-            (&model.constraint_v, By::Column),
-            (&model.constraint_force_q, By::Column),
-            (&model.constraint_force_v, By::Column),
-            (&model.external_force_q, By::Column),
-            (&model.external_force_v, By::Column),
-            (&model.nonideal_force_q, By::Column),
-            (&model.nonideal_force_v, By::Column),
-            (&model.nonideal_force_psi, By::MultiplierColumn),
+            (&model.momentum_q, By::Column, false),
+            (&model.mass, By::Column, false),
+            (&model.force_q, By::Column, false),
+            (&model.force_v, By::Column, false),
+            (&model.constraint_q, By::Column, true),
+            (&model.constraint_v, By::Column, true),
+            (&model.constraint_force_q, By::Column, false),
+            (&model.constraint_force_v, By::Column, false),
+            (&model.external_force_q, By::Column, false),
+            (&model.external_force_v, By::Column, false),
+            (&model.nonideal_force_q, By::Column, false),
+            (&model.nonideal_force_v, By::Column, false),
+            (&model.nonideal_force_psi, By::MultiplierColumn, false),
             // `∂R_c/∂ψ_j = −K_jc`: entry (j, c) of `K` is also the
-            // derivative of the constraint force by `ψ_j`.
-            (&model.constraint_v, By::MultiplierRow),
+            // derivative of coordinate `c`'s constraint force by `ψ_j`.
+            (&model.constraint_v, By::MultiplierRow, false),
         ];
-        for (block, by) in blocks {
+        // The groups the rows of each group depend on, and whether they are
+        // affine (every first derivative free of the unknowns).
+        let mut row_deps = vec![BTreeSet::new(); n + m];
+        let mut row_affine = vec![true; n + m];
+        for (block, by, constraint_rows) in blocks {
             for (r, row) in block.iter().enumerate() {
                 for (c, &entry) in row.iter().enumerate() {
-                    let a = match by {
-                        By::Column => c as u32,
-                        By::MultiplierColumn => (n + c) as u32,
-                        By::MultiplierRow => (n + r) as u32,
+                    let (row_group, a) = match by {
+                        By::Column if constraint_rows => (n + r, c as u32),
+                        By::Column => (r, c as u32),
+                        By::MultiplierColumn => (r, (n + c) as u32),
+                        By::MultiplierRow => (c, (n + r) as u32),
                     };
-                    for &b in groups.of(entry) {
+                    if model.graph.is_const(entry, 0.0) {
+                        continue;
+                    }
+                    let depends = groups.of(entry);
+                    row_affine[row_group] &= depends.is_empty();
+                    row_deps[row_group].insert(a);
+                    for &b in depends {
+                        row_deps[row_group].insert(b);
                         pairs.insert((a.min(b), a.max(b)));
                     }
                 }
             }
         }
+        // The largest set of groups with affine rows that depend on its own
+        // groups only: remove any group whose rows reach outside, until
+        // none does.
+        let mut closed: BTreeSet<u32> = (0..n + m).filter(|&g| row_affine[g]).map(|g| g as u32).collect();
+        while let Some(&g) = closed.iter().find(|&&g| !row_deps[g as usize].is_subset(&closed)) {
+            closed.remove(&g);
+        }
+        let closed_affine_cover = pairs.iter().all(|(a, b)| closed.contains(a) || closed.contains(b));
         debug_assert!(pairs.iter().all(|&(_, b)| (b as usize) < n + m));
         let columns = |block: &NodeMatrix| -> Vec<u32> {
             let nonzero = |c: usize| block.iter().any(|row| !model.graph.is_const(row[c], 0.0));
@@ -153,6 +179,7 @@ impl Nonlinearity {
         };
         Nonlinearity {
             pairs: pairs.into_iter().collect(),
+            closed_affine_cover,
             stiffness_columns: columns(&model.force_q),
             constraint_force_columns: columns(&model.constraint_force_q),
         }

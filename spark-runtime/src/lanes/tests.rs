@@ -122,6 +122,56 @@ fn constant_stiffness_members_in_lanes_match_each_member_alone() {
     }
 }
 
+crate::nonholonomic_system! {
+    /// The particle of §8.1, declared: curved only in `y`, whose rows
+    /// (`ÿ = −2y`) are affine and its own (a closed affine cover).
+    struct DeclaredParticle {
+        coordinates: [x, y, z],
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2),
+        constraints: [ dot(z) - y*dot(x) ],
+    }
+}
+
+/// A declared system whose first update solves a closed affine cover: the
+/// kernel refreshes its factors after it, as the stepper does, and ends the
+/// step on the second update (`step::affine_along`); every member is bit
+/// for bit its solo run, iteration counts included, in every build of the
+/// kernel.
+#[test]
+fn a_closed_affine_cover_refreshes_in_lanes_as_alone() {
+    assert!(DeclaredParticle::NONLINEARITY.is_some_and(|n| n.closed_affine_cover));
+    let starts: Vec<_> = (0..6)
+        .map(|j| {
+            let (y, u) = (0.2 * j as f64, 1.0 - 0.1 * j as f64);
+            State::new(0.0, Vector::<3>::new(1.0, y, 0.0), Vector::<3>::new(0.3, u, 0.3 * y))
+        })
+        .collect();
+    let sys = DeclaredParticle::default();
+    for method in [Method::Gauss, Method::LobattoIIIAB] {
+        let runs = compare::<_, 3, 1, 2, 11>(sys, method, fig84(), &starts, 0.2, 100, 25);
+        for run in &runs {
+            let updates = run.iterations as f64 / run.steps as f64;
+            assert!(run.failure.is_none() && updates <= 2.2, "{method}: {updates} updates per step");
+        }
+    }
+    compare::<_, 3, 1, 1, 7>(sys, Method::Gauss, fig84(), &starts, 0.2, 100, 0);
+    compare::<_, 3, 1, 3, 15>(sys, Method::Gauss, fig84(), &starts, 0.2, 100, 0);
+    use super::kernel::Simd;
+    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+    let alone: Vec<_> = starts.iter().map(|s| solo::<_, 3, 1, 2, 11>(&sys, tab, fig84(), *s, 0.2, 20, 0)).collect();
+    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+        let mut lanes = LaneStepper::<_, 3, 1, 2, 11, 8>::new(sys, tab, fig84()).with_simd(simd);
+        lanes.start(&starts, 0.2).unwrap();
+        lanes.advance_by(20);
+        for (j, run) in alone.iter().enumerate() {
+            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
+            let bits = |s: &State<3>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
+            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
+            assert_eq!(lanes.kernel_steps(j), Some(18), "{simd:?}, member {j}");
+        }
+    }
+}
+
 /// McLachlan–Perlmutter starts: the fixed `q₀` with `v₀ = (0, β, 0, …)`
 /// (consistent: `k = v₁ + q₅v₅ + q₆v₆ + q₇v₇`).
 fn mp_starts(members: usize) -> Vec<State<7>> {

@@ -441,6 +441,14 @@ where
                     return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
                 }
                 prev_update = update;
+                if simplified && k == 0 && fresh && Self::affine_rule(decoupled).is_some_and(|n| n.closed_affine_cover)
+                {
+                    // The first update solved the groups of a closed affine
+                    // cover exactly: on factors at this iterate, the next
+                    // update is accepted by `lands_on_solution`.
+                    refresh = true;
+                    prev_update = f64::NAN;
+                }
             }
             Err(StepError::MaxIterations { t, h, history: Box::new(self.history) })
         };

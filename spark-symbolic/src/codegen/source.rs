@@ -75,7 +75,8 @@ pub(super) fn descriptive_consts(rt: &TokenStream, spec: &SystemSpec, model: &Mo
 /// coordinates whose position enters the force or the constraint force
 /// ([`Nonlinearity`]).
 fn nonlinearity_const(rt: &TokenStream, model: &Model) -> TokenStream {
-    let Nonlinearity { pairs, stiffness_columns, constraint_force_columns } = Nonlinearity::of(model);
+    let Nonlinearity { pairs, closed_affine_cover, stiffness_columns, constraint_force_columns } =
+        Nonlinearity::of(model);
     let (a, b): (Vec<_>, Vec<_>) =
         pairs.into_iter().map(|(a, b)| (Literal::u32_unsuffixed(a), Literal::u32_unsuffixed(b))).unzip();
     let stiffness = stiffness_columns.into_iter().map(Literal::u32_unsuffixed);
@@ -83,6 +84,7 @@ fn nonlinearity_const(rt: &TokenStream, model: &Model) -> TokenStream {
     quote! {
         const NONLINEARITY: ::core::option::Option<#rt::Nonlinearity> = ::core::option::Option::Some(#rt::Nonlinearity {
             pairs: &[#((#a, #b)),*],
+            closed_affine_cover: #closed_affine_cover,
             stiffness_columns: &[#(#stiffness),*],
             constraint_force_columns: &[#(#constraint_force),*],
         });

@@ -68,6 +68,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
     };
     const NONLINEARITY: ::core::option::Option<::spark_runtime::Nonlinearity> = ::core::option::Option::Some(::spark_runtime::Nonlinearity {
         pairs: &[(0, 2), (1, 2), (2, 2), (2, 3)],
+        closed_affine_cover: true,
         stiffness_columns: &[],
         constraint_force_columns: &[2],
     });

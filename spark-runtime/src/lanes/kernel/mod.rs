@@ -10,9 +10,11 @@
 //! system with a constant mass matrix takes at almost every step: the
 //! starting guess extrapolated from the latest solutions, simplified Newton
 //! on the stage-decoupled matrix refreshed at the step's first iterate with
-//! the constraint Jacobians alone (`linalg::decoupled`, the lean refresh),
-//! the residual of eq. (6.1), the stopping rule of
-//! [`Contraction`](crate::step::Contraction), the compensated `q₁`, the
+//! the constraint Jacobians alone (`linalg::decoupled`, the lean refresh) —
+//! and at its second for a system with a closed affine cover
+//! ([`Nonlinearity`](crate::Nonlinearity)) —, the residual of eq. (6.1),
+//! the stopping rules of [`Contraction`](crate::step::Contraction) and of
+//! `step::affine_along`, the compensated `q₁`, the
 //! energy guard. So a lane's states are bit for bit those of its member
 //! stepped alone. Only the system's own functions run lane by lane.
 //!
@@ -145,8 +147,8 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// The update norm's weights `1/(1 + |z_i|)` at the iterate the step's
     /// first update leads to.
     weights: Box<[L<W>; D]>,
-    /// The step's first update, kept when the system's nonlinearity may
-    /// accept it (`step::affine_along`; empty otherwise).
+    /// The latest update on fresh factors, kept when the system's
+    /// nonlinearity may accept it (`step::affine_along`; empty otherwise).
     first_update: Box<[L<W>]>,
     y: Box<[L<W>]>,
     p0: Box<[L<W>; N]>,
@@ -388,22 +390,30 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
         let affine = Stepper::<Sys, N, M, S, D>::affine_rule(true);
         // The prior of the stage-decoupled matrix only, as in `Stepper::newton`.
-        let mut monitor: [Contraction; W] =
-            std::array::from_fn(|w| Contraction::fresh(if self.rate[w].1 { self.rate[w].0 } else { f64::NAN }));
+        let fresh_monitor = |rate: (f64, bool)| Contraction::fresh(if rate.1 { rate.0 } else { f64::NAN });
+        let mut monitor: [Contraction; W] = std::array::from_fn(|w| fresh_monitor(self.rate[w]));
         let mut prev_update = [f64::NAN; W];
+        // As the stepper, a closed affine cover refreshes the factors after
+        // a first update that did not end the solve (every lane still
+        // iterating then is such a lane).
+        let refresh_after_first = affine.is_some_and(|n| n.closed_affine_cover);
         for k in 0..max_iter {
+            let fresh = k == 0 || (k == 1 && refresh_after_first);
             self.stage_points(tab);
-            self.evaluate(sys, tab, t, &iterating, k == 0);
+            self.evaluate(sys, tab, t, &iterating, fresh);
             let poison = self.residual(tab);
             for w in 0..W {
                 if iterating[w] && poison[w] != 0.0 {
                     (iterating[w], out[w]) = (false, Outcome::HandBack);
                 }
             }
-            if k == 0 {
+            if fresh {
                 self.factor(tab, &mut iterating, &mut out);
+                if k > 0 {
+                    monitor = std::array::from_fn(|w| fresh_monitor(self.rate[w]));
+                }
             }
-            let update = self.solve_and_update(&iterating, k == 0);
+            let update = self.solve_and_update(&iterating, fresh);
             for w in 0..W {
                 if !iterating[w] {
                     continue;
@@ -413,7 +423,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 monitor[w].record(update);
                 let converged = monitor[w].converged(update, opts.tolerance);
                 // The stepper's test, asked only of a lane it could stop.
-                if k > 0 && !converged && update > opts.stagnation_level {
+                if !fresh && !converged && update > opts.stagnation_level {
                     let remaining = (max_iter - 1 - k) as i32;
                     if too_slow(&monitor[w], true, update, rate, remaining, opts.tolerance) {
                         (iterating[w], out[w]) = (false, Outcome::HandBack);
@@ -422,7 +432,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 let stop = if !update.is_finite() {
                     Some(Outcome::HandBack)
-                } else if converged || (k == 0 && self.first_update_lands(affine.as_ref(), w, opts.tolerance)) {
+                } else if converged || (fresh && self.first_update_lands(affine.as_ref(), w, opts.tolerance)) {
                     Some(Outcome::Stepped(k + 1))
                 } else if k > 0 && rate >= 1.0 {
                     Some(if update <= opts.stagnation_level { Outcome::Stepped(k + 1) } else { Outcome::HandBack })
@@ -431,6 +441,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 };
                 match stop {
                     Some(o) => (iterating[w], out[w]) = (false, o),
+                    // A refresh starts the ratios afresh.
+                    None if k == 0 && refresh_after_first => prev_update[w] = f64::NAN,
                     None => prev_update[w] = update,
                 }
             }
@@ -449,8 +461,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         out
     }
 
-    /// Whether lane `w`'s first update, on factors evaluated at the step's
-    /// first iterate, ends its solve as the stepper's would
+    /// Whether lane `w`'s latest update, on factors evaluated at the iterate
+    /// it started from, ends its solve as the stepper's would
     /// (`step::affine_along` on the stage-decoupled matrix).
     #[inline(always)]
     fn first_update_lands(&self, affine: Option<&crate::Nonlinearity>, w: usize, tolerance: f64) -> bool {
