@@ -90,8 +90,9 @@ pub struct Nonlinearity {
     /// affine in, and depend only on, its own groups. A Newton update with
     /// a matrix exact in those rows solves those groups exactly, so the next
     /// update, on factors evaluated at the new iterate, is accepted
-    /// ([`affine_along`](crate::Stepper::step)): simplified Newton refreshes
-    /// its factors after a first update that was not. It only steers the
+    /// ([`affine_along`](crate::Stepper::step)): simplified Newton on the
+    /// stage-decoupled matrix, whose refresh is cheap, refreshes its factors
+    /// after a first update that was not. It only steers the
     /// iteration: a wrong `true` costs a factorization, never accuracy.
     pub closed_affine_cover: bool,
     /// Coordinates `c` whose column of the stiffness `∂F/∂q` is not

@@ -419,7 +419,12 @@ where
     /// updates on the same frozen factors. Full Newton also stops, before
     /// it evaluates and factors a new Jacobian, when the residual at the
     /// new iterate solved with the previous iterate's factors is an update
-    /// within the tolerance (that update is applied). A converged step
+    /// within the tolerance (that update is applied). An update computed
+    /// with factors evaluated at the iterate it starts from also ends the
+    /// solve when the step's equations are affine along it: for every pair
+    /// of groups of unknowns in which the system's [`Nonlinearity`](crate::Nonlinearity)
+    /// (proved by `nonholonomic_system!`) says they are curved, one group
+    /// moved within the tolerance. A converged step
     /// agrees with the tightly converged solution of its equations to the
     /// tolerance in both modes.
     ///
