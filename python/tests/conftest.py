@@ -57,8 +57,16 @@ def interrupt_after_start(script: str, delay: float = 1.0, timeout: float = 60.0
     import signal
     import time
 
+    # The child starts with SIGINT at its default, so that Python installs
+    # its KeyboardInterrupt handler even where this test runs with SIGINT
+    # ignored (a job started with `&` by a non-interactive shell inherits
+    # that, and Python keeps an ignored SIGINT ignored).
     proc = subprocess.Popen(
-        [sys.executable, "-u", "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-u", "-c", script],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         line = proc.stdout.readline()
