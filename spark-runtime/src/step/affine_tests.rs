@@ -240,60 +240,24 @@ fn affine_updates_agree_with_confirmed_steps() {
     let mut failures = Vec::new();
     macro_rules! check {
         ($name:literal, $sys:expr, $start:expr, $h:expr, $n:literal, $m:literal, $min_few:expr) => {
+            // `(method, s, results)` for one method and stage count.
+            macro_rules! run {
+                ($method:expr, $s:literal) => {
+                    (
+                        $method,
+                        $s,
+                        against_confirmed::<_, $n, $m, $s, { $s * ($n + $m) + $n }>($sys, $method, $start, $h, 20),
+                    )
+                };
+            }
             let runs = [
-                (
-                    Method::Gauss,
-                    1,
-                    against_confirmed::<_, $n, $m, 1, { $n + $m + $n }>($sys, Method::Gauss, $start, $h, 20),
-                ),
-                (
-                    Method::Gauss,
-                    2,
-                    against_confirmed::<_, $n, $m, 2, { 2 * ($n + $m) + $n }>($sys, Method::Gauss, $start, $h, 20),
-                ),
-                (
-                    Method::Gauss,
-                    3,
-                    against_confirmed::<_, $n, $m, 3, { 3 * ($n + $m) + $n }>($sys, Method::Gauss, $start, $h, 20),
-                ),
-                (
-                    Method::Gauss,
-                    4,
-                    against_confirmed::<_, $n, $m, 4, { 4 * ($n + $m) + $n }>($sys, Method::Gauss, $start, $h, 20),
-                ),
-                (
-                    Method::LobattoIIIAB,
-                    2,
-                    against_confirmed::<_, $n, $m, 2, { 2 * ($n + $m) + $n }>(
-                        $sys,
-                        Method::LobattoIIIAB,
-                        $start,
-                        $h,
-                        20,
-                    ),
-                ),
-                (
-                    Method::LobattoIIIAB,
-                    3,
-                    against_confirmed::<_, $n, $m, 3, { 3 * ($n + $m) + $n }>(
-                        $sys,
-                        Method::LobattoIIIAB,
-                        $start,
-                        $h,
-                        20,
-                    ),
-                ),
-                (
-                    Method::LobattoIIIAB,
-                    4,
-                    against_confirmed::<_, $n, $m, 4, { 4 * ($n + $m) + $n }>(
-                        $sys,
-                        Method::LobattoIIIAB,
-                        $start,
-                        $h,
-                        20,
-                    ),
-                ),
+                run!(Method::Gauss, 1),
+                run!(Method::Gauss, 2),
+                run!(Method::Gauss, 3),
+                run!(Method::Gauss, 4),
+                run!(Method::LobattoIIIAB, 2),
+                run!(Method::LobattoIIIAB, 3),
+                run!(Method::LobattoIIIAB, 4),
             ];
             for (method, s, results) in runs {
                 for ((mode, jacobian, worst, few), [min_one, min_two]) in results.into_iter().zip($min_few) {
