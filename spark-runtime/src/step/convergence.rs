@@ -264,11 +264,32 @@ pub(crate) fn affine_along<const N: usize, const M: usize, const S: usize, const
     decoupled: bool,
     stiffness_kept: bool,
 ) -> bool {
-    // NaN counts as moved.
-    let moved_at = |i: usize| {
-        let scaled = update[i].abs() * weights[i];
-        scaled > tolerance || scaled.is_nan()
-    };
+    affine_along_by::<N, M, S>(
+        |i| moved_beyond(update[i], weights[i], tolerance),
+        nonlinearity,
+        decoupled,
+        stiffness_kept,
+    )
+}
+
+/// Whether an update entry `delta` with weight `weight` moved its unknown
+/// beyond `tolerance` ([`affine_along`]'s measure; NaN counts as moved).
+#[inline(always)]
+pub(crate) fn moved_beyond(delta: f64, weight: f64, tolerance: f64) -> bool {
+    let scaled = delta.abs() * weight;
+    scaled > tolerance || scaled.is_nan()
+}
+
+/// [`affine_along`] with the update read through `moved_at(i)`: whether
+/// unknown `i` moved beyond the tolerance ([`moved_beyond`]). The lane
+/// kernel reads its lanes' updates in place through it.
+#[inline]
+pub(crate) fn affine_along_by<const N: usize, const M: usize, const S: usize>(
+    moved_at: impl Fn(usize) -> bool,
+    nonlinearity: &Nonlinearity,
+    decoupled: bool,
+    stiffness_kept: bool,
+) -> bool {
     let moved = |group: u32| {
         let group = group as usize;
         if group < N {

@@ -37,8 +37,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::is_diagonal;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
-    affine_along, check_energy, energy_is_invariant, too_slow, two_sum_error_of, Contraction, EnergyAnchor,
-    LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
+    affine_along_by, check_energy, energy_is_invariant, moved_beyond, too_slow, two_sum_error_of, Contraction,
+    EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -467,9 +467,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     #[inline(always)]
     fn first_update_lands(&self, affine: Option<&crate::Nonlinearity>, w: usize, tolerance: f64) -> bool {
         let Some(nonlinearity) = affine else { return false };
-        let update = Vector::<D>::from_fn(|d, _| self.first_update[d][w]);
-        let weights = Vector::<D>::from_fn(|d, _| self.weights[d][w]);
-        affine_along::<N, M, S, D>(&update, &weights, tolerance, nonlinearity, true, self.stiffness_kept)
+        let moved_at = |d: usize| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance);
+        affine_along_by::<N, M, S>(moved_at, nonlinearity, true, self.stiffness_kept)
     }
 
     /// Lane `w` of the `N` values at `at` of `x`.
