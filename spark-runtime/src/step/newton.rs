@@ -448,9 +448,9 @@ where
                     // stage-decoupled matrix refreshes for it: its refresh
                     // is the constraint Jacobians and a small complement,
                     // where the exact matrix's is a Jacobian and a dense LU,
-                    // which costs more than the updates it saves (the
-                    // particle: 512 -> 576 ns at Gauss s = 1, 2817 -> 3671
-                    // at s = 4, docs/performance, "A closed affine cover").
+                    // which costs more than the updates it saves (measured in
+                    // docs/performance, "Updates along which the step's
+                    // equations are affine").
                     refresh = true;
                     prev_update = f64::NAN;
                 }
