@@ -92,7 +92,10 @@ pub struct Nonlinearity {
     /// update, on factors evaluated at the new iterate, is accepted
     /// ([`affine_along`](crate::Stepper::step)): simplified Newton on the
     /// stage-decoupled matrix, whose refresh is cheap, refreshes its factors
-    /// after a first update that was not. It only steers the
+    /// after a first update that was not, and when that update moved a
+    /// curved pair it starts the next step from the refreshed factors (any
+    /// factors of the matrix solve the cover's groups, whose rows are
+    /// constant), saving the factorization at its guess. It only steers the
     /// iteration: a wrong `true` costs a factorization, never accuracy.
     pub closed_affine_cover: bool,
     /// Coordinates `c` whose column of the stiffness `∂F/∂q` is not

@@ -76,6 +76,7 @@ where
             && o.mode == NewtonMode::Simplified
             && decoupled
             && !o.reuse_factorization
+            && !self.starts_stale(state, h, decoupled)
             && o.warm_start
             && self.exact_steps_left == 0
             && self.warm.as_ref().is_some_and(|w| w.h == h && w.depth >= 2)

@@ -168,6 +168,12 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// set) holds factors that simplified Newton may reuse on the next
     /// continuing step (`None`: evaluate afresh).
     reusable: Option<(f64, bool)>,
+    /// The latest solve's first update moved a pair of groups the equations
+    /// are curved in, on a system with a closed affine cover: a fresh first
+    /// update of the next step would not land either, so simplified Newton
+    /// on the stage-decoupled matrix starts it from the `reusable` factors
+    /// (see `Stepper::newton`).
+    cover_stale_first: bool,
     /// The system's parameter terms
     /// ([`NonholonomicSystem::parameter_terms`]), which the residual and the
     /// energy guard read instead of recomputing them at every evaluation
@@ -272,6 +278,7 @@ where
             exact_steps_left: 0,
             quadratic: f64::NAN,
             reusable: None,
+            cover_stale_first: false,
             anchor: None,
             history: NewtonHistory::default(),
             pattern_written: false,

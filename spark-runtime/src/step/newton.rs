@@ -307,9 +307,11 @@ where
         let mut decoupled = self.wants_decoupled() && self.exact_steps_left == 0;
         self.exact_steps_left = self.exact_steps_left.saturating_sub(1);
         // `stale`: the factors of this step's matrix come from an earlier step.
-        let stale =
-            simplified && opts.reuse_factorization && self.reusable == Some((h, decoupled)) && self.is_warm_for(state);
+        let stale = self.starts_stale(state, h, decoupled);
         self.reusable = None;
+        // Whether the next step starts from this one's factors (a closed
+        // affine cover whose first update does not land; see below).
+        let mut cover_stale_first = false;
         let mut refresh = !stale;
         // Iteration at which the current factors were computed, and whether
         // that was a refresh within this step (simplified Newton only).
@@ -441,16 +443,26 @@ where
                     return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
                 }
                 prev_update = update;
-                if decoupled && k == 0 && fresh && Self::affine_rule(true).is_some_and(|n| n.closed_affine_cover) {
+                if decoupled && k == 0 && Self::affine_rule(true).is_some_and(|n| n.closed_affine_cover) {
                     // The first update solved the groups of a closed affine
-                    // cover exactly: on factors at this iterate, the next
-                    // update is accepted by `lands_on_solution`. Only the
-                    // stage-decoupled matrix refreshes for it: its refresh
-                    // is the constraint Jacobians and a small complement,
-                    // where the exact matrix's is a Jacobian and a dense LU,
-                    // which costs more than the updates it saves (measured in
+                    // cover exactly — on any factors of this matrix, whose
+                    // rows for those groups are constant —, so on factors at
+                    // this iterate the next update is accepted by
+                    // `lands_on_solution`. Only the stage-decoupled matrix
+                    // refreshes for it: its refresh is the constraint
+                    // Jacobians and a small complement, where the exact
+                    // matrix's is a Jacobian and a dense LU, which costs more
+                    // than the updates it saves (measured in
                     // docs/performance, "Updates along which the step's
                     // equations are affine").
+                    //
+                    // A fresh first update that did not land moved a curved
+                    // pair; so did a stale one that would not have landed on
+                    // fresh factors. The next step's first update, from a
+                    // guess as far off, will too, and cannot land: it starts
+                    // from this refresh's factors instead of factoring at its
+                    // guess.
+                    cover_stale_first = fresh || !self.lands_on_solution(&g, &weights, decoupled);
                     refresh = true;
                     prev_update = f64::NAN;
                 }
@@ -459,6 +471,7 @@ where
         };
         if result.is_ok() {
             self.remember_solve(simplified && max_rate <= REUSE_RATE, h, decoupled);
+            self.cover_stale_first = cover_stale_first;
         }
         let rate = (if simplified { monitor.observed() } else { f64::NAN }, decoupled);
         result.map(|()| Solved { factorizations, rate })
@@ -518,6 +531,19 @@ where
     /// force terms of some columns dropped (`DECOUPLES`).
     pub(crate) fn affine_rule(decoupled: bool) -> Option<crate::Nonlinearity> {
         Sys::NONLINEARITY.filter(|_| !decoupled || Self::DECOUPLES)
+    }
+
+    /// Whether simplified Newton starts a step from `state` with size `h`
+    /// on the factors of the previous step (on the stage-decoupled matrix
+    /// when `decoupled`): with [`NewtonOptions::reuse_factorization`], or
+    /// for a closed affine cover whose previous first update moved a curved
+    /// pair (`cover_stale_first`), when that step left factors of this kind
+    /// and size and the step continues it warm.
+    pub(crate) fn starts_stale(&self, state: &State<N>, h: f64, decoupled: bool) -> bool {
+        self.options.mode == NewtonMode::Simplified
+            && (self.options.reuse_factorization || (decoupled && self.cover_stale_first))
+            && self.reusable == Some((h, decoupled))
+            && self.is_warm_for(state)
     }
 
     /// What a converged solve leaves for the next step: simplified Newton's

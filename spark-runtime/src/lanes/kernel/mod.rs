@@ -10,9 +10,8 @@
 //! system with a constant mass matrix takes at almost every step: the
 //! starting guess extrapolated from the latest solutions, simplified Newton
 //! on the stage-decoupled matrix refreshed at the step's first iterate with
-//! the constraint Jacobians alone (`linalg::decoupled`, the lean refresh) —
-//! and at its second for a system with a closed affine cover
-//! ([`Nonlinearity`](crate::Nonlinearity)) —, the residual of eq. (6.1),
+//! the constraint Jacobians alone (`linalg::decoupled`, the lean refresh),
+//! the residual of eq. (6.1),
 //! the stopping rules of [`Contraction`](crate::step::Contraction) and of
 //! `step::affine_along`, the compensated `q₁`, the
 //! energy guard. So a lane's states are bit for bit those of its member
@@ -20,7 +19,9 @@
 //!
 //! Where the stepper would decide something the kernel does not repeat — a
 //! contraction too slow for the stage-decoupled matrix, a singular matrix,
-//! a non-finite residual, the iteration limit, an energy drift — the
+//! a non-finite residual, the iteration limit, an energy drift, the
+//! refresh after a first update of a closed affine cover
+//! ([`Nonlinearity`](crate::Nonlinearity)) that did not land — the
 //! kernel hands the lane's step back ([`Outcome::HandBack`]): its
 //! [`Stepper`](crate::Stepper) computes that step from the same
 //! continuation (`step::lane_handover`), and so reaches the same decision.
@@ -393,12 +394,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let fresh_monitor = |rate: (f64, bool)| Contraction::fresh(if rate.1 { rate.0 } else { f64::NAN });
         let mut monitor: [Contraction; W] = std::array::from_fn(|w| fresh_monitor(self.rate[w]));
         let mut prev_update = [f64::NAN; W];
-        // As the stepper, a closed affine cover refreshes the factors after
-        // a first update that did not end the solve (every lane still
-        // iterating then is such a lane).
-        let refresh_after_first = affine.is_some_and(|n| n.closed_affine_cover);
+        // A closed affine cover's first update that does not end the solve
+        // makes the stepper refresh its factors, and start its next step
+        // from them (`Stepper::starts_stale`): such a lane goes back to its
+        // stepper, which takes that step and the next ones alone.
+        let cover = affine.is_some_and(|n| n.closed_affine_cover);
         for k in 0..max_iter {
-            let fresh = k == 0 || (k == 1 && refresh_after_first);
+            let fresh = k == 0;
             self.stage_points(tab);
             self.evaluate(sys, tab, t, &iterating, fresh);
             let poison = self.residual(tab);
@@ -409,9 +411,6 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
             if fresh {
                 self.factor(tab, &mut iterating, &mut out);
-                if k > 0 {
-                    monitor = std::array::from_fn(|w| fresh_monitor(self.rate[w]));
-                }
             }
             let update = self.solve_and_update(&iterating, fresh);
             for w in 0..W {
@@ -441,8 +440,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 };
                 match stop {
                     Some(o) => (iterating[w], out[w]) = (false, o),
-                    // A refresh starts the ratios afresh.
-                    None if k == 0 && refresh_after_first => prev_update[w] = f64::NAN,
+                    None if fresh && cover => (iterating[w], out[w]) = (false, Outcome::HandBack),
                     None => prev_update[w] = update,
                 }
             }
