@@ -88,6 +88,33 @@ where
     runs
 }
 
+/// The members `starts` of one lane group of eight, Gauss s = 2, stepped
+/// 20 times in every build of the kernel (the baseline, AVX2 and AVX-512
+/// where the CPU has them): each member's end state must be bit for bit
+/// its solo run's. Returns, per build, the steps the kernel took of each
+/// member.
+fn every_build_bit_for_bit<Sys>(sys: Sys, starts: &[State<3>], h: f64) -> Vec<(super::kernel::Simd, Vec<usize>)>
+where
+    Sys: NonholonomicSystem<3, 1> + Clone,
+{
+    use super::kernel::Simd;
+    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+    let alone: Vec<_> = starts.iter().map(|s| solo::<_, 3, 1, 2, 11>(&sys, tab, fig84(), *s, h, 20, 0)).collect();
+    let mut kernel_steps = Vec::new();
+    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+        let mut lanes = LaneStepper::<_, 3, 1, 2, 11, 8>::new(sys.clone(), tab, fig84()).with_simd(simd);
+        lanes.start(starts, h).unwrap();
+        lanes.advance_by(20);
+        for (j, run) in alone.iter().enumerate() {
+            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
+            let bits = |s: &State<3>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
+            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
+        }
+        kernel_steps.push((simd, (0..starts.len()).map(|j| lanes.kernel_steps(j).unwrap()).collect()));
+    }
+    kernel_steps
+}
+
 /// A constant stiffness (the particle's `U = q₁² + q₂²`) couples the
 /// stages of the stage-decoupled matrix coordinate by coordinate: the
 /// kernel keeps the couplings as the steppers do, takes every step after
@@ -105,20 +132,8 @@ fn constant_stiffness_members_in_lanes_match_each_member_alone() {
     let runs = compare::<_, 3, 1, 4, 19>(Particle, Method::Gauss, fig84(), &starts, 0.2, 200, 0);
     assert!(runs.iter().all(|r| r.failure.is_none()));
     // Every build of the kernel (the solve of the stage blocks runs in it).
-    use super::kernel::Simd;
-    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
-    let alone: Vec<_> =
-        starts.iter().map(|s| solo::<_, 3, 1, 2, 11>(&Particle, tab, fig84(), *s, 0.2, 20, 0)).collect();
-    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
-        let mut lanes = LaneStepper::<Particle, 3, 1, 2, 11, 8>::new(Particle, tab, fig84()).with_simd(simd);
-        lanes.start(&starts, 0.2).unwrap();
-        lanes.advance_by(20);
-        for (j, run) in alone.iter().enumerate() {
-            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
-            let bits = |s: &State<3>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
-            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
-            assert_eq!(lanes.kernel_steps(j), Some(18), "{simd:?}, member {j}");
-        }
+    for (simd, kernel_steps) in every_build_bit_for_bit(Particle, &starts, 0.2) {
+        assert!(kernel_steps.iter().all(|&k| k == 18), "{simd:?}: {kernel_steps:?} steps in the kernel");
     }
 }
 
@@ -160,19 +175,9 @@ fn a_closed_affine_cover_in_lanes_steps_as_alone() {
     }
     compare::<_, 3, 1, 1, 7>(sys, Method::Gauss, fig84(), &starts, 0.2, 100, 0);
     compare::<_, 3, 1, 3, 15>(sys, Method::Gauss, fig84(), &starts, 0.2, 100, 0);
-    use super::kernel::Simd;
-    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
-    let alone: Vec<_> = starts.iter().map(|s| solo::<_, 3, 1, 2, 11>(&sys, tab, fig84(), *s, 0.2, 20, 0)).collect();
-    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
-        let mut lanes = LaneStepper::<_, 3, 1, 2, 11, 8>::new(sys, tab, fig84()).with_simd(simd);
-        lanes.start(&starts, 0.2).unwrap();
-        lanes.advance_by(20);
-        for (j, run) in alone.iter().enumerate() {
-            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
-            let bits = |s: &State<3>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
-            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
-            let kernel = if at_rest_in_y(j) { 18 } else { 0 };
-            assert_eq!(lanes.kernel_steps(j), Some(kernel), "{simd:?}, member {j}");
+    for (simd, kernel_steps) in every_build_bit_for_bit(sys, &starts, 0.2) {
+        for (j, k) in kernel_steps.into_iter().enumerate() {
+            assert_eq!(k, if at_rest_in_y(j) { 18 } else { 0 }, "{simd:?}, member {j}");
         }
     }
 }
@@ -197,20 +202,9 @@ fn a_closed_affine_cover_that_stops_landing_leaves_the_kernel() {
     let starts: Vec<_> = (0..6)
         .map(|j| State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.3 + 0.1 * j as f64, 0.0, 0.0)))
         .collect();
-    let sys = PushedParticle::default();
-    use super::kernel::Simd;
-    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
-    let alone: Vec<_> = starts.iter().map(|s| solo::<_, 3, 1, 2, 11>(&sys, tab, fig84(), *s, 0.2, 20, 0)).collect();
-    for simd in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
-        let mut lanes = LaneStepper::<_, 3, 1, 2, 11, 8>::new(sys, tab, fig84()).with_simd(simd);
-        lanes.start(&starts, 0.2).unwrap();
-        lanes.advance_by(20);
-        for (j, run) in alone.iter().enumerate() {
-            let (lane, solo) = (lanes.state(j).unwrap(), run.samples.last().unwrap());
-            let bits = |s: &State<3>| (s.t.to_bits(), s.q.map(f64::to_bits), s.v.map(f64::to_bits));
-            assert!(bits(lane) == bits(solo), "{simd:?}, member {j}: {lane:?} in the lane, {solo:?} alone");
-            let kernel = lanes.kernel_steps(j).unwrap();
-            assert!((1..18).contains(&kernel), "{simd:?}, member {j}: {kernel} steps in the kernel");
+    for (simd, kernel_steps) in every_build_bit_for_bit(PushedParticle::default(), &starts, 0.2) {
+        for (j, k) in kernel_steps.into_iter().enumerate() {
+            assert!((1..18).contains(&k), "{simd:?}, member {j}: {k} steps in the kernel");
         }
     }
 }
