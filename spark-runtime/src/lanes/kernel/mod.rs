@@ -391,8 +391,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let max_iter = opts.max_iterations.clamp(1, HISTORY_CAPACITY);
         let affine = Stepper::<Sys, N, M, S, D>::affine_rule(true);
         // The prior of the stage-decoupled matrix only, as in `Stepper::newton`.
-        let fresh_monitor = |rate: (f64, bool)| Contraction::fresh(if rate.1 { rate.0 } else { f64::NAN });
-        let mut monitor: [Contraction; W] = std::array::from_fn(|w| fresh_monitor(self.rate[w]));
+        let mut monitor: [Contraction; W] =
+            std::array::from_fn(|w| Contraction::fresh(if self.rate[w].1 { self.rate[w].0 } else { f64::NAN }));
         let mut prev_update = [f64::NAN; W];
         // A closed affine cover's first update that does not end the solve
         // makes the stepper refresh its factors, and start its next step
