@@ -239,6 +239,38 @@ impl Graph {
         self.intern(Node::Var(var))
     }
 
+    /// For every node, `true` if it is or contains a constant that is not a
+    /// finite number. Folding can make one (`1e308·1e308`, or the
+    /// coefficient `1e300·1e300` of the second derivative of `x^1e300`);
+    /// generated code cannot write it, so a model refuses any expression
+    /// that reaches one. One pass: operands precede the nodes using them.
+    pub fn nonfinite_nodes(&self) -> Vec<bool> {
+        let mut bad = vec![false; self.nodes.len()];
+        for (i, node) in self.nodes.iter().enumerate() {
+            bad[i] = match node {
+                Node::Const(bits) => !f64::from_bits(*bits).is_finite(),
+                Node::Var(_) => false,
+                Node::Add(xs) | Node::Mul(xs) | Node::Call(_, xs) => xs.iter().any(|x| bad[x.index()]),
+                Node::Pow(b, e) => bad[b.index()] || bad[e.index()],
+            };
+        }
+        bad
+    }
+
+    /// `true` if `id` is a constant that is not a finite number, or an
+    /// operation with such a constant among its operands (where folding puts
+    /// a number that overflowed: the leading coefficient of a product, the
+    /// constant term of a sum).
+    pub fn has_nonfinite_operand(&self, id: NodeId) -> bool {
+        let nonfinite = |x: &NodeId| self.as_const(*x).is_some_and(|v| !v.is_finite());
+        match self.node(id) {
+            Node::Const(_) => nonfinite(&id),
+            Node::Var(_) => false,
+            Node::Add(xs) | Node::Mul(xs) | Node::Call(_, xs) => xs.iter().any(nonfinite),
+            Node::Pow(b, e) => nonfinite(b) || nonfinite(e),
+        }
+    }
+
     /// `true` if `id` depends on the variable `var` (exact, by traversal).
     pub fn depends_on(&self, id: NodeId, var: Var) -> bool {
         if !self.deps(id).any(var.dep()) {

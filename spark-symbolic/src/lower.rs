@@ -167,9 +167,18 @@ pub(crate) const DIVISION_BY_ZERO: &str =
      so the quotient is infinite wherever it is evaluated; correct the denominator (e.g. `m/2` rather than \
      `m/(2 - 2)`) or remove the division";
 
-/// Constant operands whose result could not be folded mean the value is not
-/// a finite number: say so at the operator instead of emitting `inf`/`NaN`.
+/// Constant operands whose result could not be folded, or a folded number
+/// that overflowed (`1e308*1e308*x`), mean the value is not a finite number:
+/// say so at the operator instead of emitting `inf`/`NaN`.
 fn check_finite(g: &Graph, args: &[NodeId], r: NodeId, span: proc_macro2::Span) -> Result<(), SpecError> {
+    if g.has_nonfinite_operand(r) {
+        return Err(SpecError {
+            span,
+            message: "this expression folds to a number beyond the range of f64 (±1.8e308), so the generated code \
+                      would compute `inf` or `NaN` here; use smaller constants (rescale the units)"
+                .into(),
+        });
+    }
     if args.iter().all(|&a| g.as_const(a).is_some()) && g.as_const(r).is_none() {
         return Err(SpecError {
             span,

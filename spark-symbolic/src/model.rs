@@ -650,7 +650,7 @@ impl Model {
         let events_t: Vec<NodeId> = events.iter().map(|&x| d.diff(&mut g, x, Var::Time)).collect();
         let events_q = jacobian(&mut g, &mut d, &events, &qs);
         let events_v = jacobian(&mut g, &mut d, &events, &vs);
-        Ok(Model {
+        let model = Model {
             graph: g,
             n,
             m,
@@ -685,6 +685,93 @@ impl Model {
             events_t,
             events_q,
             events_v,
-        })
+        };
+        model.reject_nonfinite(spec)?;
+        Ok(model)
+    }
+
+    /// Refuses a model whose derivatives hold a number beyond the range of
+    /// f64: differentiation multiplies exponents into coefficients, so a
+    /// finite declaration such as `x^1e300` has the coefficient
+    /// `1e300·(1e300 − 1) = inf` in its second derivative, which generated
+    /// code cannot write. The error points at the expression whose
+    /// derivatives overflow.
+    fn reject_nonfinite(&self, spec: &SystemSpec) -> Result<(), SpecError> {
+        let bad = self.graph.nonfinite_nodes();
+        let some = |ids: &[NodeId]| ids.iter().any(|x| bad[x.index()]);
+        let matrix = |m: &NodeMatrix| m.iter().any(|row| some(row));
+        let row = |m: &NodeMatrix, i: usize| m.get(i).is_some_and(|row| some(row));
+        let at = |ids: &[NodeId], i: usize| ids.get(i).is_some_and(|x| bad[x.index()]);
+        let refuse = |span: Span, what: &str| SpecError {
+            span,
+            message: format!(
+                "differentiating {what} gives a number beyond the range of f64 (±1.8e308): the derivatives \
+                 multiply exponents and constants into their coefficients (the second derivative of `x^1e300` \
+                 has the coefficient 1e300·(1e300 − 1)), so the generated code would compute `inf` or `NaN`; \
+                 use smaller exponents and constants (rescale the units)"
+            ),
+        };
+        if some(&[self.lagrangian, self.energy, self.lagrangian_t])
+            || [&self.momentum, &self.force, &self.momentum_t, &self.force_t].into_iter().any(|v| some(v))
+            || [&self.momentum_q, &self.mass, &self.force_q, &self.force_v].into_iter().any(matrix)
+        {
+            return Err(refuse(first_token(&spec.lagrangian), "the Lagrangian"));
+        }
+        for (j, c) in spec.constraints.iter().enumerate() {
+            if at(&self.constraint, j)
+                || at(&self.constraint_t, j)
+                || row(&self.constraint_q, j)
+                || row(&self.constraint_v, j)
+            {
+                return Err(refuse(c.span, &format!("constraint {}", j + 1)));
+            }
+        }
+        if some(&self.constraint_force)
+            || some(&self.holonomic)
+            || matrix(&self.constraint_force_q)
+            || matrix(&self.constraint_force_v)
+        {
+            // The force −Kᵀψ mixes the rows: find the row whose own second
+            // derivatives (or position-level form) overflow, on a copy.
+            let holonomic_row =
+                |k: usize| (0..spec.constraints.len()).filter(|&j| spec.constraints[j].holonomic).nth(k);
+            let mut g = self.graph.clone();
+            let mut d = Differentiator::new();
+            let vars: Vec<Var> = (0..self.n as u32).flat_map(|i| [Var::Q(i), Var::V(i)]).collect();
+            let row = (0..self.m)
+                .find(|&j| {
+                    let kv = self.constraint_v.get(j).cloned().unwrap_or_default();
+                    let second = jacobian(&mut g, &mut d, &kv, &vars);
+                    let bad = g.nonfinite_nodes();
+                    second.iter().flatten().any(|x| bad[x.index()])
+                })
+                .or_else(|| self.holonomic.iter().position(|x| bad[x.index()]).and_then(holonomic_row));
+            return Err(match row.and_then(|j| spec.constraints.get(j).map(|c| (j, c))) {
+                Some((j, c)) => refuse(c.span, &format!("constraint {}", j + 1)),
+                None => refuse(spec.constraints.first().map_or(spec.name.span(), |c| c.span), "the constraints"),
+            });
+        }
+        let forces = |source: &[Option<SrcExpr>], values: &[NodeId], matrices: &[&NodeMatrix]| match (0..values.len())
+            .find(|&i| at(values, i) || matrices.iter().any(|m| row(m, i)))
+        {
+            Some(i) => {
+                let span = source.get(i).and_then(Option::as_ref).map_or(spec.name.span(), first_token);
+                Err(refuse(span, "this force"))
+            }
+            None => Ok(()),
+        };
+        forces(&spec.external_force, &self.external_force, &[&self.external_force_q, &self.external_force_v])?;
+        forces(
+            &spec.nonideal_force,
+            &self.nonideal_force,
+            &[&self.nonideal_force_q, &self.nonideal_force_v, &self.nonideal_force_psi],
+        )?;
+        for (i, e) in spec.events.iter().enumerate() {
+            if at(&self.events, i) || at(&self.events_t, i) || row(&self.events_q, i) || row(&self.events_v, i) {
+                return Err(refuse(first_token(&e.expr), &format!("event `{}`", e.name.name)));
+            }
+        }
+        // Anything else code generation reads was built from the above.
+        Ok(())
     }
 }

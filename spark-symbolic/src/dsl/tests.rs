@@ -560,6 +560,57 @@ fn divisions_by_a_denominator_that_simplifies_to_zero_are_errors_at_the_slash() 
     assert!(crate::generate(&parse_str("struct A { coordinates: [x], lagrangian: dot(x)^2/(2 - x) }").unwrap()).is_ok());
 }
 
+/// A number beyond the range of f64, folded from finite literals
+/// (`1e308*1e308`) or made by differentiation (the coefficient
+/// `1e300·(1e300 − 1)` of the second derivative of `x^1e300`), is an error
+/// at the operator or the expression whose derivatives overflow, from
+/// `generate` and `analyze` alike; code generation never sees it (writing
+/// `inf` as a literal panics).
+#[test]
+fn numbers_that_overflow_when_folded_or_differentiated_are_errors() {
+    let base = "coordinates: [x, y], parameters: { m = 1 }, lagrangian: m/2*(dot(x)^2 + dot(y)^2)";
+    let folded = [
+        "struct A { coordinates: [x], lagrangian: dot(x)^2/2 + 1e308*1e308*x }".to_string(),
+        "struct A { coordinates: [x], lagrangian: dot(x)^2/2 + 1e308*x*1e308 }".to_string(),
+        "struct A { coordinates: [x], lagrangian: dot(x)^2/2 + (1e308 + 1e308)*x }".to_string(),
+        format!("struct A {{ {base}, constraints: [1e308*dot(x)*1e308 - dot(y)] }}"),
+        format!("struct A {{ {base}, forces: {{ x: 1e200*y*1e200 }} }}"),
+    ];
+    for src in &folded {
+        let (msg, at) = generate_error(src);
+        assert!(msg.starts_with("this expression folds to a number beyond the range of f64"), "{src}: {msg}");
+        assert!(at == "*" || at == "+", "{src}: {msg} at {at}");
+    }
+    let differentiated = [
+        ("struct A { coordinates: [x], lagrangian: dot(x)^2/2 + x^1e300 }".to_string(), "the Lagrangian", "dot"),
+        ("struct A { coordinates: [x], lagrangian: dot(x)^2/2 + x^1e160*dot(x) }".to_string(), "the Lagrangian", "dot"),
+        ("struct A { coordinates: [x], lagrangian: (dot(x)^2)^1e200 }".to_string(), "the Lagrangian", "dot"),
+        (format!("struct A {{ {base}, constraints: [dot(x)^1e300 - dot(y)] }}"), "constraint 1", "dot"),
+        (format!("struct A {{ {base}, forces: {{ x: y^1e300*1e300 }} }}"), "this force", "y"),
+    ];
+    for (src, what, at_expected) in &differentiated {
+        let (msg, at) = generate_error(src);
+        assert!(
+            msg.starts_with(&format!("differentiating {what} gives a number beyond the range of f64")),
+            "{src}: {msg}"
+        );
+        assert!(at.starts_with(at_expected), "{src}: {msg} at {at}");
+        let spec = parse_str(src).unwrap();
+        assert!(crate::analyze(&spec).is_err(), "{src}");
+    }
+    for src in folded.iter().chain(differentiated.iter().map(|d| &d.0)) {
+        let out = crate::expand(src.parse().unwrap()).to_string();
+        assert!(out.contains("compile_error"), "{src}: {out}");
+    }
+    // Large but finite coefficients stay accepted.
+    for src in [
+        "struct A { coordinates: [x], lagrangian: dot(x)^2/2 + x^1e150 }",
+        "struct A { coordinates: [x], lagrangian: 1e300*dot(x)^2 + 1e300*x^3 }",
+    ] {
+        assert!(crate::generate(&parse_str(src).unwrap()).is_ok(), "{src}");
+    }
+}
+
 /// Messages that name the actual mistake: a missing `,` (between sections,
 /// inside a list, between entries), a number written `.5`, and section names
 /// including `effects` and `scenes`.
