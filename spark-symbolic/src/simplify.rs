@@ -9,7 +9,8 @@
 //! - powers: `x·x = x²`, `x^a·x^b = x^(a+b)`, `(x^a)^n = x^(a·n)` and
 //!   `(x·y)^n = x^n·y^n` for integer `n`;
 //! - `ln(exp x) = x`, `exp(ln x) = x`;
-//! - a number times a sum is distributed: `2(x + y) = 2x + 2y`.
+//! - a number times a sum is distributed: `2(x + y) = 2x + 2y` (unless a
+//!   coefficient would overflow).
 //!
 //! Nothing else is distributed or expanded, so that shared subexpressions stay
 //! shared.
@@ -194,9 +195,20 @@ impl Graph {
             return self.constant(coef);
         }
         if coef != 1.0 && out.len() == 1 {
-            if let Node::Add(terms) = self.node(out[0]).clone() {
-                // A number times a sum is distributed (as SymPy does), so
-                // that `−(−a − b)` reads `a + b` and like terms meet.
+            let sum = match self.node(out[0]) {
+                Node::Add(terms) => Some(terms.clone()),
+                _ => None,
+            };
+            // A number times a sum is distributed (as SymPy does), so that
+            // `−(−a − b)` reads `a + b` and like terms meet; not where a
+            // term's coefficient would overflow (`1e10·(1e300 − x)`), which
+            // would put a number that is not finite into the graph.
+            let leading = |t: &NodeId| match self.node(*t) {
+                Node::Const(bits) => f64::from_bits(*bits),
+                Node::Mul(xs) => self.as_const(xs[0]).unwrap_or(1.0),
+                _ => 1.0,
+            };
+            if let Some(terms) = sum.filter(|terms| terms.iter().all(|t| (coef * leading(t)).is_finite())) {
                 let c = self.constant(coef);
                 let scaled: Vec<NodeId> = terms.iter().map(|&t| self.mul(&[c, t])).collect();
                 return self.add(&scaled);

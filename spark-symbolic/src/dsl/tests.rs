@@ -611,6 +611,70 @@ fn numbers_that_overflow_when_folded_or_differentiated_are_errors() {
     }
 }
 
+/// Expressions over `x`, `y`, `th`, their velocities, `t`, the parameter `m`
+/// and numbers at the edges of f64 (huge, tiny, subnormal), with every
+/// operator and function.
+fn arb_extreme_expr() -> impl Strategy<Value = String> {
+    let numbers = ["0", "1", "0.5", "3", "1e9", "1e16", "1e155", "1e200", "1e300", "1e308", "1e-308", "4.9e-324"];
+    let leaf = prop_oneof![
+        prop::sample::select(vec!["x", "y", "th", "dot(x)", "dot(y)", "dot(th)", "t", "m", "pi"]),
+        prop::sample::select(numbers.to_vec()),
+    ]
+    .prop_map(str::to_string);
+    leaf.prop_recursive(5, 48, 2, |inner| {
+        prop_oneof![
+            (inner.clone(), inner.clone(), prop::sample::select(vec!["+", "-", "*", "/", "^"]))
+                .prop_map(|(a, b, o)| format!("({a}) {o} ({b})")),
+            inner.clone().prop_map(|a| format!("-({a})")),
+            (
+                inner.clone(),
+                prop::sample::select(vec!["sqrt", "exp", "ln", "sin", "cos", "tan", "atan", "sinh", "tanh"])
+            )
+                .prop_map(|(a, f)| format!("{f}({a})")),
+            (inner.clone(), inner).prop_map(|(a, b)| format!("atan2({a}, {b})")),
+        ]
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 1024, ..ProptestConfig::default() })]
+
+    /// Whatever numbers a declaration folds or its derivatives multiply
+    /// together, the macro and the analysis Python's `spark.compile` runs
+    /// return code or an error, never panic (a number beyond f64 written as
+    /// a literal would).
+    #[test]
+    fn declarations_with_extreme_numbers_never_panic(
+        lagrangian in arb_extreme_expr(),
+        constraint in arb_extreme_expr(),
+        force in arb_extreme_expr(),
+        event in arb_extreme_expr(),
+    ) {
+        let src = format!(
+            "struct S {{ coordinates: [x, y, th], parameters: {{ m = 1 }}, \
+             lagrangian: m/2*(dot(x)^2 + dot(y)^2 + dot(th)^2) + {lagrangian}, constraints: [{constraint}], \
+             forces: {{ y: {force} }}, events: {{ e: rising({event}) }} }}"
+        );
+        let tokens: TokenStream = src.parse().expect("generated source lexes");
+        let _ = crate::expand(tokens.clone());
+        if let Ok(spec) = parse(tokens) {
+            let _ = crate::analyze(&spec);
+        }
+    }
+}
+
+/// A number times a sum is not distributed where a coefficient would
+/// overflow: code generation regroups products (`c·(1e300 − θ)` as a
+/// prefix of a longer product), and distributing there made `inf`.
+#[test]
+fn regrouped_products_do_not_distribute_into_an_overflow() {
+    let src = "struct S { coordinates: [x, y, th], lagrangian: (dot(x)^2 + dot(y)^2 + dot(th)^2)/2, \
+               constraints: [atan2(dot(th), 1e9) / atan2(dot(x), (1e300 - th) / dot(y))] }";
+    let spec = parse_str(src).unwrap();
+    assert!(crate::generate(&spec).is_ok());
+    assert!(crate::analyze(&spec).is_ok());
+}
+
 /// Messages that name the actual mistake: a missing `,` (between sections,
 /// inside a list, between entries), a number written `.5`, and section names
 /// including `effects` and `scenes`.
