@@ -119,6 +119,61 @@ mod plot {
         assert!(err.to_string().contains("log scale"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
+
+    /// Values near the end of f64's range (a run from `--q0 1.7e308,0,0`)
+    /// are left out of the figures with a note in the legend: plotters
+    /// loops forever on an axis spanning about 1e307 or more. The figures
+    /// are drawn on a thread, so that a hang fails the test instead of
+    /// stalling it.
+    #[test]
+    fn values_near_the_end_of_the_f64_range_do_not_hang_the_figures() {
+        let dir = std::env::temp_dir().join(format!("spark-plot-huge-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (done, finished) = std::sync::mpsc::channel();
+        let d = dir.clone();
+        std::thread::spawn(move || {
+            let huge = |y0: f64, y1: f64| vec![(0.0, y0), (0.1, y1)];
+            let panel = |series| Panel {
+                title: "q".into(),
+                x_label: "t".into(),
+                y_label: "q".into(),
+                x_scale: Scale::Linear,
+                y_scale: Scale::Linear,
+                series,
+            };
+            let fig = Figure {
+                title: "huge".into(),
+                panels: vec![
+                    panel(vec![Series::new("x", huge(0.0, 1.7e308)), Series::new("y", huge(0.0, 1.0))]),
+                    panel(vec![Series::new("x", huge(-1e308, 1e308)), Series::new("y", huge(0.0, 1.0))]),
+                ],
+                columns: 2,
+                panel_size: (300, 200),
+            };
+            let drawn = render_files(&fig, &d.join("f.png"), &d.join("f.svg"));
+            let scatter = Scatter {
+                title: "section".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                series: vec![Series::new("member 0", vec![(-1.7e308, 0.0), (1.7e308, 1.0), (0.0, 0.5)])],
+                size: (300, 200),
+            };
+            let scattered = render_scatter_files(&scatter, &d.join("s.png"), &d.join("s.svg"));
+            let only_huge =
+                Figure { panels: vec![panel(vec![Series::new("x", huge(1.7e308, -1.7e308))])], ..fig.clone() };
+            let empty = render_files(&only_huge, &d.join("e.png"), &d.join("e.svg"));
+            let _ = done.send((drawn, scattered, empty));
+        });
+        let (drawn, scattered, empty) =
+            finished.recv_timeout(std::time::Duration::from_secs(60)).expect("drawing finishes");
+        drawn.unwrap();
+        scattered.unwrap();
+        let svg = std::fs::read_to_string(dir.join("f.svg")).unwrap();
+        assert!(svg.contains("values beyond ±1e300 not drawn"), "the legend says what is left out");
+        let err = empty.unwrap_err().to_string();
+        assert!(err.contains("values beyond ±1e300 are not drawn"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
 
 mod format {

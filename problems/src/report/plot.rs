@@ -223,15 +223,36 @@ fn draw<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Finite points of a series that the axis scales can show.
+/// Largest magnitude drawn. plotters computes an axis's ticks from powers
+/// of ten of its span and loops forever once ten times the tick step
+/// overflows (an axis spanning about 1e307 or more); values beyond this
+/// limit are left out like non-finite ones.
+pub const DRAWABLE: f64 = 1e300;
+
+/// Finite points of a series that the axis scales can show, within
+/// [`DRAWABLE`].
 fn visible(points: &[(f64, f64)], xs: Scale, ys: Scale) -> Vec<(f64, f64)> {
     points
         .iter()
         .copied()
         .filter(|(x, y)| {
-            x.is_finite() && y.is_finite() && (xs == Scale::Linear || *x > 0.0) && (ys == Scale::Linear || *y > 0.0)
+            x.abs() <= DRAWABLE
+                && y.abs() <= DRAWABLE
+                && (xs == Scale::Linear || *x > 0.0)
+                && (ys == Scale::Linear || *y > 0.0)
         })
         .collect()
+}
+
+/// `label`, with a note when some finite points of `points` are beyond
+/// [`DRAWABLE`] and therefore not drawn.
+fn legend_label(label: &str, points: &[(f64, f64)]) -> String {
+    let beyond = |v: f64| v.is_finite() && v.abs() > DRAWABLE;
+    if points.iter().any(|&(x, y)| beyond(x) || beyond(y)) {
+        format!("{label} (values beyond ±1e300 not drawn)")
+    } else {
+        label.to_string()
+    }
 }
 
 /// Data range padded by 5 % (or widened around a constant).
@@ -321,7 +342,11 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
         y1 = y1.max(y);
     }
     if !x0.is_finite() {
-        let hint = if panel.y_scale == Scale::Log { " (log scale drops values ≤ 0)" } else { "" };
+        let hint = if panel.y_scale == Scale::Log {
+            " (log scale drops values ≤ 0; values beyond ±1e300 are not drawn)"
+        } else {
+            " (values beyond ±1e300 are not drawn)"
+        };
         return Err(PlotError::Empty { figure: figure.into(), panel: panel.title.clone(), hint }.to_string());
     }
     let (x0, x1) = if panel.x_scale == Scale::Log { range(x0, x1, Scale::Log) } else { (x0, x1.max(x0 + 1e-300)) };
@@ -359,13 +384,13 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
                     chart
                         .draw_series(DashedLineSeries::new(pts.iter().copied(), 6, 4, style))
                         .map_err(e)?
-                        .label(series.label.clone())
+                        .label(legend_label(&series.label, &series.points))
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
                 } else {
                     chart
                         .draw_series(LineSeries::new(pts.iter().copied(), style))
                         .map_err(e)?
-                        .label(series.label.clone())
+                        .label(legend_label(&series.label, &series.points))
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
                 }
             }
@@ -442,7 +467,8 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         y1 = y1.max(y);
     }
     if !x0.is_finite() {
-        return Err(PlotError::Empty { figure: fig.title.clone(), panel: fig.title.clone(), hint: "" }.to_string());
+        let hint = " (values beyond ±1e300 are not drawn)";
+        return Err(PlotError::Empty { figure: fig.title.clone(), panel: fig.title.clone(), hint }.to_string());
     }
     let (x0, x1) = range(x0, x1, Scale::Linear);
     let (y0, y1) = range(y0, y1, Scale::Linear);
@@ -471,7 +497,9 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         let drawn =
             chart.draw_series(pts.iter().map(|&p| Circle::new(p, 1, ShapeStyle::from(&color).filled()))).map_err(e)?;
         if k < SCATTER_LEGEND_ENTRIES {
-            drawn.label(series.label.clone()).legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+            drawn
+                .label(legend_label(&series.label, &series.points))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
         }
     }
     let corner = emptiest_corner(&data, (x0, x1, Scale::Linear), (y0, y1, Scale::Linear));
