@@ -57,6 +57,20 @@ fn multipliers_are_recorded_on_request_without_changing_the_run() {
 /// before any step (it would otherwise step until an allocation failure
 /// aborts the process), with the record interval that fits; the run at
 /// that interval passes the check.
+/// Every row of `report.md`'s table has two cells: the `|` of `max |E − E0|`,
+/// `max |k|` and `max |g|` is escaped, not a cell boundary.
+#[test]
+fn the_run_report_table_has_two_cells_in_every_row() {
+    let spec = RunSpec::paper(SystemKind::RodPendulumHand, Method::Gauss, 2, 0.05, 20);
+    let report = problems::run::run_report(&run(&spec, &|_| true).unwrap(), &spec);
+    let rows: Vec<&str> = report.lines().filter(|l| l.starts_with('|')).collect();
+    assert!(rows.len() > 8 && report.contains("max \\|g\\|"), "{report}");
+    for row in rows {
+        let boundaries = row.char_indices().filter(|&(i, c)| c == '|' && !row[..i].ends_with('\\')).count();
+        assert_eq!(boundaries, 3, "{row}");
+    }
+}
+
 #[test]
 fn a_record_that_would_not_fit_is_refused_before_any_step() {
     let huge = RunSpec { steps: 1 << 62, ..RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 20) };

@@ -581,8 +581,9 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
     let _ = writeln!(out, "# {} — {} s = {}\n", entry.name, result.method, result.stages);
     let _ = writeln!(out, "{} ({}, N = {}, M = {})\n", entry.description, entry.type_name, entry.n, entry.m);
     let _ = writeln!(out, "| quantity | value |\n|---|---|");
+    // A `|` inside a cell (`max |E − E0|`) is escaped, or it would end the cell.
     let row = |out: &mut String, k: &str, v: String| {
-        let _ = writeln!(out, "| {k} | {v} |");
+        let _ = writeln!(out, "| {} | {} |", k.replace('|', "\\|"), v.replace('|', "\\|"));
     };
     row(
         &mut out,
