@@ -174,15 +174,37 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
              use a later --t-end or a smaller --h"
         ));
     }
-    if (ratio - steps).abs() > WHOLE_STEPS_TOLERANCE * steps {
+    // Relative to the step count, capped at a thousandth of a step: beyond
+    // 10⁶ steps a relative tolerance alone would accept an interval half a
+    // step longer or shorter, and the run would end elsewhere than asked.
+    // The round-off of the division stays far below either (3e-16 × steps).
+    let tolerance = (WHOLE_STEPS_TOLERANCE * steps).min((16.0 * f64::EPSILON * steps).max(1e-3));
+    if (ratio - steps).abs() > tolerance {
         let (below, above) = (ratio.floor().max(1.0), ratio.ceil());
         return Err(format!(
-            "the interval from t0 = {t0:.6e} to --t-end {t_end:.6e} is {ratio:.6e} steps of --h {h:.6e}, not a whole \
-             number; use --t-end {:.6e} or {:.6e}, or --h {:.6e} ({above:.0} steps)",
-            t0 + below * h,
-            t0 + above * h,
-            (t_end - t0) / above,
+            "the interval from t0 = {} to --t-end {} is {} steps of --h {}, not a whole number; use --t-end {} or \
+             {}, or --h {} ({above:.0} steps)",
+            digits(t0),
+            digits(t_end),
+            digits(ratio),
+            digits(h),
+            digits(t0 + below * h),
+            digits(t0 + above * h),
+            digits((t_end - t0) / above),
         ));
     }
     Ok(steps as usize)
+}
+
+/// `x` in scientific notation with up to 15 significant digits and no
+/// trailing zeros (`3e-1` for `0.30000000000000004`, `5.00000001e7`): as
+/// many digits as tell nearby suggestions apart, without round-off noise.
+fn digits(x: f64) -> String {
+    let s = format!("{x:.14e}");
+    match s.split_once('e') {
+        Some((mantissa, exponent)) if mantissa.contains('.') => {
+            format!("{}e{exponent}", mantissa.trim_end_matches('0').trim_end_matches('.'))
+        }
+        _ => s,
+    }
 }
