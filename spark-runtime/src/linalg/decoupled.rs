@@ -624,30 +624,40 @@ fn schur_rows_inline<const N: usize, const M: usize, const S: usize>(
     x: &[f64],
     c_finite: bool,
 ) {
-    let sm = S * M;
-    for_each_constraint_block::<N, M, S>(c, c_nonzero, |r, i, c| {
-        for (k, x) in x[i * N * sm..(i + 1) * N * sm].chunks_exact(sm).enumerate() {
-            for d in 0..M {
-                let (ck, row) = (c[k * M + d], &mut rows[(r * M + d) * sm..(r * M + d + 1) * sm]);
-                if c_finite {
-                    // A zero entry of X (a structural zero of K) subtracts a
-                    // zero product: the entry, never −0 (it starts at +0 or
-                    // ±1, and a difference is −0 only from −0), keeps its
-                    // bits.
-                    for (s, xk) in row.iter_mut().zip(x) {
-                        *s -= ck * xk;
-                    }
-                } else {
-                    // An infinite entry of C times a zero entry of X would
-                    // be NaN: those products are left out.
-                    for (s, &xk) in row.iter_mut().zip(x) {
-                        let updated = *s - ck * xk;
-                        *s = if xk != 0.0 { updated } else { *s };
+    let (sm, nm) = (S * M, N * M);
+    // The blocks of `for_each_constraint_block`, walked here rather than
+    // through its closure: the loop over the blocks unrolls into one call
+    // per block, and in a binary with many steppers LLVM left the closure
+    // out of line (a call and its reloads per block).
+    for r in 0..S {
+        for i in 0..=S {
+            if !c_nonzero[r * (S + 1) + i] {
+                continue;
+            }
+            let c = &c[(r * (S + 1) + i) * nm..(r * (S + 1) + i + 1) * nm];
+            for (k, x) in x[i * N * sm..(i + 1) * N * sm].chunks_exact(sm).enumerate() {
+                for d in 0..M {
+                    let (ck, row) = (c[k * M + d], &mut rows[(r * M + d) * sm..(r * M + d + 1) * sm]);
+                    if c_finite {
+                        // A zero entry of X (a structural zero of K) subtracts a
+                        // zero product: the entry, never −0 (it starts at +0 or
+                        // ±1, and a difference is −0 only from −0), keeps its
+                        // bits.
+                        for (s, xk) in row.iter_mut().zip(x) {
+                            *s -= ck * xk;
+                        }
+                    } else {
+                        // An infinite entry of C times a zero entry of X would
+                        // be NaN: those products are left out.
+                        for (s, &xk) in row.iter_mut().zip(x) {
+                            let updated = *s - ck * xk;
+                            *s = if xk != 0.0 { updated } else { *s };
+                        }
                     }
                 }
             }
         }
-    });
+    }
 }
 
 #[cfg(test)]
