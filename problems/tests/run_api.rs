@@ -53,10 +53,6 @@ fn multipliers_are_recorded_on_request_without_changing_the_run() {
     assert_eq!(bits(&with.psi[0]), bits(&psi));
 }
 
-/// A run or an ensemble whose record would not fit in memory is refused
-/// before any step (it would otherwise step until an allocation failure
-/// aborts the process), with the record interval that fits; the run at
-/// that interval passes the check.
 /// Every row of `report.md`'s table has two cells: the `|` of `max |E − E0|`,
 /// `max |k|` and `max |g|` is escaped, not a cell boundary.
 #[test]
@@ -69,6 +65,24 @@ fn the_run_report_table_has_two_cells_in_every_row() {
         let boundaries = row.char_indices().filter(|&(i, c)| c == '|' && !row[..i].ends_with('\\')).count();
         assert_eq!(boundaries, 3, "{row}");
     }
+}
+
+/// Numbers far from 1 print in scientific notation in `report.md`, as its
+/// other numbers do: an E0 of 5e299 is `5e299`, not 300 digits.
+#[test]
+fn the_run_report_prints_huge_and_tiny_numbers_in_scientific_notation() {
+    let mut spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 1e-300, 2);
+    spec.parameters = vec![("inertia".into(), 1e300)];
+    let result = run(&spec, &|_| true).unwrap();
+    assert_eq!(result.stats.e0, 5e299);
+    let report = problems::run::run_report(&result, &spec);
+    assert!(report.contains("| E0 | 5e299 |"), "{report}");
+    assert!(report.contains("inertia = 1e300") && report.contains("2 × 1e-300 (t = 0 … 2e-300)"), "{report}");
+    assert!(report.lines().all(|l| l.len() < 200), "{report}");
+    // Numbers near 1 keep their positional form.
+    let spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 2);
+    let report = problems::run::run_report(&run(&spec, &|_| true).unwrap(), &spec);
+    assert!(report.contains("| E0 | 0.5 |") && report.contains("2 × 0.1 (t = 0 … 0.2)"), "{report}");
 }
 
 /// An interval that is not a whole number of steps is refused however
@@ -85,6 +99,10 @@ fn an_interval_that_is_not_a_whole_number_of_steps_is_refused_at_any_length() {
     assert!(step_count(0.0, 5_000_000.05, 0.1).unwrap_err().contains("--t-end 5e6 or 5.0000001e6"));
 }
 
+/// A run or an ensemble whose record would not fit in memory is refused
+/// before any step (it would otherwise step until an allocation failure
+/// aborts the process), with the record interval that fits; the run at
+/// that interval passes the check.
 #[test]
 fn a_record_that_would_not_fit_is_refused_before_any_step() {
     let huge = RunSpec { steps: 1 << 62, ..RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 20) };

@@ -570,6 +570,17 @@ fn run_result<const N: usize, const M: usize>(
     }
 }
 
+/// `x` with every digit that tells it apart (shortest round trip), in
+/// scientific notation beyond `1e-4 ≤ |x| < 1e16`, where the positional
+/// form would run to hundreds of digits (`1e300`, not 301 digits).
+fn number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
 /// The report of one run as Markdown: the setting, the energy error, the
 /// constraint residual, the holonomic drift (for systems with holonomic
 /// constraints), Newton iterations and timing.
@@ -585,18 +596,19 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
     let row = |out: &mut String, k: &str, v: String| {
         let _ = writeln!(out, "| {} | {} |", k.replace('|', "\\|"), v.replace('|', "\\|"));
     };
+    let t_end = spec.t0 + s.steps as f64 * spec.h;
     row(
         &mut out,
         "steps × h",
-        format!("{} × {} (t = {} … {})", s.steps, spec.h, spec.t0, spec.t0 + s.steps as f64 * spec.h),
+        format!("{} × {} (t = {} … {})", s.steps, number(spec.h), number(spec.t0), number(t_end)),
     );
     if !spec.parameters.is_empty() {
-        let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {v}")).collect();
+        let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {}", number(*v))).collect();
         row(&mut out, "parameters set", p.join(", "));
     }
     row(&mut out, "q0", format!("{:?}", spec.q0));
     row(&mut out, "v0", format!("{:?}", spec.v0));
-    row(&mut out, "E0", format!("{}", s.e0));
+    row(&mut out, "E0", number(s.e0));
     let conserved = entry.structure.autonomous() && !entry.effects.does_work();
     row(
         &mut out,
