@@ -3,6 +3,7 @@
 //! are sound — the residual is affine along any update that moves no pair
 //! — and steps that end on such an update agree with steps that confirm it.
 
+use super::convergence::AffinePlan;
 use crate::fixtures::paper::Particle as HandWrittenParticle;
 use crate::{
     nonholonomic_system, Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepResult, Stepper,
@@ -328,4 +329,36 @@ fn a_closed_affine_cover_starts_from_the_refreshed_factors() {
     let (factorizations, updates) = work_per_step::<_, 3, 1, 2, 11>(AffineSkate::default(), s0, 0.1, 20);
     assert!(factorizations.iter().all(|&f| f == 1), "skate: {factorizations:?} factorizations");
     assert!(updates.iter().filter(|&&u| u == 1).count() >= 15, "skate: {updates:?} updates");
+}
+
+/// [`AffinePlan`]'s reading of the pairs and columns — each required group
+/// once, then the pairs none of them holds — against the pairs and columns
+/// read one by one (the plan of a system beyond 64 groups), for every set
+/// of moved groups of these systems, on all three matrices.
+fn check_plan<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize, const S: usize, const D: usize>() {
+    let nonlinearity = Sys::NONLINEARITY.expect("declared systems carry their pairs");
+    let groups = N + M;
+    for (decoupled, kept) in [(false, false), (true, false), (true, true)] {
+        let plan = AffinePlan::new::<N, M>(&nonlinearity, decoupled, kept);
+        let pair_by_pair = AffinePlan::new::<65, 0>(&nonlinearity, decoupled, kept);
+        assert_ne!(plan, pair_by_pair);
+        for moved in 0u64..1 << groups {
+            let moved_at = |i: usize| (moved >> group_of::<N, M, S>(i)) & 1 == 1;
+            assert_eq!(
+                super::convergence::affine_along_by::<N, M, S>(moved_at, &nonlinearity, &plan),
+                super::convergence::affine_along_by::<N, M, S>(moved_at, &nonlinearity, &pair_by_pair),
+                "{} moved groups {moved:b}, decoupled {decoupled}, stiffness kept {kept}",
+                std::any::type_name::<Sys>(),
+            );
+        }
+    }
+}
+
+#[test]
+fn the_affine_plan_reads_the_pairs_as_they_are() {
+    check_plan::<AffineSkate, 3, 1, 2, 11>();
+    check_plan::<AffineDisk, 4, 2, 3, 22>();
+    check_plan::<LinearOscillators, 3, 1, 1, 7>();
+    check_plan::<AffineParticle, 3, 1, 2, 11>();
+    check_plan::<CurvedEverywhere, 3, 1, 2, 11>();
 }

@@ -261,15 +261,9 @@ pub(crate) fn affine_along<const N: usize, const M: usize, const S: usize, const
     weights: &Vector<D>,
     tolerance: f64,
     nonlinearity: &Nonlinearity,
-    decoupled: bool,
-    stiffness_kept: bool,
+    plan: &AffinePlan,
 ) -> bool {
-    affine_along_by::<N, M, S>(
-        |i| moved_beyond(update[i], weights[i], tolerance),
-        nonlinearity,
-        decoupled,
-        stiffness_kept,
-    )
+    affine_along_by::<N, M, S>(|i| moved_beyond(update[i], weights[i], tolerance), nonlinearity, plan)
 }
 
 /// Whether an update entry `delta` with weight `weight` moved its unknown
@@ -282,13 +276,13 @@ pub(crate) fn moved_beyond(delta: f64, weight: f64, tolerance: f64) -> bool {
 
 /// [`affine_along`] with the update read through `moved_at(i)`: whether
 /// unknown `i` moved beyond the tolerance ([`moved_beyond`]). The lane
-/// kernel reads its lanes' updates in place through it.
+/// kernel reads its lanes' updates in place through it. `plan` is
+/// [`AffinePlan::new`] of the same `nonlinearity` and matrix.
 #[inline]
 pub(crate) fn affine_along_by<const N: usize, const M: usize, const S: usize>(
     moved_at: impl Fn(usize) -> bool,
     nonlinearity: &Nonlinearity,
-    decoupled: bool,
-    stiffness_kept: bool,
+    plan: &AffinePlan,
 ) -> bool {
     let moved = |group: u32| {
         let group = group as usize;
@@ -299,9 +293,104 @@ pub(crate) fn affine_along_by<const N: usize, const M: usize, const S: usize>(
             j >= M || (0..S).any(|i| moved_at(S * N + i * M + j))
         }
     };
-    let still = |columns: &[u32]| columns.iter().all(|&c| !moved(c));
-    nonlinearity.pairs.iter().all(|&(a, b)| !moved(a) || !moved(b))
-        && (!decoupled
-            || (still(nonlinearity.constraint_force_columns)
-                && (stiffness_kept || still(nonlinearity.stiffness_columns))))
+    let Some(required) = plan.required else {
+        let still = |columns: &[u32]| columns.iter().all(|&c| !moved(c));
+        return nonlinearity.pairs.iter().all(|&(a, b)| !moved(a) || !moved(b))
+            && (!plan.decoupled
+                || (still(nonlinearity.constraint_force_columns)
+                    && (plan.stiffness_kept || still(nonlinearity.stiffness_columns))));
+    };
+    // The required groups one by one (a constant of the stepper, so the
+    // loop unrolls), then the pairs none of them holds.
+    let mut left = required;
+    while left != 0 {
+        if moved(left.trailing_zeros()) {
+            return false;
+        }
+        left &= left - 1;
+    }
+    let held = |group: u32| (required >> group) & 1 == 1;
+    !plan.free_pairs || nonlinearity.pairs.iter().all(|&(a, b)| held(a) || held(b) || !moved(a) || !moved(b))
+}
+
+/// [`affine_along`]'s test worked out from the pairs and columns alone,
+/// once per system and matrix (the stepper keeps it as a constant): the
+/// groups whose update must be within the tolerance — both groups of a pair
+/// `(a, a)`, and the columns the stage-decoupled matrix approximates — and
+/// whether some pair holds none of them and is tested as a pair. Any pair
+/// with a required group is met exactly when that group is still, so the
+/// test reads each required group once instead of once per pair (the
+/// skate's heading is in four pairs and the matrix's one column).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct AffinePlan {
+    /// Bit `g` for each required group; `None` when a group lies outside
+    /// `N + M ≤ 64` bits or outside the layout, and the pairs and columns
+    /// are tested as they are.
+    required: Option<u64>,
+    /// Some pair holds no required group.
+    free_pairs: bool,
+    /// The matrix is the stage-decoupled one.
+    decoupled: bool,
+    /// The stage-decoupled matrix keeps the stiffness.
+    stiffness_kept: bool,
+}
+
+impl AffinePlan {
+    /// For a system without a declared nonlinearity, which never asks.
+    pub(crate) const UNUSED: Self =
+        AffinePlan { required: None, free_pairs: true, decoupled: false, stiffness_kept: false };
+
+    /// The plan for `nonlinearity` on the exact matrix or (`decoupled`) the
+    /// stage-decoupled one, which keeps the stiffness when `stiffness_kept`.
+    pub(crate) const fn new<const N: usize, const M: usize>(
+        nonlinearity: &Nonlinearity,
+        decoupled: bool,
+        stiffness_kept: bool,
+    ) -> Self {
+        let general = AffinePlan { required: None, free_pairs: true, decoupled, stiffness_kept };
+        let groups = N + M;
+        if groups > 64 {
+            return general;
+        }
+        let mut required = 0u64;
+        let pairs = nonlinearity.pairs;
+        let mut k = 0;
+        while k < pairs.len() {
+            let (a, b) = pairs[k];
+            if a as usize >= groups || b as usize >= groups {
+                return general;
+            }
+            if a == b {
+                required |= 1 << a;
+            }
+            k += 1;
+        }
+        if decoupled {
+            let columns = [nonlinearity.constraint_force_columns, nonlinearity.stiffness_columns];
+            let lists = if stiffness_kept { 1 } else { 2 };
+            let mut l = 0;
+            while l < lists {
+                let list = columns[l];
+                let mut k = 0;
+                while k < list.len() {
+                    if list[k] as usize >= groups {
+                        return general;
+                    }
+                    required |= 1 << list[k];
+                    k += 1;
+                }
+                l += 1;
+            }
+        }
+        let mut free_pairs = false;
+        let mut k = 0;
+        while k < pairs.len() {
+            let (a, b) = pairs[k];
+            if (required >> a) & 1 == 0 && (required >> b) & 1 == 0 {
+                free_pairs = true;
+            }
+            k += 1;
+        }
+        AffinePlan { required: Some(required), free_pairs, decoupled, stiffness_kept }
+    }
 }

@@ -3,7 +3,7 @@
 //! simplified Newton matrix and its fall-back from the stage-decoupled to
 //! the exact matrix, and the typed errors it ends with.
 
-use super::convergence::{affine_along, full_newton_accepts_residual, too_slow, Contraction};
+use super::convergence::{affine_along, full_newton_accepts_residual, too_slow, AffinePlan, Contraction};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
@@ -517,8 +517,8 @@ where
         }
         match Self::affine_rule(decoupled) {
             Some(nonlinearity) => {
-                let kept = decoupled && self.decoupled.keeps_stiffness();
-                affine_along::<N, M, S, D>(g, weights, self.options.tolerance, &nonlinearity, decoupled, kept)
+                let plan = Self::affine_plan(decoupled, decoupled && self.decoupled.keeps_stiffness());
+                affine_along::<N, M, S, D>(g, weights, self.options.tolerance, &nonlinearity, &plan)
             }
             None => false,
         }
@@ -531,6 +531,30 @@ where
     /// force terms of some columns dropped (`DECOUPLES`).
     pub(crate) fn affine_rule(decoupled: bool) -> Option<crate::Nonlinearity> {
         Sys::NONLINEARITY.filter(|_| !decoupled || Self::DECOUPLES)
+    }
+
+    /// [`AffinePlan`]s of the system's nonlinearity: the exact matrix, the
+    /// stage-decoupled one without and with the stiffness kept.
+    const AFFINE_PLANS: [AffinePlan; 3] = match &Sys::NONLINEARITY {
+        Some(nonlinearity) => [
+            AffinePlan::new::<N, M>(nonlinearity, false, false),
+            AffinePlan::new::<N, M>(nonlinearity, true, false),
+            AffinePlan::new::<N, M>(nonlinearity, true, true),
+        ],
+        None => [AffinePlan::UNUSED; 3],
+    };
+
+    /// The [`AffinePlan`] of the exact matrix, or (`decoupled`) of the
+    /// stage-decoupled one keeping the stiffness when `stiffness_kept`.
+    #[inline(always)]
+    pub(crate) fn affine_plan(decoupled: bool, stiffness_kept: bool) -> AffinePlan {
+        Self::AFFINE_PLANS[if !decoupled {
+            0
+        } else if stiffness_kept {
+            2
+        } else {
+            1
+        }]
     }
 
     /// Whether simplified Newton starts a step from `state` with size `h`

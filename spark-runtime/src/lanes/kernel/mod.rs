@@ -38,8 +38,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::is_diagonal;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
-    affine_along_by, check_energy, energy_is_invariant, moved_beyond, too_slow, two_sum_error_of, Contraction,
-    EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
+    affine_along_by, check_energy, energy_is_invariant, moved_beyond, too_slow, two_sum_error_of, AffinePlan,
+    Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -122,8 +122,10 @@ pub(super) struct Kernel<const N: usize, const M: usize, const S: usize, const D
     /// coefficients exist), and one lane's velocity rows for their solve.
     stiff: StiffStages<N, S>,
     stiff_column: Box<[f64]>,
-    /// Whether `stiff` keeps a stiffness (`DecoupledMatrix::keeps_stiffness`).
-    stiffness_kept: bool,
+    /// The stepper's plan of the affine acceptance on this matrix, which
+    /// keeps the stiffness when `stiff` does
+    /// (`Stepper::affine_plan`, `DecoupledMatrix::keeps_stiffness`).
+    affine_plan: AffinePlan,
     /// Which lanes the kernel holds.
     held: [bool; W],
     /// The state where each lane's latest step ended, and its carry.
@@ -228,7 +230,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             h,
             stiff,
             stiff_column: vec![0.0; (S + 1) * N].into_boxed_slice(),
-            stiffness_kept: coupled,
+            affine_plan: Stepper::<Sys, N, M, S, D>::affine_plan(true, coupled),
             held: [false; W],
             q: fixed(),
             v: fixed(),
@@ -466,7 +468,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     fn first_update_lands(&self, affine: Option<&crate::Nonlinearity>, w: usize, tolerance: f64) -> bool {
         let Some(nonlinearity) = affine else { return false };
         let moved_at = |d: usize| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance);
-        affine_along_by::<N, M, S>(moved_at, nonlinearity, true, self.stiffness_kept)
+        affine_along_by::<N, M, S>(moved_at, nonlinearity, &self.affine_plan)
     }
 
     /// Lane `w` of the `N` values at `at` of `x`.
