@@ -220,6 +220,38 @@ fn every_numeric_argument_is_checked_and_named() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Arguments refused before the run, with what to change, named as the
+/// user gave them: a subnormal `--h` (its 1/h overflows inside the step),
+/// an `--h` that does not move `--t0`, a `--t0` whose default end rounds
+/// back to it, a stage count outside a single-valued range, a parameter
+/// given twice.
+#[test]
+fn unusable_arguments_are_refused_naming_what_was_given() {
+    let dir = temp_dir("given");
+    let out = dir.to_str().unwrap();
+    let cases: [(&[&str], &[&str]); 7] = [
+        (&["run", "skate", "--h", "1e-311", "--t-end", "3e-311"], &["--h", "subnormal", "use |h| ≥ 2.2e-308"]),
+        (&["run", "skate", "--t0", "1e20", "--h", "1", "--t-end", "1.0000001e20"], &["--h", "resolution of t", "use"]),
+        (&["section", "mp7-nh", "--event", "section", "--members", "2", "--h", "1e-311"], &["--h", "subnormal"]),
+        (&["run", "skate", "--t0", "-1e300"], &["--t0 -1.000000e300", "default end", "give a --t-end greater"]),
+        (
+            &["run", "skate", "--t0", "1e20", "--t-end", "2e20"],
+            &["default step h = 1.000e-1", "--h", "resolution of t"],
+        ),
+        (&["run", "skate", "--method", "euler-1", "--stages", "2"], &["needs exactly 1 stage, got s = 2"]),
+        (&["run", "skate", "--param", "m=1", "--param", "m = 2"], &["`m` is given twice", "`m=1`", "`m = 2`"]),
+    ];
+    for (args, words) in cases {
+        let err = run_err(&[args, &["--out", out]].concat());
+        for w in words {
+            assert!(err.contains(w), "spark {args:?}: the message must contain {w:?}: {err}");
+        }
+        assert!(!err.contains("non-finite") && !err.contains("--t-end must"), "spark {args:?}: {err}");
+    }
+    assert!(!dir.join("report.md").exists() && !dir.join("section.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn runs_whose_output_would_not_fit_are_refused_up_front() {
     let dir = temp_dir("size");

@@ -85,6 +85,24 @@ fn the_run_report_prints_huge_and_tiny_numbers_in_scientific_notation() {
     assert!(report.contains("| E0 | 0.5 |") && report.contains("2 × 0.1 (t = 0 … 0.2)"), "{report}");
 }
 
+/// A run spec that cannot work is refused before any step, saying what to
+/// change: a subnormal step (1/h overflows in the step's equations), a
+/// step that does not move t0, a parameter given twice.
+#[test]
+fn unusable_steps_and_repeated_parameters_are_refused_up_front() {
+    let spec = |h: f64, t0: f64| RunSpec { t0, ..RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, h, 3) };
+    for (h, t0, what) in [(1e-311, 0.0, "subnormal"), (-5e-324, 0.0, "subnormal"), (1.0, 1e20, "resolution of t")] {
+        match run(&spec(h, t0), &|_| true) {
+            Err(RunError::Invalid(e)) => assert!(e.contains(what) && e.contains("use"), "h = {h:e}: {e}"),
+            other => panic!("h = {h:e}, t0 = {t0:e}: expected a refusal, got {other:?}"),
+        }
+    }
+    assert_eq!(run(&spec(f64::MIN_POSITIVE, 0.0), &|_| true).unwrap().t.len(), 4);
+    let twice = RunSpec { parameters: vec![("m".into(), 1.0), ("g".into(), 2.0), ("m".into(), 2.0)], ..spec(0.1, 0.0) };
+    let err = run(&twice, &|_| true).unwrap_err().to_string();
+    assert!(err.contains("`m` is given twice"), "{err}");
+}
+
 /// An interval that is not a whole number of steps is refused however
 /// many steps it holds (half a step off at 5·10⁸ steps too), with
 /// suggestions that can be told apart; round-off of the division is not.

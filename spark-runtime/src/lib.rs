@@ -161,8 +161,8 @@ pub use adaptive::{
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
-    check_record_size, record_memory_limit, FailurePolicy, IntegrationError, NoObserver, Observe, Observer,
-    RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule, SubstepOverrun, Trajectory,
+    check_record_size, check_step_size, record_memory_limit, FailurePolicy, IntegrationError, NoObserver, Observe,
+    Observer, RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule, SubstepOverrun, Trajectory,
     DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};

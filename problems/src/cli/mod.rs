@@ -134,18 +134,32 @@ pub fn parse_method(name: &str) -> Result<Method, String> {
 
 /// The `--param NAME=VALUE` flags as `(name, value)` pairs.
 pub fn parse_params(params: &[String]) -> Result<Vec<(String, f64)>, String> {
-    params
-        .iter()
-        .map(|p| {
-            let (name, value) =
-                p.split_once('=').ok_or_else(|| format!("--param `{p}`: write NAME=VALUE, e.g. --param beta=0.5"))?;
-            let v: f64 = value.trim().parse().map_err(|_| format!("--param `{p}`: `{value}` is not a number"))?;
-            if !v.is_finite() {
-                return Err(format!("--param `{p}`: the value must be a finite number"));
-            }
-            Ok((name.trim().to_string(), v))
-        })
-        .collect()
+    let mut parsed: Vec<(String, f64)> = Vec::with_capacity(params.len());
+    for p in params {
+        let (name, value) =
+            p.split_once('=').ok_or_else(|| format!("--param `{p}`: write NAME=VALUE, e.g. --param beta=0.5"))?;
+        let v: f64 = value.trim().parse().map_err(|_| format!("--param `{p}`: `{value}` is not a number"))?;
+        if !v.is_finite() {
+            return Err(format!("--param `{p}`: the value must be a finite number"));
+        }
+        let name = name.trim();
+        if let Some(i) = parsed.iter().position(|(n, _)| n == name) {
+            let first = &params[i];
+            return Err(format!("--param `{name}` is given twice (`{first}` and `{p}`); give each parameter once"));
+        }
+        parsed.push((name.to_string(), v));
+    }
+    Ok(parsed)
+}
+
+/// The step size as the user gave it: `--h 1.000e-1`, or, when `--h` was
+/// not given, the system's default step (so that a message about it does
+/// not name a flag the user did not pass).
+pub fn step_flag(given: Option<f64>, h: f64) -> String {
+    match given {
+        Some(h) => format!("--h {h:.3e}"),
+        None => format!("the system's default step h = {h:.3e} (see `spark list`; set one with --h)"),
+    }
 }
 
 /// Relative tolerance within which `(t_end − t0)/h` counts as a whole number

@@ -2,7 +2,7 @@
 //! and report. Runs whose recorded samples would not fit are refused before
 //! they start.
 
-use super::{parse_method, parse_params, step_count, Format, Newton};
+use super::{parse_method, parse_params, step_count, step_flag, Format, Newton};
 use crate::catalog::lookup;
 use crate::report::files::{OutputDir, OutputError};
 use crate::report::progress::Progress;
@@ -136,10 +136,24 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     if !t0.is_finite() {
         return Err(format!("--t0 must be a finite number, got {t0:.3e}"));
     }
-    let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
-    if !(t_end.is_finite() && t_end > t0) {
-        return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));
-    }
+    let t_end = match a.t_end {
+        Some(t_end) if !(t_end.is_finite() && t_end > t0) => {
+            return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));
+        }
+        Some(t_end) => t_end,
+        // Only a --t0 far from 0 makes the default end fall on t0 (or
+        // overflow): name what was given and what it was compared with.
+        None => match t0 + entry.t_end {
+            t_end if t_end.is_finite() && t_end > t0 => t_end,
+            t_end => {
+                return Err(format!(
+                    "--t0 {t0:.6e} leaves no interval to run: the default end, t0 + {} (the system's run length,                      see `spark list`), is {t_end:.6e}, not after t0 at this magnitude; give a --t-end greater                      than --t0, or a --t0 nearer 0",
+                    entry.t_end
+                ));
+            }
+        },
+    };
+    spark_runtime::check_step_size(t0, h).map_err(|why| format!("{} from t0 = {t0:.3e}: {why}", step_flag(a.h, h)))?;
     if a.stages == 0 {
         return Err("--stages must be at least 1".into());
     }

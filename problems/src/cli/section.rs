@@ -1,7 +1,7 @@
 //! `spark section`: integrate an ensemble and record where it crosses one
 //! of the system's declared events.
 
-use super::{parse_method, parse_params, step_count, Newton};
+use super::{parse_method, parse_params, step_count, step_flag, Newton};
 use crate::catalog::lookup;
 use crate::experiments::section::{
     default_axes, find_event, parse_axis, run_section, write_section, SectionSpec, MAX_SECTION_MEMBERS,
@@ -69,6 +69,7 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
     if !(h.is_finite() && h > 0.0) {
         return Err(format!("--h must be a positive number, got {h:.3e}"));
     }
+    spark_runtime::check_step_size(t0, h).map_err(|why| format!("{} from t0 = {t0:.3e}: {why}", step_flag(a.h, h)))?;
     let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
     if !(t_end.is_finite() && t_end > t0) {
         return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));

@@ -294,6 +294,9 @@ pub fn run_section(spec: &SectionSpec) -> Result<Section, SectionError> {
     if !spec.t0.is_finite() {
         return Err(SectionError::Invalid(format!("initial time t0 = {:.3e} must be finite", spec.t0)));
     }
+    spark_runtime::check_step_size(spec.t0, spec.h).map_err(|why| {
+        SectionError::Invalid(format!("step size h = {:.3e} from t0 = {:.3e}: {why}", spec.h, spec.t0))
+    })?;
     if spec.steps == 0 {
         return Err(SectionError::Invalid("a section needs at least one step".into()));
     }

@@ -295,6 +295,8 @@ fn check_spec(spec: &RunSpec) -> Result<(), RunError> {
     if !spec.t0.is_finite() {
         return Err(RunError::Invalid(format!("initial time t0 = {:.3e} must be finite", spec.t0)));
     }
+    spark_runtime::check_step_size(spec.t0, spec.h)
+        .map_err(|why| RunError::Invalid(format!("step size h = {:.3e} from t0 = {:.3e}: {why}", spec.h, spec.t0)))?;
     let (min, max) = spec.method.stage_range();
     if spec.stages < min || spec.stages > max {
         return Err(TableauError::UnsupportedStages { method: spec.method, s: spec.stages, min, max }.into());
@@ -327,9 +329,13 @@ pub fn run_by_name(name: &str, method: Method, stages: usize) -> Result<RunResul
     run(&RunSpec::defaults(kind, method, stages), &|_| true)
 }
 
-/// Rejects parameter names the system does not have, with a suggestion.
+/// Rejects parameter names the system does not have, with a suggestion,
+/// and a parameter given twice (which value was meant is unknown).
 pub fn check_parameters(entry: &'static SystemEntry, parameters: &[(String, f64)]) -> Result<(), RunError> {
-    for (name, _) in parameters {
+    for (i, (name, _)) in parameters.iter().enumerate() {
+        if parameters[..i].iter().any(|(n, _)| n == name) {
+            return Err(RunError::Invalid(format!("parameter `{name}` is given twice; give each parameter once")));
+        }
         if !entry.parameter_names.contains(&name.as_str()) {
             let known =
                 if entry.parameter_names.is_empty() { "none".to_string() } else { entry.parameter_names.join(", ") };

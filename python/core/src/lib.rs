@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use spark_runtime::{
     check_record_size, consistent_velocity, integrate_ensemble_until, ConsistencyPolicy, EnsembleRun, IntegrationError,
     Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer, RunOptions, Sample, Schedule, State,
-    StepError, Stepper, Tableau, Vector,
+    StepError, Stepper, Tableau, TableauError, Vector,
 };
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, RecvTimeoutError};
@@ -149,6 +149,8 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
     if !r.t0.is_finite() {
         return Err(format!("initial time t0 = {:.3e} must be finite", r.t0));
     }
+    spark_runtime::check_step_size(r.t0, r.h)
+        .map_err(|why| format!("step size h = {:.3e} from t0 = {:.3e}: {why}", r.h, r.t0))?;
     if r.steps == 0 {
         return Err("steps must be at least 1".into());
     }
@@ -157,7 +159,7 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
     }
     let (min, max) = r.method.stage_range();
     if r.stages < min || r.stages > max {
-        return Err(format!("{} has s = {min}..={max} stages, not s = {}", r.method, r.stages));
+        return Err(TableauError::UnsupportedStages { method: r.method, s: r.stages, min, max }.to_string());
     }
     Ok(())
 }

@@ -71,10 +71,22 @@ pub enum Schedule<'a> {
     },
 }
 
-/// A schedule's step size must be finite and nonzero.
-fn check_step_size(h: f64) -> Result<(), IntegrationError> {
+/// Whether the step size `h` can step from `t0`, or why not, with what to
+/// change: `h` must be finite and nonzero, a normal number (for a
+/// subnormal `h`, `|h| < f64::MIN_POSITIVE ≈ 2.2e-308`, `1/h` overflows in
+/// the step's equations), and large enough to move `t0` (`t0 + h ≠ t0`;
+/// not checked for a non-finite `t0`). [`Stepper::integrate`] checks the
+/// step size of every schedule with it before the first step; front ends
+/// call it to refuse a step size up front with the values they were given.
+pub fn check_step_size(t0: f64, h: f64) -> Result<(), &'static str> {
     if h == 0.0 || !h.is_finite() {
-        return Err(IntegrationError::InvalidSchedule("step size must be finite and nonzero"));
+        return Err("step size must be finite and nonzero");
+    }
+    if !h.is_normal() {
+        return Err("step size is subnormal (|h| < 2.2e-308, where 1/h overflows); use |h| ≥ 2.2e-308");
+    }
+    if t0.is_finite() && t0 + h == t0 {
+        return Err("step size is below the resolution of t at t0 (t0 + h == t0); use a larger |h| or a t0 nearer 0");
     }
     Ok(())
 }
@@ -85,7 +97,7 @@ impl Schedule<'_> {
     fn steps(&self, t0: f64) -> Result<usize, IntegrationError> {
         Ok(match *self {
             Schedule::Fixed { h, steps } => {
-                check_step_size(h)?;
+                check_step_size(t0, h).map_err(IntegrationError::InvalidSchedule)?;
                 if t0.is_finite() && !(t0 + steps as f64 * h).is_finite() {
                     return Err(IntegrationError::InvalidSchedule("the final time t0 + steps·h is not finite"));
                 }
@@ -98,10 +110,17 @@ impl Schedule<'_> {
                 if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| a == b) {
                     return Err(IntegrationError::InvalidSchedule("consecutive output times must differ"));
                 }
+                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| (b - a).abs() < f64::MIN_POSITIVE)
+                {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "consecutive output times lie closer than 2.2e-308 (a subnormal step, where 1/h overflows); \
+                         use times at least 2.2e-308 apart",
+                    ));
+                }
                 ts.len()
             }
             Schedule::Sampled { h, times } => {
-                check_step_size(h)?;
+                check_step_size(t0, h).map_err(IntegrationError::InvalidSchedule)?;
                 if times.iter().any(|t| !t.is_finite()) {
                     return Err(IntegrationError::InvalidSchedule("output times must be finite"));
                 }
@@ -119,7 +138,7 @@ impl Schedule<'_> {
                 span.ceil() as usize
             }
             Schedule::Until { h, t_end } => {
-                check_step_size(h)?;
+                check_step_size(t0, h).map_err(IntegrationError::InvalidSchedule)?;
                 if !t_end.is_finite() {
                     return Err(IntegrationError::InvalidSchedule("the final time must be finite"));
                 }

@@ -190,11 +190,21 @@ pub enum ConditionRows {
     EqualMultipliers,
 }
 
+/// The stage counts `min..=max` in words: "exactly 1 stage", "exactly 2
+/// stages" or "between 2 and 10 stages".
+fn stage_count_range(min: usize, max: usize) -> String {
+    match (min == max, min) {
+        (true, 1) => "exactly 1 stage".into(),
+        (true, _) => format!("exactly {min} stages"),
+        (false, _) => format!("between {min} and {max} stages"),
+    }
+}
+
 /// A coefficient family could not be built.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum TableauError {
     /// The method does not exist with this number of stages.
-    #[error("{method} needs between {min} and {max} stages, got s = {s}")]
+    #[error("{method} needs {}, got s = {s}", stage_count_range(*min, *max))]
     UnsupportedStages {
         /// The method asked for.
         method: Method,
@@ -752,6 +762,13 @@ mod tests {
         assert!(Tableau::<11>::new(Method::Gauss).is_err());
         assert!(Tableau::<3>::new(Method::LobattoIIIBALda).is_err());
         assert!(Tableau::<2>::new(Method::SymplecticEulerI).is_err());
+        // A single stage count reads as one, not as a range.
+        let one = |m: Method, s: usize| TableauError::UnsupportedStages { method: m, s, min: 1, max: 1 }.to_string();
+        assert_eq!(one(Method::SymplecticEulerI, 2), "symplectic Euler I needs exactly 1 stage, got s = 2");
+        let e = Tableau::<3>::new(Method::LobattoIIIBALda).unwrap_err().to_string();
+        assert!(e.ends_with("needs exactly 2 stages, got s = 3"), "{e}");
+        let e = Tableau::<1>::new(Method::LobattoIIIAB).unwrap_err().to_string();
+        assert!(e.ends_with(&format!("needs between 2 and {MAX_STAGES} stages, got s = 1")), "{e}");
         assert!("nonsense".parse::<Method>().is_err());
         assert_eq!("Lobatto_IIIA-B-D".parse::<Method>().unwrap(), Method::LobattoIIIABD);
         assert_eq!(Tableau::<3>::of::<Gauss>().unwrap().order(), 6);

@@ -149,6 +149,38 @@ fn huge_step_counts_reserve_bounded_storage() {
     assert!(matches!(far, Err(IntegrationError::InvalidSchedule(_))), "{far:?}");
 }
 
+/// A step size the step's equations cannot use is refused before the
+/// first step, with what to change: a subnormal `h` (whose `1/h`
+/// overflows; it failed inside Newton with a non-finite residual), an `h`
+/// that does not move `t0`, and output times closer than the smallest
+/// normal float. The smallest normal step runs.
+#[test]
+fn unusable_step_sizes_are_refused_before_the_first_step() {
+    let (q0, v0) = speed_start();
+    let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
+        Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
+    let cases: [(f64, Schedule<'_>, &str); 6] = [
+        (0.0, Schedule::Fixed { h: 1e-311, steps: 3 }, "subnormal"),
+        (0.0, Schedule::Fixed { h: -5e-324, steps: 3 }, "subnormal"),
+        (0.0, Schedule::Sampled { h: 1e-311, times: &[1e-310] }, "subnormal"),
+        (0.0, Schedule::Until { h: 1e-311, t_end: 1e-310 }, "subnormal"),
+        (1e20, Schedule::Fixed { h: 1.0, steps: 3 }, "resolution of t"),
+        (0.0, Schedule::Times(&[1e-320, 1.0]), "closer than 2.2e-308"),
+    ];
+    for (t0, schedule, what) in cases {
+        let err = st.integrate(t0, &q0, &v0, schedule, &quiet(2), &mut NoObserver).unwrap_err();
+        assert!(matches!(err, IntegrationError::InvalidSchedule(_)), "{schedule:?}: {err:?}");
+        assert!(err.to_string().contains(what) && err.to_string().contains("use"), "{schedule:?}: {err}");
+    }
+    assert_eq!(spark_runtime::check_step_size(0.0, f64::MIN_POSITIVE), Ok(()));
+    assert!(spark_runtime::check_step_size(1.0, 1e-17).unwrap_err().contains("t0 + h == t0"));
+    assert!(spark_runtime::check_step_size(f64::NAN, 0.1).is_ok(), "t0 is checked with the initial state");
+    let tiny = Schedule::Fixed { h: f64::MIN_POSITIVE, steps: 3 };
+    let traj = st.integrate(0.0, &q0, &v0, tiny, &quiet(2), &mut NoObserver).unwrap();
+    assert_eq!(traj.samples.len(), 4);
+    assert!(traj.samples.iter().all(|s| s.q.iter().chain(s.v.iter()).all(|x| x.is_finite())));
+}
+
 /// `max_halvings` is bounded by [`MAX_HALVINGS`]: `u32::MAX` (which
 /// recursed ≈ 1075 deep and overflowed the stack) is refused by name, and
 /// the largest allowed value runs without recursion on a 256 KiB thread
