@@ -103,6 +103,22 @@ fn unusable_steps_and_repeated_parameters_are_refused_up_front() {
     assert!(err.contains("`m` is given twice"), "{err}");
 }
 
+/// A thread count beyond what an ensemble starts is refused at once (rayon
+/// would start up to 65535 threads for `usize::MAX`, which stalled the
+/// process); the largest allowed count runs.
+#[test]
+fn an_ensemble_refuses_more_threads_than_it_starts() {
+    let spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 3);
+    let members = vec![(spec.q0.clone(), spec.v0.clone()); 2];
+    let start = std::time::Instant::now();
+    for threads in [problems::run::MAX_ENSEMBLE_THREADS + 1, 1 << 40, usize::MAX] {
+        let err = problems::run::run_ensemble(&spec, &members, Some(threads)).unwrap_err().to_string();
+        assert!(err.contains("more than 1024") && err.contains("cores"), "{err}");
+    }
+    assert!(start.elapsed().as_secs() < 5, "refused up front");
+    assert_eq!(problems::run::run_ensemble(&spec, &members, Some(8)).unwrap().len(), 2);
+}
+
 /// An interval that is not a whole number of steps is refused however
 /// many steps it holds (half a step off at 5·10⁸ steps too), with
 /// suggestions that can be told apart; round-off of the division is not.

@@ -124,26 +124,32 @@ def _request(
 ) -> dict[str, Any]:
     return {
         "method": method,
-        "s": int(s),
+        "s": _whole("s", s),
         "h": float(h),
         "steps": int(steps),
         "t0": float(t0),
         "params": dict(params) if params else None,
-        "every": int(every),
+        "every": _whole("every", every),
         "newton": newton,
         "newton_tol": newton_tol,
     }
 
 
+def _whole(name: str, x: Any) -> int:
+    """``x`` as an int, or :class:`SparkError` when it is not a whole number
+    (``s=2.5`` or ``every=1.5`` would otherwise be truncated silently)."""
+    try:
+        whole = int(x)
+    except (TypeError, ValueError, OverflowError):
+        whole = None
+    if whole is None or isinstance(x, bool) or whole != x:
+        raise SparkError(f"{name} = {x!r} must be a whole number")
+    return whole
+
+
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
     if steps is not None:
-        try:
-            whole = int(steps)
-        except (TypeError, ValueError, OverflowError):
-            whole = None
-        if whole is None or isinstance(steps, bool) or whole != steps:
-            raise SparkError(f"steps = {steps!r} must be a whole number")
-        return whole
+        return _whole("steps", steps)
     if t_end is None:
         raise SparkError("give steps= or t_end=")
     ratio = (t_end - t0) / h
@@ -228,6 +234,12 @@ class System:
             raise SparkError("give the step size h=")
         if steps is None and t_end is None and self.t_end is not None:
             t_end = t0 + self.t_end
+            if math.isfinite(t0) and not t_end > t0:
+                raise SparkError(
+                    f"t0 = {t0:.6e} leaves no interval to run: the default end, t0 + {self.t_end} (the system's "
+                    f"run length), is {t_end:.6e}, not after t0 at this magnitude; pass t_end= or steps=, or a t0 "
+                    "nearer 0"
+                )
         req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol)
         req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
         req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)

@@ -137,3 +137,33 @@ def test_ctrl_c_stops_a_long_run(kind):
     took, err = interrupt_after_start(script)
     assert "KeyboardInterrupt" in err, err
     assert took < 10.0, f"{kind}: {took:.1f} s from Ctrl-C to exit"
+
+
+def test_arguments_that_cannot_work_are_refused_up_front():
+    # A subnormal step (1/h overflows inside the step) and one that does not
+    # move t0 are refused before any step, saying what to use.
+    with pytest.raises(spark.SparkError, match=r"subnormal.*use \|h\| ≥ 2.2e-308"):
+        spark.integrate("skate", "gauss", 2, 1e-311, 3)
+    with pytest.raises(spark.SparkError, match="resolution of t"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, t0=1e20)
+    # The default end that rounds back to t0 names t0, not a t_end never given.
+    with pytest.raises(spark.SparkError, match=r"t0 = 1.000000e\+20 leaves no interval.*default end"):
+        spark.integrate("skate", "gauss", 2, t0=1e20)
+    with pytest.raises(spark.SparkError, match="needs exactly 1 stage, got s = 2"):
+        spark.integrate("skate", "euler-1", 2, 0.1, 3)
+    # Fractional counts are refused, not truncated.
+    for kw in ({"s": 2.5}, {"every": 1.5}):
+        with pytest.raises(spark.SparkError, match="must be a whole number"):
+            spark.integrate("skate", **{"method": "gauss", "h": 0.1, "steps": 3, "s": 2, **kw})
+
+
+@pytest.mark.parametrize("system", ["skate", "mp7"])
+def test_an_ensemble_refuses_more_threads_than_it_starts(system):
+    # 2**40 threads made rayon start thousands of threads and stalled the
+    # interpreter; the request is refused at once.
+    entry = spark.system(system)
+    q0s, v0s = np.tile(entry.q0, (2, 1)), np.tile(entry.v0, (2, 1))
+    for threads in (1025, 2**40):
+        with pytest.raises(spark.SparkError, match="more than 1024"):
+            spark.ensemble(system, "gauss", 2, 0.1, 3, q0s, v0s, threads=threads)
+    assert spark.ensemble(system, "gauss", 2, 0.1, 3, q0s, v0s, threads=4).q.shape[0] == 2

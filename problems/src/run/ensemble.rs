@@ -14,6 +14,14 @@ pub enum EnsembleError {
     /// A thread count of zero.
     #[error("threads must be at least 1")]
     NoThreads,
+    /// More worker threads than an ensemble starts ([`MAX_ENSEMBLE_THREADS`]):
+    /// starting them (rayon goes up to 65535) would stall or exhaust the
+    /// process.
+    #[error("threads = {threads} is more than {MAX_ENSEMBLE_THREADS}, the most an ensemble starts; use at most the number of cores")]
+    TooManyThreads {
+        /// Threads asked for.
+        threads: usize,
+    },
     /// The worker threads could not be started.
     #[error("could not start {threads} worker threads: {reason}")]
     ThreadPool {
@@ -49,6 +57,9 @@ pub fn run_ensemble(
 ) -> Result<Vec<RunResult>, EnsembleError> {
     run_ensemble_with(spec, members, threads, &|_| true)
 }
+
+/// The most worker threads [`run_ensemble_with`] starts.
+pub const MAX_ENSEMBLE_THREADS: usize = 1024;
 
 /// [`run_ensemble`], calling `tick` with the member steps done (every few
 /// thousand and at the end), for progress bars; when it answers `false`
@@ -109,6 +120,7 @@ pub fn run_ensemble_with(
     match threads {
         None => work(),
         Some(0) => Err(EnsembleError::NoThreads),
+        Some(t) if t > MAX_ENSEMBLE_THREADS => Err(EnsembleError::TooManyThreads { threads: t }),
         Some(t) => rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build()

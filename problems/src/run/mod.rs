@@ -16,7 +16,7 @@
 mod ensemble;
 pub mod files;
 
-pub use ensemble::{run_ensemble, run_ensemble_with, EnsembleError};
+pub use ensemble::{run_ensemble, run_ensemble_with, EnsembleError, MAX_ENSEMBLE_THREADS};
 
 use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::thread_cpu_time;

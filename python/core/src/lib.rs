@@ -39,6 +39,14 @@ const POSITION_TOLERANCE: f64 = 1e-10;
 /// Tolerance of the projection of an inconsistent `v0` (as `spark run --project-v0`).
 pub const PROJECTION_TOLERANCE: f64 = 1e-12;
 
+/// The most worker threads an ensemble starts: rayon would start up to
+/// 65535, which stalls or exhausts the interpreter.
+pub const MAX_THREADS: usize = 1024;
+
+fn too_many_threads(t: i64) -> Failure {
+    format!("threads = {t} is more than {MAX_THREADS}, the most an ensemble starts; use at most the number of cores")
+}
+
 /// One integration run, as read from the Python side.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IntegrateRequest {
@@ -356,6 +364,7 @@ where
     match r.threads {
         None => work(),
         Some(0) => Err("threads must be at least 1".into()),
+        Some(t) if t > MAX_THREADS => Err(too_many_threads(t as i64)),
         Some(t) => rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build()
@@ -508,6 +517,9 @@ pub fn read_ensemble(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Ensemble
     if let Some(t) = threads {
         if t < 1 {
             return Err(spark_error(py, "threads must be at least 1"));
+        }
+        if t > MAX_THREADS as i64 {
+            return Err(spark_error(py, too_many_threads(t)));
         }
     }
     let width = q0s[0].len();
