@@ -73,7 +73,7 @@ where
     Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
 {
     let Some(first) = starts.first() else { return Ok(Vec::new()) };
-    if h == 0.0 || !h.is_finite() {
+    if !h.is_normal() {
         return Err(LaneError::StepSize { h });
     }
     if let Some((member, s)) = starts.iter().enumerate().find(|(_, s)| s.t.to_bits() != first.t.to_bits()) {

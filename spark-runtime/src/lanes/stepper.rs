@@ -37,8 +37,8 @@ pub enum LaneError {
         /// Member 0's start time.
         t0: f64,
     },
-    /// The step size is zero or not finite.
-    #[error("step size h = {h:.3e} must be finite and nonzero")]
+    /// The step size is zero, not finite or subnormal.
+    #[error("step size h = {h:.3e} must be finite, nonzero and at least 2.2e-308 in magnitude (1/h overflows below)")]
     StepSize {
         /// The step size asked for.
         h: f64,
@@ -167,7 +167,8 @@ where
         if starts.is_empty() || starts.len() > W {
             return Err(LaneError::MemberCount { members: starts.len(), lanes: W });
         }
-        if h == 0.0 || !h.is_finite() {
+        // Zero, non-finite and subnormal (where `1/h` overflows).
+        if !h.is_normal() {
             return Err(LaneError::StepSize { h });
         }
         let t0 = starts[0].t;

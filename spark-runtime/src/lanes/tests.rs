@@ -343,7 +343,7 @@ fn lane_groups_refuse_what_they_cannot_run() {
     let starts = mp_starts(5);
     assert_eq!(lanes.start(&starts, 0.05), Err(LaneError::MemberCount { members: 5, lanes: 4 }));
     assert_eq!(lanes.start(&[], 0.05), Err(LaneError::MemberCount { members: 0, lanes: 4 }));
-    for h in [0.0, f64::NAN, f64::INFINITY] {
+    for h in [0.0, f64::NAN, f64::INFINITY, 1e-310] {
         assert!(matches!(lanes.start(&starts[..2], h), Err(LaneError::StepSize { .. })), "{h}");
     }
     let mut late = starts.clone();
@@ -355,6 +355,7 @@ fn lane_groups_refuse_what_they_cannot_run() {
         |starts: &[State<7>], h| integrate_ensemble::<_, 7, 1, 2, 23>(&MpParticles, tab, fig84(), starts, h, 10, 1);
     assert!(matches!(run(&late, 0.05), Err(LaneError::StartTimes { member: 3, .. })));
     assert!(matches!(run(&starts, f64::NAN), Err(LaneError::StepSize { .. })));
+    assert!(matches!(run(&starts, -1e-310), Err(LaneError::StepSize { .. })));
     assert_eq!(run(&[], 0.05), Ok(Vec::new()));
 }
 

@@ -445,8 +445,12 @@ where
             self.system.parameter_terms(&mut self.terms);
             self.terms_stale = false;
         }
-        if h == 0.0 || !h.is_finite() {
-            return Err(StepError::InvalidStep { t: t0, h, reason: "step size must be finite and nonzero" });
+        // Zero, non-finite and subnormal step sizes, with the reason of
+        // `check_step_size` (whose test of `t0 + h` follows below).
+        if !h.is_normal() {
+            let reason =
+                crate::driver::check_step_size(f64::NAN, h).err().unwrap_or("step size is not a normal number");
+            return Err(StepError::InvalidStep { t: t0, h, reason });
         }
         // A state where the previous step ended (bit for bit, so without
         // NaN) is finite and consistent by construction; any other start

@@ -175,6 +175,14 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
     assert_eq!(spark_runtime::check_step_size(0.0, f64::MIN_POSITIVE), Ok(()));
     assert!(spark_runtime::check_step_size(1.0, 1e-17).unwrap_err().contains("t0 + h == t0"));
     assert!(spark_runtime::check_step_size(f64::NAN, 0.1).is_ok(), "t0 is checked with the initial state");
+    // `Stepper::step` called directly refuses a subnormal step as well,
+    // before Newton (where `1/h` overflows into a non-finite residual).
+    let start = spark_runtime::State::new(0.0, q0, v0);
+    for h in [1e-311, -5e-324] {
+        let err = st.step(&start, h).unwrap_err();
+        assert!(matches!(err, spark_runtime::StepError::InvalidStep { .. }), "{h}: {err:?}");
+        assert!(err.to_string().contains("subnormal"), "{h}: {err}");
+    }
     let tiny = Schedule::Fixed { h: f64::MIN_POSITIVE, steps: 3 };
     let traj = st.integrate(0.0, &q0, &v0, tiny, &quiet(2), &mut NoObserver).unwrap();
     assert_eq!(traj.samples.len(), 4);
