@@ -627,7 +627,7 @@ fn schur_rows_inline<const N: usize, const M: usize, const S: usize>(
     let (sm, nm) = (S * M, N * M);
     // The blocks of `for_each_constraint_block`, walked here rather than
     // through its closure: the loop over the blocks unrolls into one call
-    // per block, and in a binary with many steppers LLVM left the closure
+    // per block, and in a binary with many steppers LLVM leaves the closure
     // out of line (a call and its reloads per block).
     for r in 0..S {
         for i in 0..=S {
