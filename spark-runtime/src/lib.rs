@@ -173,7 +173,7 @@ pub use events::{
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use lanes::{
     integrate_ensemble, integrate_ensemble_until, EnsembleRun, LaneConstraintJacobians, LaneError, LaneFailure,
-    LaneStageValues, LaneStatus, LaneStepper, LANES,
+    LaneStageValues, LaneStatus, LaneStepper, LANES, MAX_ENSEMBLE_THREADS,
 };
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 pub use rejection::RejectionPolicy;

@@ -147,7 +147,9 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
             t_end if t_end.is_finite() && t_end > t0 => t_end,
             t_end => {
                 return Err(format!(
-                    "--t0 {t0:.6e} leaves no interval to run: the default end, t0 + {} (the system's run length,                      see `spark list`), is {t_end:.6e}, not after t0 at this magnitude; give a --t-end greater                      than --t0, or a --t0 nearer 0",
+                    "--t0 {t0:.6e} leaves no interval to run: the default end, t0 + {} (the system's run length, \
+                     see `spark list`), is {t_end:.6e}, not after t0 at this magnitude; give a --t-end greater \
+                     than --t0, or a --t0 nearer 0",
                     entry.t_end
                 ));
             }

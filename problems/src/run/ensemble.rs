@@ -4,6 +4,7 @@
 //! it.
 
 use super::*;
+pub use spark_runtime::MAX_ENSEMBLE_THREADS;
 
 /// Errors of an ensemble ([`run_ensemble`]); each says what to change.
 #[derive(Debug, thiserror::Error)]
@@ -14,9 +15,7 @@ pub enum EnsembleError {
     /// A thread count of zero.
     #[error("threads must be at least 1")]
     NoThreads,
-    /// More worker threads than an ensemble starts ([`MAX_ENSEMBLE_THREADS`]):
-    /// starting them (rayon goes up to 65535) would stall or exhaust the
-    /// process.
+    /// More worker threads than an ensemble starts ([`MAX_ENSEMBLE_THREADS`]).
     #[error("threads = {threads} is more than {MAX_ENSEMBLE_THREADS}, the most an ensemble starts; use at most the number of cores")]
     TooManyThreads {
         /// Threads asked for.
@@ -57,9 +56,6 @@ pub fn run_ensemble(
 ) -> Result<Vec<RunResult>, EnsembleError> {
     run_ensemble_with(spec, members, threads, &|_| true)
 }
-
-/// The most worker threads [`run_ensemble_with`] starts.
-pub const MAX_ENSEMBLE_THREADS: usize = 1024;
 
 /// [`run_ensemble`], calling `tick` with the member steps done (every few
 /// thousand and at the end), for progress bars; when it answers `false`

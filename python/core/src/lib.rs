@@ -39,9 +39,7 @@ const POSITION_TOLERANCE: f64 = 1e-10;
 /// Tolerance of the projection of an inconsistent `v0` (as `spark run --project-v0`).
 pub const PROJECTION_TOLERANCE: f64 = 1e-12;
 
-/// The most worker threads an ensemble starts: rayon would start up to
-/// 65535, which stalls or exhausts the interpreter.
-pub const MAX_THREADS: usize = 1024;
+use spark_runtime::MAX_ENSEMBLE_THREADS as MAX_THREADS;
 
 fn too_many_threads(t: i64) -> Failure {
     format!("threads = {t} is more than {MAX_THREADS}, the most an ensemble starts; use at most the number of cores")

@@ -107,15 +107,18 @@ impl Schedule<'_> {
                 if ts.iter().any(|t| !t.is_finite()) {
                     return Err(IntegrationError::InvalidSchedule("output times must be finite"));
                 }
-                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| a == b) {
-                    return Err(IntegrationError::InvalidSchedule("consecutive output times must differ"));
-                }
-                if std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).any(|(a, b)| (b - a).abs() < f64::MIN_POSITIVE)
-                {
-                    return Err(IntegrationError::InvalidSchedule(
-                        "consecutive output times lie closer than 2.2e-308 (a subnormal step, where 1/h overflows); \
-                         use times at least 2.2e-308 apart",
-                    ));
+                // The smallest gap between consecutive times: zero exactly when
+                // two are equal (finite differences do not underflow to 0).
+                let gap = std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).map(|(a, b)| (b - a).abs());
+                match gap.fold(f64::INFINITY, f64::min) {
+                    0.0 => return Err(IntegrationError::InvalidSchedule("consecutive output times must differ")),
+                    g if g < f64::MIN_POSITIVE => {
+                        return Err(IntegrationError::InvalidSchedule(
+                            "consecutive output times lie closer than 2.2e-308 (a subnormal step, where 1/h \
+                             overflows); use times at least 2.2e-308 apart",
+                        ))
+                    }
+                    _ => {}
                 }
                 ts.len()
             }

@@ -8,6 +8,11 @@ use crate::step::{NewtonOptions, State};
 use crate::system::NonholonomicSystem;
 use crate::tableau::Tableau;
 
+/// The most worker threads a front end starts for an ensemble
+/// (`threads=` in Python, `problems::run::run_ensemble`'s thread count):
+/// rayon would start up to 65535, which stalls or exhausts the process.
+pub const MAX_ENSEMBLE_THREADS: usize = 1024;
+
 /// One member's run in [`integrate_ensemble`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct EnsembleRun<const N: usize> {

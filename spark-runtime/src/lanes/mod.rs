@@ -49,6 +49,6 @@ mod stepper;
 mod tests;
 pub(crate) mod values;
 
-pub use ensemble::{integrate_ensemble, integrate_ensemble_until, EnsembleRun};
+pub use ensemble::{integrate_ensemble, integrate_ensemble_until, EnsembleRun, MAX_ENSEMBLE_THREADS};
 pub use stepper::{LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
 pub use values::{LaneConstraintJacobians, LaneStageValues};
