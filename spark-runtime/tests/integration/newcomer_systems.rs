@@ -852,6 +852,68 @@ fn generated_systems_in_lanes_match_each_member_alone() {
 }
 
 nonholonomic_system! {
+    /// A particle whose coupling `y²z²·√(2.02 − t)` has no value after
+    /// `t = 2.02`: its forces turn NaN there, in the middle of a run.
+    pub struct ExpiringCoupling {
+        coordinates: [x, y, z],
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - (x^2 + y^2 + z^2 + y^2*z^2*sqrt(2.02 - t))/2,
+        constraints: [ dot(x) + y*dot(y) + z*dot(z) ],
+    }
+}
+
+/// Members in lanes whose residual turns NaN mid-run (the forces at the
+/// stage point past `t = 2.02`, step 40 at h = 0.05) fail at that step with
+/// the error each reports stepped alone, after the kernel took every step
+/// it could: the kernel does not test the residual itself, and its update
+/// norm, NaN with the residual, sends the lanes back to their steppers.
+#[test]
+fn a_residual_that_turns_nan_in_lanes_fails_as_alone() {
+    use spark_runtime::{LaneStatus, LaneStepper, NewtonMode, NewtonOptions};
+    let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+    let opts = NewtonOptions { mode: NewtonMode::Simplified, ..NewtonOptions::default() };
+    let h = 0.05;
+    let starts: Vec<State<3>> = (0..6)
+        .map(|j| {
+            let (y, z) = (0.3 + 0.1 * j as f64, 0.5 - 0.05 * j as f64);
+            let (vy, vz) = (0.2, -0.1 - 0.02 * j as f64);
+            State::new(0.0, Vector::<3>::new(0.1, y, z), Vector::<3>::new(-(y * vy + z * vz), vy, vz))
+        })
+        .collect();
+    let mut lanes = LaneStepper::<ExpiringCoupling, 3, 1, 2, 11, 8>::new(ExpiringCoupling::default(), tab, opts);
+    lanes.start(&starts, h).unwrap();
+    lanes.advance_by(60);
+    // Alone: `Stepper::integrate` stopping at the first failure (no retry
+    // from the cold guess, no halving).
+    let record = RunOptions { record_every: 1, max_halvings: 0, ..Default::default() };
+    for (j, start) in starts.iter().enumerate() {
+        let mut alone =
+            Stepper::<ExpiringCoupling, 3, 1, 2, 11>::new(ExpiringCoupling::default(), tab).with_options(opts);
+        let schedule = Schedule::Fixed { h, steps: 60 };
+        let Err(IntegrationError::Step { index, source, partial, .. }) =
+            alone.integrate(start.t, &start.q, &start.v, schedule, &record, &mut NoObserver)
+        else {
+            panic!("member {j}: the stage point past t = 2.02 fails the step")
+        };
+        assert_eq!(index, 40, "member {j}: {source}");
+        assert!(matches!(source, StepError::NonFinite { .. }), "member {j}: {source}");
+        let Some(LaneStatus::Failed(failure)) = lanes.status(j) else { panic!("member {j}: {:?}", lanes.status(j)) };
+        // Debug, not `==`: the histories hold NaN.
+        assert_eq!((failure.step, format!("{:?}", failure.error)), (index, format!("{source:?}")), "member {j}");
+        assert_eq!(partial.steps, index, "member {j}");
+        // Where the failed step started: the end of the run up to it.
+        let mut alone =
+            Stepper::<ExpiringCoupling, 3, 1, 2, 11>::new(ExpiringCoupling::default(), tab).with_options(opts);
+        let schedule = Schedule::Fixed { h, steps: index };
+        let run = alone.integrate(start.t, &start.q, &start.v, schedule, &record, &mut NoObserver).unwrap();
+        let last = run.samples.last().unwrap();
+        let bits = |q: &Vector<3>, v: &Vector<3>| (q.map(f64::to_bits), v.map(f64::to_bits));
+        let lane = lanes.state(j).unwrap();
+        assert!(bits(&lane.q, &lane.v) == bits(&last.q, &last.v), "member {j}: {lane:?} in lanes, {last:?} alone");
+        assert_eq!(lanes.kernel_steps(j), Some(index - 2), "member {j}");
+    }
+}
+
+nonholonomic_system! {
     /// Three masses with a quadratic potential that couples neighbours (a
     /// constant, non-diagonal stiffness) and a constraint linear in `v` with
     /// constant coefficients: the SPARK equations are linear.

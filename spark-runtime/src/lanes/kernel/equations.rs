@@ -211,18 +211,18 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
     }
 
-    /// The residual of eq. (6.1) into `g` (`Stepper::residual`), and the
-    /// sum of `0 · g_d` over its rows in each lane: 0 where every entry is
-    /// finite, NaN otherwise (summed as the rows are stored: read back
-    /// afterwards, each row would wait on its own store).
+    /// The residual of eq. (6.1) into `g` (`Stepper::residual`). It is not
+    /// tested for finiteness here: the solve forms row `d` of the update
+    /// from `g_d` itself (a product with the reciprocal mass or a pivot, a
+    /// triangular substitution, or an inverse's row, never a skipped zero),
+    /// and a NaN or an infinity stays non-finite through products and sums
+    /// (`0·∞` is NaN). So the lane's update norm is not finite, and the lane
+    /// goes back to its stepper, which meets the same residual and reports
+    /// it (`a_residual_that_turns_nan_in_lanes_fails_as_alone`).
     #[inline(always)]
-    pub(super) fn residual(&mut self, tab: &Tableau<S>) -> [f64; W] {
+    pub(super) fn residual(&mut self, tab: &Tableau<S>) {
         let h = self.h;
-        let mut poison = [0.0f64; W];
-        let mut put = |g: &mut [[f64; W]; D], d: usize, r: [f64; W]| {
-            for w in 0..W {
-                poison[w] += 0.0 * r[w];
-            }
+        let put = |g: &mut [[f64; W]; D], d: usize, r: [f64; W]| {
             g[d] = r;
         };
         for i in 0..=S {
@@ -282,6 +282,5 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         for m in 0..M {
             put(&mut self.g, D - M + m, self.values[S].constraint[m]);
         }
-        poison
     }
 }
