@@ -127,18 +127,30 @@ impl Schedule<'_> {
                 if times.iter().any(|t| !t.is_finite()) {
                     return Err(IntegrationError::InvalidSchedule("output times must be finite"));
                 }
-                if times.first().is_some_and(|&t| (t - t0) * h < 0.0)
-                    || times.windows(2).any(|w| (w[1] - w[0]) * h <= 0.0)
+                // Signs, not products with h: (t − t0)·h underflows to 0 for
+                // tiny gaps and steps.
+                let dir = h.signum();
+                if times.first().is_some_and(|&t| (t - t0) * dir < 0.0)
+                    || times.windows(2).any(|w| (w[1] - w[0]) * dir <= 0.0)
                 {
                     return Err(IntegrationError::InvalidSchedule(
                         "sampled output times must be strictly monotone in the direction of h, from t0 on",
                     ));
                 }
-                let span = times.last().map_or(0.0, |&t| (t - t0) / h);
+                let Some(&last) = times.last() else { return Ok(0) };
+                let span = (last - t0) / h;
                 if !span.is_finite() || span >= usize::MAX as f64 {
                     return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the last time"));
                 }
-                span.ceil() as usize
+                // Step k ends at t0 + k·h as rounded, which can fall short of
+                // the last time when ⌈(last − t0)/h⌉ rounds down (t0 = 0,
+                // h = 0.2, last = 30.000000000000004: 150 steps end at 30.0);
+                // the last time would then never be sampled.
+                let mut steps = span.ceil() as usize;
+                while (last - (t0 + steps as f64 * h)) * dir > 0.0 {
+                    steps += 1;
+                }
+                steps
             }
             Schedule::Until { h, t_end } => {
                 check_step_size(t0, h).map_err(IntegrationError::InvalidSchedule)?;

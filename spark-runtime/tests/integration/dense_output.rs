@@ -289,3 +289,44 @@ fn dense_observers_see_every_step_continuously() {
         }
     }
 }
+
+/// The steps of a `Sampled` schedule end at `t₀ + k·h` as rounded, so
+/// `⌈(t_last − t₀)/h⌉` steps can end just short of the last time: with
+/// `h = 0.2`, `(30.000000000000004 − 0)/0.2` rounds to 150 and 150 steps end
+/// at 30.0. The run takes one step more and samples every requested time
+/// (it returned without the last one), forward and backward, and times
+/// whose gaps times `h` underflow to 0 are still seen as monotone.
+#[test]
+fn sampled_schedules_sample_a_last_time_the_rounded_step_count_falls_short_of() {
+    let start = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    let mut st = Stepper::<Particle, 3, 1, 2, 11>::new(Particle, Tableau::new(Method::Gauss).unwrap());
+    for (h, times) in [(0.2, [1.0, 30.000000000000004]), (-0.2, [-1.0, -30.000000000000004])] {
+        let traj = st
+            .integrate(
+                0.0,
+                &start.q,
+                &start.v,
+                Schedule::Sampled { h, times: &times },
+                &RunOptions::default(),
+                &mut NoObserver,
+            )
+            .unwrap();
+        let got: Vec<f64> = traj.samples.iter().map(|s| s.t).collect();
+        assert_eq!(got, [0.0, times[0], times[1]], "h = {h}");
+        assert_eq!(traj.report.steps, 151, "h = {h}");
+    }
+    // (t − t₀)·h and (t₂ − t₁)·h underflow to 0 here; the times are increasing.
+    let times = [1e-175, 2e-175];
+    let traj = st
+        .integrate(
+            0.0,
+            &start.q,
+            &start.v,
+            Schedule::Sampled { h: 1e-150, times: &times },
+            &RunOptions::default(),
+            &mut NoObserver,
+        )
+        .unwrap();
+    let got: Vec<f64> = traj.samples.iter().map(|s| s.t).collect();
+    assert_eq!(got, [0.0, 1e-175, 2e-175]);
+}
