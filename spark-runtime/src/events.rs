@@ -29,9 +29,11 @@
 //! at a step boundary is reported once, by the step that ends there, and a
 //! sign change between two evaluated points is never lost. Two crossings of
 //! the same function closer together than a subinterval cancel and are not
-//! seen (the usual limit of sign-based detection). Crossings of one step are
-//! reported in time order; a terminal event ends the run at its time, with
-//! the interpolated state there.
+//! seen (the usual limit of sign-based detection). A zero at the run's start
+//! is not reported (no step ends there), and a NaN value has no sign: a
+//! subinterval with a NaN at either end shows no crossing. Crossings of one
+//! step are reported in time order; a terminal event ends the run at its
+//! time, with the interpolated state there.
 
 use crate::dense::DenseStep;
 use crate::system::{NonholonomicSystem, Vector};

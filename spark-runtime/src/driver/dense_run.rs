@@ -204,7 +204,10 @@ fn find_crossings<Sys, E, const N: usize, const S: usize>(
                 (t, piece.state_at(t))
             };
             let b = (t, events.value(sys, index, t, &at.q, &at.v));
-            let crossed = a.1 != 0.0 && (b.1 == 0.0 || (a.1 < 0.0) != (b.1 < 0.0)) && !b.1.is_nan();
+            // A NaN has no sign: a subinterval with a NaN end shows no
+            // crossing (NaN < 0 is false, which would read it as positive).
+            let signed = !a.1.is_nan() && !b.1.is_nan();
+            let crossed = signed && a.1 != 0.0 && (b.1 == 0.0 || (a.1 < 0.0) != (b.1 < 0.0));
             let rising = a.1 < 0.0;
             if crossed && spec.direction.accepts(rising) {
                 let t = locate(events, sys, index, piece, a, b);

@@ -539,3 +539,55 @@ fn every_scene_keeps_the_base_events() {
     assert!(quiet.events.is_empty() && quiet.report.terminal_event.is_none());
     assert_eq!(quiet.report.steps, 200);
 }
+
+/// A NaN value of an event function has no sign: a check point where the
+/// function is NaN starts or ends no crossing. Reading `NaN < 0` as "not
+/// negative" reported a crossing at the first point after the NaN stretch
+/// whenever the function was negative there (here `g` is NaN before
+/// t = 0.05 and −1 after: a falling crossing "at" 0.05 with residual NaN);
+/// the rising crossing at 0.55 after it is still found, by fixed and by
+/// adaptive runs.
+#[test]
+fn a_nan_event_value_starts_or_ends_no_crossing() {
+    let s0 = particle_start();
+    let specs = [EventSpec { name: "nan", direction: Direction::Both, terminal: false, source: "" }];
+    let g = |_: usize, t: f64, _: &Vector<3>, _: &Vector<3>| EventGradient {
+        value: if t < 0.05 {
+            f64::NAN
+        } else if t < 0.3 {
+            -1.0
+        } else {
+            t - 0.55
+        },
+        t: if t < 0.3 { 0.0 } else { 1.0 },
+        q: Vector::zeros(),
+        v: Vector::zeros(),
+    };
+    let events = RuntimeEvents { specs: &specs, gradient: &g };
+    let fixed = particle_stepper()
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h: 0.1, steps: 10 },
+            &RunOptions::default(),
+            &mut NoObserver,
+            &events,
+        )
+        .unwrap();
+    let adaptive = spark_runtime::integrate_adaptive_with_events(
+        &mut particle_stepper(),
+        0.0,
+        &s0.q,
+        &s0.v,
+        1.0,
+        &spark_runtime::AdaptiveOptions::default(),
+        &mut NoObserver,
+        &events,
+    )
+    .unwrap();
+    for (run, found) in [("fixed", &fixed.events), ("adaptive", &adaptive.trajectory.events)] {
+        assert_eq!(found.len(), 1, "{run}: {found:?}");
+        assert!(found[0].rising && (found[0].t - 0.55).abs() <= 1e-14, "{run}: {found:?}");
+    }
+}
