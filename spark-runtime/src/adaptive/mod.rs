@@ -217,6 +217,9 @@ pub struct EstimatedStep<const N: usize> {
 }
 
 /// The weighted RMS norm of `(eq, ev)` with weights `atol + rtol·max(|a|, |b|)`.
+/// A zero error counts zero whatever its weight: with `atol = 0` a component
+/// that is zero at both ends has weight 0, and `0/0` would make the norm NaN
+/// (every step rejected) for a coordinate that merely stays at rest.
 fn scaled_norm<const N: usize>(
     eq: &Vector<N>,
     ev: &Vector<N>,
@@ -229,9 +232,18 @@ fn scaled_norm<const N: usize>(
     for i in 0..N {
         let wq = atol + rtol * a.q[i].abs().max(b.q[i].abs());
         let wv = atol + rtol * a.v[i].abs().max(b.v[i].abs());
-        sum += (eq[i] / wq).powi(2) + (ev[i] / wv).powi(2);
+        sum += weighted(eq[i], wq).powi(2) + weighted(ev[i], wv).powi(2);
     }
     (sum / (2 * N).max(1) as f64).sqrt()
+}
+
+/// `e / w`, and 0 for `e = 0` (also where `w = 0`).
+fn weighted(e: f64, w: f64) -> f64 {
+    if e == 0.0 {
+        0.0
+    } else {
+        e / w
+    }
 }
 
 /// Which solve of a step with estimate failed.
@@ -590,7 +602,7 @@ where
         // Land on t_end; stretch a step that would leave a sliver behind.
         let last = h >= remaining || remaining - h < 0.01 * h;
         let this = if last { remaining } else { h };
-        let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
+        let floor = options.min_step.max(resolution(state.t));
         if this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, f64::INFINITY, None, report));
         }

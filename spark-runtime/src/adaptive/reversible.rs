@@ -18,8 +18,10 @@ use crate::system::{NonholonomicSystem, Vector};
 /// scale `ε`; it should be even in `v` for reversibility). `ε` comes from
 /// the tolerances of `options` at the initial state; the step sizes are not
 /// error-controlled afterwards. The last step is shortened to land on
-/// `t_end` (the only step outside the symmetric rule). Only the symmetric
-/// methods are accepted ([`is_symmetric`]). `options.max_step`, when set,
+/// `t_end`, or stretched by less than `max(min_step, 16 ulp of t_end)` where
+/// the rule's step would stop just short of it (the only step outside the
+/// symmetric rule). Only the symmetric methods are accepted
+/// ([`is_symmetric`]). `options.max_step`, when set,
 /// bounds every step (it bounds the density from below, which keeps the
 /// rule reversible).
 ///
@@ -206,9 +208,12 @@ where
     loop {
         let h = epsilon / rho.max(rho_min);
         let remaining = (t_end - state.t).abs();
-        let last = h >= remaining;
+        let floor = options.min_step.max(resolution(state.t));
+        // Land on t_end; a step that would leave less than the smallest
+        // step behind (t accumulated in steps of 0.1 reaches 0.9999999999999999,
+        // not 1) is stretched to t_end instead.
+        let last = h >= remaining || remaining - h < options.min_step.max(resolution(t_end));
         let this = if last { remaining } else { h };
-        let floor = options.min_step.max(resolution(state.t).max(resolution(t_end)));
         if this.is_nan() || this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, f64::NAN, None, report));
         }

@@ -58,6 +58,13 @@ where
     if t0 == t_end {
         return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "t_end must differ from t0" });
     }
+    if !(t_end - t0).is_finite() {
+        return Err(AdaptiveError::InvalidInterval {
+            t0,
+            t_end,
+            reason: "t_end − t0 overflows f64 (above 1.8e308); integrate over a shorter interval",
+        });
+    }
     let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;
     stepper.reset_run();
     let accepted = match options.consistency {

@@ -280,3 +280,70 @@ fn reversible_steps_keep_the_energy_error_bounded() {
     assert!(a2 > 4.0 * a1, "controlled energy error {a1:.3e} → {a2:.3e}");
     assert!(rev.report.largest_step > 20.0 * rev.report.smallest_step, "{:?}", rev.report);
 }
+
+/// A pure relative tolerance (`atol = 0`) on a motion with coordinates that
+/// stay at zero: the particle released at rest from `x = 1` keeps
+/// `y = z = ẏ = ż = 0`, whose weights are 0. Their zero errors count zero;
+/// `0/0` made the error norm NaN and every step was rejected down to
+/// `StepSizeTooSmall` at `t = 0`.
+#[test]
+fn a_pure_relative_tolerance_accepts_coordinates_at_rest() {
+    let mut st: Stepper![Particle, 2] = Stepper::new(Particle, Tableau::new(Method::Gauss).unwrap());
+    let (q, v) = (V::<3>::new(1.0, 0.0, 0.0), V::<3>::zeros());
+    for reversible in [false, true] {
+        let o = AdaptiveOptions { rtol: 1e-8, atol: 0.0, ..AdaptiveOptions::default() };
+        let run = if reversible {
+            integrate_reversible(&mut st, 0.0, &q, &v, 1.0, |_, _, _| 1.0, &o, &mut NoObserver)
+        } else {
+            integrate_adaptive(&mut st, 0.0, &q, &v, 1.0, &o, &mut NoObserver)
+        }
+        .unwrap_or_else(|e| panic!("reversible {reversible}: {e}"));
+        let end = run.trajectory.last().unwrap();
+        assert_eq!(end.t, 1.0);
+        // ẍ = −2x: x = cos(√2 t).
+        let x = 2f64.sqrt().cos();
+        assert!((end.q[0] - x).abs() < 1e-6, "reversible {reversible}: x = {} vs {x}", end.q[0]);
+        assert_eq!((end.q[1], end.q[2], end.v[1], end.v[2]), (0.0, 0.0, 0.0, 0.0));
+    }
+}
+
+/// An interval whose length overflows f64 is refused up front; a long one
+/// is stepped from its start with the resolution of `t` there (not at
+/// `t_end`: `t_end = 1e12` refused every step below 3.6e-3 from `t = 0`,
+/// `t_end = 1e300` every step below 3.6e285), so it runs until
+/// `max_steps` rather than stopping at once with `StepSizeTooSmall`.
+#[test]
+fn long_intervals_step_at_the_resolution_of_the_current_time() {
+    let mut st: Stepper![Particle, 2] = Stepper::new(Particle, Tableau::new(Method::Gauss).unwrap());
+    let (q, v) = (V::<3>::new(1.0, 0.0, 0.0), V::<3>::new(0.0, 1.0, 0.0));
+    let d = AdaptiveOptions::default();
+    let err = integrate_adaptive(&mut st, -1e308, &q, &v, 1e308, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::InvalidInterval { .. }) && err.to_string().contains("overflows"), "{err}");
+    let err = integrate_reversible(&mut st, 1e308, &q, &v, -1e308, |_, _, _| 1.0, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::InvalidInterval { .. }), "{err}");
+    let few = AdaptiveOptions { max_steps: 20, ..d };
+    for t_end in [1e12, 1e300, -1e300] {
+        let err = integrate_adaptive(&mut st, 0.0, &q, &v, t_end, &few, &mut NoObserver).unwrap_err();
+        assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 20, .. }), "t_end = {t_end:e}: {err}");
+        let err = integrate_reversible(&mut st, 0.0, &q, &v, t_end, |_, _, _| 1.0, &few, &mut NoObserver).unwrap_err();
+        assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 20, .. }), "reversible {t_end:e}: {err}");
+    }
+}
+
+/// Reversible steps of 0.1 (a constant density, bounded by `max_step`)
+/// accumulate to 0.9999999999999999 after ten steps, not 1: the rule's
+/// next step would leave a sliver of 1.1e-16 behind, below the resolution
+/// of `t`, and the run stopped there with `StepSizeTooSmall`. The step is
+/// stretched onto `t_end` instead.
+#[test]
+fn a_reversible_run_lands_on_t_end_across_round_off_in_t() {
+    let mut st: Stepper![Particle, 2] = Stepper::new(Particle, Tableau::new(Method::Gauss).unwrap());
+    let (q, v) = (V::<3>::new(1.0, 0.0, 0.0), V::<3>::new(0.0, 1.0, 0.0));
+    let o = AdaptiveOptions { rtol: 1e-2, atol: 1e-2, max_step: Some(0.1), ..AdaptiveOptions::default() };
+    for t_end in [1.0, 10.0, -1.0] {
+        let run = integrate_reversible(&mut st, 0.0, &q, &v, t_end, |_, _, _| 10.0, &o, &mut NoObserver)
+            .unwrap_or_else(|e| panic!("t_end = {t_end}: {e}"));
+        assert_eq!(run.trajectory.last().unwrap().t, t_end);
+        assert_eq!(run.report.accepted, (10.0 * t_end.abs()).round() as usize, "t_end = {t_end}");
+    }
+}
