@@ -396,13 +396,12 @@ pub enum AdaptiveError {
     },
     /// The controller asked for a step below the smallest allowed one.
     #[error(
-        "step from t = {} needs h = {} below the smallest step {} (error estimate {} of the tolerance{}); \
+        "step from t = {} needs h = {} below the smallest step {}{}; \
          loosen rtol/atol, lower AdaptiveOptions::min_step, or check the system for a singularity",
         Sci(*t),
         Sci(*h),
         Sci(*min_step),
-        Sci(*scaled_error),
-        last_newton.as_ref().map(|e| format!("; last Newton failure: {e}")).unwrap_or_default()
+        why_too_small(*scaled_error, last_newton.as_deref())
     )]
     StepSizeTooSmall {
         /// Where.
@@ -411,7 +410,9 @@ pub enum AdaptiveError {
         h: f64,
         /// The floor (`min_step`, or the resolution of `t`).
         min_step: f64,
-        /// The last scaled error estimate (∞ after a Newton failure).
+        /// The last scaled error estimate (∞ after a Newton failure, NaN
+        /// when no estimate asked for the step: the first step, or the
+        /// steps of a reversible run).
         scaled_error: f64,
         /// The last Newton failure, if the last attempt failed in Newton.
         last_newton: Option<Box<StepError>>,
@@ -474,6 +475,17 @@ impl AdaptiveError {
     ) -> Self {
         let (last_newton, partial) = (last_newton.map(Box::new), Box::new(report));
         AdaptiveError::StepSizeTooSmall { t, h, min_step, scaled_error, last_newton, partial }
+    }
+}
+
+/// What asked for a step below the floor, for [`AdaptiveError::StepSizeTooSmall`]:
+/// the last error estimate, the last Newton failure, or nothing (NaN: no
+/// estimate was made).
+fn why_too_small(scaled_error: f64, last_newton: Option<&StepError>) -> String {
+    match last_newton {
+        Some(e) => format!(" (error estimate {} of the tolerance; last Newton failure: {e})", Sci(scaled_error)),
+        None if scaled_error.is_nan() => String::new(),
+        None => format!(" (error estimate {} of the tolerance)", Sci(scaled_error)),
     }
 }
 
@@ -595,6 +607,8 @@ where
     let mut report = AdaptiveReport { smallest_step: f64::INFINITY, ..AdaptiveReport::default() };
     let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), &state, options)).min(max_step);
     let mut err_prev = 1.0f64;
+    // The last error estimate (∞ after a Newton failure; NaN before the first).
+    let mut last_err = f64::NAN;
     let mut rejected_last = false;
     let mut attempts = 0usize;
     loop {
@@ -604,7 +618,7 @@ where
         let this = if last { remaining } else { h };
         let floor = options.min_step.max(resolution(state.t));
         if this < floor {
-            return Err(AdaptiveError::too_small(state.t, this, floor, f64::INFINITY, None, report));
+            return Err(AdaptiveError::too_small(state.t, this, floor, last_err, None, report));
         }
         if attempts >= options.max_steps {
             return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
@@ -620,6 +634,7 @@ where
                 report.solves += 3;
                 report.newton_iterations += est.iterations;
                 let err = est.scaled_error;
+                last_err = err;
                 if err <= 1.0 {
                     let [first, second] = &halves.results;
                     let pieces = [(halves.sizes[0], first), (halves.sizes[1], second)];
@@ -661,6 +676,7 @@ where
                     return Err(AdaptiveError::Step { t: state.t, source: f.error, partial: Box::new(report) });
                 }
                 report.newton_failures += 1;
+                last_err = f64::INFINITY;
                 stepper.reset_warm_start();
                 h = 0.25 * this;
                 rejected_last = true;

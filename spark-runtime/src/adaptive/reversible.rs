@@ -145,16 +145,19 @@ where
 {
     let k = (stepper.tableau().method.order(S) + 1) as f64;
     let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), state, options)).min(max_step);
+    // The last error estimate (∞ after a Newton failure; NaN before the first).
+    let mut last_err = f64::NAN;
     for _ in 0..30 {
         let floor = options.min_step.max(resolution(state.t));
         if h < floor {
-            return Err(AdaptiveError::too_small(state.t, h, floor, f64::INFINITY, None, *report));
+            return Err(AdaptiveError::too_small(state.t, h, floor, last_err, None, *report));
         }
         match stepper.step_with_estimate(state, dir * h, options.rtol, options.atol) {
             Ok(est) => {
                 report.solves += 3;
                 report.newton_iterations += est.iterations;
                 let err = est.scaled_error;
+                last_err = err;
                 if err > 1.0 {
                     h *= (options.safety * err.powf(-1.0 / k)).clamp(options.min_factor, 1.0);
                 } else if err < 0.5 && h < max_step {
@@ -170,6 +173,7 @@ where
                     return Err(AdaptiveError::Step { t: state.t, source: f.error, partial: Box::new(*report) });
                 }
                 report.newton_failures += 1;
+                last_err = f64::INFINITY;
                 h *= 0.25;
             }
         }

@@ -5,7 +5,7 @@
 //! [`DenseRun`] so that an accepted step is treated the same way by every
 //! driver.
 
-use super::{AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
+use super::{resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
 use crate::driver::{Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory};
 use crate::events::EventFunctions;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
@@ -63,6 +63,13 @@ where
             t0,
             t_end,
             reason: "t_end − t0 overflows f64 (above 1.8e308); integrate over a shorter interval",
+        });
+    }
+    if (t_end - t0).abs() < resolution(t0) {
+        return Err(AdaptiveError::InvalidInterval {
+            t0,
+            t_end,
+            reason: "t_end − t0 is below the resolution of t at t0 (16 ulp of t0), the smallest step a run takes",
         });
     }
     let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;

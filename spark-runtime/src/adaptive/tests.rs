@@ -347,3 +347,28 @@ fn a_reversible_run_lands_on_t_end_across_round_off_in_t() {
         assert_eq!(run.report.accepted, (10.0 * t_end.abs()).round() as usize, "t_end = {t_end}");
     }
 }
+
+/// `StepSizeTooSmall` names what asked for the step: the last error
+/// estimate when there was one (it said "error estimate inf" for every step
+/// refused before its attempt), nothing when no estimate was made (a
+/// `min_step` above the first step); an interval shorter than the
+/// resolution of `t` at `t₀` is refused as an interval.
+#[test]
+fn step_size_too_small_names_the_estimate_that_asked_for_it() {
+    let (sys, s) = orbit();
+    let mut st: Stepper![OrbitParticle, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let o = AdaptiveOptions { rtol: 1e-8, atol: 1e-8, min_step: 0.5, initial_step: Some(1.0), ..Default::default() };
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &o, &mut NoObserver).unwrap_err();
+    let AdaptiveError::StepSizeTooSmall { scaled_error, .. } = err else { panic!("{err}") };
+    assert!(scaled_error.is_finite() && scaled_error > 1.0, "{err}");
+    assert!(err.to_string().contains(&format!("error estimate {}", crate::error::Sci(scaled_error))), "{err}");
+    let o = AdaptiveOptions { min_step: 1e300, ..AdaptiveOptions::default() };
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &o, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::StepSizeTooSmall { .. }) && !err.to_string().contains("estimate"), "{err}");
+    let d = AdaptiveOptions::default();
+    let err = integrate_adaptive(&mut st, 1.0, &s.q, &s.v, 1.0 + 2.2e-16, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::InvalidInterval { .. }) && err.to_string().contains("resolution"), "{err}");
+    let err =
+        integrate_reversible(&mut st, 1.0, &s.q, &s.v, 1.0 - 2.2e-16, |_, _, _| 1.0, &d, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::InvalidInterval { .. }), "{err}");
+}
