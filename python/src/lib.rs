@@ -223,19 +223,18 @@ fn position(span: proc_macro2::Span) -> (usize, usize) {
     (start.line, start.column + 1)
 }
 
-/// Checks DSL text with the macro's own parser and engine. Returns
-/// `{"name", "n", "m", "coordinates", "parameters"}` for a good declaration
-/// and `{"error", "line", "column"}` for a bad one (the message is the one
-/// `nonholonomic_system!` would give as a compile error).
-#[pyfunction]
-fn check_dsl<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    let fail = |message: String, span: proc_macro2::Span| -> PyResult<Bound<'py, PyDict>> {
+/// What [`check_dsl`] found, as plain data: the token types of proc-macro2
+/// stay on the thread that made them.
+enum Checked {
+    Good { name: String, n: usize, m: usize, coordinates: Vec<String>, parameters: Vec<String> },
+    Bad { message: String, line: usize, column: usize },
+}
+
+/// The check of [`check_dsl`]: the macro's parser and engine on `text`.
+fn check_text(text: &str) -> Checked {
+    let fail = |message: String, span: proc_macro2::Span| {
         let (line, column) = position(span);
-        d.set_item("error", message)?;
-        d.set_item("line", line)?;
-        d.set_item("column", column)?;
-        Ok(d.clone())
+        Checked::Bad { message, line, column }
     };
     let tokens: proc_macro2::TokenStream = match text.parse() {
         Ok(t) => t,
@@ -267,11 +266,76 @@ fn check_dsl<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyDict>> {
         Ok(a) => a,
         Err(e) => return fail(e.message, e.span),
     };
-    d.set_item("name", spec.name.to_string())?;
-    d.set_item("n", analysis.n)?;
-    d.set_item("m", analysis.m)?;
-    d.set_item("coordinates", PyList::new(py, spec.coordinates.iter().map(|c| c.name.clone()))?)?;
-    d.set_item("parameters", PyList::new(py, spec.parameters.iter().map(|p| p.name.name.clone()))?)?;
+    Checked::Good {
+        name: spec.name.to_string(),
+        n: analysis.n,
+        m: analysis.m,
+        coordinates: spec.coordinates.iter().map(|c| c.name.clone()).collect(),
+        parameters: spec.parameters.iter().map(|p| p.name.name.clone()).collect(),
+    }
+}
+
+/// How often [`check_dsl`]'s waiting thread checks for signals (Ctrl-C).
+const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Stack of the thread the check works on: the size of a main thread's,
+/// where the check ran before (the parser recurses into nested expressions).
+const CHECK_STACK: usize = 8 << 20;
+
+/// Checks DSL text with the macro's own parser and engine. Returns
+/// `{"name", "n", "m", "coordinates", "parameters"}` for a good declaration
+/// and `{"error", "line", "column"}` for a bad one (the message is the one
+/// `nonholonomic_system!` would give as a compile error).
+///
+/// The check runs on a thread of its own while the calling thread, the GIL
+/// released, checks Python's signal handlers every 50 ms: Ctrl-C raises
+/// `KeyboardInterrupt` at once, even for a large declaration (the engine's
+/// work grows like n², seconds at the largest size it accepts,
+/// `spark_symbolic::dsl::MAX_COORDINATES`). An interrupted check cannot be
+/// stopped inside the engine; it finishes on its thread and its result is
+/// dropped.
+#[pyfunction]
+fn check_dsl<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyDict>> {
+    let text = text.to_owned();
+    let (tx, mut rx) = std::sync::mpsc::channel();
+    std::thread::Builder::new()
+        .name("spark-check".into())
+        .stack_size(CHECK_STACK)
+        .spawn(move || {
+            // The receiver is gone only when the caller was interrupted.
+            let _ = tx.send(check_text(&text));
+        })
+        .map_err(|e| spark_error(py, format!("could not start the declaration check's thread: {e}")))?;
+    let checked = loop {
+        // The receiver moves into the wait and back: it is `Send`, not `Sync`.
+        let got;
+        (rx, got) = py.detach(move || {
+            let got = rx.recv_timeout(SIGNAL_POLL);
+            (rx, got)
+        });
+        match got {
+            Ok(checked) => break checked,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => py.check_signals()?,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                return Err(spark_error(py, "the declaration check's thread ended without a result (it panicked)"))
+            }
+        }
+    };
+    let d = PyDict::new(py);
+    match checked {
+        Checked::Bad { message, line, column } => {
+            d.set_item("error", message)?;
+            d.set_item("line", line)?;
+            d.set_item("column", column)?;
+        }
+        Checked::Good { name, n, m, coordinates, parameters } => {
+            d.set_item("name", name)?;
+            d.set_item("n", n)?;
+            d.set_item("m", m)?;
+            d.set_item("coordinates", PyList::new(py, coordinates)?)?;
+            d.set_item("parameters", PyList::new(py, parameters)?)?;
+        }
+    }
     Ok(d)
 }
 

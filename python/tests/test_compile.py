@@ -121,3 +121,46 @@ def test_missing_toolchain_raises_a_clear_error(tmp_path, monkeypatch):
     monkeypatch.setenv("CARGO", str(tmp_path / "no-such-cargo"))
     with pytest.raises(spark.ToolchainError, match="is not an executable"):
         spark.compile(text, cache_dir=str(tmp_path / "cache"))
+
+
+def many_coordinates(n: int) -> str:
+    """A declaration with `n` coupled coordinates (the McLachlan-Perlmutter
+    particles' shape): its derivatives take the engine time growing like n²."""
+    q = [f"q{i}" for i in range(1, n + 1)]
+    kinetic = " + ".join(f"dot({x})^2" for x in q)
+    potential = " + ".join(f"{a}^2*{b}^2" for a, b in zip(q, q[1:]))
+    constraint = " + ".join(f"{x}*dot({x})" for x in q[n // 2 :])
+    return (
+        f"pub struct Big {{\n    coordinates: [{', '.join(q)}],\n    lagrangian: ({kinetic})/2 - ({potential})/2,\n"
+        f"    constraints: [ dot(q1) + {constraint} ],\n}}\n"
+    )
+
+
+def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
+    # 3000 coordinates stalled the check for over 300 s (the engine's work
+    # grows like n²); they are refused at the coordinate list, before cargo.
+    import time
+
+    start = time.monotonic()
+    with pytest.raises(spark.DslError, match=r"3000 coordinates: spark supports at most 400") as info:
+        spark.compile(many_coordinates(3000), cache_dir=str(tmp_path))
+    assert time.monotonic() - start < 5.0
+    assert (info.value.line, info.value.column) == (2, 18), str(info.value)
+    assert not any(tmp_path.iterdir()), "a refused declaration must not reach cargo"
+
+
+def test_ctrl_c_interrupts_the_check_of_a_large_declaration():
+    # The check of 400 coupled coordinates takes seconds; Ctrl-C ends it at
+    # once (it held the GIL and ignored signals until it was done).
+    script = (
+        "import sys, spark\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from test_compile import many_coordinates\n"
+        "text = many_coordinates(400)\n"
+        "print('running')\n"
+        "spark._native.check_dsl(text)\n"
+        "print('checked', file=sys.stderr)\n"
+    )
+    took, err = interrupt_after_start(script, delay=0.3)
+    assert "KeyboardInterrupt" in err and "checked" not in err, err
+    assert took < 1.5, f"{took:.1f} s from Ctrl-C to exit"

@@ -9,7 +9,7 @@ use super::expr::{describe, parse_expression, split_commas};
 use super::forces::parse_force_block;
 use super::names::reserved_reason;
 use super::scope::{Context, Multipliers, Scope};
-use super::{single_group, Header, Sections};
+use super::{single_group, Header, Sections, MAX_COORDINATES};
 use crate::spec::{Constant, ConstraintSpec, Named, Parameter, SpecError, SrcExpr, SystemSpec};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenTree};
 
@@ -180,6 +180,17 @@ fn declare_coordinates(group: &Group, declared: &mut Vec<(String, &'static str)>
     }
     if coordinates.is_empty() {
         return err(group.span(), "no coordinates: declare at least one, e.g. `coordinates: [x, y]`");
+    }
+    if coordinates.len() > MAX_COORDINATES {
+        return err(
+            group.span(),
+            format!(
+                "{} coordinates: spark supports at most {MAX_COORDINATES} (the symbolic derivatives take time \
+                 growing like n², and a step's dense Newton matrix and stack use like n²); split the system into \
+                 smaller ones or reduce the coordinates",
+                coordinates.len()
+            ),
+        );
     }
     Ok(coordinates)
 }

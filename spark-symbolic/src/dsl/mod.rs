@@ -87,6 +87,18 @@ use names::{list, nearest};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
 use quote::quote;
 
+/// The most coordinates a declaration may have. The engine's work grows
+/// like `n²` (every derivative is a pass over the expression graph, ≈ 4 s
+/// at `n = 400` and 15 s at `n = 800` for the macro, optimized; a cargo
+/// build runs the macro unoptimized, several times slower), a step's
+/// Newton matrix is dense `D × D` with `D = s(n + m) + n`, and a step's
+/// stack use grows like `10 n²` bytes: at `n = 401` it is 1.6 MiB, within
+/// the 2 MiB of a rayon worker that runs an ensemble's members
+/// (`tests/tests/large_systems.rs`), and beyond about `n = 440` it is not.
+/// A larger declaration is refused at its `coordinates` list, before any
+/// differentiation, instead of stalling the compiler or `spark.compile`.
+pub const MAX_COORDINATES: usize = 400;
+
 /// The section names [`parse`] reads, in the order the documentation lists them.
 pub const SECTIONS: [&str; 8] =
     ["coordinates", "parameters", "constants", "lagrangian", "constraints", "forces", "nonideal_forces", "events"];

@@ -749,3 +749,27 @@ fn inverse_trigonometric_functions_are_atan2_sugar() {
     let e = parse_str("struct A { coordinates: [x], lagrangian: dot(x)^2/2 - abs(x) }").unwrap_err();
     assert!(e.message.contains("sqrt(x^2 + eps^2)"), "{}", e.message);
 }
+
+/// A declaration with `n` coordinates `x1..xn`, `L = ½Σ dot(x_i)²`.
+fn with_coordinates(n: usize) -> String {
+    let names: Vec<String> = (1..=n).map(|i| format!("x{i}")).collect();
+    let kinetic: Vec<String> = names.iter().map(|x| format!("dot({x})^2")).collect();
+    format!("struct Big {{ coordinates: [{}], lagrangian: ({})/2 }}", names.join(", "), kinetic.join(" + "))
+}
+
+#[test]
+fn more_coordinates_than_supported_are_refused_at_the_list() {
+    let n = MAX_COORDINATES + 1;
+    let src = with_coordinates(n);
+    let (msg, text) = error(&src);
+    assert!(msg.contains(&format!("{n} coordinates")) && msg.contains(&format!("at most {MAX_COORDINATES}")), "{msg}");
+    assert!(text.starts_with("[x1, x2"), "span of `{msg}`: {text}");
+    // 3000 coordinates (which took minutes to differentiate) are refused just as fast, and through
+    // the path the macro takes (effects and scenes included).
+    let start = std::time::Instant::now();
+    let e = parse_declaration(with_coordinates(3000).parse().expect("lexes")).map(|_| ()).unwrap_err();
+    assert!(e.message.contains("3000 coordinates"), "{}", e.message);
+    assert!(start.elapsed().as_secs_f64() < 5.0, "{:?}", start.elapsed());
+    // The limit itself is accepted.
+    assert_eq!(parse_str(&with_coordinates(MAX_COORDINATES)).expect("parses").coordinates.len(), MAX_COORDINATES);
+}
