@@ -224,12 +224,24 @@ fn every_numeric_argument_is_checked_and_named() {
 /// user gave them: a subnormal `--h` (its 1/h overflows inside the step),
 /// an `--h` that does not move `--t0`, a `--t0` whose default end rounds
 /// back to it, a stage count outside a single-valued range, a parameter
-/// given twice.
+/// given twice, an `--h` whose h² overflows in the Newton matrix (it failed
+/// after halving with a non-finite Jacobian), a `--v0` whose energy
+/// overflows (it failed with an energy drift against E0 = inf) and a zero
+/// mass (it failed with a singular Newton matrix in the first step).
 #[test]
 fn unusable_arguments_are_refused_naming_what_was_given() {
     let dir = temp_dir("given");
     let out = dir.to_str().unwrap();
-    let cases: [(&[&str], &[&str]); 7] = [
+    let cases: [(&[&str], &[&str]); 10] = [
+        (&["run", "skate", "--h", "1e300", "--t-end", "1e300"], &["--h", "h² overflows", "smaller |h|"]),
+        (
+            &["run", "skate", "--v0", "0,0,1e155", "--t-end", "1"],
+            &["initial state: the energy", "overflows f64", "|v0|²"],
+        ),
+        (
+            &["run", "skate", "--param", "m=0", "--t-end", "1"],
+            &["initial state", "mass matrix W = d²L/dv²", "coordinate `x`", "Parameters that are 0 here: m"],
+        ),
         (&["run", "skate", "--h", "1e-311", "--t-end", "3e-311"], &["--h", "subnormal", "use |h| ≥ 2.2e-308"]),
         (&["run", "skate", "--t0", "1e20", "--h", "1", "--t-end", "1.0000001e20"], &["--h", "resolution of t", "use"]),
         (&["section", "mp7-nh", "--event", "section", "--members", "2", "--h", "1e-311"], &["--h", "subnormal"]),

@@ -167,3 +167,19 @@ def test_an_ensemble_refuses_more_threads_than_it_starts(system):
         with pytest.raises(spark.SparkError, match="more than 1024"):
             spark.ensemble(system, "gauss", 2, 0.1, 3, q0s, v0s, threads=threads)
     assert spark.ensemble(system, "gauss", 2, 0.1, 3, q0s, v0s, threads=4).q.shape[0] == 2
+
+
+def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
+    # |v0|² overflows: named at the initial state (it was an energy drift
+    # against E0 = inf in the first step).
+    with pytest.raises(spark.SparkError, match=r"initial state: the energy .* is (inf|NaN).*overflows f64"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, q0=[0, 0, 0], v0=[0, 0, 1e155])
+    # A zero mass: the mass matrix is singular at the start, with the
+    # coordinate and the parameter (it was a singular Newton matrix in the
+    # first step).
+    with pytest.raises(spark.SparkError, match=r"mass matrix W = d²L/dv².*coordinate `x`.*Parameters that are 0 here: m"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, params={"m": 0.0})
+    # h² overflows in the Newton matrix: refused up front, saying so (it
+    # failed after four halvings with a non-finite Jacobian).
+    with pytest.raises(spark.SparkError, match=r"h = 1.000e300.*h² overflows f64.*smaller \|h\|"):
+        spark.integrate("skate", "gauss", 2, 1e300, 1)

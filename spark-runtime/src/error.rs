@@ -213,11 +213,14 @@ pub enum StepError {
         /// The iterations.
         history: Box<NewtonHistory>,
     },
-    /// The system produced NaN or infinite values.
+    /// The system produced NaN or infinite values. For a step (`h ≠ 0`) the
+    /// message says that the step's equations overflowed and to reduce `h`:
+    /// their terms carry `h` and `h²` (`h²·∂²L/∂q²` in the Newton matrix).
     #[error(
-        "non-finite value in the {stage} of the step from t = {} with h = {}; history: {history}",
+        "non-finite value in the {stage} of the step from t = {} with h = {}{}; history: {history}",
         Sci(*t),
-        Sci(*h)
+        Sci(*h),
+        non_finite_hint(*h)
     )]
     NonFinite {
         /// Start time.
@@ -301,6 +304,47 @@ pub enum StepError {
         /// The tolerance of the offending row.
         tolerance: f64,
     },
+    /// A quantity of the equations of motion is NaN or infinite at the
+    /// initial state `(t₀, q₀, v₀)` (checked by
+    /// [`consistent_velocity`](crate::consistent_velocity) before the first
+    /// step): the energy `E`, the Lagrangian `L`, the momentum `∇_v L`, the
+    /// force `∇_q L`, the mass matrix `∇²_vv L` or the constraint rows
+    /// `∂k/∂v`. Typically a magnitude whose square overflows f64 (`|v₀|²`
+    /// beyond 1.8e308) or a parameter that makes a term undefined.
+    #[error(
+        "the {quantity} is {} at the initial state (t0 = {}): it overflows f64 there (|v0|² does for \
+         |v0| above 1.3e154) or a parameter makes it undefined; give an initial state and parameters at which it is \
+         a finite number (rescale the units if the magnitudes are physical)",
+        Sci(*value),
+        Sci(*t)
+    )]
+    NonFiniteInitialValue {
+        /// Initial time.
+        t: f64,
+        /// Which quantity, e.g. `energy E = ∇_v L·v − L`.
+        quantity: &'static str,
+        /// Its value (for a vector or matrix, the first non-finite entry).
+        value: f64,
+    },
+    /// The saddle matrix `[[W, Kᵀ],[K, 0]]` (`W = ∇²_vv L` the mass matrix,
+    /// `K = ∂k/∂v`) is singular at the initial state (checked by
+    /// [`consistent_velocity`](crate::consistent_velocity) before the first
+    /// step), so the equations of motion do not determine the
+    /// accelerations there: `W` is singular on the velocities the
+    /// constraints leave free (a zero mass or inertia parameter, a velocity
+    /// missing from `L`), or the constraint rows are dependent or vanish.
+    /// Every step from this state would fail with a singular Newton matrix.
+    #[error(
+        "the accelerations are not determined at the initial state (t0 = {}): the saddle matrix [[W, K^T],[K, 0]] \
+         of the mass matrix W = d²L/dv² and the constraint rows K = dk/dv is singular there; {detail}",
+        Sci(*t)
+    )]
+    SingularInitialState {
+        /// Initial time.
+        t: f64,
+        /// Which column failed, what it points at and the likely cause.
+        detail: Box<str>,
+    },
     /// A cold start finds the constraint rows `K = ∂k/∂v` dependent or
     /// nearly so: the condition number of `K W⁻¹ Kᵀ` (the Schur complement
     /// of the saddle matrix `[[W, Kᵀ],[K, 0]]`, `W = ∇²_vv L`) exceeds
@@ -344,9 +388,22 @@ impl StepError {
             self,
             StepError::InvalidStep { .. }
                 | StepError::InconsistentInitialState { .. }
+                | StepError::NonFiniteInitialValue { .. }
+                | StepError::SingularInitialState { .. }
                 | StepError::InvalidOption(_)
                 | StepError::InconsistentStart { .. }
                 | StepError::DependentConstraints { .. }
         )
+    }
+}
+
+/// The advice [`StepError::NonFinite`] gives: for a step (`h ≠ 0`), that its
+/// equations overflowed and a smaller `h` is the first thing to try.
+fn non_finite_hint(h: f64) -> &'static str {
+    if h == 0.0 {
+        ""
+    } else {
+        " (the step's equations overflowed f64: their terms grow with h and h², e.g. h²·d²L/dq² in the Newton \
+         matrix, so reduce h; if every h fails at this state, check the state and the parameters)"
     }
 }

@@ -299,6 +299,18 @@ where
 /// Checks `(t₀, q₀, v₀)` against the constraints and, by `policy`, returns
 /// `v₀` unchanged, returns the projected velocity, or fails.
 ///
+/// At the state it returns it also checks that the equations of motion are
+/// defined and determine the accelerations, so that a run from a state
+/// where no step can succeed is refused up front with the cause instead of
+/// failing in its first step: the energy, the Lagrangian, the momentum, the
+/// force, the mass matrix and the constraint rows must be finite
+/// ([`StepError::NonFiniteInitialValue`] names the first that is not), and
+/// the saddle matrix `[[W, Kᵀ],[K, 0]]` must be regular
+/// ([`StepError::SingularInitialState`], naming the coordinate or
+/// constraint of the singular column and the parameters that are zero).
+/// The check costs one evaluation of the stage Jacobians and one LU
+/// factorization of the `(N + M)²` saddle matrix on the heap, once per run.
+///
 /// # The projection
 /// With `W = ∇²_vv L(t₀, q₀, v₀)` and `K(v) = ∂k/∂v(t₀, q₀, v)`, the
 /// projected velocity `v` and a multiplier `λ` solve the first-order
@@ -353,13 +365,108 @@ where
     let tolerance = match policy {
         ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
     };
-    if residual <= tolerance {
-        return Ok(*v0);
-    }
-    if let ConsistencyPolicy::Error { .. } = policy {
+    let v = if residual <= tolerance {
+        *v0
+    } else if let ConsistencyPolicy::Error { .. } = policy {
         return Err(StepError::InconsistentInitialState { residual, tolerance });
+    } else {
+        project(sys, t0, q0, v0)?
+    };
+    check_start(sys, t0, q0, &v)?;
+    Ok(v)
+}
+
+/// The first entry of `x` that is not finite.
+fn first_non_finite(x: &[f64]) -> Option<f64> {
+    x.iter().copied().find(|x| !x.is_finite())
+}
+
+/// The checks of [`consistent_velocity`] at the state a run starts from:
+/// the equations of motion are finite there, and the saddle matrix
+/// `[[W, Kᵀ],[K, 0]]` is regular.
+fn check_start<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+) -> Result<(), StepError>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let non_finite = |quantity, value| StepError::NonFiniteInitialValue { t: t0, quantity, value };
+    let energy = sys.energy(t0, q0, v0);
+    if !energy.is_finite() {
+        return Err(non_finite("energy E = dL/dv·v − L", energy));
     }
-    project(sys, t0, q0, v0)
+    let lagrangian = sys.lagrangian(t0, q0, v0);
+    if !lagrangian.is_finite() {
+        return Err(non_finite("Lagrangian L", lagrangian));
+    }
+    let (mut vals, mut jac) = (StageValues::<N, M>::zeros(), StageJacobians::<N, M>::boxed_zeros());
+    sys.stage_jacobians_into(t0, q0, v0, &Vector::<M>::zeros(), &mut vals, &mut jac);
+    let quantities: [(&'static str, &[f64]); 4] = [
+        ("momentum dL/dv", vals.momentum.as_slice()),
+        ("force dL/dq", vals.force.as_slice()),
+        ("mass matrix d²L/dv²", jac.mass.as_slice()),
+        ("constraint rows dk/dv", jac.constraint_v.as_slice()),
+    ];
+    for (quantity, x) in quantities {
+        if let Some(value) = first_non_finite(x) {
+            return Err(non_finite(quantity, value));
+        }
+    }
+    let mut lu = SaddleLu::<N, M>::new();
+    match lu.factor(&jac.mass, &jac.constraint_v) {
+        Ok(()) => Ok(()),
+        Err(SaddleFailure::Singular { column, pivot, scale }) => Err(StepError::SingularInitialState {
+            t: t0,
+            detail: singular_start_detail(sys, column, pivot, scale).into(),
+        }),
+        // Not reached: the entries were checked above.
+        Err(SaddleFailure::NonFinite) => Err(non_finite("mass matrix d²L/dv²", f64::NAN)),
+    }
+}
+
+/// What [`StepError::SingularInitialState`] says about the singular column
+/// `column` of the saddle matrix: its coordinate or constraint, the pivot,
+/// and the parameters that are zero (the usual cause).
+fn singular_start_detail<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    column: usize,
+    pivot: f64,
+    scale: f64,
+) -> String
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    use crate::error::Sci;
+    let source = Sys::SOURCE;
+    let zero: Vec<&str> = source
+        .parameters
+        .iter()
+        .zip(sys.parameter_values())
+        .filter(|(_, value)| *value == 0.0)
+        .map(|(name, _)| *name)
+        .collect();
+    let suspects =
+        if zero.is_empty() { String::new() } else { format!(" Parameters that are 0 here: {}.", zero.join(", ")) };
+    let pivot = format!("pivot {} is below 64 eps x its column's largest entry {}", Sci(pivot), Sci(scale));
+    if column < N {
+        let name = source.coordinates.get(column).map_or_else(|| format!("{column}"), |c| format!("`{c}`"));
+        format!(
+            "the mass matrix d²L/dv² is singular on the velocities the constraints leave free, at the velocity of \
+             coordinate {name} (column {column}: {pivot}). Likely a parameter that makes it degenerate, such as a \
+             zero mass or inertia, or a velocity that L does not contain.{suspects} Give the mass matrix full rank \
+             on the motions the constraints allow."
+        )
+    } else {
+        format!(
+            "the constraint rows dk/dv are dependent or vanish, or the mass matrix d²L/dv² is singular on the \
+             velocities the constraints leave free (column of constraint {} of {M}: {pivot}).{suspects} Start where \
+             the constraints are independent, remove a redundant constraint, or give the mass matrix full rank.",
+            column - N + 1
+        )
+    }
 }
 
 /// The projection of [`consistent_velocity`].

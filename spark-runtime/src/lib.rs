@@ -163,7 +163,7 @@ pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
     check_record_size, check_step_size, record_memory_limit, FailurePolicy, IntegrationError, NoObserver, Observe,
     Observer, RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule, SubstepOverrun, Trajectory,
-    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
+    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS, MAX_STEP_SIZE,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{

@@ -436,6 +436,52 @@ fn projection_and_consistent_acceleration_need_only_a_regular_saddle_matrix() {
     assert!(consistent_acceleration(&skate, 0.0, &q, &v0).is_none());
 }
 
+/// A start where no step can succeed is refused by `consistent_velocity`
+/// (which every run calls first) with the cause, instead of failing in the
+/// first step with an energy drift against `E0 = inf` or a singular Newton
+/// matrix.
+#[test]
+fn initial_states_where_no_step_can_succeed_are_refused_with_the_cause() {
+    let q0 = V::<3>::zeros();
+    let fixed = Schedule::Fixed { h: 0.1, steps: 3 };
+    let run = |sys: Skate, v0: V<3>| {
+        Stepper::<_, 3, 1, 2, 11>::new(sys, tab(Method::Gauss))
+            .integrate(0.0, &q0, &v0, fixed, &RunOptions::default(), &mut NoObserver)
+            .unwrap_err()
+    };
+    // |v0|² overflows: the energy is not finite (k = v_y = 0 holds).
+    let huge = V::<3>::new(0.0, 0.0, 1e155);
+    for policy in [ConsistencyPolicy::default(), ConsistencyPolicy::Project { tolerance: 0.0 }] {
+        let err = consistent_velocity(&Skate::default(), 0.0, &q0, &huge, policy).unwrap_err();
+        let StepError::NonFiniteInitialValue { quantity, value, .. } = &err else { panic!("{err:?}") };
+        assert!(quantity.starts_with("energy") && !value.is_finite(), "{err}");
+    }
+    let err = run(Skate::default(), huge);
+    assert!(matches!(err, IntegrationError::Initial(StepError::NonFiniteInitialValue { .. })), "{err:?}");
+    let text = err.to_string();
+    assert!(text.starts_with("initial state: the energy") && text.contains("overflows f64"), "{text}");
+    // A parameter that makes the force undefined (0·inf) is named as such.
+    let err = run(Skate { g: f64::INFINITY, ..Skate::default() }, V::<3>::new(0.0, 0.0, 1.0));
+    assert!(matches!(err, IntegrationError::Initial(StepError::NonFiniteInitialValue { .. })), "{err:?}");
+    // m = 0: x has no inertia and no constraint ties it at θ = 0 (k = v_y).
+    let massless = Skate { m: 0.0, ..Skate::default() };
+    let v0 = V::<3>::new(0.0, 0.0, 1.0);
+    let err = consistent_velocity(&massless, 0.0, &q0, &v0, ConsistencyPolicy::default()).unwrap_err();
+    let StepError::SingularInitialState { detail, .. } = &err else { panic!("{err:?}") };
+    assert!(detail.contains("coordinate `x`") && detail.contains("Parameters that are 0 here: m."), "{err}");
+    let text = run(massless, v0).to_string();
+    assert!(text.contains("initial state") && text.contains("mass matrix W = d²L/dv²"), "{text}");
+    assert!(text.contains("zero mass or inertia"), "{text}");
+    // A negative mass is no error in itself (the saddle matrix is regular).
+    let negative = Skate { m: -1.0, ..Skate::default() };
+    assert_eq!(consistent_velocity(&negative, 0.0, &q0, &v0, ConsistencyPolicy::default()), Ok(v0));
+    // A singular W with a regular saddle matrix passes the check (the robot
+    // with m = 0: the constraints tie v_x and v_y to the wheel).
+    let robot = MobileRobot { m: 0.0, ..MobileRobot::default() };
+    let (rq, rv) = (V::<4>::new(0.0, 0.0, 0.3, 0.0), V::<4>::new(0.3f64.cos(), 0.3f64.sin(), 0.5, 1.0));
+    assert_eq!(consistent_velocity(&robot, 0.0, &rq, &rv, ConsistencyPolicy::default()), Ok(rv));
+}
+
 // ---------------------------------------------------------------- driver
 
 #[test]

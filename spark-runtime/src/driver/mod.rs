@@ -71,19 +71,31 @@ pub enum Schedule<'a> {
     },
 }
 
+/// The largest step size a run takes: `√f64::MAX ≈ 1.34e154`. The Newton
+/// matrix of a step carries `h²` (the `h²·â·a·∂F/∂q` blocks of every method
+/// but symplectic Euler II), and beyond this `h²` overflows f64, so the
+/// matrix holds infinities and NaNs and no step can succeed.
+pub const MAX_STEP_SIZE: f64 = 1.340_780_792_994_259_6e154;
+
 /// Whether the step size `h` can step from `t0`, or why not, with what to
 /// change: `h` must be finite and nonzero, a normal number (for a
 /// subnormal `h`, `|h| < f64::MIN_POSITIVE ≈ 2.2e-308`, `1/h` overflows in
-/// the step's equations), and large enough to move `t0` (`t0 + h ≠ t0`;
-/// not checked for a non-finite `t0`). [`Stepper::integrate`] checks the
-/// step size of every schedule with it before the first step; front ends
-/// call it to refuse a step size up front with the values they were given.
+/// the step's equations), at most [`MAX_STEP_SIZE`] in magnitude (beyond
+/// it `h²` overflows in the step's Newton matrix), and large enough to move
+/// `t0` (`t0 + h ≠ t0`; not checked for a non-finite `t0`).
+/// [`Stepper::integrate`] checks the step size of every schedule with it
+/// before the first step; front ends call it to refuse a step size up
+/// front with the values they were given.
 pub fn check_step_size(t0: f64, h: f64) -> Result<(), &'static str> {
     if h == 0.0 || !h.is_finite() {
         return Err("step size must be finite and nonzero");
     }
     if !h.is_normal() {
         return Err("step size is subnormal (|h| < 2.2e-308, where 1/h overflows); use |h| ≥ 2.2e-308");
+    }
+    if h.abs() > MAX_STEP_SIZE {
+        return Err("step size is above 1.34e154, where h² overflows f64 in the step's Newton matrix; use a smaller \
+             |h| (the step sizes of a problem are fractions of its time scale)");
     }
     if t0.is_finite() && t0 + h == t0 {
         return Err("step size is below the resolution of t at t0 (t0 + h == t0); use a larger |h| or a t0 nearer 0");
@@ -107,10 +119,18 @@ impl Schedule<'_> {
                 if ts.iter().any(|t| !t.is_finite()) {
                     return Err(IntegrationError::InvalidSchedule("output times must be finite"));
                 }
-                // The smallest gap between consecutive times: zero exactly when
-                // two are equal (finite differences do not underflow to 0).
+                // The smallest gap between consecutive times (zero exactly when
+                // two are equal: finite differences do not underflow to 0) and
+                // the largest (the largest step).
                 let gap = std::iter::once(&t0).chain(ts.iter()).zip(ts.iter()).map(|(a, b)| (b - a).abs());
-                match gap.fold(f64::INFINITY, f64::min) {
+                let (smallest, largest) = gap.fold((f64::INFINITY, 0.0f64), |(lo, hi), g| (lo.min(g), hi.max(g)));
+                if largest > MAX_STEP_SIZE {
+                    return Err(IntegrationError::InvalidSchedule(
+                        "consecutive output times lie more than 1.34e154 apart (a step where h² overflows f64 in the \
+                         step's Newton matrix); use times closer together",
+                    ));
+                }
+                match smallest {
                     0.0 => return Err(IntegrationError::InvalidSchedule("consecutive output times must differ")),
                     g if g < f64::MIN_POSITIVE => {
                         return Err(IntegrationError::InvalidSchedule(

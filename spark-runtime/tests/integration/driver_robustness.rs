@@ -10,7 +10,7 @@ use spark_runtime::fixtures::paper::{MobileRobot, Skate};
 use spark_runtime::{
     nonholonomic_system, ConsistencyPolicy, FailurePolicy, IntegrationError, Method, NewtonOptions, NoObserver,
     NonholonomicSystem, RejectionPolicy, RunOptions, Schedule, State, StepError, Stepper, Tableau, Vector,
-    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS,
+    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS, MAX_STEP_SIZE,
 };
 
 /// Records the largest single allocation of this thread.
@@ -159,13 +159,19 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
     let (q0, v0) = speed_start();
     let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
         Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
-    let cases: [(f64, Schedule<'_>, &str); 6] = [
+    let cases: [(f64, Schedule<'_>, &str); 10] = [
         (0.0, Schedule::Fixed { h: 1e-311, steps: 3 }, "subnormal"),
         (0.0, Schedule::Fixed { h: -5e-324, steps: 3 }, "subnormal"),
         (0.0, Schedule::Sampled { h: 1e-311, times: &[1e-310] }, "subnormal"),
         (0.0, Schedule::Until { h: 1e-311, t_end: 1e-310 }, "subnormal"),
         (1e20, Schedule::Fixed { h: 1.0, steps: 3 }, "resolution of t"),
         (0.0, Schedule::Times(&[1e-320, 1.0]), "closer than 2.2e-308"),
+        // h² overflows in the Newton matrix: refused up front, where it
+        // failed after halving with "non-finite value in the Jacobian".
+        (0.0, Schedule::Fixed { h: 1e300, steps: 1 }, "h² overflows"),
+        (0.0, Schedule::Until { h: -1e155, t_end: -1e300 }, "h² overflows"),
+        (0.0, Schedule::Sampled { h: 1e200, times: &[1e300] }, "h² overflows"),
+        (0.0, Schedule::Times(&[1.0, 1e155]), "more than 1.34e154 apart"),
     ];
     for (t0, schedule, what) in cases {
         let err = st.integrate(t0, &q0, &v0, schedule, &quiet(2), &mut NoObserver).unwrap_err();
@@ -173,6 +179,12 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
         assert!(err.to_string().contains(what) && err.to_string().contains("use"), "{schedule:?}: {err}");
     }
     assert_eq!(spark_runtime::check_step_size(0.0, f64::MIN_POSITIVE), Ok(()));
+    assert_eq!(MAX_STEP_SIZE, f64::MAX.sqrt());
+    assert!((MAX_STEP_SIZE * MAX_STEP_SIZE).is_finite());
+    assert_eq!(spark_runtime::check_step_size(0.0, -MAX_STEP_SIZE), Ok(()));
+    assert!(spark_runtime::check_step_size(0.0, MAX_STEP_SIZE * (1.0 + f64::EPSILON))
+        .unwrap_err()
+        .contains("1.34e154"));
     assert!(spark_runtime::check_step_size(1.0, 1e-17).unwrap_err().contains("t0 + h == t0"));
     assert!(spark_runtime::check_step_size(f64::NAN, 0.1).is_ok(), "t0 is checked with the initial state");
     // `Stepper::step` called directly refuses a subnormal step as well,
@@ -192,7 +204,7 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
 /// `max_halvings` is bounded by [`MAX_HALVINGS`]: `u32::MAX` (which
 /// recursed ≈ 1075 deep and overflowed the stack) is refused by name, and
 /// the largest allowed value runs without recursion on a 256 KiB thread
-/// and returns promptly at h = 1e300.
+/// and returns promptly at the largest step size, `MAX_STEP_SIZE`.
 #[test]
 fn halving_is_bounded_and_needs_no_stack() {
     let worker = std::thread::Builder::new().stack_size(256 << 10);
@@ -201,7 +213,7 @@ fn halving_is_bounded_and_needs_no_stack() {
             let (q0, v0) = speed_start();
             let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
                 Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
-            let huge = Schedule::Fixed { h: 1e300, steps: 1 };
+            let huge = Schedule::Fixed { h: MAX_STEP_SIZE, steps: 1 };
             let refused = st.integrate(0.0, &q0, &v0, huge, &quiet(u32::MAX), &mut NoObserver).unwrap_err();
             let deepest = st.integrate(0.0, &q0, &v0, huge, &quiet(MAX_HALVINGS), &mut NoObserver).unwrap_err();
             (refused.to_string(), deepest)
@@ -345,7 +357,8 @@ fn longest_digit_run(s: &str) -> usize {
 }
 
 /// Floats in error messages are compact: h = 1e300 prints as `1.000e300`,
-/// not as a 301-digit number.
+/// not as a 301-digit number (a run refuses that step size up front, so
+/// its messages are checked at h = 1e150).
 #[test]
 fn error_messages_print_floats_compactly() {
     let (q0, v0) = speed_start();
@@ -354,23 +367,36 @@ fn error_messages_print_floats_compactly() {
     let sys = ConstantSpeed::default();
     assert!(sys.constraint(0.0, &q0, &v0).amax() <= 1e-15);
     let start = State::new(1e300, q0, v0);
-    let mut messages = vec![
+    let stepped = [
         st.step(&start, 1e300).unwrap_err().to_string(),
         st.step(&State::new(0.0, q0, v0), 1e300).unwrap_err().to_string(),
-        st.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 1e300, steps: 1 }, &quiet(0), &mut NoObserver)
-            .unwrap_err()
-            .to_string(),
     ];
+    // `Stepper::step` takes the step (it checks no upper bound): its
+    // Newton matrix overflows, and the error says what overflowed and to
+    // reduce h.
+    assert!(
+        stepped[1].contains("non-finite value in the")
+            && stepped[1].contains("overflowed f64")
+            && stepped[1].contains("reduce h"),
+        "{}",
+        stepped[1]
+    );
+    let mut runs = vec![st
+        .integrate(0.0, &q0, &v0, Schedule::Fixed { h: 1e150, steps: 1 }, &quiet(0), &mut NoObserver)
+        .unwrap_err()
+        .to_string()];
     // Under the rejection policy the step is cut down to its floor
-    // (1e300·2⁻¹²), and the error names the sizes tried.
+    // (1e150·2⁻¹²), and the error names the sizes tried.
     let reject = RunOptions { on_failure: FailurePolicy::Reject(RejectionPolicy::default()), ..quiet(0) };
-    let protected = st.integrate(0.0, &q0, &v0, Schedule::Until { h: 1e300, t_end: 1e300 }, &reject, &mut NoObserver);
+    let protected = st.integrate(0.0, &q0, &v0, Schedule::Until { h: 1e150, t_end: 1e150 }, &reject, &mut NoObserver);
     let protected = protected.unwrap_err();
     assert!(matches!(protected, IntegrationError::Floor { .. }), "{protected}");
-    messages.push(protected.to_string());
-    for m in &messages {
-        assert!(longest_digit_run(m) <= 17, "{m}");
-        assert!(m.contains("e300"), "{m}");
+    runs.push(protected.to_string());
+    for (messages, exponent) in [(&stepped[..], "e300"), (&runs[..], "e150")] {
+        for m in messages {
+            assert!(longest_digit_run(m) <= 17, "{m}");
+            assert!(m.contains(exponent), "{m}");
+        }
     }
 }
 

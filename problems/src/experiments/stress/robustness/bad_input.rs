@@ -107,8 +107,31 @@ fn driver_scenarios() -> Vec<Bad> {
             "Initial/InconsistentInitialState",
             drive(Skate::default(), q0, Vector::<3>::new(1.0, 1.0, 0.0), FIXED),
         ),
-        bad("parameter field beta = NaN (set directly)", "Step/NonFinite", drive(nan_field, q0, v0, FIXED)),
-        bad("parameter field g = +inf (set directly)", "Step/NonFinite", drive(inf_field, q0, v0, FIXED)),
+        bad(
+            "parameter field beta = NaN (set directly)",
+            "Initial/NonFiniteInitialValue",
+            drive(nan_field, q0, v0, FIXED),
+        ),
+        bad(
+            "parameter field g = +inf (set directly)",
+            "Initial/NonFiniteInitialValue",
+            drive(inf_field, q0, v0, FIXED),
+        ),
+        bad(
+            "v0 = (0, 0, 1e155): |v0|² and the energy overflow",
+            "Initial/NonFiniteInitialValue",
+            drive(Skate::default(), q0, Vector::<3>::new(0.0, 0.0, 1e155), FIXED),
+        ),
+        bad(
+            "mass m = 0: singular mass matrix",
+            "Initial/SingularInitialState",
+            drive(Skate { m: 0.0, ..Skate::default() }, q0, v0, FIXED),
+        ),
+        bad(
+            "h = 1e300 (h² overflows)",
+            "InvalidSchedule",
+            drive(Skate::default(), q0, v0, Schedule::Fixed { h: 1e300, steps: 1 }),
+        ),
     ]
 }
 

@@ -31,6 +31,8 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
         StepError::InvalidOption(_) => "InvalidOption",
         StepError::InconsistentStart { .. } => "InconsistentStart",
         StepError::DependentConstraints { .. } => "DependentConstraints",
+        StepError::NonFiniteInitialValue { .. } => "NonFiniteInitialValue",
+        StepError::SingularInitialState { .. } => "SingularInitialState",
     }
 }
 

@@ -100,7 +100,9 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
                         IntegrationError::Step {
                             source: StepError::SingularMatrix { .. } | StepError::DependentConstraints { .. },
                             ..
-                        } | IntegrationError::Initial(StepError::SingularMatrix { .. })
+                        } | IntegrationError::Initial(
+                            StepError::SingularMatrix { .. } | StepError::SingularInitialState { .. }
+                        )
                     );
                     zero_outcome = format!("ε = 0: {} ({e})", integration_error_kind(&e));
                 }
@@ -117,7 +119,11 @@ pub fn near_singular(_scale: Scale) -> Result<CaseReport, StressError> {
         format!("cond(1e-4) = {}, cond(1e-6) = {}, ratio {}", sci(conds[2]), sci(conds[3]), sci(ratio)),
     );
     c.check("ill-conditioning reported as a warning", !c.warnings.is_empty(), format!("{} warnings", c.warnings.len()));
-    c.check("ε = 0 (parallel rows) is a typed SingularMatrix or DependentConstraints error", zero_typed, zero_outcome);
+    c.check(
+        "ε = 0 (parallel rows) is a typed SingularMatrix, SingularInitialState or DependentConstraints error",
+        zero_typed,
+        zero_outcome,
+    );
     c.energy = "see per-ε max |E−E0|".into();
     c.figure = Some(Figure {
         title: c.title.clone(),
