@@ -125,26 +125,54 @@ def _request(
     return {
         "method": method,
         "s": _whole("s", s),
-        "h": float(h),
-        "steps": int(steps),
-        "t0": float(t0),
-        "params": dict(params) if params else None,
+        "h": _real("h", h),
+        "steps": _whole("steps", steps),
+        "t0": _real("t0", t0),
+        "params": _params(params),
         "every": _whole("every", every),
         "newton": newton,
-        "newton_tol": newton_tol,
+        "newton_tol": None if newton_tol is None else _real("newton_tol", newton_tol),
     }
 
 
+def _not_bool(name: str, x: Any) -> None:
+    """:class:`TypeError` naming the argument when ``x`` is a bool (or a NumPy
+    bool): ``h=True`` would otherwise run as ``h=1.0`` and ``s=True`` as 1."""
+    if isinstance(x, (bool, np.bool_)):
+        raise TypeError(f"{name} = {x!r} is a bool; pass a number")
+
+
+def _real(name: str, x: Any) -> float:
+    """``x`` as a float; :class:`TypeError` naming the argument for a bool, a
+    string or anything else that is not a number."""
+    _not_bool(name, x)
+    if isinstance(x, (str, bytes)):
+        raise TypeError(f"{name} = {x!r} is a string; pass a number")
+    try:
+        return float(x)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"{name} = {x!r} is not a number") from e
+
+
 def _whole(name: str, x: Any) -> int:
-    """``x`` as an int, or :class:`SparkError` when it is not a whole number
-    (``s=2.5`` or ``every=1.5`` would otherwise be truncated silently)."""
+    """``x`` as an int; :class:`TypeError` for a bool, :class:`SparkError`
+    when it is not a whole number (``s=2.5`` or ``every=1.5`` would otherwise
+    be truncated silently)."""
+    _not_bool(name, x)
     try:
         whole = int(x)
     except (TypeError, ValueError, OverflowError):
         whole = None
-    if whole is None or isinstance(x, bool) or whole != x:
+    if whole is None or whole != x:
         raise SparkError(f"{name} = {x!r} must be a whole number")
     return whole
+
+
+def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
+    """The parameter overrides, each value a number (a bool is refused)."""
+    if not params:
+        return None
+    return {name: _real(f"params[{name!r}]", value) for name, value in dict(params).items()}
 
 
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
@@ -152,6 +180,7 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
         return _whole("steps", steps)
     if t_end is None:
         raise SparkError("give steps= or t_end=")
+    h, t_end, t0 = _real("h", h), _real("t_end", t_end), _real("t0", t0)
     ratio = (t_end - t0) / h
     if not math.isfinite(ratio):
         raise SparkError(
@@ -229,9 +258,10 @@ class System:
         Raises :class:`SparkError` with the Rust message on bad input or a
         failed step.
         """
-        h = self.h if h is None else h
+        h = self.h if h is None else _real("h", h)
         if h is None:
             raise SparkError("give the step size h=")
+        t0 = _real("t0", t0)
         if steps is None and t_end is None and self.t_end is not None:
             t_end = t0 + self.t_end
             if math.isfinite(t0) and not t_end > t0:
@@ -285,6 +315,8 @@ class System:
         member. Each member agrees
         with what :meth:`integrate` returns for it alone to the Newton
         tolerance per step, and is the same whatever the thread count."""
+        _no_bool_entries("q0s", q0s)
+        _no_bool_entries("v0s", v0s)
         q0s = np.ascontiguousarray(q0s, dtype=np.float64)
         v0s = np.ascontiguousarray(v0s, dtype=np.float64)
         if q0s.ndim != 2 or v0s.shape != q0s.shape or q0s.shape[1] != self.n:
@@ -294,7 +326,7 @@ class System:
         req = _request(method, s, h, _steps(h, steps, None, t0), t0, params, every, newton, newton_tol)
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
-        req["threads"] = threads
+        req["threads"] = None if threads is None else _whole("threads", threads)
         d = self._ensemble(req)
         return Ensemble(
             t=d["t"],
@@ -307,9 +339,28 @@ class System:
         )
 
 
+def _holds_bool(x) -> bool:
+    """Whether ``x`` is a bool or an array, list or tuple holding one."""
+    if isinstance(x, (bool, np.bool_)):
+        return True
+    if isinstance(x, np.ndarray):
+        return x.dtype == np.bool_ or (x.dtype == object and any(_holds_bool(e) for e in x.flat))
+    if isinstance(x, (list, tuple)):
+        return any(_holds_bool(e) for e in x)
+    return False
+
+
+def _no_bool_entries(what: str, x) -> None:
+    """:class:`TypeError` when ``x`` holds bools (``[True, 0, 0]`` would
+    otherwise run as ``[1.0, 0.0, 0.0]``)."""
+    if _holds_bool(x):
+        raise TypeError(f"{what} holds a bool; pass numbers")
+
+
 def _vector(what: str, x) -> list[float]:
     if x is None:
         raise SparkError(f"give {what}=")
+    _no_bool_entries(what, x)
     a = np.asarray(x, dtype=np.float64)
     if a.ndim != 1:
         raise SparkError(f"{what} must be a vector; got shape {a.shape}")

@@ -100,6 +100,15 @@ def sweep(
     import pyarrow.parquet as pq
     import ray
 
+    # The arguments are checked here, before Ray starts, as `ensemble`
+    # checks them: a bool where a number is meant is a TypeError.
+    s, steps, every = spark._whole("s", s), spark._whole("steps", steps), spark._whole("every", every)
+    h = spark._real("h", h)
+    threads_per_task = spark._whole("threads_per_task", threads_per_task)
+    if shards is not None:
+        shards = spark._whole("shards", shards)
+    spark._no_bool_entries("q0s", q0s)
+    spark._no_bool_entries("v0s", v0s)
     q0s = np.ascontiguousarray(q0s, dtype=np.float64)
     v0s = np.ascontiguousarray(v0s, dtype=np.float64)
     members = q0s.shape[0]

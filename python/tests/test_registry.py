@@ -3,6 +3,8 @@ with the Rust CLI (`spark run`) on the paper's four experiments."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -167,6 +169,34 @@ def test_an_ensemble_refuses_more_threads_than_it_starts(system):
         with pytest.raises(spark.SparkError, match="more than 1024"):
             spark.ensemble(system, "gauss", 2, 0.1, 3, q0s, v0s, threads=threads)
     assert spark.ensemble(system, "gauss", 2, 0.1, 3, q0s, v0s, threads=4).q.shape[0] == 2
+
+
+def test_a_bool_where_a_number_is_meant_is_a_type_error_naming_the_argument():
+    # h=True ran as h = 1.0 and s=True as s = 1.
+    skate = spark.system("skate")
+    q0s, v0s = np.tile(skate.q0, (2, 1)), np.tile(skate.v0, (2, 1))
+    calls = {
+        "h": lambda: spark.integrate("skate", "gauss", 2, True, 3),
+        "s": lambda: spark.integrate("skate", "gauss", True, 0.1, 3),
+        "steps": lambda: spark.integrate("skate", "gauss", 2, 0.1, True),
+        "t0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, t0=False),
+        "t_end": lambda: skate.integrate("gauss", 2, 0.1, t_end=True),
+        "every": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, every=True),
+        "newton_tol": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=True),
+        "params['g']": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": True}),
+        "q0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, q0=[False, 0, 0]),
+        "v0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, v0=np.array([0, 0, 1], dtype=bool)),
+        "threads": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, threads=True),
+        "q0s": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, [[0, 0, True]] * 2, v0s),
+        "h ": lambda: spark.ensemble("skate", "gauss", 2, np.True_, 3, q0s, v0s),
+    }
+    for name, call in calls.items():
+        with pytest.raises(TypeError, match=rf"^{re.escape(name.strip())} .*(bool|a number)"):
+            call()
+    with pytest.raises(TypeError, match="h = '0.1' is a string"):
+        spark.integrate("skate", "gauss", 2, "0.1", 3)
+    # Numbers of any numeric type still work.
+    assert spark.integrate("skate", "gauss", np.int64(2), np.float32(0.1), 3, t0=0).t.shape == (4,)
 
 
 def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
