@@ -384,7 +384,7 @@ fn first_non_finite(x: &[f64]) -> Option<f64> {
 /// The checks of [`consistent_velocity`] at the state a run starts from:
 /// the equations of motion are finite there, and the saddle matrix
 /// `[[W, Kᵀ],[K, 0]]` is regular.
-fn check_start<Sys, const N: usize, const M: usize>(
+pub(crate) fn check_start<Sys, const N: usize, const M: usize>(
     sys: &Sys,
     t0: f64,
     q0: &Vector<N>,

@@ -160,7 +160,12 @@ where
     /// size `h`; lanes beyond them stay empty. Every lane forgets its
     /// previous run, so the first step of each member starts cold and checks
     /// its state (an inconsistent one fails that member alone, with
-    /// [`StepError::InconsistentStart`]). The kernel takes the members'
+    /// [`StepError::InconsistentStart`]). A member whose equations of motion
+    /// are not finite at its start, or whose saddle matrix `[[W, Kᵀ],[K, 0]]`
+    /// is singular there, fails alone before any step, with the error
+    /// [`consistent_velocity`](crate::consistent_velocity) gives for it
+    /// ([`StepError::NonFiniteInitialValue`],
+    /// [`StepError::SingularInitialState`]). The kernel takes the members'
     /// steps only when they fill more than half the lanes: its step costs
     /// the same however few lanes hold a member.
     pub fn start(&mut self, starts: &[State<N>], h: f64) -> Result<(), LaneError> {
@@ -187,7 +192,13 @@ where
             match starts.get(j) {
                 Some(s) => {
                     self.states[j] = *s;
-                    self.status[j] = LaneStatus::Running;
+                    // What `Stepper::integrate` refuses up front (equations
+                    // of motion not finite there, a singular saddle matrix)
+                    // fails the member at its first step with the same error.
+                    self.status[j] = match crate::initial::check_start(&self.system, s.t, &s.q, &s.v) {
+                        Ok(()) => LaneStatus::Running,
+                        Err(error) => LaneStatus::Failed(Box::new(LaneFailure { step: 0, t: s.t, error })),
+                    };
                 }
                 None => self.status[j] = LaneStatus::Empty,
             }

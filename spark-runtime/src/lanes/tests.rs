@@ -275,6 +275,30 @@ fn an_inconsistent_member_fails_alone() {
     }
 }
 
+/// A member whose energy overflows at its start (`|v₀|²` beyond f64) is
+/// refused before any step with the error `consistent_velocity` (and so
+/// `Stepper::integrate`) gives for it; the others run on in the kernel.
+#[test]
+fn a_member_no_step_can_use_fails_before_its_first_step() {
+    let mut starts = mp_starts(6);
+    starts[3].v[2] = 1e155;
+    let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+    let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(MpParticles, tab, fig84());
+    lanes.start(&starts, 0.05).unwrap();
+    lanes.advance_by(50);
+    let s = &starts[3];
+    let policy = crate::ConsistencyPolicy::Error { tolerance: 1e300 };
+    let alone = crate::consistent_velocity::<_, 7, 1>(&MpParticles, s.t, &s.q, &s.v, policy).unwrap_err();
+    assert!(matches!(alone, StepError::NonFiniteInitialValue { .. }), "{alone}");
+    let Some(LaneStatus::Failed(failure)) = lanes.status(3) else { panic!("{:?}", lanes.status(3)) };
+    assert_eq!((failure.step, format!("{:?}", failure.error)), (0, format!("{alone:?}")));
+    assert_eq!(lanes.state(3), Some(s));
+    for j in [0, 1, 2, 4, 5] {
+        assert_eq!(lanes.status(j), Some(&LaneStatus::Running), "member {j}");
+        assert_eq!(lanes.kernel_steps(j), Some(48), "member {j}");
+    }
+}
+
 /// Robots at h = 2 (beyond Newton's reach for a moving one, simplified
 /// Newton without the energy guard): the moving member diverges at its own
 /// step with its own history, the robots at rest at `φ = −π/2` (the
