@@ -3,7 +3,9 @@
 //! simplified Newton matrix and its fall-back from the stage-decoupled to
 //! the exact matrix, and the typed errors it ends with.
 
-use super::convergence::{affine_along, full_newton_accepts_residual, too_slow, AffinePlan, Contraction};
+use super::convergence::{
+    affine_along, full_newton_accepts_residual, rounding_moved, too_slow, AffinePlan, Contraction,
+};
 use super::equations::Derivatives;
 use super::Stepper;
 use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
@@ -432,8 +434,14 @@ where
                 if !update.is_finite() {
                     return Err(fail_nonfinite("update", &self.history));
                 }
+                // Tested before the update is applied: the end point is
+                // read at both iterates.
+                let lands = !converged
+                    && fresh
+                    && self.lands_on_solution(&g, &weights, decoupled)
+                    && self.end_point_stays(state, carry, h, (z, &g, &weights), decoupled);
                 *z -= g;
-                if converged || (fresh && self.lands_on_solution(&g, &weights, decoupled)) {
+                if converged || lands {
                     break 'solve Ok(());
                 }
                 if k > 0 && rate >= 1.0 {
@@ -522,6 +530,37 @@ where
             }
             None => false,
         }
+    }
+
+    /// Whether the update `g` of `z` (applied as `z − g`, scaled by
+    /// `weights`) moves no rounded coordinate of the end point `q₁` that
+    /// [`AffinePlan::keeps_position`] names by more than it accounts for
+    /// ([`rounding_moved`]): `q₁` is the state the step returns, and its
+    /// constraints hold where the iteration evaluated them.
+    fn end_point_stays(
+        &self,
+        state: &State<N>,
+        carry: &Vector<N>,
+        h: f64,
+        (z, g, weights): (&Vector<D>, &Vector<D>, &Vector<D>),
+        decoupled: bool,
+    ) -> bool {
+        let plan = Self::affine_plan(decoupled, decoupled && self.decoupled.keeps_stiffness());
+        let b = &self.tableau.b;
+        // A coordinate whose stage velocities the update left exactly as
+        // they were (the skate's heading) keeps its position.
+        let moves = |c: usize| plan.keeps_position(c) && (0..S).any(|j| g[j * N + c] != 0.0);
+        (0..N).filter(|&c| moves(c)).all(|c| {
+            let (mut old, mut new, mut shift, mut weight) = (carry[c], carry[c], 0.0, 0.0f64);
+            for j in 0..S {
+                let k = h * b[j];
+                old += k * z[j * N + c];
+                new += k * (z[j * N + c] - g[j * N + c]);
+                shift += k * g[j * N + c];
+                weight = weight.max(weights[j * N + c]);
+            }
+            !rounding_moved(state.q[c] + old, state.q[c] + new, shift, weight, self.options.tolerance)
+        })
     }
 
     /// The nonlinearity an update of the exact (or, `decoupled`, the

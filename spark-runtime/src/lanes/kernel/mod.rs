@@ -38,8 +38,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::is_diagonal;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
-    affine_along_by, check_energy, energy_is_invariant, moved_beyond, too_slow, two_sum_error_of, AffinePlan,
-    Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
+    affine_along_by, check_energy, energy_is_invariant, moved_beyond, rounding_moved, too_slow, two_sum_error_of,
+    AffinePlan, Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -428,7 +428,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 let stop = if !update.is_finite() {
                     Some(Outcome::HandBack)
-                } else if converged || (fresh && self.first_update_lands(affine.as_ref(), w, opts.tolerance)) {
+                } else if converged || (fresh && self.first_update_lands(tab, affine.as_ref(), w, opts.tolerance)) {
                     Some(Outcome::Stepped(k + 1))
                 } else if k > 0 && rate >= 1.0 {
                     Some(if update <= opts.stagnation_level { Outcome::Stepped(k + 1) } else { Outcome::HandBack })
@@ -460,10 +460,36 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// it started from, ends its solve as the stepper's would
     /// (`step::affine_along` on the stage-decoupled matrix).
     #[inline(always)]
-    fn first_update_lands(&self, affine: Option<&crate::Nonlinearity>, w: usize, tolerance: f64) -> bool {
+    fn first_update_lands(
+        &self,
+        tab: &Tableau<S>,
+        affine: Option<&crate::Nonlinearity>,
+        w: usize,
+        tolerance: f64,
+    ) -> bool {
         let Some(nonlinearity) = affine else { return false };
         let moved_at = |d: usize| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance);
-        affine_along_by::<N, M, S>(moved_at, nonlinearity, &self.affine_plan)
+        affine_along_by::<N, M, S>(moved_at, nonlinearity, &self.affine_plan) && self.end_point_stays(tab, w, tolerance)
+    }
+
+    /// `Stepper::end_point_stays` for lane `w`, whose `z` holds the updated
+    /// iterate and `points[S]` the end point it was evaluated at: the same
+    /// operations in the same order.
+    #[inline(always)]
+    fn end_point_stays(&self, tab: &Tableau<S>, w: usize, tolerance: f64) -> bool {
+        let h = self.h;
+        let moves =
+            |c: usize| self.affine_plan.keeps_position(c) && (0..S).any(|j| self.first_update[j * N + c][w] != 0.0);
+        (0..N).filter(|&c| moves(c)).all(|c| {
+            let (mut new, mut shift, mut weight) = (self.carry[c][w], 0.0, 0.0f64);
+            for j in 0..S {
+                let k = h * tab.b[j];
+                new += k * self.z[j * N + c][w];
+                shift += k * self.first_update[j * N + c][w];
+                weight = weight.max(self.weights[j * N + c][w]);
+            }
+            !rounding_moved(self.points[S][c][w], self.q[c][w] + new, shift, weight, tolerance)
+        })
     }
 
     /// Lane `w` of the `N` values at `at` of `x`.
