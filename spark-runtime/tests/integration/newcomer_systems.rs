@@ -864,7 +864,7 @@ fn generated_systems_in_lanes_match_each_member_alone() {
 fn first_updates_that_land_leave_the_constraints_at_round_off_for_large_angles() {
     let sys = RollingDiskIncline { alpha: 0.0, ..RollingDiskIncline::default() };
     let tab = Tableau::<2>::new(Method::Gauss).unwrap();
-    let mut stepper = Stepper::<RollingDiskIncline, 4, 2, 2, 16>::new(sys.clone(), tab);
+    let mut stepper = Stepper::<RollingDiskIncline, 4, 2, 2, 16>::new(sys, tab);
     let (r, theta_rate, phi_rate) = (sys.r, 0.7, 1.3);
     let mut state = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(r * phi_rate, 0.0, theta_rate, phi_rate));
     let (mut worst, mut one_update) = (0.0f64, 0usize);
