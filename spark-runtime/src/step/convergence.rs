@@ -356,8 +356,9 @@ impl AffinePlan {
         if groups > 64 {
             return general;
         }
-        let mut required = 0u64;
         let pairs = nonlinearity.pairs;
+        // The groups curved in themselves.
+        let mut self_pairs = 0u64;
         let mut k = 0;
         while k < pairs.len() {
             let (a, b) = pairs[k];
@@ -365,27 +366,24 @@ impl AffinePlan {
                 return general;
             }
             if a == b {
-                required |= 1 << a;
+                self_pairs |= 1 << a;
             }
             k += 1;
         }
-        if decoupled {
-            let columns = [nonlinearity.constraint_force_columns, nonlinearity.stiffness_columns];
-            let lists = if stiffness_kept { 1 } else { 2 };
-            let mut l = 0;
-            while l < lists {
-                let list = columns[l];
-                let mut k = 0;
-                while k < list.len() {
-                    if list[k] as usize >= groups {
-                        return general;
-                    }
-                    required |= 1 << list[k];
-                    k += 1;
-                }
-                l += 1;
-            }
-        }
+        let (Some(constraint_force), Some(stiffness)) = (
+            column_bits(nonlinearity.constraint_force_columns, groups),
+            column_bits(nonlinearity.stiffness_columns, groups),
+        ) else {
+            return general;
+        };
+        let approximated = if !decoupled {
+            0
+        } else if stiffness_kept {
+            constraint_force
+        } else {
+            constraint_force | stiffness
+        };
+        let required = self_pairs | approximated;
         let mut free_pairs = false;
         let mut k = 0;
         while k < pairs.len() {
@@ -398,30 +396,8 @@ impl AffinePlan {
         // The coordinates curved in themselves and those whose positions
         // enter the forces or the constraint forces (and so, for `k`
         // linear in `v`, the constraints): groups `0..N` only.
-        let mut positions = 0u64;
-        let mut k = 0;
-        while k < pairs.len() {
-            let (a, b) = pairs[k];
-            if a == b {
-                positions |= 1 << a;
-            }
-            k += 1;
-        }
-        let columns = [nonlinearity.constraint_force_columns, nonlinearity.stiffness_columns];
-        let mut l = 0;
-        while l < 2 {
-            let list = columns[l];
-            let mut k = 0;
-            while k < list.len() {
-                if list[k] as usize >= groups {
-                    return general;
-                }
-                positions |= 1 << list[k];
-                k += 1;
-            }
-            l += 1;
-        }
-        positions &= if N >= 64 { u64::MAX } else { (1 << N) - 1 };
+        let coordinates = if N >= 64 { u64::MAX } else { (1 << N) - 1 };
+        let positions = (self_pairs | constraint_force | stiffness) & coordinates;
         AffinePlan { required: Some(required), free_pairs, decoupled, stiffness_kept, positions }
     }
 
@@ -435,6 +411,21 @@ impl AffinePlan {
     pub(crate) fn keeps_position(&self, c: usize) -> bool {
         c >= 64 || (self.positions >> c) & 1 == 1
     }
+}
+
+/// The bits of the groups in `columns`, `None` when one lies outside
+/// `groups`.
+const fn column_bits(columns: &[u32], groups: usize) -> Option<u64> {
+    let mut bits = 0u64;
+    let mut k = 0;
+    while k < columns.len() {
+        if columns[k] as usize >= groups {
+            return None;
+        }
+        bits |= 1 << columns[k];
+        k += 1;
+    }
+    Some(bits)
 }
 
 /// Whether an update that [`affine_along`] lets land moved a rounded
