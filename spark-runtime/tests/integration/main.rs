@@ -12,6 +12,7 @@ mod dense_output;
 mod driver_robustness;
 mod events;
 mod newcomer_systems;
+mod newcomer_unusual_systems;
 mod orders;
 mod paper;
 mod step_start;

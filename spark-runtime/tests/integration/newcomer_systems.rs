@@ -200,7 +200,7 @@ where
 /// the generated values at random points, relative to `1 + |derivative|`:
 /// every block of `stage_jacobians`, the explicit time derivatives, and the
 /// agreement of the unfused functions with the fused ones.
-fn derivative_error<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(sys: &Sys) -> f64 {
+pub(super) fn derivative_error<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(sys: &Sys) -> f64 {
     derivative_mismatch(sys, sys)
 }
 
@@ -479,7 +479,7 @@ fn newcomer_systems_have_exact_derivatives_order_four_and_round_off_constraints(
 /// of size `h` from one state, over `q₁`, `v₁`, the stage velocities and
 /// the Newton unknowns `μ = hΨ` of the stage multipliers (NaN counts as
 /// infinitely far).
-fn step_distance<const N: usize, const M: usize, const S: usize>(
+pub(super) fn step_distance<const N: usize, const M: usize, const S: usize>(
     a: &StepResult<N, M, S>,
     b: &StepResult<N, M, S>,
     h: f64,
