@@ -214,8 +214,10 @@ pub enum StepError {
         history: Box<NewtonHistory>,
     },
     /// The system produced NaN or infinite values. For a step (`h ≠ 0`) the
-    /// message says that the step's equations overflowed and to reduce `h`:
-    /// their terms carry `h` and `h²` (`h²·∂²L/∂q²` in the Newton matrix).
+    /// message names both causes: the step's equations overflowed, which a
+    /// smaller `h` cures (their terms carry `h` and `h²`, `h²·∂²L/∂q²` in the
+    /// Newton matrix), or a function of the declaration was evaluated
+    /// outside its domain or where its derivative is undefined.
     #[error(
         "non-finite value in the {stage} of the step from t = {} with h = {}{}; history: {history}",
         Sci(*t),
@@ -397,13 +399,18 @@ impl StepError {
     }
 }
 
-/// The advice [`StepError::NonFinite`] gives: for a step (`h ≠ 0`), that its
-/// equations overflowed and a smaller `h` is the first thing to try.
+/// The advice [`StepError::NonFinite`] gives for a step (`h ≠ 0`): its
+/// equations overflowed, and a smaller `h` is the first thing to try, or a
+/// function of the declaration left its domain (`sqrt` or `ln` of a
+/// negative number, a speed beyond a limit of `L`) or was evaluated where its
+/// derivative is undefined (`sqrt(ψ²)` at `ψ = 0`), which no `h` cures.
 fn non_finite_hint(h: f64) -> &'static str {
     if h == 0.0 {
         ""
     } else {
-        " (the step's equations overflowed f64: their terms grow with h and h², e.g. h²·d²L/dq² in the Newton \
-         matrix, so reduce h; if every h fails at this state, check the state and the parameters)"
+        " (either the step's equations overflowed f64: their terms grow with h and h², e.g. h²·d²L/dq² in the \
+         Newton matrix, so reduce h; or a function of the declaration was evaluated outside its domain or where \
+         its derivative is undefined, e.g. sqrt or ln of a negative number (a speed beyond a limit of L) or \
+         sqrt(psi^2) at psi = 0; if every h fails at this state, check the state and the parameters)"
     }
 }
