@@ -611,6 +611,24 @@ fn numbers_that_overflow_when_folded_or_differentiated_are_errors() {
     }
 }
 
+/// A constant subexpression that cannot be folded to a finite number is an
+/// error at its operator that names the three ways it happens: a function
+/// whose value overflows f64 (`exp(1000)`, `10^400`), a division by zero, or
+/// a function outside its domain (`ln(-1)`, `(-1)^0.5`).
+#[test]
+fn constant_subexpressions_that_are_not_finite_name_overflow_and_domain() {
+    for (term, at) in [("exp(1000)*x", "exp"), ("cosh(800)*x", "cosh"), ("10^400*x", "^"), ("ln(-1)*x", "ln")] {
+        let src = format!("struct A {{ coordinates: [x], lagrangian: dot(x)^2/2 - {term} }}");
+        let (msg, text) = generate_error(&src);
+        assert!(msg.starts_with("this constant subexpression is not a finite number"), "{src}: {msg}");
+        assert!(
+            msg.contains("overflows f64") && msg.contains("divides by zero") && msg.contains("outside its domain"),
+            "{src}: {msg}"
+        );
+        assert!(text.starts_with(at), "{src}: {msg} at {text}");
+    }
+}
+
 /// Expressions over `x`, `y`, `th`, their velocities, `t`, the parameter `m`
 /// and numbers at the edges of f64 (huge, tiny, subnormal), with every
 /// operator and function.
