@@ -182,8 +182,9 @@ fn check_finite(g: &Graph, args: &[NodeId], r: NodeId, span: proc_macro2::Span) 
     if args.iter().all(|&a| g.as_const(a).is_some()) && g.as_const(r).is_none() {
         return Err(SpecError {
             span,
-            message: "this constant subexpression is not a finite number (division by zero or a function outside \
-                      its domain)"
+            message: "this constant subexpression is not a finite number: its value overflows f64 (beyond \
+                      ±1.8e308, e.g. exp(1000)), it divides by zero, or a function is outside its domain (e.g. \
+                      ln(-1)); correct the constants"
                 .into(),
         });
     }
