@@ -227,12 +227,14 @@ fn every_numeric_argument_is_checked_and_named() {
 /// given twice, an `--h` whose h² overflows in the Newton matrix (it failed
 /// after halving with a non-finite Jacobian), a `--v0` whose energy
 /// overflows (it failed with an energy drift against E0 = inf) and a zero
-/// mass (it failed with a singular Newton matrix in the first step).
+/// mass (it failed with a singular Newton matrix in the first step), and a
+/// `spark paper --fraction` that leaves a figure less than one step (its
+/// final time was printed with 300 digits).
 #[test]
 fn unusable_arguments_are_refused_naming_what_was_given() {
     let dir = temp_dir("given");
     let out = dir.to_str().unwrap();
-    let cases: [(&[&str], &[&str]); 10] = [
+    let cases: [(&[&str], &[&str]); 11] = [
         (&["run", "skate", "--h", "1e300", "--t-end", "1e300"], &["--h", "h² overflows", "smaller |h|"]),
         (
             &["run", "skate", "--v0", "0,0,1e155", "--t-end", "1"],
@@ -252,6 +254,7 @@ fn unusable_arguments_are_refused_naming_what_was_given() {
         ),
         (&["run", "skate", "--method", "euler-1", "--stages", "2"], &["needs exactly 1 stage, got s = 2"]),
         (&["run", "skate", "--param", "m=1", "--param", "m = 2"], &["`m` is given twice", "`m=1`", "`m = 2`"]),
+        (&["paper", "--fraction", "1e-300"], &["final time 2.500e-298", "shorter than one step", "--fraction"]),
     ];
     for (args, words) in cases {
         let err = run_err(&[args, &["--out", out]].concat());
@@ -290,5 +293,32 @@ fn the_figure_of_a_long_run_stays_small() {
     let csv = std::fs::metadata(dir.join("skate_gauss_s2.csv")).unwrap().len();
     assert!(csv > 10_000_000, "the CSV keeps every sample ({csv} bytes)");
     assert!(svg < 1_000_000, "SVG of {svg} bytes");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A run into a folder that holds an earlier run of the same system,
+/// method and stage count leaves no file of that run that it does not
+/// write itself: a `--no-plot` or `--format csv` run removes the earlier
+/// figure and JSON trajectory, which described another run than its
+/// report.md (a figure of h = 0.1 to t = 2 sat beside the report and CSV
+/// of h = 0.05 to t = 1). Files of other runs stay.
+#[test]
+fn a_run_leaves_no_file_of_an_earlier_run_beside_its_own() {
+    let dir = temp_dir("stale");
+    run_ok(&["run", "skate", "--h", "0.1", "--t-end", "2", "--format", "both"], &dir);
+    run_ok(&["run", "particle", "--h", "0.1", "--t-end", "1", "--no-plot"], &dir);
+    for name in ["skate_gauss_s2.csv", "skate_gauss_s2.json", "skate_gauss_s2.png", "skate_gauss_s2.svg"] {
+        assert!(dir.join(name).exists(), "{name} missing after the first run");
+    }
+    run_ok(&["run", "skate", "--h", "0.05", "--t-end", "1", "--no-plot"], &dir);
+    for name in ["skate_gauss_s2.json", "skate_gauss_s2.png", "skate_gauss_s2.svg"] {
+        assert!(!dir.join(name).exists(), "{name} of the earlier run is still there");
+    }
+    let csv = std::fs::read_to_string(dir.join("skate_gauss_s2.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 21);
+    assert!(dir.join("particle_gauss_s2.csv").exists(), "another run's file was removed");
+    run_ok(&["run", "skate", "--h", "0.1", "--t-end", "1", "--format", "json", "--no-plot"], &dir);
+    assert!(!dir.join("skate_gauss_s2.csv").exists(), "the CSV of the earlier run is still there");
+    assert!(dir.join("skate_gauss_s2.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -59,6 +59,22 @@ mod sweep {
     /// The reversible sweep runs on the systems with a step density, and
     /// its driver is compiled for the entries marked `steps: reversible`:
     /// the two lists agree.
+    /// A largest step count near `usize::MAX` (`--max-steps
+    /// 18446744073709551615`) ends the sweep's step counts at the largest
+    /// that fits: doubling past it wrapped to 0, and the list of counts grew
+    /// until an allocation failed and aborted the process. The point mass
+    /// is solved exactly, so each sweep stops at its first point.
+    #[test]
+    fn a_sweep_up_to_any_step_count_ends() {
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-max-steps-{}", std::process::id()));
+        let mut cfg = WorkPrecisionConfig::quick(&dir);
+        cfg.systems = vec![SystemKind::PointMass];
+        cfg.max_steps = usize::MAX;
+        let all = run_work_precision(&cfg, &|_| {}).unwrap();
+        assert!(!all[0].points.is_empty());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn systems_with_a_step_density_are_marked_reversible_in_the_catalogue() {
         use problems::catalog::{visit_system, Dispatch, SystemEntry, SystemVisitor};

@@ -200,14 +200,23 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     bar.finish_and_clear();
     let stem = format!("{}_{}_s{}", entry.name, method.key(), a.stages);
     let e = |e: OutputError| e.to_string();
+    // A file of this stem that the run does not write belongs to an earlier
+    // run and goes, so that every file of the stem describes this run.
     if matches!(a.format, Format::Csv | Format::Both) {
         write_run_csv(&result, &mut out, &format!("{stem}.csv")).map_err(e)?;
+    } else {
+        out.remove_stale(&format!("{stem}.csv"));
     }
     if matches!(a.format, Format::Json | Format::Both) {
         write_run_json(&result, &mut out, &format!("{stem}.json")).map_err(e)?;
+    } else {
+        out.remove_stale(&format!("{stem}.json"));
     }
     if !a.no_plot {
         out.render(&run_figure(&result), &stem).map_err(e)?;
+    } else {
+        out.remove_stale(&format!("{stem}.png"));
+        out.remove_stale(&format!("{stem}.svg"));
     }
     // The reports come last: they describe the files above.
     let report = run_report(&result, &spec);

@@ -279,7 +279,9 @@ const TURNING_V0: &str = "v0 = (1, 0, 0.5, 1)";
 fn steps_for(t_end: f64, h: f64, what: &str) -> Result<usize, PaperError> {
     let n = t_end / h;
     if !(n.is_finite() && n >= 1.0) {
-        return Err(PaperError::Config(format!("{what}: final time {t_end} must allow at least one step of {h}")));
+        return Err(PaperError::Config(format!(
+            "{what}: final time {t_end:.3e} is shorter than one step of {h} (spark paper: raise --fraction)"
+        )));
     }
     Ok(n.round() as usize)
 }

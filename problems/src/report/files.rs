@@ -120,6 +120,8 @@ pub struct OutputDir {
     _lock: File,
     /// `(temporary, final)` paths written and not yet renamed, in order.
     staged: Vec<(PathBuf, PathBuf)>,
+    /// Files of an earlier run removed at [`OutputDir::commit`].
+    stale: Vec<PathBuf>,
     /// Test hook ([`TEST_PAUSE_ENV`]): pause after the first staged file.
     pause: Option<std::time::Duration>,
 }
@@ -162,7 +164,7 @@ impl OutputDir {
             .ok()
             .and_then(|v| v.trim().parse::<u64>().ok())
             .map(std::time::Duration::from_millis);
-        Ok(OutputDir { dir: dir.to_path_buf(), _lock: lock, staged: Vec::new(), pause })
+        Ok(OutputDir { dir: dir.to_path_buf(), _lock: lock, staged: Vec::new(), stale: Vec::new(), pause })
     }
 
     /// The folder.
@@ -277,9 +279,25 @@ impl OutputDir {
         Ok(vec![png, svg])
     }
 
-    /// Renames every staged file to its final name, in the order staged, and
-    /// returns the final paths. Files staged later (the reports) appear last.
+    /// Marks the file `name` for removal at [`OutputDir::commit`]: a file an
+    /// earlier run wrote and this one does not rewrite, which would
+    /// otherwise sit beside this run's reports and describe another run.
+    pub fn remove_stale(&mut self, name: &str) {
+        self.stale.push(self.dir.join(name));
+    }
+
+    /// Removes the files marked by [`OutputDir::remove_stale`], then renames
+    /// every staged file to its final name, in the order staged, and returns
+    /// the final paths. Files staged later (the reports) appear last.
     pub fn commit(mut self) -> Result<Vec<PathBuf>, OutputError> {
+        for path in std::mem::take(&mut self.stale) {
+            match std::fs::remove_file(&path) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(OutputError::Io { path, source: e });
+                }
+                _ => {}
+            }
+        }
         let staged = std::mem::take(&mut self.staged);
         let mut done = Vec::with_capacity(staged.len());
         let mut pending = staged.into_iter();

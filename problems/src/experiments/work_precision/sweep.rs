@@ -90,13 +90,14 @@ where
     Some(Measured { error_q: eq, error_v: ev, energy: max_e, iterations, wall, cpu, repeats })
 }
 
-/// Step counts `n₀·2^k` up to the configured maximum.
+/// Step counts `n₀·2^k` up to the configured maximum (and to the largest
+/// that fits in `usize`, for a maximum near `usize::MAX`).
 pub(super) fn step_counts(cfg: &WorkPrecisionConfig) -> Vec<usize> {
     let mut v = Vec::new();
-    let mut n = cfg.min_steps.max(1);
-    while n <= cfg.max_steps {
-        v.push(n);
-        n *= 2;
+    let mut n = Some(cfg.min_steps.max(1));
+    while let Some(steps) = n.filter(|&n| n <= cfg.max_steps) {
+        v.push(steps);
+        n = steps.checked_mul(2);
     }
     v
 }
