@@ -144,10 +144,13 @@ def _not_bool(name: str, x: Any) -> None:
 
 def _real(name: str, x: Any) -> float:
     """``x`` as a float; :class:`TypeError` naming the argument for a bool, a
-    string or anything else that is not a number."""
+    string, a complex number (``float`` would drop its imaginary part) or
+    anything else that is not a real number."""
     _not_bool(name, x)
     if isinstance(x, (str, bytes)):
         raise TypeError(f"{name} = {x!r} is a string; pass a number")
+    if isinstance(x, (complex, np.complexfloating)):
+        raise TypeError(f"{name} = {x!r} is complex; pass a real number")
     try:
         return float(x)
     except (TypeError, ValueError) as e:
@@ -188,7 +191,20 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
             "steps; give finite t0, t_end and a nonzero h"
         )
     n = round(ratio)
-    if n < 1 or abs(ratio - n) > 1e-9 * n:
+    if n < 1:
+        if ratio < 0:
+            raise SparkError(
+                f"t_end = {t_end:.6e} lies behind t0 = {t0:.6e} for h = {h:.6e}: the steps go from t0 in the "
+                "direction of h; give h the sign of t_end − t0 (a negative h integrates backward)"
+            )
+        raise SparkError(
+            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is shorter than one step of h = {h:.6e}; "
+            "use a later t_end or a smaller h"
+        )
+    # As `spark run`: relative to the step count, capped at a thousandth of
+    # a step (beyond 10⁶ steps a relative tolerance alone accepts an end
+    # half a step away, and the run ends elsewhere than asked).
+    if abs(ratio - n) > min(1e-9 * n, max(16 * np.finfo(np.float64).eps * n, 1e-3)):
         raise SparkError(
             f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is {ratio:.6e} steps of h = {h:.6e}, "
             "not a whole number; pass steps= instead"
@@ -315,8 +331,8 @@ class System:
         member. Each member agrees
         with what :meth:`integrate` returns for it alone to the Newton
         tolerance per step, and is the same whatever the thread count."""
-        _no_bool_entries("q0s", q0s)
-        _no_bool_entries("v0s", v0s)
+        _real_entries("q0s", q0s)
+        _real_entries("v0s", v0s)
         q0s = np.ascontiguousarray(q0s, dtype=np.float64)
         v0s = np.ascontiguousarray(v0s, dtype=np.float64)
         if q0s.ndim != 2 or v0s.shape != q0s.shape or q0s.shape[1] != self.n:
@@ -339,28 +355,40 @@ class System:
         )
 
 
-def _holds_bool(x) -> bool:
-    """Whether ``x`` is a bool or an array, list or tuple holding one."""
-    if isinstance(x, (bool, np.bool_)):
-        return True
+def _not_real(x) -> str | None:
+    """What ``x`` (a number, or an array, list or tuple of them) holds that
+    is no real number but that NumPy's cast to float64 takes: ``"a bool"``
+    (``[True, 0, 0]`` ran as ``[1.0, 0.0, 0.0]``), ``"a complex number"``
+    (its imaginary part dropped) or ``"a string"`` (parsed); ``None`` when
+    it holds none."""
     if isinstance(x, np.ndarray):
-        return x.dtype == np.bool_ or (x.dtype == object and any(_holds_bool(e) for e in x.flat))
+        kind = {"b": "a bool", "c": "a complex number", "U": "a string", "S": "a string"}.get(x.dtype.kind)
+        if kind is not None or x.dtype != object:
+            return kind
+        return next((k for k in map(_not_real, x.flat) if k is not None), None)
     if isinstance(x, (list, tuple)):
-        return any(_holds_bool(e) for e in x)
-    return False
+        return next((k for k in map(_not_real, x) if k is not None), None)
+    if isinstance(x, (bool, np.bool_)):
+        return "a bool"
+    if isinstance(x, (complex, np.complexfloating)):
+        return "a complex number"
+    if isinstance(x, (str, bytes)):
+        return "a string"
+    return None
 
 
-def _no_bool_entries(what: str, x) -> None:
-    """:class:`TypeError` when ``x`` holds bools (``[True, 0, 0]`` would
-    otherwise run as ``[1.0, 0.0, 0.0]``)."""
-    if _holds_bool(x):
-        raise TypeError(f"{what} holds a bool; pass numbers")
+def _real_entries(what: str, x) -> None:
+    """:class:`TypeError` naming ``what`` when ``x`` holds a bool, a complex
+    number or a string (:func:`_not_real`)."""
+    kind = _not_real(x)
+    if kind is not None:
+        raise TypeError(f"{what} holds {kind}; pass real numbers")
 
 
 def _vector(what: str, x) -> list[float]:
     if x is None:
         raise SparkError(f"give {what}=")
-    _no_bool_entries(what, x)
+    _real_entries(what, x)
     a = np.asarray(x, dtype=np.float64)
     if a.ndim != 1:
         raise SparkError(f"{what} must be a vector; got shape {a.shape}")

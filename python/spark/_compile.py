@@ -10,18 +10,23 @@ spark version and the source tree. Loading a cached module needs no cargo.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import importlib.machinery
 import importlib.util
 import os
+import re
 import shutil
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 from . import DslError, SparkError, System, ToolchainError, _native
 
 _loaded: dict[str, System] = {}
+_loading = threading.Lock()
 
 TOOLCHAIN_HELP = (
     "spark.compile needs the Rust toolchain (cargo) to build the declaration into a native module, as "
@@ -114,58 +119,98 @@ def compile_system(text: str, *, cache_dir: str | None = None, verbose: bool = F
     if "error" in checked:
         raise DslError(checked["error"], checked["line"], checked["column"])
     key = cache_key(text)
-    if key in _loaded:
+    # One thread at a time builds and loads: the threads of a process share
+    # one build and one loaded module of each declaration.
+    with _loading:
+        if key not in _loaded:
+            _loaded[key] = _build_and_load(text, checked, key, cache_dir, verbose)
         return _loaded[key]
+
+
+def _build_and_load(text: str, checked: dict, key: str, cache_dir: str | None, verbose: bool) -> System:
+    """The system of the checked declaration ``text``: its module built
+    into the cache unless it is there, then loaded."""
     name, n, m = checked["name"], checked["n"], checked["m"]
-    module = f"_spark_{name.lower()}_{key}"
+    # The module and crate names are ASCII whatever the struct's name (a
+    # raw `r#Name`, letters beyond ASCII): cargo and the module's init
+    # symbol take nothing else.
+    slug = re.sub(r"[^0-9a-z_]", "_", name.removeprefix("r#").lower())
+    module = f"_spark_{slug}_{key}"
     root = cache_root(cache_dir)
     folder = root / key
     library = folder / f"{module}.abi3.so"
     if not library.exists():
-        cargo = _cargo()
-        source = Path(_native.source_dir())
-        if not (source / "spark-runtime" / "Cargo.toml").exists():
-            raise SparkError(
-                f"spark.compile builds against the spark source tree this package was built from, {source}, "
-                "which is not there any more; rebuild the package from a spark checkout"
-            )
-        folder.mkdir(parents=True, exist_ok=True)
-        manifest, lib = _crate(source, module, name, n, m, text)
-        (folder / "Cargo.toml").write_text(manifest)
-        (folder / "lib.rs").write_text(lib)
-        lock = source / "Cargo.lock"
-        if lock.exists():
-            shutil.copyfile(lock, folder / "Cargo.lock")
-        target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))
-        env = dict(os.environ, CARGO_TARGET_DIR=str(target))
-        # PyO3's build script is rerun whenever these differ from the last
-        # build in the target directory: the interpreter that will load the
-        # module, and the signature maturin sets for it. With the values a
-        # wheel build made with `maturin build -i <this interpreter>` used, a
-        # target directory shared with it keeps PyO3 and the crates above it
-        # compiled, instead of each build invalidating the other's.
-        env.setdefault("PYO3_PYTHON", sys.executable)
-        env.setdefault("PYO3_ENVIRONMENT_SIGNATURE", _environment_signature())
-        cmd = [cargo, "build", "--release", "--quiet", "--manifest-path", str(folder / "Cargo.toml")]
-        try:
-            done = subprocess.run(cmd, env=env, capture_output=not verbose, text=True)
-        except OSError as e:
-            raise ToolchainError(f"{TOOLCHAIN_HELP} (running {cargo} failed: {e})") from e
-        if done.returncode != 0:
-            raise SparkError(
-                f"cargo could not build the declaration of {name} (crate in {folder}):\n{done.stderr or ''}"
-            )
-        built = target / "release" / f"lib{module}.so"
-        if not built.exists():
-            raise SparkError(f"cargo reported success but {built} is missing")
-        staging = folder / f".{module}.so.tmp"
-        shutil.copyfile(built, staging)
-        os.replace(staging, library)
+        with _folder_lock(folder):
+            # Another process may have built it while we waited.
+            if not library.exists():
+                _build(text, name, n, m, module, root, folder, library, verbose)
     mod = _load(module, library)
     info = mod.info()
     info["name"] = name
     info["cache_dir"] = str(root)
     system = System(info, mod.integrate, mod.ensemble)
     system.source = text
-    _loaded[key] = system
     return system
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path):
+    """Holds an exclusive lock on ``folder`` (``.lock``, an advisory
+    ``flock``, released when the file closes, also when the process dies):
+    compiles of one declaration in several processes (Ray workers on one
+    machine with an empty cache) build and install its module one after the
+    other, instead of rewriting its crate and its module file under each
+    other."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _build(
+    text: str, name: str, n: int, m: int, module: str, root: Path, folder: Path, library: Path, verbose: bool
+) -> None:
+    """Builds the declaration's crate in ``folder`` with cargo and installs
+    its module as ``library`` (copied under a temporary name, then renamed,
+    so ``library`` is complete whenever it exists)."""
+    cargo = _cargo()
+    source = Path(_native.source_dir())
+    if not (source / "spark-runtime" / "Cargo.toml").exists():
+        raise SparkError(
+            f"spark.compile builds against the spark source tree this package was built from, {source}, "
+            "which is not there any more; rebuild the package from a spark checkout"
+        )
+    manifest, lib = _crate(source, module, name, n, m, text)
+    (folder / "Cargo.toml").write_text(manifest)
+    (folder / "lib.rs").write_text(lib)
+    lock = source / "Cargo.lock"
+    if lock.exists():
+        shutil.copyfile(lock, folder / "Cargo.lock")
+    target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))
+    env = dict(os.environ, CARGO_TARGET_DIR=str(target))
+    # PyO3's build script is rerun whenever these differ from the last
+    # build in the target directory: the interpreter that will load the
+    # module, and the signature maturin sets for it. With the values a
+    # wheel build made with `maturin build -i <this interpreter>` used, a
+    # target directory shared with it keeps PyO3 and the crates above it
+    # compiled, instead of each build invalidating the other's.
+    env.setdefault("PYO3_PYTHON", sys.executable)
+    env.setdefault("PYO3_ENVIRONMENT_SIGNATURE", _environment_signature())
+    cmd = [cargo, "build", "--release", "--quiet", "--manifest-path", str(folder / "Cargo.toml")]
+    try:
+        done = subprocess.run(cmd, env=env, capture_output=not verbose, text=True)
+    except OSError as e:
+        raise ToolchainError(f"{TOOLCHAIN_HELP} (running {cargo} failed: {e})") from e
+    if done.returncode != 0:
+        raise SparkError(
+            f"cargo could not build the declaration of {name} (crate in {folder}):\n{done.stderr or ''}"
+        )
+    built = target / "release" / f"lib{module}.so"
+    if not built.exists():
+        raise SparkError(f"cargo reported success but {built} is missing")
+    staging = folder / f".{module}.so.tmp"
+    shutil.copyfile(built, staging)
+    os.replace(staging, library)

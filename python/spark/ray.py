@@ -19,7 +19,10 @@ Needs ``ray`` and ``pyarrow`` (``pip install spark-nonholonomic[ray]``).
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -95,27 +98,40 @@ def sweep(
     ``ray.init(address=address)`` unless it is already running. Rows are
     ordered by member, then time, whatever the shard count, and every
     member's numbers are those of :func:`spark.integrate` for it alone.
+    ``out`` is checked before Ray starts and written under a temporary name
+    in its folder, renamed to ``out`` once complete.
     """
     import pyarrow as pa
-    import pyarrow.parquet as pq
     import ray
 
     # The arguments are checked here, before Ray starts, as `ensemble`
-    # checks them: a bool where a number is meant is a TypeError.
+    # checks them: a bool, a complex number or a string where a real
+    # number is meant is a TypeError.
     s, steps, every = spark._whole("s", s), spark._whole("steps", steps), spark._whole("every", every)
     h = spark._real("h", h)
     threads_per_task = spark._whole("threads_per_task", threads_per_task)
     if shards is not None:
         shards = spark._whole("shards", shards)
-    spark._no_bool_entries("q0s", q0s)
-    spark._no_bool_entries("v0s", v0s)
+        if shards < 1:
+            raise spark.SparkError(f"shards = {shards} must be at least 1")
+    spark._real_entries("q0s", q0s)
+    spark._real_entries("v0s", v0s)
     q0s = np.ascontiguousarray(q0s, dtype=np.float64)
     v0s = np.ascontiguousarray(v0s, dtype=np.float64)
+    if q0s.ndim != 2 or q0s.shape[0] == 0 or q0s.shape != v0s.shape:
+        raise spark.SparkError(
+            f"q0s and v0s must have the same shape (members, N), with at least one member; got {q0s.shape}, "
+            f"{v0s.shape}"
+        )
     members = q0s.shape[0]
-    if members == 0 or q0s.shape != v0s.shape:
-        raise spark.SparkError(f"q0s and v0s must have the same shape (members, N); got {q0s.shape}, {v0s.shape}")
     if threads_per_task < 1:
         raise spark.SparkError("threads_per_task must be at least 1")
+    out = os.fspath(out)
+    folder = os.path.dirname(os.path.abspath(out))
+    if os.path.isdir(out):
+        raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
+    if not os.path.isdir(folder):
+        raise spark.SparkError(f"the folder of out = {out!r}, {folder}, does not exist; create it first")
     if not ray.is_initialized():
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
     if shards is None:
@@ -135,9 +151,25 @@ def sweep(
         if b > a
     ]
     tables = ray.get(pending)
-    pq.write_table(pa.concat_tables(tables), out)
+    _write_atomically(pa.concat_tables(tables), out, folder)
     wall = time.perf_counter() - start
     return SweepReport(path=str(out), members=members, shards=len(pending), wall_seconds=wall)
+
+
+def _write_atomically(table, out: str, folder: str) -> None:
+    """Writes ``table`` as Parquet to a temporary file in ``folder``, then
+    renames it to ``out``: an interrupted or failed write leaves an earlier
+    ``out`` as it was, never a truncated file under its name."""
+    import pyarrow.parquet as pq
+
+    temp = os.path.join(folder, f".spark-sweep-{os.getpid()}-{uuid.uuid4().hex}.parquet")
+    try:
+        pq.write_table(table, temp)
+        os.replace(temp, out)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(temp)
+        raise
 
 
 def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:

@@ -164,3 +164,71 @@ def test_ctrl_c_interrupts_the_check_of_a_large_declaration():
     took, err = interrupt_after_start(script, delay=0.3)
     assert "KeyboardInterrupt" in err and "checked" not in err, err
     assert took < 1.5, f"{took:.1f} s from Ctrl-C to exit"
+
+
+CONCURRENT = textwrap.dedent(
+    """
+    import shutil, sys, threading, time
+    import spark, spark._compile
+    sys.path.insert(0, {tests!r})
+    from test_compile import declaration
+
+    def slow_copy(src, dst, *args, **kwargs):
+        # A copy as slow as on a network file system (a cache shared by the
+        # nodes of a cluster): the others get there before it ends.
+        with open(src, "rb") as f:
+            data = f.read()
+        with open(dst, "wb") as f:
+            f.write(data[: len(data) // 2])
+            f.flush()
+            time.sleep(1.0)
+            f.write(data[len(data) // 2 :])
+        return dst
+
+    spark._compile.shutil.copyfile = slow_copy
+    text = declaration("Skate") + "\\n// compiled concurrently"
+    results = []
+
+    def one():
+        s = spark.compile(text, cache_dir={cache!r})
+        results.append(s.integrate("gauss", 2, 0.1, 10, q0=[0, 0, 0], v0=[0, 0, 1]).q[-1, 2])
+
+    threads = [threading.Thread(target=one) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(results) == 2 and results[0] == results[1] > 0.9, results
+    print("ok")
+    """
+)
+
+
+def test_concurrent_compiles_of_one_declaration_each_get_a_working_module(tmp_path):
+    """Two processes of two threads each compile one declaration into one
+    empty cache (Ray workers sharing a cache): each gets a working module.
+    They rewrote its crate under each other and installed the module
+    through one temporary file, which one of them renamed away from the
+    others while they still wrote into it (FileNotFoundError, and a module
+    file assembled from several copies)."""
+    script = CONCURRENT.format(tests=str(Path(__file__).parent), cache=str(tmp_path / "cache"))
+    children = [
+        subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    for child in children:
+        out, err = child.communicate(timeout=600)
+        assert child.returncode == 0 and out.strip() == "ok", err
+    leftovers = [p.name for p in (tmp_path / "cache").rglob("*.tmp")]
+    assert not leftovers, leftovers
+
+
+def test_a_raw_or_non_ascii_struct_name_compiles(tmp_path):
+    # The module and crate were named after the struct: `r#Foo` made a
+    # package name cargo refuses (`#`), `Ñame` a module whose init symbol
+    # failed to link, both after the check had accepted the declaration.
+    text = "pub struct r#Ñame {\n    coordinates: [x],\n    lagrangian: dot(x)^2/2 - x^2/2,\n}\n"
+    s = spark.compile(text, cache_dir=str(tmp_path))
+    assert s.name == "r#Ñame"
+    run = s.integrate("gauss", 2, 0.1, 10, q0=[1.0], v0=[0.0])
+    assert abs(run.q[-1, 0] - np.cos(1.0)) < 1e-4

@@ -83,3 +83,41 @@ def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
     ref = spark.ensemble("skate", "gauss", 2, 0.1, 20, q0s, v0s)
     # Two shards of two members against one ensemble of four.
     np.testing.assert_array_equal(x, ref.q[:, :, 0])
+
+
+def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
+    # An output path it cannot write was found only when the file was
+    # written, after every member had run; a shard count below 1 ran as 1.
+    q0s, v0s = sray.fig84_members(2)
+    args = ("mp7-nh", METHOD, 2, H, 10, q0s, v0s)
+    cases = {
+        "is a folder": dict(out=str(tmp_path)),
+        "does not exist": dict(out=str(tmp_path / "missing" / "sweep.parquet")),
+        "shards = 0 must be at least 1": dict(out=str(tmp_path / "a.parquet"), shards=0),
+    }
+    for words, kwargs in cases.items():
+        with pytest.raises(spark.SparkError, match=words):
+            sray.sweep(*args, **kwargs)
+    with pytest.raises(spark.SparkError, match=r"shape \(members, N\)"):
+        sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s[0], v0s[0], out=str(tmp_path / "a.parquet"))
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_path, monkeypatch):
+    # The Parquet file was written in place: a write that failed or was
+    # interrupted half-way left a truncated file under the final name.
+    q0s, v0s = sray.fig84_members(2)
+    out = tmp_path / "sweep.parquet"
+    sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=str(out), shards=1)
+    before = out.read_bytes()
+
+    def interrupted(table, where, *args, **kwargs):
+        with open(where, "wb") as f:
+            f.write(b"PAR1 half a file")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pq, "write_table", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sray.sweep("mp7-nh", METHOD, 2, H, 20, q0s, v0s, out=str(out), shards=1)
+    assert out.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["sweep.parquet"]

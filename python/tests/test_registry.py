@@ -213,3 +213,42 @@ def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
     # failed after four halvings with a non-finite Jacobian).
     with pytest.raises(spark.SparkError, match=r"h = 1.000e300.*h² overflows f64.*smaller \|h\|"):
         spark.integrate("skate", "gauss", 2, 1e300, 1)
+
+
+def test_a_final_time_is_reached_in_whole_steps_in_its_direction_or_refused():
+    skate = spark.system("skate")
+    # 10⁷ steps of 0.1 and half a hundredth of a step more: within the
+    # relative tolerance alone (10⁻⁹ of the steps), the run ended at 10⁶,
+    # 5e-4 short of t_end. As `spark run`, the tolerance is capped at a
+    # thousandth of a step.
+    with pytest.raises(spark.SparkError, match="not a whole number"):
+        skate.integrate("gauss", 2, 0.1, t_end=1e6 + 5e-4, every=10**7)
+    # An end behind t0, or at it, names the cause, not "not a whole number".
+    with pytest.raises(spark.SparkError, match=r"t_end = -1.000000e\+00 lies behind t0 .* negative h"):
+        skate.integrate("gauss", 2, 0.1, t_end=-1.0)
+    with pytest.raises(spark.SparkError, match="shorter than one step"):
+        skate.integrate("gauss", 2, 0.1, t_end=0.0)
+    # Backward with a negative h, and round-off in the ratio, still run.
+    assert skate.integrate("gauss", 2, -0.1, t_end=-1.0).t[-1] == pytest.approx(-1.0)
+    assert skate.integrate("gauss", 2, 0.1, t_end=0.3).t.shape == (4,)
+
+
+def test_complex_numbers_and_strings_where_real_numbers_are_meant_are_type_errors():
+    # NumPy's cast to float64 dropped the imaginary part with a warning and
+    # parsed strings: q0 = [1+2j, 0, 0] ran from x = 1, h = 0.1+1j as
+    # h = 0.1, q0 = ["0", "0", "1"] from theta = 1.
+    skate = spark.system("skate")
+    q0s, v0s = np.tile(skate.q0, (2, 1)), np.tile(skate.v0, (2, 1))
+    calls = {
+        "h": lambda: spark.integrate("skate", "gauss", 2, np.complex128(0.1 + 1j), 3),
+        "t0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, t0=1j),
+        "params['g']": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": 9.81 + 0j}),
+        "q0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, q0=np.array([1 + 2j, 0, 0])),
+        "v0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, v0=["0", "0", "1"]),
+        "q0 ": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, q0=np.array([0, 0, "1"], dtype=object)),
+        "q0s": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s + 1j, v0s),
+        "v0s": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s.astype(str)),
+    }
+    for name, call in calls.items():
+        with pytest.raises(TypeError, match=rf"^{re.escape(name.strip())} .*(complex|string)"):
+            call()
