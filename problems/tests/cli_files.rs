@@ -322,3 +322,24 @@ fn a_run_leaves_no_file_of_an_earlier_run_beside_its_own() {
     assert!(dir.join("skate_gauss_s2.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Standard output that cannot be written (a full disk, a pipe whose
+/// reader has gone) ends the program with an error, never a panic: `print!`
+/// panicked with "failed printing to stdout" and exit status 101.
+#[test]
+fn an_unwritable_standard_output_is_an_error_not_a_panic() {
+    let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+    let o = spark().arg("list").stdout(full).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && o.status.code() == Some(1), "{:?}: {stderr}", o.status);
+    assert!(stderr.contains("standard output") && !stderr.contains("panicked"), "{stderr}");
+    // A reader that reads nothing and exits: the write fails with a broken
+    // pipe (or lands in the pipe's buffer first); either way, no panic.
+    let o = Command::new("sh")
+        .arg("-c")
+        .arg(format!("'{}' list --json | true", env!("CARGO_BIN_EXE_spark")))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("panicked") && !stderr.contains("Broken pipe"), "{stderr}");
+}

@@ -5,16 +5,32 @@
 
 use clap::Parser;
 use problems::cli::Cli;
+use std::io::Write;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    match problems::cli::run(Cli::parse(), &|line| eprintln!("{line}")) {
+    // Standard error that cannot be written loses the message, not the run.
+    let say = |line: &str| {
+        let _ = writeln!(std::io::stderr(), "{line}");
+    };
+    match problems::cli::run(Cli::parse(), &say) {
         Ok(text) => {
-            print!("{text}");
-            ExitCode::SUCCESS
+            // Written, not `print!`ed: `print!` panics when standard output
+            // cannot take the text (a full disk, a closed pipe), and so does
+            // `eprintln!` on standard error.
+            let mut out = std::io::stdout().lock();
+            match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+                Ok(()) => ExitCode::SUCCESS,
+                // The reader has gone (`spark list | head -1`): nothing to tell it.
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::FAILURE,
+                Err(e) => {
+                    say(&format!("error: cannot write to standard output: {e}"));
+                    ExitCode::FAILURE
+                }
+            }
         }
         Err(message) => {
-            eprintln!("error: {message}");
+            say(&format!("error: {message}"));
             ExitCode::FAILURE
         }
     }
