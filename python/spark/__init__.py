@@ -172,10 +172,15 @@ def _whole(name: str, x: Any) -> int:
 
 
 def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
-    """The parameter overrides, each value a number (a bool is refused)."""
+    """The parameter overrides, each name a string and each value a number
+    (a bool is refused)."""
     if not params:
         return None
-    return {name: _real(f"params[{name!r}]", value) for name, value in dict(params).items()}
+    params = dict(params)
+    for name in params:
+        if not isinstance(name, str):
+            raise TypeError(f"params key {name!r} is not a string; name a parameter, e.g. params={{'g': 9.81}}")
+    return {name: _real(f"params[{name!r}]", value) for name, value in params.items()}
 
 
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:

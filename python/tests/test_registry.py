@@ -252,3 +252,7 @@ def test_complex_numbers_and_strings_where_real_numbers_are_meant_are_type_error
     for name, call in calls.items():
         with pytest.raises(TypeError, match=rf"^{re.escape(name.strip())} .*(complex|string)"):
             call()
+    # A parameter named by something else than a string is named as such
+    # (the message was "'int' object cannot be cast as 'str'").
+    with pytest.raises(TypeError, match="params key 1 is not a string"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, params={1: 9.81})
