@@ -134,6 +134,14 @@ def sweep(
         raise spark.SparkError(f"the folder of out = {out!r}, {folder}, does not exist; create it first")
     if not ray.is_initialized():
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    # Ray keeps a task that asks for more CPUs than any node has waiting for
+    # such a node, so the sweep would never end.
+    largest = max((n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")), default=0)
+    if threads_per_task > largest:
+        raise spark.SparkError(
+            f"threads_per_task = {threads_per_task} is more than the {largest:g} CPUs of the largest Ray node; "
+            f"its tasks would wait forever for a node that has them; use threads_per_task ≤ {int(largest)}"
+        )
     if shards is None:
         shards = max(1, 2 * int(ray.cluster_resources().get("CPU", 1)))
     shards = max(1, min(shards, members))

@@ -121,3 +121,13 @@ def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_pat
         sray.sweep("mp7-nh", METHOD, 2, H, 20, q0s, v0s, out=str(out), shards=1)
     assert out.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["sweep.parquet"]
+
+
+def test_more_threads_per_task_than_a_node_has_cpus_is_refused(local_ray, tmp_path):
+    # Ray keeps a task that asks for more CPUs than any node has waiting
+    # for such a node: the sweep hung (threads_per_task=4 on this
+    # two-CPU instance).
+    q0s, v0s = sray.fig84_members(2)
+    with pytest.raises(spark.SparkError, match=r"threads_per_task = 4 .* 2 CPUs"):
+        sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=str(tmp_path / "a.parquet"), threads_per_task=4)
+    assert not list(tmp_path.iterdir())
