@@ -406,6 +406,35 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         *constraint_v = self.constraint_v(t, q, v);
     }
 
+    /// The momentum and the constraint at `(t, q, v)`, written into
+    /// `values` — what the SPARK residual reads at a step's end point and at
+    /// the midpoint of the methods with a midpoint constraint; the forces
+    /// there enter no equation, and this leaves `values.force` and
+    /// `values.constraint_force` unspecified. Bit for bit what
+    /// [`stage_values_into`](Self::stage_values_into) writes there (at any
+    /// `ψ`: neither depends on it). The default calls it with `ψ = 0`;
+    /// `nonholonomic_system!` generates a body with the two alone, so that
+    /// the end point skips the force's work (the mobile robot's `cos φ`).
+    fn end_point_values_into(&self, t: f64, q: &Vector<N>, v: &Vector<N>, values: &mut StageValues<N, M>) {
+        self.stage_values_into(t, q, v, &Vector::zeros(), values);
+    }
+
+    /// [`end_point_values_into`](Self::end_point_values_into) and the
+    /// constraint Jacobians `k_q`, `K = k_v` there, as
+    /// [`stage_values_and_constraint_jacobians`](Self::stage_values_and_constraint_jacobians)
+    /// computes them (the stage-decoupled matrix's refresh).
+    fn end_point_values_and_constraint_jacobians(
+        &self,
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        values: &mut StageValues<N, M>,
+        constraint_q: &mut Matrix<M, N>,
+        constraint_v: &mut Matrix<M, N>,
+    ) {
+        self.stage_values_and_constraint_jacobians(t, q, v, &Vector::zeros(), values, constraint_q, constraint_v);
+    }
+
     /// [`stage_values`](Self::stage_values) of `W` lanes at once, for the
     /// lane kernel (`crate::lanes`): lane `w` is the point
     /// `(t, q[·][w], v[·][w], psi[·][w])`, and its values go to
@@ -513,6 +542,37 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
     ) {
         let _ = terms;
         self.stage_values_and_constraint_jacobians(t, q, v, psi, values, constraint_q, constraint_v);
+    }
+
+    /// [`end_point_values_into`](Self::end_point_values_into) with the
+    /// parameter terms given (see [`energy_with_terms`](Self::energy_with_terms)).
+    fn end_point_values_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        values: &mut StageValues<N, M>,
+    ) {
+        let _ = terms;
+        self.end_point_values_into(t, q, v, values);
+    }
+
+    /// [`end_point_values_and_constraint_jacobians`](Self::end_point_values_and_constraint_jacobians)
+    /// with the parameter terms given (see [`energy_with_terms`](Self::energy_with_terms)).
+    #[allow(clippy::too_many_arguments)]
+    fn end_point_values_and_constraint_jacobians_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &Vector<N>,
+        v: &Vector<N>,
+        values: &mut StageValues<N, M>,
+        constraint_q: &mut Matrix<M, N>,
+        constraint_v: &mut Matrix<M, N>,
+    ) {
+        let _ = terms;
+        self.end_point_values_and_constraint_jacobians(t, q, v, values, constraint_q, constraint_v);
     }
 
     /// [`stage_jacobians_into`](Self::stage_jacobians_into) with the

@@ -1,5 +1,6 @@
-//! The sine and cosine of one angle together, for the code
-//! `nonholonomic_system!` generates.
+//! The sine and cosine for the code `nonholonomic_system!` generates: of
+//! one angle together ([`sin_cos`]), and alone ([`sin`], [`cos`], the same
+//! bits as the pair's members).
 //!
 //! A body that needs both `sin θ` and `cos θ` (the skate's and the mobile
 //! robot's constraints, every rotation) gets them from one call of
@@ -76,6 +77,42 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
     let sign_sin = ((n as u64) & 2) << 62;
     let sign_cos = (((n + 1) as u64) & 2) << 62;
     (f64::from_bits(sin.to_bits() ^ sign_sin), f64::from_bits(cos.to_bits() ^ sign_cos))
+}
+
+/// `sin x`: the sine [`sin_cos`] returns, bit for bit, from its reduction
+/// and only the kernel polynomial the quadrant needs. Generated code calls
+/// it for a sine without its cosine, so that a body computing a subset of
+/// another's outputs (the end point's momentum and constraint, without the
+/// forces that pair the angle) returns the same bits as the whole body.
+#[inline(never)]
+pub fn sin(x: f64) -> f64 {
+    let ix = (x.to_bits() >> 32) as u32 & 0x7fff_ffff;
+    if ix < TINY_LIMIT {
+        return x;
+    }
+    if ix >= MEDIUM_LIMIT {
+        return platform_sin_cos(x).0;
+    }
+    let (n, y, tail) = reduce(x);
+    // sin x = (s, c, −s, −c)[n mod 4].
+    let value = if n & 1 == 0 { kernel_sin(y, tail) } else { kernel_cos(y, tail) };
+    f64::from_bits(value.to_bits() ^ (((n as u64) & 2) << 62))
+}
+
+/// `cos x`: the cosine [`sin_cos`] returns, bit for bit (see [`sin`]).
+#[inline(never)]
+pub fn cos(x: f64) -> f64 {
+    let ix = (x.to_bits() >> 32) as u32 & 0x7fff_ffff;
+    if ix < TINY_LIMIT {
+        return 1.0;
+    }
+    if ix >= MEDIUM_LIMIT {
+        return platform_sin_cos(x).1;
+    }
+    let (n, y, tail) = reduce(x);
+    // cos x = (c, −s, −c, s)[n mod 4].
+    let value = if n & 1 == 0 { kernel_cos(y, tail) } else { kernel_sin(y, tail) };
+    f64::from_bits(value.to_bits() ^ ((((n + 1) as u64) & 2) << 62))
 }
 
 /// How many sine–cosine pairs of one body a [`SinCosMemo`] keeps (the
@@ -203,7 +240,7 @@ fn kernel_cos(x: f64, y: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::{sin_cos, SinCosMemo, SIN_COS_SLOTS};
+    use super::{cos, sin, sin_cos, SinCosMemo, SIN_COS_SLOTS};
     use crate::linalg::test_matrices::random_values;
 
     /// Distance in units in the last place (0 for equal values, NaN
@@ -216,9 +253,11 @@ mod tests {
     }
 
     /// The larger of the sine's and the cosine's distances from the
-    /// platform's.
+    /// platform's; the lone [`sin`] and [`cos`] equal the pair's bit for
+    /// bit.
     fn distance(x: f64) -> u64 {
         let (s, c) = sin_cos(x);
+        assert_eq!((sin(x).to_bits(), cos(x).to_bits()), (s.to_bits(), c.to_bits()), "x = {x:e}");
         ulps(s, x.sin()).max(ulps(c, x.cos()))
     }
 

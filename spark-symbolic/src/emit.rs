@@ -205,6 +205,11 @@ enum R {
     Bin(char, Box<R>, Box<R>),
     Neg(Box<R>),
     Method(Box<R>, &'static str, Vec<R>),
+    /// `sin` or `cos` of one argument, written as a call of the runtime's
+    /// `trig` module (its path here), whose lone functions return the bits
+    /// of its pair's members: a body that computes some of another body's
+    /// outputs then computes them alike, whether or not its angles pair.
+    Trig(TokenStream, &'static str, Box<R>),
     Powi(Box<R>, i32),
 }
 
@@ -216,7 +221,7 @@ impl R {
             R::Bin('+' | '-', ..) => 1,
             R::Bin(..) => 2,
             R::Neg(_) => 3,
-            R::Method(..) | R::Powi(..) => 4,
+            R::Method(..) | R::Trig(..) | R::Powi(..) => 4,
         }
     }
 
@@ -224,7 +229,7 @@ impl R {
         match self {
             R::Lit(_) | R::Var(..) | R::Shared(..) => 0,
             R::Bin(_, a, b) => 1 + a.ops() + b.ops(),
-            R::Neg(a) | R::Powi(a, _) => 1 + a.ops(),
+            R::Neg(a) | R::Powi(a, _) | R::Trig(_, _, a) => 1 + a.ops(),
             R::Method(a, _, xs) => 1 + a.ops() + xs.iter().map(R::ops).sum::<usize>(),
         }
     }
@@ -247,6 +252,14 @@ impl R {
             }
             R::Neg(a) => -a.eval(env, shared),
             R::Powi(a, k) => a.eval(env, shared).powi(*k),
+            R::Trig(_, name, a) => {
+                let x = a.eval(env, shared);
+                if *name == "sin" {
+                    x.sin()
+                } else {
+                    x.cos()
+                }
+            }
             R::Method(a, name, args) => {
                 let x = a.eval(env, shared);
                 let y = args.first().map_or(f64::NAN, |b| b.eval(env, shared));
@@ -254,8 +267,6 @@ impl R {
                     "sqrt" => x.sqrt(),
                     "exp" => x.exp(),
                     "ln" => x.ln(),
-                    "sin" => x.sin(),
-                    "cos" => x.cos(),
                     "tan" => x.tan(),
                     "sinh" => x.sinh(),
                     "cosh" => x.cosh(),
@@ -282,7 +293,7 @@ impl R {
                 a.mark_shared(used);
                 b.mark_shared(used);
             }
-            R::Neg(a) | R::Powi(a, _) => a.mark_shared(used),
+            R::Neg(a) | R::Powi(a, _) | R::Trig(_, _, a) => a.mark_shared(used),
             R::Method(a, _, xs) => {
                 a.mark_shared(used);
                 xs.iter().for_each(|x| x.mark_shared(used));
@@ -353,6 +364,11 @@ impl R {
                 let k = Literal::i32_unsuffixed(*k);
                 quote!(#recv.powi(#k))
             }
+            R::Trig(trig, name, x) => {
+                let name = Ident::new(name, Span::call_site());
+                let x = x.tokens(mode);
+                quote!(#trig::#name(#x))
+            }
         }
     }
 }
@@ -401,8 +417,8 @@ pub struct Emitted {
 impl Emitted {
     /// Evaluates the emitted code at a point, interpreting exactly the
     /// operations written (for tests of the emitter against the graph),
-    /// except that a sine–cosine pair is the platform's `sin` and `cos`
-    /// (the runtime's `sin_cos` is within 1 ulp of them).
+    /// except that sines and cosines are the platform's `sin` and `cos`
+    /// (the runtime's `trig` functions are within 1 ulp of them).
     /// Returns one value per output, `0` for outputs not written.
     pub fn evaluate(&self, env: &dyn Fn(Var) -> f64) -> Vec<f64> {
         let mut shared = Vec::with_capacity(self.lets.len());
@@ -553,11 +569,11 @@ impl Emitted {
     }
 }
 
-/// `runtime::trig::sin_cos(x)` for the sine `e = x.sin()` of a pair
+/// `runtime::trig::sin_cos(x)` for the sine `e = trig::sin(x)` of a pair
 /// (`paired`), `x` written as `mode` says; `None` for any other let.
 fn pair_call(runtime: &TokenStream, e: &R, paired: bool, mode: Mode) -> Option<TokenStream> {
     match e {
-        R::Method(x, "sin", _) if paired => {
+        R::Trig(_, "sin", x) if paired => {
             let x = x.tokens(mode);
             Some(quote!(#runtime::trig::sin_cos(#x)))
         }
@@ -565,7 +581,7 @@ fn pair_call(runtime: &TokenStream, e: &R, paired: bool, mode: Mode) -> Option<T
     }
 }
 
-/// `sin_cos_memo.sin_cos(slot, x)` for the sine `e = x.sin()` (node
+/// `sin_cos_memo.sin_cos(slot, x)` for the sine `e = trig::sin(x)` (node
 /// `sine`) of a pair whose argument depends on the point (`paired`), in a
 /// body with a memo (see [`Inputs::sin_cos_memo`]); `None` otherwise.
 fn memo_call(
@@ -575,7 +591,7 @@ fn memo_call(
     e: &R,
     paired: bool,
 ) -> Option<TokenStream> {
-    let (R::Method(x, "sin", _), true, Some(slots)) = (e, paired, inputs.sin_cos_memo) else { return None };
+    let (R::Trig(_, "sin", x), true, Some(slots)) = (e, paired, inputs.sin_cos_memo) else { return None };
     let View::Method(_, args) = views.get(&sine)? else { return None };
     let argument = *args.first()?;
     let mut slots = slots.borrow_mut();
@@ -754,6 +770,10 @@ impl Emitter<'_> {
             View::Neg(a) => R::Neg(Box::new(sub(*a))),
             View::Times(a, b) => bin('*', sub(*a), sub(*b)),
             View::Recip(a) => bin('/', R::Lit(1.0), sub(*a)),
+            View::Method(name @ ("sin" | "cos"), xs) if xs.len() == 1 => {
+                let runtime = self.inputs.runtime;
+                R::Trig(quote!(#runtime::trig), name, Box::new(sub(xs[0])))
+            }
             View::Method(name, xs) => R::Method(Box::new(sub(xs[0])), name, xs[1..].iter().map(|&x| sub(x)).collect()),
             View::Powi(a, k) => R::Powi(Box::new(sub(*a)), *k),
             View::Powf(a, e) => R::Method(Box::new(sub(*a)), "powf", vec![sub(*e)]),

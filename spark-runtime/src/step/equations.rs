@@ -175,10 +175,21 @@ where
                         ev.stages[i].constraint_force += system.nonideal_force(ti, &qi, &v[i], &psi);
                     }
                 }
-                values_at(S, t1, &q1, &v1, &zero_m, &mut ev.end);
+                // At the end point and the midpoint the residual reads the
+                // momentum and the constraint alone.
+                let mut end_values_at =
+                    |p: usize, t: f64, q: &Vector<N>, v: &Vector<N>, out: &mut StageValues<N, M>| {
+                        match &mut constraint_jacobians {
+                            Some((kv, kq)) => system.end_point_values_and_constraint_jacobians_with_terms(
+                                terms, t, q, v, out, &mut kq[p], &mut kv[p],
+                            ),
+                            None => system.end_point_values_with_terms(terms, t, q, v, out),
+                        }
+                    };
+                end_values_at(S, t1, &q1, &v1, &mut ev.end);
                 if tab.conditions == ConditionRows::MidpointConstraint {
                     let (tm, qm) = mid_point();
-                    values_at(S + 1, tm, &qm, &v[0], &zero_m, ev.mid.insert(StageValues::zeros()));
+                    end_values_at(S + 1, tm, &qm, &v[0], ev.mid.insert(StageValues::zeros()));
                 }
             }
         }

@@ -10,6 +10,7 @@
 
 mod dense_output;
 mod driver_robustness;
+mod end_point_values;
 mod events;
 mod newcomer_systems;
 mod newcomer_unusual_systems;

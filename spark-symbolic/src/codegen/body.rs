@@ -281,6 +281,30 @@ impl<'a> Gen<'a> {
         self.body_with_memo("stage_values_and_constraint_jacobians", Vec::new(), &outs, true, true)
     }
 
+    /// The outputs a step reads at its end point (and the midpoint of the
+    /// methods with a midpoint constraint): the momentum and the constraint
+    /// (`values`), and with them `k_q`, `K = k_v` (`fused`), written into
+    /// the caller's storage. The forces there enter no equation.
+    pub(super) fn end_point_outs(&self) -> (Vec<Out>, Vec<Out>) {
+        let (n, m) = (self.n.clone(), self.m.clone());
+        let md = &*self.model;
+        let values = vec![self.vector("momentum", &md.momentum, &n), self.vector("constraint", &md.constraint, &m)];
+        let mut fused = values.clone();
+        fused.push(self.matrix("constraint_q", &md.constraint_q, &m));
+        fused.push(self.matrix("constraint_v", &md.constraint_v, &m));
+        let write = |outs: Vec<Out>| -> Vec<Out> { outs.into_iter().map(|o| o.into_dest(Dest::Write)).collect() };
+        (write(values), write(fused))
+    }
+
+    /// Bodies of `end_point_values_into` and
+    /// `end_point_values_and_constraint_jacobians` ([`Self::end_point_outs`]).
+    pub(super) fn end_point(&mut self) -> (Body, Body) {
+        let (values, fused) = self.end_point_outs();
+        let values = self.body_with_memo("end_point_values", Vec::new(), &values, false, true);
+        let fused = self.body_with_memo("end_point_values_and_constraint_jacobians", Vec::new(), &fused, false, true);
+        (values, fused)
+    }
+
     /// The two bodies of `stage_values_in_lanes` in lane form (see
     /// [`crate::emit::Emitted::statements_in_lanes`]): the stage values,
     /// and the stage values with `k_q` and `K = k_v`. `None` when either is

@@ -1,6 +1,7 @@
 //! Parameter terms: the parameter-only subexpressions of the functions a
 //! step evaluates at every iterate — the stage values, the stage values
-//! with the constraint Jacobians, the stage Jacobians and the energy —
+//! with the constraint Jacobians, the stage Jacobians, the end point's
+//! values with and without the constraint Jacobians, and the energy —
 //! computed once per change of the parameters by `parameter_terms` and read
 //! by the `*_with_terms` variants of those functions, which the stepper
 //! calls. The skate's `m g sin β` is then one load per evaluation instead of
@@ -20,7 +21,7 @@ use proc_macro2::{Literal, TokenStream};
 use quote::{format_ident, quote};
 use std::collections::HashMap;
 
-/// `PARAMETER_TERMS`, `parameter_terms` and the four `*_with_terms`
+/// `PARAMETER_TERMS`, `parameter_terms` and the six `*_with_terms`
 /// methods, or nothing (see the module docs).
 pub(super) fn methods(gen: &mut Gen) -> TokenStream {
     let (values, jacobians) = gen.stage_outs();
@@ -32,9 +33,16 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
     fused.extend(write(vec![gen.matrix("constraint_q", &kq, &m), gen.matrix("constraint_v", &kv, &m)]));
     let mut all = values.clone();
     all.extend(write(jacobians));
+    let (end_values, end_fused) = gen.end_point_outs();
     let energy = vec![(Target::Let(format_ident!("energy")), gen.model.energy)];
     let entries = |outs: &[Out]| -> Vec<(Target, NodeId)> { outs.iter().flat_map(|o| o.entries.clone()).collect() };
-    let bodies = [(entries(&values), &values[..]), (entries(&fused), &fused[..]), (entries(&all), &all[..])];
+    let bodies = [
+        (entries(&values), &values[..]),
+        (entries(&fused), &fused[..]),
+        (entries(&all), &all[..]),
+        (entries(&end_values), &end_values[..]),
+        (entries(&end_fused), &end_fused[..]),
+    ];
 
     let params = gen.params.clone();
     let runtime = gen.rt.clone();
@@ -69,7 +77,7 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
         let decls = gen.decls(outs);
         with.push(quote!(#(#decls)* #(#statements)*));
     }
-    let Some(energy) = emitted[3].statements_with_terms(&index) else { return quote!() };
+    let Some(energy) = emitted[bodies.len()].statements_with_terms(&index) else { return quote!() };
     let count = Literal::usize_unsuffixed(terms.len());
     let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
     let trait_path = quote!(<Self as #rt::NonholonomicSystem<#n, #m>>);
@@ -87,6 +95,7 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
         };
     };
     let (values_with, fused_with, all_with) = (&with[0], &with[1], &with[2]);
+    let (end_values_with, end_fused_with) = (&with[3], &with[4]);
     quote! {
         const PARAMETER_TERMS: usize = #count;
 
@@ -117,6 +126,23 @@ pub(super) fn methods(gen: &mut Gen) -> TokenStream {
             #terms_or_own
             let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             #fused_with
+        }
+
+        fn end_point_values_with_terms(#sig, values: &mut #rt::StageValues<#n, #m>) {
+            #terms_or_own
+            let #rt::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+            #end_values_with
+        }
+
+        fn end_point_values_and_constraint_jacobians_with_terms(
+            #sig,
+            values: &mut #rt::StageValues<#n, #m>,
+            constraint_q: &mut #rt::Matrix<#m, #n>,
+            constraint_v: &mut #rt::Matrix<#m, #n>
+        ) {
+            #terms_or_own
+            let #rt::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+            #end_fused_with
         }
 
         fn stage_jacobians_with_terms(

@@ -49,6 +49,7 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
 
     let fused = gen.fused();
     let (values_and_constraint_jacobians, _) = gen.values_and_constraint_jacobians();
+    let ((end_point_values, _), (end_point_fused, _)) = gen.end_point();
     let in_lanes = lanes_method(gen);
     let with_terms = super::terms::methods(gen);
     let (stage_values, stage_jacobians) = (&fused.0 .0, &fused.1 .0);
@@ -139,6 +140,21 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
         ) {
             let #rt::StageValues { momentum, force, constraint, constraint_force, sin_cos_memo } = values;
             #values_and_constraint_jacobians
+        }
+
+        fn end_point_values_into(#sig, values: &mut #rt::StageValues<#n, #m>) {
+            let #rt::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+            #end_point_values
+        }
+
+        fn end_point_values_and_constraint_jacobians(
+            #sig,
+            values: &mut #rt::StageValues<#n, #m>,
+            constraint_q: &mut #rt::Matrix<#m, #n>,
+            constraint_v: &mut #rt::Matrix<#m, #n>
+        ) {
+            let #rt::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+            #end_point_fused
         }
 
         #in_lanes

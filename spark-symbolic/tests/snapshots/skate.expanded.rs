@@ -108,7 +108,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
     ) -> f64 {
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         let lagrangian: f64 = s2 * q[0]
             + 0.5
@@ -122,7 +122,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         v: &::spark_runtime::Vector<3>,
     ) -> f64 {
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         let energy: f64 = 0.5
             * (self.m * (v[0] * v[0] + v[1] * v[1]) + self.inertia * (v[2] * v[2]))
@@ -149,7 +149,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
     ) -> ::spark_runtime::Vector<3> {
         let mut force = <::spark_runtime::Vector<3>>::zeros();
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         force[0] = s2;
         force
@@ -249,7 +249,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         force.as_mut_slice().fill(0.0);
         constraint_force.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         momentum[0] = self.m * v[0];
@@ -297,7 +297,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_q.as_mut_slice().fill(0.0);
         constraint_v.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         momentum[0] = self.m * v[0];
@@ -311,6 +311,41 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_v[(0, 0)] = -s3;
         constraint_v[(0, 1)] = s4;
     }
+    fn end_point_values_into(
+        &self,
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+    ) {
+        let ::spark_runtime::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+        let (s0, s1) = sin_cos_memo.sin_cos(0, q[2]);
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        constraint[0] = s1 * v[1] - s0 * v[0];
+    }
+    fn end_point_values_and_constraint_jacobians(
+        &self,
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+        constraint_q: &mut ::spark_runtime::Matrix<1, 3>,
+        constraint_v: &mut ::spark_runtime::Matrix<1, 3>,
+    ) {
+        let ::spark_runtime::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+        constraint_q.as_mut_slice().fill(0.0);
+        constraint_v.as_mut_slice().fill(0.0);
+        let (s0, s1) = sin_cos_memo.sin_cos(0, q[2]);
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        constraint[0] = s1 * v[1] - s0 * v[0];
+        constraint_q[(0, 2)] = -(s0 * v[1]) - s1 * v[0];
+        constraint_v[(0, 0)] = -s0;
+        constraint_v[(0, 1)] = s1;
+    }
     #[inline(always)]
     #[allow(clippy::needless_range_loop, unused_variables, unused_mut)]
     fn energy_in_lanes<const W: usize>(
@@ -321,7 +356,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         lanes: &[bool; W],
     ) -> [f64; W] {
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         let mut energy = [0.0f64; W];
         for w in 0..W {
@@ -359,7 +394,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         match jacobians {
             ::core::option::Option::None => {
                 let s0 = self.m * self.g;
-                let s1 = self.beta.sin();
+                let s1 = ::spark_runtime::trig::sin(self.beta);
                 let s2 = s0 * s1;
                 let mut s3 = [0.0f64; W];
                 let mut s4 = [0.0f64; W];
@@ -403,7 +438,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
                     constraint_v,
                 } = jacobians;
                 let s0 = self.m * self.g;
-                let s1 = self.beta.sin();
+                let s1 = ::spark_runtime::trig::sin(self.beta);
                 let s2 = s0 * s1;
                 let mut s3 = [0.0f64; W];
                 let mut s4 = [0.0f64; W];
@@ -465,7 +500,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
     fn parameter_terms(&self, terms: &mut [f64]) {
         let ::core::option::Option::Some(terms) = terms.get_mut(..1) else { return };
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         terms[0] = s2;
     }
@@ -578,6 +613,65 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_v[(0, 0)] = -s3;
         constraint_v[(0, 1)] = s4;
     }
+    fn end_point_values_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+    ) {
+        let mut own = [0.0f64; 1];
+        let terms: &[f64] = match terms.get(..1) {
+            ::core::option::Option::Some(terms) => terms,
+            ::core::option::Option::None => {
+                <Self as ::spark_runtime::NonholonomicSystem<
+                    3,
+                    1,
+                >>::parameter_terms(self, &mut own);
+                &own
+            }
+        };
+        let ::spark_runtime::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+        let (s0, s1) = sin_cos_memo.sin_cos(0, q[2]);
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        constraint[0] = s1 * v[1] - s0 * v[0];
+    }
+    fn end_point_values_and_constraint_jacobians_with_terms(
+        &self,
+        terms: &[f64],
+        t: f64,
+        q: &::spark_runtime::Vector<3>,
+        v: &::spark_runtime::Vector<3>,
+        values: &mut ::spark_runtime::StageValues<3, 1>,
+        constraint_q: &mut ::spark_runtime::Matrix<1, 3>,
+        constraint_v: &mut ::spark_runtime::Matrix<1, 3>,
+    ) {
+        let mut own = [0.0f64; 1];
+        let terms: &[f64] = match terms.get(..1) {
+            ::core::option::Option::Some(terms) => terms,
+            ::core::option::Option::None => {
+                <Self as ::spark_runtime::NonholonomicSystem<
+                    3,
+                    1,
+                >>::parameter_terms(self, &mut own);
+                &own
+            }
+        };
+        let ::spark_runtime::StageValues { momentum, constraint, sin_cos_memo, .. } = values;
+        constraint_q.as_mut_slice().fill(0.0);
+        constraint_v.as_mut_slice().fill(0.0);
+        let (s0, s1) = sin_cos_memo.sin_cos(0, q[2]);
+        momentum[0] = self.m * v[0];
+        momentum[1] = self.m * v[1];
+        momentum[2] = self.inertia * v[2];
+        constraint[0] = s1 * v[1] - s0 * v[0];
+        constraint_q[(0, 2)] = -(s0 * v[1]) - s1 * v[0];
+        constraint_v[(0, 0)] = -s0;
+        constraint_v[(0, 1)] = s1;
+    }
     fn stage_jacobians_with_terms(
         &self,
         terms: &[f64],
@@ -683,7 +777,7 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         constraint_force_q.as_mut_slice().fill(0.0);
         constraint_force_v.as_mut_slice().fill(0.0);
         let s0 = self.m * self.g;
-        let s1 = self.beta.sin();
+        let s1 = ::spark_runtime::trig::sin(self.beta);
         let s2 = s0 * s1;
         let (s3, s4) = sin_cos_memo.sin_cos(0, q[2]);
         let s5 = s3 * psi[0];
