@@ -68,7 +68,7 @@ use cold_start::check_cold_start;
 use compensation::Compensation;
 use equations::{increment, split, Eval, EvalJac};
 use guess::{Guess, Warm, SAFE_EXTRAPOLATION_DEGREE};
-use newton::Solved;
+use newton::{Solved, Unsolved};
 
 /// A point `(t, q, v)` of the phase space.
 #[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
@@ -480,14 +480,22 @@ where
         // `SAFE_EXTRAPOLATION_DEGREE`, so that the higher degree never turns
         // a step that one solves into a failure. (One call of the solve, in
         // a loop: a second call site made LLVM leave it out of line.)
+        let (mut full_newton, mut abandoned) = (false, 0);
         let Solved { factorizations, rate } = loop {
-            match self.newton(state, &carry, h, &mut z, prior) {
+            match self.newton(state, &carry, h, &mut z, prior, full_newton) {
+                Err(Unsolved::RestartInFullNewton { factorizations }) => {
+                    // The same guess again, solved by full Newton.
+                    Guess { z, degree, .. } = self.starting_guess(state, h, continues);
+                    (full_newton, abandoned) = (true, factorizations);
+                }
                 Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
                     Guess { z, degree, .. } = self.safe_degree_guess(state, h, continues);
                 }
-                solved => break solved?,
+                Err(Unsolved::Failed(e)) => return Err(e),
+                Ok(solved) => break solved,
             }
         };
+        let factorizations = factorizations + abandoned;
         let iterations = self.history.len();
         let (v, mu) = split::<N, M, S, D>(&z);
         // The increment is summed on its own and added once; what q₁ cannot

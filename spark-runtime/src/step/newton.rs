@@ -168,6 +168,25 @@ impl Default for NewtonOptions {
 }
 
 /// What a converged Newton solve reports to its step.
+/// Why [`Stepper::newton`] returned no solution: the step failed, or
+/// simplified Newton's factors at the starting guess contracted too slowly
+/// to trust the iteration, which then solves the step again from the guess
+/// as full Newton.
+#[derive(Debug)]
+pub(super) enum Unsolved {
+    Failed(StepError),
+    /// With the factorizations the abandoned iteration made.
+    RestartInFullNewton {
+        factorizations: usize,
+    },
+}
+
+impl From<StepError> for Unsolved {
+    fn from(e: StepError) -> Self {
+        Unsolved::Failed(e)
+    }
+}
+
 pub(super) struct Solved {
     pub(super) factorizations: usize,
     /// The largest ratio of consecutive updates on the final factors (NaN
@@ -294,7 +313,8 @@ where
         h: f64,
         z: &mut Vector<D>,
         prior: (f64, bool),
-    ) -> Result<Solved, StepError> {
+        full_newton: bool,
+    ) -> Result<Solved, Unsolved> {
         let t = state.t;
         let opts = self.options;
         let p0 = self.system.momentum(t, &state.q, &state.v);
@@ -305,9 +325,11 @@ where
         let mut prev_update = f64::NAN;
         let fail_nonfinite =
             |stage, history: &NewtonHistory| StepError::NonFinite { t, h, stage, history: Box::new(*history) };
-        let simplified = opts.mode == NewtonMode::Simplified;
-        let mut decoupled = self.wants_decoupled() && self.exact_steps_left == 0;
-        self.exact_steps_left = self.exact_steps_left.saturating_sub(1);
+        let simplified = opts.mode == NewtonMode::Simplified && !full_newton;
+        let mut decoupled = simplified && self.wants_decoupled() && self.exact_steps_left == 0;
+        if !full_newton {
+            self.exact_steps_left = self.exact_steps_left.saturating_sub(1);
+        }
         // `stale`: the factors of this step's matrix come from an earlier step.
         let stale = self.starts_stale(state, h, decoupled);
         self.reusable = None;
@@ -318,6 +340,8 @@ where
         // Iteration at which the current factors were computed, and whether
         // that was a refresh within this step (simplified Newton only).
         let (mut factored_at, mut refreshed) = (0usize, false);
+        // The current factors are those of this step's starting guess.
+        let mut at_guess = false;
         let mut max_rate = 0.0f64;
         let mut factorizations = 0usize;
         // Simplified Newton's floor under its contraction estimate: what the
@@ -357,6 +381,7 @@ where
                     factorizations += 1;
                     monitor = Contraction::fresh(prior(decoupled));
                     factored_at = k;
+                    at_guess = k == 0;
                     if decoupled && self.factor_decoupled(state, carry, h, z, lean).is_err() {
                         decoupled = false;
                         self.exact_steps_left = EXACT_AFTER_DECOUPLED_FAILS;
@@ -401,6 +426,18 @@ where
                         && too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance)
                     {
                         let growing = rate.is_nan() || rate >= 1.0;
+                        if at_guess && (growing || !decoupled) {
+                            // Factors at the starting guess that contract
+                            // this slowly say the guess is far from the
+                            // solution, where iterating on and refreshing at
+                            // the iterates can settle on another root of the
+                            // step's equations (a bead in a breathing bowl,
+                            // Lobatto IIIA-B-D s = 2 at h = 0.25, from a
+                            // first update of 7.5: `v₁` 17 from full
+                            // Newton's). Full Newton from the guess solves
+                            // the step instead.
+                            return Err(Unsolved::RestartInFullNewton { factorizations });
+                        }
                         if decoupled {
                             // The dropped couplings are not small at this
                             // step: continue with the exact matrix from the
@@ -417,11 +454,11 @@ where
                         if growing && refreshed && factored_at + 1 == k {
                             // Even a Jacobian refreshed at the previous iterate did
                             // not contract: give up as full Newton would.
-                            return Err(if update.is_finite() {
+                            return Err(Unsolved::Failed(if update.is_finite() {
                                 StepError::Diverged { t, h, history: Box::new(self.history) }
                             } else {
                                 fail_nonfinite("update", &self.history)
-                            });
+                            }));
                         }
                         if !growing {
                             *z -= g;
@@ -432,7 +469,7 @@ where
                     }
                 }
                 if !update.is_finite() {
-                    return Err(fail_nonfinite("update", &self.history));
+                    return Err(fail_nonfinite("update", &self.history).into());
                 }
                 // Tested before the update is applied: the end point is
                 // read at both iterates.
@@ -448,7 +485,7 @@ where
                     if update <= opts.stagnation_level {
                         break 'solve Ok(());
                     }
-                    return Err(StepError::Diverged { t, h, history: Box::new(self.history) });
+                    return Err(StepError::Diverged { t, h, history: Box::new(self.history) }.into());
                 }
                 prev_update = update;
                 if decoupled && k == 0 && Self::affine_rule(true).is_some_and(|n| n.closed_affine_cover) {
@@ -482,7 +519,7 @@ where
             self.cover_stale_first = cover_stale_first;
         }
         let rate = (if simplified { monitor.observed() } else { f64::NAN }, decoupled);
-        result.map(|()| Solved { factorizations, rate })
+        result.map(|()| Solved { factorizations, rate }).map_err(Unsolved::Failed)
     }
 
     /// Full Newton's acceptance before a new Jacobian: the residual at the

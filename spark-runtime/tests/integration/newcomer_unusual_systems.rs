@@ -428,7 +428,6 @@ fn non_finite_steps_name_functions_outside_their_domain() {
 /// at about 3e-3 per update). Above the 1e-13 a new user's system is
 /// promised; the stopping rule lives in `step/`.
 #[test]
-#[ignore = "stopping rule of simplified Newton (spark-runtime/src/step/) accepts 1.15e-13; fix pending there"]
 fn simplified_newton_does_not_stop_on_an_underestimated_rate() {
     let sys = OddNames::default();
     let q0 = Vector::<3>::new(-0.08150560334434104, 0.6155296621717985, 0.11617481806176455);
@@ -454,7 +453,6 @@ fn simplified_newton_does_not_stop_on_an_underestimated_rate() {
 /// `v₁ ≈ (0.38, −0.48, −0.72)`. The step is returned as a success. The
 /// iteration lives in `step/`.
 #[test]
-#[ignore = "simplified Newton (spark-runtime/src/step/) converges to a spurious root after diverging; fix pending there"]
 fn simplified_newton_does_not_return_a_spurious_root() {
     let sys = BowlFree::default();
     let q0 = Vector::<3>::new(0.9585428635301182, -0.533472700675945, 0.437202712236974);
