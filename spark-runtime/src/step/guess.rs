@@ -275,6 +275,16 @@ where
         self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE, continues)
     }
 
+    /// The starting guess again, for a step solved again by full Newton
+    /// after simplified Newton's factors at it contracted too slowly
+    /// (`Stepper::step`): out of line and cold, as
+    /// [`safe_degree_guess`](Self::safe_degree_guess).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn repeated_guess(&mut self, state: &State<N>, h: f64, continues: bool) -> Guess<D> {
+        self.starting_guess_up_to(state, h, self.options.extrapolation_degree, continues)
+    }
+
     /// [`starting_guess`](Self::starting_guess) with the extrapolation
     /// across steps at degree `max_degree` at most. Inlined into both its
     /// callers (a second, cold caller would otherwise leave it out of line,

@@ -485,7 +485,7 @@ where
             match self.newton(state, &carry, h, &mut z, prior, full_newton) {
                 Err(Unsolved::RestartInFullNewton { factorizations }) => {
                     // The same guess again, solved by full Newton.
-                    Guess { z, degree, .. } = self.starting_guess(state, h, continues);
+                    Guess { z, degree, .. } = self.repeated_guess(state, h, continues);
                     (full_newton, abandoned) = (true, factorizations);
                 }
                 Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
