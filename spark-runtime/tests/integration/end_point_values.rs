@@ -102,7 +102,7 @@ fn end_point_functions_return_the_full_stage_functions_bits() {
     end_point_values_equal_the_stage_values::<_, 3, 1>(&CorrugatedSleigh::default());
     end_point_values_equal_the_stage_values::<_, 4, 2>(&Robot::default());
     end_point_values_equal_the_stage_values::<_, 3, 1>(&Skate::default());
-    assert!(Skate::PARAMETER_TERMS > 0 && CorrugatedSleigh::PARAMETER_TERMS > 0);
+    const { assert!(Skate::PARAMETER_TERMS > 0 && CorrugatedSleigh::PARAMETER_TERMS > 0) };
 }
 
 /// A sleigh whose end point has a lone cosine where its stages pair it:
