@@ -445,9 +445,9 @@ where
             self.system.parameter_terms(&mut self.terms);
             self.terms_stale = false;
         }
-        // Zero, non-finite and subnormal step sizes, with the reason of
-        // `check_step_size` (whose test of `t0 + h` follows below).
-        if !h.is_normal() {
+        // Zero, non-finite, subnormal and too large step sizes, with the
+        // reason of `check_step_size` (whose test of `t0 + h` follows below).
+        if !h.is_normal() || h.abs() > crate::driver::MAX_STEP_SIZE {
             let reason =
                 crate::driver::check_step_size(f64::NAN, h).err().unwrap_or("step size is not a normal number");
             return Err(StepError::InvalidStep { t: t0, h, reason });

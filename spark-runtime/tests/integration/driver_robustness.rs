@@ -188,12 +188,14 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
     assert!(spark_runtime::check_step_size(1.0, 1e-17).unwrap_err().contains("t0 + h == t0"));
     assert!(spark_runtime::check_step_size(f64::NAN, 0.1).is_ok(), "t0 is checked with the initial state");
     // `Stepper::step` called directly refuses a subnormal step as well,
-    // before Newton (where `1/h` overflows into a non-finite residual).
+    // before Newton (where `1/h` overflows into a non-finite residual), and
+    // a step whose `h²` overflows.
     let start = spark_runtime::State::new(0.0, q0, v0);
-    for h in [1e-311, -5e-324] {
+    for (h, what) in [(1e-311, "subnormal"), (-5e-324, "subnormal"), (1e200, "h² overflows"), (-1e155, "h² overflows")]
+    {
         let err = st.step(&start, h).unwrap_err();
         assert!(matches!(err, spark_runtime::StepError::InvalidStep { .. }), "{h}: {err:?}");
-        assert!(err.to_string().contains("subnormal"), "{h}: {err}");
+        assert!(err.to_string().contains(what), "{h}: {err}");
     }
     let tiny = Schedule::Fixed { h: f64::MIN_POSITIVE, steps: 3 };
     let traj = st.integrate(0.0, &q0, &v0, tiny, &quiet(2), &mut NoObserver).unwrap();
