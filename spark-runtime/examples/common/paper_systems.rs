@@ -1,8 +1,8 @@
 //! The paper's four systems declared with `nonholonomic_system!`, and the
 //! initial values the examples start them from, shared by the profiling
 //! examples (`step_profile`, `driver_cost`, `lanes_profile`,
-//! `extrapolation_degree`) so that they time the same generated code. Each
-//! example uses some of them.
+//! `extrapolation_degree`) so that they time the same generated code, and by
+//! the integration test `end_point_values`. Each uses some of them.
 #![allow(dead_code)]
 
 use spark_runtime::{nonholonomic_system, State, Vector};

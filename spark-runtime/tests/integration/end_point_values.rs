@@ -23,30 +23,12 @@ nonholonomic_system! {
     }
 }
 
-nonholonomic_system! {
-    /// The mobile robot of §8.3: its force's `cos φ` enters no end point.
-    pub struct Robot {
-        coordinates: [x, y, theta, phi],
-        parameters: { m = 1.0, inertia = 1.0, inertia_wheel = 1.0, ell = 1.0 },
-        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + 3/2*inertia_wheel*dot(phi)^2
-            - 10*sin(phi),
-        constraints: [
-            dot(x) - ell*cos(theta)*dot(phi),
-            dot(y) - ell*sin(theta)*dot(phi),
-        ],
-    }
-}
-
-nonholonomic_system! {
-    /// The skate on an inclined plane (§8.2): its parameter term `m g sin β`
-    /// enters the force alone.
-    pub struct Skate {
-        coordinates: [x, y, theta],
-        parameters: { m = 1.0, inertia = 1.0, g = 1.0, beta = pi/3 },
-        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + m*g*x*sin(beta),
-        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
-    }
-}
+// The paper's skate (its parameter term `m g sin β` enters the force alone)
+// and mobile robot (its force's `cos φ` enters no end point), as the
+// examples declare them.
+#[path = "../../examples/common/paper_systems.rs"]
+mod paper_systems;
+use paper_systems::{MobileRobot, Skate};
 
 /// Points spread over several periods of the angles, with ψ ≠ 0 for the
 /// full functions (the end point's values do not depend on it).
@@ -100,7 +82,7 @@ fn end_point_values_equal_the_stage_values<Sys: NonholonomicSystem<N, M>, const 
 #[test]
 fn end_point_functions_return_the_full_stage_functions_bits() {
     end_point_values_equal_the_stage_values::<_, 3, 1>(&CorrugatedSleigh::default());
-    end_point_values_equal_the_stage_values::<_, 4, 2>(&Robot::default());
+    end_point_values_equal_the_stage_values::<_, 4, 2>(&MobileRobot::default());
     end_point_values_equal_the_stage_values::<_, 3, 1>(&Skate::default());
     const { assert!(Skate::PARAMETER_TERMS > 0 && CorrugatedSleigh::PARAMETER_TERMS > 0) };
 }
