@@ -375,11 +375,7 @@ fn error_messages_print_floats_compactly() {
     ];
     // `Stepper::step` refuses the step size before Newton, whose matrix
     // would overflow, and says to use a smaller one.
-    assert!(
-        stepped[1].contains("h² overflows") && stepped[1].contains("smaller |h|"),
-        "{}",
-        stepped[1]
-    );
+    assert!(stepped[1].contains("h² overflows") && stepped[1].contains("smaller |h|"), "{}", stepped[1]);
     let mut runs = vec![st
         .integrate(0.0, &q0, &v0, Schedule::Fixed { h: 1e150, steps: 1 }, &quiet(0), &mut NoObserver)
         .unwrap_err()
