@@ -262,7 +262,7 @@ impl<const N: usize, const M: usize, const S: usize> DecoupledMatrix<N, M, S> {
                 }
             }
         }
-        self.coupled = self.shared && self.stiff.factor(tab, h, &self.w_source)?;
+        self.coupled = self.shared && self.stiff.factor(tab, h, &self.w_source, self.diagonal)?;
         if Self::SM == 0 {
             // No multipliers (an unconstrained system): the velocity blocks
             // are the whole matrix.

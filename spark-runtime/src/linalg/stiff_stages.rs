@@ -154,10 +154,11 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
     }
 
     /// Makes the blocks of step size `h` with the constant mass matrix `w`
-    /// (`N × N`, column-major, regular), unless they are kept. `Ok(false)`:
-    /// no stiffness is set or a non-diagonal `T` is too large to keep, and
-    /// the couplings are dropped.
-    pub(crate) fn factor(&mut self, tab: &Tableau<S>, h: f64, w: &[f64]) -> Result<bool, Singular> {
+    /// (`N × N`, column-major, regular; `w_diagonal`: whether it is
+    /// diagonal, which its factorization found), unless they are kept.
+    /// `Ok(false)`: no stiffness is set or a non-diagonal `T` is too large
+    /// to keep, and the couplings are dropped.
+    pub(crate) fn factor(&mut self, tab: &Tableau<S>, h: f64, w: &[f64], w_diagonal: bool) -> Result<bool, Singular> {
         if !self.set {
             return Ok(false);
         }
@@ -173,7 +174,7 @@ impl<const N: usize, const S: usize> StiffStages<N, S> {
         }
         let fq = &self.stiffness;
         // The per-coordinate blocks live in fixed arrays of 8 × 8.
-        self.by_coordinate = S <= 8 && is_diagonal::<N>(w) && (self.per_stage || is_diagonal::<N>(fq));
+        self.by_coordinate = S <= 8 && w_diagonal && (self.per_stage || is_diagonal::<N>(fq));
         if self.per_stage && !self.by_coordinate {
             // A stiffness per stage is kept by coordinate only.
             return Ok(false);
@@ -365,7 +366,7 @@ mod tests {
             let diagonal: [f64; N] = std::array::from_fn(|c| f(j, c));
             stiff.set_stage(j, &diagonal);
         }
-        assert!(stiff.factor(&tab, h, &w).unwrap());
+        assert!(stiff.factor(&tab, h, &w, is_diagonal::<N>(&w)).unwrap());
         let mut t = DMatrix::<f64>::zeros(S * N, S * N);
         for i in 0..S {
             for k in 0..S {

@@ -35,7 +35,6 @@ mod equations;
 use super::values::{LaneConstraintJacobians, LaneStageValues};
 use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
-use crate::linalg::is_diagonal;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
     affine_along_by, check_energy, energy_is_invariant, moved_beyond, rounding_moved, too_slow, two_sum_error_of,
@@ -202,24 +201,22 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let mut jac = StageJacobians::<N, M>::boxed_zeros();
         system.stage_jacobians_into(at.t, &at.q, &at.v, &Vector::zeros(), &mut vals, &mut jac);
         let (mut rdiag, mut lu, mut perm) = (vec![0.0; N], vec![0.0; N * N], vec![0; N]);
-        let mass = match factor_mass::<N>(jac.mass.as_slice(), &mut rdiag, &mut lu, &mut perm).ok()? {
+        let diagonal_mass = factor_mass::<N>(jac.mass.as_slice(), &mut rdiag, &mut lu, &mut perm).ok()?;
+        let mass = match diagonal_mass {
             true => MassSolve::Diagonal(rdiag.into()),
             false => MassSolve::Lu { lu: lu.into(), perm: perm.into() },
         };
         // A stiffness per stage point, which the steppers keep with a
         // diagonal mass matrix at the tableau's coupling points, is not
         // repeated: the members step alone.
-        if Sys::DIAGONAL_STIFFNESS
-            && is_diagonal::<N>(jac.mass.as_slice())
-            && kept_stiffness_points(tab).iter().any(|&kept| kept)
-        {
+        if Sys::DIAGONAL_STIFFNESS && diagonal_mass && kept_stiffness_points(tab).iter().any(|&kept| kept) {
             return None;
         }
         // A constant stiffness is kept as the steppers keep it; the kernel
         // repeats only its per-coordinate form (a diagonal mass matrix).
         let mut stiff = StiffStages::new(Sys::CONSTANT_STIFFNESS);
         stiff.set(jac.force_q.as_slice());
-        let coupled = stiff.factor(tab, h, jac.mass.as_slice()).ok()?;
+        let coupled = stiff.factor(tab, h, jac.mass.as_slice(), diagonal_mass).ok()?;
         if coupled && stiff.columns().is_none() {
             return None;
         }
