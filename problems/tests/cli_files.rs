@@ -234,7 +234,7 @@ fn every_numeric_argument_is_checked_and_named() {
 fn unusable_arguments_are_refused_naming_what_was_given() {
     let dir = temp_dir("given");
     let out = dir.to_str().unwrap();
-    let cases: [(&[&str], &[&str]); 11] = [
+    let cases: [(&[&str], &[&str]); 12] = [
         (&["run", "skate", "--h", "1e300", "--t-end", "1e300"], &["--h", "h² overflows", "smaller |h|"]),
         (
             &["run", "skate", "--v0", "0,0,1e155", "--t-end", "1"],
@@ -254,6 +254,7 @@ fn unusable_arguments_are_refused_naming_what_was_given() {
         ),
         (&["run", "skate", "--method", "euler-1", "--stages", "2"], &["needs exactly 1 stage, got s = 2"]),
         (&["run", "skate", "--param", "m=1", "--param", "m = 2"], &["`m` is given twice", "`m=1`", "`m = 2`"]),
+        (&["run", "skate", "--param", "=1"], &["--param `=1`", "no parameter name", "NAME=VALUE"]),
         (&["paper", "--fraction", "1e-300"], &["final time 2.500e-298", "shorter than one step", "--fraction"]),
     ];
     for (args, words) in cases {

@@ -143,6 +143,9 @@ pub fn parse_params(params: &[String]) -> Result<Vec<(String, f64)>, String> {
             return Err(format!("--param `{p}`: the value must be a finite number"));
         }
         let name = name.trim();
+        if name.is_empty() {
+            return Err(format!("--param `{p}`: no parameter name; write NAME=VALUE, e.g. --param beta=0.5"));
+        }
         if let Some(i) = parsed.iter().position(|(n, _)| n == name) {
             let first = &params[i];
             return Err(format!("--param `{name}` is given twice (`{first}` and `{p}`); give each parameter once"));
