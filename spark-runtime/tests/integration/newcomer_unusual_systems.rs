@@ -19,7 +19,16 @@
 //! differences of at most 5.3e-15 and steps within 5.2e-14 of CasADi's
 //! Newton solve of (6.1) (1232 steps, four steps per method and mode, h = 0.1).
 
-use super::newcomer_systems::{derivative_error, step_distance};
+use super::newcomer_systems::{against_tight, derivative_error, step_distance};
+
+/// Full Newton and simplified Newton on the exact, the stage-decoupled and
+/// the automatically chosen matrix.
+const EVERY_MODE: [(NewtonMode, Jacobian); 4] = [
+    (NewtonMode::Full, Jacobian::Auto),
+    (NewtonMode::Simplified, Jacobian::Exact),
+    (NewtonMode::Simplified, Jacobian::StageDecoupled),
+    (NewtonMode::Simplified, Jacobian::Auto),
+];
 use spark_runtime::{
     consistent_velocity, nonholonomic_system, ConsistencyPolicy, ConstraintForm, Jacobian, Method, NewtonMode,
     NewtonOptions, NoObserver, NonholonomicSystem, RunOptions, Schedule, State, Stepper, Tableau, Vector,
@@ -266,53 +275,6 @@ fn unusual_systems_have_exact_derivatives() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
-/// `steps` steps of size `h` from `start` in each Newton mode (full
-/// Newton, simplified Newton on the exact, the stage-decoupled and the
-/// automatically chosen matrix), each step also solved on a clone of the
-/// stepper with full Newton to the round-off floor. Returns per mode its
-/// label and the largest scaled distance, or the failure of a step.
-fn every_mode_against_tight<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
-    sys: &Sys,
-    method: Method,
-    start: &State<N>,
-    h: f64,
-    steps: usize,
-) -> Vec<(String, Result<f64, String>)>
-where
-    Sys: NonholonomicSystem<N, M> + Clone,
-{
-    let modes = [
-        (NewtonMode::Full, Jacobian::Auto),
-        (NewtonMode::Simplified, Jacobian::Exact),
-        (NewtonMode::Simplified, Jacobian::StageDecoupled),
-        (NewtonMode::Simplified, Jacobian::Auto),
-    ];
-    modes
-        .into_iter()
-        .map(|(mode, jacobian)| {
-            let label = format!("{} {method} s={S} {mode:?}/{jacobian:?}", Sys::SOURCE.name);
-            let opts = NewtonOptions { mode, jacobian, ..NewtonOptions::default() };
-            let mut stepper =
-                Stepper::<Sys, N, M, S, D>::new(sys.clone(), Tableau::new(method).unwrap()).with_options(opts);
-            let (mut state, mut worst) = (*start, 0.0f64);
-            for k in 0..steps {
-                let mut tight = stepper.clone();
-                let o = tight.options_mut();
-                (o.mode, o.jacobian, o.tolerance, o.max_iterations) =
-                    (NewtonMode::Full, Jacobian::Auto, 0.0, HISTORY_CAPACITY);
-                let (b, a) = match (tight.step(&state, h), stepper.step(&state, h)) {
-                    (Ok(b), Ok(a)) => (b, a),
-                    (Err(e), _) => return (label, Err(format!("step {k}, tight: {e}"))),
-                    (_, Err(e)) => return (label, Err(format!("step {k}: {e}"))),
-                };
-                worst = worst.max(step_distance(&a, &b, h));
-                state = a.state;
-            }
-            (label, Ok(worst))
-        })
-        .collect()
-}
-
 /// Every Newton mode stops on a step as accurate as the tightly converged
 /// one: 11 systems, Gauss s = 1..3, Lobatto IIIA-B and IIIA-B-D s = 2, 3,
 /// four modes, 20 steps of h = 0.1 (308 runs) within the 1e-13 a new
@@ -329,8 +291,13 @@ fn unusual_steps_equal_the_tight_solve_in_every_newton_mode() {
             let start = start::<_, $n, $m>(&sys, $t0, $q0, $v0);
             macro_rules! tight {
                 ($method:expr, $s:literal) => {
-                    results.extend(every_mode_against_tight::<_, $n, $m, $s, { $s * ($n + $m) + $n }>(
-                        &sys, $method, &start, 0.1, 20,
+                    results.extend(against_tight::<_, $n, $m, $s, { $s * ($n + $m) + $n }>(
+                        &EVERY_MODE,
+                        &sys,
+                        $method,
+                        &start,
+                        0.1,
+                        20,
                     ))
                 };
             }
