@@ -167,7 +167,6 @@ impl Default for NewtonOptions {
     }
 }
 
-/// What a converged Newton solve reports to its step.
 /// Why [`Stepper::newton`] returned no solution: the step failed, or
 /// simplified Newton's factors at the starting guess contracted too slowly
 /// to trust the iteration, which then solves the step again from the guess
@@ -187,6 +186,7 @@ impl From<StepError> for Unsolved {
     }
 }
 
+/// What a converged Newton solve reports to its step.
 pub(super) struct Solved {
     pub(super) factorizations: usize,
     /// The largest ratio of consecutive updates on the final factors (NaN
@@ -340,8 +340,6 @@ where
         // Iteration at which the current factors were computed, and whether
         // that was a refresh within this step (simplified Newton only).
         let (mut factored_at, mut refreshed) = (0usize, false);
-        // The current factors are those of this step's starting guess.
-        let mut at_guess = false;
         let mut max_rate = 0.0f64;
         let mut factorizations = 0usize;
         // Simplified Newton's floor under its contraction estimate: what the
@@ -381,7 +379,6 @@ where
                     factorizations += 1;
                     monitor = Contraction::fresh(prior(decoupled));
                     factored_at = k;
-                    at_guess = k == 0;
                     if decoupled && self.factor_decoupled(state, carry, h, z, lean).is_err() {
                         decoupled = false;
                         self.exact_steps_left = EXACT_AFTER_DECOUPLED_FAILS;
@@ -426,6 +423,10 @@ where
                         && too_slow(&monitor, decoupled, update, rate, remaining, opts.tolerance)
                     {
                         let growing = rate.is_nan() || rate >= 1.0;
+                        // The current factors are those of this step's
+                        // starting guess: factored in this step, at its first
+                        // iterate.
+                        let at_guess = !stale && factored_at == 0;
                         if at_guess && (growing || !decoupled) {
                             // Factors at the starting guess that contract
                             // this slowly say the guess is far from the
