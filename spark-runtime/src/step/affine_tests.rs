@@ -351,6 +351,25 @@ fn check_plan<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize, con
                 std::any::type_name::<Sys>(),
             );
         }
+        // Eight lanes at once, each with its own set of moved groups (the
+        // sets in turn, and the lane kernel's early end when every lane
+        // moved a required group).
+        let lanes = 1u64 << groups;
+        for first in 0..lanes {
+            let sets: [u64; 8] = std::array::from_fn(|w| (first + w as u64 * 5) % lanes);
+            let moved_at =
+                |i: usize| -> [bool; 8] { std::array::from_fn(|w| (sets[w] >> group_of::<N, M, S>(i)) & 1 == 1) };
+            let together = super::convergence::affine_along_lanes::<N, M, S, 8>(moved_at, &nonlinearity, &plan);
+            for (w, set) in sets.iter().enumerate() {
+                let alone = |i: usize| (set >> group_of::<N, M, S>(i)) & 1 == 1;
+                assert_eq!(
+                    together[w],
+                    super::convergence::affine_along_by::<N, M, S>(alone, &nonlinearity, &plan),
+                    "{} lane {w}, moved groups {set:b}, decoupled {decoupled}, stiffness kept {kept}",
+                    std::any::type_name::<Sys>(),
+                );
+            }
+        }
     }
 }
 

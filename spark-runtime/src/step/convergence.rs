@@ -324,6 +324,61 @@ pub(crate) fn affine_along_by<const N: usize, const M: usize, const S: usize>(
     !plan.free_pairs || nonlinearity.pairs.iter().all(|&(a, b)| held(a) || held(b) || !moved(a) || !moved(b))
 }
 
+/// [`affine_along_by`] for `W` lanes at once: `moved_at(i)` gives, lane by
+/// lane, whether unknown `i` moved beyond the tolerance, and lane `w` of
+/// the result is `affine_along_by` of lane `w`'s entries. The lane kernel
+/// asks it of every lane after its first update; the masks of a group's
+/// rows combine as vectors, and the test ends at the first required group
+/// that every lane moved (on a system curved in every coordinate, the
+/// first one read), where a lane-by-lane test pays its calls and branches
+/// in each lane.
+#[inline(always)]
+pub(crate) fn affine_along_lanes<const N: usize, const M: usize, const S: usize, const W: usize>(
+    moved_at: impl Fn(usize) -> [bool; W],
+    nonlinearity: &Nonlinearity,
+    plan: &AffinePlan,
+) -> [bool; W] {
+    let Some(required) = plan.required else {
+        return std::array::from_fn(|w| affine_along_by::<N, M, S>(|i| moved_at(i)[w], nonlinearity, plan));
+    };
+    let either = |a: [bool; W], b: [bool; W]| -> [bool; W] { std::array::from_fn(|w| a[w] | b[w]) };
+    let moved = |group: u32| -> [bool; W] {
+        let group = group as usize;
+        if group < N {
+            (0..S).fold(moved_at(S * (N + M) + group), |m, i| either(m, moved_at(i * N + group)))
+        } else {
+            let j = group - N;
+            if j >= M {
+                [true; W]
+            } else {
+                (0..S).fold([false; W], |m, i| either(m, moved_at(S * N + i * M + j)))
+            }
+        }
+    };
+    let mut lands = [true; W];
+    let mut left = required;
+    while left != 0 {
+        let m = moved(left.trailing_zeros());
+        for w in 0..W {
+            lands[w] &= !m[w];
+        }
+        if !lands.contains(&true) {
+            return lands;
+        }
+        left &= left - 1;
+    }
+    if plan.free_pairs {
+        let held = |group: u32| (required >> group) & 1 == 1;
+        for &(a, b) in nonlinearity.pairs.iter().filter(|&&(a, b)| !held(a) && !held(b)) {
+            let (ma, mb) = (moved(a), moved(b));
+            for w in 0..W {
+                lands[w] &= !(ma[w] & mb[w]);
+            }
+        }
+    }
+    lands
+}
+
 /// [`affine_along`]'s test worked out from the pairs and columns alone,
 /// once per system and matrix (the stepper keeps it as a constant): the
 /// groups whose update must be within the tolerance — both groups of a pair

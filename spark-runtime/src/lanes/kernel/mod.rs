@@ -37,7 +37,7 @@ use crate::error::HISTORY_CAPACITY;
 use crate::linalg::decoupled::factor_mass;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
-    affine_along_by, check_energy, energy_is_invariant, moved_beyond, rounding_moved, too_slow, two_sum_error_of,
+    affine_along_lanes, check_energy, energy_is_invariant, moved_beyond, rounding_moved, too_slow, two_sum_error_of,
     AffinePlan, Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
@@ -407,6 +407,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 self.factor(tab, &mut iterating, &mut out);
             }
             let update = self.solve_and_update(&iterating, fresh);
+            let lands = if fresh { self.first_updates_land(affine.as_ref(), opts.tolerance) } else { [false; W] };
             for w in 0..W {
                 if !iterating[w] {
                     continue;
@@ -425,7 +426,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 }
                 let stop = if !update.is_finite() {
                     Some(Outcome::HandBack)
-                } else if converged || (fresh && self.first_update_lands(tab, affine.as_ref(), w, opts.tolerance)) {
+                } else if converged || (lands[w] && self.end_point_stays(tab, w, opts.tolerance)) {
                     Some(Outcome::Stepped(k + 1))
                 } else if k > 0 && rate >= 1.0 {
                     Some(if update <= opts.stagnation_level { Outcome::Stepped(k + 1) } else { Outcome::HandBack })
@@ -453,20 +454,18 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         out
     }
 
-    /// Whether lane `w`'s latest update, on factors evaluated at the iterate
-    /// it started from, ends its solve as the stepper's would
-    /// (`step::affine_along` on the stage-decoupled matrix).
+    /// Whether each lane's first update, on factors evaluated at the iterate
+    /// it started from, passes `step::affine_along` on the stage-decoupled
+    /// matrix, the stepper's first test of whether that update ends its
+    /// solve ([`Self::end_point_stays`] is the second, asked lane by lane
+    /// of the lanes that pass).
     #[inline(always)]
-    fn first_update_lands(
-        &self,
-        tab: &Tableau<S>,
-        affine: Option<&crate::Nonlinearity>,
-        w: usize,
-        tolerance: f64,
-    ) -> bool {
-        let Some(nonlinearity) = affine else { return false };
-        let moved_at = |d: usize| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance);
-        affine_along_by::<N, M, S>(moved_at, nonlinearity, &self.affine_plan) && self.end_point_stays(tab, w, tolerance)
+    fn first_updates_land(&self, affine: Option<&crate::Nonlinearity>, tolerance: f64) -> [bool; W] {
+        let Some(nonlinearity) = affine else { return [false; W] };
+        let moved_at = |d: usize| -> [bool; W] {
+            std::array::from_fn(|w| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance))
+        };
+        affine_along_lanes::<N, M, S, W>(moved_at, nonlinearity, &self.affine_plan)
     }
 
     /// `Stepper::end_point_stays` for lane `w`, whose `z` holds the updated
