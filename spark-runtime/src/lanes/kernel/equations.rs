@@ -27,7 +27,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             .is_some_and(|f| (0..W).all(|w| !self.held[w] || (degree(w) == degree(f) && self.head[w] == self.head[f])));
         // The start velocity less the extrapolated previous ones (step k's
         // `v₀` is step k+1's `v₁`), added to every velocity block.
-        let mut start = *self.v;
+        let mut start = [[0.0; W]; N];
         // The rows of `z` that hold velocities, with their coordinate.
         let coordinate = |d: usize| if d < S * N { Some(d % N) } else { d.checked_sub(end) };
         if let (Some(f), true) = (first, uniform) {
@@ -48,7 +48,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             // block in flight is split into scalars and not vectorized);
             // each entry sees the terms in the same order.
             for n in 0..N {
-                let mut row = start[n];
+                let mut row = self.v[n];
                 for (coef, before) in coefs.iter().zip(&previous) {
                     let before = before[end + n];
                     for w in 0..W {
@@ -75,6 +75,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         } else {
             for w in (0..W).filter(|&w| self.held[w]) {
                 let degree = degree(w);
+                for n in 0..N {
+                    start[n][w] = self.v[n][w];
+                }
                 for d in 0..D {
                     self.z[d][w] = 0.0;
                 }

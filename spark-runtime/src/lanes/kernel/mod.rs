@@ -555,18 +555,23 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         // Δq = carry + Σ_j (h b_j) V_j and q₁ = q₀ + Δq in every lane, in
         // the stepper's order of operations.
-        let mut dq_lanes: [L<W>; N] = *self.carry;
-        for j in 0..S {
-            let c = h * tab.b[j];
-            for n in 0..N {
-                let z = self.z[j * N + n];
+        // Row by row, each row in flight and stored once (a copy of the
+        // whole carry block is a `memcpy` call).
+        let (mut dq_lanes, mut q1_lanes) = ([[0.0; W]; N], [[0.0; W]; N]);
+        for n in 0..N {
+            let mut dq = self.carry[n];
+            for j in 0..S {
+                let (c, z) = (h * tab.b[j], self.z[j * N + n]);
                 for w in 0..W {
-                    dq_lanes[n][w] += c * z[w];
+                    dq[w] += c * z[w];
                 }
             }
+            let q = self.q[n];
+            dq_lanes[n] = dq;
+            q1_lanes[n] = std::array::from_fn(|w| q[w] + dq[w]);
         }
-        let q1_lanes: [L<W>; N] = std::array::from_fn(|n| std::array::from_fn(|w| self.q[n][w] + dq_lanes[n][w]));
-        let v1_lanes: [L<W>; N] = std::array::from_fn(|n| self.z[S * (N + M) + n]);
+        let end = S * (N + M);
+        let v1_lanes: &[L<W>; N] = self.z[end..end + N].try_into().expect("z holds the end velocity's N rows");
         // A lane whose `q₁` or `v₁` is not finite goes back (`0 · x` is NaN
         // exactly for those, as in the residual's test).
         let mut poison = [0.0f64; W];
@@ -576,7 +581,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         let guard = opts.energy_drift_limit.filter(|_| energy_is_invariant::<Sys, N, M>());
-        let e1 = guard.map(|_| sys.energy_in_lanes(t + h, &q1_lanes, &v1_lanes, &stepped));
+        let e1 = guard.map(|_| sys.energy_in_lanes(t + h, &q1_lanes, v1_lanes, &stepped));
         let mut kept = [false; W];
         for w in 0..W {
             if !stepped[w] {
