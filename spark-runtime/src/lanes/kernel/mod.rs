@@ -625,16 +625,27 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         // The kept lanes' new state and carry (the stepper's TwoSum), and
         // their solutions into the ring: whole rows where every kept lane
         // writes the same slot.
-        for n in 0..N {
-            let (q0, dq, q1, v1) = (self.q[n], dq_lanes[n], q1_lanes[n], v1_lanes[n]);
-            let (mut q, mut v, mut carry) = (q0, self.v[n], self.carry[n]);
-            for w in 0..W {
-                let err = two_sum_error_of(q0[w], dq[w], q1[w]);
-                q[w] = if kept[w] { q1[w] } else { q[w] };
-                v[w] = if kept[w] { v1[w] } else { v[w] };
-                carry[w] = if kept[w] { err } else { carry[w] };
+        if kept.iter().all(|&k| k) {
+            // Every lane kept (the usual step): whole rows, vectorized. A
+            // select on the `bool`s compiles to a branch per lane (LLVM
+            // unswitches the row loop on each), and scalar code.
+            for n in 0..N {
+                let (q0, dq, q1) = (self.q[n], dq_lanes[n], q1_lanes[n]);
+                self.carry[n] = std::array::from_fn(|w| two_sum_error_of(q0[w], dq[w], q1[w]));
+                (self.q[n], self.v[n]) = (q1, v1_lanes[n]);
             }
-            (self.q[n], self.v[n], self.carry[n]) = (q, v, carry);
+        } else {
+            for n in 0..N {
+                let (q0, dq, q1, v1) = (self.q[n], dq_lanes[n], q1_lanes[n], v1_lanes[n]);
+                let (mut q, mut v, mut carry) = (q0, self.v[n], self.carry[n]);
+                for w in 0..W {
+                    let err = two_sum_error_of(q0[w], dq[w], q1[w]);
+                    q[w] = if kept[w] { q1[w] } else { q[w] };
+                    v[w] = if kept[w] { v1[w] } else { v[w] };
+                    carry[w] = if kept[w] { err } else { carry[w] };
+                }
+                (self.q[n], self.v[n], self.carry[n]) = (q, v, carry);
+            }
         }
         let first = (0..W).find(|&w| kept[w]);
         if let Some(f) = first.filter(|&f| (0..W).all(|w| !kept[w] || self.head[w] == self.head[f])) {
