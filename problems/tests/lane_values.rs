@@ -1,5 +1,6 @@
-//! Every catalogue system's stage values and energy in lane form
-//! (`stage_values_in_lanes` and `energy_in_lanes`, the bodies
+//! Every catalogue system's stage values, end-point values and energy in
+//! lane form (`stage_values_in_lanes`, `end_point_values_in_lanes` and
+//! `energy_in_lanes`, the bodies
 //! `nonholonomic_system!` generates, or the trait's lane-by-lane defaults
 //! where a body would be too long) are bit for bit its scalar ones at each
 //! lane's point, the stage values with and without the constraint
@@ -63,6 +64,39 @@ impl SystemVisitor for LaneValuesMatchScalar {
                     same(values.momentum[n][w], scalar.momentum[n], &what("momentum", n));
                     same(values.force[n][w], scalar.force[n], &what("force", n));
                     same(values.constraint_force[n][w], scalar.constraint_force[n], &what("constraint force", n));
+                }
+                for m in 0..M {
+                    same(values.constraint[m][w], scalar.constraint[m], &what("constraint", m));
+                }
+            }
+        }
+        // The end point's momentum and constraint (and constraint
+        // Jacobians), against the scalar end-point functions.
+        for with_jacobians in [false, true] {
+            let mut values = LaneStageValues::<N, M, W>::zeros();
+            let jac = if with_jacobians { Some(&mut jacobians) } else { None };
+            sys.end_point_values_in_lanes(t, &q, &v, &[true; W], &mut values, jac);
+            for w in 0..W {
+                let qw = Vector::<N>::from_fn(|n, _| q[n][w]);
+                let vw = Vector::<N>::from_fn(|n, _| v[n][w]);
+                let what = |field: &str, i: usize| {
+                    format!("{} lane {w} end point {field}[{i}] (Jacobians: {with_jacobians})", entry.name)
+                };
+                let mut scalar = StageValues::zeros();
+                if with_jacobians {
+                    let (mut kq, mut kv) = (Matrix::<M, N>::zeros(), Matrix::<M, N>::zeros());
+                    sys.end_point_values_and_constraint_jacobians(t, &qw, &vw, &mut scalar, &mut kq, &mut kv);
+                    for j in 0..N {
+                        for i in 0..M {
+                            same(jacobians.constraint_q[j][i][w], kq[(i, j)], &what("k_q", j * M + i));
+                            same(jacobians.constraint_v[j][i][w], kv[(i, j)], &what("K", j * M + i));
+                        }
+                    }
+                } else {
+                    sys.end_point_values_into(t, &qw, &vw, &mut scalar);
+                }
+                for n in 0..N {
+                    same(values.momentum[n][w], scalar.momentum[n], &what("momentum", n));
                 }
                 for m in 0..M {
                     same(values.constraint[m][w], scalar.constraint[m], &what("constraint", m));

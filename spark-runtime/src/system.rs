@@ -464,6 +464,29 @@ pub trait NonholonomicSystem<const N: usize, const M: usize> {
         crate::lanes::values::lane_by_lane(self, t, q, v, psi, lanes, values, jacobians);
     }
 
+    /// [`end_point_values_into`](Self::end_point_values_into) of `W` lanes
+    /// at once, as [`stage_values_in_lanes`](Self::stage_values_in_lanes)
+    /// is [`stage_values`](Self::stage_values) (with `jacobians`, also
+    /// `k_q` and `K = k_v`): the momentum and the constraint of every lane
+    /// with `lanes[w]`, bit for bit the scalar ones; `values.force` and
+    /// `values.constraint_force` are left unspecified. The default calls
+    /// `stage_values_in_lanes` with `ψ = 0`; `nonholonomic_system!`
+    /// generates the two alone in lane form, so that the lane kernel's end
+    /// point skips the forces' work, as the stepper's does.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn end_point_values_in_lanes<const W: usize>(
+        &self,
+        t: f64,
+        q: &[[f64; W]; N],
+        v: &[[f64; W]; N],
+        lanes: &[bool; W],
+        values: &mut crate::lanes::LaneStageValues<N, M, W>,
+        jacobians: Option<&mut crate::lanes::LaneConstraintJacobians<N, M, W>>,
+    ) {
+        self.stage_values_in_lanes(t, q, v, &[[0.0; W]; M], lanes, values, jacobians);
+    }
+
     /// [`energy`](Self::energy) of `W` lanes at once (lane `w` at
     /// `(t, q[·][w], v[·][w])`), for every lane with `lanes[w]`; the other
     /// lanes' entries are unspecified. Each is bit for bit the scalar

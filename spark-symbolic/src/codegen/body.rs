@@ -322,6 +322,18 @@ impl<'a> Gen<'a> {
         Some((values, fused))
     }
 
+    /// The two bodies of `end_point_values_in_lanes` in lane form: the
+    /// momentum and the constraint, and with them `k_q` and `K = k_v`
+    /// ([`Self::end_point_outs`]). `None` when either is longer than
+    /// [`SPLIT_STATEMENTS`] (the trait's default then evaluates the stage
+    /// values in lanes at `ψ = 0`).
+    pub(super) fn lane_end_point_bodies(&mut self) -> Option<(TokenStream, TokenStream)> {
+        let (values, fused) = self.end_point_outs();
+        let values = self.lane_body(&values)?;
+        let fused = self.lane_body(&fused)?;
+        Some((values, fused))
+    }
+
     /// The body of `energy_in_lanes` in lane form (a lane array `energy`),
     /// or `None` when it is longer than [`SPLIT_STATEMENTS`].
     pub(super) fn lane_energy(&mut self) -> Option<TokenStream> {

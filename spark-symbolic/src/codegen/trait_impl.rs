@@ -173,9 +173,9 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
     (methods, fused)
 }
 
-/// `stage_values_in_lanes` and `energy_in_lanes` in lane form (each left
-/// out, so the trait's lane-by-lane default, when its body would be too
-/// long).
+/// `stage_values_in_lanes`, `end_point_values_in_lanes` and
+/// `energy_in_lanes` in lane form (each left out, so the trait's default,
+/// when its body would be too long).
 fn lanes_method(gen: &mut Gen) -> TokenStream {
     let energy = gen.lane_energy().map(|body| {
         let n = &gen.n;
@@ -194,10 +194,36 @@ fn lanes_method(gen: &mut Gen) -> TokenStream {
             }
         }
     });
-    let Some((values, fused)) = gen.lane_bodies() else { return quote!(#energy) };
-    let (rt, n, m) = (&gen.rt, &gen.n, &gen.m);
+    let (rt, n, m) = (gen.rt.clone(), gen.n.clone(), gen.m.clone());
+    let end_point = gen.lane_end_point_bodies().map(|(values, fused)| {
+        quote! {
+            #[inline(always)]
+            #[allow(clippy::needless_range_loop, clippy::too_many_arguments, unused_variables, unused_mut)]
+            fn end_point_values_in_lanes<const W: usize>(
+                &self,
+                t: f64,
+                q: &[[f64; W]; #n],
+                v: &[[f64; W]; #n],
+                lanes: &[bool; W],
+                values: &mut #rt::LaneStageValues<#n, #m, W>,
+                jacobians: ::core::option::Option<&mut #rt::LaneConstraintJacobians<#n, #m, W>>,
+            ) {
+                let #rt::LaneStageValues { momentum, constraint, .. } = values;
+                match jacobians {
+                    ::core::option::Option::None => { #values }
+                    ::core::option::Option::Some(jacobians) => {
+                        let #rt::LaneConstraintJacobians { constraint_q, constraint_v } = jacobians;
+                        #fused
+                    }
+                }
+            }
+        }
+    });
+    let Some((values, fused)) = gen.lane_bodies() else { return quote!(#energy #end_point) };
     quote! {
         #energy
+
+        #end_point
 
         #[inline(always)]
         #[allow(clippy::needless_range_loop, clippy::too_many_arguments, unused_variables, unused_mut)]

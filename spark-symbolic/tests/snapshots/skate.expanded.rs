@@ -373,6 +373,88 @@ impl ::spark_runtime::NonholonomicSystem<3, 1> for Skate {
         unused_variables,
         unused_mut
     )]
+    fn end_point_values_in_lanes<const W: usize>(
+        &self,
+        t: f64,
+        q: &[[f64; W]; 3],
+        v: &[[f64; W]; 3],
+        lanes: &[bool; W],
+        values: &mut ::spark_runtime::LaneStageValues<3, 1, W>,
+        jacobians: ::core::option::Option<
+            &mut ::spark_runtime::LaneConstraintJacobians<3, 1, W>,
+        >,
+    ) {
+        let ::spark_runtime::LaneStageValues { momentum, constraint, .. } = values;
+        match jacobians {
+            ::core::option::Option::None => {
+                let mut s0 = [0.0f64; W];
+                let mut s1 = [0.0f64; W];
+                for w in 0..W {
+                    (s0[w], s1[w]) = ::spark_runtime::trig::sin_cos(q[2][w]);
+                }
+                for w in 0..W {
+                    momentum[0][w] = self.m * v[0][w];
+                }
+                for w in 0..W {
+                    momentum[1][w] = self.m * v[1][w];
+                }
+                for w in 0..W {
+                    momentum[2][w] = self.inertia * v[2][w];
+                }
+                for w in 0..W {
+                    constraint[0][w] = s1[w] * v[1][w] - s0[w] * v[0][w];
+                }
+            }
+            ::core::option::Option::Some(jacobians) => {
+                let ::spark_runtime::LaneConstraintJacobians {
+                    constraint_q,
+                    constraint_v,
+                } = jacobians;
+                let mut s0 = [0.0f64; W];
+                let mut s1 = [0.0f64; W];
+                for w in 0..W {
+                    (s0[w], s1[w]) = ::spark_runtime::trig::sin_cos(q[2][w]);
+                }
+                for w in 0..W {
+                    momentum[0][w] = self.m * v[0][w];
+                }
+                for w in 0..W {
+                    momentum[1][w] = self.m * v[1][w];
+                }
+                for w in 0..W {
+                    momentum[2][w] = self.inertia * v[2][w];
+                }
+                for w in 0..W {
+                    constraint[0][w] = s1[w] * v[1][w] - s0[w] * v[0][w];
+                }
+                for w in 0..W {
+                    constraint_q[0][0][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint_q[1][0][w] = 0.0;
+                }
+                for w in 0..W {
+                    constraint_q[2][0][w] = -(s0[w] * v[1][w]) - s1[w] * v[0][w];
+                }
+                for w in 0..W {
+                    constraint_v[0][0][w] = -s0[w];
+                }
+                for w in 0..W {
+                    constraint_v[1][0][w] = s1[w];
+                }
+                for w in 0..W {
+                    constraint_v[2][0][w] = 0.0;
+                }
+            }
+        }
+    }
+    #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        clippy::too_many_arguments,
+        unused_variables,
+        unused_mut
+    )]
     fn stage_values_in_lanes<const W: usize>(
         &self,
         t: f64,

@@ -180,7 +180,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// The system's stage values at every point of the iterating lanes,
     /// with the constraint Jacobians when `refresh` (the lean refresh), in
     /// one lane-form evaluation per point
-    /// ([`NonholonomicSystem::stage_values_in_lanes`]). The values of a lane
+    /// ([`NonholonomicSystem::stage_values_in_lanes`]; at the end point and
+    /// the midpoint [`NonholonomicSystem::end_point_values_in_lanes`], the
+    /// momentum and the constraint alone). The values of a lane
     /// that stopped iterating may be overwritten there: nothing reads them
     /// again (its step is committed from `z`, and the next step evaluates
     /// every held lane at its first iteration).
@@ -204,13 +206,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             // The velocities straight from `z` (a copy of `N × W` values
             // would be a `memmove` call per point).
             let v: &[[f64; W]; N] = self.z[v_at..v_at + N].try_into().expect("N rows of z");
-            let psi: [[f64; W]; M] = if p < S {
-                std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z * (1.0 / h)))
-            } else {
-                [[0.0; W]; M]
-            };
             let jacobians = if refresh { Some(&mut self.jacobians[p]) } else { None };
-            sys.stage_values_in_lanes(tp, &self.points[p], v, &psi, iterating, &mut self.values[p], jacobians);
+            if p < S {
+                let psi: [[f64; W]; M] = std::array::from_fn(|m| self.z[S * N + p * M + m].map(|z| z * (1.0 / h)));
+                sys.stage_values_in_lanes(tp, &self.points[p], v, &psi, iterating, &mut self.values[p], jacobians);
+            } else {
+                // The residual reads the momentum and the constraint alone
+                // there (`Stepper::evaluate`'s end point).
+                sys.end_point_values_in_lanes(tp, &self.points[p], v, iterating, &mut self.values[p], jacobians);
+            }
         }
     }
 
