@@ -34,29 +34,36 @@ pub(super) fn factor<const W: usize>(
         scale[k] = s;
     }
     for k in 0..n {
+        // The pivot search, the singularity test and the row exchange of
+        // every lane at once, as selects (branches per lane do not
+        // vectorize): the first largest `|lu|` in column `k` from row `k`
+        // on; a lane already dead keeps row `k` and exchanges nothing.
+        let mut p = [k; W];
+        let mut best: L<W> = lu[k * n + k].map(f64::abs);
+        for r in k + 1..n {
+            let x = lu[k * n + r];
+            for w in 0..W {
+                let better = x[w].abs() > best[w];
+                p[w] = if better { r } else { p[w] };
+                best[w] = if better { x[w].abs() } else { best[w] };
+            }
+        }
         for w in 0..W {
-            perm[k][w] = k;
-            if !live[w] {
-                continue;
-            }
-            let (mut p, mut best) = (k, lu[k * n + k][w].abs());
-            for r in k + 1..n {
-                let x = lu[k * n + r][w].abs();
-                if x > best {
-                    (p, best) = (r, x);
-                }
-            }
             let threshold = 64.0 * f64::EPSILON * scale[k][w];
-            if best.is_nan() || threshold.is_nan() || best <= threshold {
-                live[w] = false;
-                continue;
-            }
-            perm[k][w] = p;
-            if p != k {
-                for j in 0..n {
-                    let (a, b) = (lu[j * n + k][w], lu[j * n + p][w]);
-                    (lu[j * n + k][w], lu[j * n + p][w]) = (b, a);
+            let singular = best[w].is_nan() || threshold.is_nan() || best[w] <= threshold;
+            live[w] = live[w] && !singular;
+            perm[k][w] = if live[w] { p[w] } else { k };
+        }
+        for r in k + 1..n {
+            for j in 0..n {
+                let (a, b) = (lu[j * n + k], lu[j * n + r]);
+                let (mut x, mut y) = (a, b);
+                for w in 0..W {
+                    let trade = perm[k][w] == r;
+                    x[w] = if trade { b[w] } else { a[w] };
+                    y[w] = if trade { a[w] } else { b[w] };
                 }
+                (lu[j * n + k], lu[j * n + r]) = (x, y);
             }
         }
         let pivot = lu[k * n + k];
@@ -93,13 +100,19 @@ pub(super) fn factor<const W: usize>(
 /// Overwrites `b` with `A⁻¹ b` in every lane from the factors of [`factor`].
 #[inline(always)]
 pub(super) fn solve<const W: usize>(lu: &[L<W>], n: usize, perm: &[[usize; W]], b: &mut [L<W>]) {
+    // Row `k` trades places with row `perm[k][w] ≥ k` in lane `w`: written
+    // as a select per candidate row, which vectorizes, where a swap per
+    // lane is a branch per lane.
     for k in 0..n {
-        for w in 0..W {
-            let p = perm[k][w];
-            if p != k {
-                let (x, y) = (b[k][w], b[p][w]);
-                (b[k][w], b[p][w]) = (y, x);
+        for r in k + 1..n {
+            let (bk, br) = (b[k], b[r]);
+            let (mut nk, mut nr) = (bk, br);
+            for w in 0..W {
+                let trade = perm[k][w] == r;
+                nk[w] = if trade { br[w] } else { bk[w] };
+                nr[w] = if trade { bk[w] } else { br[w] };
             }
+            (b[k], b[r]) = (nk, nr);
         }
     }
     for j in 0..n {
