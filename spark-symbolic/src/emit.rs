@@ -761,14 +761,22 @@ impl Emitter<'_> {
                 let mut acc: Option<R> = None;
                 let plain = terms.iter().map(|&(p, x)| (p, sub(x)));
                 let scaled = scaled.iter().map(|&(p, c, x)| (p, bin('*', R::Lit(c), sub(x))));
-                let (positive, negative): (Vec<(bool, R)>, Vec<(bool, R)>) = plain.chain(scaled).partition(|t| t.0);
-                for (_, t) in positive {
+                let mut negative = Vec::new();
+                let mut positive = Vec::new();
+                for (sign, t) in plain.chain(scaled) {
+                    if sign {
+                        positive.push(t);
+                    } else {
+                        negative.push(t);
+                    }
+                }
+                for t in positive {
                     acc = Some(match acc {
                         None => t,
                         Some(a) => bin('+', a, t),
                     });
                 }
-                for (_, t) in negative {
+                for t in negative {
                     acc = Some(match acc {
                         None => R::Neg(Box::new(t)),
                         Some(a) => bin('-', a, t),
