@@ -122,10 +122,8 @@ impl<const N: usize> StepCounts<N> {
         }
     }
 
-    /// Counts an accepted sub-step of size `h` ending at `end`, solved from
-    /// the cold guess after its warm one failed if `cold_retry`.
-    fn accept(&mut self, end: State<N>, iterations: usize, h: f64, cold_retry: bool) {
-        self.cold_retries += usize::from(cold_retry);
+    /// Counts an accepted sub-step of size `h` ending at `end`.
+    fn accept(&mut self, end: State<N>, iterations: usize, h: f64) {
         self.state = end;
         self.iterations += iterations;
         self.substeps += 1;
@@ -174,7 +172,7 @@ where
                     rejected: 0,
                     substeps: 1,
                     smallest: h.abs(),
-                    cold_retries: usize::from(r.cold_retry),
+                    cold_retries: 0,
                     stopped,
                     warm: r.warm_started,
                 })
@@ -238,7 +236,7 @@ where
                     len -= 1;
                     let end_t = if len == 0 { t_target } else { r.state.t };
                     let stop = on_step(self.system(), &out.state, end_t, sub, &r);
-                    out.accept(r.state, r.iterations, sub, r.cold_retry);
+                    out.accept(r.state, r.iterations, sub);
                     if stop {
                         out.stopped = true;
                         return Ok(out);
@@ -310,7 +308,7 @@ where
                 Ok(r) => {
                     let end_t = if (t_end - r.state.t) * h.signum() <= slack { t_target } else { r.state.t };
                     let stop = on_step(self.system(), &out.state, end_t, this, &r);
-                    out.accept(r.state, r.iterations, this, r.cold_retry);
+                    out.accept(r.state, r.iterations, this);
                     if stop {
                         out.stopped = true;
                         return Ok(out);

@@ -121,10 +121,6 @@ pub struct StepResult<const N: usize, const M: usize, const S: usize> {
     pub factorizations: usize,
     /// Whether the starting guess came from the previous step.
     pub warm_started: bool,
-    /// Whether Newton failed from the guess extrapolated across steps and
-    /// the step was solved from the cold guess (the consistent acceleration
-    /// at its start) instead; `warm_started` is then `false`.
-    pub cold_retry: bool,
 }
 
 /// An `S`-stage SPARK integrator for a system with `N` coordinates and `M`
@@ -478,7 +474,6 @@ where
         // The warm start and the energy anchor belong to that state too.
         let continues = continued.is_some();
         let Guess { mut z, warm: mut warm_started, prior, mut degree } = self.starting_guess(state, h, continues);
-        let mut cold_retry = false;
         // An extrapolation of high degree is the closer guess while the
         // solution is smooth on the scale of h, and can be far off where it
         // is not: a step it fails is solved again from the guess of degree
@@ -504,7 +499,7 @@ where
                 // it fails.
                 Err(_) if warm_started => {
                     Guess { z, warm: warm_started, degree, .. } = self.cold_guess(state, h);
-                    (full_newton, cold_retry) = (false, true);
+                    full_newton = false;
                 }
                 Err(Unsolved::Failed(e)) => return Err(e),
                 Ok(solved) => break solved,
@@ -551,7 +546,6 @@ where
             iterations,
             factorizations,
             warm_started,
-            cold_retry,
         })
     }
 }
