@@ -174,6 +174,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// on the stage-decoupled matrix starts it from the `reusable` factors
     /// (see `Stepper::newton`).
     cover_stale_first: bool,
+    /// Steps solved from the cold guess after Newton failed from the guess
+    /// extrapolated across steps, counted on that cold path only; the
+    /// driver reports the difference over a run (`RunReport::cold_retries`).
+    pub(crate) cold_retries: usize,
     /// The system's parameter terms
     /// ([`NonholonomicSystem::parameter_terms`]), which the residual and the
     /// energy guard read instead of recomputing them at every evaluation
@@ -279,6 +283,7 @@ where
             quadratic: f64::NAN,
             reusable: None,
             cover_stale_first: false,
+            cold_retries: 0,
             anchor: None,
             history: NewtonHistory::default(),
             pattern_written: false,
@@ -500,6 +505,7 @@ where
                 Err(_) if warm_started => {
                     Guess { z, warm: warm_started, degree, .. } = self.cold_guess(state, h);
                     full_newton = false;
+                    self.cold_retries += 1;
                 }
                 Err(Unsolved::Failed(e)) => return Err(e),
                 Ok(solved) => break solved,
