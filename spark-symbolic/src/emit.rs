@@ -24,7 +24,7 @@
 
 use crate::graph::{Deps, Graph, Node, NodeId, Var};
 use crate::simplify::is_int;
-use proc_macro2::{Ident, Literal, Span, TokenStream};
+use proc_macro2::{Delimiter, Group, Ident, Literal, Span, TokenStream, TokenTree};
 use quote::{format_ident, quote};
 use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
@@ -147,7 +147,7 @@ fn view(g: &mut Graph, n: NodeId) -> View {
             }
             if items.len() >= 3 {
                 let last = items.pop().unwrap_or(xs[0]);
-                let prefix = g.mul(&items);
+                let prefix = g.sub_product(&items);
                 items = vec![prefix, last];
             }
             if den.len() >= 2 {
@@ -301,73 +301,97 @@ impl R {
         }
     }
 
-    fn wrap(&self, min: u8, mode: Mode) -> TokenStream {
-        let t = self.tokens(mode);
+    /// The Rust tokens, with shared values and inputs written as `mode` says.
+    fn tokens(&self, mode: Mode) -> TokenStream {
+        let mut out = TokenStream::new();
+        self.write(mode, &mut out);
+        out
+    }
+
+    /// [`write`](Self::write), in parentheses when the expression binds
+    /// less tightly than `min`.
+    fn write_wrapped(&self, min: u8, mode: Mode, out: &mut TokenStream) {
         if self.prec() < min {
-            quote!((#t))
+            let mut inner = TokenStream::new();
+            self.write(mode, &mut inner);
+            out.extend([TokenTree::Group(Group::new(Delimiter::Parenthesis, inner))]);
         } else {
-            t
+            self.write(mode, out);
         }
     }
 
-    /// The Rust tokens, with shared values and inputs written as `mode` says.
-    fn tokens(&self, mode: Mode) -> TokenStream {
+    /// Appends the Rust tokens to `out`. Appending, rather than building
+    /// each operand's stream and quoting it into its parent's, writes every
+    /// token once: a left-folded sum or product of `n` operands is a chain
+    /// `n` deep, whose streams quoted level by level would copy `O(n²)`
+    /// tokens.
+    fn write(&self, mode: Mode, out: &mut TokenStream) {
         match self {
             R::Lit(x) => {
                 let l = Literal::f64_unsuffixed(x.abs());
                 if *x < 0.0 {
-                    quote!(-#l)
+                    out.extend(quote!(-#l));
                 } else {
-                    quote!(#l)
+                    out.extend(quote!(#l));
                 }
             }
             R::Shared(k, _) if matches!(mode, Mode::Array) => {
                 let k = Literal::usize_unsuffixed(*k);
-                quote!(w[#k])
+                out.extend(quote!(w[#k]));
             }
             R::Shared(k, t) => match mode {
-                Mode::Lane { scalar } if *k >= scalar => quote!(#t[w]),
-                _ => t.clone(),
+                Mode::Lane { scalar } if *k >= scalar => out.extend(quote!(#t[w])),
+                _ => out.extend(t.clone()),
             },
             R::Var(v, t) => match (mode, v) {
-                (Mode::Lane { .. }, Var::Q(_) | Var::V(_) | Var::Psi(_)) => quote!(#t[w]),
-                _ => t.clone(),
+                (Mode::Lane { .. }, Var::Q(_) | Var::V(_) | Var::Psi(_)) => out.extend(quote!(#t[w])),
+                _ => out.extend(t.clone()),
             },
             R::Bin(op, a, b) => {
                 let p = self.prec();
-                let (a, b) = (a.wrap(p, mode), b.wrap(p + 1, mode));
-                match op {
-                    '+' => quote!(#a + #b),
-                    '-' => quote!(#a - #b),
-                    '*' => quote!(#a * #b),
-                    _ => quote!(#a / #b),
-                }
+                a.write_wrapped(p, mode, out);
+                out.extend(match op {
+                    '+' => quote!(+),
+                    '-' => quote!(-),
+                    '*' => quote!(*),
+                    _ => quote!(/),
+                });
+                b.write_wrapped(p + 1, mode, out);
             }
             R::Neg(a) => {
-                let a = a.wrap(3, mode);
-                quote!(-#a)
+                out.extend(quote!(-));
+                a.write_wrapped(3, mode, out);
             }
             R::Method(recv, name, args) => {
-                let recv = match **recv {
+                match **recv {
                     R::Lit(x) => {
                         let l = Literal::f64_suffixed(x);
-                        quote!((#l))
+                        out.extend(quote!((#l)));
                     }
-                    _ => recv.wrap(4, mode),
-                };
+                    _ => recv.write_wrapped(4, mode, out),
+                }
                 let name = Ident::new(name, Span::call_site());
-                let args = args.iter().map(|a| a.tokens(mode));
-                quote!(#recv.#name(#(#args),*))
+                let mut inner = TokenStream::new();
+                for (i, a) in args.iter().enumerate() {
+                    if i > 0 {
+                        inner.extend(quote!(,));
+                    }
+                    a.write(mode, &mut inner);
+                }
+                out.extend(quote!(.#name));
+                out.extend([TokenTree::Group(Group::new(Delimiter::Parenthesis, inner))]);
             }
             R::Powi(recv, k) => {
-                let recv = recv.wrap(4, mode);
+                recv.write_wrapped(4, mode, out);
                 let k = Literal::i32_unsuffixed(*k);
-                quote!(#recv.powi(#k))
+                out.extend(quote!(.powi(#k)));
             }
             R::Trig(trig, name, x) => {
                 let name = Ident::new(name, Span::call_site());
-                let x = x.tokens(mode);
-                quote!(#trig::#name(#x))
+                out.extend(quote!(#trig::#name));
+                let mut inner = TokenStream::new();
+                x.write(mode, &mut inner);
+                out.extend([TokenTree::Group(Group::new(Delimiter::Parenthesis, inner))]);
             }
         }
     }
@@ -737,17 +761,25 @@ impl Emitter<'_> {
                 let mut acc: Option<R> = None;
                 let plain = terms.iter().map(|&(p, x)| (p, sub(x)));
                 let scaled = scaled.iter().map(|&(p, c, x)| (p, bin('*', R::Lit(c), sub(x))));
-                let all: Vec<(bool, R)> = plain.chain(scaled).collect();
-                for (_, t) in all.iter().filter(|t| t.0) {
+                let mut negative = Vec::new();
+                let mut positive = Vec::new();
+                for (sign, t) in plain.chain(scaled) {
+                    if sign {
+                        positive.push(t);
+                    } else {
+                        negative.push(t);
+                    }
+                }
+                for t in positive {
                     acc = Some(match acc {
-                        None => t.clone(),
-                        Some(a) => bin('+', a, t.clone()),
+                        None => t,
+                        Some(a) => bin('+', a, t),
                     });
                 }
-                for (_, t) in all.iter().filter(|t| !t.0) {
+                for t in negative {
                     acc = Some(match acc {
-                        None => R::Neg(Box::new(t.clone())),
-                        Some(a) => bin('-', a, t.clone()),
+                        None => R::Neg(Box::new(t)),
+                        Some(a) => bin('-', a, t),
                     });
                 }
                 let acc = acc.unwrap_or(R::Lit(0.0));

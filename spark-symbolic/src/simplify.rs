@@ -142,6 +142,25 @@ impl Graph {
         }
     }
 
+    /// The product of some operands of one canonical product (its
+    /// constant, if among them, first), at least two of them not constant:
+    /// already canonical once sorted, so interned without the work of
+    /// [`mul`](Self::mul) (which it equals). Emission takes the left-folded
+    /// prefixes of every product this way, `k` of them for `k` factors.
+    pub(crate) fn sub_product(&mut self, operands: &[NodeId]) -> NodeId {
+        let constant = operands.first().filter(|&&x| self.as_const(x).is_some()).copied();
+        let rest = &operands[usize::from(constant.is_some())..];
+        if rest.len() < 2 {
+            return self.mul(operands);
+        }
+        let mut xs: Vec<NodeId> = Vec::with_capacity(operands.len());
+        xs.extend(constant);
+        let from = xs.len();
+        xs.extend_from_slice(rest);
+        xs[from..].sort_unstable();
+        self.intern(Node::Mul(xs.into()))
+    }
+
     /// Product of any number of factors.
     pub fn mul(&mut self, factors: &[NodeId]) -> NodeId {
         let mut coef = 1.0;
@@ -280,5 +299,43 @@ impl Graph {
             _ => {}
         }
         self.intern(Node::Call(f, args.into()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::graph::{Fun, Graph, Node, NodeId, Var};
+
+    /// Every left-folded prefix that emission takes of a product, in its
+    /// order (least variable first), is the node `mul` makes of it: with and
+    /// without a coefficient, with a sum and a negative power among the
+    /// factors, and for a coefficient with one factor (which `mul`
+    /// distributes over a sum).
+    #[test]
+    fn sub_products_equal_the_canonical_products() {
+        let mut g = Graph::default();
+        let (x, y, z) = (g.var(Var::V(0)), g.var(Var::V(1)), g.var(Var::Q(0)));
+        let one = g.constant(1.0);
+        let sum = g.add(&[one, x, z]);
+        let sine = g.call(Fun::Sin, &[z]);
+        let shifted = g.add(&[one, y]);
+        let inverse = g.powc(shifted, -1.0);
+        let square = g.powc(z, 2.0);
+        for coefficient in [1.0, -3.5] {
+            let c = g.constant(coefficient);
+            let product = g.mul(&[c, x, sum, sine, inverse, square, y]);
+            let Node::Mul(operands) = g.node(product).clone() else { panic!("not a product") };
+            let mut operands: Vec<NodeId> = operands.to_vec();
+            // Reversed after the coefficient: another order than the graph's.
+            let from = usize::from(coefficient != 1.0);
+            operands[from..].reverse();
+            for k in 2..=operands.len() {
+                let (fast, canonical) = (g.sub_product(&operands[..k]), g.mul(&operands[..k]));
+                assert_eq!(fast, canonical, "prefix of {k} operands");
+            }
+        }
+        let c = g.constant(2.0);
+        let distributed = g.mul(&[c, sum]);
+        assert_eq!(g.sub_product(&[c, sum]), distributed);
     }
 }

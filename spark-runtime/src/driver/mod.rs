@@ -422,6 +422,9 @@ where
         events: &dyn EventFunctions<Sys, N>,
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         let mut report = RunReport { projected_initial_velocity: v0c != *v0, ..RunReport::default() };
+        // The steps that retried their cold guess themselves count into the
+        // report once, when it is handed out: nothing on an accepted step.
+        let cold_retries0 = self.cold_retries;
         let every = options.record_every;
         let sampled = match schedule {
             Schedule::Sampled { times, .. } => Some(times),
@@ -484,7 +487,10 @@ where
             // into a second `Result`, and the error is built only on failure.
             let counts = match taken {
                 Ok(counts) => counts,
-                Err(failure) => return Err(failure.into_error(k, state.t, h, report)),
+                Err(failure) => {
+                    report.cold_retries += self.cold_retries.wrapping_sub(cold_retries0);
+                    return Err(failure.into_error(k, state.t, h, report));
+                }
             };
             let (end_t, iters) = (counts.state.t, counts.iterations);
             report.count(&counts);
@@ -519,10 +525,12 @@ where
                 self.retarget_warm_start(&state);
             }
             if stop && !last {
+                report.cold_retries += self.cold_retries.wrapping_sub(cold_retries0);
                 return Err(IntegrationError::Stopped { steps: k + 1, t: state.t, partial: Box::new(report) });
             }
         }
         let _ = state;
+        report.cold_retries += self.cold_retries.wrapping_sub(cold_retries0);
         report.events = dense_run.located.len();
         if report.steps > 0 {
             report.newton_iterations_mean = report.newton_iterations_total as f64 / report.steps as f64;

@@ -285,6 +285,16 @@ where
         self.starting_guess_up_to(state, h, self.options.extrapolation_degree, continues)
     }
 
+    /// The guess of a step that continues none, from the consistent
+    /// acceleration at its start, for a step solved again after Newton
+    /// failed from a guess extrapolated across steps (`Stepper::step`): out
+    /// of line and cold, as [`safe_degree_guess`](Self::safe_degree_guess).
+    #[cold]
+    #[inline(never)]
+    pub(super) fn cold_guess(&mut self, state: &State<N>, h: f64) -> Guess<D> {
+        self.starting_guess_up_to(state, h, SAFE_EXTRAPOLATION_DEGREE, false)
+    }
+
     /// [`starting_guess`](Self::starting_guess) with the extrapolation
     /// across steps at degree `max_degree` at most. Inlined into both its
     /// callers (a second, cold caller would otherwise leave it out of line,

@@ -174,6 +174,10 @@ pub struct Stepper<Sys, const N: usize, const M: usize, const S: usize, const D:
     /// on the stage-decoupled matrix starts it from the `reusable` factors
     /// (see `Stepper::newton`).
     cover_stale_first: bool,
+    /// Steps solved from the cold guess after Newton failed from the guess
+    /// extrapolated across steps, counted on that cold path only; the
+    /// driver reports the difference over a run (`RunReport::cold_retries`).
+    pub(crate) cold_retries: usize,
     /// The system's parameter terms
     /// ([`NonholonomicSystem::parameter_terms`]), which the residual and the
     /// energy guard read instead of recomputing them at every evaluation
@@ -279,6 +283,7 @@ where
             quadratic: f64::NAN,
             reusable: None,
             cover_stale_first: false,
+            cold_retries: 0,
             anchor: None,
             history: NewtonHistory::default(),
             pattern_written: false,
@@ -473,7 +478,7 @@ where
         };
         // The warm start and the energy anchor belong to that state too.
         let continues = continued.is_some();
-        let Guess { mut z, warm: warm_started, prior, mut degree } = self.starting_guess(state, h, continues);
+        let Guess { mut z, warm: mut warm_started, prior, mut degree } = self.starting_guess(state, h, continues);
         // An extrapolation of high degree is the closer guess while the
         // solution is smooth on the scale of h, and can be far off where it
         // is not: a step it fails is solved again from the guess of degree
@@ -485,11 +490,22 @@ where
             match self.newton(state, &carry, h, &mut z, prior, full_newton) {
                 Err(Unsolved::RestartInFullNewton { factorizations }) => {
                     // The same guess again, solved by full Newton.
-                    Guess { z, degree, .. } = self.repeated_guess(state, h, continues);
+                    Guess { z, degree, .. } = self.repeated_guess(state, h, continues && warm_started);
                     (full_newton, abandoned) = (true, factorizations);
                 }
                 Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
                     Guess { z, degree, .. } = self.safe_degree_guess(state, h, continues);
+                }
+                // A guess extrapolated across steps is far off where the
+                // solution turns on the scale of `h`, and Newton from it can
+                // diverge where it converges from the consistent
+                // acceleration at the step's start: the step is solved again
+                // from that cold guess, in the mode it was asked for, before
+                // it fails.
+                Err(_) if warm_started => {
+                    Guess { z, warm: warm_started, degree, .. } = self.cold_guess(state, h);
+                    full_newton = false;
+                    self.cold_retries += 1;
                 }
                 Err(Unsolved::Failed(e)) => return Err(e),
                 Ok(solved) => break solved,

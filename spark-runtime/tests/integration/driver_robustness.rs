@@ -72,8 +72,9 @@ fn quiet(max_halvings: u32) -> RunOptions {
 
 /// Lobatto IIIA-B and IIIA-B-D s = 5 at h = 1/4 on |v| = 1: the guess
 /// extrapolated from the last steps lies outside Newton's basin at step 3
-/// (off by 0.12 in V) while the cold guess converges; the driver retries
-/// cold before anything else, so the run succeeds without halving.
+/// (off by 0.12 in V) while the cold guess converges; the step retries
+/// cold before anything else (and so would the driver), so the run
+/// succeeds without halving.
 #[test]
 fn a_failed_warm_start_is_retried_cold() {
     let (q0, v0) = speed_start();
