@@ -20,6 +20,7 @@ Needs ``ray`` and ``pyarrow`` (``pip install spark-nonholonomic[ray]``).
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import time
 import uuid
@@ -107,9 +108,9 @@ def sweep(
     # The arguments are checked here, before Ray starts, as `ensemble`
     # checks them: a bool, a complex number or a string where a real
     # number is meant is a TypeError.
-    s, steps, every = spark._whole("s", s), spark._whole("steps", steps), spark._whole("every", every)
+    s, steps, every = spark._whole("s", s, 1), spark._whole("steps", steps, 1), spark._whole("every", every, 1)
     h = spark._real("h", h)
-    threads_per_task = spark._whole("threads_per_task", threads_per_task)
+    threads_per_task = spark._whole("threads_per_task", threads_per_task, 1)
     if shards is not None:
         shards = spark._whole("shards", shards)
         if shards < 1:
@@ -190,6 +191,10 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     """
     import pyarrow.parquet as pq
 
+    # A step of 0 divided to inf or NaN, returned as if it were a statistic.
+    h = spark._real("h", h)
+    if not (math.isfinite(h) and h != 0.0):
+        raise spark.ArgumentError(f"h = {h!r} must be a finite, nonzero step size (the sweep's h)")
     if isinstance(table, (str, bytes)) or hasattr(table, "__fspath__"):
         table = pq.read_table(table, columns=["member", "t", "energy_error"])
     member = table.column("member").to_numpy()
@@ -197,8 +202,18 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     err = table.column("energy_error").to_numpy()
     order = np.lexsort((t, member))
     member, t, err = member[order], t[order], err[order]
-    ids = np.unique(member)
-    samples = len(member) // len(ids)
+    ids, counts = np.unique(member, return_counts=True)
+    if len(ids) == 0:
+        raise spark.ArgumentError("the table has no rows; pass the file or table a sweep wrote")
+    # The statistic averages every member at the same sample times: a table
+    # whose members have different sample counts is not one sweep's.
+    if np.any(counts != counts[0]):
+        short = int(ids[np.argmin(counts)])
+        raise spark.ArgumentError(
+            f"member {short} has {counts.min()} samples and others {counts.max()}: the statistic needs every member "
+            "at the same times; pass the table of one sweep"
+        )
+    samples = int(counts[0])
     err = err.reshape(len(ids), samples)
     acc = np.zeros(samples)
     for row in err:  # member after member, as the Rust sum
@@ -207,9 +222,15 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     return t[:samples], acc / len(ids) / (h2 * h2)
 
 
+#: The most members :func:`fig84_members` builds (112 MB of initial values).
+MAX_FIG84_MEMBERS = 10**6
+
+
 def fig84_members(count: int) -> tuple[np.ndarray, np.ndarray]:
     """Initial values of the §8.4 ensemble with ``count`` members
-    (``problems::systems::mp7_initial_values``)."""
+    (``problems::systems::mp7_initial_values``), ``1 ≤ count ≤
+    MAX_FIG84_MEMBERS``: arrays of shape ``(count, 7)``."""
+    count = spark._whole("count", count, 1, MAX_FIG84_MEMBERS)
     q, v = zip(*(spark._native.mp7_initial_values(j, count - 1) for j in range(count)))
     return np.array(q), np.array(v)
 

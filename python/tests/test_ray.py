@@ -103,6 +103,32 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
+    # fig84_members(0) raised "not enough values to unpack" from its zip, and
+    # a count of 10**12 ran until memory ran out; ensemble_statistic with
+    # h = 0 returned inf/NaN as a statistic, and an empty table raised
+    # ZeroDivisionError.
+    for count in (0, -1, sray.MAX_FIG84_MEMBERS + 1, 2**70):
+        with pytest.raises(ValueError, match=rf"count = {count} is .* give 1 ≤ count ≤ {sray.MAX_FIG84_MEMBERS}"):
+            sray.fig84_members(count)
+    with pytest.raises(TypeError, match="count = True is a bool"):
+        sray.fig84_members(True)
+    q, v = sray.fig84_members(1)
+    assert q.shape == v.shape == (1, 7)
+    import pyarrow as pa
+
+    table = pa.table({"member": [0, 0, 1, 1], "t": [0.0, 0.1] * 2, "energy_error": [0.0, 1e-3, 0.0, 2e-3]})
+    t, stat = sray.ensemble_statistic(table, 0.1)
+    np.testing.assert_allclose(stat, [0.0, (1e-6 + 4e-6) / 2 / 1e-4])
+    for h in (0.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="must be a finite, nonzero step size"):
+            sray.ensemble_statistic(table, h)
+    with pytest.raises(ValueError, match="no rows"):
+        sray.ensemble_statistic(table.slice(0, 0), 0.1)
+    with pytest.raises(ValueError, match="member 1 has 1 samples and others 2"):
+        sray.ensemble_statistic(table.slice(0, 3), 0.1)
+
+
 def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_path, monkeypatch):
     # The Parquet file was written in place: a write that failed or was
     # interrupted half-way left a truncated file under the final name.
