@@ -13,6 +13,7 @@ squaring into those two products), so the two are compared exactly."""
 from __future__ import annotations
 
 import concurrent.futures
+import os
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +99,16 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     for words, kwargs in cases.items():
         with pytest.raises(spark.SparkError, match=words):
             sray.sweep(*args, **kwargs)
+    # An empty path, a bytes path and a folder that cannot be written were
+    # found only when the file was written, after every member had run.
+    with pytest.raises(spark.SparkError, match="names no file"):
+        sray.sweep(*args, out="")
+    with pytest.raises(spark.SparkError, match="is a folder"):
+        sray.sweep(*args, out=str(tmp_path) + "/")
+    with pytest.raises(spark.SparkError, match="cannot write into the folder of out = '/proc/sweep.parquet'"):
+        sray.sweep(*args, out="/proc/sweep.parquet")
+    with pytest.raises(spark.SparkError, match="does not exist"):
+        sray.sweep(*args, out=bytes(tmp_path / "missing" / "sweep.parquet"))
     with pytest.raises(spark.SparkError, match=r"shape \(members, N\)"):
         sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s[0], v0s[0], out=str(tmp_path / "a.parquet"))
     assert not list(tmp_path.iterdir())
@@ -129,6 +140,19 @@ def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
         sray.ensemble_statistic(table.slice(0, 3), 0.1)
 
 
+def test_a_sweep_writes_to_bytes_and_non_utf8_paths(local_ray, tmp_path):
+    # A bytes `out` failed when the file was written ("Can't mix strings and
+    # bytes"), and pyarrow refuses a folder whose name is not UTF-8, both
+    # after every member had run.
+    q0s, v0s = sray.fig84_members(2)
+    folder = os.fsdecode(bytes(tmp_path) + b"/\xff")
+    os.mkdir(folder)
+    for out in (bytes(tmp_path / "sweep.parquet"), os.path.join(folder, "sweep.parquet")):
+        report = sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=out, shards=1)
+        assert pq.read_table(open(report.path, "rb")).num_rows == 2 * 11
+    assert sorted(os.listdir(folder)) == ["sweep.parquet"]
+
+
 def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_path, monkeypatch):
     # The Parquet file was written in place: a write that failed or was
     # interrupted half-way left a truncated file under the final name.
@@ -138,8 +162,7 @@ def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_pat
     before = out.read_bytes()
 
     def interrupted(table, where, *args, **kwargs):
-        with open(where, "wb") as f:
-            f.write(b"PAR1 half a file")
+        where.write(b"PAR1 half a file")
         raise KeyboardInterrupt
 
     monkeypatch.setattr(pq, "write_table", interrupted)
