@@ -155,6 +155,14 @@ def _not_bool(name: str, x: Any) -> None:
         raise TypeError(f"{name} = {x!r} is a bool; pass a number")
 
 
+def _flag(name: str, x: Any) -> bool:
+    """``x`` as a bool; :class:`TypeError` naming the argument for anything
+    else: ``project_v0="no"`` is truthy and changed the initial velocity."""
+    if not isinstance(x, (bool, np.bool_)):
+        raise TypeError(f"{name} = {_short(x)} is not a bool; pass True or False")
+    return bool(x)
+
+
 def _real(name: str, x: Any) -> float:
     """``x`` as a float; :class:`TypeError` naming the argument for a bool, a
     string, a complex number (``float`` would drop its imaginary part) or
@@ -331,8 +339,8 @@ class System:
         req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol)
         req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
         req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)
-        req["multipliers"] = bool(multipliers)
-        req["project_v0"] = bool(project_v0)
+        req["multipliers"] = _flag("multipliers", multipliers)
+        req["project_v0"] = _flag("project_v0", project_v0)
         d = self._integrate(req)
         return Trajectory(
             t=d["t"],

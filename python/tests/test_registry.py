@@ -288,3 +288,14 @@ def test_integers_beyond_the_native_range_are_value_errors_naming_the_argument()
     # Each is also a SparkError, as the other refusals of an argument.
     with pytest.raises(spark.SparkError):
         spark.integrate("skate", "gauss", 2, 0.1, 2**70)
+
+
+def test_a_flag_that_is_not_a_bool_is_a_type_error_naming_it():
+    # `project_v0="no"` is truthy: it replaced an inconsistent v0 by its
+    # projection instead of refusing it, and `multipliers="no"` recorded ψ.
+    for name in ("multipliers", "project_v0"):
+        for value in ("no", 0, None, [False]):
+            with pytest.raises(TypeError, match=rf"^{name} = .* is not a bool; pass True or False"):
+                spark.integrate("skate", "gauss", 2, 0.1, 3, **{name: value})
+    run = spark.integrate("skate", "gauss", 2, 0.1, 3, multipliers=np.bool_(True), project_v0=False)
+    assert run.psi.shape == (4, 1)
