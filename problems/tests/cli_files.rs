@@ -417,3 +417,18 @@ fn counts_and_intervals_beyond_their_limits_are_refused_naming_the_range() {
     assert!(!dir.join("summary.md").exists() && !dir.join("report.md").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// An `--out` whose name is not UTF-8 is a folder like any other:
+/// recording the command line in the lock file panicked on it
+/// (`std::env::args`), after the lock file was created.
+#[test]
+fn an_out_folder_whose_name_is_not_utf8_is_written() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = temp_dir("non-utf8");
+    let out = dir.join(std::ffi::OsStr::from_bytes(b"run-\xff"));
+    let o = spark().args(["run", "skate", "--t-end", "1", "--no-plot", "--out"]).arg(&out).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && !stderr.contains("panicked"), "{:?}: {stderr}", o.status);
+    assert!(out.join("skate_gauss_s2.csv").exists() && out.join("report.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
