@@ -442,7 +442,9 @@ def _floats(what: str, x) -> np.ndarray:
     try:
         return np.ascontiguousarray(x, dtype=np.float64)
     except OverflowError as e:
-        raise ArgumentError(f"{what} holds an integer too large for a float: its magnitude must be below 1.8e308") from e
+        raise ArgumentError(
+            f"{what} holds an integer too large for a float: its magnitude must be below 1.8e308"
+        ) from e
 
 
 def _vector(what: str, x) -> list[float]:
