@@ -108,8 +108,8 @@ pub fn final_time(t_end: f64) -> Result<f64, String> {
     if t_end > MAX_FINAL_TIME {
         return Err(format!(
             "--t-end {t_end:.3e} is longer than a sweep can measure: the reference solution gives up after 10^6 \
-             step attempts (the skate reaches t ≈ 2e4 with them) and the larger systems would run for hours \
-             before it does; {range}"
+             step attempts (the skate reaches t ≈ 2e4 with them, the sleigh t ≈ 3e3), each a few to hundreds \
+             of microseconds, so a longer interval runs for minutes to hours and then fails; {range}"
         ));
     }
     Ok(t_end)
