@@ -299,3 +299,15 @@ def test_a_flag_that_is_not_a_bool_is_a_type_error_naming_it():
                 spark.integrate("skate", "gauss", 2, 0.1, 3, **{name: value})
     run = spark.integrate("skate", "gauss", 2, 0.1, 3, multipliers=np.bool_(True), project_v0=False)
     assert run.psi.shape == (4, 1)
+
+
+def test_the_native_request_names_an_integer_beyond_64_bits():
+    # The native functions behind `spark.integrate` raised PyO3's "Python int
+    # too large to convert to C long" for a request read directly.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 2**70, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    with pytest.raises(ValueError, match=r"^`steps` = 1180591620717411303424 is outside the 64-bit integers"):
+        spark._native.integrate("skate", request)
+    with pytest.raises(ValueError, match=r"^`every` = 10+…0+ \(401 characters\) is outside"):
+        spark._native.integrate("skate", {**request, "steps": 3, "every": 10**400})
+    with pytest.raises(ValueError, match=r"^`h` = 10+…0+ \(401 characters\) is outside the floats"):
+        spark._native.integrate("skate", {**request, "steps": 3, "h": 10**400})
