@@ -277,7 +277,7 @@ fn runs_whose_output_would_not_fit_are_refused_up_front() {
     assert!(err.contains("--every") && err.contains("samples"), "{err}");
     // 10³⁰⁰ steps cannot be counted.
     let err = run_err(&["run", "skate", "--h", "1e-300", "--out", out]);
-    assert!(err.contains("2^53") && err.contains("--h"), "{err}");
+    assert!(err.contains("1e10") && err.contains("--h"), "{err}");
     // A 3·10⁵-sample JSON trajectory is too large: use CSV or --every.
     let err = run_err(&["run", "skate", "--t-end", "3000", "--h", "0.01", "--format", "json", "--out", out]);
     assert!(err.contains("--format csv") && err.contains("--every"), "{err}");
@@ -343,4 +343,92 @@ fn an_unwritable_standard_output_is_an_error_not_a_panic() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!stderr.contains("panicked") && !stderr.contains("Broken pipe"), "{stderr}");
+}
+
+/// `spark ARGS` must fail within `seconds`: an argument that is accepted
+/// would start a run that does not end, so the child is killed and the
+/// test fails rather than hanging.
+fn run_err_within(args: &[&str], seconds: u64) -> String {
+    let mut child = spark().args(args).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let start = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > Duration::from_secs(seconds) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("spark {args:?} was accepted and still ran after {seconds} s; it must be refused at once");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    assert!(!o.status.success(), "spark {args:?} should fail");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Counts and intervals that cannot finish in any sensible time, or over
+/// which nothing can be measured, are refused before any computation,
+/// naming the flag and the range that works: `--t-end 1e-300` said
+/// "loosen rtol/atol" about a tolerance the user cannot set, `--t-end 1e300`
+/// ran the reference solution for 10⁶ step attempts, `--repeats` near
+/// `u64::MAX` timed each point forever, and runs and sections of up to 2⁵³
+/// steps (decades) were started.
+#[test]
+fn counts_and_intervals_beyond_their_limits_are_refused_naming_the_range() {
+    let dir = temp_dir("limits");
+    let out = dir.to_str().unwrap();
+    let wp = ["work-precision", "--quick", "--no-python", "--system", "skate", "--out", out];
+    let range = "1e-15 ≤ --t-end ≤ 1e4";
+    let cases: [(&[&str], &[&str]); 9] = [
+        (&["--t-end", "1e-300"], &["--t-end 1.000e-300", "shorter than the smallest step", range]),
+        (&["--t-end", "9e-16"], &["--t-end 9.000e-16", "shorter than the smallest step", range]),
+        (&["--t-end", "1e300"], &["--t-end 1.000e300", "longer than a sweep can measure", range]),
+        (&["--t-end", "2e4"], &["--t-end 2.000e4", "longer than a sweep can measure", range]),
+        (&["--t-end", "-1"], &["--t-end must be a positive number", range]),
+        (&["--repeats", "18446744073709551615"], &["--repeats 18446744073709551615", "1 ≤ --repeats ≤ 1000"]),
+        (&["--repeats", "1001"], &["--repeats 1001", "1 ≤ --repeats ≤ 1000"]),
+        (&["--per-step", "--t-end", "5"], &["--t-end", "--per-step", "cannot be used with"]),
+        (&["--adaptive-energy", "--repeats", "3"], &["--repeats", "--adaptive-energy", "cannot be used with"]),
+    ];
+    for (args, words) in cases {
+        let err = run_err_within(&[&wp[..], args].concat(), 30);
+        for w in words {
+            assert!(err.contains(w), "spark work-precision {args:?}: the message must contain {w:?}: {err}");
+        }
+        assert!(!err.contains("loosen") && !err.contains("panicked"), "{args:?}: {err}");
+    }
+    let others: [(&[&str], &[&str]); 3] = [
+        // 10¹¹ steps, recorded sparsely enough to fit in memory.
+        (
+            &["run", "skate", "--h", "1e-9", "--t-end", "100", "--every", "100000000"],
+            &["1.000e11 steps", "1e10", "--h"],
+        ),
+        (&["run", "skate", "--h", "1e-300"], &["1e10", "--h"]),
+        // 2·10⁶ steps for each of 10⁴ members.
+        (
+            &["section", "mp7-nh", "--event", "section", "--members", "10000", "--t-end", "1e5", "--h", "0.05"],
+            &["--members 10000 × 2000000 steps", "1e10", "fewer --members"],
+        ),
+    ];
+    for (args, words) in others {
+        let err = run_err_within(&[args, &["--out", out]].concat(), 30);
+        for w in words {
+            assert!(err.contains(w), "spark {args:?}: the message must contain {w:?}: {err}");
+        }
+    }
+    assert!(!dir.join("summary.md").exists() && !dir.join("report.md").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An `--out` whose name is not UTF-8 is a folder like any other:
+/// recording the command line in the lock file panicked on it
+/// (`std::env::args`), after the lock file was created.
+#[test]
+fn an_out_folder_whose_name_is_not_utf8_is_written() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = temp_dir("non-utf8");
+    let out = dir.join(std::ffi::OsStr::from_bytes(b"run-\xff"));
+    let o = spark().args(["run", "skate", "--t-end", "1", "--no-plot", "--out"]).arg(&out).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && !stderr.contains("panicked"), "{:?}: {stderr}", o.status);
+    assert!(out.join("skate_gauss_s2.csv").exists() && out.join("report.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }

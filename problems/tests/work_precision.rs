@@ -75,6 +75,45 @@ mod sweep {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// Settings that cannot be measured, or not in any sensible time, are
+    /// refused before the output folder is created: a final time below the
+    /// reference solution's smallest step, one beyond the reference's
+    /// reach, and a repeat count that never ends.
+    #[test]
+    fn settings_beyond_the_limits_are_refused_before_any_work() {
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-limits-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let base = WorkPrecisionConfig::quick(&dir);
+        let cases = [
+            WorkPrecisionConfig { final_time: 1e-300, ..base.clone() },
+            WorkPrecisionConfig { final_time: MIN_FINAL_TIME * 0.9, ..base.clone() },
+            WorkPrecisionConfig { final_time: MAX_FINAL_TIME * 1.1, ..base.clone() },
+            WorkPrecisionConfig { repeats: usize::MAX, ..base.clone() },
+            WorkPrecisionConfig { repeats: MAX_REPEATS + 1, ..base.clone() },
+        ];
+        for cfg in cases {
+            let err = run_work_precision(&cfg, &|_| {}).unwrap_err().to_string();
+            assert!(err.contains("1e-15 ≤ T ≤ 1e4") && err.contains("repeats ≤ 1000"), "{err}");
+        }
+        assert!(!dir.exists());
+    }
+
+    /// A reference solution that fails because of the final time says that
+    /// the final time is what to change (it said "raise max_steps or loosen
+    /// the tolerances", options a sweep does not offer, or "check the
+    /// initial values" of a default state): the turntable's default state
+    /// leaves the finite numbers near t = 830.
+    #[test]
+    fn a_reference_that_cannot_reach_the_final_time_names_it() {
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-reach-{}", std::process::id()));
+        let mut cfg = WorkPrecisionConfig::quick(&dir);
+        cfg.systems = vec![SystemKind::Turntable];
+        cfg.final_time = 1e3;
+        let err = run_work_precision(&cfg, &|_| {}).unwrap_err().to_string();
+        assert!(err.contains("over [0, 1.000e3]") && err.contains("shorter final time, --t-end"), "{err}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn systems_with_a_step_density_are_marked_reversible_in_the_catalogue() {
         use problems::catalog::{visit_system, Dispatch, SystemEntry, SystemVisitor};

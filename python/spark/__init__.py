@@ -28,6 +28,7 @@ from ._native import SparkError
 
 __all__ = [
     "SparkError",
+    "ArgumentError",
     "DslError",
     "ToolchainError",
     "System",
@@ -56,6 +57,18 @@ class DslError(SparkError):
         self.message = message
         self.line = line
         self.column = column
+
+
+class ArgumentError(SparkError, ValueError):
+    """An argument outside the range the library accepts (``steps=2**70``,
+    ``threads=0``, ``h=10**400``); the message names the argument and the
+    range. Both a :class:`SparkError` and a :class:`ValueError`."""
+
+
+#: The largest whole-number argument (``s``, ``steps``, ``every``,
+#: ``threads``, ``shards``, …): the native module reads them as signed 64-bit
+#: integers.
+MAX_WHOLE = 2**63 - 1
 
 
 class ToolchainError(SparkError):
@@ -124,12 +137,12 @@ def _request(
 ) -> dict[str, Any]:
     return {
         "method": method,
-        "s": _whole("s", s),
+        "s": _whole("s", s, 1),
         "h": _real("h", h),
-        "steps": _whole("steps", steps),
+        "steps": _whole("steps", steps, 1),
         "t0": _real("t0", t0),
         "params": _params(params),
-        "every": _whole("every", every),
+        "every": _whole("every", every, 1),
         "newton": newton,
         "newton_tol": None if newton_tol is None else _real("newton_tol", newton_tol),
     }
@@ -140,6 +153,14 @@ def _not_bool(name: str, x: Any) -> None:
     bool): ``h=True`` would otherwise run as ``h=1.0`` and ``s=True`` as 1."""
     if isinstance(x, (bool, np.bool_)):
         raise TypeError(f"{name} = {x!r} is a bool; pass a number")
+
+
+def _flag(name: str, x: Any) -> bool:
+    """``x`` as a bool; :class:`TypeError` naming the argument for anything
+    else: ``project_v0="no"`` is truthy and changed the initial velocity."""
+    if not isinstance(x, (bool, np.bool_)):
+        raise TypeError(f"{name} = {_short(x)} is not a bool; pass True or False")
+    return bool(x)
 
 
 def _real(name: str, x: Any) -> float:
@@ -153,21 +174,40 @@ def _real(name: str, x: Any) -> float:
         raise TypeError(f"{name} = {x!r} is complex; pass a real number")
     try:
         return float(x)
+    except OverflowError as e:
+        # An int beyond the largest float (10**400) has no float value.
+        raise ArgumentError(
+            f"{name} = {_short(x)} is too large for a float: its magnitude must be below 1.8e308"
+        ) from e
     except (TypeError, ValueError) as e:
         raise TypeError(f"{name} = {x!r} is not a number") from e
 
 
-def _whole(name: str, x: Any) -> int:
-    """``x`` as an int; :class:`TypeError` for a bool, :class:`SparkError`
-    when it is not a whole number (``s=2.5`` or ``every=1.5`` would otherwise
-    be truncated silently)."""
+def _short(x: Any) -> str:
+    """``repr(x)``, cut to its first and last digits when long (an int such as
+    ``10**400`` would fill the message)."""
+    r = repr(x)
+    return r if len(r) <= 40 else f"{r[:12]}…{r[-6:]} ({len(r)} characters)"
+
+
+def _whole(name: str, x: Any, low: int | None = None, high: int = MAX_WHOLE) -> int:
+    """``x`` as an int in ``low..=high``; :class:`TypeError` for a bool,
+    :class:`SparkError` when it is not a whole number (``s=2.5`` or
+    ``every=1.5`` would otherwise be truncated silently),
+    :class:`ArgumentError` naming the range outside it (the native module
+    reads 64-bit integers, and PyO3's own overflow message names no
+    argument)."""
     _not_bool(name, x)
     try:
         whole = int(x)
     except (TypeError, ValueError, OverflowError):
         whole = None
     if whole is None or whole != x:
-        raise SparkError(f"{name} = {x!r} must be a whole number")
+        raise SparkError(f"{name} = {_short(x)} must be a whole number")
+    if whole > high or (low is not None and whole < low):
+        lowest = "" if low is None else f"{low} ≤ "
+        side = f"more than {high}" if whole > high else f"less than {low}"
+        raise ArgumentError(f"{name} = {_short(whole)} is {side}; give {lowest}{name} ≤ {high}")
     return whole
 
 
@@ -185,7 +225,7 @@ def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
 
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
     if steps is not None:
-        return _whole("steps", steps)
+        return _whole("steps", steps, 1)
     if t_end is None:
         raise SparkError("give steps= or t_end=")
     h, t_end, t0 = _real("h", h), _real("t_end", t_end), _real("t0", t0)
@@ -205,6 +245,11 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
         raise SparkError(
             f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is shorter than one step of h = {h:.6e}; "
             "use a later t_end or a smaller h"
+        )
+    if n > MAX_WHOLE:
+        raise ArgumentError(
+            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is {ratio:.3e} steps of h = {h:.6e}, more "
+            f"than {MAX_WHOLE}, the most a run can count; use a larger h or a shorter interval"
         )
     # As `spark run`: relative to the step count, capped at a thousandth of
     # a step (beyond 10⁶ steps a relative tolerance alone accepts an end
@@ -294,8 +339,8 @@ class System:
         req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol)
         req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
         req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)
-        req["multipliers"] = bool(multipliers)
-        req["project_v0"] = bool(project_v0)
+        req["multipliers"] = _flag("multipliers", multipliers)
+        req["project_v0"] = _flag("project_v0", project_v0)
         d = self._integrate(req)
         return Trajectory(
             t=d["t"],
@@ -338,8 +383,8 @@ class System:
         tolerance per step, and is the same whatever the thread count."""
         _real_entries("q0s", q0s)
         _real_entries("v0s", v0s)
-        q0s = np.ascontiguousarray(q0s, dtype=np.float64)
-        v0s = np.ascontiguousarray(v0s, dtype=np.float64)
+        q0s = _floats("q0s", q0s)
+        v0s = _floats("v0s", v0s)
         if q0s.ndim != 2 or v0s.shape != q0s.shape or q0s.shape[1] != self.n:
             raise SparkError(
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
@@ -347,7 +392,7 @@ class System:
         req = _request(method, s, h, _steps(h, steps, None, t0), t0, params, every, newton, newton_tol)
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
-        req["threads"] = None if threads is None else _whole("threads", threads)
+        req["threads"] = None if threads is None else _whole("threads", threads, 1)
         d = self._ensemble(req)
         return Ensemble(
             t=d["t"],
@@ -390,11 +435,23 @@ def _real_entries(what: str, x) -> None:
         raise TypeError(f"{what} holds {kind}; pass real numbers")
 
 
+def _floats(what: str, x) -> np.ndarray:
+    """``x`` as a float64 array; :class:`ArgumentError` naming ``what`` when
+    an entry is an int beyond the largest float (NumPy's own message names
+    no argument)."""
+    try:
+        return np.ascontiguousarray(x, dtype=np.float64)
+    except OverflowError as e:
+        raise ArgumentError(
+            f"{what} holds an integer too large for a float: its magnitude must be below 1.8e308"
+        ) from e
+
+
 def _vector(what: str, x) -> list[float]:
     if x is None:
         raise SparkError(f"give {what}=")
     _real_entries(what, x)
-    a = np.asarray(x, dtype=np.float64)
+    a = _floats(what, x)
     if a.ndim != 1:
         raise SparkError(f"{what} must be a vector; got shape {a.shape}")
     return a.tolist()

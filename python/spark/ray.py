@@ -20,6 +20,7 @@ Needs ``ray`` and ``pyarrow`` (``pip install spark-nonholonomic[ray]``).
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import time
 import uuid
@@ -101,23 +102,24 @@ def sweep(
     ``out`` is checked before Ray starts and written under a temporary name
     in its folder, renamed to ``out`` once complete.
     """
-    import pyarrow as pa
-    import ray
+    # Missing packages fail here, before any work.
+    import pyarrow  # noqa: F401
+    import ray  # noqa: F401
 
     # The arguments are checked here, before Ray starts, as `ensemble`
     # checks them: a bool, a complex number or a string where a real
     # number is meant is a TypeError.
-    s, steps, every = spark._whole("s", s), spark._whole("steps", steps), spark._whole("every", every)
+    s, steps, every = spark._whole("s", s, 1), spark._whole("steps", steps, 1), spark._whole("every", every, 1)
     h = spark._real("h", h)
-    threads_per_task = spark._whole("threads_per_task", threads_per_task)
+    threads_per_task = spark._whole("threads_per_task", threads_per_task, 1)
     if shards is not None:
         shards = spark._whole("shards", shards)
         if shards < 1:
             raise spark.SparkError(f"shards = {shards} must be at least 1")
     spark._real_entries("q0s", q0s)
     spark._real_entries("v0s", v0s)
-    q0s = np.ascontiguousarray(q0s, dtype=np.float64)
-    v0s = np.ascontiguousarray(v0s, dtype=np.float64)
+    q0s = spark._floats("q0s", q0s)
+    v0s = spark._floats("v0s", v0s)
     if q0s.ndim != 2 or q0s.shape[0] == 0 or q0s.shape != v0s.shape:
         raise spark.SparkError(
             f"q0s and v0s must have the same shape (members, N), with at least one member; got {q0s.shape}, "
@@ -126,12 +128,47 @@ def sweep(
     members = q0s.shape[0]
     if threads_per_task < 1:
         raise spark.SparkError("threads_per_task must be at least 1")
-    out = os.fspath(out)
+    # A bytes path would meet the str name of the temporary file only when
+    # the file is written, after every member has run.
+    out = os.fsdecode(os.fspath(out))
+    if not out:
+        raise spark.SparkError("out = '' names no file; give the path of the Parquet file to write")
     folder = os.path.dirname(os.path.abspath(out))
-    if os.path.isdir(out):
+    if os.path.isdir(out) or out.endswith(os.sep):
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
     if not os.path.isdir(folder):
         raise spark.SparkError(f"the folder of out = {out!r}, {folder}, does not exist; create it first")
+    # The temporary file is created now, so that a folder that cannot be
+    # written (read-only, /proc) is reported before Ray starts.
+    temp = _reserve(out, folder)
+    try:
+        return _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newton, shards,
+                      threads_per_task, address, members)
+    finally:
+        with contextlib.suppress(OSError):
+            os.remove(temp)
+
+
+def _reserve(out: str, folder: str) -> str:
+    """Creates the empty temporary file the sweep's table is written to, in
+    ``out``'s folder (so that the final rename stays on one file system);
+    :class:`spark.SparkError` naming ``out`` when the folder cannot be
+    written."""
+    temp = os.path.join(folder, f".spark-sweep-{os.getpid()}-{uuid.uuid4().hex}.parquet")
+    try:
+        with open(temp, "xb"):
+            pass
+    except OSError as e:
+        raise spark.SparkError(f"cannot write into the folder of out = {out!r}: {e}") from e
+    return temp
+
+
+def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newton, shards, threads_per_task,
+           address, members) -> SweepReport:
+    """:func:`sweep` once its arguments are checked and ``temp`` exists."""
+    import pyarrow as pa
+    import ray
+
     if not ray.is_initialized():
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
     # Ray keeps a task that asks for more CPUs than any node has waiting for
@@ -159,25 +196,22 @@ def sweep(
         if b > a
     ]
     tables = ray.get(pending)
-    _write_atomically(pa.concat_tables(tables), out, folder)
+    _write_atomically(pa.concat_tables(tables), out, temp)
     wall = time.perf_counter() - start
     return SweepReport(path=str(out), members=members, shards=len(pending), wall_seconds=wall)
 
 
-def _write_atomically(table, out: str, folder: str) -> None:
-    """Writes ``table`` as Parquet to a temporary file in ``folder``, then
-    renames it to ``out``: an interrupted or failed write leaves an earlier
-    ``out`` as it was, never a truncated file under its name."""
+def _write_atomically(table, out: str, temp: str) -> None:
+    """Writes ``table`` as Parquet to ``temp`` (a file in ``out``'s folder),
+    then renames it to ``out``: an interrupted or failed write leaves an
+    earlier ``out`` as it was, never a truncated file under its name. The
+    file is opened by Python, which takes any path the OS does (pyarrow
+    refuses a path that is not UTF-8)."""
     import pyarrow.parquet as pq
 
-    temp = os.path.join(folder, f".spark-sweep-{os.getpid()}-{uuid.uuid4().hex}.parquet")
-    try:
-        pq.write_table(table, temp)
-        os.replace(temp, out)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.remove(temp)
-        raise
+    with open(temp, "wb") as f:
+        pq.write_table(table, f)
+    os.replace(temp, out)
 
 
 def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -190,6 +224,10 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     """
     import pyarrow.parquet as pq
 
+    # A step of 0 divided to inf or NaN, returned as if it were a statistic.
+    h = spark._real("h", h)
+    if not (math.isfinite(h) and h != 0.0):
+        raise spark.ArgumentError(f"h = {h!r} must be a finite, nonzero step size (the sweep's h)")
     if isinstance(table, (str, bytes)) or hasattr(table, "__fspath__"):
         table = pq.read_table(table, columns=["member", "t", "energy_error"])
     member = table.column("member").to_numpy()
@@ -197,8 +235,18 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     err = table.column("energy_error").to_numpy()
     order = np.lexsort((t, member))
     member, t, err = member[order], t[order], err[order]
-    ids = np.unique(member)
-    samples = len(member) // len(ids)
+    ids, counts = np.unique(member, return_counts=True)
+    if len(ids) == 0:
+        raise spark.ArgumentError("the table has no rows; pass the file or table a sweep wrote")
+    # The statistic averages every member at the same sample times: a table
+    # whose members have different sample counts is not one sweep's.
+    if np.any(counts != counts[0]):
+        short = int(ids[np.argmin(counts)])
+        raise spark.ArgumentError(
+            f"member {short} has {counts.min()} samples and others {counts.max()}: the statistic needs every member "
+            "at the same times; pass the table of one sweep"
+        )
+    samples = int(counts[0])
     err = err.reshape(len(ids), samples)
     acc = np.zeros(samples)
     for row in err:  # member after member, as the Rust sum
@@ -207,9 +255,15 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     return t[:samples], acc / len(ids) / (h2 * h2)
 
 
+#: The most members :func:`fig84_members` builds (112 MB of initial values).
+MAX_FIG84_MEMBERS = 10**6
+
+
 def fig84_members(count: int) -> tuple[np.ndarray, np.ndarray]:
     """Initial values of the §8.4 ensemble with ``count`` members
-    (``problems::systems::mp7_initial_values``)."""
+    (``problems::systems::mp7_initial_values``), ``1 ≤ count ≤
+    MAX_FIG84_MEMBERS``: arrays of shape ``(count, 7)``."""
+    count = spark._whole("count", count, 1, MAX_FIG84_MEMBERS)
     q, v = zip(*(spark._native.mp7_initial_values(j, count - 1) for j in range(count)))
     return np.array(q), np.array(v)
 

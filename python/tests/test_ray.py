@@ -13,6 +13,7 @@ squaring into those two products), so the two are compared exactly."""
 from __future__ import annotations
 
 import concurrent.futures
+import os
 from pathlib import Path
 
 import numpy as np
@@ -98,9 +99,58 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     for words, kwargs in cases.items():
         with pytest.raises(spark.SparkError, match=words):
             sray.sweep(*args, **kwargs)
+    # An empty path, a bytes path and a folder that cannot be written were
+    # found only when the file was written, after every member had run.
+    with pytest.raises(spark.SparkError, match="names no file"):
+        sray.sweep(*args, out="")
+    with pytest.raises(spark.SparkError, match="is a folder"):
+        sray.sweep(*args, out=str(tmp_path) + "/")
+    with pytest.raises(spark.SparkError, match="cannot write into the folder of out = '/proc/sweep.parquet'"):
+        sray.sweep(*args, out="/proc/sweep.parquet")
+    with pytest.raises(spark.SparkError, match="does not exist"):
+        sray.sweep(*args, out=bytes(tmp_path / "missing" / "sweep.parquet"))
     with pytest.raises(spark.SparkError, match=r"shape \(members, N\)"):
         sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s[0], v0s[0], out=str(tmp_path / "a.parquet"))
     assert not list(tmp_path.iterdir())
+
+
+def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
+    # fig84_members(0) raised "not enough values to unpack" from its zip, and
+    # a count of 10**12 ran until memory ran out; ensemble_statistic with
+    # h = 0 returned inf/NaN as a statistic, and an empty table raised
+    # ZeroDivisionError.
+    for count in (0, -1, sray.MAX_FIG84_MEMBERS + 1, 2**70):
+        with pytest.raises(ValueError, match=rf"count = {count} is .* give 1 ≤ count ≤ {sray.MAX_FIG84_MEMBERS}"):
+            sray.fig84_members(count)
+    with pytest.raises(TypeError, match="count = True is a bool"):
+        sray.fig84_members(True)
+    q, v = sray.fig84_members(1)
+    assert q.shape == v.shape == (1, 7)
+    import pyarrow as pa
+
+    table = pa.table({"member": [0, 0, 1, 1], "t": [0.0, 0.1] * 2, "energy_error": [0.0, 1e-3, 0.0, 2e-3]})
+    t, stat = sray.ensemble_statistic(table, 0.1)
+    np.testing.assert_allclose(stat, [0.0, (1e-6 + 4e-6) / 2 / 1e-4])
+    for h in (0.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="must be a finite, nonzero step size"):
+            sray.ensemble_statistic(table, h)
+    with pytest.raises(ValueError, match="no rows"):
+        sray.ensemble_statistic(table.slice(0, 0), 0.1)
+    with pytest.raises(ValueError, match="member 1 has 1 samples and others 2"):
+        sray.ensemble_statistic(table.slice(0, 3), 0.1)
+
+
+def test_a_sweep_writes_to_bytes_and_non_utf8_paths(local_ray, tmp_path):
+    # A bytes `out` failed when the file was written ("Can't mix strings and
+    # bytes"), and pyarrow refuses a folder whose name is not UTF-8, both
+    # after every member had run.
+    q0s, v0s = sray.fig84_members(2)
+    folder = os.fsdecode(bytes(tmp_path) + b"/\xff")
+    os.mkdir(folder)
+    for out in (bytes(tmp_path / "sweep.parquet"), os.path.join(folder, "sweep.parquet")):
+        report = sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=out, shards=1)
+        assert pq.read_table(open(report.path, "rb")).num_rows == 2 * 11
+    assert sorted(os.listdir(folder)) == ["sweep.parquet"]
 
 
 def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_path, monkeypatch):
@@ -112,8 +162,7 @@ def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_pat
     before = out.read_bytes()
 
     def interrupted(table, where, *args, **kwargs):
-        with open(where, "wb") as f:
-            f.write(b"PAR1 half a file")
+        where.write(b"PAR1 half a file")
         raise KeyboardInterrupt
 
     monkeypatch.setattr(pq, "write_table", interrupted)

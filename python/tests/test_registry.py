@@ -256,3 +256,58 @@ def test_complex_numbers_and_strings_where_real_numbers_are_meant_are_type_error
     # (the message was "'int' object cannot be cast as 'str'").
     with pytest.raises(TypeError, match="params key 1 is not a string"):
         spark.integrate("skate", "gauss", 2, 0.1, 3, params={1: 9.81})
+
+
+def test_integers_beyond_the_native_range_are_value_errors_naming_the_argument():
+    # PyO3 raised "Python int too large to convert to C long", naming no
+    # argument, for steps=2**70; an int beyond the largest float raised
+    # "int too large to convert to float".
+    skate = spark.system("skate")
+    q0s, v0s = np.tile(skate.q0, (2, 1)), np.tile(skate.v0, (2, 1))
+    calls = {
+        "steps": lambda: spark.integrate("skate", "gauss", 2, 0.1, 2**70),
+        "s": lambda: spark.integrate("skate", "gauss", 2**64, 0.1, 3),
+        "every": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, every=2**63),
+        "threads": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, threads=2**70),
+        "ensemble steps": lambda: spark.ensemble("skate", "gauss", 2, 0.1, -(2**70), q0s, v0s),
+    }
+    for name, call in calls.items():
+        with pytest.raises(ValueError, match=rf"^{name.split()[-1]} = -?\d+ is (more|less) than -?\d+; give 1 ≤ "):
+            call()
+    with pytest.raises(spark.ArgumentError, match=r"more than 9223372036854775807, the most a run can count"):
+        skate.integrate(h=1e-300, t_end=1e-200)
+    floats = {
+        "h": lambda: spark.integrate("skate", "gauss", 2, 10**400, 3),
+        "params['g']": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": -(10**400)}),
+        "q0": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, q0=[10**400, 0, 0]),
+        "v0s": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, [[0, 0, 10**400]] * 2),
+    }
+    for name, call in floats.items():
+        with pytest.raises(ValueError, match=rf"^{re.escape(name)} .*too large for a float"):
+            call()
+    # Each is also a SparkError, as the other refusals of an argument.
+    with pytest.raises(spark.SparkError):
+        spark.integrate("skate", "gauss", 2, 0.1, 2**70)
+
+
+def test_a_flag_that_is_not_a_bool_is_a_type_error_naming_it():
+    # `project_v0="no"` is truthy: it replaced an inconsistent v0 by its
+    # projection instead of refusing it, and `multipliers="no"` recorded ψ.
+    for name in ("multipliers", "project_v0"):
+        for value in ("no", 0, None, [False]):
+            with pytest.raises(TypeError, match=rf"^{name} = .* is not a bool; pass True or False"):
+                spark.integrate("skate", "gauss", 2, 0.1, 3, **{name: value})
+    run = spark.integrate("skate", "gauss", 2, 0.1, 3, multipliers=np.bool_(True), project_v0=False)
+    assert run.psi.shape == (4, 1)
+
+
+def test_the_native_request_names_an_integer_beyond_64_bits():
+    # The native functions behind `spark.integrate` raised PyO3's "Python int
+    # too large to convert to C long" for a request read directly.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 2**70, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    with pytest.raises(ValueError, match=r"^`steps` = 1180591620717411303424 is outside the 64-bit integers"):
+        spark._native.integrate("skate", request)
+    with pytest.raises(ValueError, match=r"^`every` = 10+…0+ \(401 characters\) is outside"):
+        spark._native.integrate("skate", {**request, "steps": 3, "every": 10**400})
+    with pytest.raises(ValueError, match=r"^`h` = 10+…0+ \(401 characters\) is outside the floats"):
+        spark._native.integrate("skate", {**request, "steps": 3, "h": 10**400})

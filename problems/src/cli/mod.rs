@@ -169,9 +169,12 @@ pub fn step_flag(given: Option<f64>, h: f64) -> String {
 /// of steps (round-off of the division, e.g. 150/0.2 = 749.999…).
 pub const WHOLE_STEPS_TOLERANCE: f64 = 1e-9;
 
-/// Most steps `spark run` takes: 2⁵³, beyond which step counts and the times
-/// `t0 + k·h` are no longer exact in `f64`.
-pub const MAX_STEPS: f64 = 9_007_199_254_740_992.0;
+/// Most steps one `spark run` takes (and most member-steps of one `spark
+/// section`): 10¹⁰, 10⁴ times the paper's longest run, 15 min to hours at
+/// 0.1–1 µs per step. Beyond it a run cannot end in any sensible time (at
+/// 2⁵³ steps, where step counts stop being exact in `f64`, it would take
+/// decades).
+pub const MAX_STEPS: f64 = 1e10;
 
 /// The number of steps from `t0` to `t_end` with step `h`, or an error naming
 /// the flags when the interval is not a whole number of steps (the run would
@@ -180,8 +183,8 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
     let ratio = (t_end - t0) / h;
     if ratio.is_nan() || ratio > MAX_STEPS {
         return Err(format!(
-            "(t_end − t0)/h = {ratio:.3e} steps is more than 2^53 = {MAX_STEPS:.3e}, the most a run can count; \
-             raise --h or shorten the interval --t0 … --t-end"
+            "(t_end − t0)/h = {ratio:.3e} steps is more than {MAX_STEPS:.0e}, the most one run takes (hours at \
+             0.1–1 µs per step); raise --h or shorten the interval --t0 … --t-end"
         ));
     }
     let steps = ratio.round();

@@ -81,6 +81,17 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
         return Err(format!("--members must lie in 1..={}, got {}", MAX_SECTION_MEMBERS, a.members));
     }
     let steps = step_count(t0, t_end, h)?;
+    // Every member takes every step: the work is their product.
+    if steps as f64 * a.members as f64 > super::MAX_STEPS {
+        return Err(format!(
+            "--members {} × {steps} steps (t = {t0:.6e} … {t_end:.6e} with h = {h:.3e}) is {:.3e} steps in all, \
+             more than {:.0e}, the most one section takes (hours at 0.1–1 µs per step); use fewer --members, a \
+             shorter --t-end or a larger --h",
+            a.members,
+            steps as f64 * a.members as f64,
+            super::MAX_STEPS
+        ));
+    }
     let newton = spark_runtime::NewtonOptions { mode: a.newton.into(), ..spark_runtime::NewtonOptions::default() };
     let spec = SectionSpec {
         system: entry.kind,

@@ -2,7 +2,9 @@
 //! only forwards to [`run`] and prints what it returns).
 
 use crate::catalog::SystemKind;
-use crate::experiments::work_precision::{run_work_precision, WorkPrecisionConfig};
+use crate::experiments::work_precision::{
+    run_work_precision, WorkPrecisionConfig, MAX_FINAL_TIME, MAX_REPEATS, MIN_FINAL_TIME,
+};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -17,19 +19,20 @@ pub struct WorkPrecisionArgs {
     /// systems (num-dual, finite differences, CasADi C) are skipped for the
     /// others, and the report says so; DOP853 and SciPy's Radau run on every
     /// system without external or non-ideal forces.
-    #[arg(long, short = 'y', value_delimiter = ',')]
+    #[arg(long, short = 'y', value_delimiter = ',', conflicts_with_all = ["scaling", "adaptive_energy"])]
     pub system: Vec<String>,
     /// Output folder (CSV, Markdown, PNG and SVG figures).
     #[arg(long, short, default_value = "results/work-precision")]
     pub out: PathBuf,
-    /// Final time T (default 10; 1 with --quick).
-    #[arg(long, allow_hyphen_values = true)]
+    /// Final time T (default 10; 1 with --quick), from 1e-15 to 1e4.
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["scaling", "per_step", "adaptive_energy"])]
     pub t_end: Option<f64>,
-    /// Timed repeats per point, the median is reported (default 5; 1 with --quick).
-    #[arg(long)]
+    /// Timed repeats per point, the median is reported (default 5; 1 with
+    /// --quick), from 1 to 1000.
+    #[arg(long, conflicts_with = "adaptive_energy")]
     pub repeats: Option<usize>,
     /// Largest step count of a sweep (default 131072; 64 with --quick).
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["scaling", "per_step", "adaptive_energy"])]
     pub max_steps: Option<usize>,
     /// Python interpreter with casadi and scipy for the CasADi C and SciPy
     /// peers (set up by `bash casadi/peers/setup.sh`).
@@ -89,6 +92,29 @@ pub fn select_systems(names: &[String]) -> Result<Vec<SystemKind>, String> {
     Ok(out)
 }
 
+/// The `--t-end` of a sweep, or an error that says why it cannot be
+/// measured over and which values can.
+pub fn final_time(t_end: f64) -> Result<f64, String> {
+    let range = format!("use {MIN_FINAL_TIME:e} ≤ --t-end ≤ {MAX_FINAL_TIME:e}");
+    if !(t_end.is_finite() && t_end > 0.0) {
+        return Err(format!("--t-end must be a positive number, got {t_end:.3e}; {range}"));
+    }
+    if t_end < MIN_FINAL_TIME {
+        return Err(format!(
+            "--t-end {t_end:.3e} is shorter than the smallest step the sweep's reference solution can take \
+             (4ε ≈ 8.9e-16, the resolution of t near 0), so no error can be measured over it; {range}"
+        ));
+    }
+    if t_end > MAX_FINAL_TIME {
+        return Err(format!(
+            "--t-end {t_end:.3e} is longer than a sweep can measure: the reference solution gives up after 10^6 \
+             step attempts (the skate reaches t ≈ 2e4 with them, the sleigh t ≈ 3e3), each a few to hundreds \
+             of microseconds, so a longer interval runs for minutes to hours and then fails; {range}"
+        ));
+    }
+    Ok(t_end)
+}
+
 /// Runs the measurement and returns the text to print.
 pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, String> {
     let mut cfg = if a.quick { WorkPrecisionConfig::quick(&a.out) } else { WorkPrecisionConfig::full(&a.out) };
@@ -97,14 +123,14 @@ pub fn run(a: WorkPrecisionArgs, progress: &dyn Fn(&str)) -> Result<String, Stri
     }
     // Flags given explicitly apply with and without --quick.
     if let Some(t_end) = a.t_end {
-        if !(t_end.is_finite() && t_end > 0.0) {
-            return Err(format!("--t-end must be a positive number, got {t_end:.3e}"));
-        }
-        cfg.final_time = t_end;
+        cfg.final_time = final_time(t_end)?;
     }
     if let Some(repeats) = a.repeats {
-        if repeats == 0 {
-            return Err("--repeats must be at least 1".into());
+        if !(1..=MAX_REPEATS).contains(&repeats) {
+            return Err(format!(
+                "--repeats {repeats}: give 1 ≤ --repeats ≤ {MAX_REPEATS} (each repeat is a whole timed run; short \
+                 runs already repeat until 20 ms of timing)"
+            ));
         }
         cfg.repeats = repeats;
     }

@@ -146,7 +146,9 @@ impl OutputDir {
             let holder = if holder.is_empty() { "process unknown".to_string() } else { holder.to_string() };
             return Err(OutputError::Locked { dir: dir.to_path_buf(), lock: lock_path, holder });
         }
-        let command: Vec<String> = std::env::args().collect();
+        // `args()` panics on an argument that is not UTF-8 (an `--out` path
+        // such as `/tmp/\xff`); the note is for people, a lossy form will do.
+        let command: Vec<String> = std::env::args_os().map(|a| a.to_string_lossy().into_owned()).collect();
         let note = format!("pid {}: {}", std::process::id(), command.join(" "));
         lock.set_len(0)
             .and_then(|()| lock.seek(SeekFrom::Start(0)))

@@ -14,7 +14,7 @@
 
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::IntoPyArray;
-use pyo3::exceptions::PyTypeError;
+use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
@@ -430,8 +430,31 @@ fn get<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyR
         Some(v) if v.is_none() => Ok(None),
         Some(v) => v.extract::<T>().map(Some).map_err(|e| {
             let e: PyErr = e.into();
+            // PyO3's overflow message ("too large to convert to C long")
+            // names no argument and no range.
+            if e.is_instance_of::<PyOverflowError>(d.py()) {
+                let range = match std::any::type_name::<T>() {
+                    "i64" => format!("the 64-bit integers the request takes ({} … {})", i64::MIN, i64::MAX),
+                    "f64" => "the floats (magnitude below 1.8e308)".to_string(),
+                    _ => format!("what the request takes ({})", e.value(d.py())),
+                };
+                return PyValueError::new_err(format!("`{key}` = {} is outside {range}", short(&v)));
+            }
             PyTypeError::new_err(format!("`{key}`: {}", e.value(d.py())))
         }),
+    }
+}
+
+/// `repr(v)`, cut when long (an int such as `10**400` would fill the message).
+fn short(v: &Bound<'_, PyAny>) -> String {
+    let r = v.repr().map(|r| r.to_string()).unwrap_or_else(|_| "?".into());
+    let n = r.chars().count();
+    if n <= 40 {
+        r
+    } else {
+        let head: String = r.chars().take(12).collect();
+        let tail: String = r.chars().skip(n - 6).collect();
+        format!("{head}…{tail} ({n} characters)")
     }
 }
 

@@ -159,6 +159,24 @@ impl Point {
     }
 }
 
+/// The shortest final time `T` a sweep accepts: the reference solution's
+/// steps cannot be shorter than the resolution of `t` near 0, `4ε ≈ 8.9e-16`
+/// (it refuses them as too small), so over a shorter interval no error can
+/// be measured.
+pub const MIN_FINAL_TIME: f64 = 1e-15;
+
+/// The longest final time `T` a sweep accepts, 1000 times the default
+/// `T = 10`: the reference solution gives up after
+/// [`ReferenceOptions::max_steps`] (10⁶) step attempts, which it reaches on
+/// the skate near `T = 2·10⁴` (9 s) and on the sleigh near `T = 3.3·10³`; a
+/// longer interval only runs longer before it fails.
+pub const MAX_FINAL_TIME: f64 = 1e4;
+
+/// The most timed repeats per point (the repeats of short runs already stop
+/// at 1000): each repeat is a whole run, and a count near `usize::MAX` never
+/// ends.
+pub const MAX_REPEATS: usize = 1000;
+
 /// Settings of a work-precision run.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WorkPrecisionConfig {
@@ -259,10 +277,12 @@ pub fn method_variants() -> Vec<(Method, usize)> {
 #[derive(Debug, thiserror::Error)]
 pub enum WorkPrecisionError {
     /// The reference solution failed.
-    #[error("reference solution of {system}: {source}")]
+    #[error("reference solution of {system} over [0, {final_time:.3e}]: {source}{}", reference_hint(source))]
     Reference {
         /// System key.
         system: &'static str,
+        /// The final time `T` it was to reach.
+        final_time: f64,
         /// Cause.
         source: reference::ReferenceError,
     },
@@ -281,6 +301,22 @@ pub enum WorkPrecisionError {
     /// Invalid settings.
     #[error("invalid work-precision settings: {0}")]
     Invalid(String),
+}
+
+/// What a user of the sweep can change when the reference solution fails:
+/// its tolerances and step limit are fixed, the final time is not.
+fn reference_hint(e: &reference::ReferenceError) -> &'static str {
+    match e {
+        reference::ReferenceError::TooManySteps { .. } | reference::ReferenceError::StepSizeTooSmall { .. } => {
+            " (in a work-precision sweep the reference's tolerances and step limit are fixed: measure over a \
+             shorter final time, --t-end)"
+        }
+        reference::ReferenceError::NonFinite { .. } | reference::ReferenceError::NonFiniteState { .. } => {
+            " (a work-precision sweep starts from the system's default state, which leaves the finite numbers \
+             before this final time: measure over a shorter final time, --t-end)"
+        }
+        _ => "",
+    }
 }
 
 /// The reference end state and the run's starting point.
@@ -342,7 +378,7 @@ where
     let sys = Sys::default();
     progress(&format!("{key}: reference solution"));
     let exact = reference::integrate(&sys, 0.0, &q0, &v0, cfg.final_time, &ReferenceOptions::default())
-        .map_err(|source| WorkPrecisionError::Reference { system: key, source })?;
+        .map_err(|source| WorkPrecisionError::Reference { system: key, final_time: cfg.final_time, source })?;
     let (q_ref, v_ref) = (exact.q[0], exact.v[0]);
     let density = step_density(entry.kind);
     let ctx = Ctx { cfg, key, q0, v0, q_ref, v_ref, density: density.as_deref() };
@@ -504,13 +540,14 @@ pub fn run_work_precision(
     if cfg.systems.is_empty() {
         return Err(WorkPrecisionError::Invalid("no systems selected".into()));
     }
-    if !(cfg.final_time.is_finite() && cfg.final_time > 0.0)
+    if !(MIN_FINAL_TIME..=MAX_FINAL_TIME).contains(&cfg.final_time)
         || cfg.min_steps == 0
         || cfg.max_steps < cfg.min_steps
-        || cfg.repeats == 0
+        || !(1..=MAX_REPEATS).contains(&cfg.repeats)
     {
         return Err(WorkPrecisionError::Invalid(format!(
-            "need T > 0, 1 ≤ min_steps ≤ max_steps and repeats ≥ 1 (T = {:.3e}, steps {}..{}, repeats {})",
+            "need {MIN_FINAL_TIME:e} ≤ T ≤ {MAX_FINAL_TIME:e}, 1 ≤ min_steps ≤ max_steps and 1 ≤ repeats ≤ \
+             {MAX_REPEATS} (T = {:.3e}, steps {}..{}, repeats {})",
             cfg.final_time, cfg.min_steps, cfg.max_steps, cfg.repeats
         )));
     }
