@@ -210,6 +210,9 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// scaled update norm (NaN for a lane whose update is not finite).
     #[inline(always)]
     pub(super) fn solve_and_update(&mut self, iterating: &[bool; W], first: bool) -> L<W> {
+        // The iterating lanes as a bit mask, formed once (a select on the
+        // `bool`s forms the vector mask again at every row).
+        let applies: [u64; W] = iterating.map(|i| if i { u64::MAX } else { 0 });
         let sm = Self::SM;
         let base = (S + 1) * N;
         // `y = W⁻¹ g` on the momentum rows, `g` on the constraint rows: a
@@ -294,7 +297,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                 }
                 let d = out_at + n;
-                Self::update_row(&mut z[d], &mut weights[d], &acc, iterating, first, (&mut norm, &mut poison));
+                Self::update_row(&mut z[d], &mut weights[d], &acc, &applies, first, (&mut norm, &mut poison));
                 if keep {
                     self.first_update[d] = acc;
                 }
@@ -302,7 +305,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         for e in 0..sm {
             let d = S * N + e;
-            Self::update_row(&mut z[d], &mut weights[d], &con[e], iterating, first, (&mut norm, &mut poison));
+            Self::update_row(&mut z[d], &mut weights[d], &con[e], &applies, first, (&mut norm, &mut poison));
             if keep {
                 self.first_update[d] = con[e];
             }

@@ -494,9 +494,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         Vector::from_fn(|n, _| x[at + n][w])
     }
 
-    /// One row of the update, `Δz_d`: `z_d ← z_d − Δz_d` in the iterating
-    /// lanes, its scaled size folded into each lane's `norm` (and `0·r`
-    /// into `poison`), with the weight taken at the new `z_d` when `first`
+    /// One row of the update, `Δz_d`: `z_d ← z_d − Δz_d` in the lanes whose
+    /// `applies` bits are all set (the iterating ones), its scaled size
+    /// folded into each lane's `norm` (and `0·r` into `poison`), with the
+    /// weight taken at the new `z_d` when `first`
     /// (`linalg::weigh_and_norm`) and kept for the later updates
     /// (`linalg::weighted_update_norm`). A maximum and a NaN test do not
     /// depend on the order of the rows, so the solve applies each row as it
@@ -506,15 +507,16 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         z: &mut L<W>,
         weight: &mut L<W>,
         update: &L<W>,
-        iterating: &[bool; W],
+        applies: &[u64; W],
         first: bool,
         (norm, poison): (&mut L<W>, &mut L<W>),
     ) {
         let mut next = *z;
         for w in 0..W {
+            // The update's bits in an iterating lane, `+0` in the others:
             // `z − 0` is `z` bit for bit (signed zeros and NaN included),
             // and the whole row is stored (no masked store).
-            next[w] -= if iterating[w] { update[w] } else { 0.0 };
+            next[w] -= f64::from_bits(update[w].to_bits() & applies[w]);
         }
         if first {
             for w in 0..W {
