@@ -207,7 +207,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// The update `Δz = J̃⁻¹ g` of the residual `g`
     /// (`DecoupledMatrix::solve_in_place`), applied to `z` row by row as
     /// the solve produces it (`Kernel::update_row`); returns each lane's
-    /// scaled update norm (NaN for a lane whose update is not finite).
+    /// scaled update norm (not finite for a lane whose update is not).
     #[inline(always)]
     pub(super) fn solve_and_update(&mut self, iterating: &[bool; W], first: bool) -> L<W> {
         // The iterating lanes as a bit mask, formed once (a select on the
@@ -279,7 +279,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         lane_lu::solve(&self.schur, sm, &self.schur_perm, &mut con[..sm]);
-        let (mut norm, mut poison) = ([0.0f64; W], [0.0f64; W]);
+        let mut norm = [0.0f64; W];
         let (z, weights) = (&mut self.z, &mut self.weights);
         // The first update, for the affine acceptance (`first_update_lands`).
         let keep = first && !self.first_update.is_empty();
@@ -297,7 +297,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                     }
                 }
                 let d = out_at + n;
-                Self::update_row(&mut z[d], &mut weights[d], &acc, &applies, first, (&mut norm, &mut poison));
+                Self::update_row(&mut z[d], &mut weights[d], &acc, &applies, first, &mut norm);
                 if keep {
                     self.first_update[d] = acc;
                 }
@@ -305,11 +305,11 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         }
         for e in 0..sm {
             let d = S * N + e;
-            Self::update_row(&mut z[d], &mut weights[d], &con[e], &applies, first, (&mut norm, &mut poison));
+            Self::update_row(&mut z[d], &mut weights[d], &con[e], &applies, first, &mut norm);
             if keep {
                 self.first_update[d] = con[e];
             }
         }
-        std::array::from_fn(|w| if poison[w] != 0.0 { f64::NAN } else { norm[w] })
+        norm
     }
 }

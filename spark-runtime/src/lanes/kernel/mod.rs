@@ -496,21 +496,13 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
 
     /// One row of the update, `Δz_d`: `z_d ← z_d − Δz_d` in the lanes whose
     /// `applies` bits are all set (the iterating ones), its scaled size
-    /// folded into each lane's `norm` (and `0·r` into `poison`), with the
-    /// weight taken at the new `z_d` when `first`
+    /// folded into each lane's `norm`, with the weight taken at the new `z_d` when `first`
     /// (`linalg::weigh_and_norm`) and kept for the later updates
     /// (`linalg::weighted_update_norm`). A maximum and a NaN test do not
     /// depend on the order of the rows, so the solve applies each row as it
     /// produces it.
     #[inline(always)]
-    fn update_row(
-        z: &mut L<W>,
-        weight: &mut L<W>,
-        update: &L<W>,
-        applies: &[u64; W],
-        first: bool,
-        (norm, poison): (&mut L<W>, &mut L<W>),
-    ) {
+    fn update_row(z: &mut L<W>, weight: &mut L<W>, update: &L<W>, applies: &[u64; W], first: bool, norm: &mut L<W>) {
         let mut next = *z;
         for w in 0..W {
             // The update's bits in an iterating lane, `+0` in the others:
@@ -524,13 +516,11 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             }
         }
         for w in 0..W {
-            // As in the residual's test: `0 · r` is NaN for a NaN or
-            // infinite ratio, so an infinite update reads NaN here, and the
-            // lane goes back to its stepper either way (its update is not
-            // finite).
+            // The largest scaled entry, NaN from the first NaN on (no
+            // later entry compares above it), as `linalg::weighted_update_norm`:
+            // a lane whose update is not finite goes back to its stepper.
             let r = update[w].abs() * weight[w];
-            poison[w] += 0.0 * r;
-            norm[w] = if r > norm[w] { r } else { norm[w] };
+            norm[w] = if r > norm[w] || r.is_nan() { r } else { norm[w] };
         }
         *z = next;
     }
