@@ -173,6 +173,20 @@ pub(super) fn methods(gen: &mut Gen) -> (TokenStream, (Body, Body, Body)) {
     (methods, fused)
 }
 
+/// A lane method's body: `values` without the constraint Jacobians, `fused`
+/// with them (`k_q`, `K = k_v` into `jacobians`).
+fn with_or_without_jacobians(rt: &TokenStream, values: &TokenStream, fused: &TokenStream) -> TokenStream {
+    quote! {
+        match jacobians {
+            ::core::option::Option::None => { #values }
+            ::core::option::Option::Some(jacobians) => {
+                let #rt::LaneConstraintJacobians { constraint_q, constraint_v } = jacobians;
+                #fused
+            }
+        }
+    }
+}
+
 /// `stage_values_in_lanes`, `end_point_values_in_lanes` and
 /// `energy_in_lanes` in lane form (each left out, so the trait's default,
 /// when its body would be too long).
@@ -196,6 +210,7 @@ fn lanes_method(gen: &mut Gen) -> TokenStream {
     });
     let (rt, n, m) = (gen.rt.clone(), gen.n.clone(), gen.m.clone());
     let end_point = gen.lane_end_point_bodies().map(|(values, fused)| {
+        let with_or_without = with_or_without_jacobians(&rt, &values, &fused);
         quote! {
             #[inline(always)]
             #[allow(clippy::needless_range_loop, clippy::too_many_arguments, unused_variables, unused_mut)]
@@ -209,17 +224,12 @@ fn lanes_method(gen: &mut Gen) -> TokenStream {
                 jacobians: ::core::option::Option<&mut #rt::LaneConstraintJacobians<#n, #m, W>>,
             ) {
                 let #rt::LaneStageValues { momentum, constraint, .. } = values;
-                match jacobians {
-                    ::core::option::Option::None => { #values }
-                    ::core::option::Option::Some(jacobians) => {
-                        let #rt::LaneConstraintJacobians { constraint_q, constraint_v } = jacobians;
-                        #fused
-                    }
-                }
+                #with_or_without
             }
         }
     });
     let Some((values, fused)) = gen.lane_bodies() else { return quote!(#energy #end_point) };
+    let with_or_without = with_or_without_jacobians(&rt, &values, &fused);
     quote! {
         #energy
 
@@ -238,13 +248,7 @@ fn lanes_method(gen: &mut Gen) -> TokenStream {
             jacobians: ::core::option::Option<&mut #rt::LaneConstraintJacobians<#n, #m, W>>,
         ) {
             let #rt::LaneStageValues { momentum, force, constraint, constraint_force } = values;
-            match jacobians {
-                ::core::option::Option::None => { #values }
-                ::core::option::Option::Some(jacobians) => {
-                    let #rt::LaneConstraintJacobians { constraint_q, constraint_v } = jacobians;
-                    #fused
-                }
-            }
+            #with_or_without
         }
     }
 }
