@@ -37,13 +37,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             let (degree, head) = (degree(f), self.head[f]);
             // Each previous solution as an array of constant length, so the
             // row loops carry no bounds checks and vectorize across lanes.
-            let solution = |k: usize| -> &[L<W>; D] {
-                let slot = ((head + k) % PAST) * D;
-                self.past[slot..slot + D].try_into().expect("a ring slot holds D rows")
-            };
+            // Filled by a loop: `array::from_fn`'s closure stays a call here.
+            let ring: &[[L<W>; D]] = self.past.as_chunks::<D>().0;
             let coefs = &EXTRAPOLATION[degree][..=degree];
-            let latest: [&[L<W>; D]; MAX_EXTRAPOLATION_DEGREE + 1] = std::array::from_fn(solution);
-            let previous: [&[L<W>; D]; MAX_EXTRAPOLATION_DEGREE + 1] = std::array::from_fn(|k| solution(k + 1));
+            let mut latest: [&[L<W>; D]; MAX_EXTRAPOLATION_DEGREE + 1] = [&ring[0]; MAX_EXTRAPOLATION_DEGREE + 1];
+            let mut previous = latest;
+            for k in 0..=MAX_EXTRAPOLATION_DEGREE {
+                latest[k] = &ring[(head + k) % PAST];
+                previous[k] = &ring[(head + k + 1) % PAST];
+            }
             // Row by row with one row of lanes in flight (a whole `N × W`
             // block in flight is split into scalars and not vectorized);
             // each entry sees the terms in the same order.
