@@ -352,6 +352,11 @@ fn members_that_diverge_midway_fail_as_alone() {
         lanes_match_alone::<_, 3, 1, 2, 11>(&sleigh, Method::Gauss, off, &starts, h, 40);
         lanes_match_alone::<_, 3, 1, 3, 15>(&sleigh, Method::LobattoIIIAB, off, &starts, h, 40);
     }
+    // The test is about failures next to members that step on.
+    let tab = Tableau::<2>::new(Method::Gauss).unwrap();
+    let failed: Vec<bool> =
+        starts.iter().map(|s| alone::<_, 3, 1, 2, 11>(&sleigh, tab, off, s, 0.4, 40).failure.is_some()).collect();
+    assert!(failed.contains(&true) && failed.contains(&false), "failed at h = 0.4: {failed:?}");
 }
 
 /// A tight energy guard refuses some members' steps and not others'
@@ -424,5 +429,10 @@ fn a_drift_that_turns_nan_in_lanes_fails_as_alone() {
     for method in [Method::LobattoIIIAB, Method::LobattoIIIABD, Method::Gauss] {
         let kernel = lanes_match_alone::<_, 3, 1, 2, 11>(&belt, method, simplified(), &starts, 0.05, 40);
         assert!(kernel.iter().all(|&k| k >= 20), "{method}: kernel steps {kernel:?}");
+    }
+    let tab = Tableau::<2>::new(Method::LobattoIIIAB).unwrap();
+    for s in &starts {
+        let run = alone::<_, 3, 1, 2, 11>(&belt, tab, simplified(), s, 0.05, 40);
+        assert!(matches!(run.failure, Some((_, StepError::NonFinite { .. }))), "{:?}", run.failure);
     }
 }
