@@ -32,9 +32,12 @@ pub struct EnsembleRun<const N: usize> {
 /// rayon's current thread pool. Each member's samples are bit for bit
 /// those of its own [`Stepper`](struct@crate::Stepper) stepped alone with
 /// `t` pinned to `t₀ + k·h` (what [`Stepper::integrate`](crate::Stepper::integrate)
-/// computes for a fixed schedule when no step needs halving), whatever the
+/// computes for a fixed schedule when no step fails), whatever the
 /// grouping and the thread count; a member that fails stops with its
-/// [`LaneFailure`] and no other member is affected.
+/// [`LaneFailure`], the error of [`Stepper::step`](crate::Stepper::step)
+/// at that step, and no other member is affected. (`integrate` instead
+/// recovers where its `FailurePolicy` can: a second attempt from the cold
+/// guess, then halving; the lanes do not.)
 ///
 /// `sample_every = 0` records the start and the end only. Fails only for a
 /// request no member can run: a zero or non-finite `h`, or start times that
