@@ -13,31 +13,16 @@ use super::newcomer_systems::{
     BeltSleigh, ConstantSpeed, CoupledSleigh, DiffDrive, KnifeOnTurntable, PolarParticle, RheonomicSleigh,
     RollingDiskIncline, TrigChain8,
 };
-use super::newcomer_unusual_systems::{DrivenDuffing, FrictionSleigh, FullyConstrained, MagneticSkate};
+use super::newcomer_unusual_systems::{start, DrivenDuffing, FrictionSleigh, FullyConstrained, MagneticSkate};
 use spark_runtime::{
-    consistent_velocity, integrate_ensemble, nonholonomic_system, ConsistencyPolicy, IntegrationError, LaneStatus,
-    LaneStepper, Method, NewtonMode, NewtonOptions, NoObserver, NonholonomicSystem, RunOptions, Schedule, State,
-    StepError, Stepper, Tableau, Vector,
+    integrate_ensemble, nonholonomic_system, IntegrationError, LaneStatus, LaneStepper, Method, NewtonMode,
+    NewtonOptions, NoObserver, NonholonomicSystem, RunOptions, Schedule, State, StepError, Stepper, Tableau,
 };
 
 /// Simplified Newton with the matrix the structure facts choose: the path
 /// the kernel repeats wherever the mass matrix is constant.
 fn simplified() -> NewtonOptions {
     NewtonOptions { mode: NewtonMode::Simplified, ..NewtonOptions::default() }
-}
-
-/// A consistent start: `v0` projected onto `k(t0, q0, ·) = 0`.
-fn start<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
-    sys: &Sys,
-    t0: f64,
-    q0: [f64; N],
-    v0: [f64; N],
-) -> State<N> {
-    let q0 = Vector::<N>::from(q0);
-    let policy = ConsistencyPolicy::Project { tolerance: 0.0 };
-    let v0 = consistent_velocity(sys, t0, &q0, &Vector::<N>::from(v0), policy)
-        .unwrap_or_else(|e| panic!("{}: projecting v0: {e}", Sys::SOURCE.name));
-    State::new(t0, q0, v0)
 }
 
 /// One member alone: its state after every step (its start first), the

@@ -174,7 +174,7 @@ macro_rules! unusual {
 }
 
 /// A consistent start: `v0` projected onto `k(t0, q0, ·) = 0`.
-fn start<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
+pub fn start<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
     sys: &Sys,
     t0: f64,
     q0: [f64; N],
