@@ -121,13 +121,16 @@ fn an_ensemble_refuses_more_threads_than_it_starts() {
 
 /// An interval that is not a whole number of steps is refused however
 /// many steps it holds (half a step off at 5·10⁸ steps too), with
-/// suggestions that can be told apart; round-off of the division is not.
+/// suggestions that can be told apart; round-off of the division is not,
+/// up to the largest run (10¹⁰ steps), beyond which the count is refused.
 #[test]
 fn an_interval_that_is_not_a_whole_number_of_steps_is_refused_at_any_length() {
     use problems::cli::step_count;
     assert_eq!(step_count(0.0, 150.0, 0.2), Ok(750));
     assert_eq!(step_count(0.0, 50_000_000.0, 0.1), Ok(500_000_000));
-    assert_eq!(step_count(0.0, 1e12, 0.1), Ok(10_000_000_000_000));
+    assert_eq!(step_count(0.0, 1e9, 0.1), Ok(10_000_000_000));
+    let err = step_count(0.0, 1e12, 0.1).unwrap_err();
+    assert!(err.contains("more than 1e10"), "{err}");
     let err = step_count(0.0, 50_000_000.05, 0.1).unwrap_err();
     assert!(err.contains("not a whole number") && err.contains("--t-end 5e7 or 5.00000001e7"), "{err}");
     assert!(step_count(0.0, 5_000_000.05, 0.1).unwrap_err().contains("--t-end 5e6 or 5.0000001e6"));
