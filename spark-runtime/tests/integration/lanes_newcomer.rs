@@ -165,31 +165,7 @@ macro_rules! every_method {
         let (sys, opts, starts) = (&$sys, $opts, &$starts);
         let mut kernel = Vec::new();
         kernel.push(lanes_match_alone::<_, $n, $m, 1, { 2 * $n + $m }>(sys, Method::Gauss, opts, starts, $h, $steps));
-        kernel.push(lanes_match_alone::<_, $n, $m, 2, { 3 * $n + 2 * $m }>(
-            sys,
-            Method::Gauss,
-            opts,
-            starts,
-            $h,
-            $steps,
-        ));
-        kernel.push(lanes_match_alone::<_, $n, $m, 3, { 4 * $n + 3 * $m }>(
-            sys,
-            Method::Gauss,
-            opts,
-            starts,
-            $h,
-            $steps,
-        ));
-        kernel.push(lanes_match_alone::<_, $n, $m, 4, { 5 * $n + 4 * $m }>(
-            sys,
-            Method::Gauss,
-            opts,
-            starts,
-            $h,
-            $steps,
-        ));
-        for method in [Method::LobattoIIIAB, Method::LobattoIIIABD] {
+        for method in [Method::Gauss, Method::LobattoIIIAB, Method::LobattoIIIABD] {
             kernel.push(lanes_match_alone::<_, $n, $m, 2, { 3 * $n + 2 * $m }>(sys, method, opts, starts, $h, $steps));
             kernel.push(lanes_match_alone::<_, $n, $m, 3, { 4 * $n + 3 * $m }>(sys, method, opts, starts, $h, $steps));
             kernel.push(lanes_match_alone::<_, $n, $m, 4, { 5 * $n + 4 * $m }>(sys, method, opts, starts, $h, $steps));
