@@ -46,7 +46,8 @@ fn large_steps_fail_typed_and_rejection_rescues() {
 fn stiff_spring() {
     let c = run(stress::robustness::stiff_spring);
     assert_passed(&c);
-    // The garbage-as-success of the last session is now a typed refusal.
+    // An unstable step map is refused with a typed error, never returned
+    // as a success.
     let g = c.metric_value("Gauss s=2, ω·h = 1000").unwrap();
     assert!(g.starts_with("refuses: Step/EnergyDrift"), "{g}");
     assert!(c.errors.iter().any(|e| e.contains("energy drift") && e.contains("Gauss s=2, ω·h = 1000")));
