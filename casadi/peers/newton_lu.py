@@ -36,7 +36,6 @@ The executable has two modes:
 
 from __future__ import annotations
 
-import os
 import subprocess
 import time
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from typing import List, Sequence
 import casadi as ca
 import numpy as np
 
+import c_driver
 from spark_check.step import spark_residual
 from spark_check.system import CasadiSystem
 
@@ -53,23 +53,9 @@ SOLVER = "CasADi C (Newton-LU)"
 TOLERANCE = 1e-14
 MAX_ITERATIONS = 50
 
-DRIVER = r"""
-#include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-#include <time.h>
-#include "spark_fj.h"
-
-#define N %(n)d
-#define M %(m)d
-#define S %(s)d
-#define NP %(np)d
-#define DIM (S * (N + M) + N)
-#define NPAR (2 + 2 * N + NP)
+DRIVER = c_driver.HEAD + r"""
 #define TOL %(tol)r
 #define MAXIT %(maxit)d
-static const double B[S] = {%(b)s};
 
 static const casadi_real* arg_f[8];
 static casadi_real* res_f[8];
@@ -81,23 +67,6 @@ static casadi_int* iw_j;
 static casadi_real* w_j;
 static double F[DIM], J[DIM * DIM], dx[DIM];
 static int piv[DIM];
-
-static double now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static double cpu_now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static int cmp(const void* a, const void* b) {
-    double x = *(const double*)a, y = *(const double*)b;
-    return (x > y) - (x < y);
-}
 
 static double median(double* v, int n) {
     qsort(v, n, sizeof(double), cmp);
@@ -335,17 +304,9 @@ def build(system: CasadiSystem, tableau, build_dir: Path, label: str) -> Path:
     cg = ca.CodeGenerator("spark_fj.c", {"with_header": True})
     cg.add(f)
     cg.add(j)
-    cwd = os.getcwd()
-    os.chdir(d)
-    try:
-        cg.generate()
-    finally:
-        os.chdir(cwd)
-    s = int(tableau["stages"])
+    c_driver.generate(cg, d)
     (d / "driver.c").write_text(DRIVER % {
-        "n": system.n, "m": system.m, "s": s, "np": len(system.parameters),
-        "tol": TOLERANCE, "maxit": MAX_ITERATIONS,
-        "b": ", ".join(repr(float(b)) for b in tableau["b"]),
+        **c_driver.fields(system, tableau, "spark_fj.h"), "tol": TOLERANCE, "maxit": MAX_ITERATIONS,
     })
     exe = d / "driver"
     cmd = ["gcc", "-O3", "-march=native", "-o", str(exe), str(d / "spark_fj.c"), str(d / "driver.c"), "-lm"]

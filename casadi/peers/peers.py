@@ -33,7 +33,6 @@ import argparse
 import csv
 import json
 import math
-import os
 import statistics
 import subprocess
 import sys
@@ -46,6 +45,7 @@ from scipy.integrate import solve_ivp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import c_driver  # noqa: E402
 import newton_lu  # noqa: E402
 from spark_check.step import spark_residual  # noqa: E402
 from spark_check.system import CasadiSystem  # noqa: E402
@@ -57,39 +57,7 @@ FIELDS = [
     "energy_error", "wall_time", "cpu_time", "time_per_step", "newton_iterations", "repeats",
 ]
 
-DRIVER = r"""
-#include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-#include <time.h>
-#include "spark_newton.h"
-
-#define N %(n)d
-#define M %(m)d
-#define S %(s)d
-#define NP %(np)d
-#define DIM (S * (N + M) + N)
-#define NPAR (2 + 2 * N + NP)
-static const double B[S] = {%(b)s};
-
-static double now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static double cpu_now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static int cmp(const void* a, const void* b) {
-    double x = *(const double*)a, y = *(const double*)b;
-    return (x > y) - (x < y);
-}
-
+DRIVER = c_driver.HEAD + r"""
 /* argv: steps repeats T q0[N] v0[N] p[NP]; prints q(T) v(T) median_wall median_cpu mean_iterations failed */
 int main(int argc, char** argv) {
     if (argc != 4 + 2 * N + NP) { fprintf(stderr, "bad arguments\n"); return 2; }
@@ -186,17 +154,8 @@ def build_newton(system: CasadiSystem, tableau, build: Path, label: str) -> Path
     d.mkdir(parents=True, exist_ok=True)
     cg = ca.CodeGenerator("spark_newton.c", {"with_header": True})
     cg.add(newton)
-    cwd = os.getcwd()
-    os.chdir(d)
-    try:
-        cg.generate()
-    finally:
-        os.chdir(cwd)
-    s = int(tableau["stages"])
-    (d / "driver.c").write_text(DRIVER % {
-        "n": system.n, "m": system.m, "s": s, "np": len(system.parameters),
-        "b": ", ".join(repr(float(b)) for b in tableau["b"]),
-    })
+    c_driver.generate(cg, d)
+    (d / "driver.c").write_text(DRIVER % c_driver.fields(system, tableau, "spark_newton.h"))
     exe = d / "driver"
     t0 = time.perf_counter()
     subprocess.run(["gcc", "-O3", "-march=native", "-o", str(exe), str(d / "spark_newton.c"), str(d / "driver.c"),
