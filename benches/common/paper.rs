@@ -19,6 +19,7 @@ pub struct Starts {
 }
 
 impl Starts {
+    /// The start states the one-step benches use.
     pub fn paper() -> Self {
         Starts {
             particle: State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0)),
