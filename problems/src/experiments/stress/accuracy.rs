@@ -126,14 +126,7 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
         );
         c.metric(format!("{label}: steepest observed order (nominal {order})"), format!("{max_order:.1}"));
         c.metric(format!("{label}: best / finest-h error"), format!("{} / {}", sci(best), sci(finest)));
-        series.push(Series::new(
-            label.as_str(),
-            log_points(
-                &pts.iter().map(|p| p.0).collect::<Vec<_>>(),
-                &pts.iter().map(|p| p.1).collect::<Vec<_>>(),
-                1e-17,
-            ),
-        ));
+        series.push(error_series(label.as_str(), pts.iter().copied()));
     }
     c.energy = "not the subject (accuracy against the reference)".into();
     c.figure = Some(Figure {
@@ -150,6 +143,12 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
         panel_size: (820, 560),
     });
     Ok(c)
+}
+
+/// The series of errors `(h, error)` on log axes (zeros drawn at 1e-17).
+fn error_series(label: &str, points: impl Iterator<Item = (f64, f64)>) -> Series {
+    let (h, error): (Vec<f64>, Vec<f64>) = points.unzip();
+    Series::new(label, log_points(&h, &error, 1e-17))
 }
 
 fn finite_le(x: f64, bound: f64) -> bool {
@@ -437,14 +436,7 @@ pub fn against_reference(_scale: Scale) -> Result<CaseReport, StressError> {
                     pts.iter().map(|p| sci(p.1)).collect::<Vec<_>>().join(", "),
                 );
                 c.metric(format!("{label}: max |k|"), sci(pts.iter().map(|p| p.2).fold(0.0, f64::max)));
-                series.push(Series::new(
-                    label,
-                    log_points(
-                        &pts.iter().map(|p| p.0).collect::<Vec<_>>(),
-                        &pts.iter().map(|p| p.1).collect::<Vec<_>>(),
-                        1e-17,
-                    ),
-                ));
+                series.push(error_series(label, pts.iter().map(|p| (p.0, p.1))));
             }
         }
     }
