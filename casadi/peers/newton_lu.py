@@ -212,26 +212,13 @@ static int run_mode(int argc, char** argv) {
     double spent = 0.0;
     while (r < cap && (r < repeats || spent < min_seconds)) {
         double start = now(), cpu_start = cpu_now();
-        memcpy(q, q0, sizeof q);
-        memcpy(v, v0, sizeof v);
-        for (int j = 0; j < S; ++j) memcpy(x + j * N, v0, sizeof v);
-        for (int j = 0; j < S * M; ++j) x[S * N + j] = 0.0;
-        memcpy(x + S * (N + M), v0, sizeof v);
+        cold_start(q, v, x, q0, v0);
         evals = facts = 0;
         failed = 0;
         for (long st = 0; st < steps && !failed; ++st) {
-            par[0] = st * h;
-            par[1] = h;
-            memcpy(par + 2, q, sizeof q);
-            memcpy(par + 2 + N, v, sizeof v);
-            for (int i = 0; i < NP; ++i) par[2 + 2 * N + i] = p[i];
+            step_parameters(par, st * h, h, q, v, p);
             if (newton(x, par, &evals, &facts, NULL, NULL)) failed = 1;
-            for (int i = 0; i < N; ++i) {
-                double dq = 0.0;
-                for (int j = 0; j < S; ++j) dq += B[j] * x[j * N + i];
-                q[i] += h * dq;
-                v[i] = x[S * (N + M) + i];
-            }
+            advance(q, v, x, h);
         }
         times[r] = now() - start;
         cpus[r] = cpu_now() - cpu_start;

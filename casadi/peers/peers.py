@@ -82,18 +82,10 @@ int main(int argc, char** argv) {
     int failed = 0;
     for (int r = 0; r < repeats; ++r) {
         double start = now(), cpu_start = cpu_now();
-        memcpy(q, q0, sizeof q);
-        memcpy(v, v0, sizeof v);
-        for (int j = 0; j < S; ++j) memcpy(x + j * N, v0, sizeof v);
-        for (int j = 0; j < S * M; ++j) x[S * N + j] = 0.0;
-        memcpy(x + S * (N + M), v0, sizeof v);
+        cold_start(q, v, x, q0, v0);
         iterations = 0;
         for (long k = 0; k < steps; ++k) {
-            par[0] = k * h;
-            par[1] = h;
-            memcpy(par + 2, q, sizeof q);
-            memcpy(par + 2 + N, v, sizeof v);
-            for (int i = 0; i < NP; ++i) par[2 + 2 * N + i] = p[i];
+            step_parameters(par, k * h, h, q, v, p);
             int it = 0;
             for (; it < 20; ++it) {
                 arg[0] = x; arg[1] = par; res[0] = xn; res[1] = &dxn;
@@ -105,12 +97,7 @@ int main(int argc, char** argv) {
                 if (dxn <= 16 * 2.220446049250313e-16 * (1.0 + xmax)) { ++it; break; }
             }
             iterations += it;
-            for (int i = 0; i < N; ++i) {
-                double dq = 0.0;
-                for (int j = 0; j < S; ++j) dq += B[j] * x[j * N + i];
-                q[i] += h * dq;
-                v[i] = x[S * (N + M) + i];
-            }
+            advance(q, v, x, h);
         }
         times[r] = now() - start;
         cpus[r] = cpu_now() - cpu_start;
