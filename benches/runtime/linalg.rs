@@ -1,26 +1,34 @@
-//! The Newton linear algebra of one step, old kernel vs new, side by side.
+//! The Newton linear algebra of one step, a baseline kernel vs the
+//! library's, side by side.
 //!
-//! `old` is a verbatim copy of the earlier scalar kernel (right-looking LU on
-//! column-major slices with block pivot ranges and physical row swaps, as it
-//! was in `linalg.rs`/`newton.rs` before the padded kernel); `new` is
-//! [`NewtonMatrix::factor`] + [`NewtonMatrix::solve_in_place`]. Matrices are
-//! real assembled Newton matrices of the hand-written systems
-//! (`Stepper::newton_matrix` at the benchmark's start state and step size),
-//! and for D = 101 and 197 (the McLachlan–Perlmutter scaling study's n = 33
-//! and 65, Gauss s = 2) synthetic matrices with the same block pattern.
+//! `old` is the baseline: the plain scalar right-looking LU on column-major
+//! slices with block pivot ranges and physical row swaps, the kernel the
+//! library's `NewtonMatrix` improves on. It stays here as a copy of its own
+//! (not the library's `linalg::lu`, which differs: padded storage for
+//! small D, reciprocal diagonals) so that the comparison keeps a fixed
+//! reference. `new` is [`NewtonMatrix::factor`] +
+//! [`NewtonMatrix::solve_in_place`]. Matrices are real assembled Newton
+//! matrices of the hand-written systems (`Stepper::newton_matrix` at the
+//! benchmark's start state and step size), and for D = 101 and 197 (the
+//! McLachlan–Perlmutter scaling study's n = 33 and 65, Gauss s = 2)
+//! synthetic matrices with the same block pattern.
 //!
 //! `cargo bench -p spark-benches --bench linalg`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use spark_benches::paper::Starts;
 use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::NewtonMatrix;
 use spark_runtime::{Method, NonholonomicSystem, State, Stepper, Tableau, Vector};
 use std::time::Duration;
 
-/// The earlier scalar kernel, copied unchanged (only made free-standing).
+/// The baseline scalar kernel, free-standing.
 mod old {
-    #[inline]
-    pub fn factor_in_place<const D: usize>(
+    /// Factors in place (`P A = L U`), pivoting column `k` among rows up to
+    /// the first of `block_ends` above `k`; `Err(k)` on a pivot below
+    /// `64 ε · scale[k]`. `FMA` fuses the update's multiply-subtract.
+    #[inline(always)]
+    fn factor_body<const D: usize, const FMA: bool>(
         lu: &mut [f64],
         perm: &mut [usize],
         scale: &[f64; D],
@@ -63,7 +71,7 @@ mod old {
                 let ukj = col_j[k];
                 if ukj != 0.0 {
                     for (x, l) in col_j[k + 1..].iter_mut().zip(lower) {
-                        *x -= l * ukj;
+                        *x = if FMA { (-l).mul_add(ukj, *x) } else { *x - l * ukj };
                     }
                 }
             }
@@ -71,8 +79,10 @@ mod old {
         Ok(())
     }
 
-    #[inline]
-    pub fn solve_in_place<const D: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
+    /// Overwrites `b` with `A⁻¹ b` from the factors of [`factor_body`];
+    /// `FMA` fuses the multiply-subtracts.
+    #[inline(always)]
+    fn solve_body<const D: usize, const FMA: bool>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
         let lu = &lu[..D * D];
         let b = &mut b[..D];
         for (k, &p) in perm[..D].iter().enumerate() {
@@ -84,7 +94,7 @@ mod old {
             let bj = b[j];
             let col = &lu[j * D + j + 1..(j + 1) * D];
             for (x, l) in b[j + 1..].iter_mut().zip(col) {
-                *x -= l * bj;
+                *x = if FMA { (-l).mul_add(bj, *x) } else { *x - l * bj };
             }
         }
         for j in (0..D).rev() {
@@ -92,9 +102,24 @@ mod old {
             let bj = b[j];
             let col = &lu[j * D..j * D + j];
             for (x, u) in b[..j].iter_mut().zip(col) {
-                *x -= u * bj;
+                *x = if FMA { (-u).mul_add(bj, *x) } else { *x - u * bj };
             }
         }
+    }
+
+    #[inline]
+    pub fn factor_in_place<const D: usize>(
+        lu: &mut [f64],
+        perm: &mut [usize],
+        scale: &[f64; D],
+        block_ends: &[usize],
+    ) -> Result<(), usize> {
+        factor_body::<D, false>(lu, perm, scale, block_ends)
+    }
+
+    #[inline]
+    pub fn solve_in_place<const D: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
+        solve_body::<D, false>(lu, perm, b)
     }
 
     #[inline]
@@ -106,7 +131,7 @@ mod old {
         s
     }
 
-    /// The old kernel with fused multiply-adds, compiled for AVX2+FMA (experiment).
+    /// The baseline kernel with fused multiply-adds, compiled for AVX2+FMA (experiment).
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn factor_avx2<const D: usize>(
         lu: &mut [f64],
@@ -114,79 +139,18 @@ mod old {
         scale: &[f64; D],
         block_ends: &[usize],
     ) -> Result<(), usize> {
-        let lu = &mut lu[..D * D];
-        let perm = &mut perm[..D];
-        let mut block = 0;
-        for k in 0..D {
-            while block_ends[block] <= k {
-                block += 1;
-            }
-            let end = block_ends[block].min(D);
-            let col_k = &lu[k * D..(k + 1) * D];
-            let mut p = k;
-            let mut best = col_k[k].abs();
-            for (i, x) in col_k[..end].iter().enumerate().skip(k + 1) {
-                if x.abs() > best {
-                    best = x.abs();
-                    p = i;
-                }
-            }
-            perm[k] = p;
-            if best.is_nan() || best <= 64.0 * f64::EPSILON * scale[k] {
-                return Err(k);
-            }
-            if p != k {
-                for j in 0..D {
-                    lu.swap(j * D + k, j * D + p);
-                }
-            }
-            let (left, right) = lu.split_at_mut((k + 1) * D);
-            let col_k = &mut left[k * D..];
-            let inv = 1.0 / col_k[k];
-            for x in &mut col_k[k + 1..] {
-                *x *= inv;
-            }
-            let lower = &col_k[k + 1..];
-            for col_j in right.chunks_exact_mut(D) {
-                let ukj = -col_j[k];
-                if ukj != 0.0 {
-                    for (x, l) in col_j[k + 1..].iter_mut().zip(lower) {
-                        *x = l.mul_add(ukj, *x);
-                    }
-                }
-            }
-        }
-        Ok(())
+        factor_body::<D, true>(lu, perm, scale, block_ends)
     }
 
-    /// The old solve with FMA and a reciprocal diagonal (experiment).
+    /// The baseline solve with FMA, compiled for AVX2+FMA (experiment).
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn solve_avx2<const D: usize>(lu: &[f64], perm: &[usize], b: &mut [f64]) {
-        let lu = &lu[..D * D];
-        let b = &mut b[..D];
-        for (k, &p) in perm[..D].iter().enumerate() {
-            if p != k {
-                b.swap(k, p);
-            }
-        }
-        for j in 0..D {
-            let bj = -b[j];
-            let col = &lu[j * D + j + 1..(j + 1) * D];
-            for (x, l) in b[j + 1..].iter_mut().zip(col) {
-                *x = l.mul_add(bj, *x);
-            }
-        }
-        for j in (0..D).rev() {
-            b[j] /= lu[j * D + j];
-            let bj = -b[j];
-            let col = &lu[j * D..j * D + j];
-            for (x, u) in b[..j].iter_mut().zip(col) {
-                *x = u.mul_add(bj, *x);
-            }
-        }
+        solve_body::<D, true>(lu, perm, b)
     }
 
-    /// The earlier `NewtonMatrix::factor`/`solve_in_place` bodies.
+    /// The baseline `NewtonMatrix::factor`/`solve_in_place`: the structured
+    /// (block-reordered) factorization first, the whole matrix if that one
+    /// is singular.
     pub struct OldNewton<const D: usize> {
         pub jacobian: Box<[f64]>,
         lu: Box<[f64]>,
@@ -210,55 +174,54 @@ mod old {
             }
         }
 
-        pub fn factor(&mut self) -> Result<(), usize> {
+        /// `factor` with the factorization kernel `kernel`.
+        #[inline(always)]
+        fn factor_with(
+            &mut self,
+            kernel: impl Fn(&mut [f64], &mut [usize], &[f64; D], &[usize]) -> Result<(), usize>,
+        ) -> Result<(), usize> {
             let (sn, sm, n) = (self.sn, self.sm, self.n);
             self.lu[..sn * D].copy_from_slice(&self.jacobian[..sn * D]);
             self.lu[sn * D..(sn + n) * D].copy_from_slice(&self.jacobian[(sn + sm) * D..]);
             self.lu[(sn + n) * D..].copy_from_slice(&self.jacobian[sn * D..(sn + sm) * D]);
             let scale = column_scales::<D>(&self.lu);
-            if factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[sn, sn + n, D]).is_ok() {
+            if kernel(&mut self.lu, &mut self.perm, &scale, &[sn, sn + n, D]).is_ok() {
                 self.structured = true;
                 return Ok(());
             }
             self.structured = false;
             self.lu.copy_from_slice(&self.jacobian);
             let scale = column_scales::<D>(&self.lu);
-            factor_in_place::<D>(&mut self.lu, &mut self.perm, &scale, &[D])
+            kernel(&mut self.lu, &mut self.perm, &scale, &[D])
+        }
+
+        /// `solve_in_place` with the solve kernel `kernel`.
+        #[inline(always)]
+        fn solve_with(&self, b: &mut [f64], kernel: impl Fn(&[f64], &[usize], &mut [f64])) {
+            kernel(&self.lu, &self.perm, b);
+            if self.structured {
+                b[self.sn..].rotate_left(self.n);
+            }
+        }
+
+        pub fn factor(&mut self) -> Result<(), usize> {
+            self.factor_with(factor_in_place::<D>)
         }
 
         /// `factor` with the kernel compiled for AVX2.
         pub fn factor_avx2(&mut self) -> Result<(), usize> {
-            let (sn, sm, n) = (self.sn, self.sm, self.n);
-            self.lu[..sn * D].copy_from_slice(&self.jacobian[..sn * D]);
-            self.lu[sn * D..(sn + n) * D].copy_from_slice(&self.jacobian[(sn + sm) * D..]);
-            self.lu[(sn + n) * D..].copy_from_slice(&self.jacobian[sn * D..(sn + sm) * D]);
-            let scale = column_scales::<D>(&self.lu);
             // SAFETY: benchmark machine has AVX2 (checked in `compare`).
-            if unsafe { factor_avx2::<D>(&mut self.lu, &mut self.perm, &scale, &[sn, sn + n, D]) }.is_ok() {
-                self.structured = true;
-                return Ok(());
-            }
-            self.structured = false;
-            self.lu.copy_from_slice(&self.jacobian);
-            let scale = column_scales::<D>(&self.lu);
-            // SAFETY: as above.
-            unsafe { factor_avx2::<D>(&mut self.lu, &mut self.perm, &scale, &[D]) }
+            self.factor_with(|lu, perm, scale, ends| unsafe { factor_avx2::<D>(lu, perm, scale, ends) })
         }
 
         /// `solve_in_place` with the kernel compiled for AVX2.
         pub fn solve_avx2(&self, b: &mut [f64]) {
             // SAFETY: as above.
-            unsafe { solve_avx2::<D>(&self.lu, &self.perm, b) };
-            if self.structured {
-                b[self.sn..].rotate_left(self.n);
-            }
+            self.solve_with(b, |lu, perm, b| unsafe { solve_avx2::<D>(lu, perm, b) })
         }
 
         pub fn solve_in_place(&self, b: &mut [f64]) {
-            solve_in_place::<D>(&self.lu, &self.perm, b);
-            if self.structured {
-                b[self.sn..].rotate_left(self.n);
-            }
+            self.solve_with(b, solve_in_place::<D>)
         }
     }
 }
@@ -281,49 +244,47 @@ fn compare<const N: usize, const M: usize, const S: usize, const D: usize>(
     let r = (nm.matrix() * xn - g).amax() / g.amax().max(1.0);
     assert!((xn - xo).amax() <= 1e-10 * xo.amax().max(1.0) && r < 1e-10, "{label}: kernels disagree");
 
+    // The timed cases: (what, kernel, needs AVX2, one run on a copy of g).
+    type Run<const N: usize, const M: usize, const S: usize, const D: usize> =
+        fn(&mut old::OldNewton<D>, &mut NewtonMatrix<N, M, S, D>, &mut Vector<D>);
+    let cases: [(&str, &str, bool, Run<N, M, S, D>); 5] = [
+        ("factor+solve", "old", false, |old, _, x| {
+            old.factor().unwrap();
+            old.solve_in_place(x.as_mut_slice());
+        }),
+        ("factor+solve", "old-fma", true, |old, _, x| {
+            old.factor_avx2().unwrap();
+            old.solve_avx2(x.as_mut_slice());
+        }),
+        ("factor+solve", "new", false, |_, new, x| {
+            new.factor().unwrap();
+            new.solve_in_place(x);
+        }),
+        ("solve", "old", false, |old, _, x| old.solve_in_place(x.as_mut_slice())),
+        ("solve", "new", false, |_, new, x| new.solve_in_place(x)),
+    ];
+    let mut once = |run: Run<N, M, S, D>| {
+        let mut x = *g;
+        run(&mut old, &mut new, &mut x);
+        x[0]
+    };
+
     if std::env::var_os("LINALG_MIN").is_some() {
         // Quick robust figures on a loaded machine: the fastest of many short
         // batches (preemptions only ever add time).
-        let fs = |f: &mut dyn FnMut() -> f64| {
+        let mut fs = |run: Run<N, M, S, D>| {
             let reps = (20_000 / D.pow(2)).max(4);
             let mut best = f64::INFINITY;
             for _ in 0..300 {
                 let t = std::time::Instant::now();
                 for _ in 0..reps {
-                    std::hint::black_box(f());
+                    std::hint::black_box(once(run));
                 }
                 best = best.min(t.elapsed().as_secs_f64() * 1e9 / reps as f64);
             }
             best
         };
-        let o = fs(&mut || {
-            let mut x = *g;
-            old.factor().unwrap();
-            old.solve_in_place(x.as_mut_slice());
-            x[0]
-        });
-        let of = fs(&mut || {
-            let mut x = *g;
-            old.factor_avx2().unwrap();
-            old.solve_avx2(x.as_mut_slice());
-            x[0]
-        });
-        let n = fs(&mut || {
-            let mut x = *g;
-            new.factor().unwrap();
-            new.solve_in_place(&mut x);
-            x[0]
-        });
-        let os = fs(&mut || {
-            let mut x = *g;
-            old.solve_in_place(x.as_mut_slice());
-            x[0]
-        });
-        let ns = fs(&mut || {
-            let mut x = *g;
-            new.solve_in_place(&mut x);
-            x[0]
-        });
+        let [o, of, n, os, ns] = cases.map(|(_, _, _, run)| fs(run));
         println!(
             "D={D:3} {label:32} f+s old {o:8.0} old-fma {of:8.0} new {n:8.0} ({:.2}x) | solve old {os:7.0} new {ns:7.0} ({:.2}x)",
             o / n,
@@ -333,46 +294,11 @@ fn compare<const N: usize, const M: usize, const S: usize, const D: usize>(
     }
     let mut group = c.benchmark_group(format!("linalg D={D:03} {label}"));
     group.warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(2));
-    group.bench_function(BenchmarkId::new("factor+solve", "old"), |b| {
-        b.iter(|| {
-            let mut x = *g;
-            old.factor().unwrap();
-            old.solve_in_place(x.as_mut_slice());
-            x[0]
-        })
-    });
-    if std::arch::is_x86_feature_detected!("avx2") {
-        group.bench_function(BenchmarkId::new("factor+solve", "old-fma"), |b| {
-            b.iter(|| {
-                let mut x = *g;
-                old.factor_avx2().unwrap();
-                old.solve_avx2(x.as_mut_slice());
-                x[0]
-            })
-        });
+    for (what, kernel, avx2, run) in cases {
+        if !avx2 || std::arch::is_x86_feature_detected!("avx2") {
+            group.bench_function(BenchmarkId::new(what, kernel), |b| b.iter(|| once(run)));
+        }
     }
-    group.bench_function(BenchmarkId::new("factor+solve", "new"), |b| {
-        b.iter(|| {
-            let mut x = *g;
-            new.factor().unwrap();
-            new.solve_in_place(&mut x);
-            x[0]
-        })
-    });
-    group.bench_function(BenchmarkId::new("solve", "old"), |b| {
-        b.iter(|| {
-            let mut x = *g;
-            old.solve_in_place(x.as_mut_slice());
-            x[0]
-        })
-    });
-    group.bench_function(BenchmarkId::new("solve", "new"), |b| {
-        b.iter(|| {
-            let mut x = *g;
-            new.solve_in_place(&mut x);
-            x[0]
-        })
-    });
     group.finish();
 }
 
@@ -444,9 +370,9 @@ fn synthetic<const N: usize, const D: usize>(c: &mut Criterion) {
 }
 
 fn benches(c: &mut Criterion) {
-    let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-    let r0 = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
+    let Starts { particle: p0, skate: s0, robot: r0, .. } = Starts::paper();
+    // The McLachlan–Perlmutter particles start in motion here, not at rest
+    // as in the step benches.
     let m0 = State::new(
         0.0,
         Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]),

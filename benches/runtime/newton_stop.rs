@@ -9,18 +9,16 @@
 //! Timed by the measuring thread's CPU time, like the `step` bench.
 
 use criterion::measurement::WallTime;
-use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, criterion_main, Criterion};
+use spark_benches::paper::{restarting_steps, Starts, RESTART_AFTER};
 use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
-use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
+use spark_runtime::{Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau};
 
 use std::time::Duration;
 
 #[path = "../common/clock.rs"]
 mod clock;
 use clock::{ThreadCpu, C};
-
-/// Length of the trajectory a case restarts after (and counts over).
-const T_END: f64 = 10.0;
 
 fn case<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     c: &mut C,
@@ -37,7 +35,7 @@ fn case<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     let new = || Stepper::<Sys, N, M, S, D>::new(sys.clone(), Tableau::new(method).unwrap()).with_options(opts);
     let mut st = new();
     let (mut s, mut steps, mut iterations, mut factorizations) = (start, 0usize, 0usize, 0usize);
-    while s.t < T_END {
+    while s.t < RESTART_AFTER {
         let r = st.step(&s, h).unwrap();
         (s, steps) = (r.state, steps + 1);
         iterations += r.iterations;
@@ -46,24 +44,12 @@ fn case<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     let per = |x: usize| x as f64 / steps as f64;
     eprintln!("counts {label}: iterations/step {:.3}, factorizations/step {:.3}", per(iterations), per(factorizations));
     let mut st = new();
-    let mut s = start;
-    c.bench_function(&label, |b| {
-        b.iter(|| {
-            if s.t > T_END {
-                s = start;
-                st.reset_warm_start();
-            }
-            s = st.step(&s, h).unwrap().state;
-            black_box(s.q[0])
-        })
-    });
+    let mut steps = restarting_steps(&mut st, start, h);
+    c.bench_function(&label, |b| b.iter(&mut steps));
 }
 
 fn benches(c: &mut C) {
-    let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-    let r0 = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
-    let m0 = State::new(0.0, Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::<7>::zeros());
+    let Starts { particle: p0, skate: s0, robot: r0, mp7: m0 } = Starts::paper();
     let (gauss, lob) = (Method::Gauss, Method::LobattoIIIAB);
     macro_rules! family {
         ($name:literal, $sys:expr, $start:expr, $h:expr, $n:literal, $m:literal) => {

@@ -15,9 +15,10 @@
 //! comparable between runs under load.
 
 use criterion::measurement::WallTime;
-use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, criterion_main, Criterion};
+use spark_benches::paper::{restarting_steps, Starts};
 use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
-use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector};
+use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper, Tableau};
 
 use std::time::Duration;
 
@@ -52,28 +53,14 @@ fn bench_run<Sys, const N: usize, const M: usize, const S: usize, const D: usize
                 label.push_str("/no-guard");
             }
             let mut st = Stepper::<Sys, N, M, S, D>::new(sys.clone(), Tableau::new(method).unwrap()).with_options(opts);
-            let mut s = start;
-            c.bench_function(&label, |b| {
-                b.iter(|| {
-                    // Restart from the initial condition every 10 time units
-                    // so the trajectory stays in the paper's regime.
-                    if s.t > 10.0 {
-                        s = start;
-                        st.reset_warm_start();
-                    }
-                    s = st.step(&s, H).unwrap().state;
-                    black_box(s.q[0])
-                })
-            });
+            let mut steps = restarting_steps(&mut st, start, H);
+            c.bench_function(&label, |b| b.iter(&mut steps));
         }
     }
 }
 
 fn benches(c: &mut C) {
-    let p0 = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
-    let s0 = State::new(0.0, Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
-    let r0 = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
-    let m0 = State::new(0.0, Vector::<7>::from_row_slice(&[1.0, 0.6, 0.4, 0.2, 1.0, 1.0, 1.0]), Vector::<7>::zeros());
+    let Starts { particle: p0, skate: s0, robot: r0, mp7: m0 } = Starts::paper();
     let (gauss, lob) = (Method::Gauss, Method::LobattoIIIAB);
     bench_run::<_, 3, 1, 2, 11>(c, "particle", Particle, gauss, p0, false);
     bench_run::<_, 3, 1, 2, 11>(c, "skate", Skate::default(), gauss, s0, true);

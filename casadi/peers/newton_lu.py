@@ -36,7 +36,6 @@ The executable has two modes:
 
 from __future__ import annotations
 
-import os
 import subprocess
 import time
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from typing import List, Sequence
 import casadi as ca
 import numpy as np
 
+import c_driver
 from spark_check.step import spark_residual
 from spark_check.system import CasadiSystem
 
@@ -53,23 +53,9 @@ SOLVER = "CasADi C (Newton-LU)"
 TOLERANCE = 1e-14
 MAX_ITERATIONS = 50
 
-DRIVER = r"""
-#include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-#include <time.h>
-#include "spark_fj.h"
-
-#define N %(n)d
-#define M %(m)d
-#define S %(s)d
-#define NP %(np)d
-#define DIM (S * (N + M) + N)
-#define NPAR (2 + 2 * N + NP)
+DRIVER = c_driver.HEAD + r"""
 #define TOL %(tol)r
 #define MAXIT %(maxit)d
-static const double B[S] = {%(b)s};
 
 static const casadi_real* arg_f[8];
 static casadi_real* res_f[8];
@@ -81,23 +67,6 @@ static casadi_int* iw_j;
 static casadi_real* w_j;
 static double F[DIM], J[DIM * DIM], dx[DIM];
 static int piv[DIM];
-
-static double now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static double cpu_now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static int cmp(const void* a, const void* b) {
-    double x = *(const double*)a, y = *(const double*)b;
-    return (x > y) - (x < y);
-}
 
 static double median(double* v, int n) {
     qsort(v, n, sizeof(double), cmp);
@@ -243,26 +212,13 @@ static int run_mode(int argc, char** argv) {
     double spent = 0.0;
     while (r < cap && (r < repeats || spent < min_seconds)) {
         double start = now(), cpu_start = cpu_now();
-        memcpy(q, q0, sizeof q);
-        memcpy(v, v0, sizeof v);
-        for (int j = 0; j < S; ++j) memcpy(x + j * N, v0, sizeof v);
-        for (int j = 0; j < S * M; ++j) x[S * N + j] = 0.0;
-        memcpy(x + S * (N + M), v0, sizeof v);
+        cold_start(q, v, x, q0, v0);
         evals = facts = 0;
         failed = 0;
         for (long st = 0; st < steps && !failed; ++st) {
-            par[0] = st * h;
-            par[1] = h;
-            memcpy(par + 2, q, sizeof q);
-            memcpy(par + 2 + N, v, sizeof v);
-            for (int i = 0; i < NP; ++i) par[2 + 2 * N + i] = p[i];
+            step_parameters(par, st * h, h, q, v, p);
             if (newton(x, par, &evals, &facts, NULL, NULL)) failed = 1;
-            for (int i = 0; i < N; ++i) {
-                double dq = 0.0;
-                for (int j = 0; j < S; ++j) dq += B[j] * x[j * N + i];
-                q[i] += h * dq;
-                v[i] = x[S * (N + M) + i];
-            }
+            advance(q, v, x, h);
         }
         times[r] = now() - start;
         cpus[r] = cpu_now() - cpu_start;
@@ -335,17 +291,9 @@ def build(system: CasadiSystem, tableau, build_dir: Path, label: str) -> Path:
     cg = ca.CodeGenerator("spark_fj.c", {"with_header": True})
     cg.add(f)
     cg.add(j)
-    cwd = os.getcwd()
-    os.chdir(d)
-    try:
-        cg.generate()
-    finally:
-        os.chdir(cwd)
-    s = int(tableau["stages"])
+    c_driver.generate(cg, d)
     (d / "driver.c").write_text(DRIVER % {
-        "n": system.n, "m": system.m, "s": s, "np": len(system.parameters),
-        "tol": TOLERANCE, "maxit": MAX_ITERATIONS,
-        "b": ", ".join(repr(float(b)) for b in tableau["b"]),
+        **c_driver.fields(system, tableau, "spark_fj.h"), "tol": TOLERANCE, "maxit": MAX_ITERATIONS,
     })
     exe = d / "driver"
     cmd = ["gcc", "-O3", "-march=native", "-o", str(exe), str(d / "spark_fj.c"), str(d / "driver.c"), "-lm"]

@@ -33,7 +33,6 @@ import argparse
 import csv
 import json
 import math
-import os
 import statistics
 import subprocess
 import sys
@@ -46,6 +45,7 @@ from scipy.integrate import solve_ivp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import c_driver  # noqa: E402
 import newton_lu  # noqa: E402
 from spark_check.step import spark_residual  # noqa: E402
 from spark_check.system import CasadiSystem  # noqa: E402
@@ -57,39 +57,7 @@ FIELDS = [
     "energy_error", "wall_time", "cpu_time", "time_per_step", "newton_iterations", "repeats",
 ]
 
-DRIVER = r"""
-#include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-#include <time.h>
-#include "spark_newton.h"
-
-#define N %(n)d
-#define M %(m)d
-#define S %(s)d
-#define NP %(np)d
-#define DIM (S * (N + M) + N)
-#define NPAR (2 + 2 * N + NP)
-static const double B[S] = {%(b)s};
-
-static double now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static double cpu_now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-static int cmp(const void* a, const void* b) {
-    double x = *(const double*)a, y = *(const double*)b;
-    return (x > y) - (x < y);
-}
-
+DRIVER = c_driver.HEAD + r"""
 /* argv: steps repeats T q0[N] v0[N] p[NP]; prints q(T) v(T) median_wall median_cpu mean_iterations failed */
 int main(int argc, char** argv) {
     if (argc != 4 + 2 * N + NP) { fprintf(stderr, "bad arguments\n"); return 2; }
@@ -114,18 +82,10 @@ int main(int argc, char** argv) {
     int failed = 0;
     for (int r = 0; r < repeats; ++r) {
         double start = now(), cpu_start = cpu_now();
-        memcpy(q, q0, sizeof q);
-        memcpy(v, v0, sizeof v);
-        for (int j = 0; j < S; ++j) memcpy(x + j * N, v0, sizeof v);
-        for (int j = 0; j < S * M; ++j) x[S * N + j] = 0.0;
-        memcpy(x + S * (N + M), v0, sizeof v);
+        cold_start(q, v, x, q0, v0);
         iterations = 0;
         for (long k = 0; k < steps; ++k) {
-            par[0] = k * h;
-            par[1] = h;
-            memcpy(par + 2, q, sizeof q);
-            memcpy(par + 2 + N, v, sizeof v);
-            for (int i = 0; i < NP; ++i) par[2 + 2 * N + i] = p[i];
+            step_parameters(par, k * h, h, q, v, p);
             int it = 0;
             for (; it < 20; ++it) {
                 arg[0] = x; arg[1] = par; res[0] = xn; res[1] = &dxn;
@@ -137,12 +97,7 @@ int main(int argc, char** argv) {
                 if (dxn <= 16 * 2.220446049250313e-16 * (1.0 + xmax)) { ++it; break; }
             }
             iterations += it;
-            for (int i = 0; i < N; ++i) {
-                double dq = 0.0;
-                for (int j = 0; j < S; ++j) dq += B[j] * x[j * N + i];
-                q[i] += h * dq;
-                v[i] = x[S * (N + M) + i];
-            }
+            advance(q, v, x, h);
         }
         times[r] = now() - start;
         cpus[r] = cpu_now() - cpu_start;
@@ -186,17 +141,8 @@ def build_newton(system: CasadiSystem, tableau, build: Path, label: str) -> Path
     d.mkdir(parents=True, exist_ok=True)
     cg = ca.CodeGenerator("spark_newton.c", {"with_header": True})
     cg.add(newton)
-    cwd = os.getcwd()
-    os.chdir(d)
-    try:
-        cg.generate()
-    finally:
-        os.chdir(cwd)
-    s = int(tableau["stages"])
-    (d / "driver.c").write_text(DRIVER % {
-        "n": system.n, "m": system.m, "s": s, "np": len(system.parameters),
-        "b": ", ".join(repr(float(b)) for b in tableau["b"]),
-    })
+    c_driver.generate(cg, d)
+    (d / "driver.c").write_text(DRIVER % c_driver.fields(system, tableau, "spark_newton.h"))
     exe = d / "driver"
     t0 = time.perf_counter()
     subprocess.run(["gcc", "-O3", "-march=native", "-o", str(exe), str(d / "spark_newton.c"), str(d / "driver.c"),

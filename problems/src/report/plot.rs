@@ -6,6 +6,7 @@
 //! with plotters' `ab_glyph` font loader, so rendering needs no system font
 //! library at run time.
 
+use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
@@ -362,17 +363,7 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
     macro_rules! finish {
         ($chart:expr) => {{
             let mut chart = $chart;
-            chart
-                .configure_mesh()
-                .x_desc(&panel.x_label)
-                .y_desc(&panel.y_label)
-                .x_label_formatter(&|v| tick_label(*v, x_span))
-                .y_label_formatter(&|v| tick_label(*v, y_span))
-                .label_style((FONT, 13))
-                .axis_desc_style((FONT, 15))
-                .light_line_style(WHITE.mix(0.0))
-                .draw()
-                .map_err(e)?;
+            draw_axes(&mut chart, (&panel.x_label, &panel.y_label), (x_span, y_span))?;
             for (k, (series, pts)) in panel.series.iter().zip(data.iter()).enumerate() {
                 let color = COLORS[k % COLORS.len()];
                 // Wide polylines get miter joins, which shoot far out of the
@@ -394,15 +385,7 @@ fn draw_panel<DB: DrawingBackend>(figure: &str, panel: &Panel, area: &DrawingAre
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
                 }
             }
-            let corner = emptiest_corner(&data, (x0, x1, panel.x_scale), (y0, y1, panel.y_scale));
-            chart
-                .configure_series_labels()
-                .label_font((FONT, 13))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .position(corner)
-                .draw()
-                .map_err(e)?;
+            draw_legend(&mut chart, emptiest_corner(&data, (x0, x1, panel.x_scale), (y0, y1, panel.y_scale)))?;
         }};
     }
     match (panel.x_scale, panel.y_scale) {
@@ -481,17 +464,7 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         .y_label_area_size(84)
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(e)?;
-    chart
-        .configure_mesh()
-        .x_desc(&fig.x_label)
-        .y_desc(&fig.y_label)
-        .x_label_formatter(&|v| tick_label(*v, x_span))
-        .y_label_formatter(&|v| tick_label(*v, y_span))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 15))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()
-        .map_err(e)?;
+    draw_axes(&mut chart, (&fig.x_label, &fig.y_label), (x_span, y_span))?;
     for (k, (series, pts)) in fig.series.iter().zip(data.iter()).enumerate() {
         let color = COLORS[k % COLORS.len()];
         let drawn =
@@ -502,7 +475,39 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
                 .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
         }
     }
-    let corner = emptiest_corner(&data, (x0, x1, Scale::Linear), (y0, y1, Scale::Linear));
+    draw_legend(&mut chart, emptiest_corner(&data, (x0, x1, Scale::Linear), (y0, y1, Scale::Linear)))
+}
+
+/// Draws the axes every chart shares: the descriptions `labels`, tick
+/// labels rounded to the axis spans `spans` ([`tick_label`]), no light grid.
+fn draw_axes<DB, X, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
+    (x_label, y_label): (&str, &str),
+    (x_span, y_span): (f64, f64),
+) -> Result<(), String>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .x_label_formatter(&|v| tick_label(*v, x_span))
+        .y_label_formatter(&|v| tick_label(*v, y_span))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 15))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
+/// Draws the legend box every chart shares at `corner`.
+fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    corner: SeriesLabelPosition,
+) -> Result<(), String> {
     chart
         .configure_series_labels()
         .label_font((FONT, 13))
@@ -510,6 +515,5 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         .border_style(BLACK.mix(0.4))
         .position(corner)
         .draw()
-        .map_err(e)?;
-    Ok(())
+        .map_err(|e| e.to_string())
 }

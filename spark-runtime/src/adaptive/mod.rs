@@ -89,7 +89,7 @@ use crate::initial::{consistent_acceleration, ConsistencyPolicy};
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
-use run::{accept, finish, start, Recorder, Taken};
+use run::{accept, whole_run, Recorder, Taken};
 
 /// Options of a tolerance-driven run.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -580,11 +580,9 @@ where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
-    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, O::DENSE, events)?;
-    let result = adaptive_loop(stepper, state, t_end, options, &mut rec, observer);
-    stepper.set_accepted_start_residual(0.0);
-    let report = result?;
-    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
+    whole_run(stepper, t0, q0, v0, t_end, options, O::DENSE, events, |stepper, state, rec| {
+        adaptive_loop(stepper, state, t_end, options, rec, observer)
+    })
 }
 
 fn adaptive_loop<Sys, O, const N: usize, const M: usize, const S: usize, const D: usize>(

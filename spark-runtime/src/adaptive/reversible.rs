@@ -3,7 +3,7 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, finish, initial_step, is_symmetric, resolution, start, AdaptiveError, AdaptiveOptions, AdaptiveReport,
+    accept, initial_step, is_symmetric, resolution, whole_run, AdaptiveError, AdaptiveOptions, AdaptiveReport,
     AdaptiveRun, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
@@ -94,11 +94,9 @@ where
     if !is_symmetric(method) {
         return Err(AdaptiveError::NotSymmetric { method });
     }
-    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, O::DENSE, events)?;
-    let result = reversible_loop(stepper, state, t_end, density, options, &mut rec, observer);
-    stepper.set_accepted_start_residual(0.0);
-    let report = result?;
-    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
+    whole_run(stepper, t0, q0, v0, t_end, options, O::DENSE, events, |stepper, state, rec| {
+        reversible_loop(stepper, state, t_end, density, options, rec, observer)
+    })
 }
 
 /// `σ(y)` and `G(y) = σ̇(y)/σ(y)`, the derivative along the flow by a central

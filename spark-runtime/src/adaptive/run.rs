@@ -37,7 +37,7 @@ impl<Sys, const N: usize, const M: usize, const S: usize> Recorder<'_, Sys, N, M
 /// the continuous extension (`events`, and the observer's when
 /// `wants_dense`).
 #[allow(clippy::too_many_arguments)]
-pub(super) fn start<'a, Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+fn start<'a, Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
     t0: f64,
     q0: &Vector<N>,
@@ -96,8 +96,39 @@ where
     Ok((state, rec))
 }
 
+/// A whole run: [`start`], then the step-size rule `rule` from the start
+/// state, then [`finish`]. The consistency tolerance `start` hands the
+/// stepper (its accepted start residual) goes back to 0 whether the rule
+/// succeeds or fails: it is 0 outside a run.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn whole_run<Sys, R, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    t_end: f64,
+    options: &AdaptiveOptions,
+    wants_dense: bool,
+    events: &dyn EventFunctions<Sys, N>,
+    rule: R,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    R: FnOnce(
+        &mut Stepper<Sys, N, M, S, D>,
+        State<N>,
+        &mut Recorder<'_, Sys, N, M, S>,
+    ) -> Result<AdaptiveReport, AdaptiveError>,
+{
+    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, wants_dense, events)?;
+    let result = rule(stepper, state, &mut rec);
+    stepper.set_accepted_start_residual(0.0);
+    let report = result?;
+    Ok(finish::<Sys, N, M, S, D>(stepper, rec, report))
+}
+
 /// The finished run: the recorded samples, the report and the located events.
-pub(super) fn finish<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+fn finish<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &Stepper<Sys, N, M, S, D>,
     mut rec: Recorder<'_, Sys, N, M, S>,
     report: AdaptiveReport,

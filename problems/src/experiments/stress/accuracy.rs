@@ -3,14 +3,14 @@
 //! solution over long times, and rheonomic affine / velocity-nonlinear
 //! constraints against the independent Gragg–Bulirsch–Stoer reference.
 
-use super::{run_fixed, CaseReport, Scale, StressError};
+use super::{run_fixed, CaseReport, RunData, Scale, StressError};
 use crate::report::format::{log_points, sci, thin};
 use crate::report::plot::{Figure, Panel, Scale as Axis, Series};
 use crate::report::stats::fit_power;
 use crate::systems::stress::{rolling_disk_exact, RollingDisk};
 use crate::systems::{AppellHamel, NonholonomicParticle, TurntableSkate};
 use spark_runtime::reference::{integrate as reference, ReferenceOptions};
-use spark_runtime::{Method, NonholonomicSystem, Stepper, Tableau, Vector};
+use spark_runtime::{IntegrationError, Method, NonholonomicSystem, Stepper, Tableau, Vector};
 
 /// `(h, error or the typed error's text)` for each step size.
 type Sweep = Vec<(f64, Result<f64, String>)>;
@@ -33,13 +33,19 @@ fn particle_sweep<const S: usize, const D: usize>(
         .iter()
         .map(|&n| {
             let h = HIGH_ORDER_T / n as f64;
-            let r = run_fixed(&mut st, &q0, &v0, h, n, 0, 0).map_err(|e| e.to_string()).map(|d| {
-                let (q, v) = (d.q.last().cloned().unwrap_or_default(), d.v.last().cloned().unwrap_or_default());
-                (0..3).map(|i| (q[i] - q_ref[i]).abs().max((v[i] - v_ref[i]).abs())).fold(0.0, f64::max)
-            });
+            let r = run_fixed(&mut st, &q0, &v0, h, n, 0, 0)
+                .map_err(|e| e.to_string())
+                .map(|d| end_error(&d, q_ref, v_ref));
             (h, r)
         })
         .collect())
+}
+
+/// `max(|q − q_ref|∞, |v − v_ref|∞)` at the last recorded sample of `d`
+/// (the end of the run).
+fn end_error<const N: usize>(d: &RunData, q_ref: &Vector<N>, v_ref: &Vector<N>) -> f64 {
+    let (q, v) = (d.q.last().cloned().unwrap_or_default(), d.v.last().cloned().unwrap_or_default());
+    (0..N).map(|i| (q[i] - q_ref[i]).abs().max((v[i] - v_ref[i]).abs())).fold(0.0, f64::max)
 }
 
 /// Gauss s = 6..8 and Lobatto IIIA-B s = 6..8 on the particle, `h` from
@@ -69,37 +75,23 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
     let counts: Vec<usize> = (3..=11).map(|k| 1usize << k).collect();
     let target = (counts.as_slice(), &qr, &vr);
     let (particle, gauss, lobatto) = (NonholonomicParticle::default, Method::Gauss, Method::LobattoIIIAB);
+    // One row per method and stage count, the stepper type monomorphized per s.
+    macro_rules! sweep {
+        ($method:expr, $s:literal) => {
+            (
+                $method.label($s),
+                $method.order($s),
+                particle_sweep(<Stepper![NonholonomicParticle, $s]>::new(particle(), Tableau::new($method)?), target)?,
+            )
+        };
+    }
     let sweeps = [
-        (
-            "Gauss s=6",
-            12,
-            particle_sweep(<Stepper![NonholonomicParticle, 6]>::new(particle(), Tableau::new(gauss)?), target)?,
-        ),
-        (
-            "Gauss s=7",
-            14,
-            particle_sweep(<Stepper![NonholonomicParticle, 7]>::new(particle(), Tableau::new(gauss)?), target)?,
-        ),
-        (
-            "Gauss s=8",
-            16,
-            particle_sweep(<Stepper![NonholonomicParticle, 8]>::new(particle(), Tableau::new(gauss)?), target)?,
-        ),
-        (
-            "Lobatto IIIA-B s=6",
-            10,
-            particle_sweep(<Stepper![NonholonomicParticle, 6]>::new(particle(), Tableau::new(lobatto)?), target)?,
-        ),
-        (
-            "Lobatto IIIA-B s=7",
-            12,
-            particle_sweep(<Stepper![NonholonomicParticle, 7]>::new(particle(), Tableau::new(lobatto)?), target)?,
-        ),
-        (
-            "Lobatto IIIA-B s=8",
-            14,
-            particle_sweep(<Stepper![NonholonomicParticle, 8]>::new(particle(), Tableau::new(lobatto)?), target)?,
-        ),
+        sweep!(gauss, 6),
+        sweep!(gauss, 7),
+        sweep!(gauss, 8),
+        sweep!(lobatto, 6),
+        sweep!(lobatto, 7),
+        sweep!(lobatto, 8),
     ];
     let mut series = Vec::new();
     for (label, order, sweep) in &sweeps {
@@ -134,14 +126,7 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
         );
         c.metric(format!("{label}: steepest observed order (nominal {order})"), format!("{max_order:.1}"));
         c.metric(format!("{label}: best / finest-h error"), format!("{} / {}", sci(best), sci(finest)));
-        series.push(Series::new(
-            *label,
-            log_points(
-                &pts.iter().map(|p| p.0).collect::<Vec<_>>(),
-                &pts.iter().map(|p| p.1).collect::<Vec<_>>(),
-                1e-17,
-            ),
-        ));
+        series.push(error_series(label.as_str(), pts.iter().copied()));
     }
     c.energy = "not the subject (accuracy against the reference)".into();
     c.figure = Some(Figure {
@@ -160,12 +145,18 @@ pub fn high_order(_scale: Scale) -> Result<CaseReport, StressError> {
     Ok(c)
 }
 
+/// The series of errors `(h, error)` on log axes (zeros drawn at 1e-17).
+fn error_series(label: &str, points: impl Iterator<Item = (f64, f64)>) -> Series {
+    let (h, error): (Vec<f64>, Vec<f64>) = points.unzip();
+    Series::new(label, log_points(&h, &error, 1e-17))
+}
+
 fn finite_le(x: f64, bound: f64) -> bool {
     x.is_finite() && x <= bound
 }
 
 /// Errors against the exact rolling-disk solution at the recorded points.
-fn disk_errors(d: &super::RunData, omega: f64, big_omega: f64, r: f64) -> Vec<f64> {
+fn disk_errors(d: &RunData, omega: f64, big_omega: f64, r: f64) -> Vec<f64> {
     d.t.iter()
         .zip(&d.q)
         .map(|(&t, q)| {
@@ -173,6 +164,25 @@ fn disk_errors(d: &super::RunData, omega: f64, big_omega: f64, r: f64) -> Vec<f6
             (0..4).map(|i| (q[i] - qe[i]).abs()).fold(0.0, f64::max)
         })
         .collect()
+}
+
+/// `steps` steps of `h` and `2·steps` of `h/2` over the same interval
+/// (recording every `every` and `2·every` steps), each by a fresh stepper.
+fn with_half_step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: impl Fn() -> Stepper<Sys, N, M, S, D>,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    h: f64,
+    steps: usize,
+    every: usize,
+) -> (Result<RunData, IntegrationError>, Result<RunData, IntegrationError>)
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    (
+        run_fixed(&mut stepper(), q0, v0, h, steps, every, 0),
+        run_fixed(&mut stepper(), q0, v0, h / 2.0, 2 * steps, 2 * every, 0),
+    )
 }
 
 /// The vertical rolling disk against its exact solution: Gauss s = 2 and
@@ -201,53 +211,21 @@ pub fn rolling_disk(scale: Scale) -> Result<CaseReport, StressError> {
     let v0 = Vector::<4>::new(r * big_omega, 0.0, omega, big_omega);
     let mut series = Vec::new();
     let disk = RollingDisk::default;
+    let gauss = Tableau::new(Method::Gauss)?;
+    let lobatto = Tableau::new(Method::LobattoIIIAB)?;
     let runs = [
         (
             "Gauss s=2",
             4.0,
-            run_fixed(
-                &mut <Stepper![RollingDisk, 2]>::new(disk(), Tableau::new(Method::Gauss)?),
-                &q0,
-                &v0,
-                h,
-                steps,
-                every,
-                0,
-            ),
-            run_fixed(
-                &mut <Stepper![RollingDisk, 2]>::new(disk(), Tableau::new(Method::Gauss)?),
-                &q0,
-                &v0,
-                h / 2.0,
-                2 * steps,
-                2 * every,
-                0,
-            ),
+            with_half_step(|| <Stepper![RollingDisk, 2]>::new(disk(), gauss), &q0, &v0, h, steps, every),
         ),
         (
             "Lobatto IIIA-B s=3",
             4.0,
-            run_fixed(
-                &mut <Stepper![RollingDisk, 3]>::new(disk(), Tableau::new(Method::LobattoIIIAB)?),
-                &q0,
-                &v0,
-                h,
-                steps,
-                every,
-                0,
-            ),
-            run_fixed(
-                &mut <Stepper![RollingDisk, 3]>::new(disk(), Tableau::new(Method::LobattoIIIAB)?),
-                &q0,
-                &v0,
-                h / 2.0,
-                2 * steps,
-                2 * every,
-                0,
-            ),
+            with_half_step(|| <Stepper![RollingDisk, 3]>::new(disk(), lobatto), &q0, &v0, h, steps, every),
         ),
     ];
-    for (label, order, run, half) in runs {
+    for (label, order, (run, half)) in runs {
         match (run, half) {
             (Ok(d), Ok(d2)) => {
                 c.absorb(&d);
@@ -334,13 +312,7 @@ where
     for &h in hs {
         let n = (t_end / h).round() as usize;
         match run_fixed(&mut st, q0, v0, h, n, 0, 0) {
-            Ok(d) => {
-                let (q, v) = (d.q.last().cloned().unwrap_or_default(), d.v.last().cloned().unwrap_or_default());
-                let e = (0..N)
-                    .map(|i| (q[i] - refsol.q[0][i]).abs().max((v[i] - refsol.v[0][i]).abs()))
-                    .fold(0.0, f64::max);
-                out.push((h, e, d.max_residual));
-            }
+            Ok(d) => out.push((h, end_error(&d, &refsol.q[0], &refsol.v[0]), d.max_residual)),
             Err(e) => return Ok(Err(e.to_string())),
         }
     }
@@ -464,14 +436,7 @@ pub fn against_reference(_scale: Scale) -> Result<CaseReport, StressError> {
                     pts.iter().map(|p| sci(p.1)).collect::<Vec<_>>().join(", "),
                 );
                 c.metric(format!("{label}: max |k|"), sci(pts.iter().map(|p| p.2).fold(0.0, f64::max)));
-                series.push(Series::new(
-                    label,
-                    log_points(
-                        &pts.iter().map(|p| p.0).collect::<Vec<_>>(),
-                        &pts.iter().map(|p| p.1).collect::<Vec<_>>(),
-                        1e-17,
-                    ),
-                ));
+                series.push(error_series(label, pts.iter().map(|p| (p.0, p.1))));
             }
         }
     }

@@ -24,8 +24,9 @@ use affine::Affine;
 use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::reference::{integrate, integrate_at, ReferenceOptions};
 use spark_runtime::{
-    event_time_tolerance, nonholonomic_system, Direction, EventGradient, EventSpec, Method, NoEvents, NoObserver,
-    NonholonomicSystem, RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Vector,
+    event_time_tolerance, nonholonomic_system, Direction, EventFunctions, EventGradient, EventSpec, Method, NoEvents,
+    NoObserver, NonholonomicSystem, Observer, RunOptions, RuntimeEvents, Schedule, State, Stepper, Tableau, Trajectory,
+    Vector,
 };
 
 /// The first zero of `g` after `t0` along the reference solution, by a scan
@@ -253,24 +254,34 @@ fn particle_start() -> State<3> {
     State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0))
 }
 
+/// A fixed-step run of the particle from [`particle_start`], `steps` steps
+/// of size `h` with default options, locating `events`.
+fn particle_run<O, E>(h: f64, steps: usize, observer: &mut O, events: &E) -> Trajectory<3, 1>
+where
+    O: Observer<3, 1>,
+    E: EventFunctions<Particle, 3>,
+{
+    let s0 = particle_start();
+    particle_stepper()
+        .integrate_with_events(
+            0.0,
+            &s0.q,
+            &s0.v,
+            Schedule::Fixed { h, steps },
+            &RunOptions::default(),
+            observer,
+            events,
+        )
+        .unwrap()
+}
+
 #[test]
 fn an_event_at_a_step_boundary_is_reported_once() {
-    let s0 = particle_start();
     for (name, direction) in [("rising", Direction::Rising), ("both", Direction::Both)] {
         let specs = [EventSpec { name, direction, terminal: false, source: "" }];
         let g = time_event::<3>(0.5);
         let events = RuntimeEvents { specs: &specs, gradient: &g };
-        let traj = particle_stepper()
-            .integrate_with_events(
-                0.0,
-                &s0.q,
-                &s0.v,
-                Schedule::Fixed { h: 0.125, steps: 8 },
-                &RunOptions::default(),
-                &mut NoObserver,
-                &events,
-            )
-            .unwrap();
+        let traj = particle_run(0.125, 8, &mut NoObserver, &events);
         assert_eq!(traj.events.len(), 1, "{name}: {:?}", traj.events);
         assert_eq!(traj.events[0].t, 0.5);
         assert_eq!(traj.events[0].step, 3);
@@ -280,24 +291,13 @@ fn an_event_at_a_step_boundary_is_reported_once() {
     let specs = [EventSpec { name: "near", direction: Direction::Both, terminal: false, source: "" }];
     let g = time_event::<3>(0.5 + 1e-16);
     let events = RuntimeEvents { specs: &specs, gradient: &g };
-    let traj = particle_stepper()
-        .integrate_with_events(
-            0.0,
-            &s0.q,
-            &s0.v,
-            Schedule::Fixed { h: 0.125, steps: 8 },
-            &RunOptions::default(),
-            &mut NoObserver,
-            &events,
-        )
-        .unwrap();
+    let traj = particle_run(0.125, 8, &mut NoObserver, &events);
     assert_eq!(traj.events.len(), 1, "{:?}", traj.events);
     assert!((traj.events[0].t - 0.5).abs() <= 1e-15);
 }
 
 #[test]
 fn several_events_in_one_step_come_in_time_order_and_directions_filter() {
-    let s0 = particle_start();
     let specs = [
         EventSpec { name: "late", direction: Direction::Both, terminal: false, source: "" },
         EventSpec { name: "early", direction: Direction::Both, terminal: false, source: "" },
@@ -312,17 +312,7 @@ fn several_events_in_one_step_come_in_time_order_and_directions_filter() {
         v: Vector::zeros(),
     };
     let events = RuntimeEvents { specs: &specs, gradient: &g };
-    let traj = particle_stepper()
-        .integrate_with_events(
-            0.0,
-            &s0.q,
-            &s0.v,
-            Schedule::Fixed { h: 0.5, steps: 2 },
-            &RunOptions::default(),
-            &mut NoObserver,
-            &events,
-        )
-        .unwrap();
+    let traj = particle_run(0.5, 2, &mut NoObserver, &events);
     let names: Vec<&str> = traj.events.iter().map(|e| e.name.as_str()).collect();
     assert_eq!(names, ["early", "rising-only", "late"]);
     for e in &traj.events {
@@ -333,7 +323,6 @@ fn several_events_in_one_step_come_in_time_order_and_directions_filter() {
 
 #[test]
 fn a_terminal_event_ends_the_run_exactly_there() {
-    let s0 = particle_start();
     // y = q₁ first falls through 0.5 after its maximum; terminal.
     let specs = [
         EventSpec { name: "count", direction: Direction::Both, terminal: false, source: "" },
@@ -347,20 +336,9 @@ fn a_terminal_event_ends_the_run_exactly_there() {
         }
     };
     let events = RuntimeEvents { specs: &specs, gradient: &g };
-    let mut st = particle_stepper();
     let mut seen = Vec::new();
     let mut observer = |s: &State<3>, _: usize| seen.push(s.t);
-    let traj = st
-        .integrate_with_events(
-            0.0,
-            &s0.q,
-            &s0.v,
-            Schedule::Fixed { h: 0.1, steps: 100 },
-            &RunOptions::default(),
-            &mut observer,
-            &events,
-        )
-        .unwrap();
+    let traj = particle_run(0.1, 100, &mut observer, &events);
     let stop = traj.events.last().unwrap();
     assert_eq!(stop.name, "stop");
     assert!(!stop.rising);
@@ -373,17 +351,7 @@ fn a_terminal_event_ends_the_run_exactly_there() {
     assert_eq!(*seen.last().unwrap(), stop.t);
     assert_eq!(traj.events.iter().filter(|e| e.name == "count").count(), 1);
     // A system without events runs as before: no events, no terminal.
-    let plain = particle_stepper()
-        .integrate_with_events(
-            0.0,
-            &s0.q,
-            &s0.v,
-            Schedule::Fixed { h: 0.1, steps: 10 },
-            &RunOptions::default(),
-            &mut NoObserver,
-            &NoEvents,
-        )
-        .unwrap();
+    let plain = particle_run(0.1, 10, &mut NoObserver, &NoEvents);
     assert!(plain.events.is_empty() && plain.report.terminal_event.is_none());
 }
 
@@ -402,23 +370,12 @@ impl spark_runtime::Observer<3, 1> for DenseSteps {
 
 #[test]
 fn a_dense_observer_sees_the_last_step_only_up_to_the_terminal_event() {
-    let s0 = particle_start();
     // Terminal at t = 0.35, inside the fourth step of size 0.1.
     let specs = [EventSpec { name: "stop", direction: Direction::Rising, terminal: true, source: "" }];
     let g = time_event::<3>(0.35);
     let events = RuntimeEvents { specs: &specs, gradient: &g };
     let mut dense = DenseSteps { steps: Vec::new() };
-    let traj = particle_stepper()
-        .integrate_with_events(
-            0.0,
-            &s0.q,
-            &s0.v,
-            Schedule::Fixed { h: 0.1, steps: 10 },
-            &RunOptions::default(),
-            &mut dense,
-            &events,
-        )
-        .unwrap();
+    let traj = particle_run(0.1, 10, &mut dense, &events);
     let stop = traj.events.last().unwrap();
     assert!((stop.t - 0.35).abs() <= 1e-15, "event at {}", stop.t);
     assert_eq!(dense.steps.len(), 4, "{:?}", dense.steps);
@@ -564,17 +521,7 @@ fn a_nan_event_value_starts_or_ends_no_crossing() {
         v: Vector::zeros(),
     };
     let events = RuntimeEvents { specs: &specs, gradient: &g };
-    let fixed = particle_stepper()
-        .integrate_with_events(
-            0.0,
-            &s0.q,
-            &s0.v,
-            Schedule::Fixed { h: 0.1, steps: 10 },
-            &RunOptions::default(),
-            &mut NoObserver,
-            &events,
-        )
-        .unwrap();
+    let fixed = particle_run(0.1, 10, &mut NoObserver, &events);
     let adaptive = spark_runtime::integrate_adaptive_with_events(
         &mut particle_stepper(),
         0.0,
