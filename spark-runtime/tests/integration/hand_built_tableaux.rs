@@ -48,12 +48,9 @@ fn gauss<const S: usize>() -> Tableau<S> {
         b[i] = 1.0 / ((1.0 - x * x) * dp * dp);
     }
     let ell = |j: usize, tau: f64| (0..S).filter(|&m| m != j).fold(1.0, |l, m| l * (tau - c[m]) / (c[j] - c[m]));
-    let mut a = [[0.0; S]; S];
-    for i in 0..S {
-        for j in 0..S {
-            a[i][j] = c[i] * (0..S).map(|k| b[k] * ell(j, c[i] * c[k])).sum::<f64>();
-        }
-    }
+    let a: [[f64; S]; S] = std::array::from_fn(|i| {
+        std::array::from_fn(|j| c[i] * (0..S).map(|k| b[k] * ell(j, c[i] * c[k])).sum::<f64>())
+    });
     let mut omega = [[0.0; S]; S];
     for (i, row) in omega.iter_mut().take(S - 1).enumerate() {
         for j in 0..S {
@@ -85,7 +82,7 @@ fn start() -> (Vector<2>, Vector<2>) {
 #[test]
 fn a_hand_built_tableau_beyond_the_tables_runs_with_dense_output() {
     const S: usize = 12;
-    assert!(S > MAX_STAGES);
+    const { assert!(S > MAX_STAGES) };
     // The tableau computed here is Gauss: at s = 10 it is the tables' to round-off.
     let (ours, tables) = (gauss::<10>(), Tableau::<10>::new(Method::Gauss).unwrap());
     let largest = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
