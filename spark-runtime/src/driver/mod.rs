@@ -444,6 +444,13 @@ where
         let track = |s: &Sample<N, M>, report: &mut RunReport| report.track(s, e0);
         track(&first, &mut report);
         samples.push(first);
+        // The samples of a `Sampled` run are the initial point and each
+        // requested time. A time at t0 is recorded by the first step's
+        // extension, which returns its start bit for bit; when it is the only
+        // time no step is taken, so it is recorded here.
+        if steps == 0 && sampled.is_some_and(|times| !times.is_empty()) {
+            samples.push(first);
+        }
         // The report's extremes cover every accepted step, recorded or not:
         // the energy and the residual (no multipliers) at the steps not
         // recorded, only when the run observes them.
