@@ -111,7 +111,10 @@ use proc_macro::TokenStream;
 /// declaration). Inside a `nonideal` effect the multiplier of a constraint
 /// is written by the constraint effect's name (`blade` below) and that of a
 /// base constraint `j` as `psi[j]`; a scene that selects the non-ideal force
-/// must also select the constraints it names. A scene's constraints are the
+/// must also select the constraints it names. So a constraint effect's name
+/// follows the rules of declared names (not `t`, `pi`, a function or a
+/// keyword, nor a coordinate, parameter or constant), and a scene's name,
+/// the name of a struct, is no Rust keyword. A scene's constraints are the
 /// base ones followed by its `constraint`/`holonomic` effects in the order
 /// the scene lists them. Holonomic effects also give the generated type
 /// `HAS_HOLONOMIC = true` and `holonomic_residual(t, q)` (`g_i`, 0 for the

@@ -24,10 +24,7 @@
 
 use crate::step::{State, StepResult};
 use crate::system::Vector;
-use crate::tableau::{Tableau, MAX_STAGES};
-
-/// Most nodes of the velocity interpolant: the interior stage nodes plus both ends.
-const MAX_NODES: usize = MAX_STAGES + 2;
+use crate::tableau::Tableau;
 
 /// Where the value at one node of the velocity interpolant comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,13 +42,45 @@ pub struct DenseBasis<const S: usize> {
     beta: [[f64; S]; S],
     /// `ℓ_j(θ) = Σ_k ell[j][k] θ^k`.
     ell: [[f64; S]; S],
-    /// Nodes of the velocity interpolant (`len` of them).
-    nodes: [f64; MAX_NODES],
-    /// Their sources.
-    sources: [Source; MAX_NODES],
-    /// `1/Π_{m≠i}(x_i − x_m)`.
-    denominators: [f64; MAX_NODES],
+    /// The velocity interpolant's nodes between its ends `0` and `1`: at
+    /// most `S` of them, so any stage count fits (a tableau built by hand
+    /// may have more stages than the checked-in tables).
+    nodes: Nodes<S>,
+    /// `1/Π_{m≠i}(x_i − x_m)` of the nodes `0` and `1`.
+    end_denominators: [f64; 2],
+    /// Number of nodes, both ends included.
     len: usize,
+}
+
+/// The nodes of the velocity interpolant between its two ends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Nodes<const S: usize> {
+    /// The stage nodes strictly inside `(0, 1)` (`len − 2` of them) and
+    /// the stages they come from.
+    interior: [f64; S],
+    stage: [usize; S],
+    /// Their `1/Π_{m≠i}(x_i − x_m)`.
+    denominators: [f64; S],
+}
+
+impl<const S: usize> DenseBasis<S> {
+    /// Node `i` of the velocity interpolant (`0 ≤ i < len`).
+    fn node(&self, i: usize) -> f64 {
+        match i {
+            0 => 0.0,
+            i if i + 1 == self.len => 1.0,
+            i => self.nodes.interior[i - 1],
+        }
+    }
+
+    /// Where node `i`'s value comes from, and its `1/Π_{m≠i}(x_i − x_m)`.
+    fn source(&self, i: usize) -> (Source, f64) {
+        match i {
+            0 => (Source::Start, self.end_denominators[0]),
+            i if i + 1 == self.len => (Source::End, self.end_denominators[1]),
+            i => (Source::Stage(self.nodes.stage[i - 1]), self.nodes.denominators[i - 1]),
+        }
+    }
 }
 
 impl<const S: usize> DenseBasis<S> {
@@ -82,30 +111,30 @@ impl<const S: usize> DenseBasis<S> {
                 beta[j][k] = poly[k] / (k + 1) as f64;
             }
         }
-        let mut nodes = [0.0; MAX_NODES];
-        let mut sources = [Source::Start; MAX_NODES];
-        let mut len = 1;
+        let mut nodes = Nodes { interior: [0.0; S], stage: [0; S], denominators: [0.0; S] };
+        let mut inside = 0;
         for (j, &cj) in c.iter().enumerate() {
             if cj > 0.0 && cj < 1.0 {
-                nodes[len] = cj;
-                sources[len] = Source::Stage(j);
-                len += 1;
+                nodes.interior[inside] = cj;
+                nodes.stage[inside] = j;
+                inside += 1;
             }
         }
-        nodes[len] = 1.0;
-        sources[len] = Source::End;
-        len += 1;
-        let mut denominators = [0.0; MAX_NODES];
-        for i in 0..len {
+        let mut basis = DenseBasis { beta, ell, nodes, end_denominators: [0.0; 2], len: inside + 2 };
+        for i in 0..basis.len {
             let mut p = 1.0;
-            for m in 0..len {
+            for m in 0..basis.len {
                 if m != i {
-                    p *= nodes[i] - nodes[m];
+                    p *= basis.node(i) - basis.node(m);
                 }
             }
-            denominators[i] = 1.0 / p;
+            match i {
+                0 => basis.end_denominators[0] = 1.0 / p,
+                i if i + 1 == basis.len => basis.end_denominators[1] = 1.0 / p,
+                i => basis.nodes.denominators[i - 1] = 1.0 / p,
+            }
         }
-        DenseBasis { beta, ell, nodes, sources, denominators, len }
+        basis
     }
 
     /// Polynomial degree of the position interpolant (`s`).
@@ -242,17 +271,18 @@ impl<'a, const N: usize, const S: usize> DenseStep<'a, N, S> {
         let mut dv = Vector::<N>::zeros();
         for i in 0..b.len {
             // ℓ_i(θ) and ℓ_i'(θ) by a running product.
-            let (mut p, mut dp) = (b.denominators[i], 0.0);
+            let (source, denominator) = b.source(i);
+            let (mut p, mut dp) = (denominator, 0.0);
             for m in 0..b.len {
                 if m != i {
-                    let f = theta - b.nodes[m];
+                    let f = theta - b.node(m);
                     if derivative {
                         dp = dp * f + p;
                     }
                     p *= f;
                 }
             }
-            let value = match b.sources[i] {
+            let value = match source {
                 Source::Start => &self.start.v,
                 Source::Stage(j) => &self.stage_velocities[j],
                 Source::End => &self.step_end.v,

@@ -261,3 +261,27 @@ fn malformed_forces_are_errors() {
     };
     assert!(e.contains("may only appear in a non-ideal constraint force"), "{e}");
 }
+
+/// A constraint effect's name stands for its multiplier in `nonideal`
+/// forces, where `t`, `pi` and the functions keep their own meaning: a
+/// constraint named `pi` made `nonideal { y: -mu*pi }` the constant −μπ, a
+/// constraint named `t` the time, each generated as a success. Such names are
+/// refused like the names of coordinates; a scene name, a struct of its
+/// own, may not be a Rust keyword (as the base struct's may not).
+#[test]
+fn constraint_effects_named_like_the_time_pi_or_a_function_and_keyword_scenes_are_errors() {
+    for name in ["t", "pi", "sin", "atan2", "dot", "type"] {
+        let e = error_of(&FORCED.replace("rail", name));
+        assert!(e.contains(&format!("`{name}`")) && e.contains("choose another name for this effect"), "{name}: {e}");
+        let e = error_of(&FORCED.replace("rod", name));
+        assert!(e.contains(&format!("`{name}`")) && e.contains("choose another name for this effect"), "{name}: {e}");
+    }
+    // The multiplier's own spelling is no reserved word: `psi` names the multiplier.
+    let (_, scenes) = parse_with_scenes(&tokens(&FORCED.replace("rail", "psi"))).unwrap().unwrap();
+    let rubbing = generate(&scenes[3]).unwrap().to_string();
+    assert!(rubbing.contains("(psi 1)") && !rubbing.contains("(neg pi)"), "{rubbing}");
+    for name in ["Self", "struct", "type", "fn"] {
+        let e = error_of(&FORCED.replace("Rubbing", name));
+        assert!(e.contains(&format!("`{name}` is a Rust keyword; choose another scene name")), "{name}: {e}");
+    }
+}

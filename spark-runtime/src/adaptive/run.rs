@@ -6,7 +6,9 @@
 //! driver.
 
 use super::{resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
-use crate::driver::{Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory};
+use crate::driver::{
+    needs_extension, Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory,
+};
 use crate::events::EventFunctions;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
 use crate::step::{State, StepResult, Stepper};
@@ -52,6 +54,12 @@ where
 {
     options.validate().map_err(AdaptiveError::InvalidOption)?;
     stepper.options().validate().map_err(AdaptiveError::InvalidOption)?;
+    if needs_extension(wants_dense, events.specs().len(), false) {
+        stepper.tableau().validate_for_dense_output()
+    } else {
+        stepper.tableau().validate()
+    }
+    .map_err(AdaptiveError::InvalidOption)?;
     if !t0.is_finite() || !t_end.is_finite() {
         return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "times must be finite" });
     }

@@ -62,6 +62,12 @@ pub(crate) struct DenseRun<'a, Sys, const N: usize, const S: usize> {
     pub(crate) terminal: Option<State<N>>,
 }
 
+/// Whether a run builds the continuous extension of its steps: for an
+/// observer of the dense output, events, or `Schedule::Sampled` times.
+pub(crate) fn needs_extension(wants_dense: bool, events: usize, sampled: bool) -> bool {
+    wants_dense || events > 0 || sampled
+}
+
 impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
     /// A run from `start` with the coefficients `tableau`, locating
     /// `events`, handing the extension to the observer when `wants_dense`
@@ -101,7 +107,7 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
     /// events, an observer of the dense output or `Sampled` times,
     /// [`accepted`](Self::accepted) need not be called.
     pub(crate) fn is_needed(&self) -> bool {
-        self.wants_dense || !self.events.specs().is_empty() || self.sampled.is_some()
+        needs_extension(self.wants_dense, self.events.specs().len(), self.sampled.is_some())
     }
 
     /// The index of the terminal event that ended the run, if one did.

@@ -30,7 +30,7 @@ use crate::initial::{consistent_velocity, ConsistencyPolicy};
 use crate::rejection::RejectionPolicy;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
-pub(crate) use dense_run::{declared_events, Accepted, DenseRun};
+pub(crate) use dense_run::{declared_events, needs_extension, Accepted, DenseRun};
 
 /// Where to produce output.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -391,6 +391,13 @@ where
     ) -> Result<Trajectory<N, M>, IntegrationError> {
         options.validate().map_err(IntegrationError::InvalidOption)?;
         self.options().validate().map_err(IntegrationError::InvalidOption)?;
+        let sampled = matches!(schedule, Schedule::Sampled { .. });
+        if needs_extension(observer.wants_dense(), events.specs().len(), sampled) {
+            self.tableau().validate_for_dense_output()
+        } else {
+            self.tableau().validate()
+        }
+        .map_err(IntegrationError::InvalidOption)?;
         let steps = schedule.steps(t0)?;
         let v0c =
             consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
@@ -437,6 +444,13 @@ where
         let track = |s: &Sample<N, M>, report: &mut RunReport| report.track(s, e0);
         track(&first, &mut report);
         samples.push(first);
+        // The samples of a `Sampled` run are the initial point and each
+        // requested time. A time at t0 is recorded by the first step's
+        // extension, which returns its start bit for bit; when it is the only
+        // time no step is taken, so it is recorded here.
+        if steps == 0 && sampled.is_some_and(|times| !times.is_empty()) {
+            samples.push(first);
+        }
         // The report's extremes cover every accepted step, recorded or not:
         // the energy and the residual (no multipliers) at the steps not
         // recorded, only when the run observes them.

@@ -404,9 +404,12 @@ where
     }
 
     /// Checks the Newton options once after they changed
-    /// ([`NewtonOptions::validate`]).
+    /// ([`NewtonOptions::validate`]), and the tableau with them
+    /// ([`Tableau::validate`]: its fields are public, so it may have been
+    /// built by hand).
     pub(crate) fn check_options(&mut self) -> Result<(), StepError> {
         if !self.options_checked {
+            self.tableau.validate().map_err(|e| StepError::InvalidOption(Box::new(e)))?;
             self.options.validate().map_err(|e| StepError::InvalidOption(Box::new(e)))?;
             self.options_checked = true;
         }

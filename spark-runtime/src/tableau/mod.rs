@@ -11,6 +11,8 @@ mod tables;
 pub use table::{ConditionEquation, TableauTable};
 pub use tables::MAX_STAGES;
 
+use crate::error::OptionError;
+
 /// Gauss coefficients for one `s` (row-major `a`).
 #[derive(Debug)]
 pub(crate) struct RawGauss {
@@ -142,11 +144,15 @@ impl Method {
         }
     }
 
-    /// Global order of convergence with `s` stages.
+    /// Global order of convergence with `s` stages (`s` in
+    /// [`stage_range`](Self::stage_range); outside it, the formula's value
+    /// clamped to `0..=usize::MAX`).
     pub const fn order(self, s: usize) -> usize {
+        // Saturating: `s = 0` of a Lobatto family wrapped (or overflowed in
+        // a debug build) to a huge order.
         match self {
-            Method::Gauss => 2 * s,
-            Method::LobattoIIIAB | Method::LobattoIIIABD => 2 * s - 2,
+            Method::Gauss => s.saturating_mul(2),
+            Method::LobattoIIIAB | Method::LobattoIIIABD => s.saturating_mul(2).saturating_sub(2),
             Method::SymplecticEulerI | Method::SymplecticEulerII => 1,
             Method::ModifiedLobattoIIIAB | Method::LobattoIIIBALda => 2,
         }
@@ -390,6 +396,56 @@ impl<const S: usize> Tableau<S> {
     /// Whether the method satisfies the symmetry conditions (6.3) to `1e-14`.
     pub fn is_symmetric(&self) -> bool {
         self.symmetry_defect() <= 1e-14
+    }
+
+    /// Checks what a step needs of coefficients that may have been built
+    /// by hand (the fields are public): at least one stage and finite
+    /// coefficients. Every tableau of [`Tableau::new`] passes. The stepper
+    /// checks it before its first step ([`StepError::InvalidOption`](crate::StepError)),
+    /// `integrate` and the adaptive drivers before the run: with `S = 0` a
+    /// step would return its start's positions as a success, and a NaN
+    /// coefficient fails every step with a message about the system.
+    pub fn validate(&self) -> Result<(), OptionError> {
+        if S == 0 {
+            return Err(OptionError::integer(
+                "the stage count S of Tableau<S>",
+                0,
+                "at least 1 (a SPARK step evaluates the equations at its stages)",
+            ));
+        }
+        let vectors = [("Tableau::c", &self.c), ("Tableau::b", &self.b), ("Tableau::b_hat", &self.b_hat)];
+        let vectors = vectors.into_iter().chain([("Tableau::b_tilde", &self.b_tilde)]);
+        for (name, values) in vectors {
+            if let Some(&x) = values.iter().find(|x| !x.is_finite()) {
+                return Err(OptionError::float(name, x, "finite in every entry"));
+            }
+        }
+        let matrices = [("Tableau::a", &self.a), ("Tableau::a_hat", &self.a_hat), ("Tableau::a_tilde", &self.a_tilde)];
+        for (name, rows) in matrices.into_iter().chain([("Tableau::omega", &self.omega)]) {
+            if let Some(&x) = rows.iter().flatten().find(|x| !x.is_finite()) {
+                return Err(OptionError::float(name, x, "finite in every entry"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks what the continuous extension of a step (dense output,
+    /// events, `Schedule::Sampled`) needs besides [`Tableau::validate`]:
+    /// distinct nodes `c`, since its interpolants divide by `c_j − c_m`
+    /// (with a repeated node every sample between grid points would be NaN).
+    pub fn validate_for_dense_output(&self) -> Result<(), OptionError> {
+        self.validate()?;
+        for j in 0..S {
+            if self.c[..j].contains(&self.c[j]) {
+                return Err(OptionError::float(
+                    "Tableau::c",
+                    self.c[j],
+                    "distinct in every entry for dense output, events and Schedule::Sampled (the \
+                     interpolants of a step divide by c_j - c_m); this value is repeated",
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

@@ -330,3 +330,21 @@ fn sampled_schedules_sample_a_last_time_the_rounded_step_count_falls_short_of() 
     let got: Vec<f64> = traj.samples.iter().map(|s| s.t).collect();
     assert_eq!(got, [0.0, 1e-175, 2e-175]);
 }
+
+/// The samples of a `Sampled` run are the initial point and one per
+/// requested time, a time at `t₀` included: with later times the first
+/// step's extension records it; alone it takes no step, and the run had
+/// returned the initial point only (one sample for one time).
+#[test]
+fn a_sampled_time_at_the_start_is_a_sample_of_its_own() {
+    let start = State::new(0.5, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
+    let mut st = Stepper::<Particle, 3, 1, 2, 11>::new(Particle, Tableau::new(Method::Gauss).unwrap());
+    for (h, times) in [(0.1, vec![0.5]), (0.1, vec![0.5, 0.62]), (-0.1, vec![0.5]), (-0.1, vec![0.5, 0.3])] {
+        let schedule = Schedule::Sampled { h, times: &times };
+        let traj = st.integrate(0.5, &start.q, &start.v, schedule, &RunOptions::default(), &mut NoObserver).unwrap();
+        let got: Vec<f64> = traj.samples.iter().map(|s| s.t).collect();
+        let expected: Vec<f64> = std::iter::once(0.5).chain(times.iter().copied()).collect();
+        assert_eq!(got, expected, "h = {h}, times = {times:?}");
+        assert_eq!((traj.samples[1].q, traj.samples[1].v), (start.q, start.v), "h = {h}, times = {times:?}");
+    }
+}

@@ -12,6 +12,7 @@ mod dense_output;
 mod driver_robustness;
 mod end_point_values;
 mod events;
+mod hand_built_tableaux;
 mod lanes_newcomer;
 mod newcomer_systems;
 mod newcomer_unusual_systems;

@@ -22,7 +22,7 @@
 
 use super::expr::{describe, parse_expression, split_commas};
 use super::forces::parse_force_block;
-use super::names::{list, nearest};
+use super::names::{is_keyword, list, nearest, reserved_reason};
 use super::scope::{Context, Multipliers, Scope};
 use crate::spec::{Declaration, Effect, EffectDecl, SceneDecl, SpecError, SrcExpr, SystemSpec};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
@@ -176,6 +176,18 @@ fn parse_effects(base: &SystemSpec, group: &Group) -> Result<Vec<EffectDecl>, Sp
     for (e, r) in raw.iter().enumerate() {
         if matches!(r.kind.to_string().as_str(), "constraint" | "holonomic") {
             let n = r.name.to_string();
+            // The name is read inside expressions, where `t`, `pi` and the
+            // functions keep their own meaning: `nonideal { y: -mu*pi }`
+            // would be −μπ, not −μ times the multiplier of a constraint `pi`.
+            if let Some(reason) = reserved_reason(&n) {
+                return err(
+                    r.name.span(),
+                    format!(
+                        "{reason}; a constraint effect's name stands for its multiplier in `nonideal` forces, so \
+                         choose another name for this effect"
+                    ),
+                );
+            }
             let clash = base.coordinates.iter().map(|c| &c.name).chain(params.iter().map(|p| &p.name));
             if clash.chain(consts.iter().map(|c| &c.name)).any(|d| *d == n) {
                 return err(
@@ -288,6 +300,10 @@ fn parse_scenes(
                 )
             }
         };
+        if is_keyword(&name.to_string()) {
+            // Each scene is a struct of its own, named by the scene.
+            return err(name.span(), format!("`{name}` is a Rust keyword; choose another scene name"));
+        }
         if *name == base.name || scenes.iter().any(|s| s.name == *name) {
             return err(name.span(), format!("scene `{name}` is declared twice (or named like the base struct)"));
         }
