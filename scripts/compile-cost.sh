@@ -199,5 +199,11 @@ show() { awk -v x="$1" 'BEGIN { split(x, a, ","); printf "%s s (%s s)", a[1], a[
     echo "Machine: $(nproc) cores shared with other jobs (load average at the end: $(cut -d' ' -f1-3 /proc/loadavg)),"
     echo "$(rustc --version), repository at $(git -C "$REPO" rev-parse --short HEAD), $(date -u +%Y-%m-%dT%H:%MZ)."
     echo "Wall-clock figures on a loaded machine are inflated and noisy; CPU figures are steadier."
-} >"$OUT"
+} >"$OUT.new"
+# A hand-written section from `## Against another build` on (comparisons of
+# builds run back to back) is kept below the regenerated tables.
+if [ -f "$OUT" ] && grep -q '^## Against another build' "$OUT"; then
+    { echo; sed -n '/^## Against another build/,$p' "$OUT"; } >>"$OUT.new"
+fi
+mv "$OUT.new" "$OUT"
 log "wrote $OUT"
