@@ -7,7 +7,7 @@
 
 use super::{resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
 use crate::driver::{
-    needs_extension, Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory,
+    check_tableau, Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory,
 };
 use crate::events::EventFunctions;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
@@ -54,12 +54,7 @@ where
 {
     options.validate().map_err(AdaptiveError::InvalidOption)?;
     stepper.options().validate().map_err(AdaptiveError::InvalidOption)?;
-    if needs_extension(wants_dense, events.specs().len(), false) {
-        stepper.tableau().validate_for_dense_output()
-    } else {
-        stepper.tableau().validate()
-    }
-    .map_err(AdaptiveError::InvalidOption)?;
+    check_tableau(stepper.tableau(), wants_dense, events.specs().len(), false).map_err(AdaptiveError::InvalidOption)?;
     if !t0.is_finite() || !t_end.is_finite() {
         return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "times must be finite" });
     }

@@ -8,6 +8,7 @@ use super::observer::StepObserver;
 use super::trajectory::{sample_of, RunReport, Sample};
 use super::Observe;
 use crate::dense::{DenseBasis, DenseStep};
+use crate::error::OptionError;
 use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
 use crate::step::{State, StepResult};
 use crate::system::NonholonomicSystem;
@@ -66,6 +67,22 @@ pub(crate) struct DenseRun<'a, Sys, const N: usize, const S: usize> {
 /// observer of the dense output, events, or `Schedule::Sampled` times.
 pub(crate) fn needs_extension(wants_dense: bool, events: usize, sampled: bool) -> bool {
     wants_dense || events > 0 || sampled
+}
+
+/// What a run needs of its tableau before the first step
+/// ([`Tableau::validate`]), and distinct nodes when it builds the
+/// continuous extension ([`Tableau::validate_for_dense_output`]).
+pub(crate) fn check_tableau<const S: usize>(
+    tableau: &Tableau<S>,
+    wants_dense: bool,
+    events: usize,
+    sampled: bool,
+) -> Result<(), OptionError> {
+    if needs_extension(wants_dense, events, sampled) {
+        tableau.validate_for_dense_output()
+    } else {
+        tableau.validate()
+    }
 }
 
 impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {

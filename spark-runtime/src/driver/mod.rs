@@ -30,7 +30,7 @@ use crate::initial::{consistent_velocity, ConsistencyPolicy};
 use crate::rejection::RejectionPolicy;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
-pub(crate) use dense_run::{declared_events, needs_extension, Accepted, DenseRun};
+pub(crate) use dense_run::{check_tableau, declared_events, Accepted, DenseRun};
 
 /// Where to produce output.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -392,12 +392,8 @@ where
         options.validate().map_err(IntegrationError::InvalidOption)?;
         self.options().validate().map_err(IntegrationError::InvalidOption)?;
         let sampled = matches!(schedule, Schedule::Sampled { .. });
-        if needs_extension(observer.wants_dense(), events.specs().len(), sampled) {
-            self.tableau().validate_for_dense_output()
-        } else {
-            self.tableau().validate()
-        }
-        .map_err(IntegrationError::InvalidOption)?;
+        check_tableau(self.tableau(), observer.wants_dense(), events.specs().len(), sampled)
+            .map_err(IntegrationError::InvalidOption)?;
         let steps = schedule.steps(t0)?;
         let v0c =
             consistent_velocity(self.system(), t0, q0, v0, options.consistency).map_err(IntegrationError::Initial)?;
