@@ -13,8 +13,8 @@
 //! into them in place), so the stepper value is `O(s·D)` bytes and a step's
 //! stack use is `O(D)`, not `O(n²)` or `O(D²)`. To show it, the whole
 //! measurement runs on a thread with rayon's default 2 MiB stack
-//! ([`WORKER_STACK`]), which the old stack-allocated matrices overflowed from
-//! `D ≈ 250` on and the by-value stage Jacobians from `n ≈ 90`.
+//! ([`WORKER_STACK`]), which stack-allocated matrices would overflow from
+//! `D ≈ 250` on and by-value stage Jacobians from `n ≈ 90`.
 
 use super::flops::{flops_per_step, newton_work, NewtonPath};
 use super::sweep::unobserved;
