@@ -149,6 +149,26 @@ def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
     assert not any(tmp_path.iterdir()), "a refused declaration must not reach cargo"
 
 
+def test_an_expression_of_too_many_operations_is_a_dsl_error_not_a_crash():
+    """A sum of 200 000 terms is a tree 200 000 levels deep, which overflowed
+    the stack of the check thread and killed the interpreter (SIGSEGV); it
+    is refused at the first operation beyond the limit. Run in a child
+    interpreter, so that a crash fails this test rather than pytest."""
+    code = textwrap.dedent(
+        """
+        import spark
+        text = "pub struct Long { coordinates: [x], lagrangian: dot(x)^2" + " + x" * 200_000 + " }"
+        try:
+            spark.compile(text)
+        except spark.DslError as e:
+            print(e.line, e.column, e.message)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    assert "the lagrangian has more than 20000 operations" in done.stdout, done.stdout
+
+
 def test_ctrl_c_interrupts_the_check_of_a_large_declaration():
     # The check of 400 coupled coordinates takes seconds; Ctrl-C ends it at
     # once (it held the GIL and ignored signals until it was done).
