@@ -150,10 +150,10 @@ def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
 
 
 def test_an_expression_of_too_many_operations_is_a_dsl_error_not_a_crash():
-    """A sum of 200 000 terms is a tree 200 000 levels deep, which overflowed
-    the stack of the check thread and killed the interpreter (SIGSEGV); it
-    is refused at the first operation beyond the limit. Run in a child
-    interpreter, so that a crash fails this test rather than pytest."""
+    """A sum of 200 000 terms is a tree 200 000 levels deep, whose passes
+    would overflow the stack of the check thread and kill the interpreter
+    (SIGSEGV); it is refused at the first operation beyond the limit. Run in
+    a child interpreter, so that a crash fails this test rather than pytest."""
     code = textwrap.dedent(
         """
         import spark

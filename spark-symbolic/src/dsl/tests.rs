@@ -335,8 +335,8 @@ fn on_main_sized_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static
 }
 
 /// A chain `x + x + …` is parsed in a loop but is a tree as deep as it is
-/// long: one of 200 000 terms overflowed the stack of the passes over the
-/// tree (it aborted the Python interpreter in `spark.compile`'s check). More
+/// long: one of 200 000 terms would overflow the stack of the passes over
+/// the tree (and abort the Python interpreter in `spark.compile`'s check). More
 /// than `MAX_OPERATIONS` operations in one expression, in one chain or
 /// spread over parentheses and call arguments, are an error at the first
 /// operation beyond the limit; the limit itself runs through the whole
