@@ -136,6 +136,15 @@ def many_coordinates(n: int) -> str:
     )
 
 
+def test_a_cache_folder_that_cannot_be_made_is_a_spark_error(tmp_path):
+    # A file as cache_dir raised the OS's NotADirectoryError from mkdir.
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    text = declaration("Skate") + "\n// cache in a file"
+    with pytest.raises(spark.SparkError, match=r"cannot use the cache folder .*a-file.*give cache_dir="):
+        spark.compile(text, cache_dir=str(blocker))
+
+
 def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
     # 3000 coordinates stalled the check for over 300 s (the engine's work
     # grows like n²); they are refused at the coordinate list, before cargo.
