@@ -231,8 +231,8 @@ where
         for j in 0..N {
             hand = hand.max(rel(p[j], diff6(|d| Hand::lagrangian(sys, t, &q, &shifted(&v, j, d)), e)));
             hand = hand.max(rel(fq[j], diff6(|d| Hand::lagrangian(sys, t, &shifted(&q, j, d), &v), e)));
-            for i in 0..M {
-                hand = hand.max(rel(kv[i][j], diff6(|d| Hand::k(sys, t, &q, &shifted(&v, j, d))[i], e)));
+            for (i, row) in kv.iter().enumerate() {
+                hand = hand.max(rel(row[j], diff6(|d| Hand::k(sys, t, &q, &shifted(&v, j, d))[i], e)));
             }
         }
         // The generated functions against the hand ones.
@@ -336,12 +336,14 @@ fn solve_dense(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
         }
         a.swap(col, pivot);
         b.swap(col, pivot);
-        for row in col + 1..n {
-            let f = a[row][col] / a[col][col];
-            for k in col..n {
-                a[row][k] -= f * a[col][k];
+        let (top, rest) = a.split_at_mut(col + 1);
+        let pivot_row = &top[col];
+        for (offset, row) in rest.iter_mut().enumerate() {
+            let f = row[col] / pivot_row[col];
+            for (x, p) in row[col..].iter_mut().zip(&pivot_row[col..]) {
+                *x -= f * p;
             }
-            b[row] -= f * b[col];
+            b[col + 1 + offset] -= f * b[col];
         }
     }
     let mut x = vec![0.0; n];
@@ -490,6 +492,10 @@ fn distance<H: Hand, const N: usize, const M: usize, const S: usize>(
     worst
 }
 
+/// Per run its label and the largest distance with the largest Newton
+/// iteration count, or the failure.
+type RunResults = Vec<(String, Result<(f64, usize), String>)>;
+
 /// Steps of every method and Newton mode from `start`, each compared with
 /// the independent solve from the same state; returns per run its label and
 /// the largest distance, or the failure.
@@ -499,7 +505,7 @@ fn steps_against_independent<Sys, const N: usize, const M: usize, const S: usize
     start: &State<N>,
     h: f64,
     steps: usize,
-) -> Vec<(String, Result<(f64, usize), String>)>
+) -> RunResults
 where
     Sys: NonholonomicSystem<N, M> + Hand + Clone,
 {
@@ -662,7 +668,7 @@ fn six_three_runs_keep_the_constraints_in_both_newton_modes() {
     for mode in [NewtonMode::Full, NewtonMode::Simplified] {
         let options = NewtonOptions { mode, ..NewtonOptions::default() };
         let mut stepper: spark_runtime::Stepper![SixThree, 3] =
-            Stepper::new(six.clone(), Tableau::new(Method::Gauss).unwrap()).with_options(options);
+            Stepper::new(six, Tableau::new(Method::Gauss).unwrap()).with_options(options);
         let run = stepper
             .integrate(
                 start.t,
@@ -716,7 +722,7 @@ fn a_constraint_row_vanishing_at_the_start_is_a_clear_error() {
         );
         assert!(message.contains("singular") || message.contains("inconsistent"), "a = {a}, {policy:?}: {message}");
         let mut stepper: spark_runtime::Stepper![VanishingRow, 2] =
-            Stepper::new(sys.clone(), Tableau::new(Method::Gauss).unwrap());
+            Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
         let options = RunOptions { consistency: policy, ..RunOptions::default() };
         match stepper.integrate(0.0, &q0, &v0, Schedule::Fixed { h: 0.1, steps: 10 }, &options, &mut NoObserver) {
             Ok(run) => panic!("a = {a}, {policy:?}: the run succeeded: {:?}", run.samples.last()),
@@ -741,7 +747,7 @@ fn a_run_through_a_vanishing_constraint_row_is_finite_or_an_error() {
     let sys = VanishingRow { a: 0.0 };
     for (h, steps) in [(0.1, 10), (0.125, 8), (0.07, 20)] {
         let mut stepper: spark_runtime::Stepper![VanishingRow, 2] =
-            Stepper::new(sys.clone(), Tableau::new(Method::Gauss).unwrap());
+            Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
         let (q0, v0) = (Vector::<2>::new(0.5, 0.3), Vector::<2>::new(-1.0, 0.0));
         match stepper.integrate(0.0, &q0, &v0, Schedule::Fixed { h, steps }, &RunOptions::default(), &mut NoObserver) {
             Ok(run) => {
