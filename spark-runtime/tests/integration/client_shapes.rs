@@ -8,6 +8,8 @@
 //!   constraint with an explicit `t` drift.
 //! - `KineticOne`: N = 1, M = 0; a Lagrangian quartic in `v` with a
 //!   `q`-dependent factor, a force quadratic in `v` and periodic in `t`.
+//! - `FullTwo`: M = N = 2; a constraint with an explicit `t`, one whose
+//!   row depends on `q`, a `q`-dependent mass and a force in `t` and `v`.
 //! - `VanishingRow`: an affine constraint `x ẏ − a` whose row `K = (0, x)`
 //!   vanishes at `x = 0`: a start there is a clear error, never a run.
 //!
@@ -60,6 +62,18 @@ nonholonomic_system! {
         parameters: { al = 0.25, k = 1.5, c = 0.1, amp = 0.3, w = 0.9 },
         lagrangian: (1 + al*x^2)*(dot(x)^2/2 + dot(x)^4/24) - k/4*x^4,
         forces: { x: -c*dot(x)*(1 + sin(t)) + amp*cos(w*t)*dot(x)^2 },
+    }
+}
+
+nonholonomic_system! {
+    /// As many constraints as coordinates, one with an explicit t and one with a q-dependent
+    /// row; a q-dependent mass and a force in t and v.
+    pub struct FullTwo {
+        coordinates: [x, y],
+        parameters: { al = 0.3, a = 0.7, w = 1.1, b = 0.4, c = 0.2 },
+        lagrangian: (1 + al*x^2)*dot(x)^2/2 + dot(y)^2/2 - x^2/2 - y^4/4,
+        constraints: [ dot(x) - a*cos(w*t), dot(y) - b*x*dot(x) ],
+        forces: { y: -c*dot(y)*(1 + t^2/10) },
     }
 }
 
@@ -170,6 +184,29 @@ impl Hand for KineticOne {
     }
     fn kv(&self, _t: f64, _q: &[f64], _v: &[f64]) -> Vec<Vec<f64>> {
         Vec::new()
+    }
+}
+
+impl Hand for FullTwo {
+    const N: usize = 2;
+    const M: usize = 2;
+    fn lagrangian(&self, _t: f64, q: &[f64], v: &[f64]) -> f64 {
+        (1.0 + self.al * q[0] * q[0]) * v[0] * v[0] / 2.0 + v[1] * v[1] / 2.0 - q[0] * q[0] / 2.0 - q[1].powi(4) / 4.0
+    }
+    fn momentum(&self, _t: f64, q: &[f64], v: &[f64]) -> Vec<f64> {
+        vec![(1.0 + self.al * q[0] * q[0]) * v[0], v[1]]
+    }
+    fn grad_q(&self, _t: f64, q: &[f64], v: &[f64]) -> Vec<f64> {
+        vec![self.al * q[0] * v[0] * v[0] - q[0], -q[1].powi(3)]
+    }
+    fn external(&self, t: f64, _q: &[f64], v: &[f64]) -> Vec<f64> {
+        vec![0.0, -self.c * v[1] * (1.0 + t * t / 10.0)]
+    }
+    fn k(&self, t: f64, q: &[f64], v: &[f64]) -> Vec<f64> {
+        vec![v[0] - self.a * (self.w * t).cos(), v[1] - self.b * q[0] * v[0]]
+    }
+    fn kv(&self, _t: f64, q: &[f64], _v: &[f64]) -> Vec<Vec<f64>> {
+        vec![vec![1.0, 0.0], vec![-self.b * q[0], 1.0]]
     }
 }
 
@@ -581,7 +618,7 @@ fn six_three_start(sys: &SixThree) -> State<6> {
     State::new(0.0, q0, v0)
 }
 
-/// The hand formulas of both systems agree with differences of their hand
+/// The hand formulas of the systems agree with differences of their hand
 /// `L` and `k`, and the generated functions and Jacobians (external force
 /// included) with the hand formulas and with differences of the generated
 /// values.
@@ -593,6 +630,9 @@ fn client_shapes_have_the_derivatives_of_their_declarations() {
     let (hand, generated) = derivative_errors::<KineticOne, 1, 0>(&KineticOne::default());
     eprintln!("KineticOne: hand formulas vs differences {hand:.2e}, generated vs hand and differences {generated:.2e}");
     assert!(hand < 1e-9 && generated < 1e-9, "KineticOne: {hand:.2e} {generated:.2e}");
+    let (hand, generated) = derivative_errors::<FullTwo, 2, 2>(&FullTwo::default());
+    eprintln!("FullTwo: hand formulas vs differences {hand:.2e}, generated vs hand and differences {generated:.2e}");
+    assert!(hand < 1e-9 && generated < 1e-9, "FullTwo: {hand:.2e} {generated:.2e}");
 }
 
 /// The generated functions equal the hand formulas to round-off (no
@@ -622,8 +662,9 @@ fn client_shapes_evaluate_as_written_by_hand() {
         worst
     }
     let (a, b) = (worst::<SixThree, 6, 3>(&SixThree::default()), worst::<KineticOne, 1, 0>(&KineticOne::default()));
-    eprintln!("generated vs hand, pointwise: SixThree {a:.2e}, KineticOne {b:.2e}");
-    assert!(a < 1e-14 && b < 1e-14, "{a:.2e} {b:.2e}");
+    let c = worst::<FullTwo, 2, 2>(&FullTwo::default());
+    eprintln!("generated vs hand, pointwise: SixThree {a:.2e}, KineticOne {b:.2e}, FullTwo {c:.2e}");
+    assert!(a < 1e-14 && b < 1e-14 && c < 1e-14, "{a:.2e} {b:.2e} {c:.2e}");
 }
 
 /// Every step of Gauss s = 1..3, Lobatto IIIA-B and IIIA-B-D s = 2, 3, in
@@ -637,6 +678,11 @@ fn client_shapes_step_as_an_independent_solve_of_the_spark_equations() {
     let one = KineticOne::default();
     let start = State::new(0.0, Vector::<1>::new(0.8), Vector::<1>::new(-0.6));
     results.extend(every_method!(one, KineticOne, 1, 0, start, 0.1, 12));
+    let full = FullTwo::default();
+    let (q0, v0) = (Vector::<2>::new(0.3, -0.2), Vector::<2>::new(0.0, 0.0));
+    let v0 = consistent_velocity(&full, 0.0, &q0, &v0, ConsistencyPolicy::Project { tolerance: 1e-12 }).unwrap();
+    let start = State::new(0.0, q0, v0);
+    results.extend(every_method!(full, FullTwo, 2, 2, start, 0.1, 12));
     let mut failures = Vec::new();
     let mut largest = 0.0f64;
     for (label, r) in &results {
