@@ -324,6 +324,30 @@ fn a_run_leaves_no_file_of_an_earlier_run_beside_its_own() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A folder under the name of one of a run's files cannot be replaced by
+/// the file: the run fails naming it, before anything is renamed, and the
+/// earlier results stay as they were (the CSV and PNG of the new run had
+/// been renamed beside the old run's reports before the SVG failed).
+#[test]
+fn a_folder_in_the_way_of_a_file_leaves_the_earlier_results_whole() {
+    let dir = temp_dir("folder-in-the-way");
+    run_ok(&["run", "skate", "--h", "0.1", "--t-end", "2"], &dir);
+    std::fs::remove_file(dir.join("skate_gauss_s2.svg")).unwrap();
+    std::fs::create_dir(dir.join("skate_gauss_s2.svg")).unwrap();
+    let before = snapshot(&dir, true);
+    let e = run_err(&["run", "skate", "--h", "0.05", "--t-end", "2", "--out", dir.to_str().unwrap()]);
+    assert!(e.contains("skate_gauss_s2.svg") && e.contains("a folder of that name is in the way"), "{e}");
+    assert_eq!(snapshot(&dir, true), before, "the folder changed");
+    // The same for a stale file of the run's own name that it would remove.
+    std::fs::remove_dir(dir.join("skate_gauss_s2.svg")).unwrap();
+    std::fs::create_dir(dir.join("skate_gauss_s2.json")).unwrap();
+    let before = snapshot(&dir, true);
+    let e = run_err(&["run", "skate", "--h", "0.05", "--t-end", "2", "--no-plot", "--out", dir.to_str().unwrap()]);
+    assert!(e.contains("skate_gauss_s2.json") && e.contains("in the way"), "{e}");
+    assert_eq!(snapshot(&dir, true), before, "the folder changed");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Standard output that cannot be written (a full disk, a pipe whose
 /// reader has gone) ends the program with an error, never a panic: `print!`
 /// panicked with "failed printing to stdout" and exit status 101.

@@ -134,6 +134,10 @@ fn an_interval_that_is_not_a_whole_number_of_steps_is_refused_at_any_length() {
     let err = step_count(0.0, 50_000_000.05, 0.1).unwrap_err();
     assert!(err.contains("not a whole number") && err.contains("--t-end 5e7 or 5.00000001e7"), "{err}");
     assert!(step_count(0.0, 5_000_000.05, 0.1).unwrap_err().contains("--t-end 5e6 or 5.0000001e6"));
+    // Half a step rounds to one: the one end that is a whole number of
+    // steps is named once, and its count in the singular.
+    let err = step_count(0.0, 0.05, 0.1).unwrap_err();
+    assert!(err.contains("use --t-end 1e-1, or --h 5e-2 (1 step)"), "{err}");
 }
 
 /// A run or an ensemble whose record would not fit in memory is refused

@@ -169,3 +169,41 @@ fn unusable_section_arguments_are_refused_with_what_to_change() {
     assert!(written.is_empty(), "{written:?}");
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// The crossings a section keeps are bounded: members that find more than
+/// the limit stop there (they do not run on, collecting crossings until an
+/// allocation failure aborts the process), and the section says how many
+/// it keeps and what to change. Here the rolling disk with h = 5 (its
+/// `sin φ` crosses zero about every step) over 2000 steps per member.
+#[test]
+fn a_section_with_more_crossings_than_fit_stops_with_what_to_change() {
+    use problems::experiments::section::{max_section_points, run_section_with_limit, SectionError};
+    let spec = SectionSpec {
+        system: SystemKind::VerticalDisk,
+        event: "revolution".into(),
+        members: 3,
+        method: Method::Gauss,
+        stages: 2,
+        h: 5.0,
+        steps: 2000,
+        t0: 0.0,
+        parameters: Vec::new(),
+        newton: NewtonOptions::default(),
+    };
+    let all = run_section_with_limit(&spec, usize::MAX).unwrap();
+    let found = all.points.len();
+    assert!(found > 300, "{found} crossings");
+    let started = std::time::Instant::now();
+    let e = run_section_with_limit(&spec, 100).unwrap_err();
+    assert!(matches!(e, SectionError::TooManyCrossings { limit: 100, .. }), "{e}");
+    let text = e.to_string();
+    assert!(text.contains("more than 100 times") && text.contains("--members") && text.contains("--t-end"), "{text}");
+    // The members stopped near the limit, not at their last step.
+    let SectionError::TooManyCrossings { t, .. } = e else { unreachable!() };
+    assert!(t < 0.5 * 2000.0 * 5.0, "stopped at t = {t}");
+    assert!(started.elapsed().as_secs_f64() < 10.0);
+    // A limit the section stays within changes nothing.
+    assert_eq!(run_section_with_limit(&spec, found).unwrap(), all);
+    // The default limit is what fits in memory: millions of crossings.
+    assert!(max_section_points(4) > 1_000_000, "{}", max_section_points(4));
+}

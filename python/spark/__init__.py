@@ -214,9 +214,18 @@ def _whole(name: str, x: Any, low: int | None = None, high: int = MAX_WHOLE) -> 
 def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
     """The parameter overrides, each name a string and each value a number
     (a bool is refused)."""
+    if params is None:
+        return None
+    try:
+        params = dict(params)
+    except (TypeError, ValueError) as e:
+        # `dict("g")`'s own message names neither the argument nor the form.
+        raise TypeError(
+            f"params = {_short(params)} is not a mapping of parameter names to numbers; write e.g. "
+            "params={'g': 9.81}"
+        ) from e
     if not params:
         return None
-    params = dict(params)
     for name in params:
         if not isinstance(name, str):
             raise TypeError(f"params key {name!r} is not a string; name a parameter, e.g. params={{'g': 9.81}}")
@@ -439,12 +448,20 @@ def _floats(what: str, x) -> np.ndarray:
     """``x`` as a float64 array; :class:`ArgumentError` naming ``what`` when
     an entry is an int beyond the largest float (NumPy's own message names
     no argument)."""
+    if x is None or (isinstance(x, (list, tuple)) and any(e is None for e in x)):
+        # NumPy reads None as NaN, and the message would name a NaN the
+        # caller never wrote.
+        raise TypeError(f"{what} holds None; pass real numbers")
     try:
         return np.ascontiguousarray(x, dtype=np.float64)
     except OverflowError as e:
         raise ArgumentError(
             f"{what} holds an integer too large for a float: its magnitude must be below 1.8e308"
         ) from e
+    except (TypeError, ValueError) as e:
+        # NumPy's own message ("float() argument must be a string or a real
+        # number, not 'dict'", "inhomogeneous shape") names no argument.
+        raise TypeError(f"{what} = {_short(x)} is not an array of real numbers: {e}") from e
 
 
 def _vector(what: str, x) -> list[float]:

@@ -161,8 +161,15 @@ def _folder_lock(folder: Path):
     machine with an empty cache) build and install its module one after the
     other, instead of rewriting its crate and its module file under each
     other."""
-    folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / ".lock", "a") as lock:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        lock = open(folder / ".lock", "a")
+    except OSError as e:
+        raise SparkError(
+            f"spark.compile cannot use the cache folder {folder}: {e}; give cache_dir= (or SPARK_CACHE_DIR) a "
+            "folder it can create and write"
+        ) from e
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             yield

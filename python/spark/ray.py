@@ -100,7 +100,10 @@ def sweep(
     ordered by member, then time, whatever the shard count, and every
     member's numbers are those of :func:`spark.integrate` for it alone.
     ``out`` is checked before Ray starts and written under a temporary name
-    in its folder, renamed to ``out`` once complete.
+    in its folder, renamed to ``out`` once complete. The other arguments
+    are checked before Ray starts too, by one step of the first member, and
+    a table that would not fit in the driver's memory (4 GiB, or half the
+    available memory) is refused with the ``every`` that fits.
     """
     # Missing packages fail here, before any work.
     import pyarrow  # noqa: F401
@@ -138,6 +141,7 @@ def sweep(
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
     if not os.path.isdir(folder):
         raise spark.SparkError(f"the folder of out = {out!r}, {folder}, does not exist; create it first")
+    _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton)
     # The temporary file is created now, so that a folder that cannot be
     # written (read-only, /proc) is reported before Ray starts.
     temp = _reserve(out, folder)
@@ -147,6 +151,60 @@ def sweep(
     finally:
         with contextlib.suppress(OSError):
             os.remove(temp)
+
+
+def _row_bytes(n: int) -> int:
+    """Bytes of one row of the sweep's table for ``n`` coordinates:
+    ``member``, ``t``, ``energy``, ``energy_error``, ``constraint`` and
+    ``q``, ``v``, 8 bytes each."""
+    return 8 * (2 * n + 5)
+
+
+#: Copies of the table the driver holds at once: the shards' tables it
+#: gathers, and the encoding of the Parquet file.
+_TABLE_COPIES = 2
+
+
+def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton) -> None:
+    """What the shards would otherwise find only in the workers, after Ray
+    has started, checked here: the system (a registered name or a
+    :class:`spark.System`), the width of ``q0s``, and the method, stage
+    count, step, parameters, Newton mode and the first member's state (one
+    step of the first member); and the table the driver gathers, which must
+    fit in memory as a run's record must (each shard checks only its own
+    members)."""
+    if isinstance(system, str):
+        sys_ = spark.system(system)
+    elif isinstance(system, spark.System):
+        sys_ = system
+    else:
+        raise TypeError(f"system = {spark._short(system)} is neither a system name nor a spark.System")
+    members = q0s.shape[0]
+    if q0s.shape[1] != sys_.n:
+        raise spark.SparkError(
+            f"q0s and v0s must have shape (members, {sys_.n}) for {sys_.name} ({', '.join(sys_.coordinates)}); got "
+            f"{q0s.shape}"
+        )
+    try:
+        sys_.integrate(method, s, h, 1, q0=q0s[0], v0=v0s[0], params=params, newton=newton)
+    except spark.SparkError as e:
+        raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {e}") from e
+    samples = steps // every + (1 if steps % every == 0 else 2)
+    rows = members * samples
+    need = rows * _row_bytes(sys_.n) * _TABLE_COPIES
+    limit = spark._native.record_memory_limit()
+    if need > limit:
+        fits = limit // (_row_bytes(sys_.n) * _TABLE_COPIES) // members
+        hint = (
+            f"record fewer samples with every = {steps // max(fits - 2, 1) + 1} or more, or sweep fewer members "
+            "per call"
+            if fits >= 2
+            else "sweep fewer members per call (even two samples of each do not fit)"
+        )
+        raise spark.ArgumentError(
+            f"the sweep's table has {rows:.3e} rows ({need:.3e} bytes in the driver's memory), more than the "
+            f"limit of {limit:.3e} bytes (4 GiB or half the available memory); {hint}"
+        )
 
 
 def _reserve(out: str, folder: str) -> str:

@@ -348,6 +348,14 @@ fn source_dir() -> String {
     python.parent().unwrap_or(python).display().to_string()
 }
 
+/// The most bytes a record may take (`spark_runtime::record_memory_limit`:
+/// 4 GiB, or half the available memory when that is less): the limit of
+/// `spark.ray.sweep`'s table, as of every run's record.
+#[pyfunction]
+fn record_memory_limit() -> u64 {
+    spark_runtime::record_memory_limit()
+}
+
 /// The crate version (part of `spark.compile`'s cache key).
 #[pyfunction]
 fn version() -> &'static str {
@@ -373,5 +381,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(check_dsl, m)?)?;
     m.add_function(wrap_pyfunction!(source_dir, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;
+    m.add_function(wrap_pyfunction!(record_memory_limit, m)?)?;
     Ok(())
 }

@@ -136,6 +136,15 @@ def many_coordinates(n: int) -> str:
     )
 
 
+def test_a_cache_folder_that_cannot_be_made_is_a_spark_error(tmp_path):
+    # A file as cache_dir raised the OS's NotADirectoryError from mkdir.
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    text = declaration("Skate") + "\n// cache in a file"
+    with pytest.raises(spark.SparkError, match=r"cannot use the cache folder .*a-file.*give cache_dir="):
+        spark.compile(text, cache_dir=str(blocker))
+
+
 def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
     # 3000 coordinates stalled the check for over 300 s (the engine's work
     # grows like n²); they are refused at the coordinate list, before cargo.
@@ -147,6 +156,26 @@ def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
     assert time.monotonic() - start < 5.0
     assert (info.value.line, info.value.column) == (2, 18), str(info.value)
     assert not any(tmp_path.iterdir()), "a refused declaration must not reach cargo"
+
+
+def test_an_expression_of_too_many_operations_is_a_dsl_error_not_a_crash():
+    """A sum of 200 000 terms is a tree 200 000 levels deep, whose passes
+    would overflow the stack of the check thread and kill the interpreter
+    (SIGSEGV); it is refused at the first operation beyond the limit. Run in
+    a child interpreter, so that a crash fails this test rather than pytest."""
+    code = textwrap.dedent(
+        """
+        import spark
+        text = "pub struct Long { coordinates: [x], lagrangian: dot(x)^2" + " + x" * 200_000 + " }"
+        try:
+            spark.compile(text)
+        except spark.DslError as e:
+            print(e.line, e.column, e.message)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    assert "the lagrangian has more than 20000 operations" in done.stdout, done.stdout
 
 
 def test_ctrl_c_interrupts_the_check_of_a_large_declaration():

@@ -114,6 +114,40 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_a_sweep_checks_its_settings_and_the_size_of_its_table_before_ray_starts(tmp_path):
+    # An unknown system, method or parameter, an unusable h, a width of q0s
+    # other than the system's and an inconsistent first member failed in
+    # every shard, after Ray had started; a table of more rows than the
+    # driver's memory holds (each shard checks only its own members) was
+    # gathered until the driver ran out of memory.
+    q0s, v0s = sray.fig84_members(3)
+    out = str(tmp_path / "a.parquet")
+    bad_v0 = v0s.copy()
+    bad_v0[0, 0] = 3.0
+    cases = [
+        ("unknown system `nope`", ("nope", METHOD, 2, H, 10, q0s, v0s), {}),
+        ("unknown method `nope`", ("mp7-nh", "nope", 2, H, 10, q0s, v0s), {}),
+        ("not compiled into this program", ("mp7-nh", METHOD, 9, H, 10, q0s, v0s), {}),
+        ("step size h = NaN", ("mp7-nh", METHOD, 2, float("nan"), 10, q0s, v0s), {}),
+        (r"shape \(members, 7\) for mp7-nh", ("mp7-nh", METHOD, 2, H, 10, q0s[:, :3], v0s[:, :3]), {}),
+        ("has no parameter `g`", ("mp7-nh", METHOD, 2, H, 10, q0s, v0s, {"g": 1.0}), {}),
+        ("member 0 .*v0 violates the constraints", ("mp7-nh", METHOD, 2, H, 10, q0s, bad_v0), {}),
+        (r"the sweep's table has 3\.000e\+12 rows", ("mp7-nh", METHOD, 2, H, 10**12, q0s, v0s), {}),
+    ]
+    for words, args, kwargs in cases:
+        with pytest.raises(spark.SparkError, match=words):
+            sray.sweep(*args, out=out, **kwargs)
+    with pytest.raises(TypeError, match="neither a system name nor a spark.System"):
+        sray.sweep(7, METHOD, 2, H, 10, q0s, v0s, out=out)
+    # The table's limit names the record interval that fits.
+    with pytest.raises(spark.ArgumentError, match="every = ") as info:
+        sray.sweep("mp7-nh", METHOD, 2, H, 10**12, q0s, v0s, out=out)
+    every = int(str(info.value).split("every = ")[1].split()[0])
+    samples = 10**12 // every + 2
+    assert 3 * samples * 8 * 19 * 2 <= spark._native.record_memory_limit(), every
+    assert not list(tmp_path.iterdir())
+
+
 def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
     # fig84_members(0) raised "not enough values to unpack" from its zip, and
     # a count of 10**12 ran until memory ran out; ensemble_statistic with

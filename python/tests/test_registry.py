@@ -301,6 +301,28 @@ def test_a_flag_that_is_not_a_bool_is_a_type_error_naming_it():
     assert run.psi.shape == (4, 1)
 
 
+def test_arguments_of_the_wrong_kind_are_type_errors_naming_them():
+    # `params="g"` raised dict()'s "dictionary update sequence element #0 has
+    # length 1", `q0={}` float()'s "argument must be a string or a real
+    # number, not 'dict'", ragged rows NumPy's "inhomogeneous shape", and a
+    # None in q0 ran into "q0 has a non-finite entry NaN": none named the
+    # argument.
+    with pytest.raises(TypeError, match=r"^params = 'g' is not a mapping of parameter names to numbers"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, params="g")
+    with pytest.raises(TypeError, match=r"^params = 5 is not a mapping"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, params=5)
+    with pytest.raises(TypeError, match=r"^q0 = \{\} is not an array of real numbers"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, q0={})
+    with pytest.raises(TypeError, match=r"^q0 holds None; pass real numbers"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, q0=[None, 0, 0])
+    with pytest.raises(TypeError, match=r"^q0s = .* is not an array of real numbers"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 3, [[0, 0, 0], [0, 0]], [[0, 0, 1], [0, 0, 1]])
+    # An empty mapping and pairs are parameters as before.
+    assert spark.integrate("skate", "gauss", 2, 0.1, 3, params={}).q.shape == (4, 3)
+    run = spark.integrate("skate", "gauss", 2, 0.1, 3, params=[("g", 2.0)])
+    assert np.array_equal(run.q, spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": 2.0}).q)
+
+
 def test_the_native_request_names_an_integer_beyond_64_bits():
     # The native functions behind `spark.integrate` raised PyO3's "Python int
     # too large to convert to C long" for a request read directly.

@@ -201,15 +201,20 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
     let tolerance = (WHOLE_STEPS_TOLERANCE * steps).min((16.0 * f64::EPSILON * steps).max(1e-3));
     if (ratio - steps).abs() > tolerance {
         let (below, above) = (ratio.floor().max(1.0), ratio.ceil());
+        // Below one step both neighbours are the one step.
+        let ends = if below == above {
+            digits(t0 + above * h)
+        } else {
+            format!("{} or {}", digits(t0 + below * h), digits(t0 + above * h))
+        };
+        let count = if above == 1.0 { "1 step".to_string() } else { format!("{above:.0} steps") };
         return Err(format!(
-            "the interval from t0 = {} to --t-end {} is {} steps of --h {}, not a whole number; use --t-end {} or \
-             {}, or --h {} ({above:.0} steps)",
+            "the interval from t0 = {} to --t-end {} is {} steps of --h {}, not a whole number; use --t-end {ends}, \
+             or --h {} ({count})",
             digits(t0),
             digits(t_end),
             digits(ratio),
             digits(h),
-            digits(t0 + below * h),
-            digits(t0 + above * h),
             digits((t_end - t0) / above),
         ));
     }

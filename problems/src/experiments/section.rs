@@ -22,12 +22,30 @@ use crate::run::{check_parameters, RunError};
 use crate::systems::mp7_initial_values;
 use rayon::prelude::*;
 use spark_runtime::{
-    ConsistencyPolicy, Direction, EventFunctions, EventGradient, EventSpec, IntegrationError, Method, NewtonOptions,
-    NoObserver, NonholonomicSystem, RunOptions, Schedule, Stepper, Tableau, Vector,
+    ConsistencyPolicy, Direction, EventFunctions, EventGradient, EventRecord, EventSpec, IntegrationError, Method,
+    NewtonOptions, NonholonomicSystem, Observer, RunOptions, Schedule, State, Stepper, Tableau, Vector,
 };
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Most members one section may have.
 pub const MAX_SECTION_MEMBERS: usize = 10_000;
+
+/// Bytes one crossing of a system with `n` coordinates takes while a
+/// section is computed and written, bounded from above: the run's event
+/// record, the section point, its CSV columns and its marker in the figure
+/// (PNG and SVG text).
+pub fn bytes_per_point(n: usize) -> u64 {
+    48 * n as u64 + 400
+}
+
+/// Most crossings one section of a system with `n` coordinates collects:
+/// what fits in [`spark_runtime::record_memory_limit`] (4 GiB, or half the
+/// available memory). The number of crossings is not known before the
+/// members run (an event can cross up to `EVENT_SUBINTERVALS` times a
+/// step), so the members stop once they have found more.
+pub fn max_section_points(n: usize) -> usize {
+    usize::try_from(spark_runtime::record_memory_limit() / bytes_per_point(n)).unwrap_or(usize::MAX)
+}
 
 /// What to integrate for a section.
 #[derive(Clone, Debug, PartialEq)]
@@ -170,6 +188,24 @@ pub enum SectionError {
     /// The setting of the runs is rejected (parameters, method, stages).
     #[error(transparent)]
     Run(Box<RunError>),
+    /// The members crossed the event more often than a section can keep.
+    #[error(
+        "the members crossed `{event}` more than {limit} times before t = {t:.6e} (the most crossings a section \
+         keeps in memory: {bytes} bytes of 4 GiB or half the available memory); use fewer --members, a shorter \
+         --t-end, or a step that is not close to a multiple of the crossings' period (a larger --h can cross \
+         several times a step)",
+        bytes = crate::report::format::sci(*.limit as f64 * *.bytes_per_point as f64)
+    )]
+    TooManyCrossings {
+        /// The event.
+        event: &'static str,
+        /// Most crossings kept.
+        limit: usize,
+        /// Bytes per crossing ([`bytes_per_point`]).
+        bytes_per_point: u64,
+        /// The time the member that found the one too many had reached.
+        t: f64,
+    },
     /// One member's integration failed.
     #[error("member {member} (q0 = {q0:?}, v0 = {v0:?}): {source}")]
     Member {
@@ -281,6 +317,13 @@ pub fn member_initial_values(kind: SystemKind, j: usize, members: usize) -> (Vec
 /// Integrates every member of `spec` (in parallel) and collects the
 /// crossings of its event.
 pub fn run_section(spec: &SectionSpec) -> Result<Section, SectionError> {
+    run_section_with_limit(spec, max_section_points(spec.system.entry().n))
+}
+
+/// [`run_section`] keeping at most `max_points` crossings: the members stop
+/// once they have found more, and the section is
+/// [`SectionError::TooManyCrossings`].
+pub fn run_section_with_limit(spec: &SectionSpec, max_points: usize) -> Result<Section, SectionError> {
     let entry = spec.system.entry();
     if spec.members == 0 || spec.members > MAX_SECTION_MEMBERS {
         return Err(SectionError::Invalid(format!(
@@ -315,25 +358,46 @@ pub fn run_section(spec: &SectionSpec) -> Result<Section, SectionError> {
     let declared = declared_events(spec.system)[index];
     let initial: Vec<(Vec<f64>, Vec<f64>)> =
         (0..spec.members).map(|j| member_initial_values(spec.system, j, spec.members)).collect();
+    let found = AtomicUsize::new(0);
+    let budget = Budget { found: &found, limit: max_points };
+    let too_many = |t: f64| SectionError::TooManyCrossings {
+        event: declared.name,
+        limit: max_points,
+        bytes_per_point: bytes_per_point(entry.n),
+        t,
+    };
     let runs: Vec<Result<Vec<SectionPoint>, SectionError>> = initial
         .par_iter()
         .enumerate()
         .map(|(member, (q0, v0))| {
-            let visitor = MemberRun { spec, index, member, q0, v0 };
-            crate::catalog::visit_system(spec.system, visitor).map_err(|source| SectionError::Member {
-                member,
-                q0: q0.clone(),
-                v0: v0.clone(),
-                source: Box::new(source),
+            let visitor = MemberRun { spec, index, member, q0, v0, budget };
+            crate::catalog::visit_system(spec.system, visitor).map_err(|source| match source {
+                RunError::Integration { source: IntegrationError::Stopped { t, .. }, .. } => too_many(t),
+                source => SectionError::Member { member, q0: q0.clone(), v0: v0.clone(), source: Box::new(source) },
             })
         })
         .collect();
+    // A member stopped by the budget is an error only after every member
+    // has ended, so that a failure of another member is reported as such.
     let mut points = Vec::new();
     let mut counts = Vec::with_capacity(spec.members);
+    let mut stopped = None;
     for run in runs {
-        let member_points = run?;
-        counts.push(member_points.len());
-        points.extend(member_points);
+        match run {
+            Ok(member_points) => {
+                counts.push(member_points.len());
+                points.extend(member_points);
+            }
+            Err(e @ SectionError::TooManyCrossings { .. }) => stopped = stopped.or(Some(e)),
+            Err(e) => return Err(e),
+        }
+    }
+    if let Some(e) = stopped {
+        return Err(e);
+    }
+    // A member whose last step went over the limit ends its run normally.
+    if points.len() > max_points {
+        return Err(too_many(points.iter().map(|p| p.t).fold(f64::NEG_INFINITY, f64::max)));
     }
     Ok(Section {
         system: entry.name,
@@ -371,6 +435,26 @@ struct MemberRun<'a> {
     member: usize,
     q0: &'a [f64],
     v0: &'a [f64],
+    budget: Budget<'a>,
+}
+
+/// The crossings every member has found so far against the most a section
+/// keeps: an observer that counts each located event and asks its run to
+/// stop once the members together have found more than `limit`.
+#[derive(Clone, Copy)]
+struct Budget<'a> {
+    found: &'a AtomicUsize,
+    limit: usize,
+}
+
+impl<const N: usize, const M: usize> Observer<N, M> for Budget<'_> {
+    fn observe<Sys: NonholonomicSystem<N, M>>(&mut self, _: &Sys, _: &State<N>, _: usize) {}
+    fn observe_event(&mut self, _: &EventRecord<N>) {
+        self.found.fetch_add(1, Ordering::Relaxed);
+    }
+    fn stop_requested(&mut self) -> bool {
+        self.found.load(Ordering::Relaxed) > self.limit
+    }
 }
 
 impl SystemVisitor for MemberRun<'_> {
@@ -399,7 +483,7 @@ struct MemberStages<'a, Sys> {
 impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for MemberStages<'_, Sys> {
     type Output = Result<Vec<SectionPoint>, RunError>;
     fn visit<const S: usize, const D: usize>(self) -> Self::Output {
-        let MemberRun { spec, index, member, q0, v0 } = self.run;
+        let MemberRun { spec, index, member, q0, v0, mut budget } = self.run;
         let entry = spec.system.entry();
         let mut system = Sys::default();
         for (name, value) in &spec.parameters {
@@ -429,14 +513,14 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
             ..RunOptions::default()
         };
         let schedule = Schedule::Fixed { h: spec.h, steps: spec.steps };
-        let traj = stepper
-            .integrate_with_events(spec.t0, &q0, &v0, schedule, &options, &mut NoObserver, &events)
-            .map_err(|source: IntegrationError| RunError::Integration {
+        let traj = stepper.integrate_with_events(spec.t0, &q0, &v0, schedule, &options, &mut budget, &events).map_err(
+            |source: IntegrationError| RunError::Integration {
                 system: entry.name,
                 method: spec.method,
                 stages: S,
                 source,
-            })?;
+            },
+        )?;
         Ok(traj
             .events
             .iter()

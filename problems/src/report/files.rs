@@ -81,6 +81,16 @@ pub enum OutputError {
         /// What the other run wrote into the lock file (process id and command line).
         holder: String,
     },
+    /// A final name of the folder is held by a folder, which no file can
+    /// replace; found before anything is renamed.
+    #[error(
+        "cannot write {path}: a folder of that name is in the way; move or remove it and run again (the folder's \
+         earlier results are left as they were)"
+    )]
+    FolderInTheWay {
+        /// The path.
+        path: PathBuf,
+    },
     /// A figure could not be drawn.
     #[error(transparent)]
     Plot(#[from] PlotError),
@@ -292,6 +302,13 @@ impl OutputDir {
     /// every staged file to its final name, in the order staged, and returns
     /// the final paths. Files staged later (the reports) appear last.
     pub fn commit(mut self) -> Result<Vec<PathBuf>, OutputError> {
+        // A rename onto a folder fails, and the files renamed before it
+        // would sit beside the earlier run's reports: every final name is
+        // checked first, so that the folder changes completely or not at all.
+        let finals = self.staged.iter().map(|(_, path)| path).chain(self.stale.iter());
+        if let Some(path) = finals.into_iter().find(|p| p.symlink_metadata().is_ok_and(|m| m.is_dir())) {
+            return Err(OutputError::FolderInTheWay { path: path.clone() });
+        }
         for path in std::mem::take(&mut self.stale) {
             match std::fs::remove_file(&path) {
                 Err(e) if e.kind() != std::io::ErrorKind::NotFound => {

@@ -159,7 +159,7 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
             for c in self.crossings.iter() {
                 let state = piece.state_at(c.t);
                 let spec = &specs[c.index];
-                self.located.push(EventRecord {
+                let record = EventRecord {
                     index: c.index,
                     name: spec.name.to_string(),
                     rising: c.rising,
@@ -168,7 +168,9 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
                     v: state.v,
                     residual: events.value(sys, c.index, state.t, &state.q, &state.v),
                     step: at.k,
-                });
+                };
+                observer.event(&record);
+                self.located.push(record);
                 if spec.terminal {
                     stop_at = Some(state);
                     break;

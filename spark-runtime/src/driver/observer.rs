@@ -3,6 +3,7 @@
 //! observer the driver loop takes ([`StepObserver`]).
 
 use crate::dense::DenseStep;
+use crate::events::EventRecord;
 use crate::step::State;
 use crate::system::NonholonomicSystem;
 
@@ -34,6 +35,15 @@ pub trait Observer<const N: usize, const M: usize> {
     /// at the event).
     fn observe_dense<const S: usize>(&mut self, step: &DenseStep<'_, N, S>) {
         let _ = step;
+    }
+    /// Called with each event the driver locates, in time order, as it is
+    /// added to the run's [`Trajectory::events`](crate::Trajectory::events)
+    /// (before [`observe`](Self::observe) sees the step it lies in). With
+    /// [`stop_requested`](Self::stop_requested) it bounds what a run
+    /// collects: the events of a run are kept in memory, and a front end can
+    /// end a run whose events would not fit. The default ignores it.
+    fn observe_event(&mut self, event: &EventRecord<N>) {
+        let _ = event;
     }
     /// Asked after each accepted step, once [`observe`](Self::observe) has
     /// seen it: `true` ends the run there with
@@ -77,6 +87,8 @@ pub(crate) trait StepObserver<Sys, const N: usize, const M: usize, const S: usiz
     fn accepted(&mut self, system: &Sys, state: &State<N>, iterations: usize) -> bool;
     /// [`Observer::observe_dense`].
     fn dense_step(&mut self, step: &DenseStep<'_, N, S>);
+    /// [`Observer::observe_event`].
+    fn event(&mut self, event: &EventRecord<N>);
 }
 
 impl<Sys, O, const N: usize, const M: usize, const S: usize> StepObserver<Sys, N, M, S> for O
@@ -99,5 +111,9 @@ where
 
     fn dense_step(&mut self, step: &DenseStep<'_, N, S>) {
         self.observe_dense(step)
+    }
+
+    fn event(&mut self, event: &EventRecord<N>) {
+        self.observe_event(event)
     }
 }

@@ -11,6 +11,7 @@ use super::names::{list, nearest};
 use super::scope::Scope;
 use crate::spec::{BinOp, Func, SpecError, SrcExpr};
 use proc_macro2::{Delimiter, Spacing, Span, TokenTree};
+use std::cell::Cell;
 
 fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
     Err(SpecError { span, message: message.into() })
@@ -94,6 +95,17 @@ pub(crate) fn number(lit: &proc_macro2::Literal) -> Result<f64, SpecError> {
 /// rejected, so that absurd input cannot overflow the compiler's stack.
 const MAX_DEPTH: usize = 200;
 
+/// Binary operations (`+ - * / ^`) beyond which one expression is rejected.
+/// A chain `a + b + c + …` is parsed in a loop but becomes a tree as deep as
+/// it is long, and the passes over the tree (cloning, dropping, lowering)
+/// recurse: a sum of 200 000 terms overflows an 8 MiB stack (the Python
+/// package's check thread, the compiler's). Bounding the operations bounds
+/// the depth of the tree (at most this plus [`MAX_DEPTH`]). A declaration
+/// with the most coordinates ([`MAX_COORDINATES`](super::MAX_COORDINATES))
+/// and a coupling term per neighbouring pair, written term by term, has
+/// about 2 400 in its Lagrangian.
+pub const MAX_OPERATIONS: usize = 20_000;
+
 /// The token-level parser for one expression.
 struct Parser<'s, 'a> {
     toks: Vec<TokenTree>,
@@ -102,6 +114,15 @@ struct Parser<'s, 'a> {
     what: &'s str,
     /// Current nesting of `unary` calls, including enclosing expressions.
     depth: usize,
+    /// The operations of the whole expression.
+    operations: &'s Operations<'s>,
+}
+
+/// Binary operations parsed so far in one expression, its parenthesized
+/// parts and call arguments included, and the expression's name.
+struct Operations<'s> {
+    count: Cell<usize>,
+    what: &'s str,
 }
 
 /// Parses `tokens` as one complete expression. `what` names it in messages
@@ -113,7 +134,7 @@ pub(crate) fn parse_expression(
     what: &str,
     anchor: Span,
 ) -> Result<SrcExpr, SpecError> {
-    parse_nested(tokens, scope, what, anchor, 0)
+    parse_nested(tokens, scope, what, anchor, 0, &Operations { count: Cell::new(0), what })
 }
 
 fn parse_nested(
@@ -122,11 +143,12 @@ fn parse_nested(
     what: &str,
     anchor: Span,
     depth: usize,
+    operations: &Operations<'_>,
 ) -> Result<SrcExpr, SpecError> {
     if tokens.is_empty() {
         return err(anchor, format!("{what} is empty: write an expression, e.g. `dot(x)^2/2`"));
     }
-    let mut p = Parser { toks: tokens.to_vec(), pos: 0, scope, what, depth };
+    let mut p = Parser { toks: tokens.to_vec(), pos: 0, scope, what, depth, operations };
     let e = p.sum()?;
     if let Some(tt) = p.toks.get(p.pos) {
         if let (TokenTree::Ident(id), Some(TokenTree::Punct(next))) = (tt, p.toks.get(p.pos + 1)) {
@@ -155,9 +177,28 @@ impl Parser<'_, '_> {
         }
     }
 
+    /// Counts one binary operation at `span`; an error once the expression
+    /// has more than [`MAX_OPERATIONS`].
+    fn operation(&self, span: Span) -> Result<(), SpecError> {
+        let count = self.operations.count.get() + 1;
+        self.operations.count.set(count);
+        if count > MAX_OPERATIONS {
+            return err(
+                span,
+                format!(
+                    "{} has more than {MAX_OPERATIONS} operations (`+ - * / ^`): split it using constants or \
+                     simplify it",
+                    self.operations.what
+                ),
+            );
+        }
+        Ok(())
+    }
+
     fn sum(&mut self) -> Result<SrcExpr, SpecError> {
         let mut lhs = self.product()?;
         while let Some((c @ ('+' | '-'), span)) = self.peek_op() {
+            self.operation(span)?;
             self.pos += 1;
             let rhs = self.operand_after(c, span, Self::product)?;
             let op = if c == '+' { BinOp::Add } else { BinOp::Sub };
@@ -170,6 +211,7 @@ impl Parser<'_, '_> {
         let mut lhs = self.unary()?;
         while let Some((c @ ('*' | '/'), span)) = self.peek_op() {
             self.check_double_star()?;
+            self.operation(span)?;
             self.pos += 1;
             let rhs = self.operand_after(c, span, Self::unary)?;
             let op = if c == '*' { BinOp::Mul } else { BinOp::Div };
@@ -213,6 +255,7 @@ impl Parser<'_, '_> {
     fn power(&mut self) -> Result<SrcExpr, SpecError> {
         let base = self.primary()?;
         if let Some(('^', span)) = self.peek_op() {
+            self.operation(span)?;
             self.pos += 1;
             let exponent = self.operand_after('^', span, Self::unary)?;
             return Ok(SrcExpr::Binary(BinOp::Pow, Box::new(base), Box::new(exponent), span));
@@ -287,7 +330,7 @@ impl Parser<'_, '_> {
                     if inner.is_empty() {
                         return err(g.span(), "empty parentheses: write an expression inside `( … )`");
                     }
-                    parse_nested(&inner, self.scope, self.what, g.span(), self.depth)
+                    parse_nested(&inner, self.scope, self.what, g.span(), self.depth, self.operations)
                 }
                 Delimiter::Bracket | Delimiter::Brace => err(
                     g.span(),
@@ -347,7 +390,7 @@ impl Parser<'_, '_> {
                 );
             }
             let what = format!("argument {} of `{name}`", i + 1);
-            args.push(parse_nested(piece, self.scope, &what, group.span(), self.depth)?);
+            args.push(parse_nested(piece, self.scope, &what, group.span(), self.depth, self.operations)?);
         }
         if let Some(sugar) = sugar {
             if args.len() != 1 {

@@ -78,6 +78,7 @@ mod scope;
 mod tests;
 mod validate;
 
+pub use expr::MAX_OPERATIONS;
 pub use locate::{find_declaration, LocateError};
 pub use validate::validate;
 

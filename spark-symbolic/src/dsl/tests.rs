@@ -327,6 +327,43 @@ fn deep_nesting_is_an_error_not_a_stack_overflow() {
     lag(&format!("{}x{}", "(".repeat(100), ")".repeat(100)));
 }
 
+/// Runs `f` on a thread with the 8 MiB stack of a main thread (the
+/// compiler's, the Python package's check thread), where a stack overflow
+/// aborts the process.
+fn on_main_sized_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+    std::thread::Builder::new().stack_size(8 << 20).spawn(f).expect("thread").join().expect("no panic")
+}
+
+/// A chain `x + x + …` is parsed in a loop but is a tree as deep as it is
+/// long: one of 200 000 terms would overflow the stack of the passes over
+/// the tree (and abort the Python interpreter in `spark.compile`'s check). More
+/// than `MAX_OPERATIONS` operations in one expression, in one chain or
+/// spread over parentheses and call arguments, are an error at the first
+/// operation beyond the limit; the limit itself runs through the whole
+/// check (parse, generate, analyze).
+#[test]
+fn expressions_with_more_operations_than_supported_are_an_error_not_a_stack_overflow() {
+    for (what, expr) in [
+        ("a sum", format!("dot(x)^2{}", "+x".repeat(200_000))),
+        ("a product", format!("dot(x)^2{}", "*x".repeat(200_000))),
+        ("sums in parentheses", format!("dot(x)^2{}", "+(x+x+x+x)".repeat(50_000))),
+        ("sums in arguments", format!("dot(x)^2{}", "+sin(x+x+x+x)".repeat(50_000))),
+    ] {
+        let src = with_lag(&expr);
+        let (msg, text) = on_main_sized_stack(move || error(&src));
+        assert!(msg.contains(&format!("more than {MAX_OPERATIONS} operations")), "{what}: {msg}");
+        assert!(msg.starts_with("the lagrangian"), "{what}: {msg}");
+        assert!(text == "+" || text == "*", "{what}: span of `{msg}`: {text}");
+    }
+    // Exactly the limit: `dot(x)^2` is one operation, each `+x` another.
+    let at_limit = format!("struct S {{ coordinates: [x], lagrangian: dot(x)^2{} }}", "+x".repeat(MAX_OPERATIONS - 1));
+    on_main_sized_stack(move || {
+        let spec = parse_str(&at_limit).expect("parses");
+        crate::generate(&spec).expect("generates");
+        crate::analyze(&spec).expect("analyzes");
+    });
+}
+
 /// A random well-formed expression over a fixed scope, printed with the
 /// minimal parentheses the grammar needs, and its expected S-expression.
 fn arb_expr() -> impl Strategy<Value = (String, String)> {

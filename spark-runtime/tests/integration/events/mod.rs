@@ -538,3 +538,43 @@ fn a_nan_event_value_starts_or_ends_no_crossing() {
         assert!(found[0].rising && (found[0].t - 0.55).abs() <= 1e-14, "{run}: {found:?}");
     }
 }
+
+/// Counts the events located and asks to stop once there are `limit`.
+struct EventCounter {
+    names: Vec<String>,
+    limit: usize,
+}
+
+impl Observer<2, 1> for EventCounter {
+    fn observe<Sys: NonholonomicSystem<2, 1>>(&mut self, _: &Sys, _: &State<2>, _: usize) {}
+    fn observe_event(&mut self, event: &spark_runtime::EventRecord<2>) {
+        self.names.push(event.name.clone());
+    }
+    fn stop_requested(&mut self) -> bool {
+        self.names.len() >= self.limit
+    }
+}
+
+/// An observer sees every located event, in the order of the run's
+/// `events`, so that it can bound how many a run collects: stopping on the
+/// count ends the run with `Stopped` after the step that reached it.
+#[test]
+fn an_observer_sees_every_located_event_and_can_stop_on_their_count() {
+    let ball = Plain::default();
+    let (q0, v0) = (Vector::<2>::new(1.0, 0.0), Vector::<2>::new(2.0, 1.0));
+    let schedule = Schedule::Fixed { h: 0.05, steps: 200 };
+    let mut st: spark_runtime::Stepper![Plain, 3] = Stepper::new(ball, Tableau::new(Method::Gauss).unwrap());
+    let mut all = EventCounter { names: Vec::new(), limit: usize::MAX };
+    let traj = st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut all).unwrap();
+    let names: Vec<String> = traj.events.iter().map(|e| e.name.clone()).collect();
+    assert!(names.len() >= 3, "{names:?}");
+    assert_eq!(all.names, names);
+    let mut first = EventCounter { names: Vec::new(), limit: 1 };
+    match st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut first) {
+        Err(spark_runtime::IntegrationError::Stopped { t, .. }) => {
+            assert_eq!(first.names, names[..1]);
+            assert!(t >= traj.events[0].t && t < traj.events[0].t + 0.05 + 1e-12, "stopped at {t}");
+        }
+        other => panic!("expected a stop after the first event, got {other:?}"),
+    }
+}
