@@ -176,6 +176,14 @@ fn an_unwritable_out_is_reported_before_any_computation() {
     // A path that is a file, not a folder, is named as such.
     let err = run_err(&["paper", "--out", "/dev/null"]);
     assert!(err.contains("/dev/null") && err.contains("not a folder"), "{err}");
+    // A symbolic link to nowhere is named with where it points.
+    let dir = temp_dir("dangling");
+    std::fs::create_dir_all(&dir).unwrap();
+    let link = dir.join("out");
+    std::os::unix::fs::symlink(dir.join("missing"), &link).unwrap();
+    let err = run_err(&["run", "skate", "--out", link.to_str().unwrap()]);
+    assert!(err.contains("symbolic link") && err.contains("missing") && err.contains("does not exist"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

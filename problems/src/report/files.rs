@@ -44,6 +44,17 @@ pub enum OutputError {
         /// The path.
         path: PathBuf,
     },
+    /// The output path is a symbolic link whose target does not exist.
+    #[error(
+        "cannot write into {path}: it is a symbolic link to {target}, which does not exist; create {target} or \
+         give --out another folder"
+    )]
+    DanglingLink {
+        /// The path.
+        path: PathBuf,
+        /// Where the link points.
+        target: PathBuf,
+    },
     /// A file or directory could not be created or written.
     #[error("cannot write {path}: {source}")]
     Io {
@@ -116,6 +127,12 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
 pub fn create_dir(dir: &Path) -> Result<(), OutputError> {
     if dir.exists() && !dir.is_dir() {
         return Err(OutputError::NotAFolder { path: dir.to_path_buf() });
+    }
+    // `create_dir_all` on a link to nowhere fails with a bare "File exists".
+    if !dir.exists() {
+        if let Ok(target) = std::fs::read_link(dir) {
+            return Err(OutputError::DanglingLink { path: dir.to_path_buf(), target });
+        }
     }
     std::fs::create_dir_all(dir).map_err(io(dir))
 }
