@@ -504,14 +504,7 @@ fn distance<H: Hand, const N: usize, const M: usize, const S: usize>(
     x: &[f64],
 ) -> f64 {
     let (n, m, s) = (N, M, S);
-    let far = |a: f64, b: f64| {
-        let d = (a - b).abs() / b.abs().max(1.0);
-        if d.is_nan() {
-            f64::INFINITY
-        } else {
-            d
-        }
-    };
+    let far = super::newcomer_systems::scaled_distance;
     let mut worst = 0.0f64;
     for j in 0..s {
         for c in 0..n {

@@ -475,6 +475,16 @@ fn newcomer_systems_have_exact_derivatives_order_four_and_round_off_constraints(
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// `|x − y| / max(1, |y|)`, with NaN as infinitely far.
+pub(super) fn scaled_distance(x: f64, y: f64) -> f64 {
+    let d = (x - y).abs() / y.abs().max(1.0);
+    if d.is_nan() {
+        f64::INFINITY
+    } else {
+        d
+    }
+}
+
 /// The largest scaled distance `|a − b| / max(1, |b|)` between two steps
 /// of size `h` from one state, over `q₁`, `v₁`, the stage velocities and
 /// the Newton unknowns `μ = hΨ` of the stage multipliers (NaN counts as
@@ -484,14 +494,7 @@ pub(super) fn step_distance<const N: usize, const M: usize, const S: usize>(
     b: &StepResult<N, M, S>,
     h: f64,
 ) -> f64 {
-    let far = |x: f64, y: f64| {
-        let d = (x - y).abs() / y.abs().max(1.0);
-        if d.is_nan() {
-            f64::INFINITY
-        } else {
-            d
-        }
-    };
+    let far = scaled_distance;
     let mut worst = 0.0f64;
     for (x, y) in a.state.q.iter().zip(b.state.q.iter()).chain(a.state.v.iter().zip(b.state.v.iter())) {
         worst = worst.max(far(*x, *y));
