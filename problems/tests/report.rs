@@ -120,6 +120,43 @@ mod plot {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// Of the points on one pixel only the last one drawn is kept, and the
+    /// kept ones keep the order of their last occurrence.
+    #[test]
+    fn a_scatter_keeps_the_last_dot_on_each_pixel() {
+        let series = vec![vec![(0, 'a'), (1, 'b'), (0, 'c'), (2, 'd')], vec![(2, 'e'), (3, 'f'), (3, 'g')]];
+        let kept = last_dot_per_pixel(&series, |p| p.0);
+        assert_eq!(kept, vec![vec![(1, 'b'), (0, 'c')], vec![(2, 'e'), (3, 'g')]]);
+    }
+
+    /// A section whose crossings fall on the same pixels again and again
+    /// (a periodic orbit) writes an SVG of at most one dot per point drawn
+    /// once, and the same PNG and SVG as those points drawn once.
+    #[test]
+    fn a_scatter_draws_one_dot_per_pixel() {
+        let dir = std::env::temp_dir().join(format!("spark-plot-dots-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let once: Vec<(f64, f64)> = (0..500).map(|i| (0.0126 * i as f64).sin_cos()).collect();
+        let repeated: Vec<(f64, f64)> = once.iter().cycle().take(200 * once.len()).copied().collect();
+        let figure = |points| Scatter {
+            title: "section".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: vec![Series::new("member 0", points)],
+            size: (400, 300),
+        };
+        let [png_once, svg_once, png_repeated, svg_repeated] =
+            ["once.png", "once.svg", "repeated.png", "repeated.svg"].map(|f| dir.join(f));
+        render_scatter_files(&figure(once), &png_once, &svg_once).unwrap();
+        render_scatter_files(&figure(repeated), &png_repeated, &svg_repeated).unwrap();
+        let svg = std::fs::read_to_string(&svg_repeated).unwrap();
+        // 500 dots and the legend's one.
+        assert!(svg.matches("<circle").count() <= 501, "{} dots", svg.matches("<circle").count());
+        assert_eq!(svg, std::fs::read_to_string(&svg_once).unwrap());
+        assert!(std::fs::read(&png_repeated).unwrap() == std::fs::read(&png_once).unwrap(), "the same PNG");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     /// Values near the end of f64's range (a run from `--q0 1.7e308,0,0`)
     /// are left out of the figures with a note in the legend: plotters
     /// loops forever on an axis spanning about 1e307 or more. The figures

@@ -269,9 +269,11 @@ pub enum StepError {
         /// The bound exceeded: `energy_drift_limit · (|E₀| + |p₀·v₀|)`.
         bound: f64,
     },
-    /// `|k(t₀, q₀, v₀)|` exceeds the tolerance and the policy says not to project.
+    /// A residual `|k_i(t₀, q₀, v₀)|` exceeds the tolerance times the size
+    /// of its terms ([`ConsistencyPolicy`](crate::ConsistencyPolicy)) and
+    /// the policy says not to project.
     #[error(
-        "inconsistent initial state: |k(t0,q0,v0)| = {} > {}; \
+        "inconsistent initial state: |k(t0,q0,v0)| = {} > {} (the tolerance x the size of the terms of k); \
          choose ConsistencyPolicy::Project to project v0 onto the constraints",
         Sci(*residual),
         Sci(*tolerance)
@@ -279,7 +281,8 @@ pub enum StepError {
     InconsistentInitialState {
         /// `max_i |k_i(t₀,q₀,v₀)|`.
         residual: f64,
-        /// The tolerance.
+        /// The bound of the first row beyond it: the tolerance times the
+        /// size of that row's terms (at least 1).
         tolerance: f64,
     },
     /// A [`NewtonOptions`](crate::NewtonOptions) field is out of range

@@ -408,6 +408,36 @@ fn inconsistent_initial_velocity_is_rejected_or_projected() {
     assert!(matches!(e, Err(IntegrationError::Initial(StepError::InconsistentInitialState { .. }))));
 }
 
+/// The run's consistency check measures each residual against the size of
+/// the terms it is computed from, as a step's cold start does: a skate
+/// sliding at 8e5 whose velocity satisfies the constraint to round-off
+/// starts (its residual is above an absolute 1e-12), and one off
+/// the constraint by 1e-9 of its speed is refused.
+#[test]
+fn the_initial_consistency_check_is_relative_to_the_constraint_terms() {
+    let sys = Skate::default();
+    let speed = 0.8e6;
+    let start = |heading: f64| {
+        let v = V::<3>::new(speed * heading.cos(), speed * heading.sin(), 0.7);
+        (V::<3>::new(1.5, 0.2, heading), v, sys.constraint(0.0, &V::<3>::new(1.5, 0.2, heading), &v).amax())
+    };
+    // The first heading in steps of 0.01 whose velocity, rounded, leaves a
+    // residual above 1e-12 (it stays at round-off, ≤ 4ε·speed).
+    let (q0, v0, residual) = (1..100).map(|i| start(0.01 * i as f64)).find(|s| s.2 > 1e-12).unwrap();
+    assert!(residual <= 4.0 * f64::EPSILON * speed, "{residual:e}");
+    assert_eq!(consistent_velocity(&sys, 0.0, &q0, &v0, ConsistencyPolicy::default()).unwrap(), v0);
+    let mut st = Stepper::<_, 3, 1, 2, 11>::new(sys, tab(Method::Gauss));
+    let schedule = Schedule::Fixed { h: 1e-7, steps: 10 };
+    let run = st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut NoObserver).unwrap();
+    assert!(!run.report.projected_initial_velocity);
+    let off = V::<3>::new(v0[0], v0[1] + 1e-3, 0.7);
+    let err = consistent_velocity(&sys, 0.0, &q0, &off, ConsistencyPolicy::default()).unwrap_err();
+    let StepError::InconsistentInitialState { residual, tolerance } = err else { panic!("{err}") };
+    // The bound: 1e-12 times |cos θ·v_y| + |sin θ·v_x|.
+    let terms = (q0[2].cos() * off[1]).abs() + (q0[2].sin() * off[0]).abs();
+    assert!(residual > 9e-4 && (tolerance / (1e-12 * terms) - 1.0).abs() <= 1e-12, "{residual:e} {tolerance:e}");
+}
+
 #[test]
 fn projection_and_consistent_acceleration_need_only_a_regular_saddle_matrix() {
     // m = 0: W = diag(0, 0, I, 3I_w) is singular, but W is positive definite

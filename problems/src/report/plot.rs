@@ -419,8 +419,11 @@ pub struct Scatter {
 /// Series named in a scatter plot's legend; later ones are drawn unnamed.
 pub const SCATTER_LEGEND_ENTRIES: usize = 12;
 
-/// Draws `fig` into the files `png` and `svg`, every finite point as a dot
-/// (points are not thinned: a section has as many dots as crossings).
+/// Draws `fig` into the files `png` and `svg`, every finite point as a dot.
+/// A dot that a later dot on the same pixel covers is left out
+/// ([`last_dot_per_pixel`]): the figure is the one every dot draws, and a
+/// section of millions of crossings on a few curves writes an SVG of as
+/// many dots as the curves cover pixels.
 /// Commands write scatter plots through
 /// [`crate::report::files::OutputDir::render_scatter`].
 pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(), PlotError> {
@@ -465,7 +468,8 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(e)?;
     draw_axes(&mut chart, (&fig.x_label, &fig.y_label), (x_span, y_span))?;
-    for (k, (series, pts)) in fig.series.iter().zip(data.iter()).enumerate() {
+    let dots = last_dot_per_pixel(&data, |p| chart.backend_coord(p));
+    for (k, (series, pts)) in fig.series.iter().zip(dots.iter()).enumerate() {
         let color = COLORS[k % COLORS.len()];
         let drawn =
             chart.draw_series(pts.iter().map(|&p| Circle::new(p, 1, ShapeStyle::from(&color).filled()))).map_err(e)?;
@@ -476,6 +480,29 @@ fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>
         }
     }
     draw_legend(&mut chart, emptiest_corner(&data, (x0, x1, Scale::Linear), (y0, y1, Scale::Linear)))
+}
+
+/// The dots of a scatter plot worth drawing, series by series in their
+/// order: of the points that `pixel` puts on one pixel, only the last one
+/// drawn (the last of the last series that has one there). Every dot has
+/// the same size and an opaque colour, so the last dot centred on a pixel
+/// covers all the earlier ones there, and the dots kept are drawn in the
+/// order of their last occurrence: every pixel of the figure ends with the
+/// colour it has when every point is drawn. The number of dots is at most
+/// the number of pixels the points fall on.
+pub fn last_dot_per_pixel<P: Copy, K: Eq + std::hash::Hash>(series: &[Vec<P>], pixel: impl Fn(&P) -> K) -> Vec<Vec<P>> {
+    let mut covered = std::collections::HashSet::new();
+    let mut kept: Vec<Vec<P>> = series
+        .iter()
+        .rev()
+        .map(|points| {
+            let mut last: Vec<P> = points.iter().rev().filter(|p| covered.insert(pixel(p))).copied().collect();
+            last.reverse();
+            last
+        })
+        .collect();
+    kept.reverse();
+    kept
 }
 
 /// Draws the axes every chart shares: the descriptions `labels`, tick

@@ -14,6 +14,30 @@ use crate::State;
 /// round-off amplified.
 pub(crate) const CONSTRAINT_CONDITION_LIMIT: f64 = 1.0 / (64.0 * f64::EPSILON);
 
+/// The bound of the first constraint row whose residual `k` at velocities
+/// `v` exceeds `tolerance · max(1, Σ_j |K_ij v_j| + |k_i − (Kv)_i|)`, `K`
+/// the rows `∂k/∂v`: the residual measured against the size of the terms
+/// it is computed from (for `k = K(q)v + b` the second sum is `|b|`), so
+/// that a state of large velocities consistent to round-off passes and an
+/// inconsistent one does not, in any units. `None` when every row is
+/// within its bound. The cold start's check and the run's
+/// ([`consistent_velocity`](crate::consistent_velocity)) both use it.
+pub(crate) fn inconsistent_row<const N: usize, const M: usize>(
+    k: &Vector<M>,
+    rows: &Matrix<M, N>,
+    v: &Vector<N>,
+    tolerance: f64,
+) -> Option<f64> {
+    let kv = rows * v;
+    (0..M).find_map(|i| {
+        let terms: f64 = (0..N).map(|j| (rows[(i, j)] * v[j]).abs()).sum::<f64>() + (k[i] - kv[i]).abs();
+        let allowed = tolerance * terms.max(1.0);
+        // Written so that a NaN bound fails the test.
+        let within = k[i].abs() <= allowed;
+        (!within).then_some(allowed)
+    })
+}
+
 /// The checks of a step that starts cold, at a state no earlier step of the
 /// stepper ended at: `(t, q, v)` satisfies the constraints, and their rows
 /// are independent there.
@@ -65,14 +89,7 @@ where
             history: Box::default(),
         });
     }
-    let kv = jac.constraint_v * v;
-    for i in 0..M {
-        let terms: f64 = (0..N).map(|j| (jac.constraint_v[(i, j)] * v[j]).abs()).sum::<f64>() + (k[i] - kv[i]).abs();
-        let allowed = tolerance * terms.max(1.0);
-        // Written so that a NaN scale fails the test.
-        if k[i].abs() <= allowed {
-            continue;
-        }
+    if let Some(allowed) = inconsistent_row(&k, &jac.constraint_v, v, tolerance) {
         return Err(StepError::InconsistentStart { t, residual: k.amax(), tolerance: allowed });
     }
     let kmax = jac.constraint_v.amax();

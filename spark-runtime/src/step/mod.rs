@@ -41,7 +41,7 @@
 
 #[cfg(test)]
 mod affine_tests;
-mod cold_start;
+pub(crate) mod cold_start;
 mod compensation;
 mod convergence;
 mod energy_guard;

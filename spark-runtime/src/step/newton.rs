@@ -62,7 +62,11 @@ pub struct NewtonOptions {
     pub mode: NewtonMode,
     /// Target for the estimated remaining error of the scaled unknowns
     /// (`|Δz_i| / (1 + |z_i|)`, `z` the iterate after the first update on
-    /// the current factors); default `16 ε ≈ 3.6e-15`.
+    /// the current factors); default `16 ε ≈ 3.6e-15`. The scale is
+    /// relative for unknowns above 1 and absolute below: for a system whose
+    /// velocities are of order `λ < 1` in its units, `tolerance × λ` keeps
+    /// the relative accuracy that the default gives at order 1
+    /// (`docs/guarantees.md`, "Units").
     pub tolerance: f64,
     /// Updates below this level that stop contracting are round-off
     /// stagnation and are accepted; above it they count as divergence.

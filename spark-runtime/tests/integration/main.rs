@@ -19,5 +19,6 @@ mod newcomer_systems;
 mod newcomer_unusual_systems;
 mod orders;
 mod paper;
+mod small_scales;
 mod step_start;
 mod stop_requests;
