@@ -20,9 +20,9 @@
 //! `g_t + g_q·q̇ + g_v·v̇`, kept inside the bracket by bisection: any Newton
 //! iterate outside the bracket, or a bracket that does not halve in two
 //! iterations, is replaced by the midpoint. Location stops when the bracket
-//! or the Newton update is below [`event_time_tolerance`]: `1e-14·max(1, |t|)`,
-//! capped at 1e-12, and never below four units in the last place of `t`
-//! (what a double can resolve once `|t|` passes about 2000).
+//! or the Newton update is below [`event_time_tolerance`]: `1e-13·|h|` of
+//! the step `h` that holds the crossing, in whatever units `t` has, and never
+//! below four units in the last place of `t` (what a double can resolve).
 //!
 //! The subintervals of consecutive steps share their end points and the
 //! value at a step's end is carried into the next step unchanged, so a zero
@@ -43,19 +43,18 @@ pub use crate::system::{Direction, EventGradient, EventSpec};
 /// Sign checks per step: the step is split into this many equal subintervals.
 pub const EVENT_SUBINTERVALS: usize = 4;
 
-/// Relative tolerance in `t` of an event location (`tol·max(1, |t|)`).
-pub const EVENT_TIME_TOLERANCE: f64 = 1e-14;
+/// Tolerance in `t` of an event location, as a fraction of the step that
+/// holds the crossing (`tol·|h|`).
+pub const EVENT_TIME_TOLERANCE: f64 = 1e-13;
 
-/// Largest tolerance in `t` of an event location, where `|t|` is large.
-pub const EVENT_TIME_TOLERANCE_MAX: f64 = 1e-12;
-
-/// The tolerance in `t` of an event located near `t`:
-/// [`EVENT_TIME_TOLERANCE`]`·max(1, |t|)`, at most
-/// [`EVENT_TIME_TOLERANCE_MAX`], and at least four units in the last place
-/// of `t` (a bracket narrower than that cannot be formed).
-pub fn event_time_tolerance(t: f64) -> f64 {
+/// The tolerance in `t` of an event located near `t` in a step of size `h`:
+/// [`EVENT_TIME_TOLERANCE`]`·|h|`, and at least four units in the last place
+/// of `t` (a bracket narrower than that cannot be formed). It is a fraction
+/// of the step, not of a unit of time, so that a system stated in other
+/// units of time has its events located alike.
+pub fn event_time_tolerance(t: f64, h: f64) -> f64 {
     let t = t.abs();
-    (EVENT_TIME_TOLERANCE * t.max(1.0)).min(EVENT_TIME_TOLERANCE_MAX).max(4.0 * (t.next_up() - t))
+    (EVENT_TIME_TOLERANCE * h.abs()).max(4.0 * (t.next_up() - t))
 }
 
 /// A set of event functions evaluated for a system `Sys`.
@@ -160,7 +159,7 @@ pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, co
     a: (f64, f64),
     b: (f64, f64),
 ) -> f64 {
-    locate_zero(a, b, &mut |t| {
+    locate_zero(a, b, step.h, &mut |t| {
         let value = step.value_at(t);
         let g = events.gradient(system, index, t, &value.state.q, &value.state.v);
         (g.value, g.t + g.q.dot(&value.q_dot) + g.v.dot(&value.v_dot))
@@ -170,7 +169,7 @@ pub(crate) fn locate<Sys, E: EventFunctions<Sys, N> + ?Sized, const N: usize, co
 /// The root finding of [`locate`] on the values it evaluates: `eval(t)` is
 /// the event function and its time derivative along the dense output at `t`
 /// (not generic: compiled once, not once per system and method).
-fn locate_zero((a, ga): (f64, f64), (b, gb): (f64, f64), eval: &mut dyn FnMut(f64) -> (f64, f64)) -> f64 {
+fn locate_zero((a, ga): (f64, f64), (b, gb): (f64, f64), h: f64, eval: &mut dyn FnMut(f64) -> (f64, f64)) -> f64 {
     if gb == 0.0 {
         return b;
     }
@@ -186,7 +185,7 @@ fn locate_zero((a, ga): (f64, f64), (b, gb): (f64, f64), eval: &mut dyn FnMut(f6
     // the bracket at least halves every two iterations.
     let mut widths = [hi - lo; 2];
     for _ in 0..200 {
-        let tol = event_time_tolerance(t);
+        let tol = event_time_tolerance(t, h);
         let (value, slope) = eval(t);
         if value == 0.0 {
             return t;

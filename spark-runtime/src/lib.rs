@@ -168,7 +168,7 @@ pub use driver::{
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{
     event_time_tolerance, Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents,
-    SystemEvents, EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE, EVENT_TIME_TOLERANCE_MAX,
+    SystemEvents, EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
 };
 pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
 pub use lanes::{

@@ -7,7 +7,9 @@
 //!   function along the reference integrator (extrapolation at 1e-14), which
 //!   shares nothing with the SPARK step or its dense output. Far from
 //!   `t = 0` (runs that start at `t = 1000`) the same holds: the location
-//!   tolerance is capped at 1e-12, not relative to `t`.
+//!   tolerance is a fraction of the step, not relative to `t`.
+//! - In other units of time (a system whose time scale is `τ`) the event
+//!   times are `τ` times those of `τ = 1`, to 1e-13 of `τ`.
 //! - An event exactly at a step boundary is reported once.
 //! - Several events in one step come in time order; directions filter.
 //! - A terminal event ends the run exactly at its time.
@@ -202,12 +204,12 @@ fn events_agree_with_an_independent_bracket_on_five_systems() {
 
 #[test]
 fn events_far_from_the_origin_of_time_are_located_to_1e_12() {
-    // The tolerance: relative near the origin, capped at 1e-12, and never
-    // below what a double resolves.
-    assert_eq!(event_time_tolerance(0.5), 1e-14);
-    assert_eq!(event_time_tolerance(-50.0), 50.0 * 1e-14);
-    assert_eq!(event_time_tolerance(1000.0), 1e-12);
-    assert_eq!(event_time_tolerance(1e6), 4.0 * (1e6f64.next_up() - 1e6));
+    // The tolerance: a fraction of the step, and never below what a double
+    // resolves at `t`.
+    assert_eq!(event_time_tolerance(0.5, 0.1), 1e-13 * 0.1);
+    assert_eq!(event_time_tolerance(1e-7, -1e-8), 1e-13 * 1e-8);
+    assert_eq!(event_time_tolerance(-50.0, 0.01), 4.0 * (50f64.next_up() - 50.0));
+    assert_eq!(event_time_tolerance(1e6, 0.1), 4.0 * (1e6f64.next_up() - 1e6));
     // Starting at t = 1000, where a tolerance relative to t would allow 1e-11.
     let t0 = 1000.0;
     let h = 0.01;
@@ -576,5 +578,47 @@ fn an_observer_sees_every_located_event_and_can_stop_on_their_count() {
             assert!(t >= traj.events[0].t && t < traj.events[0].t + 0.05 + 1e-12, "stopped at {t}");
         }
         other => panic!("expected a stop after the first event, got {other:?}"),
+    }
+}
+
+nonholonomic_system! {
+    /// A knife edge on a spring of stiffness `k`, with the event `y = 0`:
+    /// `k = 1/τ²` and velocities `∝ 1/τ` give the motion of `τ = 1` in
+    /// units of time `τ`.
+    pub struct TimedSkate {
+        coordinates: [x, y, theta],
+        parameters: { k = 1.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2)/2 + dot(theta)^2/2 - k/2*(sqrt(x^2 + y^2) - 1)^2,
+        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
+        events: { cross: y },
+    }
+}
+
+/// The event times of the timed skate in units of `τ`: 400 steps of
+/// `h = 0.05·τ`, Gauss s = 2.
+fn timed_skate_events(tau: f64) -> Vec<f64> {
+    let heading = 0.3f64;
+    let q0 = Vector::<3>::new(1.5, 0.2, heading);
+    let v0 = Vector::<3>::new(0.8 * heading.cos() / tau, 0.8 * heading.sin() / tau, 0.7 / tau);
+    let mut st =
+        Stepper::<_, 3, 1, 2, 11>::new(TimedSkate { k: 1.0 / (tau * tau) }, Tableau::new(Method::Gauss).unwrap());
+    let schedule = Schedule::Fixed { h: 0.05 * tau, steps: 400 };
+    let run = st.integrate(0.0, &q0, &v0, schedule, &RunOptions::default(), &mut NoObserver).unwrap();
+    run.events.iter().map(|e| e.t / tau).collect()
+}
+
+/// An event's location tolerance is a fraction of the step, so a system
+/// stated in other units of time has its events where `τ = 1` has them,
+/// to 1e-13 of `τ` (with a tolerance of `1e-14·max(1, |t|)` the events at
+/// `τ = 1e-3` were 4.8e-12 of `τ` off).
+#[test]
+fn events_in_other_units_of_time_are_located_alike() {
+    let unit = timed_skate_events(1.0);
+    assert_eq!(unit.len(), 2, "{unit:?}");
+    for tau in [1e-3, 1e-6, 1e-9, 1e3] {
+        let scaled = timed_skate_events(tau);
+        assert_eq!(scaled.len(), unit.len(), "τ = {tau:e}: {scaled:?}");
+        let worst = unit.iter().zip(&scaled).map(|(a, b)| (a - b).abs()).fold(0.0f64, f64::max);
+        assert!(worst <= 1e-13, "τ = {tau:e}: event times off by {worst:e} of τ");
     }
 }
