@@ -29,6 +29,16 @@ pub enum ConsistencyPolicy {
     },
 }
 
+impl ConsistencyPolicy {
+    /// The tolerance of either policy: the largest accepted `|k_i|` per
+    /// unit of the size of its terms.
+    pub fn tolerance(self) -> f64 {
+        match self {
+            ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
+        }
+    }
+}
+
 impl Default for ConsistencyPolicy {
     fn default() -> Self {
         ConsistencyPolicy::Error { tolerance: 1e-12 }
@@ -367,15 +377,12 @@ where
             history: Box::default(),
         });
     }
-    let tolerance = match policy {
-        ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
-    };
     let rows = sys.constraint_v(t0, q0, v0);
     if rows.iter().any(|x| !x.is_finite()) {
         // The rows scale the test: `check_start` names the quantity.
         check_start(sys, t0, q0, v0)?;
     }
-    let v = match inconsistent_row(&k0, &rows, v0, tolerance) {
+    let v = match inconsistent_row(&k0, &rows, v0, policy.tolerance()) {
         None => *v0,
         Some(allowed) => match policy {
             ConsistencyPolicy::Error { .. } => {

@@ -10,7 +10,7 @@ use crate::driver::{
     check_tableau, Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory,
 };
 use crate::events::EventFunctions;
-use crate::initial::{consistent_velocity, ConsistencyPolicy};
+use crate::initial::consistent_velocity;
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 
@@ -77,10 +77,7 @@ where
     }
     let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;
     stepper.reset_run();
-    let accepted = match options.consistency {
-        ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
-    };
-    stepper.set_accepted_start_residual(accepted);
+    stepper.set_accepted_start_residual(options.consistency.tolerance());
     let state = State::new(t0, *q0, v);
     let first = stepper.sample(&state, &options.observe, 0);
     let e0 = first.energy;

@@ -400,10 +400,7 @@ where
         // A run depends on its inputs only: nothing of an earlier run (warm
         // start, energy anchor, round-off carry) reaches its first step.
         self.reset_run();
-        let accepted = match options.consistency {
-            ConsistencyPolicy::Error { tolerance } | ConsistencyPolicy::Project { tolerance } => tolerance,
-        };
-        self.set_accepted_start_residual(accepted);
+        self.set_accepted_start_residual(options.consistency.tolerance());
         let result = self.run_steps(t0, q0, v0, v0c, steps, schedule, options, observer, events);
         self.set_accepted_start_residual(0.0);
         result
