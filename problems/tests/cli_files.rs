@@ -237,12 +237,13 @@ fn every_numeric_argument_is_checked_and_named() {
 /// overflows (it failed with an energy drift against E0 = inf) and a zero
 /// mass (it failed with a singular Newton matrix in the first step), and a
 /// `spark paper --fraction` that leaves a figure less than one step (its
-/// final time was printed with 300 digits).
+/// final time was printed with 300 digits) or a `--newton-tol` of 1 or more
+/// (it accepted updates with no correct digit).
 #[test]
 fn unusable_arguments_are_refused_naming_what_was_given() {
     let dir = temp_dir("given");
     let out = dir.to_str().unwrap();
-    let cases: [(&[&str], &[&str]); 12] = [
+    let cases: [(&[&str], &[&str]); 13] = [
         (&["run", "skate", "--h", "1e300", "--t-end", "1e300"], &["--h", "h² overflows", "smaller |h|"]),
         (
             &["run", "skate", "--v0", "0,0,1e155", "--t-end", "1"],
@@ -264,6 +265,7 @@ fn unusable_arguments_are_refused_naming_what_was_given() {
         (&["run", "skate", "--param", "m=1", "--param", "m = 2"], &["`m` is given twice", "`m=1`", "`m = 2`"]),
         (&["run", "skate", "--param", "=1"], &["--param `=1`", "no parameter name", "NAME=VALUE"]),
         (&["paper", "--fraction", "1e-300"], &["final time 2.500e-298", "shorter than one step", "--fraction"]),
+        (&["paper", "--newton-tol", "1e300"], &["--newton-tol 1e300", "in (0, 1)"]),
     ];
     for (args, words) in cases {
         let err = run_err(&[args, &["--out", out]].concat());

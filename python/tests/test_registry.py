@@ -199,6 +199,15 @@ def test_a_bool_where_a_number_is_meant_is_a_type_error_naming_the_argument():
     assert spark.integrate("skate", "gauss", np.int64(2), np.float32(0.1), 3, t0=0).t.shape == (4,)
 
 
+def test_a_newton_tolerance_of_one_or_more_is_refused():
+    # It bounds the last update relative to 1 + |z|: 1 or more accepts an
+    # update with no correct digit, which ran as a success.
+    for tol in (1.0, 1e300, float("inf"), 0.0, -1e-9):
+        with pytest.raises(spark.SparkError, match=r"newton_tol = .* must lie in \(0, 1\)"):
+            spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=tol)
+    assert spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=1e-6).t.shape == (4,)
+
+
 def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
     # |v0|² overflows: named at the initial state (it was an energy drift
     # against E0 = inf in the first step).

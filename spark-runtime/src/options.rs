@@ -10,17 +10,20 @@ use crate::rejection::RejectionPolicy;
 use crate::step::{Jacobian, NewtonMode, NewtonOptions, MAX_EXTRAPOLATION_DEGREE};
 
 impl NewtonOptions {
-    /// Checks every field against its allowed range: `tolerance` and
-    /// `stagnation_level` finite and non-negative, `max_iterations` in
+    /// Checks every field against its allowed range: `tolerance` in `[0, 1)`
+    /// (it bounds the relative size of the last update, so 1 or more accepts
+    /// an update with no correct digit), `stagnation_level` finite and
+    /// non-negative, `max_iterations` in
     /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=MAX_EXTRAPOLATION_DEGREE`,
     /// `energy_drift_limit` (when set) finite and positive, and no
     /// [`Jacobian::StageDecoupled`] with [`NewtonMode::Full`].
     pub fn validate(&self) -> Result<(), OptionError> {
-        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+        if !(self.tolerance >= 0.0 && self.tolerance < 1.0) {
             return Err(OptionError::float(
                 "NewtonOptions::tolerance",
                 self.tolerance,
-                "finite and non-negative (0 iterates to round-off stagnation)",
+                "in [0, 1): it bounds the last update relative to 1 + |z|, so 1 or more \
+                 accepts an update with no correct digit (0 iterates to round-off stagnation)",
             ));
         }
         if !(self.stagnation_level.is_finite() && self.stagnation_level >= 0.0) {

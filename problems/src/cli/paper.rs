@@ -22,8 +22,9 @@ pub struct PaperArgs {
     /// Newton iteration.
     #[arg(long, value_enum, default_value_t = Newton::Simplified)]
     pub newton: Newton,
-    /// Newton stopping tolerance on the scaled update (default 16ε ≈ 3.6e-15;
-    /// looser values show what inexact solves do to the energy behaviour).
+    /// Newton stopping tolerance on the scaled update, in (0, 1) (default
+    /// 16ε ≈ 3.6e-15; looser values show what inexact solves do to the
+    /// energy behaviour).
     #[arg(long)]
     pub newton_tol: Option<f64>,
 }
@@ -37,8 +38,11 @@ pub fn paper_command(a: PaperArgs) -> Result<String, String> {
         if a.fraction == 1.0 { PaperConfig::full(&a.out) } else { PaperConfig::shortened(&a.out, a.fraction) };
     cfg.newton.mode = a.newton.into();
     if let Some(tol) = a.newton_tol {
-        if !(tol.is_finite() && tol > 0.0) {
-            return Err("--newton-tol must be a positive number".into());
+        if !(tol > 0.0 && tol < 1.0) {
+            return Err(format!(
+                "--newton-tol {tol:e}: write a number in (0, 1) (the largest update accepted, \
+                 relative to 1 + |z|)"
+            ));
         }
         cfg.newton.tolerance = tol;
         cfg.newton.stagnation_level = cfg.newton.stagnation_level.max(tol);

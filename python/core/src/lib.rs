@@ -478,8 +478,11 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
     };
     let mut newton = NewtonOptions { mode, ..NewtonOptions::default() };
     if let Some(tol) = get::<f64>(d, "newton_tol")? {
-        if !(tol.is_finite() && tol > 0.0) {
-            return Err(spark_error(py, format!("newton_tol = {tol:.3e} must be a positive number")));
+        if !(tol > 0.0 && tol < 1.0) {
+            return Err(spark_error(
+                py,
+                format!("newton_tol = {tol:.3e} must lie in (0, 1): the largest update accepted, relative to 1 + |z|"),
+            ));
         }
         newton.tolerance = tol;
         newton.stagnation_level = newton.stagnation_level.max(tol);

@@ -66,7 +66,8 @@ pub struct NewtonOptions {
     /// relative for unknowns above 1 and absolute below: for a system whose
     /// velocities are of order `λ < 1` in its units, `tolerance × λ` keeps
     /// the relative accuracy that the default gives at order 1
-    /// (`docs/guarantees.md`, "Units").
+    /// (`docs/guarantees.md`, "Units"). It lies in `[0, 1)`: 1 or more would
+    /// accept an update with no correct digit.
     pub tolerance: f64,
     /// Updates below this level that stop contracting are round-off
     /// stagnation and are accepted; above it they count as divergence.

@@ -342,6 +342,10 @@ fn invalid_options_are_refused_by_name() {
     for (newton, name) in [
         (NewtonOptions { tolerance: f64::NAN, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
         (NewtonOptions { tolerance: -1e-15, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
+        // A tolerance of 1 or more accepts an update with no correct digit.
+        (NewtonOptions { tolerance: 1.0, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
+        (NewtonOptions { tolerance: 1e300, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
+        (NewtonOptions { tolerance: f64::INFINITY, ..NewtonOptions::default() }, "NewtonOptions::tolerance"),
         (
             NewtonOptions { stagnation_level: f64::INFINITY, ..NewtonOptions::default() },
             "NewtonOptions::stagnation_level",
@@ -353,6 +357,7 @@ fn invalid_options_are_refused_by_name() {
         assert_eq!(newton.validate().unwrap_err().option, name);
     }
     NewtonOptions { tolerance: 0.0, ..NewtonOptions::default() }.validate().unwrap();
+    NewtonOptions { tolerance: 0.5, ..NewtonOptions::default() }.validate().unwrap();
 }
 
 fn longest_digit_run(s: &str) -> usize {
