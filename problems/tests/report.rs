@@ -150,8 +150,13 @@ mod plot {
         render_scatter_files(&figure(once), &png_once, &svg_once).unwrap();
         render_scatter_files(&figure(repeated), &png_repeated, &svg_repeated).unwrap();
         let svg = std::fs::read_to_string(&svg_repeated).unwrap();
-        // 500 dots and the legend's one.
-        assert!(svg.matches("<circle").count() <= 501, "{} dots", svg.matches("<circle").count());
+        // 500 dots and the legend's one, each a subpath `M x y h0` of a
+        // path of its colour, not a `<circle>` element.
+        let dots = svg.matches("h0").count();
+        assert!((400..=501).contains(&dots), "{dots} dots");
+        assert_eq!(svg.matches("<circle").count(), 0);
+        assert!(svg.matches("<path").count() <= 3, "{svg}");
+        assert!(svg.len() < 15 * dots + 12_000, "{} bytes for {dots} dots", svg.len());
         assert_eq!(svg, std::fs::read_to_string(&svg_once).unwrap());
         assert!(std::fs::read(&png_repeated).unwrap() == std::fs::read(&png_once).unwrap(), "the same PNG");
         std::fs::remove_dir_all(&dir).unwrap();

@@ -6,6 +6,7 @@
 //! with plotters' `ab_glyph` font loader, so rendering needs no system font
 //! library at run time.
 
+use super::svg_dots::compact_dots;
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -423,7 +424,8 @@ pub const SCATTER_LEGEND_ENTRIES: usize = 12;
 /// A dot that a later dot on the same pixel covers is left out
 /// ([`last_dot_per_pixel`]): the figure is the one every dot draws, and a
 /// section of millions of crossings on a few curves writes an SVG of as
-/// many dots as the curves cover pixels.
+/// many dots as the curves cover pixels. The SVG writes each run of dots
+/// of one colour as one path ([`compact_dots`]), about 10 bytes a dot.
 /// Commands write scatter plots through
 /// [`crate::report::files::OutputDir::render_scatter`].
 pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(), PlotError> {
@@ -433,12 +435,13 @@ pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(),
         draw_scatter(fig, &root).map_err(|m| draw_error(png, m))?;
         root.present().map_err(|e| draw_error(png, e.to_string()))?;
     }
+    let mut text = String::new();
     {
-        let root = SVGBackend::new(svg, fig.size).into_drawing_area();
+        let root = SVGBackend::with_string(&mut text, fig.size).into_drawing_area();
         draw_scatter(fig, &root).map_err(|m| draw_error(svg, m))?;
         root.present().map_err(|e| draw_error(svg, e.to_string()))?;
     }
-    Ok(())
+    std::fs::write(svg, compact_dots(&text)).map_err(|e| draw_error(svg, e.to_string()))
 }
 
 fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
