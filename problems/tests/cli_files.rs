@@ -237,8 +237,8 @@ fn every_numeric_argument_is_checked_and_named() {
 /// overflows (it failed with an energy drift against E0 = inf) and a zero
 /// mass (it failed with a singular Newton matrix in the first step), and a
 /// `spark paper --fraction` that leaves a figure less than one step (its
-/// final time was printed with 300 digits) or a `--newton-tol` of 1 or more
-/// (it accepted updates with no correct digit).
+/// final time was printed with 300 digits), and a `--newton-tol` of 1 or
+/// more, which would accept updates with no correct digit.
 #[test]
 fn unusable_arguments_are_refused_naming_what_was_given() {
     let dir = temp_dir("given");

@@ -200,8 +200,8 @@ def test_a_bool_where_a_number_is_meant_is_a_type_error_naming_the_argument():
 
 
 def test_a_newton_tolerance_of_one_or_more_is_refused():
-    # It bounds the last update relative to 1 + |z|: 1 or more accepts an
-    # update with no correct digit, which ran as a success.
+    # It bounds the last update relative to 1 + |z|: 1 or more would accept
+    # an update with no correct digit as a converged step.
     for tol in (1.0, 1e300, float("inf"), 0.0, -1e-9):
         with pytest.raises(spark.SparkError, match=r"newton_tol = .* must lie in \(0, 1\)"):
             spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=tol)
