@@ -7,6 +7,8 @@
 //! subpath `M x y h0` (about 10 bytes) for each disc, drawn in the same
 //! order.
 
+use std::fmt::Write;
+
 /// A dot as plotters' SVG backend writes a filled circle on one line:
 /// its centre (whole pixels), radius and colour.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,10 +47,9 @@ pub fn compact_dots(svg: &str) -> String {
     let mut run: Option<(u32, &str)> = None;
     let close = |out: &mut String, run: &mut Option<(u32, &str)>| {
         if let Some((r, fill)) = run.take() {
-            out.push_str(&format!(
-                "\" fill=\"none\" stroke=\"{fill}\" stroke-width=\"{}\" stroke-linecap=\"round\"/>\n",
-                2 * r as u64
-            ));
+            let width = 2 * u64::from(r);
+            let _ =
+                writeln!(out, "\" fill=\"none\" stroke=\"{fill}\" stroke-width=\"{width}\" stroke-linecap=\"round\"/>");
         }
     };
     for line in svg.split_inclusive('\n') {
@@ -59,7 +60,7 @@ pub fn compact_dots(svg: &str) -> String {
                     out.push_str("<path d=\"");
                     run = Some((d.r, d.fill));
                 }
-                out.push_str(&format!("M{} {}h0", d.cx, d.cy));
+                let _ = write!(out, "M{} {}h0", d.cx, d.cy);
             }
             _ => {
                 close(&mut out, &mut run);
