@@ -28,6 +28,8 @@ cd "$(dirname "$0")/.."
 # floating-point result in Rust. The main job keeps opt-level 3 and
 # thin-local LTO: its steps are 1.2-2.8x faster with the LTO
 # (docs/performance/README.md, "Build profile").
+# The runtime's integration tests (package spark-runtime-tests) compile at
+# opt-level 0 whatever these say: the workspace's Cargo.toml overrides it.
 export CARGO_PROFILE_RELEASE_LTO=off
 export CARGO_PROFILE_RELEASE_OPT_LEVEL=2
 # The property tests (the fuzz harness among them) draw their cases from a
