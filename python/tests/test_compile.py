@@ -13,7 +13,17 @@ import numpy as np
 import pytest
 
 import spark
-from conftest import REPO, interrupt_after_start
+from conftest import REPO, UNOPTIMIZED_COMPILES, interrupt_after_start
+
+
+@pytest.fixture(scope="module", autouse=True)
+def compiles_without_optimization():
+    """Every compile of this module, and of the interpreters its tests
+    start, builds without optimization (conftest's `UNOPTIMIZED_COMPILES`)."""
+    with pytest.MonkeyPatch.context() as patch:
+        for name, value in UNOPTIMIZED_COMPILES.items():
+            patch.setenv(name, value)
+        yield
 
 
 def declaration(type_name: str) -> str:

@@ -71,7 +71,7 @@ def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
     assert stat[-1] > 0
 
 
-def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
+def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch, unoptimized_compiles):
     from test_compile import declaration
 
     monkeypatch.setenv("SPARK_CACHE_DIR", str(tmp_path / "cache"))
