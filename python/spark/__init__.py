@@ -508,7 +508,7 @@ def ensemble(sys: System | str, method: str, s: int, h: float, steps: int, q0s, 
     return _as_system(sys).ensemble(method, s, h, steps, q0s, v0s, params, **kwargs)
 
 
-def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False) -> System:
+def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False, optimize: bool = True) -> System:
     """Builds a system from DSL text (the body of ``nonholonomic_system!``).
 
     The text is checked by the macro's own parser first (a bad declaration
@@ -518,7 +518,12 @@ def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False) -
     ``SPARK_CACHE_DIR``); a second call with the same text loads the cached
     module. Needs the Rust toolchain (``cargo``) at run time, as CasADi's
     ``jit`` needs a C compiler; without it raises :class:`ToolchainError`.
+
+    ``optimize=False`` builds the module without optimization: a new
+    declaration compiles in seconds instead of tens of seconds and steps
+    several times slower, with the same results bit for bit (for trying
+    declarations out). The two builds are cached apart.
     """
     from ._compile import compile_system
 
-    return compile_system(text, cache_dir=cache_dir, verbose=verbose)
+    return compile_system(text, cache_dir=cache_dir, verbose=verbose, optimize=optimize)

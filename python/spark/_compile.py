@@ -5,7 +5,8 @@ bad declaration fails with its line and column before cargo runs. A good one
 becomes a small crate (``nonholonomic_system! { text }`` plus
 ``spark_python_core::export_system!``) that cargo builds into an extension
 module, kept under ``<cache>/<key>/`` where the key hashes the text, the
-spark version and the source tree. Loading a cached module needs no cargo.
+spark version, the source tree and whether the module is optimized.
+Loading a cached module needs no cargo.
 """
 
 from __future__ import annotations
@@ -47,10 +48,12 @@ def cache_root(cache_dir: str | None = None) -> Path:
     return Path(base) / "spark-python"
 
 
-def cache_key(text: str) -> str:
-    """Hash of the text, the spark version and the source tree it builds against."""
+def cache_key(text: str, optimize: bool = True) -> str:
+    """Hash of the text, the spark version, the source tree it builds
+    against and, for a module built without optimization, that."""
     h = hashlib.sha256()
-    for part in (text, _native.version(), _native.source_dir()):
+    parts = (text, _native.version(), _native.source_dir()) + (() if optimize else ("opt-level 0",))
+    for part in parts:
         h.update(part.encode())
         h.update(b"\0")
     return h.hexdigest()[:20]
@@ -114,20 +117,26 @@ def _load(module: str, path: Path) -> object:
     return mod
 
 
-def compile_system(text: str, *, cache_dir: str | None = None, verbose: bool = False) -> System:
+def compile_system(
+    text: str, *, cache_dir: str | None = None, verbose: bool = False, optimize: bool = True
+) -> System:
+    if not isinstance(optimize, bool):
+        raise TypeError(f"optimize must be a bool (True or False), got {type(optimize).__name__}")
     checked = _native.check_dsl(text)
     if "error" in checked:
         raise DslError(checked["error"], checked["line"], checked["column"])
-    key = cache_key(text)
+    key = cache_key(text, optimize)
     # One thread at a time builds and loads: the threads of a process share
     # one build and one loaded module of each declaration.
     with _loading:
         if key not in _loaded:
-            _loaded[key] = _build_and_load(text, checked, key, cache_dir, verbose)
+            _loaded[key] = _build_and_load(text, checked, key, cache_dir, verbose, optimize)
         return _loaded[key]
 
 
-def _build_and_load(text: str, checked: dict, key: str, cache_dir: str | None, verbose: bool) -> System:
+def _build_and_load(
+    text: str, checked: dict, key: str, cache_dir: str | None, verbose: bool, optimize: bool
+) -> System:
     """The system of the checked declaration ``text``: its module built
     into the cache unless it is there, then loaded."""
     name, n, m = checked["name"], checked["n"], checked["m"]
@@ -143,11 +152,12 @@ def _build_and_load(text: str, checked: dict, key: str, cache_dir: str | None, v
         with _folder_lock(folder):
             # Another process may have built it while we waited.
             if not library.exists():
-                _build(text, name, n, m, module, root, folder, library, verbose)
+                _build(text, name, n, m, module, root, folder, library, verbose, optimize)
     mod = _load(module, library)
     info = mod.info()
     info["name"] = name
     info["cache_dir"] = str(root)
+    info["optimized"] = optimize
     system = System(info, mod.integrate, mod.ensemble)
     system.source = text
     return system
@@ -178,9 +188,19 @@ def _folder_lock(folder: Path):
 
 
 def _build(
-    text: str, name: str, n: int, m: int, module: str, root: Path, folder: Path, library: Path, verbose: bool
+    text: str,
+    name: str,
+    n: int,
+    m: int,
+    module: str,
+    root: Path,
+    folder: Path,
+    library: Path,
+    verbose: bool,
+    optimize: bool,
 ) -> None:
-    """Builds the declaration's crate in ``folder`` with cargo and installs
+    """Builds the declaration's crate in ``folder`` with cargo (in its
+    release profile, or at opt-level 0 without ``optimize``) and installs
     its module as ``library`` (copied under a temporary name, then renamed,
     so ``library`` is complete whenever it exists)."""
     cargo = _cargo()
@@ -198,6 +218,8 @@ def _build(
         shutil.copyfile(lock, folder / "Cargo.lock")
     target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))
     env = dict(os.environ, CARGO_TARGET_DIR=str(target))
+    if not optimize:
+        env["CARGO_PROFILE_RELEASE_OPT_LEVEL"] = "0"
     # PyO3's build script is rerun whenever these differ from the last
     # build in the target directory: the interpreter that will load the
     # module, and the signature maturin sets for it. With the values a

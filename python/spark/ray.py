@@ -47,9 +47,9 @@ class SweepReport:
         return self.wall_seconds / self.members
 
 
-def _system(system: "spark.System | str", source: tuple[str, str] | None) -> spark.System:
+def _system(system: "spark.System | str", source: tuple[str, str, bool] | None) -> spark.System:
     if source is not None:
-        return spark.compile(source[0], cache_dir=source[1])
+        return spark.compile(source[0], cache_dir=source[1], optimize=source[2])
     return spark.system(system) if isinstance(system, str) else system
 
 
@@ -95,7 +95,7 @@ def sweep(
     ``shards`` (default: twice the CPUs Ray reports) tasks each integrate a
     contiguous block of members with ``threads_per_task`` threads. A system
     built by :func:`spark.compile` is rebuilt in each worker from its text
-    (loaded from the shared cache on one machine). Ray is started with
+    with its ``optimize`` (loaded from the shared cache on one machine). Ray is started with
     ``ray.init(address=address)`` unless it is already running. Rows are
     ordered by member, then time, whatever the shard count, and every
     member's numbers are those of :func:`spark.integrate` for it alone.
@@ -242,7 +242,7 @@ def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newt
     shards = max(1, min(shards, members))
     source = None
     if isinstance(system, spark.System) and system.source is not None:
-        source = (system.source, system.info["cache_dir"])
+        source = (system.source, system.info["cache_dir"], system.info["optimized"])
     key = system if isinstance(system, str) else system.name
     task = ray.remote(num_cpus=threads_per_task)(_shard_table)
     bounds = np.linspace(0, members, shards + 1).round().astype(int)

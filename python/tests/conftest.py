@@ -33,24 +33,6 @@ def spark_cli() -> Path:
     return exe
 
 
-# The modules `spark.compile` builds in these tests compile without
-# optimization (cargo's `CARGO_PROFILE_RELEASE_OPT_LEVEL`, which the
-# compiles' cargo inherits): about 3 s a declaration instead of 25 s, and
-# the same results, bit for bit, as a floating-point result in Rust does not
-# depend on the optimization level
-# (`test_compiled_system_matches_the_same_declaration_compiled_in_rust`
-# compares such a module with the optimized registry). Users' compiles keep
-# cargo's release profile.
-UNOPTIMIZED_COMPILES = {"CARGO_PROFILE_RELEASE_OPT_LEVEL": "0"}
-
-
-@pytest.fixture
-def unoptimized_compiles(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Builds the modules of `spark.compile` in this test without optimization."""
-    for name, value in UNOPTIMIZED_COMPILES.items():
-        monkeypatch.setenv(name, value)
-
-
 def run_cli(exe: Path, out: Path, system: str, *args: str) -> dict[str, np.ndarray]:
     """Runs `spark run SYSTEM ARGS --out OUT --no-plot` and reads its CSV and report.json."""
     subprocess.run(

@@ -71,11 +71,18 @@ def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
     assert stat[-1] > 0
 
 
-def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch, unoptimized_compiles):
+def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
     from test_compile import declaration
 
-    monkeypatch.setenv("SPARK_CACHE_DIR", str(tmp_path / "cache"))
-    skate = spark.compile(declaration("Skate"))
+    from spark._compile import cache_key
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("SPARK_CACHE_DIR", str(cache))
+    # A text of its own, so that this process has not loaded it from
+    # another cache; unoptimized (seconds to build), and the workers load
+    # the same module.
+    text = declaration("Skate") + "\n// swept on Ray"
+    skate = spark.compile(text, optimize=False)
     q0s = np.zeros((4, 3))
     v0s = np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 0, 0.5], [0, 0, 1.5]])
     out = tmp_path / "skate.parquet"
@@ -84,6 +91,10 @@ def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch, unoptimize
     ref = spark.ensemble("skate", "gauss", 2, 0.1, 20, q0s, v0s)
     # Two shards of two members against one ensemble of four.
     np.testing.assert_array_equal(x, ref.q[:, :, 0])
+    # The workers compiled nothing of their own (an optimized build would
+    # have a folder of its own).
+    built = sorted(p.name for p in cache.iterdir() if p.name != "target")
+    assert built == [cache_key(text, optimize=False)], built
 
 
 def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
