@@ -95,8 +95,9 @@ def sweep(
     ``shards`` (default: twice the CPUs Ray reports) tasks each integrate a
     contiguous block of members with ``threads_per_task`` threads. A system
     built by :func:`spark.compile` is rebuilt in each worker from its text
-    with its ``optimize`` (loaded from the shared cache on one machine). Ray is started with
-    ``ray.init(address=address)`` unless it is already running. Rows are
+    with its ``optimize`` (loaded from the shared cache on one machine).
+    Ray is started with ``ray.init(address=address)`` unless it is already
+    running. Rows are
     ordered by member, then time, whatever the shard count, and every
     member's numbers are those of :func:`spark.integrate` for it alone.
     ``out`` is checked before Ray starts and written under a temporary name
