@@ -521,8 +521,8 @@ def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False, o
 
     ``optimize=False`` builds the module without optimization: a new
     declaration compiles in seconds instead of tens of seconds and steps
-    several times slower, with the same results bit for bit (for trying
-    declarations out). The two builds are cached apart.
+    about 40 times slower, with the same results bit for bit (for trying
+    declarations out, not for long runs). The two builds are cached apart.
     """
     from ._compile import compile_system
 
