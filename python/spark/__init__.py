@@ -417,7 +417,7 @@ class System:
 def _not_real(x) -> str | None:
     """What ``x`` (a number, or an array, list or tuple of them) holds that
     is no real number but that NumPy's cast to float64 takes: ``"a bool"``
-    (``[True, 0, 0]`` ran as ``[1.0, 0.0, 0.0]``), ``"a complex number"``
+    (``[True, 0, 0]`` would run as ``[1.0, 0.0, 0.0]``), ``"a complex number"``
     (its imaginary part dropped) or ``"a string"`` (parsed); ``None`` when
     it holds none."""
     if isinstance(x, np.ndarray):

@@ -283,7 +283,7 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     """
     import pyarrow.parquet as pq
 
-    # A step of 0 divided to inf or NaN, returned as if it were a statistic.
+    # A step of 0 would divide to inf or NaN, returned as if it were a statistic.
     h = spark._real("h", h)
     if not (math.isfinite(h) and h != 0.0):
         raise spark.ArgumentError(f"h = {h!r} must be a finite, nonzero step size (the sweep's h)")

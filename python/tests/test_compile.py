@@ -181,7 +181,8 @@ def many_coordinates(n: int) -> str:
 
 
 def test_a_cache_folder_that_cannot_be_made_is_a_spark_error(tmp_path):
-    # A file as cache_dir raised the OS's NotADirectoryError from mkdir.
+    # A file as cache_dir is a SparkError naming it, not the OS's
+    # NotADirectoryError from mkdir.
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     text = declaration("Skate") + "\n// cache in a file"
@@ -190,8 +191,8 @@ def test_a_cache_folder_that_cannot_be_made_is_a_spark_error(tmp_path):
 
 
 def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
-    # 3000 coordinates stalled the check for over 300 s (the engine's work
-    # grows like n²); they are refused at the coordinate list, before cargo.
+    # 3000 coordinates would stall the check for over 300 s (the engine's
+    # work grows like n²); they are refused at the coordinate list, before cargo.
     import time
 
     start = time.monotonic()
@@ -224,7 +225,7 @@ def test_an_expression_of_too_many_operations_is_a_dsl_error_not_a_crash():
 
 def test_ctrl_c_interrupts_the_check_of_a_large_declaration():
     # The check of 400 coupled coordinates takes seconds; Ctrl-C ends it at
-    # once (it held the GIL and ignored signals until it was done).
+    # once (the check releases the GIL, so the caller's signal handlers run).
     script = (
         "import sys, spark\n"
         f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
@@ -297,9 +298,9 @@ def test_concurrent_compiles_of_one_declaration_each_get_a_working_module(tmp_pa
 
 
 def test_a_raw_or_non_ascii_struct_name_compiles(tmp_path):
-    # The module and crate were named after the struct: `r#Foo` made a
-    # package name cargo refuses (`#`), `Ñame` a module whose init symbol
-    # failed to link, both after the check had accepted the declaration.
+    # The module and crate names are ASCII, not the struct's name: `r#Foo`
+    # would make a package name cargo refuses (`#`), `Ñame` a module whose
+    # init symbol fails to link, both after the check accepts the declaration.
     text = "pub struct r#Ñame {\n    coordinates: [x],\n    lagrangian: dot(x)^2/2 - x^2/2,\n}\n"
     s = spark.compile(text, cache_dir=str(tmp_path))
     assert s.name == "r#Ñame"

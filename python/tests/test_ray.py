@@ -98,8 +98,9 @@ def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
 
 
 def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
-    # An output path it cannot write was found only when the file was
-    # written, after every member had run; a shard count below 1 ran as 1.
+    # An output path it cannot write and a shard count below 1 are refused
+    # up front: found only when the file is written, they would cost a run of
+    # every member, and a shard count below 1 would run as 1.
     q0s, v0s = sray.fig84_members(2)
     args = ("mp7-nh", METHOD, 2, H, 10, q0s, v0s)
     cases = {
@@ -110,8 +111,8 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     for words, kwargs in cases.items():
         with pytest.raises(spark.SparkError, match=words):
             sray.sweep(*args, **kwargs)
-    # An empty path, a bytes path and a folder that cannot be written were
-    # found only when the file was written, after every member had run.
+    # An empty path, a bytes path and a folder that cannot be written are
+    # refused up front too, not when the file is written after every member.
     with pytest.raises(spark.SparkError, match="names no file"):
         sray.sweep(*args, out="")
     with pytest.raises(spark.SparkError, match="is a folder"):
@@ -127,10 +128,10 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
 
 def test_a_sweep_checks_its_settings_and_the_size_of_its_table_before_ray_starts(tmp_path):
     # An unknown system, method or parameter, an unusable h, a width of q0s
-    # other than the system's and an inconsistent first member failed in
-    # every shard, after Ray had started; a table of more rows than the
-    # driver's memory holds (each shard checks only its own members) was
-    # gathered until the driver ran out of memory.
+    # other than the system's and an inconsistent first member are refused
+    # before Ray starts, not in every shard; so is a table of more rows than
+    # the driver's memory holds (each shard checks only its own members, so
+    # the driver would gather rows until it ran out of memory).
     q0s, v0s = sray.fig84_members(3)
     out = str(tmp_path / "a.parquet")
     bad_v0 = v0s.copy()
@@ -160,10 +161,10 @@ def test_a_sweep_checks_its_settings_and_the_size_of_its_table_before_ray_starts
 
 
 def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
-    # fig84_members(0) raised "not enough values to unpack" from its zip, and
-    # a count of 10**12 ran until memory ran out; ensemble_statistic with
-    # h = 0 returned inf/NaN as a statistic, and an empty table raised
-    # ZeroDivisionError.
+    # Unchecked, fig84_members(0) would raise "not enough values to unpack"
+    # from its zip and a count of 10**12 would run until memory ran out;
+    # ensemble_statistic with h = 0 would return inf/NaN as a statistic, and
+    # an empty table would raise ZeroDivisionError.
     for count in (0, -1, sray.MAX_FIG84_MEMBERS + 1, 2**70):
         with pytest.raises(ValueError, match=rf"count = {count} is .* give 1 ≤ count ≤ {sray.MAX_FIG84_MEMBERS}"):
             sray.fig84_members(count)
@@ -186,9 +187,9 @@ def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
 
 
 def test_a_sweep_writes_to_bytes_and_non_utf8_paths(local_ray, tmp_path):
-    # A bytes `out` failed when the file was written ("Can't mix strings and
-    # bytes"), and pyarrow refuses a folder whose name is not UTF-8, both
-    # after every member had run.
+    # pyarrow fails on a bytes `out` ("Can't mix strings and bytes") and
+    # refuses a folder whose name is not UTF-8, both only when the file is
+    # written after every member has run; the sweep hands it a file Python opens.
     q0s, v0s = sray.fig84_members(2)
     folder = os.fsdecode(bytes(tmp_path) + b"/\xff")
     os.mkdir(folder)
@@ -199,8 +200,9 @@ def test_a_sweep_writes_to_bytes_and_non_utf8_paths(local_ray, tmp_path):
 
 
 def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_path, monkeypatch):
-    # The Parquet file was written in place: a write that failed or was
-    # interrupted half-way left a truncated file under the final name.
+    # The Parquet file is written under a temporary name and renamed: written
+    # in place, a write that failed or was interrupted half-way would leave a
+    # truncated file under the final name.
     q0s, v0s = sray.fig84_members(2)
     out = tmp_path / "sweep.parquet"
     sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=str(out), shards=1)
@@ -219,7 +221,7 @@ def test_an_interrupted_write_leaves_the_previous_file_intact(local_ray, tmp_pat
 
 def test_more_threads_per_task_than_a_node_has_cpus_is_refused(local_ray, tmp_path):
     # Ray keeps a task that asks for more CPUs than any node has waiting
-    # for such a node: the sweep hung (threads_per_task=4 on this
+    # for such a node: the sweep would hang (threads_per_task=4 on this
     # two-CPU instance).
     q0s, v0s = sray.fig84_members(2)
     with pytest.raises(spark.SparkError, match=r"threads_per_task = 4 .* 2 CPUs"):

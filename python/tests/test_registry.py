@@ -161,7 +161,7 @@ def test_arguments_that_cannot_work_are_refused_up_front():
 
 @pytest.mark.parametrize("system", ["skate", "mp7"])
 def test_an_ensemble_refuses_more_threads_than_it_starts(system):
-    # 2**40 threads made rayon start thousands of threads and stalled the
+    # 2**40 threads would make rayon start thousands of threads and stall the
     # interpreter; the request is refused at once.
     entry = spark.system(system)
     q0s, v0s = np.tile(entry.q0, (2, 1)), np.tile(entry.v0, (2, 1))
@@ -172,7 +172,8 @@ def test_an_ensemble_refuses_more_threads_than_it_starts(system):
 
 
 def test_a_bool_where_a_number_is_meant_is_a_type_error_naming_the_argument():
-    # h=True ran as h = 1.0 and s=True as s = 1.
+    # A bool is not a number here, though Python reads h=True as 1.0 and
+    # s=True as 1.
     skate = spark.system("skate")
     q0s, v0s = np.tile(skate.q0, (2, 1)), np.tile(skate.v0, (2, 1))
     calls = {
@@ -209,17 +210,17 @@ def test_a_newton_tolerance_of_one_or_more_is_refused():
 
 
 def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
-    # |v0|² overflows: named at the initial state (it was an energy drift
-    # against E0 = inf in the first step).
+    # |v0|² overflows: named at the initial state (the first step would end
+    # in an energy drift against E0 = inf).
     with pytest.raises(spark.SparkError, match=r"initial state: the energy .* is (inf|NaN).*overflows f64"):
         spark.integrate("skate", "gauss", 2, 0.1, 3, q0=[0, 0, 0], v0=[0, 0, 1e155])
     # A zero mass: the mass matrix is singular at the start, with the
-    # coordinate and the parameter (it was a singular Newton matrix in the
-    # first step).
+    # coordinate and the parameter (the first step would fail with a singular
+    # Newton matrix).
     with pytest.raises(spark.SparkError, match=r"mass matrix W = d²L/dv².*coordinate `x`.*Parameters that are 0 here: m"):
         spark.integrate("skate", "gauss", 2, 0.1, 3, params={"m": 0.0})
-    # h² overflows in the Newton matrix: refused up front, saying so (it
-    # failed after four halvings with a non-finite Jacobian).
+    # h² overflows in the Newton matrix: refused up front, saying so (the run
+    # would fail after four halvings with a non-finite Jacobian).
     with pytest.raises(spark.SparkError, match=r"h = 1.000e300.*h² overflows f64.*smaller \|h\|"):
         spark.integrate("skate", "gauss", 2, 1e300, 1)
 
@@ -227,7 +228,7 @@ def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
 def test_a_final_time_is_reached_in_whole_steps_in_its_direction_or_refused():
     skate = spark.system("skate")
     # 10⁷ steps of 0.1 and half a hundredth of a step more: within the
-    # relative tolerance alone (10⁻⁹ of the steps), the run ended at 10⁶,
+    # relative tolerance alone (10⁻⁹ of the steps), the run would end at 10⁶,
     # 5e-4 short of t_end. As `spark run`, the tolerance is capped at a
     # thousandth of a step.
     with pytest.raises(spark.SparkError, match="not a whole number"):
@@ -243,9 +244,9 @@ def test_a_final_time_is_reached_in_whole_steps_in_its_direction_or_refused():
 
 
 def test_complex_numbers_and_strings_where_real_numbers_are_meant_are_type_errors():
-    # NumPy's cast to float64 dropped the imaginary part with a warning and
-    # parsed strings: q0 = [1+2j, 0, 0] ran from x = 1, h = 0.1+1j as
-    # h = 0.1, q0 = ["0", "0", "1"] from theta = 1.
+    # NumPy's cast to float64 drops the imaginary part with a warning and
+    # parses strings: unchecked, q0 = [1+2j, 0, 0] would run from x = 1,
+    # h = 0.1+1j as h = 0.1, q0 = ["0", "0", "1"] from theta = 1.
     skate = spark.system("skate")
     q0s, v0s = np.tile(skate.q0, (2, 1)), np.tile(skate.v0, (2, 1))
     calls = {
@@ -262,15 +263,15 @@ def test_complex_numbers_and_strings_where_real_numbers_are_meant_are_type_error
         with pytest.raises(TypeError, match=rf"^{re.escape(name.strip())} .*(complex|string)"):
             call()
     # A parameter named by something else than a string is named as such
-    # (the message was "'int' object cannot be cast as 'str'").
+    # (PyO3's own message is "'int' object cannot be cast as 'str'").
     with pytest.raises(TypeError, match="params key 1 is not a string"):
         spark.integrate("skate", "gauss", 2, 0.1, 3, params={1: 9.81})
 
 
 def test_integers_beyond_the_native_range_are_value_errors_naming_the_argument():
-    # PyO3 raised "Python int too large to convert to C long", naming no
-    # argument, for steps=2**70; an int beyond the largest float raised
-    # "int too large to convert to float".
+    # PyO3's own error for steps=2**70, "Python int too large to convert to
+    # C long", names no argument, nor does Python's "int too large to convert
+    # to float" for an int beyond the largest float.
     skate = spark.system("skate")
     q0s, v0s = np.tile(skate.q0, (2, 1)), np.tile(skate.v0, (2, 1))
     calls = {
@@ -311,11 +312,11 @@ def test_a_flag_that_is_not_a_bool_is_a_type_error_naming_it():
 
 
 def test_arguments_of_the_wrong_kind_are_type_errors_naming_them():
-    # `params="g"` raised dict()'s "dictionary update sequence element #0 has
-    # length 1", `q0={}` float()'s "argument must be a string or a real
-    # number, not 'dict'", ragged rows NumPy's "inhomogeneous shape", and a
-    # None in q0 ran into "q0 has a non-finite entry NaN": none named the
-    # argument.
+    # Unchecked, `params="g"` would raise dict()'s "dictionary update
+    # sequence element #0 has length 1", `q0={}` float()'s "argument must be
+    # a string or a real number, not 'dict'", ragged rows NumPy's
+    # "inhomogeneous shape", and a None in q0 would run into "q0 has a
+    # non-finite entry NaN": none names the argument.
     with pytest.raises(TypeError, match=r"^params = 'g' is not a mapping of parameter names to numbers"):
         spark.integrate("skate", "gauss", 2, 0.1, 3, params="g")
     with pytest.raises(TypeError, match=r"^params = 5 is not a mapping"):
@@ -333,8 +334,8 @@ def test_arguments_of_the_wrong_kind_are_type_errors_naming_them():
 
 
 def test_the_native_request_names_an_integer_beyond_64_bits():
-    # The native functions behind `spark.integrate` raised PyO3's "Python int
-    # too large to convert to C long" for a request read directly.
+    # The native functions behind `spark.integrate` name the argument too,
+    # where PyO3 alone raises "Python int too large to convert to C long".
     request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 2**70, "q0": [0, 0, 0], "v0": [0, 0, 1]}
     with pytest.raises(ValueError, match=r"^`steps` = 1180591620717411303424 is outside the 64-bit integers"):
         spark._native.integrate("skate", request)
