@@ -278,8 +278,9 @@ fn check_text(text: &str) -> Checked {
 /// How often [`check_dsl`]'s waiting thread checks for signals (Ctrl-C).
 const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
-/// Stack of the thread the check works on: the size of a main thread's,
-/// where the check ran before (the parser recurses into nested expressions).
+/// Stack of the thread the check works on: the size of a main thread's, as
+/// if the check ran on the calling thread (the parser recurses into nested
+/// expressions).
 const CHECK_STACK: usize = 8 << 20;
 
 /// Checks DSL text with the macro's own parser and engine. Returns

@@ -74,9 +74,9 @@ impl Structure {
 /// solve's round-off (see the stopping rule of [`Stepper::step`](crate::Stepper::step)).
 ///
 /// A hand-written system may leave it out ([`NonholonomicSystem::NONLINEARITY`]
-/// is `None`): its steps then confirm every update as before. A wrong
-/// declaration — a missing pair — makes the stepper accept a step that is
-/// not converged.
+/// is `None`): its steps then confirm every update, as where the equations
+/// are affine along none. A wrong declaration — a missing pair — makes the
+/// stepper accept a step that is not converged.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Nonlinearity {
     /// Pairs `(a, b)`, `a ≤ b`, of groups (coordinates `0..N`, constraints

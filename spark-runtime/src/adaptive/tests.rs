@@ -283,8 +283,8 @@ fn reversible_steps_keep_the_energy_error_bounded() {
 
 /// A pure relative tolerance (`atol = 0`) on a motion with coordinates that
 /// stay at zero: the particle released at rest from `x = 1` keeps
-/// `y = z = ẏ = ż = 0`, whose weights are 0. Their zero errors count zero;
-/// `0/0` made the error norm NaN and every step was rejected down to
+/// `y = z = ẏ = ż = 0`, whose weights are 0. Their zero errors count zero:
+/// `0/0` would make the error norm NaN and reject every step down to
 /// `StepSizeTooSmall` at `t = 0`.
 #[test]
 fn a_pure_relative_tolerance_accepts_coordinates_at_rest() {
@@ -333,7 +333,7 @@ fn long_intervals_step_at_the_resolution_of_the_current_time() {
 /// Reversible steps of 0.1 (a constant density, bounded by `max_step`)
 /// accumulate to 0.9999999999999999 after ten steps, not 1: the rule's
 /// next step would leave a sliver of 1.1e-16 behind, below the resolution
-/// of `t`, and the run stopped there with `StepSizeTooSmall`. The step is
+/// of `t`, where the run would stop with `StepSizeTooSmall`. The step is
 /// stretched onto `t_end` instead.
 #[test]
 fn a_reversible_run_lands_on_t_end_across_round_off_in_t() {
@@ -349,8 +349,8 @@ fn a_reversible_run_lands_on_t_end_across_round_off_in_t() {
 }
 
 /// `StepSizeTooSmall` names what asked for the step: the last error
-/// estimate when there was one (it said "error estimate inf" for every step
-/// refused before its attempt), nothing when no estimate was made (a
+/// estimate when there was one (not "error estimate inf" for a step refused
+/// before its attempt), nothing when no estimate was made (a
 /// `min_step` above the first step); an interval shorter than the
 /// resolution of `t` at `t₀` is refused as an interval.
 #[test]

@@ -569,7 +569,7 @@ fn for_each_constraint_block<const N: usize, const M: usize, const S: usize>(
 /// indexing needs no bounds checks. Inline: every Newton update waits on
 /// this solve, and out of line (where the slices would be known not to
 /// overlap, 1–5 % fewer instructions a step at s ≥ 3) its call and the
-/// reloads of what the caller just stored made the short steps slower
+/// reloads of what the caller just stored make the short steps slower
 /// (the particle's Gauss s = 1 348 → 389 ns a step).
 #[inline(always)]
 fn solve_multipliers<const N: usize, const M: usize, const S: usize>(

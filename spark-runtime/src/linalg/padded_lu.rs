@@ -239,7 +239,7 @@ mod x86 {
             // their bit patterns), so the largest key is the largest
             // magnitude, ties (to 2⁻⁴⁶ relative) going to the smallest row,
             // and non-candidates are keyed 0. One `max` per vector keeps
-            // this chain short; an index-tracking argmax was ~20 cycles
+            // this chain short; an index-tracking argmax is ~20 cycles
             // longer per column.
             let endv = _mm256_set1_pd(end as f64);
             let mut idx = _mm256_add_pd(_mm256_setr_pd(0.0, 1.0, 2.0, 3.0), _mm256_set1_pd((c0 * W) as f64));

@@ -37,7 +37,7 @@ pub(crate) const DENSE_MAX: usize = 16;
 /// or entry `b̂_j`. Lobatto IIIA-B's first point (`Q₁ = q₀`, row 1 of IIIA
 /// zero) never enters. When `ÂA = 0` (Lobatto IIIA-B s = 2) the stiffness
 /// couples no two stages, only the end row to them, and none is kept: with
-/// it the robot's step took as many updates (2.98) and 20 % more instructions.
+/// it the robot's step takes as many updates (2.98) and 20 % more instructions.
 /// A point not kept is not evaluated for its stiffness.
 pub(crate) fn kept_stiffness_points<const S: usize>(tab: &Tableau<S>) -> [bool; S] {
     let couples_stages = (0..S).any(|i| (0..S).any(|k| (0..S).any(|l| tab.a_hat[i][l] * tab.a[l][k] != 0.0)));

@@ -90,10 +90,10 @@ impl Contraction {
     /// the kind of matrix) nothing vouches that a slow error mode has
     /// surfaced in the first two ratios. A cold Lobatto IIIA-B s = 3 step of
     /// a system with a constraint nonlinear in `v` (`OddNames` of the
-    /// integration tests, h = 0.25, the exact matrix) ran 1.1e-2, 1.0e-6,
+    /// integration tests, h = 0.25, the exact matrix) runs 1.1e-2, 1.0e-6,
     /// 3.9e-11 (ratios 9.1e-5, 3.8e-5) while its multipliers' error
-    /// contracted at 3e-3 an update: stopping there left `μ` 1.15e-13 from
-    /// the tight solve. The fourth update shows that rate.
+    /// contracts at 3e-3 an update: stopping there would leave `μ` 1.15e-13
+    /// from the tight solve. The fourth update shows that rate.
     #[inline]
     pub(crate) fn earned(&self) -> f64 {
         let needed = if self.prior.is_nan() { 4 } else { 3 };
@@ -510,9 +510,9 @@ const fn column_bits(columns: &[u32], groups: usize) -> Option<u64> {
 /// the size of the velocities' (`∂k/∂q` against `∂k/∂v`), so such a move
 /// leaves the stored state off the solution by about an ulp of the
 /// coordinate in the velocities: at a rolling disk's heading θ ≈ 5·10⁴
-/// (ulp 7e-12) its constraint was left at `|φ̇|·ulp(θ) ≈ 1e-11`. A
-/// coordinate below about 16 moves by an ulp within the tolerance
-/// (16ε) and lands as before.
+/// (ulp 7e-12) such a move leaves its constraint at `|φ̇|·ulp(θ) ≈ 1e-11`.
+/// A coordinate below about 16 moves by an ulp within the tolerance
+/// (16ε), so the test lets its update land.
 #[inline(always)]
 pub(crate) fn rounding_moved(old: f64, new: f64, shift: f64, weight: f64, tolerance: f64) -> bool {
     if old.to_bits() == new.to_bits() {

@@ -16,7 +16,7 @@ use crate::State;
 
 /// Everything one residual evaluation produced. The stepper keeps one and
 /// every evaluation overwrites it in place (returned by value, its copies
-/// were a few per cent of a step).
+/// would cost a few per cent of a step).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Eval<const N: usize, const M: usize, const S: usize> {
     pub(super) stages: [StageValues<N, M>; S],
@@ -47,9 +47,9 @@ pub(super) enum Derivatives<'a, const N: usize, const M: usize, const S: usize> 
 /// Every `StageJacobians` is its own heap allocation made zeroed by
 /// [`StageJacobians::boxed_zeros`] and written in place by
 /// `stage_jacobians_into`, so neither building nor filling one puts its
-/// `≈ 48·N²` bytes on the stack (n = 65, s = 2 overflowed a 2 MiB thread when
-/// the stage arrays were built before boxing; n ≈ 120 did when the system
-/// returned them by value).
+/// `≈ 48·N²` bytes on the stack (n = 65, s = 2 overflows a 2 MiB thread when
+/// the stage arrays are built before boxing; n ≈ 120 does when the system
+/// returns them by value).
 #[derive(Clone, Debug)]
 pub(super) struct EvalJac<const N: usize, const M: usize, const S: usize> {
     pub(super) stages: Box<[Box<StageJacobians<N, M>>]>,
@@ -263,7 +263,7 @@ where
             // the structure facts, both fixed for this stepper: the structural
             // zeros and the constant entries are written once, and every later
             // assembly overwrites exactly the blocks that change (zeroing the
-            // whole D×D matrix per iteration cost more than the blocks).
+            // whole D×D matrix per iteration costs more than the blocks).
             self.newton.clear();
             if tab.conditions == ConditionRows::EqualMultipliers {
                 let mut j = self.newton.matrix_mut();
@@ -282,20 +282,20 @@ where
         // Momentum rows: stage rows i < S use (a_i, â_i, ã_i); the p₁ row uses
         // (b, b̂, b̃) with its momentum evaluated at the end point. Each block
         // is accumulated in a contiguous local N×N matrix and stored once
-        // (nalgebra's `zip_apply` on the strided D×D view went entry by entry:
+        // (nalgebra's `zip_apply` on the strided D×D view goes entry by entry:
         // ≈ 12 % of all instructions of an mp7 Gauss s = 4 step). Every entry
-        // sees the same operations in the same order as before, so the matrix
-        // is bit for bit the same.
+        // sees the same operations in the same order as an accumulation in
+        // the D×D view, so the matrix is bit for bit the same.
         for i in 0..=S {
             let (a_row, ah_row, at_row) =
                 if i < S { (&tab.a[i], &tab.a_hat[i], &tab.a_tilde[i]) } else { (&tab.b, &tab.b_hat, &tab.b_tilde) };
             let pq = if i < S { &jac.stages[i].momentum_q } else { &jac.end.momentum_q };
             for l in 0..S {
                 // Small blocks accumulate in a fixed 2 KiB stack array: LLVM sees
-                // that it aliases nothing and vectorizes the axpys (measured: the
-                // heap scratch alone gave back the ≈ 5 % a step had gained at
-                // N ≤ 7). Larger blocks use the heap scratch, so a step's stack
-                // stays independent of N.
+                // that it aliases nothing and vectorizes the axpys (measured: with
+                // the heap scratch alone a step at N ≤ 7 is ≈ 5 % slower). Larger
+                // blocks use the heap scratch, so a step's stack stays
+                // independent of N.
                 let mut local = [0.0f64; SMALL_BLOCK];
                 let blk: &mut [f64] = if N * N <= SMALL_BLOCK { &mut local[..N * N] } else { &mut self.block[..N * N] };
                 if i == l {
@@ -623,7 +623,7 @@ fn copy_constraint_jacobians<const N: usize, const M: usize, const S: usize>(
 const SMALL_BLOCK: usize = 256;
 
 /// `acc += coef · x`, entry by entry on contiguous storage (nalgebra's
-/// `zip_apply` on a strided view of the D×D matrix did not vectorize);
+/// `zip_apply` on a strided view of the D×D matrix does not vectorize);
 /// `acc` is an `N·N` block scratch (column-major).
 #[inline(always)]
 fn axpy<const N: usize>(acc: &mut [f64], coef: f64, x: &Matrix<N, N>) {
@@ -634,12 +634,12 @@ fn axpy<const N: usize>(acc: &mut [f64], coef: f64, x: &Matrix<N, N>) {
 
 /// `carry + Σ_j (h c_j) V_j`: the increment of `q` summed on its own (at
 /// the size of `hV`), so that adding it to `q₀` rounds once at the size of
-/// `q` instead of once per stage — those `S` roundings of nearly the same
-/// increments every step were the systematic part of the drift.
+/// `q` instead of once per stage — `S` roundings of nearly the same
+/// increments every step would be the systematic part of the drift.
 ///
 /// A zero coefficient (Lobatto IIIA's first row) adds its product too: the
 /// exact zero `0·V_j` leaves a finite sum as it is, and a test of every
-/// coefficient at every evaluation cost more than the products it saved
+/// coefficient at every evaluation costs more than the products it saves
 /// (with the same test dropped from the residual's rows, 2–3 % of the
 /// skate's and the particle's stage-decoupled steps at s = 1, 2: docs/performance,
 /// "Instructions per step").

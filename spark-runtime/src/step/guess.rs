@@ -184,7 +184,7 @@ impl<const S: usize> StepPolynomial<S> {
 /// steps of the chain that ends where the stepper's latest step ended.
 ///
 /// Updated in place after every step (a ring of the last solutions, not a
-/// shifted array rebuilt per step: that copy was `PAST·D` doubles).
+/// shifted array rebuilt per step: that copy would be `PAST·D` doubles).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Warm<const D: usize> {
     pub(super) h: f64,

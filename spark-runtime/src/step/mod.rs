@@ -26,7 +26,8 @@
 //! force `N(t,q,v,ψ)` to `R` (weights `ã`, `b̃`, paper §3.3). Both are
 //! folded into the stage values at the stage points only, behind
 //! `if Sys::HAS_FORCING` / `if Sys::HAS_NONIDEAL_FORCE` (constants, so a
-//! system without them compiles to exactly the code it had before).
+//! system without them compiles to code with neither branch and pays
+//! nothing for them).
 //!
 //! # Why a fourth const parameter `D`
 //! The Newton matrix is `D × D` with `D = S(N+M)+N`, but stable Rust cannot
@@ -487,7 +488,7 @@ where
         // is not: a step it fails is solved again from the guess of degree
         // `SAFE_EXTRAPOLATION_DEGREE`, so that the higher degree never turns
         // a step that one solves into a failure. (One call of the solve, in
-        // a loop: a second call site made LLVM leave it out of line.)
+        // a loop: a second call site makes LLVM leave it out of line.)
         let (mut full_newton, mut abandoned) = (false, 0);
         let Solved { factorizations, rate } = loop {
             match self.newton(state, &carry, h, &mut z, prior, full_newton) {

@@ -729,9 +729,9 @@ mod tests {
     }
 
     /// Large steps where the Jacobian frozen at the starting guess contracts
-    /// too slowly: the robot at h = 1 (Gauss s = 2) diverged at its seventh
-    /// step, the particle at h = 0.7 ran into the iteration limit at its
-    /// fourth, while full Newton solves both. Refreshing the Jacobian at the
+    /// too slowly: with it the robot at h = 1 (Gauss s = 2) diverges at its
+    /// seventh step, the particle at h = 0.7 runs into the iteration limit at
+    /// its fourth, while full Newton solves both. Refreshing the Jacobian at the
     /// current iterate reaches full Newton's solution.
     #[test]
     fn simplified_newton_refreshes_a_slow_jacobian() {

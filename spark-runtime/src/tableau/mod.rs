@@ -148,8 +148,8 @@ impl Method {
     /// [`stage_range`](Self::stage_range); outside it, the formula's value
     /// clamped to `0..=usize::MAX`).
     pub const fn order(self, s: usize) -> usize {
-        // Saturating: `s = 0` of a Lobatto family wrapped (or overflowed in
-        // a debug build) to a huge order.
+        // Saturating: wrapping arithmetic would turn `s = 0` of a Lobatto
+        // family into a huge order (and overflow in a debug build).
         match self {
             Method::Gauss => s.saturating_mul(2),
             Method::LobattoIIIAB | Method::LobattoIIIABD => s.saturating_mul(2).saturating_sub(2),
