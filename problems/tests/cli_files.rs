@@ -232,12 +232,12 @@ fn every_numeric_argument_is_checked_and_named() {
 /// user gave them: a subnormal `--h` (its 1/h overflows inside the step),
 /// an `--h` that does not move `--t0`, a `--t0` whose default end rounds
 /// back to it, a stage count outside a single-valued range, a parameter
-/// given twice, an `--h` whose h² overflows in the Newton matrix (it failed
-/// after halving with a non-finite Jacobian), a `--v0` whose energy
-/// overflows (it failed with an energy drift against E0 = inf) and a zero
-/// mass (it failed with a singular Newton matrix in the first step), and a
-/// `spark paper --fraction` that leaves a figure less than one step (its
-/// final time was printed with 300 digits), and a `--newton-tol` of 1 or
+/// given twice, an `--h` whose h² overflows in the Newton matrix (the run
+/// would fail after halving with a non-finite Jacobian), a `--v0` whose
+/// energy overflows (it would fail with an energy drift against E0 = inf)
+/// and a zero mass (it would fail with a singular Newton matrix in the first
+/// step), and a `spark paper --fraction` that leaves a figure less than one
+/// step (its final time would be printed with 300 digits), and a `--newton-tol` of 1 or
 /// more, which would accept updates with no correct digit.
 #[test]
 fn unusable_arguments_are_refused_naming_what_was_given() {
@@ -310,9 +310,9 @@ fn the_figure_of_a_long_run_stays_small() {
 /// A run into a folder that holds an earlier run of the same system,
 /// method and stage count leaves no file of that run that it does not
 /// write itself: a `--no-plot` or `--format csv` run removes the earlier
-/// figure and JSON trajectory, which described another run than its
-/// report.md (a figure of h = 0.1 to t = 2 sat beside the report and CSV
-/// of h = 0.05 to t = 1). Files of other runs stay.
+/// figure and JSON trajectory, which would describe another run than its
+/// report.md (a figure of h = 0.1 to t = 2 beside the report and CSV of
+/// h = 0.05 to t = 1). Files of other runs stay.
 #[test]
 fn a_run_leaves_no_file_of_an_earlier_run_beside_its_own() {
     let dir = temp_dir("stale");
@@ -336,8 +336,9 @@ fn a_run_leaves_no_file_of_an_earlier_run_beside_its_own() {
 
 /// A folder under the name of one of a run's files cannot be replaced by
 /// the file: the run fails naming it, before anything is renamed, and the
-/// earlier results stay as they were (the CSV and PNG of the new run had
-/// been renamed beside the old run's reports before the SVG failed).
+/// earlier results stay as they were (every final name is checked first, so
+/// the CSV and PNG of the new run are not renamed beside the old run's
+/// reports before the SVG fails).
 #[test]
 fn a_folder_in_the_way_of_a_file_leaves_the_earlier_results_whole() {
     let dir = temp_dir("folder-in-the-way");
@@ -360,7 +361,7 @@ fn a_folder_in_the_way_of_a_file_leaves_the_earlier_results_whole() {
 
 /// Standard output that cannot be written (a full disk, a pipe whose
 /// reader has gone) ends the program with an error, never a panic: `print!`
-/// panicked with "failed printing to stdout" and exit status 101.
+/// would panic with "failed printing to stdout" and exit status 101.
 #[test]
 fn an_unwritable_standard_output_is_an_error_not_a_panic() {
     let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
@@ -400,11 +401,11 @@ fn run_err_within(args: &[&str], seconds: u64) -> String {
 
 /// Counts and intervals that cannot finish in any sensible time, or over
 /// which nothing can be measured, are refused before any computation,
-/// naming the flag and the range that works: `--t-end 1e-300` said
-/// "loosen rtol/atol" about a tolerance the user cannot set, `--t-end 1e300`
-/// ran the reference solution for 10⁶ step attempts, `--repeats` near
-/// `u64::MAX` timed each point forever, and runs and sections of up to 2⁵³
-/// steps (decades) were started.
+/// naming the flag and the range that works. Unchecked, `--t-end 1e-300`
+/// would say "loosen rtol/atol" about a tolerance the user cannot set,
+/// `--t-end 1e300` would run the reference solution for 10⁶ step attempts,
+/// `--repeats` near `u64::MAX` would time each point forever, and runs and
+/// sections of up to 2⁵³ steps (decades) would start.
 #[test]
 fn counts_and_intervals_beyond_their_limits_are_refused_naming_the_range() {
     let dir = temp_dir("limits");
@@ -452,9 +453,9 @@ fn counts_and_intervals_beyond_their_limits_are_refused_naming_the_range() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// An `--out` whose name is not UTF-8 is a folder like any other:
-/// recording the command line in the lock file panicked on it
-/// (`std::env::args`), after the lock file was created.
+/// An `--out` whose name is not UTF-8 is a folder like any other: the
+/// command line recorded in the lock file is read with `std::env::args_os`
+/// (`std::env::args` would panic on it, after the lock file is created).
 #[test]
 fn an_out_folder_whose_name_is_not_utf8_is_written() {
     use std::os::unix::ffi::OsStrExt;

@@ -104,7 +104,7 @@ fn unusable_steps_and_repeated_parameters_are_refused_up_front() {
 }
 
 /// A thread count beyond what an ensemble starts is refused at once (rayon
-/// would start up to 65535 threads for `usize::MAX`, which stalled the
+/// would start up to 65535 threads for `usize::MAX`, which stalls the
 /// process); the largest allowed count runs.
 #[test]
 fn an_ensemble_refuses_more_threads_than_it_starts() {

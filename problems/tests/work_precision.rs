@@ -61,8 +61,8 @@ mod sweep {
     /// the two lists agree.
     /// A largest step count near `usize::MAX` (`--max-steps
     /// 18446744073709551615`) ends the sweep's step counts at the largest
-    /// that fits: doubling past it wrapped to 0, and the list of counts grew
-    /// until an allocation failed and aborted the process. The point mass
+    /// that fits: doubling past it would wrap to 0, and the list of counts
+    /// would grow until an allocation fails and aborts the process. The point mass
     /// is solved exactly, so each sweep stops at its first point.
     #[test]
     fn a_sweep_up_to_any_step_count_ends() {
@@ -99,9 +99,9 @@ mod sweep {
     }
 
     /// A reference solution that fails because of the final time says that
-    /// the final time is what to change (it said "raise max_steps or loosen
-    /// the tolerances", options a sweep does not offer, or "check the
-    /// initial values" of a default state): the turntable's default state
+    /// the final time is what to change (not "raise max_steps or loosen the
+    /// tolerances", options a sweep does not offer, nor "check the initial
+    /// values" of a default state): the turntable's default state
     /// leaves the finite numbers near t = 830.
     #[test]
     fn a_reference_that_cannot_reach_the_final_time_names_it() {

@@ -301,8 +301,9 @@ def test_integers_beyond_the_native_range_are_value_errors_naming_the_argument()
 
 
 def test_a_flag_that_is_not_a_bool_is_a_type_error_naming_it():
-    # `project_v0="no"` is truthy: it replaced an inconsistent v0 by its
-    # projection instead of refusing it, and `multipliers="no"` recorded ψ.
+    # `project_v0="no"` is truthy: read as a bool, it would replace an
+    # inconsistent v0 by its projection instead of refusing it, and
+    # `multipliers="no"` would record ψ.
     for name in ("multipliers", "project_v0"):
         for value in ("no", 0, None, [False]):
             with pytest.raises(TypeError, match=rf"^{name} = .* is not a bool; pass True or False"):

@@ -264,8 +264,8 @@ fn malformed_forces_are_errors() {
 
 /// A constraint effect's name stands for its multiplier in `nonideal`
 /// forces, where `t`, `pi` and the functions keep their own meaning: a
-/// constraint named `pi` made `nonideal { y: -mu*pi }` the constant −μπ, a
-/// constraint named `t` the time, each generated as a success. Such names are
+/// constraint named `pi` would make `nonideal { y: -mu*pi }` the constant −μπ,
+/// a constraint named `t` the time, each generated as a success. Such names are
 /// refused like the names of coordinates; a scene name, a struct of its
 /// own, may not be a Rust keyword (as the base struct's may not).
 #[test]

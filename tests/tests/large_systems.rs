@@ -3,8 +3,9 @@
 //! 800 KiB) are stepped on a thread with rayon's default 2 MiB stack: the
 //! stepper writes the generated `stage_jacobians_into` straight into its heap
 //! work storage and cold-starts from it, so a step's stack use is `O(D)`.
-//! Before, the by-value `stage_jacobians` and the cold start's consistent
-//! acceleration needed ≈ 6 MiB of stack here and the process aborted.
+//! The by-value `stage_jacobians` and a cold start's consistent
+//! acceleration computed from them would need ≈ 6 MiB of stack here and
+//! abort the process.
 //!
 //! With `n = 201` and `n = 401` (the hand-written [`MpLarge`]), the public
 //! paths of a run go through rayon workers with 2 MiB stacks, two sizes at

@@ -294,7 +294,7 @@ fn dense_observers_see_every_step_continuously() {
 /// `⌈(t_last − t₀)/h⌉` steps can end just short of the last time: with
 /// `h = 0.2`, `(30.000000000000004 − 0)/0.2` rounds to 150 and 150 steps end
 /// at 30.0. The run takes one step more and samples every requested time
-/// (it returned without the last one), forward and backward, and times
+/// (the last one included), forward and backward, and times
 /// whose gaps times `h` underflow to 0 are still seen as monotone.
 #[test]
 fn sampled_schedules_sample_a_last_time_the_rounded_step_count_falls_short_of() {
@@ -333,8 +333,8 @@ fn sampled_schedules_sample_a_last_time_the_rounded_step_count_falls_short_of() 
 
 /// The samples of a `Sampled` run are the initial point and one per
 /// requested time, a time at `t₀` included: with later times the first
-/// step's extension records it; alone it takes no step, and the run had
-/// returned the initial point only (one sample for one time).
+/// step's extension records it; alone it takes no step, and the run still
+/// records it beside the initial point (two samples for one time, not one).
 #[test]
 fn a_sampled_time_at_the_start_is_a_sample_of_its_own() {
     let start = State::new(0.5, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));

@@ -125,10 +125,11 @@ fn a_reused_stepper_reproduces_a_fresh_one() {
 }
 
 /// Step counts far beyond what could be recorded: the driver reserves a
-/// bounded amount of sample storage up front (1e10 steps reserved 1.1 TB and
-/// aborted; 2.9e17 overflowed the capacity), so a run that fails at its
-/// third step returns that failure; `usize::MAX` steps and a final time
-/// beyond the floats are typed errors, not overflows.
+/// bounded amount of sample storage up front (a reservation for every step
+/// would be 1.1 TB for 1e10 steps and abort; for 2.9e17 it would overflow the
+/// capacity), so a run that fails at its third step returns that failure;
+/// `usize::MAX` steps and a final time beyond the floats are typed errors,
+/// not overflows.
 #[test]
 fn huge_step_counts_reserve_bounded_storage() {
     let (q0, v0) = expiring_start();
@@ -152,7 +153,7 @@ fn huge_step_counts_reserve_bounded_storage() {
 
 /// A step size the step's equations cannot use is refused before the
 /// first step, with what to change: a subnormal `h` (whose `1/h`
-/// overflows; it failed inside Newton with a non-finite residual), an `h`
+/// overflows; it would fail inside Newton with a non-finite residual), an `h`
 /// that does not move `t0`, and output times closer than the smallest
 /// normal float. The smallest normal step runs.
 #[test]
@@ -167,8 +168,8 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
         (0.0, Schedule::Until { h: 1e-311, t_end: 1e-310 }, "subnormal"),
         (1e20, Schedule::Fixed { h: 1.0, steps: 3 }, "resolution of t"),
         (0.0, Schedule::Times(&[1e-320, 1.0]), "closer than 2.2e-308"),
-        // h² overflows in the Newton matrix: refused up front, where it
-        // failed after halving with "non-finite value in the Jacobian".
+        // h² overflows in the Newton matrix: refused up front, where the run
+        // would fail after halving with "non-finite value in the Jacobian".
         (0.0, Schedule::Fixed { h: 1e300, steps: 1 }, "h² overflows"),
         (0.0, Schedule::Until { h: -1e155, t_end: -1e300 }, "h² overflows"),
         (0.0, Schedule::Sampled { h: 1e200, times: &[1e300] }, "h² overflows"),
@@ -204,8 +205,8 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
     assert!(traj.samples.iter().all(|s| s.q.iter().chain(s.v.iter()).all(|x| x.is_finite())));
 }
 
-/// `max_halvings` is bounded by [`MAX_HALVINGS`]: `u32::MAX` (which
-/// recursed ≈ 1075 deep and overflowed the stack) is refused by name, and
+/// `max_halvings` is bounded by [`MAX_HALVINGS`]: `u32::MAX` (a recursive
+/// halving would nest ≈ 1075 deep and overflow the stack) is refused by name, and
 /// the largest allowed value runs without recursion on a 256 KiB thread
 /// and returns promptly at the largest step size, `MAX_STEP_SIZE`.
 #[test]

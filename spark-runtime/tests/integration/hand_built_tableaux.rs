@@ -77,8 +77,9 @@ fn start() -> (Vector<2>, Vector<2>) {
 }
 
 /// Twelve stages, two more than the tables hold: the dense output's
-/// interpolants had room for `MAX_STAGES` nodes inside a step, so a run
-/// that samples (or locates events) ended in an index-out-of-bounds panic.
+/// interpolants hold as many nodes as the tableau has stages (room for only
+/// `MAX_STAGES` nodes inside a step would end a run that samples, or locates
+/// events, in an index-out-of-bounds panic).
 #[test]
 fn a_hand_built_tableau_beyond_the_tables_runs_with_dense_output() {
     const S: usize = 12;
@@ -113,10 +114,10 @@ fn a_hand_built_tableau_beyond_the_tables_runs_with_dense_output() {
 }
 
 /// No stage, a non-finite coefficient, and (where the dense output
-/// interpolates between the nodes) a repeated node. Before they were
-/// checked, `S = 0` returned the start's positions at `t + h` as a
-/// successful step, and a repeated node made every sample between grid
-/// points NaN in a successful run.
+/// interpolates between the nodes) a repeated node. Unchecked, `S = 0`
+/// would return the start's positions at `t + h` as a successful step, and
+/// a repeated node would make every sample between grid points NaN in a
+/// successful run.
 #[test]
 fn hand_built_tableaux_no_step_can_use_are_refused_naming_the_field() {
     let (q0, v0) = start();

@@ -576,8 +576,8 @@ where
 /// promised, 1e-13; measured: 5.9e-15 or less in 268 of the 270 runs, and
 /// 1.09e-14 at one step of the pushed bead with Lobatto IIIA-B s = 2 in
 /// simplified Newton (both matrices), where the error left, in `μ`, is
-/// about 5e-4 of the last update while the one ratio the iteration had
-/// earned was 1.15e-4 (two tight solves by different iterations agree
+/// about 5e-4 of the last update while the one ratio the iteration has
+/// earned is 1.15e-4 (two tight solves by different iterations agree
 /// there to 3.5e-18).
 #[test]
 fn newcomer_steps_equal_the_tight_solve_in_every_newton_mode() {

@@ -413,11 +413,12 @@ fn simplified_newton_does_not_stop_on_an_underestimated_rate() {
 /// A warm-started simplified Newton iteration can end on another root of
 /// the step's equations: the bead in the breathing bowl, Lobatto IIIA-B-D
 /// s = 2 at h = 0.25, whose fifth step starts from a poor extrapolated
-/// guess (first update 7.5), diverges, refreshes its matrix at the diverged
-/// iterate and converges there, to `v₁ ≈ (2.9, −4.2, 10.2)`; full Newton
-/// from the same guess, every cold start and 64 steps of h/64 give
-/// `v₁ ≈ (0.38, −0.48, −0.72)`. The step is returned as a success. The
-/// iteration lives in `step/`.
+/// guess (first update 7.5): an iteration that diverges, refreshes its
+/// matrix at the diverged iterate and converges there reaches
+/// `v₁ ≈ (2.9, −4.2, 10.2)`; full Newton from the same guess, every cold
+/// start and 64 steps of h/64 give `v₁ ≈ (0.38, −0.48, −0.72)`. Returned,
+/// that step would be a success on the wrong root: the step must equal the
+/// tight solve or be refused. The iteration lives in `step/`.
 #[test]
 fn simplified_newton_does_not_return_a_spurious_root() {
     let sys = BowlFree::default();
@@ -449,7 +450,7 @@ fn simplified_newton_does_not_return_a_spurious_root() {
 /// A guess extrapolated across steps can be too far off for Newton where
 /// the solution turns on the scale of `h`: the two mixed constraints at
 /// h = 0.25, whose velocity `(q̇₁, q̇₂)` turns by about 0.4 rad a step near
-/// t = 3.3. There every Newton mode diverged from the extrapolated guess of
+/// t = 3.3. There every Newton mode diverges from the extrapolated guess of
 /// Lobatto IIIA-B-D s = 2 and s = 3 (the second update larger than the
 /// first, the residual growing from 0.83 to 6.5), and again from the guess
 /// of degree 3, where Newton from the consistent acceleration at the step's

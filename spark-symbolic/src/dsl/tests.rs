@@ -720,7 +720,7 @@ proptest! {
 
 /// A number times a sum is not distributed where a coefficient would
 /// overflow: code generation regroups products (`c·(1e300 − θ)` as a
-/// prefix of a longer product), and distributing there made `inf`.
+/// prefix of a longer product), and distributing there would make `inf`.
 #[test]
 fn regrouped_products_do_not_distribute_into_an_overflow() {
     let src = "struct S { coordinates: [x, y, th], lagrangian: (dot(x)^2 + dot(y)^2 + dot(th)^2)/2, \
@@ -819,7 +819,7 @@ fn more_coordinates_than_supported_are_refused_at_the_list() {
     let (msg, text) = error(&src);
     assert!(msg.contains(&format!("{n} coordinates")) && msg.contains(&format!("at most {MAX_COORDINATES}")), "{msg}");
     assert!(text.starts_with("[x1, x2"), "span of `{msg}`: {text}");
-    // 3000 coordinates (which took minutes to differentiate) are refused just as fast, and through
+    // 3000 coordinates (which would take minutes to differentiate) are refused just as fast, and through
     // the path the macro takes (effects and scenes included).
     let start = std::time::Instant::now();
     let e = parse_declaration(with_coordinates(3000).parse().expect("lexes")).map(|_| ()).unwrap_err();

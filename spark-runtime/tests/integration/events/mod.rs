@@ -352,7 +352,8 @@ fn a_terminal_event_ends_the_run_exactly_there() {
     assert!(traj.report.steps < 100);
     assert_eq!(*seen.last().unwrap(), stop.t);
     assert_eq!(traj.events.iter().filter(|e| e.name == "count").count(), 1);
-    // A system without events runs as before: no events, no terminal.
+    // A system without events runs as it does without an event set: no
+    // events, no terminal.
     let plain = particle_run(0.1, 10, &mut NoObserver, &NoEvents);
     assert!(plain.events.is_empty() && plain.report.terminal_event.is_none());
 }
@@ -501,8 +502,8 @@ fn every_scene_keeps_the_base_events() {
 
 /// A NaN value of an event function has no sign: a check point where the
 /// function is NaN starts or ends no crossing. Reading `NaN < 0` as "not
-/// negative" reported a crossing at the first point after the NaN stretch
-/// whenever the function was negative there (here `g` is NaN before
+/// negative" would report a crossing at the first point after the NaN stretch
+/// whenever the function is negative there (here `g` is NaN before
 /// t = 0.05 and −1 after: a falling crossing "at" 0.05 with residual NaN);
 /// the rising crossing at 0.55 after it is still found, by fixed and by
 /// adaptive runs.
@@ -610,7 +611,7 @@ fn timed_skate_events(tau: f64) -> Vec<f64> {
 /// An event's location tolerance is a fraction of the step, so a system
 /// stated in other units of time has its events where `τ = 1` has them,
 /// to 1e-13 of `τ` (with a tolerance of `1e-14·max(1, |t|)` the events at
-/// `τ = 1e-3` were 4.8e-12 of `τ` off).
+/// `τ = 1e-3` are 4.8e-12 of `τ` off).
 #[test]
 fn events_in_other_units_of_time_are_located_alike() {
     let unit = timed_skate_events(1.0);
