@@ -328,7 +328,7 @@ def test_arguments_of_the_wrong_kind_are_type_errors_naming_them():
         spark.integrate("skate", "gauss", 2, 0.1, 3, q0=[None, 0, 0])
     with pytest.raises(TypeError, match=r"^q0s = .* is not an array of real numbers"):
         spark.ensemble("skate", "gauss", 2, 0.1, 3, [[0, 0, 0], [0, 0]], [[0, 0, 1], [0, 0, 1]])
-    # An empty mapping and pairs are parameters as before.
+    # An empty mapping and a list of pairs are accepted as parameters.
     assert spark.integrate("skate", "gauss", 2, 0.1, 3, params={}).q.shape == (4, 3)
     run = spark.integrate("skate", "gauss", 2, 0.1, 3, params=[("g", 2.0)])
     assert np.array_equal(run.q, spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": 2.0}).q)
