@@ -67,9 +67,12 @@ use proc_macro::TokenStream;
 /// functions, constants; a constant may use the constants declared before
 /// it). Names must be distinct across coordinates, parameters and constants,
 /// and may not be `t`, `pi`, `dot`, a function name, a Rust keyword, or start
-/// with `__`. Each constraint must involve the velocities (a position
-/// constraint is holonomic: write its time derivative; a constraint of the
-/// time alone constrains no motion and is refused). `M`, the number of
+/// with `__`. The struct's name (and a scene's) is no Rust keyword, does
+/// not start with `__`, and is none of `f64`, `usize`, `bool` and `str`,
+/// the primitive types the generated code names. Each constraint must
+/// involve the velocities (a position constraint is holonomic: write its
+/// time derivative; a constraint of the time alone constrains no motion and
+/// is refused). `M`, the number of
 /// constraints, is the length of the `constraints` list.
 ///
 /// Declarations whose accelerations no state can determine are compile
@@ -114,9 +117,9 @@ use proc_macro::TokenStream;
 /// must also select the constraints it names. So a constraint effect's name
 /// follows the rules of declared names (not `t`, `pi`, a function or a
 /// keyword, nor a coordinate, parameter or constant), and a scene's name,
-/// the name of a struct, is no Rust keyword. A scene's constraints are the
-/// base ones followed by its `constraint`/`holonomic` effects in the order
-/// the scene lists them. Holonomic effects also give the generated type
+/// the name of a struct, follows the rules of the struct's name. A scene's
+/// constraints are the base ones followed by its `constraint`/`holonomic`
+/// effects in the order the scene lists them. Holonomic effects also give the generated type
 /// `HAS_HOLONOMIC = true` and `holonomic_residual(t, q)` (`g_i`, 0 for the
 /// other rows), so the drift of `g` can be measured.
 ///

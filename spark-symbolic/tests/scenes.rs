@@ -267,7 +267,8 @@ fn malformed_forces_are_errors() {
 /// constraint named `pi` would make `nonideal { y: -mu*pi }` the constant −μπ,
 /// a constraint named `t` the time, each generated as a success. Such names are
 /// refused like the names of coordinates; a scene name, a struct of its
-/// own, may not be a Rust keyword (as the base struct's may not).
+/// own, may not be a Rust keyword or a primitive type the generated code
+/// uses (as the base struct's may not).
 #[test]
 fn constraint_effects_named_like_the_time_pi_or_a_function_and_keyword_scenes_are_errors() {
     for name in ["t", "pi", "sin", "atan2", "dot", "type"] {
@@ -283,5 +284,12 @@ fn constraint_effects_named_like_the_time_pi_or_a_function_and_keyword_scenes_ar
     for name in ["Self", "struct", "type", "fn"] {
         let e = error_of(&FORCED.replace("Rubbing", name));
         assert!(e.contains(&format!("`{name}` is a Rust keyword; choose another scene name")), "{name}: {e}");
+    }
+    for name in ["f64", "usize", "bool", "str"] {
+        let e = error_of(&FORCED.replace("Rubbing", name));
+        assert!(
+            e.contains(&format!("`{name}` names a Rust primitive type")) && e.contains("scene name"),
+            "{name}: {e}"
+        );
     }
 }

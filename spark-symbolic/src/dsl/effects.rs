@@ -22,7 +22,7 @@
 
 use super::expr::{describe, parse_expression, split_commas};
 use super::forces::parse_force_block;
-use super::names::{is_keyword, list, nearest, reserved_reason};
+use super::names::{list, nearest, reserved_reason, struct_name_reason};
 use super::scope::{Context, Multipliers, Scope};
 use crate::spec::{Declaration, Effect, EffectDecl, SceneDecl, SpecError, SrcExpr, SystemSpec};
 use proc_macro2::{Delimiter, Group, Ident, Span, TokenStream, TokenTree};
@@ -300,9 +300,9 @@ fn parse_scenes(
                 )
             }
         };
-        if is_keyword(&name.to_string()) {
-            // Each scene is a struct of its own, named by the scene.
-            return err(name.span(), format!("`{name}` is a Rust keyword; choose another scene name"));
+        // Each scene is a struct of its own, named by the scene.
+        if let Some(reason) = struct_name_reason(&name.to_string(), "scene name") {
+            return err(name.span(), reason);
         }
         if *name == base.name || scenes.iter().any(|s| s.name == *name) {
             return err(name.span(), format!("scene `{name}` is declared twice (or named like the base struct)"));

@@ -235,8 +235,8 @@ fn parse_header(tokens: &[TokenTree]) -> Result<Header, SpecError> {
     }
     let name = match tokens.get(i) {
         Some(TokenTree::Ident(id)) => {
-            if let Some(reason) = names::is_keyword(&id.to_string()).then(|| format!("`{id}` is a Rust keyword")) {
-                return err(id.span(), format!("{reason}; choose another struct name"));
+            if let Some(reason) = names::struct_name_reason(&id.to_string(), "struct name") {
+                return err(id.span(), reason);
             }
             id.clone()
         }

@@ -17,6 +17,29 @@ pub(crate) fn is_keyword(name: &str) -> bool {
     KEYWORDS.contains(&name)
 }
 
+/// Rust primitive types that generated code names unqualified (`f64`
+/// fields and locals, `usize` constants and indices, `bool` flags, `&str`
+/// sources): a struct of one of these names shadows the primitive in its
+/// module, and the generated code no longer compiles. The other primitives
+/// (`f32`, `i32`, `char`, …) do not appear in it, so a struct may take them.
+const PRIMITIVES_IN_GENERATED_CODE: [&str; 4] = ["bool", "f64", "str", "usize"];
+
+/// Why `name` cannot name a struct (the declaration's or a scene's), if it
+/// cannot. `kind` says which, as in "choose another {kind}".
+pub(crate) fn struct_name_reason(name: &str, kind: &str) -> Option<String> {
+    let bare = name.strip_prefix("r#").unwrap_or(name);
+    let reason = if is_keyword(name) {
+        format!("`{name}` is a Rust keyword")
+    } else if PRIMITIVES_IN_GENERATED_CODE.contains(&bare) {
+        format!("`{name}` names a Rust primitive type that the generated code uses")
+    } else if bare.starts_with("__") {
+        format!("`{name}`: names starting with `__` are reserved for generated code")
+    } else {
+        return None;
+    };
+    Some(format!("{reason}; choose another {kind}"))
+}
+
 /// Why `name` cannot be declared, if it cannot.
 pub(crate) fn reserved_reason(name: &str) -> Option<String> {
     if name == "t" {
@@ -119,5 +142,15 @@ mod tests {
         assert!(reserved_reason("type").is_some());
         assert!(reserved_reason("__x").is_some());
         assert!(reserved_reason("theta").is_none());
+    }
+
+    #[test]
+    fn struct_names() {
+        for name in ["f64", "r#f64", "usize", "bool", "str", "struct", "__Sys"] {
+            assert!(struct_name_reason(name, "struct name").is_some(), "{name}");
+        }
+        for name in ["Skate", "f32", "i32", "u8", "char", "info", "integrate", "r#Name"] {
+            assert_eq!(struct_name_reason(name, "struct name"), None, "{name}");
+        }
     }
 }

@@ -227,6 +227,25 @@ fn name_errors() {
     assert_error("struct S { coordinates: [__q], lagrangian: 1 }", "__q", "reserved for generated code");
 }
 
+/// A struct named like a primitive type the generated code names (`f64`
+/// fields, `usize` constants, `bool` flags, `&str` sources) shadows it, and
+/// the expansion fails in rustc far from the declaration.
+#[test]
+fn struct_names_that_break_the_generated_code_are_errors() {
+    for name in ["f64", "usize", "bool", "str", "r#f64"] {
+        assert_error(
+            &format!("pub struct {name} {{ coordinates: [x], lagrangian: dot(x)^2 }}"),
+            name,
+            "names a Rust primitive type that the generated code uses; choose another struct name",
+        );
+    }
+    assert_error("struct __S { coordinates: [x], lagrangian: dot(x)^2 }", "__S", "reserved for generated code");
+    assert_error("struct type { coordinates: [x], lagrangian: dot(x)^2 }", "type", "Rust keyword");
+    for name in ["f32", "i32", "u8", "char", "info", "integrate", "ensemble"] {
+        assert!(parse_str(&format!("struct {name} {{ coordinates: [x], lagrangian: dot(x)^2 }}")).is_ok(), "{name}");
+    }
+}
+
 #[test]
 fn parameter_and_constant_errors() {
     assert_error(
