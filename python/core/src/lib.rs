@@ -692,6 +692,11 @@ pub fn string_list<'py>(py: Python<'py>, items: &[&str]) -> PyResult<Bound<'py, 
 /// and `ensemble(request)`, dispatching the stage count `s = 1..=5` to
 /// literal `S` and `D = S(N+M)+N`. The modules `spark.compile` builds are
 /// this macro applied to one declaration.
+///
+/// Every item it defines beside the module's init function starts with
+/// `__spark_` (a prefix no struct name may take), so that any struct name
+/// the declaration check accepts builds: a struct `info` would clash with
+/// the module PyO3 generates for a `#[pyfunction] fn info`.
 #[macro_export]
 macro_rules! export_system {
     ($module:ident, $ty:ty, $n:literal, $m:literal) => {
@@ -730,14 +735,16 @@ macro_rules! export_system {
         }
 
         #[$crate::pyo3::pyfunction]
-        fn info(
+        #[pyo3(name = "info")]
+        fn __spark_info(
             py: $crate::pyo3::Python<'_>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'_, $crate::pyo3::types::PyDict>> {
             $crate::system_info::<$ty, $n, $m>(py)
         }
 
         #[$crate::pyo3::pyfunction]
-        fn integrate<'py>(
+        #[pyo3(name = "integrate")]
+        fn __spark_integrate<'py>(
             py: $crate::pyo3::Python<'py>,
             request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
@@ -747,7 +754,8 @@ macro_rules! export_system {
         }
 
         #[$crate::pyo3::pyfunction]
-        fn ensemble<'py>(
+        #[pyo3(name = "ensemble")]
+        fn __spark_ensemble<'py>(
             py: $crate::pyo3::Python<'py>,
             request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
@@ -759,9 +767,9 @@ macro_rules! export_system {
         #[$crate::pyo3::pymodule]
         fn $module(m: &$crate::pyo3::Bound<'_, $crate::pyo3::types::PyModule>) -> $crate::pyo3::PyResult<()> {
             use $crate::pyo3::types::PyModuleMethods;
-            m.add_function($crate::pyo3::wrap_pyfunction!(info, m)?)?;
-            m.add_function($crate::pyo3::wrap_pyfunction!(integrate, m)?)?;
-            m.add_function($crate::pyo3::wrap_pyfunction!(ensemble, m)?)?;
+            m.add_function($crate::pyo3::wrap_pyfunction!(__spark_info, m)?)?;
+            m.add_function($crate::pyo3::wrap_pyfunction!(__spark_integrate, m)?)?;
+            m.add_function($crate::pyo3::wrap_pyfunction!(__spark_ensemble, m)?)?;
             Ok(())
         }
     };
