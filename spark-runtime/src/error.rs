@@ -217,17 +217,15 @@ pub enum StepError {
     /// message names both causes: the step's equations overflowed, which a
     /// smaller `h` cures (their terms carry `h` and `h²`, `h²·∂²L/∂q²` in the
     /// Newton matrix), or a function of the declaration was evaluated
-    /// outside its domain or where its derivative is undefined.
-    #[error(
-        "non-finite value in the {stage} of the step from t = {} with h = {}{}; history: {history}",
-        Sci(*t),
-        Sci(*h),
-        non_finite_hint(*h)
-    )]
+    /// outside its domain or where its derivative is undefined. `h = 0`
+    /// marks the checks before the first step (the constraint at the initial
+    /// state, the projection of the initial velocity), whose message names
+    /// the causes at the initial state instead of a step size.
+    #[error("{}", non_finite_message(*t, *h, stage, history))]
     NonFinite {
         /// Start time.
         t: f64,
-        /// Step size.
+        /// Step size, 0 before the first step.
         h: f64,
         /// Where it appeared (residual, Jacobian, update).
         stage: &'static str,
@@ -314,12 +312,12 @@ pub enum StepError {
     /// [`consistent_velocity`](crate::consistent_velocity) before the first
     /// step): the energy `E`, the Lagrangian `L`, the momentum `∇_v L`, the
     /// force `∇_q L`, the mass matrix `∇²_vv L` or the constraint rows
-    /// `∂k/∂v`. Typically a magnitude whose square overflows f64 (`|v₀|²`
-    /// beyond 1.8e308) or a parameter that makes a term undefined.
+    /// `∂k/∂v`. The message names every cause a user can act on
+    /// ([`INITIAL_STATE_CAUSES`]): a function of `L` or `k` outside its
+    /// domain or where it is not differentiable, an overflow, a parameter.
     #[error(
-        "the {quantity} is {} at the initial state (t0 = {}): it overflows f64 there (|v0|² does for \
-         |v0| above 1.3e154) or a parameter makes it undefined; give an initial state and parameters at which it is \
-         a finite number (rescale the units if the magnitudes are physical)",
+        "the {quantity} is {} at the initial state (t0 = {}): {INITIAL_STATE_CAUSES}; give an initial state and \
+         parameters at which it is a finite number (rescale the units if the magnitudes are physical)",
         Sci(*value),
         Sci(*t)
     )]
@@ -407,13 +405,32 @@ impl StepError {
 /// function of the declaration left its domain (`sqrt` or `ln` of a
 /// negative number, a speed beyond a limit of `L`) or was evaluated where its
 /// derivative is undefined (`sqrt(ψ²)` at `ψ = 0`), which no `h` cures.
-fn non_finite_hint(h: f64) -> &'static str {
+/// Why a quantity of the equations of motion is NaN or infinite at the
+/// initial state, every cause a user can act on: the messages of
+/// [`StepError::NonFiniteInitialValue`] and of [`StepError::NonFinite`]
+/// before the first step.
+const INITIAL_STATE_CAUSES: &str = "at this state a function in L or k is outside its domain (sqrt or ln of a \
+     negative number, ln of 0, asin or acos beyond ±1) or not differentiable (sqrt at 0, e.g. of a vanishing \
+     speed), a value overflows f64 (|v0|² does for |v0| above 1.3e154), or a parameter makes it undefined";
+
+/// The message of [`StepError::NonFinite`]: in a step (`h ≠ 0`) with both
+/// of its causes, before the first step (`h = 0`) with those at the initial
+/// state.
+fn non_finite_message(t: f64, h: f64, stage: &str, history: &NewtonHistory) -> String {
     if h == 0.0 {
-        ""
-    } else {
-        " (either the step's equations overflowed f64: their terms grow with h and h², e.g. h²·d²L/dq² in the \
-         Newton matrix, so reduce h; or a function of the declaration was evaluated outside its domain or where \
-         its derivative is undefined, e.g. sqrt or ln of a negative number (a speed beyond a limit of L) or \
-         sqrt(psi^2) at psi = 0; if every h fails at this state, check the state and the parameters)"
+        let history = if history.is_empty() { String::new() } else { format!("; history: {history}") };
+        return format!(
+            "non-finite value in the {stage} at t0 = {}, before the first step: {INITIAL_STATE_CAUSES}{history}",
+            Sci(t)
+        );
     }
+    format!(
+        "non-finite value in the {stage} of the step from t = {} with h = {} (either the step's equations \
+         overflowed f64: their terms grow with h and h², e.g. h²·d²L/dq² in the Newton matrix, so reduce h; or a \
+         function of the declaration was evaluated outside its domain or where its derivative is undefined, e.g. \
+         sqrt or ln of a negative number (a speed beyond a limit of L) or sqrt(psi^2) at psi = 0; if every h fails \
+         at this state, check the state and the parameters); history: {history}",
+        Sci(t),
+        Sci(h)
+    )
 }

@@ -370,12 +370,7 @@ where
     // A NaN residual would otherwise compare as "inconsistent" and blame the
     // velocity; the cause is a non-finite parameter or constraint value.
     if k0.iter().any(|x| !x.is_finite()) {
-        return Err(StepError::NonFinite {
-            t: t0,
-            h: 0.0,
-            stage: "constraint at the initial state (check the parameters)",
-            history: Box::default(),
-        });
+        return Err(StepError::NonFinite { t: t0, h: 0.0, stage: "constraint k(t0, q0, v0)", history: Box::default() });
     }
     let rows = sys.constraint_v(t0, q0, v0);
     if rows.iter().any(|x| !x.is_finite()) {
@@ -427,7 +422,7 @@ where
         ("momentum dL/dv", vals.momentum.as_slice()),
         ("force dL/dq", vals.force.as_slice()),
         ("mass matrix d²L/dv²", jac.mass.as_slice()),
-        ("constraint rows dk/dv", jac.constraint_v.as_slice()),
+        ("constraint Jacobian dk/dv", jac.constraint_v.as_slice()),
     ];
     for (quantity, x) in quantities {
         if let Some(value) = first_non_finite(x) {
@@ -509,7 +504,7 @@ where
     let non_finite = |history: NewtonHistory| StepError::NonFinite {
         t: t0,
         h: 0.0,
-        stage: "velocity projection",
+        stage: "projection of the initial velocity onto the constraints (at q0 and the velocities it visits)",
         history: Box::new(history),
     };
     for iteration in 0..crate::error::HISTORY_CAPACITY {

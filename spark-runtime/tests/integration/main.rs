@@ -14,6 +14,7 @@ mod driver_robustness;
 mod end_point_values;
 mod events;
 mod hand_built_tableaux;
+mod initial_domain;
 mod lanes_newcomer;
 mod newcomer_systems;
 mod newcomer_unusual_systems;
