@@ -223,6 +223,85 @@ fn position(span: proc_macro2::Span) -> (usize, usize) {
     (start.line, start.column + 1)
 }
 
+/// The traits a struct in a module `spark.compile` builds may derive: those
+/// of `std` that a struct of `f64` fields supports. (`Default` is generated;
+/// the declaration check refuses it with its own message.)
+const MODULE_DERIVES: [&str; 5] = ["Clone", "Copy", "Debug", "PartialEq", "PartialOrd"];
+
+/// The attributes such a struct may carry: doc comments and attributes that
+/// build in any module. Python sees none of them; they are accepted so that
+/// a declaration copied from Rust compiles.
+const MODULE_ATTRIBUTES: [&str; 8] =
+    ["doc", "derive", "allow", "warn", "expect", "must_use", "deprecated", "non_exhaustive"];
+
+/// Why an attribute of `spec` would not build in the module `spark.compile`
+/// makes, with the attribute's span: that module depends on spark alone,
+/// finds the runtime at `::spark_runtime` and has no configuration to
+/// select, so `#[spark(crate = …)]` with another path, `#[cfg]`, derives
+/// beyond [`MODULE_DERIVES`] and attributes of other crates fail in cargo,
+/// after the check.
+fn module_attribute_error(spec: &spark_symbolic::SystemSpec) -> Option<(String, proc_macro2::Span)> {
+    use proc_macro2::TokenTree;
+    let runtime: String = spec.runtime_path.to_string().split_whitespace().collect();
+    if runtime.trim_start_matches("::") != "spark_runtime" {
+        let span = spec.runtime_path.clone().into_iter().next().map_or_else(|| spec.name.span(), |t| t.span());
+        let message = "spark.compile builds the module against spark's runtime at `::spark_runtime`; remove \
+                       `#[spark(crate = …)]`";
+        return Some((message.into(), span));
+    }
+    let attrs: Vec<TokenTree> = spec.attrs.clone().into_iter().collect();
+    for pair in attrs.chunks(2) {
+        let [TokenTree::Punct(pound), TokenTree::Group(group)] = pair else { continue };
+        let inner: Vec<TokenTree> = group.stream().into_iter().collect();
+        let name = match inner.first() {
+            Some(TokenTree::Ident(id)) => id.to_string(),
+            _ => String::new(),
+        };
+        if name == "cfg" || name == "cfg_attr" {
+            return Some((
+                format!(
+                    "`#[{name}(…)]`: spark.compile builds the declaration as written, with no configuration to \
+                     select (a false condition removes the struct and breaks the build); remove it"
+                ),
+                pound.span(),
+            ));
+        }
+        if !MODULE_ATTRIBUTES.contains(&name.as_str()) {
+            return Some((
+                format!(
+                    "spark.compile does not take `#[{name}…]` on the struct: its module depends on spark alone and \
+                     Python sees no attribute. It takes doc comments, `#[derive(…)]` of {} and lint attributes \
+                     (`allow`, `warn`, `expect`); remove it",
+                    MODULE_DERIVES.join(", ")
+                ),
+                pound.span(),
+            ));
+        }
+        if name != "derive" {
+            continue;
+        }
+        let Some(TokenTree::Group(traits)) = inner.get(1) else { continue };
+        let traits: Vec<TokenTree> = traits.stream().into_iter().collect();
+        let is_comma = |t: &TokenTree| matches!(t, TokenTree::Punct(p) if p.as_char() == ',');
+        // The trait of each item is its path's last segment (`std::fmt::Debug`).
+        let last_idents = traits.split(is_comma).filter_map(|item| {
+            item.iter().rev().find_map(|t| if let TokenTree::Ident(id) = t { Some(id.clone()) } else { None })
+        });
+        for id in last_idents {
+            let t = id.to_string();
+            if t != "Default" && !MODULE_DERIVES.contains(&t.as_str()) {
+                let message = format!(
+                    "spark.compile's module cannot derive `{t}` (the struct's fields are f64 and the module \
+                     depends on spark alone); it may derive {}",
+                    MODULE_DERIVES.join(", ")
+                );
+                return Some((message, id.span()));
+            }
+        }
+    }
+    None
+}
+
 /// What [`check_dsl`] found, as plain data: the token types of proc-macro2
 /// stay on the thread that made them.
 enum Checked {
@@ -259,6 +338,9 @@ fn check_text(text: &str) -> Checked {
         Ok(s) => s,
         Err(e) => return fail(e.message, e.span),
     };
+    if let Some((message, span)) = module_attribute_error(&spec) {
+        return fail(message, span);
+    }
     if let Err(e) = spark_symbolic::generate(&spec) {
         return fail(e.message, e.span);
     }

@@ -306,3 +306,41 @@ def test_a_raw_or_non_ascii_struct_name_compiles(tmp_path):
     assert s.name == "r#Ñame"
     run = s.integrate("gauss", 2, 0.1, 10, q0=[1.0], v0=[0.0])
     assert abs(run.q[-1, 0] - np.cos(1.0)) < 1e-4
+
+
+def test_struct_names_and_attributes_that_cannot_build_are_dsl_errors_before_cargo(tmp_path):
+    # Each passed a check that did not know the module's code and then failed
+    # in cargo with rustc's output: a primitive type the generated code names,
+    # a runtime path the module does not have, a condition that compiles the
+    # struct out, a derive that f64 fields do not support, another crate's
+    # attribute.
+    body = "{ coordinates: [x], parameters: { k = 1.0 }, lagrangian: dot(x)^2/2 - k*x^2/2 }"
+    cases = [
+        ("pub struct f64 " + body, (1, 12), "`f64` names a Rust primitive type"),
+        ("pub struct usize " + body, (1, 12), "choose another struct name"),
+        ("#[spark(crate = ::nope)]\npub struct S " + body, (1, 17), "remove `#[spark(crate = …)]`"),
+        ("/// Doc.\n#[cfg(any())]\npub struct S " + body, (2, 1), "`#[cfg(…)]`"),
+        ("#[derive(Debug, Hash)]\npub struct S " + body, (1, 17), "cannot derive `Hash`"),
+        ("#[serde(rename_all = \"camelCase\")]\npub struct S " + body, (1, 1), "does not take `#[serde…]`"),
+    ]
+    for text, at, needle in cases:
+        with pytest.raises(spark.DslError) as info:
+            spark.compile(text, cache_dir=str(tmp_path))
+        assert (info.value.line, info.value.column) == at and needle in info.value.message, (text, str(info.value))
+    assert not any(tmp_path.iterdir()), "a bad declaration must not reach cargo"
+
+
+def test_struct_names_like_the_module_functions_and_harmless_attributes_compile(tmp_path):
+    # `info`, `integrate` and `ensemble` name the module's functions in
+    # Python; the Rust items export_system! defines do not clash with them.
+    # Doc comments, std derives and lint attributes build as in Rust.
+    attributes = (
+        "/// A spring.\n#[derive(Debug, Clone, PartialOrd)]\n#[allow(dead_code)]\n#[must_use]\n"
+        "#[spark(crate = ::spark_runtime)]\n"
+    )
+    for name in ["info", "integrate", "ensemble"]:
+        text = f"{attributes}pub struct {name} {{\n    coordinates: [x],\n    lagrangian: dot(x)^2/2 - x^2/2,\n}}\n"
+        s = spark.compile(text, cache_dir=str(tmp_path))
+        assert s.name == name
+        run = s.integrate("gauss", 2, 0.1, 10, q0=[1.0], v0=[0.0])
+        assert abs(run.q[-1, 0] - np.cos(1.0)) < 1e-4
