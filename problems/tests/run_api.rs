@@ -175,3 +175,33 @@ fn a_run_stops_at_the_first_progress_tick_that_says_so() {
         other => panic!("expected a stopped run, got {other:?}"),
     }
 }
+
+/// A run whose steps fail at `h` and are halved says so: the statistics
+/// count the halvings and the report names them; `max_halvings = 0` makes
+/// the first failure an error, and a run that halves nothing reports
+/// `steps` sub-steps of `|h|`. (The robot at h = 3 is far beyond its
+/// paper step of 0.2: Newton diverges on three of its first four steps.)
+#[test]
+fn halved_steps_are_counted_and_reported() {
+    let spec = RunSpec::paper(SystemKind::Robot, Method::Gauss, 2, 3.0, 4);
+    let halved = run(&spec, &|_| true).unwrap();
+    let s = halved.stats;
+    assert_eq!((s.steps, s.rejected_steps, s.steps_with_rejections, s.substeps), (4, 3, 3, 7), "{s:?}");
+    assert_eq!(s.smallest_step, 1.5);
+    let report = problems::run::run_report(&halved, &spec);
+    assert!(report.contains("| steps halved (Newton failed at h) | 3 of 4 steps, covered by 7 sub-steps"), "{report}");
+    let json = serde_json::to_value(s).unwrap();
+    assert_eq!(json["rejected_steps"], 3, "{json}");
+
+    let err = run(&RunSpec { max_halvings: 0, ..spec.clone() }, &|_| true).unwrap_err();
+    assert!(
+        matches!(err, RunError::Integration { source: IntegrationError::Step { .. }, .. }),
+        "max_halvings = 0 ends the run at the failure: {err:?}"
+    );
+
+    let fixed = run(&RunSpec::paper(SystemKind::Robot, Method::Gauss, 2, 0.2, 10), &|_| true).unwrap();
+    let s = fixed.stats;
+    assert_eq!((s.rejected_steps, s.steps_with_rejections, s.substeps, s.smallest_step), (0, 0, 10, 0.2), "{s:?}");
+    let report = problems::run::run_report(&fixed, &RunSpec::paper(SystemKind::Robot, Method::Gauss, 2, 0.2, 10));
+    assert!(report.contains("| steps halved (Newton failed at h) | none |"), "{report}");
+}

@@ -18,6 +18,7 @@ Errors are :class:`SparkError` exceptions carrying the Rust message.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -29,6 +30,7 @@ from ._native import SparkError
 __all__ = [
     "SparkError",
     "ArgumentError",
+    "StepHalvingWarning",
     "DslError",
     "ToolchainError",
     "System",
@@ -71,6 +73,28 @@ class ArgumentError(SparkError, ValueError):
 MAX_WHOLE = 2**63 - 1
 
 
+class StepHalvingWarning(UserWarning):
+    """A run replaced steps whose Newton iteration failed by smaller sub-steps.
+
+    The run succeeded, but it is not a run of fixed steps ``h`` alone: the
+    trajectory's ``rejected_steps``, ``substeps`` and ``smallest_step`` say
+    how far it departed. Pass ``max_halvings=0`` to make such a step an error
+    instead, or turn the warning into one with
+    ``warnings.simplefilter("error", spark.StepHalvingWarning)``.
+    """
+
+
+def _warn_halvings(steps: int, halved: int, substeps: int, smallest: float) -> None:
+    """Warns (:class:`StepHalvingWarning`) about a run that halved steps."""
+    warnings.warn(
+        f"{halved} of {steps} steps failed in Newton at the requested h and were covered by {substeps} sub-steps "
+        f"in all (smallest {smallest:.6g}): this run is not one of fixed steps h alone; pass max_halvings=0 to "
+        "make such a step an error, or a smaller h",
+        StepHalvingWarning,
+        stacklevel=3,
+    )
+
+
 class ToolchainError(SparkError):
     """:func:`compile` needs cargo (the Rust toolchain) and could not run it."""
 
@@ -83,6 +107,10 @@ class Trajectory:
     ``energy`` and ``constraint`` (``max_i |k_i|``) ``(samples,)``; ``psi``
     (multipliers, ``(samples, M)``) only when asked for; ``holonomic``
     (``max_i |g_i(t, q)|``) only for systems with holonomic constraints.
+    ``rejected_steps`` counts the halvings of steps whose Newton iteration
+    failed (0 for a run of fixed steps ``h`` alone), ``steps_with_rejections``
+    the scheduled steps that needed one, ``substeps`` the accepted sub-steps
+    (``steps`` without halvings) and ``smallest_step`` the smallest of them.
     """
 
     t: np.ndarray
@@ -97,6 +125,10 @@ class Trajectory:
     holonomic: np.ndarray | None = None
     #: Wall time of the Rust integration call inside (set-up, steps, columns).
     rust_seconds: float = 0.0
+    rejected_steps: int = 0
+    steps_with_rejections: int = 0
+    substeps: int = 0
+    smallest_step: float = math.nan
 
     @property
     def energy_error(self) -> np.ndarray:
@@ -108,7 +140,8 @@ class Trajectory:
 class Ensemble:
     """An ensemble of runs: ``t`` ``(samples,)``; ``q``, ``v``
     ``(members, samples, N)``; ``energy``, ``constraint`` ``(members,
-    samples)``; ``e0`` ``(members,)``."""
+    samples)``; ``e0``, ``rejected_steps`` (halvings of failed steps, see
+    :class:`Trajectory`) and ``smallest_step`` ``(members,)``."""
 
     t: np.ndarray
     q: np.ndarray
@@ -117,6 +150,8 @@ class Ensemble:
     constraint: np.ndarray
     e0: np.ndarray
     newton_iterations_mean: np.ndarray
+    rejected_steps: np.ndarray | None = None
+    smallest_step: np.ndarray | None = None
 
     @property
     def energy_error(self) -> np.ndarray:
@@ -134,8 +169,11 @@ def _request(
     every: int,
     newton: str,
     newton_tol: float | None,
+    max_halvings: int | None,
 ) -> dict[str, Any]:
     return {
+        # The range (0 to 60) and the default are the Rust library's.
+        "max_halvings": None if max_halvings is None else _whole("max_halvings", max_halvings, 0),
         "method": method,
         "s": _whole("s", s, 1),
         "h": _real("h", h),
@@ -320,6 +358,7 @@ class System:
         newton_tol: float | None = None,
         multipliers: bool = False,
         project_v0: bool = False,
+        max_halvings: int | None = None,
     ) -> Trajectory:
         """Integrates from ``(t0, q0, v0)`` with ``steps`` fixed steps of ``h``.
 
@@ -329,6 +368,10 @@ class System:
         count. ``q0``, ``v0``, ``h`` and the final time default to the
         system's (``spark list``). ``every`` records every so many steps
         (and always the endpoints); ``multipliers=True`` also records ψ.
+        A step whose Newton iteration fails is replaced by two half steps,
+        nested at most ``max_halvings`` levels deep (default 4, at most 60;
+        ``0`` makes the failure an error); a run that halved any step warns
+        with :class:`StepHalvingWarning` and counts them in the result.
         The same steps as ``spark run`` with the same options, bit for bit.
         Raises :class:`SparkError` with the Rust message on bad input or a
         failed step.
@@ -345,12 +388,14 @@ class System:
                     f"run length), is {t_end:.6e}, not after t0 at this magnitude; pass t_end= or steps=, or a t0 "
                     "nearer 0"
                 )
-        req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol)
+        req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol, max_halvings)
         req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
         req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)
         req["multipliers"] = _flag("multipliers", multipliers)
         req["project_v0"] = _flag("project_v0", project_v0)
         d = self._integrate(req)
+        if d["rejected_steps"]:
+            _warn_halvings(d["steps"], d["steps_with_rejections"], d["substeps"], d["smallest_step"])
         return Trajectory(
             t=d["t"],
             q=d["q"],
@@ -363,6 +408,10 @@ class System:
             psi=d.get("psi") if multipliers else None,
             holonomic=d.get("holonomic"),
             rust_seconds=d["rust_seconds"],
+            rejected_steps=d["rejected_steps"],
+            steps_with_rejections=d["steps_with_rejections"],
+            substeps=d["substeps"],
+            smallest_step=d["smallest_step"],
         )
 
     def ensemble(
@@ -380,6 +429,7 @@ class System:
         newton: str = "full",
         newton_tol: float | None = None,
         threads: int | None = None,
+        max_halvings: int | None = None,
     ) -> Ensemble:
         """Integrates every row of ``q0s``/``v0s`` (shape ``(members, N)``)
         with the same method, step and parameters, on ``threads`` threads
@@ -389,7 +439,10 @@ class System:
         (``integrate_ensemble``), the other registered systems one run per
         member. Each member agrees
         with what :meth:`integrate` returns for it alone to the Newton
-        tolerance per step, and is the same whatever the thread count."""
+        tolerance per step, and is the same whatever the thread count.
+        A member whose step fails runs alone, with the halving of
+        :meth:`integrate` (``max_halvings``); if any member halved a step the
+        call warns with :class:`StepHalvingWarning`."""
         _real_entries("q0s", q0s)
         _real_entries("v0s", v0s)
         q0s = _floats("q0s", q0s)
@@ -398,11 +451,21 @@ class System:
             raise SparkError(
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
             )
-        req = _request(method, s, h, _steps(h, steps, None, t0), t0, params, every, newton, newton_tol)
+        req = _request(method, s, h, _steps(h, steps, None, t0), t0, params, every, newton, newton_tol, max_halvings)
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
         req["threads"] = None if threads is None else _whole("threads", threads, 1)
         d = self._ensemble(req)
+        halved = np.count_nonzero(d["rejected_steps"])
+        if halved:
+            warnings.warn(
+                f"{halved} of {len(d['rejected_steps'])} members halved steps whose Newton iteration failed at the "
+                f"requested h ({int(np.sum(d['rejected_steps']))} halvings, smallest sub-step "
+                f"{float(np.min(d['smallest_step'])):.6g}): they are not runs of fixed steps h alone; see the "
+                "ensemble's rejected_steps, pass max_halvings=0 to make such a step an error, or a smaller h",
+                StepHalvingWarning,
+                stacklevel=2,
+            )
         return Ensemble(
             t=d["t"],
             q=d["q"],
@@ -411,6 +474,8 @@ class System:
             constraint=d["constraint"],
             e0=d["e0"],
             newton_iterations_mean=d["newton_iterations_mean"],
+            rejected_steps=d["rejected_steps"],
+            smallest_step=d["smallest_step"],
         )
 
 

@@ -24,6 +24,7 @@ import math
 import os
 import time
 import uuid
+import warnings
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -35,12 +36,15 @@ import spark
 @dataclass
 class SweepReport:
     """What :func:`sweep` did: the file, the member and shard counts, the
-    wall time of the whole sweep and the time per member."""
+    wall time of the whole sweep and the time per member, and each member's
+    halvings of steps whose Newton iteration failed (``rejected_steps``, in
+    member order; see :class:`spark.Trajectory`)."""
 
     path: str
     members: int
     shards: int
     wall_seconds: float
+    rejected_steps: np.ndarray
 
     @property
     def seconds_per_member(self) -> float:
@@ -53,11 +57,17 @@ def _system(system: "spark.System | str", source: tuple[str, str, bool] | None) 
     return spark.system(system) if isinstance(system, str) else system
 
 
-def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, first, every, newton, threads):
+def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, first, every, newton, threads,
+                 max_halvings):
+    """One shard's table and its members' halvings; the driver warns about
+    them once for the sweep (a worker's warning would not reach the user)."""
     import pyarrow as pa
 
     sys_ = _system(system_key, source)
-    e = sys_.ensemble(method, s, h, steps, q0s, v0s, params, every=every, newton=newton, threads=threads)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spark.StepHalvingWarning)
+        e = sys_.ensemble(method, s, h, steps, q0s, v0s, params, every=every, newton=newton, threads=threads,
+                          max_halvings=max_halvings)
     members, samples = e.energy.shape
     cols: dict[str, np.ndarray] = {
         "member": np.repeat(np.arange(first, first + members, dtype=np.int64), samples),
@@ -70,7 +80,7 @@ def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, firs
     cols["energy"] = e.energy.reshape(-1)
     cols["energy_error"] = e.energy_error.reshape(-1)
     cols["constraint"] = e.constraint.reshape(-1)
-    return pa.table(cols)
+    return pa.table(cols), e.rejected_steps
 
 
 def sweep(
@@ -89,6 +99,7 @@ def sweep(
     shards: int | None = None,
     threads_per_task: int = 1,
     address: str | None = None,
+    max_halvings: int | None = None,
 ) -> SweepReport:
     """Integrates every row of ``q0s``/``v0s`` on Ray and writes ``out`` (Parquet).
 
@@ -105,6 +116,10 @@ def sweep(
     are checked before Ray starts too, by one step of the first member, and
     a table that would not fit in the driver's memory (4 GiB, or half the
     available memory) is refused with the ``every`` that fits.
+    ``max_halvings`` is :meth:`spark.System.integrate`'s; a sweep in which
+    any member halved a step warns once with
+    :class:`spark.StepHalvingWarning`, and the report counts each member's
+    halvings.
     """
     # Missing packages fail here, before any work.
     import pyarrow  # noqa: F401
@@ -142,13 +157,15 @@ def sweep(
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
     if not os.path.isdir(folder):
         raise spark.SparkError(f"the folder of out = {out!r}, {folder}, does not exist; create it first")
-    _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton)
+    if max_halvings is not None:
+        max_halvings = spark._whole("max_halvings", max_halvings, 0)
+    _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton, max_halvings)
     # The temporary file is created now, so that a folder that cannot be
     # written (read-only, /proc) is reported before Ray starts.
     temp = _reserve(out, folder)
     try:
         return _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newton, shards,
-                      threads_per_task, address, members)
+                      threads_per_task, address, members, max_halvings)
     finally:
         with contextlib.suppress(OSError):
             os.remove(temp)
@@ -166,7 +183,7 @@ def _row_bytes(n: int) -> int:
 _TABLE_COPIES = 2
 
 
-def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton) -> None:
+def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton, max_halvings) -> None:
     """What the shards would otherwise find only in the workers, after Ray
     has started, checked here: the system (a registered name or a
     :class:`spark.System`), the width of ``q0s``, and the method, stage
@@ -187,7 +204,11 @@ def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newt
             f"{q0s.shape}"
         )
     try:
-        sys_.integrate(method, s, h, 1, q0=q0s[0], v0=v0s[0], params=params, newton=newton)
+        with warnings.catch_warnings():
+            # Halving is counted over the whole sweep, not for this one step.
+            warnings.simplefilter("ignore", spark.StepHalvingWarning)
+            sys_.integrate(method, s, h, 1, q0=q0s[0], v0=v0s[0], params=params, newton=newton,
+                           max_halvings=max_halvings)
     except spark.SparkError as e:
         raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {e}") from e
     samples = steps // every + (1 if steps % every == 0 else 2)
@@ -223,7 +244,7 @@ def _reserve(out: str, folder: str) -> str:
 
 
 def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newton, shards, threads_per_task,
-           address, members) -> SweepReport:
+           address, members, max_halvings) -> SweepReport:
     """:func:`sweep` once its arguments are checked and ``temp`` exists."""
     import pyarrow as pa
     import ray
@@ -250,14 +271,26 @@ def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newt
     start = time.perf_counter()
     pending = [
         task.remote(key, source, method, s, h, steps, q0s[a:b], v0s[a:b], dict(params or {}), int(a), every,
-                    newton, threads_per_task)
+                    newton, threads_per_task, max_halvings)
         for a, b in zip(bounds[:-1], bounds[1:])
         if b > a
     ]
-    tables = ray.get(pending)
+    tables, halvings = zip(*ray.get(pending))
     _write_atomically(pa.concat_tables(tables), out, temp)
     wall = time.perf_counter() - start
-    return SweepReport(path=str(out), members=members, shards=len(pending), wall_seconds=wall)
+    rejected = np.concatenate(halvings)
+    halved = np.count_nonzero(rejected)
+    if halved:
+        warnings.warn(
+            f"{halved} of {members} members halved steps whose Newton iteration failed at the requested h "
+            f"({int(rejected.sum())} halvings): they are not runs of fixed steps h alone; see the report's "
+            "rejected_steps, pass max_halvings=0 to make such a step an error, or a smaller h",
+            spark.StepHalvingWarning,
+            stacklevel=3,
+        )
+    return SweepReport(
+        path=str(out), members=members, shards=len(pending), wall_seconds=wall, rejected_steps=rejected
+    )
 
 
 def _write_atomically(table, out: str, temp: str) -> None:

@@ -57,6 +57,7 @@ fn run_spec(e: &'static SystemEntry, r: &IntegrateRequest) -> RunSpec {
             ConsistencyPolicy::default()
         },
         multipliers: r.multipliers,
+        max_halvings: r.max_halvings,
     }
 }
 
@@ -107,6 +108,10 @@ fn columns(r: RunResult, m: usize, seconds: f64) -> Columns {
         e0: r.stats.e0,
         steps: r.stats.steps,
         newton_iterations_mean: r.stats.newton_iterations_mean,
+        rejected_steps: r.stats.rejected_steps,
+        steps_with_rejections: r.stats.steps_with_rejections,
+        substeps: r.stats.substeps,
+        smallest_step: r.stats.smallest_step,
         seconds,
     }
 }
@@ -368,7 +373,8 @@ const CHECK_STACK: usize = 8 << 20;
 /// Checks DSL text with the macro's own parser and engine. Returns
 /// `{"name", "n", "m", "coordinates", "parameters"}` for a good declaration
 /// and `{"error", "line", "column"}` for a bad one (the message is the one
-/// `nonholonomic_system!` would give as a compile error).
+/// `nonholonomic_system!` would give as a compile error, or says why the
+/// module `spark.compile` builds cannot take an attribute or scenes).
 ///
 /// The check runs on a thread of its own while the calling thread, the GIL
 /// released, checks Python's signal handlers every 50 ms: Ctrl-C raises

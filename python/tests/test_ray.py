@@ -42,6 +42,7 @@ def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
     report = sray.sweep("mp7-nh", METHOD, 2, H, STEPS, q0s, v0s, out=str(out), every=EVERY, newton="simplified",
                         shards=8)
     assert report.members == MEMBERS and report.shards == 8
+    assert report.rejected_steps.shape == (MEMBERS,) and not report.rejected_steps.any()
     table = pq.read_table(out)
     samples = STEPS // EVERY + 1
     assert table.num_rows == MEMBERS * samples
@@ -69,6 +70,21 @@ def test_sweep_of_1000_members_equals_the_cli(local_ray, spark_cli, tmp_path):
     err = table.column("energy_error").to_numpy().reshape(MEMBERS, samples)
     np.testing.assert_array_equal(err, errors)
     assert stat[-1] > 0
+
+
+def test_a_sweep_that_halves_steps_warns_once_and_counts_them(local_ray, tmp_path):
+    # The robot at h = 3 (its paper step is 0.2) halves three of its first
+    # four steps; the workers' warnings would not reach the user, so the
+    # driver warns for the sweep, and the report counts each member's.
+    robot = spark.system("robot")
+    q0s, v0s = np.array([robot.q0] * 3), np.array([robot.v0] * 3)
+    out = tmp_path / "robot.parquet"
+    with pytest.warns(spark.StepHalvingWarning, match=r"3 of 3 members halved steps .*9 halvings") as caught:
+        report = sray.sweep("robot", "gauss", 2, 3.0, 4, q0s, v0s, out=str(out), shards=2)
+    assert len(caught) == 1
+    np.testing.assert_array_equal(report.rejected_steps, [3, 3, 3])
+    with pytest.raises(spark.SparkError, match=r"before any shard runs: .*Newton diverged"):
+        sray.sweep("robot", "gauss", 2, 3.0, 4, q0s, v0s, out=str(tmp_path / "none.parquet"), max_halvings=0)
 
 
 def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):

@@ -4,6 +4,7 @@ with the Rust CLI (`spark run`) on the paper's four experiments."""
 from __future__ import annotations
 
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -207,6 +208,44 @@ def test_a_newton_tolerance_of_one_or_more_is_refused():
         with pytest.raises(spark.SparkError, match=r"newton_tol = .* must lie in \(0, 1\)"):
             spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=tol)
     assert spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=1e-6).t.shape == (4,)
+
+
+def test_halved_steps_warn_and_are_counted_or_refused_with_max_halvings_0(spark_cli, tmp_path):
+    # The robot at h = 3 (its paper step is 0.2): Newton fails on three of
+    # the first four steps, each is covered by two half steps. The run
+    # succeeds, but it is not one of fixed steps h, so it warns and says how
+    # far it departed, with the same steps as `spark run`.
+    with pytest.warns(spark.StepHalvingWarning, match=r"3 of 4 steps failed in Newton .* 7 sub-steps .*smallest 1.5"):
+        run = spark.integrate("robot", "gauss", 2, 3.0, 4)
+    assert (run.steps, run.rejected_steps, run.steps_with_rejections, run.substeps) == (4, 3, 3, 7)
+    assert run.smallest_step == 1.5
+    robot = spark.system("robot")
+    cli = run_cli(spark_cli, tmp_path / "out", "robot", "--h", "3", "--t-end", "12")
+    _same(run, cli, robot.coordinates)
+    # max_halvings=0: the first failing step is an error.
+    with pytest.raises(spark.SparkError, match=r"step 0 .* failed: Newton diverged"):
+        spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=0)
+    # Out of range or of the wrong kind: refused, naming it.
+    with pytest.raises(spark.SparkError, match=r"max_halvings = 61 must lie in 0..=60"):
+        spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=61)
+    with pytest.raises(spark.ArgumentError, match=r"max_halvings = -1 is less than 0"):
+        spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=-1)
+    with pytest.raises(TypeError, match="max_halvings"):
+        spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=True)
+    # A run at the paper's step halves nothing and does not warn.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", spark.StepHalvingWarning)
+        fixed = spark.integrate("robot", "gauss", 2, 0.2, 10)
+    halvings = (fixed.rejected_steps, fixed.steps_with_rejections, fixed.substeps, fixed.smallest_step)
+    assert halvings == (0, 0, 10, 0.2)
+    # An ensemble counts each member's halvings and warns once.
+    q0s = np.array([robot.q0, robot.q0])
+    v0s = np.array([robot.v0, robot.v0])
+    with pytest.warns(spark.StepHalvingWarning, match=r"2 of 2 members halved steps .*6 halvings"):
+        ens = spark.ensemble("robot", "gauss", 2, 3.0, 4, q0s, v0s)
+    np.testing.assert_array_equal(ens.rejected_steps, [3, 3])
+    np.testing.assert_array_equal(ens.smallest_step, [1.5, 1.5])
+    np.testing.assert_array_equal(ens.q[0], run.q)
 
 
 def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():

@@ -68,6 +68,14 @@ pub struct RunArgs {
     /// Newton iteration.
     #[arg(long, value_enum, default_value_t = Newton::Full)]
     pub newton: Newton,
+    /// A step whose Newton iteration fails (after a retry from the cold
+    /// starting guess) is replaced by two half steps, nested at most this
+    /// many levels deep, 0 to 60; the report counts them ("steps halved").
+    /// 0 ends the run at the first step that fails, so that every step is
+    /// one of h.
+    #[arg(long, default_value_t = spark_runtime::DEFAULT_MAX_HALVINGS,
+          value_parser = clap::value_parser!(u32).range(0..=spark_runtime::MAX_HALVINGS as i64))]
+    pub max_halvings: u32,
     /// Skip the plot.
     #[arg(long)]
     pub no_plot: bool,
@@ -184,6 +192,7 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     spec.parameters = parse_params(&a.params)?;
     spec.record_every = a.every;
     spec.newton.mode = a.newton.into();
+    spec.max_halvings = a.max_halvings;
     if a.project_v0 {
         spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
     }

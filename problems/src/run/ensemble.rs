@@ -365,6 +365,12 @@ where
                     max_constraint_residual: r.max_constraint_residual,
                     max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(r.max_holonomic_drift),
                     newton_iterations_mean: iterations as f64 / steps as f64,
+                    // A member that fails in its lane runs again alone
+                    // (above): the lanes halve no step.
+                    rejected_steps: 0,
+                    steps_with_rejections: 0,
+                    substeps: steps,
+                    smallest_step: spec.h.abs(),
                     wall_time,
                     cpu_time,
                 },

@@ -22,7 +22,8 @@ use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, Syste
 use crate::report::clock::thread_cpu_time;
 use spark_runtime::{
     consistent_velocity, ConsistencyPolicy, IntegrationError, LaneStatus, LaneStepper, Method, NewtonOptions,
-    NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau, TableauError, Vector, LANES,
+    NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau, TableauError, Vector,
+    DEFAULT_MAX_HALVINGS, LANES,
 };
 use std::time::{Duration, Instant};
 
@@ -161,6 +162,10 @@ pub struct RunSpec {
     pub consistency: ConsistencyPolicy,
     /// Record the multipliers `ψ` at every sample ([`RunResult::psi`]).
     pub multipliers: bool,
+    /// How deep a step whose Newton iteration fails may be halved
+    /// ([`RunOptions::max_halvings`]; `0` ends the run at the failure). Each
+    /// halving is counted in [`RunStats::rejected_steps`].
+    pub max_halvings: u32,
 }
 
 impl RunSpec {
@@ -192,6 +197,7 @@ impl RunSpec {
             newton: NewtonOptions::default(),
             consistency: ConsistencyPolicy::default(),
             multipliers: false,
+            max_halvings: DEFAULT_MAX_HALVINGS,
         }
     }
 }
@@ -249,6 +255,16 @@ pub struct RunStats {
     pub max_holonomic_drift: Option<f64>,
     /// Mean Newton iterations per step.
     pub newton_iterations_mean: f64,
+    /// Failed (sub-)steps that were halved: a run with any is not a run of
+    /// fixed steps `h` alone ([`RunSpec::max_halvings`]).
+    pub rejected_steps: usize,
+    /// Scheduled steps that needed at least one halving.
+    pub steps_with_rejections: usize,
+    /// Accepted sub-steps: `steps` when no step was halved.
+    pub substeps: usize,
+    /// Smallest magnitude of an accepted sub-step (`|h|` when no step was
+    /// halved).
+    pub smallest_step: f64,
     /// Wall-clock time of the integration.
     #[serde(serialize_with = "seconds")]
     pub wall_time: Duration,
@@ -504,6 +520,7 @@ where
         observe: Observe { energy: true, constraint_residual: true, multipliers: spec.multipliers },
         record_every: spec.record_every,
         consistency: spec.consistency,
+        max_halvings: spec.max_halvings,
         ..RunOptions::default()
     };
     let start = Instant::now();
@@ -537,6 +554,10 @@ where
         max_constraint_residual: traj.report.max_constraint_residual,
         max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(observer.max_holonomic_drift),
         newton_iterations_mean: traj.report.newton_iterations_mean,
+        rejected_steps: traj.report.rejected_steps,
+        steps_with_rejections: traj.report.steps_with_rejections,
+        substeps: traj.report.substeps,
+        smallest_step: traj.report.smallest_step,
         wall_time,
         cpu_time,
     };
@@ -587,6 +608,23 @@ fn number(x: f64) -> String {
     }
 }
 
+/// What the report says of the steps that were halved: a run with any is
+/// not a run of fixed steps `h` alone.
+fn halvings(s: &RunStats) -> String {
+    if s.rejected_steps == 0 {
+        return "none".into();
+    }
+    format!(
+        "{} of {} steps, covered by {} sub-steps in all ({} halvings, smallest sub-step {}); \
+         `--max-halvings 0` makes such a step an error",
+        s.steps_with_rejections,
+        s.steps,
+        s.substeps,
+        s.rejected_steps,
+        number(s.smallest_step)
+    )
+}
+
 /// The report of one run as Markdown: the setting, the energy error, the
 /// constraint residual, the holonomic drift (for systems with holonomic
 /// constraints), Newton iterations and timing.
@@ -633,6 +671,7 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
         row(&mut out, "max |g| (holonomic drift, position level)", format!("{g:.3e}"));
     }
     row(&mut out, "Newton iterations per step (mean)", format!("{:.2}", s.newton_iterations_mean));
+    row(&mut out, "steps halved (Newton failed at h)", halvings(s));
     row(&mut out, "wall time", format!("{:.3} s", s.wall_time.as_secs_f64()));
     if let Some(c) = s.cpu_time {
         row(&mut out, "CPU time of the integrating thread", format!("{:.3} s", c.as_secs_f64()));

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use spark_runtime::{
     check_record_size, consistent_velocity, integrate_ensemble_until, ConsistencyPolicy, EnsembleRun, IntegrationError,
     Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer, RunOptions, Sample, Schedule, State,
-    StepError, Stepper, Tableau, TableauError, Vector,
+    StepError, Stepper, Tableau, TableauError, Vector, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, RecvTimeoutError};
@@ -72,6 +72,9 @@ pub struct IntegrateRequest {
     pub multipliers: bool,
     /// Replace an inconsistent `v0` by the nearest consistent one.
     pub project_v0: bool,
+    /// How deep a step whose Newton iteration fails may be halved
+    /// ([`RunOptions::max_halvings`]; `0` ends the run at the failure).
+    pub max_halvings: u32,
 }
 
 /// An ensemble: the same run from many initial states.
@@ -117,6 +120,16 @@ pub struct Columns {
     pub steps: usize,
     /// Mean Newton iterations per step.
     pub newton_iterations_mean: f64,
+    /// Failed (sub-)steps that were halved (0 for a run of fixed steps `h`
+    /// alone).
+    pub rejected_steps: usize,
+    /// Scheduled steps that needed at least one halving.
+    pub steps_with_rejections: usize,
+    /// Accepted sub-steps (`steps` when none was halved).
+    pub substeps: usize,
+    /// Smallest magnitude of an accepted sub-step (`|h|` when none was
+    /// halved).
+    pub smallest_step: f64,
     /// Wall time of [`integrate`] itself, in seconds (checks, stepper set-up,
     /// the steps and the columns): what a Rust caller pays, for measuring
     /// the overhead of the Python call around it.
@@ -245,6 +258,7 @@ where
         observe: Observe { energy: true, constraint_residual: true, multipliers: r.multipliers },
         record_every: r.every,
         consistency,
+        max_halvings: r.max_halvings,
         ..RunOptions::default()
     };
     let traj = stepper
@@ -265,6 +279,10 @@ where
         e0: probe.energy(r.t0, &q0, &v0),
         steps: traj.report.steps,
         newton_iterations_mean: traj.report.newton_iterations_mean,
+        rejected_steps: traj.report.rejected_steps,
+        steps_with_rejections: traj.report.steps_with_rejections,
+        substeps: traj.report.substeps,
+        smallest_step: traj.report.smallest_step,
         seconds: 0.0,
     };
     for s in samples {
@@ -355,7 +373,7 @@ where
             .enumerate()
             .map(|(j, run)| match run.failure {
                 Some(_) => alone(j),
-                None => Ok(lane_columns::<Sys, N, M>(&probe, &starts[j], &run, seconds)),
+                None => Ok(lane_columns::<Sys, N, M>(&probe, &starts[j], &run, r.run.h, seconds)),
             })
             .collect()
     };
@@ -377,6 +395,7 @@ fn lane_columns<Sys, const N: usize, const M: usize>(
     probe: &Sys,
     start: &State<N>,
     run: &EnsembleRun<N>,
+    h: f64,
     seconds: f64,
 ) -> Columns
 where
@@ -396,6 +415,12 @@ where
         e0: probe.energy(start.t, &start.q, &start.v),
         steps: run.steps,
         newton_iterations_mean: if run.steps > 0 { run.iterations as f64 / run.steps as f64 } else { 0.0 },
+        // A member that fails in its lane runs again alone: the lanes halve
+        // no step.
+        rejected_steps: 0,
+        steps_with_rejections: 0,
+        substeps: run.steps,
+        smallest_step: h.abs(),
         seconds,
     };
     for s in &run.samples {
@@ -509,6 +534,17 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
     if steps < 1 || every < 1 || stages < 1 {
         return Err(spark_error(py, "steps, every and s must be at least 1"));
     }
+    let max_halvings: i64 = get(d, "max_halvings")?.unwrap_or(DEFAULT_MAX_HALVINGS as i64);
+    if !(0..=MAX_HALVINGS as i64).contains(&max_halvings) {
+        return Err(spark_error(
+            py,
+            format!(
+                "max_halvings = {max_halvings} must lie in 0..={MAX_HALVINGS} (0 ends the run at the first step whose \
+                 Newton iteration fails)"
+            ),
+        ));
+    }
+    let max_halvings = max_halvings as u32;
     Ok(IntegrateRequest {
         method,
         stages: stages as usize,
@@ -522,6 +558,7 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
         newton,
         multipliers: get(d, "multipliers")?.unwrap_or(false),
         project_v0: get(d, "project_v0")?.unwrap_or(false),
+        max_halvings,
     })
 }
 
@@ -579,6 +616,10 @@ pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, Py
     d.set_item("e0", c.e0)?;
     d.set_item("steps", c.steps)?;
     d.set_item("newton_iterations_mean", c.newton_iterations_mean)?;
+    d.set_item("rejected_steps", c.rejected_steps)?;
+    d.set_item("steps_with_rejections", c.steps_with_rejections)?;
+    d.set_item("substeps", c.substeps)?;
+    d.set_item("smallest_step", c.smallest_step)?;
     d.set_item("rust_seconds", c.seconds)?;
     Ok(d)
 }
@@ -598,8 +639,12 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
     let mut constraint = Vec::with_capacity(members * k);
     let mut e0 = Vec::with_capacity(members);
     let mut iterations = Vec::with_capacity(members);
+    let mut rejected = Vec::with_capacity(members);
+    let mut smallest = Vec::with_capacity(members);
     let t = runs.first().map(|c| c.t.clone()).unwrap_or_default();
     for c in runs {
+        rejected.push(c.rejected_steps as u64);
+        smallest.push(c.smallest_step);
         q.extend(c.q);
         v.extend(c.v);
         energy.extend(c.energy);
@@ -615,6 +660,8 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
     d.set_item("constraint", Array2::from_shape_vec((members, k), constraint).map_err(err)?.into_pyarray(py))?;
     d.set_item("e0", Array1::from_vec(e0).into_pyarray(py))?;
     d.set_item("newton_iterations_mean", Array1::from_vec(iterations).into_pyarray(py))?;
+    d.set_item("rejected_steps", Array1::from_vec(rejected).into_pyarray(py))?;
+    d.set_item("smallest_step", Array1::from_vec(smallest).into_pyarray(py))?;
     Ok(d)
 }
 

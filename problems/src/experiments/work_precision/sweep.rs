@@ -32,11 +32,14 @@ pub(super) struct Ctx<'a, const N: usize> {
     pub(super) density: Option<&'a super::DensityFn>,
 }
 
-/// Run options of a timed run: no observation, nothing recorded.
+/// Run options of a timed run: no observation, nothing recorded, and no
+/// halving: a point of the diagram is a run of fixed steps `h` or none (a
+/// halved step would put the error and time of smaller steps at `h`).
 pub(super) fn unobserved() -> RunOptions {
     RunOptions {
         observe: Observe { energy: false, constraint_residual: false, multipliers: false },
         record_every: 0,
+        max_halvings: 0,
         ..RunOptions::default()
     }
 }
