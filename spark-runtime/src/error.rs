@@ -400,11 +400,6 @@ impl StepError {
     }
 }
 
-/// The advice [`StepError::NonFinite`] gives for a step (`h ≠ 0`): its
-/// equations overflowed, and a smaller `h` is the first thing to try, or a
-/// function of the declaration left its domain (`sqrt` or `ln` of a
-/// negative number, a speed beyond a limit of `L`) or was evaluated where its
-/// derivative is undefined (`sqrt(ψ²)` at `ψ = 0`), which no `h` cures.
 /// Why a quantity of the equations of motion is NaN or infinite at the
 /// initial state, every cause a user can act on: the messages of
 /// [`StepError::NonFiniteInitialValue`] and of [`StepError::NonFinite`]
@@ -413,9 +408,13 @@ const INITIAL_STATE_CAUSES: &str = "at this state a function in L or k is outsid
      negative number, ln of 0, asin or acos beyond ±1) or not differentiable (sqrt at 0, e.g. of a vanishing \
      speed), a value overflows f64 (|v0|² does for |v0| above 1.3e154), or a parameter makes it undefined";
 
-/// The message of [`StepError::NonFinite`]: in a step (`h ≠ 0`) with both
-/// of its causes, before the first step (`h = 0`) with those at the initial
-/// state.
+/// The message of [`StepError::NonFinite`]. Before the first step (`h = 0`)
+/// it names the causes at the initial state. In a step (`h ≠ 0`) it names
+/// both of its causes: the step's equations overflowed, and a smaller `h` is
+/// the first thing to try, or a function of the declaration left its domain
+/// (`sqrt` or `ln` of a negative number, a speed beyond a limit of `L`) or
+/// was evaluated where its derivative is undefined (`sqrt(ψ²)` at `ψ = 0`),
+/// which no `h` cures.
 fn non_finite_message(t: f64, h: f64, stage: &str, history: &NewtonHistory) -> String {
     if h == 0.0 {
         let history = if history.is_empty() { String::new() } else { format!("; history: {history}") };
