@@ -49,6 +49,10 @@ use proc_macro::TokenStream;
 /// first counted crossing (see `spark_runtime::events`). An `event(…)`
 /// effect declares an event that a scene selects by name.
 ///
+/// Attributes on the struct stay on it; a `#[cfg(…)]` among them also goes
+/// on every item generated for it, so a false condition removes the system
+/// with its implementations.
+///
 /// Sections may come in any order, each at most once. Expressions use
 /// `+ - * /`, unary minus, `^` for powers (integer or real exponents),
 /// parentheses, numbers (`1`, `2.5`, `1e-3`), the time `t`, `pi`, the

@@ -42,3 +42,35 @@ fn physics_style_names_and_scenes() {
     assert_eq!(w.constraint(0.0, &q, &v)[0], 0.0);
     assert_eq!((Follower::M, Tracer::M, Drawing::M), (1, 0, 1));
 }
+
+// A `#[cfg]` on the declaration applies to everything the macro generates,
+// as to a hand-written struct and its impls: a false condition removes the
+// system and its implementations, and builds.
+nonholonomic_system! {
+    /// Never compiled.
+    #[cfg(any())]
+    pub struct NeverBuilt {
+        coordinates: [x],
+        lagrangian: dot(x)^2/2 - x^2/2,
+    }
+}
+
+nonholonomic_system! {
+    /// Always compiled: a true condition changes nothing.
+    #[cfg(all())]
+    pub struct AlwaysBuilt {
+        coordinates: [x, y],
+        parameters: { k = 2.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2)/2 - k*x^2/2,
+        constraints: [ dot(y) - x*dot(x) ],
+    }
+}
+
+#[test]
+fn a_cfg_on_the_declaration_applies_to_every_generated_item() {
+    let sys = AlwaysBuilt::new();
+    assert_eq!((AlwaysBuilt::N, AlwaysBuilt::M, sys.k), (2, 1, 2.0));
+    let (q, v) = (Vector::<2>::new(0.5, 0.0), Vector::<2>::new(2.0, 1.0));
+    // E = |v|²/2 + k x²/2.
+    assert_eq!(<AlwaysBuilt as NonholonomicSystem<2, 1>>::energy(&sys, 0.0, &q, &v), 2.5 + 0.25);
+}

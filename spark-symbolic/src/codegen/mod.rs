@@ -92,5 +92,40 @@ pub fn generate_items(spec: &SystemSpec, model: &mut Model) -> (TokenStream, Ope
     let parameters = params::parameter_methods(&rt, &params);
     let trait_impl = trait_impl::trait_impl(&gen, &spec.name, consts, parameters, methods, effects);
     let item = item::struct_items(spec, &params, &gen.n, &gen.m, &helpers);
-    (quote!(#item #trait_impl), ops)
+    (with_struct_cfg(spec, quote!(#item #trait_impl)), ops)
+}
+
+/// `items` with the `#[cfg(…)]` attributes of the declaration's struct on
+/// every item besides the struct, which carries them already: a
+/// configuration that removes the struct removes its implementations with
+/// it, as for a hand-written struct and its impls. Without such an
+/// attribute `items` come back untouched.
+fn with_struct_cfg(spec: &SystemSpec, items: TokenStream) -> TokenStream {
+    let Ok(attrs) = syn::parse::Parser::parse2(syn::Attribute::parse_outer, spec.attrs.clone()) else {
+        return items;
+    };
+    let cfgs: Vec<syn::Attribute> = attrs.into_iter().filter(|a| a.path().is_ident("cfg")).collect();
+    if cfgs.is_empty() {
+        return items;
+    }
+    let Ok(mut file) = syn::parse2::<syn::File>(items.clone()) else {
+        return items;
+    };
+    for item in &mut file.items {
+        let attrs = match item {
+            syn::Item::Struct(s) if s.ident == spec.name => continue,
+            syn::Item::Impl(i) => &mut i.attrs,
+            syn::Item::Struct(s) => &mut s.attrs,
+            syn::Item::Const(c) => &mut c.attrs,
+            syn::Item::Fn(f) => &mut f.attrs,
+            syn::Item::Mod(m) => &mut m.attrs,
+            syn::Item::Static(s) => &mut s.attrs,
+            syn::Item::Enum(e) => &mut e.attrs,
+            syn::Item::Type(t) => &mut t.attrs,
+            syn::Item::Macro(m) => &mut m.attrs,
+            _ => continue,
+        };
+        attrs.extend(cfgs.iter().cloned());
+    }
+    quote!(#file)
 }
