@@ -52,6 +52,38 @@ fn a_folder_has_one_writer_and_files_appear_only_at_commit() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A lock path that is not a regular file is refused and left as it is: a
+/// symbolic link (the lock's note would overwrite the file it names,
+/// anywhere), a FIFO (opening it could wait), a folder.
+#[test]
+fn a_lock_path_that_is_not_a_regular_file_is_refused_untouched() {
+    let root = std::env::temp_dir().join(format!("spark-out-lock-kinds-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let (dir, target) = (root.join("out"), root.join("precious.txt"));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(&target, b"keep me").unwrap();
+    std::os::unix::fs::symlink(&target, dir.join(LOCK_FILE)).unwrap();
+    let refused = |what: &str| match OutputDir::open(&dir) {
+        Err(e @ OutputError::LockNotAFile { .. }) => assert!(e.to_string().contains("not a regular file"), "{e}"),
+        other => panic!("{what}: the lock must be refused, got {other:?}"),
+    };
+    refused("a symbolic link to a file");
+    assert_eq!(std::fs::read(&target).unwrap(), b"keep me");
+    std::fs::remove_file(dir.join(LOCK_FILE)).unwrap();
+    std::os::unix::fs::symlink(root.join("missing"), dir.join(LOCK_FILE)).unwrap();
+    refused("a dangling symbolic link");
+    assert!(!root.join("missing").exists(), "the link's target must not be created");
+    std::fs::remove_file(dir.join(LOCK_FILE)).unwrap();
+    let fifo = std::ffi::CString::new(dir.join(LOCK_FILE).into_os_string().into_encoded_bytes()).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
+    refused("a FIFO");
+    std::fs::remove_file(dir.join(LOCK_FILE)).unwrap();
+    // A regular lock file works again.
+    drop(OutputDir::open(&dir).unwrap());
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
 #[test]
 fn an_unwritable_folder_fails_at_open() {
     let err = OutputDir::open(Path::new("/proc/spark-cannot-exist/out")).unwrap_err();

@@ -205,3 +205,22 @@ fn halved_steps_are_counted_and_reported() {
     let report = problems::run::run_report(&fixed, &RunSpec::paper(SystemKind::Robot, Method::Gauss, 2, 0.2, 10));
     assert!(report.contains("| steps halved (Newton failed at h) | none |"), "{report}");
 }
+
+/// A projected `v0` is reported beside the given one, so the report shows
+/// the velocity the run integrated (its first sample's); a consistent `v0`
+/// that is not projected keeps one row.
+#[test]
+fn the_report_names_the_projected_initial_velocity() {
+    let mut spec = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 10);
+    spec.v0 = vec![1.0, 1.0, 1.0];
+    spec.consistency = spark_runtime::ConsistencyPolicy::Project { tolerance: 1e-12 };
+    let result = run(&spec, &|_| true).unwrap();
+    // The skate's blade at θ = 0 allows no ẏ: the nearest consistent v0.
+    assert_eq!(result.initial_velocity(), Some(vec![1.0, 0.0, 1.0]));
+    let report = problems::run::run_report(&result, &spec);
+    assert!(report.contains("| v0 (given) | [1.0, 1.0, 1.0] |"), "{report}");
+    assert!(report.contains("| v0 (projected onto the constraints, integrated) | [1.0, 0.0, 1.0] |"), "{report}");
+    let plain = RunSpec::paper(SystemKind::Skate, Method::Gauss, 2, 0.1, 10);
+    let report = problems::run::run_report(&run(&plain, &|_| true).unwrap(), &plain);
+    assert!(report.contains(&format!("| v0 | {:?} |", plain.v0)) && !report.contains("v0 (given)"), "{report}");
+}

@@ -232,7 +232,8 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     out.write_bytes("report.md", report.as_bytes()).map_err(e)?;
     let summary = serde_json::json!({
         "system": entry.name, "type": entry.type_name, "method": method.name(), "stages": a.stages,
-        "h": h, "t0": t0, "q0": spec.q0, "v0": spec.v0, "parameters": spec.parameters, "stats": result.stats,
+        "h": h, "t0": t0, "q0": spec.q0, "v0": spec.v0, "v0_integrated": result.initial_velocity(),
+        "parameters": spec.parameters, "stats": result.stats,
     });
     out.write_json("report.json", &summary).map_err(e)?;
     let files = out.commit().map_err(e)?;

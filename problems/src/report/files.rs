@@ -21,6 +21,7 @@
 use crate::report::plot::{render_files, render_scatter_files, Figure, PlotError, Scatter};
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 
 /// Name of the lock file inside an output folder.
@@ -54,6 +55,17 @@ pub enum OutputError {
         path: PathBuf,
         /// Where the link points.
         target: PathBuf,
+    },
+    /// The lock file's path is not a regular file: a symbolic link (which
+    /// the lock would write through, into any file it names), a FIFO, a
+    /// device.
+    #[error(
+        "cannot lock {path}: it is not a regular file (a symbolic link, a FIFO or a device), and spark writes its \
+         lock only into a regular file of the output folder; remove it or give --out another folder"
+    )]
+    LockNotAFile {
+        /// The lock file's path.
+        path: PathBuf,
     },
     /// A file or directory could not be created or written.
     #[error("cannot write {path}: {source}")]
@@ -159,13 +171,21 @@ impl OutputDir {
     pub fn open(dir: &Path) -> Result<OutputDir, OutputError> {
         create_dir(dir)?;
         let lock_path = dir.join(LOCK_FILE);
+        // Not through a symbolic link (the lock's note would overwrite the
+        // file it names) and without waiting on a FIFO; a path that is not a
+        // regular file is refused below.
+        let not_a_file = || OutputError::LockNotAFile { path: lock_path.clone() };
         let mut lock = OpenOptions::new()
             .read(true)
             .write(true)
             .create(true)
             .truncate(false)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
             .open(&lock_path)
-            .map_err(io(&lock_path))?;
+            .map_err(|e| if e.raw_os_error() == Some(libc::ELOOP) { not_a_file() } else { io(&lock_path)(e) })?;
+        if !lock.metadata().map_err(io(&lock_path))?.is_file() {
+            return Err(not_a_file());
+        }
         if !try_lock_exclusive(&lock).map_err(io(&lock_path))? {
             let mut holder = String::new();
             let _ = lock.read_to_string(&mut holder);

@@ -238,6 +238,15 @@ pub struct RunResult {
     pub stats: RunStats,
 }
 
+impl RunResult {
+    /// The velocity the run started from, its first sample's (`None`
+    /// without samples): `v0` projected onto the constraints when the run
+    /// projects it.
+    pub fn initial_velocity(&self) -> Option<Vec<f64>> {
+        self.v.iter().map(|column| column.first().copied()).collect()
+    }
+}
+
 /// Statistics of one run over every step.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RunStats {
@@ -651,7 +660,17 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
         row(&mut out, "parameters set", p.join(", "));
     }
     row(&mut out, "q0", format!("{:?}", spec.q0));
-    row(&mut out, "v0", format!("{:?}", spec.v0));
+    let integrated = result.initial_velocity();
+    if integrated.as_deref().is_none_or(|v| v == spec.v0.as_slice()) {
+        row(&mut out, "v0", format!("{:?}", spec.v0));
+    } else {
+        row(&mut out, "v0 (given)", format!("{:?}", spec.v0));
+        row(
+            &mut out,
+            "v0 (projected onto the constraints, integrated)",
+            format!("{:?}", integrated.unwrap_or_default()),
+        );
+    }
     row(&mut out, "E0", number(s.e0));
     let conserved = entry.structure.autonomous() && !entry.effects.does_work();
     row(
