@@ -127,6 +127,7 @@ fn a_section_run_in_the_library_matches_the_cli_contract() {
         t0: 0.0,
         parameters: Vec::new(),
         newton: NewtonOptions::default(),
+        max_halvings: spark_runtime::DEFAULT_MAX_HALVINGS,
     };
     let e = problems::experiments::section::run_section(&spec).unwrap_err().to_string();
     assert!(e.contains("no event `nope`") && e.contains("section"), "{e}");
@@ -189,6 +190,7 @@ fn a_section_with_more_crossings_than_fit_stops_with_what_to_change() {
         t0: 0.0,
         parameters: Vec::new(),
         newton: NewtonOptions::default(),
+        max_halvings: spark_runtime::DEFAULT_MAX_HALVINGS,
     };
     let all = run_section_with_limit(&spec, usize::MAX).unwrap();
     let found = all.points.len();
@@ -206,4 +208,32 @@ fn a_section_with_more_crossings_than_fit_stops_with_what_to_change() {
     assert_eq!(run_section_with_limit(&spec, found).unwrap(), all);
     // The default limit is what fits in memory: millions of crossings.
     assert!(max_section_points(4) > 1_000_000, "{}", max_section_points(4));
+}
+
+/// A section whose members halve failing steps counts each member's
+/// halvings (the McLachlan–Perlmutter particles at h = 5, a hundred times
+/// their step), and `max_halvings = 0` makes the first failing step an
+/// error; at the system's step no member halves.
+#[test]
+fn a_section_counts_each_members_halved_steps() {
+    let spec = SectionSpec {
+        system: SystemKind::McLachlanPerlmutter7Nonholonomic,
+        event: "section".into(),
+        members: 2,
+        method: Method::Gauss,
+        stages: 2,
+        h: 5.0,
+        steps: 10,
+        t0: 0.0,
+        parameters: Vec::new(),
+        newton: NewtonOptions::default(),
+        max_halvings: spark_runtime::DEFAULT_MAX_HALVINGS,
+    };
+    let halved = problems::experiments::section::run_section(&spec).unwrap();
+    assert_eq!(halved.rejected_steps.len(), 2);
+    assert!(halved.rejected_steps.iter().all(|&r| r > 0), "{:?}", halved.rejected_steps);
+    let e = problems::experiments::section::run_section(&SectionSpec { max_halvings: 0, ..spec.clone() }).unwrap_err();
+    assert!(e.to_string().contains("failed"), "{e}");
+    let fixed = problems::experiments::section::run_section(&SectionSpec { h: 0.05, steps: 200, ..spec }).unwrap();
+    assert_eq!(fixed.rejected_steps, vec![0, 0]);
 }

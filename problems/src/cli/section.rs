@@ -50,6 +50,12 @@ pub struct SectionArgs {
     /// Newton iteration.
     #[arg(long, value_enum, default_value_t = Newton::Full)]
     pub newton: Newton,
+    /// A member's step whose Newton iteration fails is replaced by two half
+    /// steps, nested at most this many levels deep, 0 to 60; the output
+    /// counts them. 0 ends the section at the first step that fails.
+    #[arg(long, default_value_t = spark_runtime::DEFAULT_MAX_HALVINGS,
+          value_parser = clap::value_parser!(u32).range(0..=spark_runtime::MAX_HALVINGS as i64))]
+    pub max_halvings: u32,
     /// Output folder (created and locked; files appear when the run ends).
     #[arg(long, short, default_value = "results/section")]
     pub out: PathBuf,
@@ -104,6 +110,7 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
         t0,
         parameters: parse_params(&a.params)?,
         newton,
+        max_halvings: a.max_halvings,
     };
     let mut out = OutputDir::open(&a.out).map_err(|e| e.to_string())?;
     let section = run_section(&spec).map_err(|e| e.to_string())?;
@@ -126,6 +133,16 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
         a.members,
         section.max_residual()
     );
+    let halved = section.rejected_steps.iter().filter(|&&r| r > 0).count();
+    if halved > 0 {
+        text.push_str(&format!(
+            "steps halved: {halved} of {} member(s) halved steps whose Newton iteration failed at h = {h} ({} \
+             halvings in all; section.json's rejected_steps_per_member): their crossings are not those of fixed \
+             steps h alone; use a smaller --h, or --max-halvings 0 to make such a step an error\n",
+            a.members,
+            section.rejected_steps.iter().sum::<usize>()
+        ));
+    }
     for f in files {
         text.push_str(&format!("wrote {}\n", f.display()));
     }

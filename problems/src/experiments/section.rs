@@ -70,6 +70,10 @@ pub struct SectionSpec {
     pub parameters: Vec<(String, f64)>,
     /// Newton settings.
     pub newton: NewtonOptions,
+    /// How deep a member's step whose Newton iteration fails may be halved
+    /// (`RunOptions::max_halvings`; `0` makes it an error). Each member's
+    /// halvings are in [`Section::rejected_steps`].
+    pub max_halvings: u32,
 }
 
 /// One crossing of the event surface.
@@ -106,6 +110,9 @@ pub struct Section {
     pub counts: Vec<usize>,
     /// Initial `(q0, v0)` of each member, as integrated.
     pub initial: Vec<(Vec<f64>, Vec<f64>)>,
+    /// Each member's halvings of steps whose Newton iteration failed at `h`
+    /// (all 0 for runs of fixed steps `h` alone).
+    pub rejected_steps: Vec<usize>,
 }
 
 impl Section {
@@ -366,7 +373,7 @@ pub fn run_section_with_limit(spec: &SectionSpec, max_points: usize) -> Result<S
         bytes_per_point: bytes_per_point(entry.n),
         t,
     };
-    let runs: Vec<Result<Vec<SectionPoint>, SectionError>> = initial
+    let runs: Vec<Result<(Vec<SectionPoint>, usize), SectionError>> = initial
         .par_iter()
         .enumerate()
         .map(|(member, (q0, v0))| {
@@ -381,11 +388,13 @@ pub fn run_section_with_limit(spec: &SectionSpec, max_points: usize) -> Result<S
     // has ended, so that a failure of another member is reported as such.
     let mut points = Vec::new();
     let mut counts = Vec::with_capacity(spec.members);
+    let mut rejected_steps = Vec::with_capacity(spec.members);
     let mut stopped = None;
     for run in runs {
         match run {
-            Ok(member_points) => {
+            Ok((member_points, rejected)) => {
                 counts.push(member_points.len());
+                rejected_steps.push(rejected);
                 points.extend(member_points);
             }
             Err(e @ SectionError::TooManyCrossings { .. }) => stopped = stopped.or(Some(e)),
@@ -408,6 +417,7 @@ pub fn run_section_with_limit(spec: &SectionSpec, max_points: usize) -> Result<S
         points,
         counts,
         initial,
+        rejected_steps,
     })
 }
 
@@ -458,7 +468,7 @@ impl<const N: usize, const M: usize> Observer<N, M> for Budget<'_> {
 }
 
 impl SystemVisitor for MemberRun<'_> {
-    type Output = Result<Vec<SectionPoint>, RunError>;
+    type Output = Result<(Vec<SectionPoint>, usize), RunError>;
     fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
         self,
         _: &'static SystemEntry,
@@ -481,7 +491,7 @@ struct MemberStages<'a, Sys> {
 }
 
 impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M> for MemberStages<'_, Sys> {
-    type Output = Result<Vec<SectionPoint>, RunError>;
+    type Output = Result<(Vec<SectionPoint>, usize), RunError>;
     fn visit<const S: usize, const D: usize>(self) -> Self::Output {
         let MemberRun { spec, index, member, q0, v0, mut budget } = self.run;
         let entry = spec.system.entry();
@@ -510,6 +520,7 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
         let options = RunOptions {
             record_every: 0,
             consistency: ConsistencyPolicy::Project { tolerance: 1e-12 },
+            max_halvings: spec.max_halvings,
             ..RunOptions::default()
         };
         let schedule = Schedule::Fixed { h: spec.h, steps: spec.steps };
@@ -521,7 +532,7 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
                 source,
             },
         )?;
-        Ok(traj
+        let points = traj
             .events
             .iter()
             .map(|r| SectionPoint {
@@ -531,7 +542,8 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
                 v: r.v.iter().copied().collect(),
                 residual: r.residual,
             })
-            .collect())
+            .collect();
+        Ok((points, traj.report.rejected_steps))
     }
 }
 
@@ -591,7 +603,8 @@ pub fn write_section(
         "direction": section.direction, "method": spec.method.name(), "stages": spec.stages, "h": spec.h,
         "t0": spec.t0, "t_end": t_end, "members": spec.members, "parameters": spec.parameters,
         "initial": section.initial, "crossings_per_member": section.counts,
-        "max_abs_event_value": section.max_residual(),
+        "max_abs_event_value": section.max_residual(), "max_halvings": spec.max_halvings,
+        "rejected_steps_per_member": section.rejected_steps,
         "x": axes.0.label(&coordinates), "y": axes.1.label(&coordinates),
     });
     files.push(out.write_json("section.json", &summary)?);
