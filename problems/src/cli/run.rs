@@ -205,7 +205,17 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
         bar.inc(n);
         true
     })
-    .map_err(|e| e.to_string())?;
+    .map_err(|e| match e {
+        // A step that failed after its halvings: the flag that set their
+        // depth is the other thing to change.
+        RunError::Integration { source: spark_runtime::IntegrationError::Step { .. }, .. } => format!(
+            "{e}\n(a failing step is halved at most --max-halvings {} levels deep; a smaller --h, or a larger \
+             --max-halvings up to {}, may get through)",
+            a.max_halvings,
+            spark_runtime::MAX_HALVINGS
+        ),
+        e => e.to_string(),
+    })?;
     bar.finish_and_clear();
     let stem = format!("{}_{}_s{}", entry.name, method.key(), a.stages);
     let e = |e: OutputError| e.to_string();
