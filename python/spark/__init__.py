@@ -95,6 +95,24 @@ def _warn_halvings(steps: int, halved: int, substeps: int, smallest: float) -> N
     )
 
 
+def _warn_halved_members(rejected: np.ndarray, smallest: np.ndarray | None, where: str, stacklevel: int) -> None:
+    """Warns (:class:`StepHalvingWarning`) once about the members of an
+    ensemble or a sweep that halved steps, if any: ``rejected`` holds each
+    member's halvings, ``smallest`` their smallest sub-steps (when known),
+    ``where`` names the field that has the counts."""
+    halved = int(np.count_nonzero(rejected))
+    if not halved:
+        return
+    smallest_text = "" if smallest is None else f", smallest sub-step {float(np.min(smallest)):.6g}"
+    warnings.warn(
+        f"{halved} of {len(rejected)} members halved steps whose Newton iteration failed at the requested h "
+        f"({int(np.sum(rejected))} halvings{smallest_text}): they are not runs of fixed steps h alone; see {where}, "
+        "pass max_halvings=0 to make such a step an error, or a smaller h",
+        StepHalvingWarning,
+        stacklevel=stacklevel + 1,
+    )
+
+
 class ToolchainError(SparkError):
     """:func:`compile` needs cargo (the Rust toolchain) and could not run it."""
 
@@ -456,16 +474,7 @@ class System:
         req["v0s"] = v0s.tolist()
         req["threads"] = None if threads is None else _whole("threads", threads, 1)
         d = self._ensemble(req)
-        halved = np.count_nonzero(d["rejected_steps"])
-        if halved:
-            warnings.warn(
-                f"{halved} of {len(d['rejected_steps'])} members halved steps whose Newton iteration failed at the "
-                f"requested h ({int(np.sum(d['rejected_steps']))} halvings, smallest sub-step "
-                f"{float(np.min(d['smallest_step'])):.6g}): they are not runs of fixed steps h alone; see the "
-                "ensemble's rejected_steps, pass max_halvings=0 to make such a step an error, or a smaller h",
-                StepHalvingWarning,
-                stacklevel=2,
-            )
+        _warn_halved_members(d["rejected_steps"], d["smallest_step"], "the ensemble's rejected_steps", stacklevel=2)
         return Ensemble(
             t=d["t"],
             q=d["q"],

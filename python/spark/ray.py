@@ -279,15 +279,7 @@ def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newt
     _write_atomically(pa.concat_tables(tables), out, temp)
     wall = time.perf_counter() - start
     rejected = np.concatenate(halvings)
-    halved = np.count_nonzero(rejected)
-    if halved:
-        warnings.warn(
-            f"{halved} of {members} members halved steps whose Newton iteration failed at the requested h "
-            f"({int(rejected.sum())} halvings): they are not runs of fixed steps h alone; see the report's "
-            "rejected_steps, pass max_halvings=0 to make such a step an error, or a smaller h",
-            spark.StepHalvingWarning,
-            stacklevel=3,
-        )
+    spark._warn_halved_members(rejected, None, "the report's rejected_steps", stacklevel=3)
     return SweepReport(
         path=str(out), members=members, shards=len(pending), wall_seconds=wall, rejected_steps=rejected
     )
