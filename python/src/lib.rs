@@ -58,6 +58,9 @@ fn run_spec(e: &'static SystemEntry, r: &IntegrateRequest) -> RunSpec {
         },
         multipliers: r.multipliers,
         max_halvings: r.max_halvings,
+        tolerance: None,
+        times: None,
+        events: false,
     }
 }
 

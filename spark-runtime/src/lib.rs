@@ -142,6 +142,7 @@ mod initial;
 pub mod lanes;
 mod linalg;
 mod options;
+pub mod plan;
 pub mod reference;
 pub mod rejection;
 mod step;
@@ -156,7 +157,7 @@ extern crate self as spark_runtime;
 pub mod trig;
 
 pub use adaptive::{
-    integrate_adaptive, integrate_adaptive_with_events, integrate_reversible, integrate_reversible_with_events,
+    integrate_adaptive, integrate_adaptive_at, integrate_adaptive_with_events, integrate_reversible, integrate_reversible_with_events,
     AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun, EstimateFailure, EstimatedStep,
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
@@ -176,6 +177,7 @@ pub use lanes::{
     LaneStageValues, LaneStatus, LaneStepper, LANES, MAX_ENSEMBLE_THREADS,
 };
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
+pub use plan::{integrate_plan, PlanError, PlannedRun, RunPlan, Stepping, Tolerance};
 pub use rejection::RejectionPolicy;
 pub use spark_macros::nonholonomic_system;
 pub use step::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};

@@ -108,7 +108,10 @@ pub fn run_ensemble_with(
     }
     check_record_size(spec, members.len()).map_err(EnsembleError::Record)?;
     let work = || -> Result<Vec<RunResult>, EnsembleError> {
-        if spec.multipliers || spec.steps == 0 || check_spec(spec).is_err() {
+        // The lanes take fixed steps recorded at the steps; tolerance-driven
+        // runs, output times and events run member by member.
+        let lanes_take = spec.tolerance.is_none() && spec.times.is_none() && !spec.events;
+        if spec.multipliers || spec.steps == 0 || !lanes_take || check_spec(spec).is_err() {
             return each_member(spec, members, tick);
         }
         crate::catalog::visit_system(spec.system, EnsembleSystem { spec, members, tick })
@@ -374,6 +377,8 @@ where
                     wall_time,
                     cpu_time,
                 },
+                events: Vec::new(),
+                controller: None,
             })
         })
         .collect()

@@ -21,9 +21,9 @@ pub use ensemble::{run_ensemble, run_ensemble_with, EnsembleError, MAX_ENSEMBLE_
 use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::thread_cpu_time;
 use spark_runtime::{
-    consistent_velocity, ConsistencyPolicy, IntegrationError, LaneStatus, LaneStepper, Method, NewtonOptions,
-    NonholonomicSystem, Observe, RunOptions, Schedule, State, Stepper, Tableau, TableauError, Vector,
-    DEFAULT_MAX_HALVINGS, LANES,
+    consistent_velocity, integrate_plan, AdaptiveReport, ConsistencyPolicy, EventRecord, IntegrationError, LaneStatus,
+    LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError, RunOptions, RunPlan, State,
+    Stepper, Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS, LANES,
 };
 use std::time::{Duration, Instant};
 
@@ -131,6 +131,19 @@ pub enum RunError {
         /// What went wrong.
         source: IntegrationError,
     },
+    /// A tolerance-driven run, or a run with output times or events, failed
+    /// or was refused ([`spark_runtime::integrate_plan`]).
+    #[error("{system} with {method} s = {stages}: {source}")]
+    Plan {
+        /// System key.
+        system: &'static str,
+        /// The method.
+        method: Method,
+        /// Stage count.
+        stages: usize,
+        /// What went wrong.
+        source: PlanError,
+    },
 }
 
 /// What to integrate and what to record.
@@ -164,8 +177,22 @@ pub struct RunSpec {
     pub multipliers: bool,
     /// How deep a step whose Newton iteration fails may be halved
     /// ([`RunOptions::max_halvings`]; `0` ends the run at the failure). Each
-    /// halving is counted in [`RunStats::rejected_steps`].
+    /// halving is counted in [`RunStats::rejected_steps`]. Fixed steps only.
     pub max_halvings: u32,
+    /// Tolerance-driven steps from `t0` to the tolerance's `t_end` instead of
+    /// the fixed steps `h`, `steps` (which then do not apply); the controller's
+    /// statistics are in [`RunResult::controller`].
+    pub tolerance: Option<Tolerance>,
+    /// Output times: the samples are the initial point and the state at
+    /// each time, from the continuous extension (the steps are not
+    /// shortened to land on them), and the run ends at the last one;
+    /// `record_every` does not apply. Strictly increasing (decreasing for a
+    /// run backward), within the run's interval.
+    pub times: Option<Vec<f64>>,
+    /// Locate the events the system declares ([`RunResult::events`]); a
+    /// terminal one ends the run. Without it a run locates none and costs
+    /// the same whether the system declares events or not.
+    pub events: bool,
 }
 
 impl RunSpec {
@@ -198,8 +225,46 @@ impl RunSpec {
             consistency: ConsistencyPolicy::default(),
             multipliers: false,
             max_halvings: DEFAULT_MAX_HALVINGS,
+            tolerance: None,
+            times: None,
+            events: false,
         }
     }
+
+    /// The end of the run's interval: `t0 + steps·h`, or the tolerance's
+    /// `t_end` for tolerance-driven steps.
+    pub fn t_end(&self) -> f64 {
+        self.stepping().t_end(self.t0)
+    }
+
+    /// How the run chooses its steps.
+    pub fn stepping(&self) -> Stepping {
+        match self.tolerance {
+            Some(tolerance) => Stepping::Tolerance(tolerance),
+            None => Stepping::Fixed { h: self.h, steps: self.steps },
+        }
+    }
+}
+
+/// One located event of a run (a row of `events.csv`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct EventRow {
+    /// The event's name, as the system declares it.
+    pub name: String,
+    /// Its index among the system's events.
+    pub index: usize,
+    /// Whether the event function rose through zero (`false`: fell).
+    pub rising: bool,
+    /// Whether the event is terminal (it ended the run).
+    pub terminal: bool,
+    /// Time of the zero.
+    pub t: f64,
+    /// Coordinates there.
+    pub q: Vec<f64>,
+    /// Velocities there.
+    pub v: Vec<f64>,
+    /// Index of the accepted step that holds it (0-based).
+    pub step: usize,
 }
 
 /// A recorded run, column by column (no const generics, so results of all
@@ -236,6 +301,14 @@ pub struct RunResult {
     pub psi: Vec<Vec<f64>>,
     /// Statistics over every step (not only the samples).
     pub stats: RunStats,
+    /// The events located, in time order (empty unless
+    /// [`RunSpec::events`] asks for them).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<EventRow>,
+    /// The controller's statistics of a tolerance-driven run (accepted and
+    /// rejected steps, Newton failures, solves, smallest and largest step).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub controller: Option<AdaptiveReport>,
 }
 
 impl RunResult {
@@ -314,14 +387,35 @@ pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
 /// The checks of [`run`] that need no system type: step size, initial
 /// time, stage count, parameter names.
 fn check_spec(spec: &RunSpec) -> Result<(), RunError> {
-    if !(spec.h.is_finite() && spec.h != 0.0) {
-        return Err(RunError::Invalid(format!("step size h = {:.3e} must be finite and nonzero", spec.h)));
-    }
     if !spec.t0.is_finite() {
         return Err(RunError::Invalid(format!("initial time t0 = {:.3e} must be finite", spec.t0)));
     }
-    spark_runtime::check_step_size(spec.t0, spec.h)
-        .map_err(|why| RunError::Invalid(format!("step size h = {:.3e} from t0 = {:.3e}: {why}", spec.h, spec.t0)))?;
+    match &spec.tolerance {
+        None => {
+            if !(spec.h.is_finite() && spec.h != 0.0) {
+                return Err(RunError::Invalid(format!("step size h = {:.3e} must be finite and nonzero", spec.h)));
+            }
+            spark_runtime::check_step_size(spec.t0, spec.h).map_err(|why| {
+                RunError::Invalid(format!("step size h = {:.3e} from t0 = {:.3e}: {why}", spec.h, spec.t0))
+            })?;
+        }
+        Some(tolerance) => {
+            if !tolerance.t_end.is_finite() || tolerance.t_end == spec.t0 {
+                return Err(RunError::Invalid(format!(
+                    "a tolerance-driven run needs a finite t_end other than t0 = {:.3e} (got {:.3e})",
+                    spec.t0, tolerance.t_end
+                )));
+            }
+            if tolerance.max_steps == 0 {
+                return Err(RunError::Invalid("max_steps must be at least 1".into()));
+            }
+        }
+    }
+    if let Some(times) = &spec.times {
+        if times.is_empty() {
+            return Err(RunError::Invalid("no output time is given; give at least one, or none to record steps".into()));
+        }
+    }
     let (min, max) = spec.method.stage_range();
     if spec.stages < min || spec.stages > max {
         return Err(TableauError::UnsupportedStages { method: spec.method, s: spec.stages, min, max }.into());
@@ -340,11 +434,24 @@ pub fn bytes_per_sample(n: usize, m: usize) -> u64 {
 
 /// Refuses `members` runs of `spec` whose recorded samples would not fit
 /// in memory ([`spark_runtime::check_record_size`]): such a run would step
-/// until an allocation failure aborts the process.
+/// until an allocation failure aborts the process. A run with output times
+/// records one sample per time; a tolerance-driven run is counted at its
+/// most step attempts.
 pub fn check_record_size(spec: &RunSpec, members: usize) -> Result<(), RunError> {
     let entry = spec.system.entry();
-    spark_runtime::check_record_size(spec.steps, spec.record_every, members, bytes_per_sample(entry.n, entry.m))
-        .map_err(|e| RunError::Invalid(e.to_string()))
+    let bytes = bytes_per_sample(entry.n, entry.m);
+    let (steps, every) = match (&spec.times, &spec.tolerance) {
+        (Some(times), _) => (times.len(), 1),
+        (None, Some(tolerance)) => (tolerance.max_steps, spec.record_every),
+        (None, None) => (spec.steps, spec.record_every),
+    };
+    spark_runtime::check_record_size(steps, every, members, bytes).map_err(|e| {
+        let mut text = e.to_string();
+        if spec.tolerance.is_some() && spec.times.is_none() {
+            text.push_str(" (a tolerance-driven run is counted at its step limit, max_steps: lower it)");
+        }
+        RunError::Invalid(text)
+    })
 }
 
 /// Looks `name` up in the catalogue and runs it with its defaults (the
@@ -534,20 +641,15 @@ where
     };
     let start = Instant::now();
     let cpu_start = thread_cpu_time();
-    // A run records states, not events: the events a system declares are
-    // located by `spark section` (crate::experiments::section), so runs of the same system
-    // cost the same with or without declared events.
-    let traj = stepper
-        .integrate_with_events(
-            spec.t0,
-            &q0,
-            &v0,
-            Schedule::Fixed { h: spec.h, steps: spec.steps },
-            &options,
-            &mut observer,
-            &spark_runtime::NoEvents,
-        )
-        .map_err(|source| RunError::Integration { system: key, method: spec.method, stages: S, source })?;
+    // Events are located only when the spec asks for them, so a run of a
+    // system that declares events costs the same as one of a system that
+    // declares none.
+    let plan = RunPlan { stepping: spec.stepping(), times: spec.times.as_deref(), events: spec.events };
+    let planned = integrate_plan(&mut stepper, spec.t0, &q0, &v0, &plan, &options, &mut observer).map_err(|e| match e {
+        PlanError::Fixed(source) => RunError::Integration { system: key, method: spec.method, stages: S, source },
+        source => RunError::Plan { system: key, method: spec.method, stages: S, source },
+    })?;
+    let (traj, controller) = (planned.trajectory, planned.controller);
     let wall_time = start.elapsed();
     let cpu_time = match (cpu_start, thread_cpu_time()) {
         (Some(a), Some(b)) if b >= a => Some(b - a),
@@ -570,7 +672,29 @@ where
         wall_time,
         cpu_time,
     };
-    Ok(run_result(spec, S, Sys::SOURCE.coordinates, &traj.samples, holonomic, stats))
+    let mut result = run_result(spec, S, Sys::SOURCE.coordinates, &traj.samples, holonomic, stats);
+    result.events = event_rows::<Sys, N, M>(&traj.events);
+    result.controller = controller;
+    Ok(result)
+}
+
+/// The located events as rows, each with its declaration's terminal flag.
+fn event_rows<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
+    events: &[EventRecord<N>],
+) -> Vec<EventRow> {
+    events
+        .iter()
+        .map(|e| EventRow {
+            name: e.name.clone(),
+            index: e.index,
+            rising: e.rising,
+            terminal: Sys::EVENTS.get(e.index).is_some_and(|spec| spec.terminal),
+            t: e.t,
+            q: e.q.iter().copied().collect(),
+            v: e.v.iter().copied().collect(),
+            step: e.step,
+        })
+        .collect()
 }
 
 /// The columns of a run's samples as a [`RunResult`] (generic in the
@@ -603,6 +727,8 @@ fn run_result<const N: usize, const M: usize>(
             Vec::new()
         },
         stats,
+        events: Vec::new(),
+        controller: None,
     }
 }
 

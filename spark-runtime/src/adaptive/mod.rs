@@ -89,7 +89,7 @@ use crate::initial::{consistent_acceleration, ConsistencyPolicy};
 use crate::step::{State, StepResult, Stepper};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::tableau::Method;
-use run::{accept, whole_run, Recorder, Taken};
+use run::{accept, whole_run, Output, Recorder, Taken};
 
 /// Options of a tolerance-driven run.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -381,6 +381,12 @@ pub enum AdaptiveError {
         /// What is wrong.
         reason: &'static str,
     },
+    /// The output times of [`integrate_adaptive_at`] are unusable.
+    #[error("invalid output times: {reason}")]
+    InvalidOutputTimes {
+        /// What is wrong.
+        reason: &'static str,
+    },
     /// The initial state was rejected or could not be projected.
     #[error("initial state: {0}")]
     Initial(#[source] StepError),
@@ -421,7 +427,8 @@ pub enum AdaptiveError {
     },
     /// `max_steps` attempts did not reach the final time.
     #[error(
-        "{attempts} step attempts reached t = {} of t_end = {}; raise AdaptiveOptions::max_steps or loosen the tolerance",
+        "{attempts} step attempts (the limit: AdaptiveOptions::max_steps, `--max-steps` of `spark run`) reached \
+         t = {} of t_end = {}; raise the limit or loosen the tolerance",
         Sci(*t),
         Sci(*t_end)
     )]
@@ -540,7 +547,7 @@ where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
-    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, declared_events::<Sys, N, M>())
+    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, declared_events::<Sys, N, M>(), None)
 }
 
 /// [`integrate_adaptive`] locating the events of `events` instead of the
@@ -562,7 +569,57 @@ where
     O: Observer<N, M>,
     E: EventFunctions<Sys, N>,
 {
-    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, events)
+    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, events, None)
+}
+
+/// [`integrate_adaptive_with_events`] recording the state at the output
+/// times `times` instead of at the accepted steps: the run goes from `t₀` to
+/// the last of `times` with the step sizes of the controller (which never
+/// shortens a step to land on an output time), and each time is sampled
+/// from the continuous extension of the accepted step that holds it, as
+/// [`Schedule::Sampled`](crate::Schedule::Sampled) samples a fixed-step run.
+/// The samples are the initial point and each time (a terminal event
+/// ends the run, and the samples, at its time, adding the state there).
+/// `times` are finite, strictly monotone, the first one not before `t₀`
+/// and the last one not at `t₀`; `record_every` does not apply.
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_adaptive_at<Sys, O, E, const N: usize, const M: usize, const S: usize, const D: usize>(
+    stepper: &mut Stepper<Sys, N, M, S, D>,
+    t0: f64,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+    times: &[f64],
+    options: &AdaptiveOptions,
+    observer: &mut O,
+    events: &E,
+) -> Result<AdaptiveRun<N, M>, AdaptiveError>
+where
+    Sys: NonholonomicSystem<N, M>,
+    O: Observer<N, M>,
+    E: EventFunctions<Sys, N>,
+{
+    let t_end = check_output_times(t0, times)?;
+    adaptive_run(stepper, t0, q0, v0, t_end, options, observer, events, Some(times))
+}
+
+/// The last of the output times `times` of a run from `t0`, once they are
+/// checked: finite, strictly monotone in the direction from `t0` to the
+/// last one, the first not before `t0`, the last not at `t0`.
+fn check_output_times(t0: f64, times: &[f64]) -> Result<f64, AdaptiveError> {
+    let bad = |reason| Err(AdaptiveError::InvalidOutputTimes { reason });
+    let Some(&last) = times.last() else { return bad("no output time is given") };
+    if times.iter().any(|t| !t.is_finite()) {
+        return bad("output times must be finite");
+    }
+    if last == t0 {
+        return bad("the last output time is t0: there is nothing to integrate");
+    }
+    // Signs, not products: (t − t0)·dir underflows for tiny gaps.
+    let dir = (last - t0).signum();
+    if (times[0] - t0) * dir < 0.0 || times.windows(2).any(|w| (w[1] - w[0]) * dir <= 0.0) {
+        return bad("output times must be strictly monotone, from t0 on, in the direction of the last one");
+    }
+    Ok(last)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -575,12 +632,14 @@ fn adaptive_run<Sys, O, const N: usize, const M: usize, const S: usize, const D:
     options: &AdaptiveOptions,
     observer: &mut O,
     events: &dyn EventFunctions<Sys, N>,
+    times: Option<&[f64]>,
 ) -> Result<AdaptiveRun<N, M>, AdaptiveError>
 where
     Sys: NonholonomicSystem<N, M>,
     O: Observer<N, M>,
 {
-    whole_run(stepper, t0, q0, v0, t_end, options, O::DENSE, events, |stepper, state, rec| {
+    let output = Output { wants_dense: O::DENSE, times };
+    whole_run(stepper, t0, q0, v0, t_end, options, output, events, |stepper, state, rec| {
         adaptive_loop(stepper, state, t_end, options, rec, observer)
     })
 }

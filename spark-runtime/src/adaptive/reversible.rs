@@ -3,7 +3,7 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, initial_step, is_symmetric, resolution, whole_run, AdaptiveError, AdaptiveOptions, AdaptiveReport,
+    accept, initial_step, is_symmetric, resolution, whole_run, Output, AdaptiveError, AdaptiveOptions, AdaptiveReport,
     AdaptiveRun, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
@@ -94,7 +94,7 @@ where
     if !is_symmetric(method) {
         return Err(AdaptiveError::NotSymmetric { method });
     }
-    whole_run(stepper, t0, q0, v0, t_end, options, O::DENSE, events, |stepper, state, rec| {
+    whole_run(stepper, t0, q0, v0, t_end, options, Output { wants_dense: O::DENSE, times: None }, events, |stepper, state, rec| {
         reversible_loop(stepper, state, t_end, density, options, rec, observer)
     })
 }

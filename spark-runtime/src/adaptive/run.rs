@@ -23,9 +23,12 @@ pub(super) struct Recorder<'a, Sys, const N: usize, const M: usize, const S: usi
     every: usize,
     observe: Observe,
     dense: DenseRun<'a, Sys, N, S>,
-    /// Whether the run has events or an observer of the dense output
-    /// (otherwise no extension is built).
+    /// Whether the run has events, an observer of the dense output or
+    /// output times (otherwise no extension is built).
     dense_needed: bool,
+    /// Whether the samples are output times taken from the continuous
+    /// extension (then the accepted steps are not recorded).
+    sampled: bool,
 }
 
 impl<Sys, const N: usize, const M: usize, const S: usize> Recorder<'_, Sys, N, M, S> {
@@ -35,9 +38,17 @@ impl<Sys, const N: usize, const M: usize, const S: usize> Recorder<'_, Sys, N, M
     }
 }
 
+/// Where a tolerance-driven run records: at its accepted steps (per
+/// `record_every`), or at output times taken from the continuous extension.
+#[derive(Clone, Copy)]
+pub(super) struct Output<'a> {
+    pub(super) wants_dense: bool,
+    pub(super) times: Option<&'a [f64]>,
+}
+
 /// Checks options and interval, projects `v₀` and prepares the stepper and
-/// the continuous extension (`events`, and the observer's when
-/// `wants_dense`).
+/// the continuous extension (`events`, the observer's when it wants it, the
+/// output times).
 #[allow(clippy::too_many_arguments)]
 fn start<'a, Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
@@ -46,15 +57,17 @@ fn start<'a, Sys, const N: usize, const M: usize, const S: usize, const D: usize
     v0: &Vector<N>,
     t_end: f64,
     options: &AdaptiveOptions,
-    wants_dense: bool,
+    output: Output<'a>,
     events: &'a dyn EventFunctions<Sys, N>,
 ) -> Result<(State<N>, Recorder<'a, Sys, N, M, S>), AdaptiveError>
 where
     Sys: NonholonomicSystem<N, M>,
 {
+    let Output { wants_dense, times } = output;
     options.validate().map_err(AdaptiveError::InvalidOption)?;
     stepper.options().validate().map_err(AdaptiveError::InvalidOption)?;
-    check_tableau(stepper.tableau(), wants_dense, events.specs().len(), false).map_err(AdaptiveError::InvalidOption)?;
+    check_tableau(stepper.tableau(), wants_dense, events.specs().len(), times.is_some())
+        .map_err(AdaptiveError::InvalidOption)?;
     if !t0.is_finite() || !t_end.is_finite() {
         return Err(AdaptiveError::InvalidInterval { t0, t_end, reason: "times must be finite" });
     }
@@ -82,7 +95,7 @@ where
     let first = stepper.sample(&state, &options.observe, 0);
     let e0 = first.energy;
     let dense =
-        DenseRun::new(stepper.system(), stepper.tableau(), events, wants_dense, None, options.observe, e0, &state);
+        DenseRun::new(stepper.system(), stepper.tableau(), events, wants_dense, times, options.observe, e0, &state);
     let mut rec = Recorder {
         samples: Vec::new(),
         run: RunReport { projected_initial_velocity: v != *v0, ..RunReport::default() },
@@ -91,6 +104,7 @@ where
         observe: options.observe,
         dense_needed: dense.is_needed(),
         dense,
+        sampled: times.is_some(),
     };
     rec.push(first);
     Ok((state, rec))
@@ -108,7 +122,7 @@ pub(super) fn whole_run<Sys, R, const N: usize, const M: usize, const S: usize, 
     v0: &Vector<N>,
     t_end: f64,
     options: &AdaptiveOptions,
-    wants_dense: bool,
+    output: Output<'_>,
     events: &dyn EventFunctions<Sys, N>,
     rule: R,
 ) -> Result<AdaptiveRun<N, M>, AdaptiveError>
@@ -120,7 +134,7 @@ where
         &mut Recorder<'_, Sys, N, M, S>,
     ) -> Result<AdaptiveReport, AdaptiveError>,
 {
-    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, wants_dense, events)?;
+    let (state, mut rec) = start(stepper, t0, q0, v0, t_end, options, output, events)?;
     let result = rule(stepper, state, &mut rec);
     stepper.set_accepted_start_residual(0.0);
     let report = result?;
@@ -195,12 +209,15 @@ where
     if let (true, Some(at)) = (terminal, rec.dense.terminal) {
         observer.observe(stepper.system(), &at, iterations);
         rec.run.terminal_event = rec.dense.terminal_event();
-        let s = stepper.sample(&at, &rec.observe, iterations);
-        rec.push(s);
+        // An output time at the event is its sample already.
+        if !rec.sampled || !matches!(rec.samples.last(), Some(s) if s.t == at.t) {
+            let s = stepper.sample(&at, &rec.observe, iterations);
+            rec.push(s);
+        }
         return Ok((at, true));
     }
     observer.observe(stepper.system(), &state, iterations);
-    if step.last || (rec.every != 0 && index.is_multiple_of(rec.every)) {
+    if !rec.sampled && (step.last || (rec.every != 0 && index.is_multiple_of(rec.every))) {
         let s = stepper.sample(&state, &rec.observe, iterations);
         rec.push(s);
     }
