@@ -35,6 +35,8 @@ __all__ = [
     "ToolchainError",
     "System",
     "Trajectory",
+    "Event",
+    "ControllerStats",
     "Ensemble",
     "systems",
     "system",
@@ -63,8 +65,11 @@ class DslError(SparkError):
 
 class ArgumentError(SparkError, ValueError):
     """An argument outside the range the library accepts (``steps=2**70``,
-    ``threads=0``, ``h=10**400``); the message names the argument and the
-    range. Both a :class:`SparkError` and a :class:`ValueError`."""
+    ``threads=0``, ``h=10**400``, ``rtol=-1``, a ``t_eval`` that is not
+    monotone), or given together with one it does not apply with
+    (``steps`` with ``rtol``, ``every`` with ``t_eval``); the message names
+    the argument and the range. Both a :class:`SparkError` and a
+    :class:`ValueError`."""
 
 
 #: The largest whole-number argument (``s``, ``steps``, ``every``,
@@ -117,6 +122,65 @@ class ToolchainError(SparkError):
     """:func:`compile` needs cargo (the Rust toolchain) and could not run it."""
 
 
+@dataclass(frozen=True, eq=False)
+class Event:
+    """One located event of a run with ``events=True``: a zero of an event
+    function the system declares (``events: { name: rising(expr) terminal }``
+    in its definition).
+
+    ``name`` and ``index`` (its place among the declared events) name it,
+    ``rising`` says whether the function rose through zero (``False``: fell),
+    ``terminal`` whether it ended the run; ``t`` is the located time,
+    ``q`` and ``v`` (read-only arrays of shape ``(N,)``) the state there from
+    the continuous extension, ``step`` the index (0-based) of the accepted
+    step that holds it. Compared by identity (its fields hold arrays).
+    """
+
+    name: str
+    index: int
+    rising: bool
+    terminal: bool
+    t: float
+    q: np.ndarray
+    v: np.ndarray
+    step: int
+
+
+@dataclass(frozen=True)
+class ControllerStats:
+    """The step-size controller of a tolerance-driven run (``rtol``/``atol``):
+    ``accepted`` steps, steps ``rejected`` because the error estimate
+    exceeded the tolerance, ``newton_failures`` (steps rejected because a
+    Newton solve failed), step ``solves`` (three per attempt: the step and
+    the two half steps of the error estimate) and the ``newton_iterations``
+    over all of them, and the ``smallest_step`` and ``largest_step``
+    magnitudes accepted."""
+
+    accepted: int
+    rejected: int
+    newton_failures: int
+    solves: int
+    newton_iterations: int
+    smallest_step: float
+    largest_step: float
+
+
+def _event(d: dict[str, Any]) -> Event:
+    q, v = d["q"], d["v"]
+    q.setflags(write=False)
+    v.setflags(write=False)
+    return Event(
+        name=d["name"],
+        index=d["index"],
+        rising=d["rising"],
+        terminal=d["terminal"],
+        t=d["t"],
+        q=q,
+        v=v,
+        step=d["step"],
+    )
+
+
 @dataclass
 class Trajectory:
     """One integration run: samples in rows.
@@ -129,6 +193,10 @@ class Trajectory:
     failed (0 for a run of fixed steps ``h`` alone), ``steps_with_rejections``
     the scheduled steps that needed one, ``substeps`` the accepted sub-steps
     (``steps`` without halvings) and ``smallest_step`` the smallest of them.
+    ``events`` lists the located events (:class:`Event`, in time order; empty
+    unless the run asked for them with ``events=True``); ``controller`` holds
+    the controller's statistics of a tolerance-driven run
+    (:class:`ControllerStats`; ``None`` for fixed steps).
     """
 
     t: np.ndarray
@@ -147,6 +215,8 @@ class Trajectory:
     steps_with_rejections: int = 0
     substeps: int = 0
     smallest_step: float = math.nan
+    events: list[Event] = field(default_factory=list)
+    controller: ControllerStats | None = None
 
     @property
     def energy_error(self) -> np.ndarray:
@@ -371,48 +441,111 @@ class System:
         q0: Sequence[float] | None = None,
         v0: Sequence[float] | None = None,
         params: Mapping[str, float] | None = None,
-        every: int = 1,
+        every: int | None = None,
         newton: str = "full",
         newton_tol: float | None = None,
         multipliers: bool = False,
         project_v0: bool = False,
         max_halvings: int | None = None,
+        rtol: float | None = None,
+        atol: float | None = None,
+        first_step: float | None = None,
+        max_step: float | None = None,
+        max_steps: int | None = None,
+        t_eval: Sequence[float] | np.ndarray | None = None,
+        events: bool = False,
     ) -> Trajectory:
-        """Integrates from ``(t0, q0, v0)`` with ``steps`` fixed steps of ``h``.
+        """Integrates from ``(t0, q0, v0)`` with ``steps`` fixed steps of ``h``,
+        or with steps chosen for a tolerance (``rtol``/``atol``).
 
         ``method`` is one of :func:`methods` (``gauss``, ``lobatto-iiia-b``,
         ``lobatto-iiia-b-d``, ``euler-1``, ``euler-2``,
         ``modified-lobatto-iiia-b``, ``lobatto-iiib-a-lda``), ``s`` its stage
         count. ``q0``, ``v0``, ``h`` and the final time default to the
         system's (``spark list``). ``every`` records every so many steps
-        (and always the endpoints); ``multipliers=True`` also records ψ.
+        (default 1; always the endpoints); ``multipliers=True`` also records ψ.
         A step whose Newton iteration fails is replaced by two half steps,
         nested at most ``max_halvings`` levels deep (default 4, at most 60;
         ``0`` makes the failure an error); a run that halved any step warns
         with :class:`StepHalvingWarning` and counts them in the result.
         The same steps as ``spark run`` with the same options, bit for bit.
+
+        Tolerance-driven steps: ``rtol`` and/or ``atol`` (the one not given
+        takes the given one's value; finite, ≥ 0, not both 0) switch the run to
+        step sizes chosen by a step-doubling error estimate and a PI
+        controller, from ``t0`` to ``t_end`` (required; the last step lands on
+        it). ``first_step`` is the magnitude of the first step tried (default:
+        estimated), ``max_step`` the largest step magnitude (default: the
+        whole interval), ``max_steps`` the most step attempts, accepted and
+        rejected (default 1 000 000; also what bounds the recorded samples).
+        ``h``, ``steps`` and ``max_halvings`` do not apply and are refused.
+        The result's ``controller`` holds the controller's statistics.
+
+        ``t_eval`` (a 1-D array of times, strictly monotone in the direction
+        of the run, within ``[t0, t_end]``; ``t_end`` being ``t0 + steps·h``
+        for fixed steps) records the state at these times from the continuous
+        extension of the step that holds each (the steps are not shortened to
+        land on them) instead of at the steps: the samples are the initial
+        point and then one per time, and the run ends at the last time.
+        ``every`` does not apply and is refused with it.
+
+        ``events=True`` locates the events the system declares
+        (``events: { name: rising(expr) terminal, … }`` in its definition) and
+        returns them in the result's ``events``; a terminal one ends the run
+        there (its state is the last sample). A system that declares none
+        raises :class:`SparkError`.
+
         Raises :class:`SparkError` with the Rust message on bad input or a
-        failed step.
+        failed step (:class:`ArgumentError` for an argument out of range or
+        given with one it does not apply with, :class:`TypeError` for an
+        argument of the wrong type).
         """
-        h = self.h if h is None else _real("h", h)
-        if h is None:
-            raise SparkError("give the step size h=")
         t0 = _real("t0", t0)
-        if steps is None and t_end is None and self.t_end is not None:
-            t_end = t0 + self.t_end
-            if math.isfinite(t0) and not t_end > t0:
-                raise SparkError(
-                    f"t0 = {t0:.6e} leaves no interval to run: the default end, t0 + {self.t_end} (the system's "
-                    f"run length), is {t_end:.6e}, not after t0 at this magnitude; pass t_end= or steps=, or a t0 "
-                    "nearer 0"
+        if rtol is not None or atol is not None:
+            req = self._tolerance_request(method, s, h, steps, t_end, t0, rtol, atol, first_step, max_step,
+                                          max_steps, max_halvings)
+            interval_end = req["t_end"]
+        else:
+            for name, given in (("first_step", first_step), ("max_step", max_step), ("max_steps", max_steps)):
+                if given is not None:
+                    raise ArgumentError(
+                        f"{name} = {_short(given)} applies to tolerance-driven runs only; pass rtol= (or atol=) too, "
+                        f"or drop {name}"
+                    )
+            h = self.h if h is None else _real("h", h)
+            if h is None:
+                raise SparkError("give the step size h=")
+            if steps is None and t_end is None and self.t_end is not None:
+                t_end = t0 + self.t_end
+                if math.isfinite(t0) and not t_end > t0:
+                    raise SparkError(
+                        f"t0 = {t0:.6e} leaves no interval to run: the default end, t0 + {self.t_end} (the system's "
+                        f"run length), is {t_end:.6e}, not after t0 at this magnitude; pass t_end= or steps=, or a "
+                        "t0 nearer 0"
+                    )
+            n = _steps(h, steps, t_end, t0)
+            req = _request(method, s, h, n, t0, params, 1, newton, newton_tol, max_halvings)
+            # As the runtime computes the end of a run of fixed steps.
+            interval_end = t0 + float(n) * h
+        req["params"] = _params(params)
+        req["newton"] = newton
+        req["newton_tol"] = None if newton_tol is None else _real("newton_tol", newton_tol)
+        if t_eval is not None:
+            if every is not None:
+                raise ArgumentError(
+                    f"every = {_short(every)} does not apply with t_eval: the samples are the initial point and the "
+                    "state at each output time; drop every, or drop t_eval to record at the steps"
                 )
-        req = _request(method, s, h, _steps(h, steps, t_end, t0), t0, params, every, newton, newton_tol, max_halvings)
+            req["t_eval"] = _output_times(t_eval, t0, interval_end)
+        req["every"] = 1 if every is None else _whole("every", every, 1)
+        req["events"] = _flag("events", events)
         req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
         req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)
         req["multipliers"] = _flag("multipliers", multipliers)
         req["project_v0"] = _flag("project_v0", project_v0)
         d = self._integrate(req)
-        if d["rejected_steps"]:
+        controller = d.get("controller")
+        if controller is None and d["rejected_steps"]:
             _warn_halvings(d["steps"], d["steps_with_rejections"], d["substeps"], d["smallest_step"])
         return Trajectory(
             t=d["t"],
@@ -430,7 +563,54 @@ class System:
             steps_with_rejections=d["steps_with_rejections"],
             substeps=d["substeps"],
             smallest_step=d["smallest_step"],
+            events=[_event(e) for e in d.get("events", [])],
+            controller=None if controller is None else ControllerStats(**controller),
         )
+
+    def _tolerance_request(self, method, s, h, steps, t_end, t0, rtol, atol, first_step, max_step, max_steps,
+                           max_halvings) -> dict[str, Any]:
+        """The request of a tolerance-driven run (:meth:`integrate` with
+        ``rtol``/``atol``), its arguments checked."""
+        for name, given in (("h", h), ("steps", steps), ("max_halvings", max_halvings)):
+            if given is not None:
+                raise ArgumentError(
+                    f"{name} = {_short(given)} does not apply to a tolerance-driven run (rtol/atol): the controller "
+                    f"chooses the steps; drop {name}, or drop rtol and atol for fixed steps"
+                )
+        if t_end is None:
+            raise SparkError(
+                "a tolerance-driven run (rtol/atol) needs t_end=, the time its last step lands on"
+            )
+        for name, x in (("rtol", rtol), ("atol", atol)):
+            if x is not None and not (math.isfinite(_real(name, x)) and x >= 0):
+                raise ArgumentError(f"{name} = {_real(name, x)!r} must be finite and ≥ 0")
+        rtol = None if rtol is None else _real("rtol", rtol)
+        atol = None if atol is None else _real("atol", atol)
+        # The one not given takes the given one's value.
+        rtol = atol if rtol is None else rtol
+        atol = rtol if atol is None else atol
+        if rtol == 0 and atol == 0:
+            raise ArgumentError("rtol and atol are both 0; give a positive rtol or atol")
+        req: dict[str, Any] = {
+            "method": method,
+            "s": _whole("s", s, 1),
+            "t0": t0,
+            "t_end": _real("t_end", t_end),
+            "rtol": rtol,
+            "atol": atol,
+            "max_steps": None if max_steps is None else _whole("max_steps", max_steps, 1),
+        }
+        if first_step is not None:
+            x = _real("first_step", first_step)
+            if not (math.isfinite(x) and x > 0):
+                raise ArgumentError(f"first_step = {x!r} must be finite and positive (a step magnitude)")
+            req["first_step"] = x
+        if max_step is not None:
+            x = _real("max_step", max_step)
+            if not x > 0:
+                raise ArgumentError(f"max_step = {x!r} must be positive (a step magnitude)")
+            req["max_step"] = x
+        return req
 
     def ensemble(
         self,
@@ -546,6 +726,35 @@ def _vector(what: str, x) -> list[float]:
     if a.ndim != 1:
         raise SparkError(f"{what} must be a vector; got shape {a.shape}")
     return a.tolist()
+
+
+def _output_times(t_eval, t0: float, t_end: float) -> list[float]:
+    """``t_eval`` as a list of floats: a non-empty 1-D array of finite times,
+    strictly monotone in the direction from ``t0`` to ``t_end``, within
+    ``[t0, t_end]``; :class:`ArgumentError` (:class:`TypeError` for entries
+    that are no real numbers) naming what is wrong."""
+    _real_entries("t_eval", t_eval)
+    times = _floats("t_eval", t_eval)
+    if times.ndim != 1 or times.size == 0:
+        raise ArgumentError(f"t_eval must be a non-empty 1-D array of times; got shape {times.shape}")
+    if not np.all(np.isfinite(times)):
+        raise ArgumentError(f"t_eval holds a non-finite time {times[~np.isfinite(times)][0]!r}")
+    low, high = min(t0, t_end), max(t0, t_end)
+    outside = (times < low) | (times > high)
+    if np.any(outside):
+        raise ArgumentError(
+            f"t_eval holds t = {float(times[outside][0])!r}, outside the run's interval from t0 = {t0!r} to "
+            f"t_end = {t_end!r}; give times within it"
+        )
+    steps = np.diff(times) * (1.0 if t_end >= t0 else -1.0)
+    if np.any(steps <= 0):
+        k = int(np.argmax(steps <= 0))
+        direction = "increasing" if t_end >= t0 else "decreasing (the run goes backward)"
+        raise ArgumentError(
+            f"t_eval must be strictly {direction}: t_eval[{k + 1}] = {float(times[k + 1])!r} follows "
+            f"t_eval[{k}] = {float(times[k])!r}"
+        )
+    return times.tolist()
 
 
 def systems() -> list[str]:

@@ -18,8 +18,8 @@ use problems::run::{run, run_ensemble_with, EnsembleError, RunError, RunResult, 
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
-    columns_to_py, ensemble_to_py, facts_to_py, interruptible, read_ensemble, read_request, spark_error, Columns,
-    Failure, IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
+    columns_to_py, ensemble_to_py, facts_to_py, interruptible, python_words, read_ensemble, read_request, spark_error,
+    Columns, Event, Failure, IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
 };
 use spark_runtime::{ConsistencyPolicy, Method};
 use std::sync::atomic::Ordering;
@@ -58,9 +58,9 @@ fn run_spec(e: &'static SystemEntry, r: &IntegrateRequest) -> RunSpec {
         },
         multipliers: r.multipliers,
         max_halvings: r.max_halvings,
-        tolerance: None,
-        times: None,
-        events: false,
+        tolerance: r.tolerance,
+        times: r.times.clone(),
+        events: r.events,
     }
 }
 
@@ -77,7 +77,7 @@ fn message(e: &RunError) -> Failure {
              (see `spark.system(\"{system}\").parameters`)",
             problems::catalog::did_you_mean(suggestion)
         ),
-        e => e.to_string(),
+        e => python_words(&e.to_string()),
     }
 }
 
@@ -116,6 +116,21 @@ fn columns(r: RunResult, m: usize, seconds: f64) -> Columns {
         substeps: r.stats.substeps,
         smallest_step: r.stats.smallest_step,
         seconds,
+        events: r
+            .events
+            .into_iter()
+            .map(|e| Event {
+                name: e.name,
+                index: e.index,
+                rising: e.rising,
+                terminal: e.terminal,
+                t: e.t,
+                q: e.q,
+                v: e.v,
+                step: e.step,
+            })
+            .collect(),
+        controller: r.controller,
     }
 }
 

@@ -19,9 +19,10 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    check_record_size, consistent_velocity, integrate_ensemble_until, ConsistencyPolicy, EnsembleRun, IntegrationError,
-    Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer, RunOptions, Sample, Schedule, State,
-    StepError, Stepper, Tableau, TableauError, Vector, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    check_record_size, consistent_velocity, integrate_ensemble_until, integrate_plan, AdaptiveReport,
+    ConsistencyPolicy, EnsembleRun, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer,
+    RunOptions, RunPlan, Sample, State, StepError, Stepper, Stepping, Tableau, TableauError, Tolerance, Vector,
+    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, RecvTimeoutError};
@@ -75,6 +76,45 @@ pub struct IntegrateRequest {
     /// How deep a step whose Newton iteration fails may be halved
     /// ([`RunOptions::max_halvings`]; `0` ends the run at the failure).
     pub max_halvings: u32,
+    /// Tolerance-driven steps from `t0` to the tolerance's `t_end` instead
+    /// of `steps` fixed steps `h` (which then do not apply).
+    pub tolerance: Option<Tolerance>,
+    /// Output times ([`RunPlan::times`]): the samples are the initial point
+    /// and the state at each time; `every` does not apply.
+    pub times: Option<Vec<f64>>,
+    /// Locate the events the system declares ([`RunPlan::events`]).
+    pub events: bool,
+}
+
+impl IntegrateRequest {
+    /// How the run chooses its steps.
+    pub fn stepping(&self) -> Stepping {
+        match self.tolerance {
+            Some(tolerance) => Stepping::Tolerance(tolerance),
+            None => Stepping::Fixed { h: self.h, steps: self.steps },
+        }
+    }
+}
+
+/// One located event, as the Python side returns it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Event {
+    /// The event's name, as the system declares it.
+    pub name: String,
+    /// Its index among the system's events.
+    pub index: usize,
+    /// Whether the event function rose through zero (`false`: fell).
+    pub rising: bool,
+    /// Whether the event is terminal (it ended the run).
+    pub terminal: bool,
+    /// Time of the zero.
+    pub t: f64,
+    /// Coordinates there.
+    pub q: Vec<f64>,
+    /// Velocities there.
+    pub v: Vec<f64>,
+    /// Index of the accepted step that holds it (0-based).
+    pub step: usize,
 }
 
 /// An ensemble: the same run from many initial states.
@@ -134,6 +174,11 @@ pub struct Columns {
     /// the steps and the columns): what a Rust caller pays, for measuring
     /// the overhead of the Python call around it.
     pub seconds: f64,
+    /// The located events, in time order (empty unless asked for).
+    pub events: Vec<Event>,
+    /// The controller's statistics of a tolerance-driven run (`None` for
+    /// fixed steps).
+    pub controller: Option<AdaptiveReport>,
 }
 
 /// What went wrong, as the message a Python exception carries.
@@ -161,17 +206,37 @@ where
     Ok(sys)
 }
 
+/// The checks of a request that need no system type (as `spark run`'s,
+/// `problems::run::check_spec`).
 fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
-    if !(r.h.is_finite() && r.h != 0.0) {
-        return Err(format!("step size h = {:.3e} must be finite and nonzero", r.h));
-    }
     if !r.t0.is_finite() {
         return Err(format!("initial time t0 = {:.3e} must be finite", r.t0));
     }
-    spark_runtime::check_step_size(r.t0, r.h)
-        .map_err(|why| format!("step size h = {:.3e} from t0 = {:.3e}: {why}", r.h, r.t0))?;
-    if r.steps == 0 {
-        return Err("steps must be at least 1".into());
+    match &r.tolerance {
+        None => {
+            if !(r.h.is_finite() && r.h != 0.0) {
+                return Err(format!("step size h = {:.3e} must be finite and nonzero", r.h));
+            }
+            spark_runtime::check_step_size(r.t0, r.h)
+                .map_err(|why| format!("step size h = {:.3e} from t0 = {:.3e}: {why}", r.h, r.t0))?;
+            if r.steps == 0 {
+                return Err("steps must be at least 1".into());
+            }
+        }
+        Some(tolerance) => {
+            if !tolerance.t_end.is_finite() || tolerance.t_end == r.t0 {
+                return Err(format!(
+                    "a tolerance-driven run needs a finite t_end other than t0 = {:.3e} (got {:.3e})",
+                    r.t0, tolerance.t_end
+                ));
+            }
+            if tolerance.max_steps == 0 {
+                return Err("max_steps must be at least 1".into());
+            }
+        }
+    }
+    if r.times.as_ref().is_some_and(|times| times.is_empty()) {
+        return Err("t_eval holds no time; give at least one, or None to record at the steps".into());
     }
     if r.every == 0 {
         return Err("every must be at least 1 (1 records every step)".into());
@@ -187,9 +252,41 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
 /// not fit in memory ([`check_record_size`]): such a run would end in an
 /// allocation failure, which aborts the Python process. Per sample it
 /// counts the driver's record, the result columns and their NumPy copies.
+/// As `problems::run::check_record_size`: a run with output times records
+/// one sample per time, a tolerance-driven run is counted at its most step
+/// attempts (`max_steps`).
 fn check_record<const N: usize, const M: usize>(r: &IntegrateRequest, members: usize) -> Result<(), Failure> {
     let per_sample = std::mem::size_of::<Sample<N, M>>() as u64 + 2 * 8 * (2 * N + M + 4) as u64;
-    check_record_size(r.steps, r.every, members, per_sample).map_err(|e| e.to_string())
+    let (steps, every) = match (&r.times, &r.tolerance) {
+        (Some(times), _) => (times.len(), 1),
+        (None, Some(tolerance)) => (tolerance.max_steps, r.every),
+        (None, None) => (r.steps, r.every),
+    };
+    check_record_size(steps, every, members, per_sample).map_err(|e| {
+        let mut text = e.to_string();
+        if r.tolerance.is_some() && r.times.is_none() {
+            text.push_str(" (a tolerance-driven run is counted at its step limit, max_steps: lower it)");
+        }
+        text
+    })
+}
+
+/// A message of the Rust library in the words of the Python API: the
+/// keyword arguments of `System.integrate` where the message names an
+/// option of the runtime or a flag of `spark run`.
+pub fn python_words(message: &str) -> Failure {
+    const WORDS: [(&str, &str); 9] = [
+        ("(the limit: AdaptiveOptions::max_steps, `--max-steps` of `spark run`)", "(the limit: max_steps)"),
+        ("AdaptiveOptions::max_steps", "max_steps"),
+        ("AdaptiveOptions::initial_step", "first_step"),
+        ("AdaptiveOptions::max_step", "max_step"),
+        ("AdaptiveOptions::rtol", "rtol"),
+        ("AdaptiveOptions::atol", "atol"),
+        (", lower AdaptiveOptions::min_step,", ","),
+        ("`--max-halvings`", "max_halvings"),
+        ("--project-v0", "project_v0=True"),
+    ];
+    WORDS.iter().fold(message.to_string(), |text, (rust, python)| text.replace(rust, python))
 }
 
 /// How a request treats an inconsistent `v0`.
@@ -261,9 +358,10 @@ where
         max_halvings: r.max_halvings,
         ..RunOptions::default()
     };
-    let traj = stepper
-        .integrate(r.t0, &q0, &v0, Schedule::Fixed { h: r.h, steps: r.steps }, &options, &mut StopFlag(stop))
-        .map_err(|e: IntegrationError| format!("{} s = {}: {e}", r.method, S))?;
+    let plan = RunPlan { stepping: r.stepping(), times: r.times.as_deref(), events: r.events };
+    let planned = integrate_plan(&mut stepper, r.t0, &q0, &v0, &plan, &options, &mut StopFlag(stop))
+        .map_err(|e| python_words(&format!("{} s = {}: {e}", r.method, S)))?;
+    let traj = planned.trajectory;
     let samples = &traj.samples;
     let k = samples.len();
     let mut out = Columns {
@@ -284,6 +382,21 @@ where
         substeps: traj.report.substeps,
         smallest_step: traj.report.smallest_step,
         seconds: 0.0,
+        events: traj
+            .events
+            .iter()
+            .map(|e| Event {
+                name: e.name.clone(),
+                index: e.index,
+                rising: e.rising,
+                terminal: Sys::EVENTS.get(e.index).is_some_and(|spec| spec.terminal),
+                t: e.t,
+                q: e.q.iter().copied().collect(),
+                v: e.v.iter().copied().collect(),
+                step: e.step,
+            })
+            .collect(),
+        controller: planned.controller,
     };
     for s in samples {
         out.t.push(s.t);
@@ -422,6 +535,8 @@ where
         substeps: run.steps,
         smallest_step: h.abs(),
         seconds,
+        events: Vec::new(),
+        controller: None,
     };
     for s in &run.samples {
         out.t.push(s.t);
@@ -491,7 +606,10 @@ fn required<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -
 
 /// Reads the common fields of a request dict (everything but the initial
 /// states): `method`, `s`, `h`, `steps`, `t0`, `params`, `every`, `newton`,
-/// `newton_tol`, `multipliers`, `project_v0`.
+/// `newton_tol`, `multipliers`, `project_v0`, `max_halvings`; for a
+/// tolerance-driven run `rtol`, `atol`, `first_step`, `max_step`,
+/// `max_steps` and `t_end` instead of `h`, `steps` and `max_halvings`;
+/// output times `t_eval` and `events`.
 pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<IntegrateRequest> {
     let method: String = required(d, "method")?;
     let method: Method = method.parse().map_err(|e: spark_runtime::TableauError| spark_error(py, e.to_string()))?;
@@ -528,12 +646,15 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
         }
         _ => Vec::new(),
     };
-    let steps: i64 = required(d, "steps")?;
+    let t0: f64 = get(d, "t0")?.unwrap_or(0.0);
+    let tolerance = read_tolerance(py, d, t0)?;
+    let steps: i64 = if tolerance.is_some() { 1 } else { required(d, "steps")? };
     let every: i64 = get(d, "every")?.unwrap_or(1);
     let stages: i64 = required(d, "s")?;
     if steps < 1 || every < 1 || stages < 1 {
         return Err(spark_error(py, "steps, every and s must be at least 1"));
     }
+    let times: Option<Vec<f64>> = get(d, "t_eval")?;
     let max_halvings: i64 = get(d, "max_halvings")?.unwrap_or(DEFAULT_MAX_HALVINGS as i64);
     if !(0..=MAX_HALVINGS as i64).contains(&max_halvings) {
         return Err(spark_error(
@@ -548,9 +669,9 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
     Ok(IntegrateRequest {
         method,
         stages: stages as usize,
-        h: required(d, "h")?,
-        steps: steps as usize,
-        t0: get(d, "t0")?.unwrap_or(0.0),
+        h: if tolerance.is_some() { f64::NAN } else { required(d, "h")? },
+        steps: if tolerance.is_some() { 0 } else { steps as usize },
+        t0,
         q0: get(d, "q0")?.unwrap_or_default(),
         v0: get(d, "v0")?.unwrap_or_default(),
         parameters,
@@ -559,8 +680,55 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
         multipliers: get(d, "multipliers")?.unwrap_or(false),
         project_v0: get(d, "project_v0")?.unwrap_or(false),
         max_halvings,
+        tolerance,
+        times,
+        events: get(d, "events")?.unwrap_or(false),
     })
 }
+
+/// The tolerance of a request with `rtol` or `atol` (the missing one takes
+/// the given one's value), which then needs `t_end` and takes neither `h`,
+/// `steps` nor `max_halvings`; `None` for a run of fixed steps.
+fn read_tolerance(py: Python<'_>, d: &Bound<'_, PyDict>, t0: f64) -> PyResult<Option<Tolerance>> {
+    let rtol: Option<f64> = get(d, "rtol")?;
+    let atol: Option<f64> = get(d, "atol")?;
+    let (rtol, atol) = match (rtol, atol) {
+        (None, None) => return Ok(None),
+        (Some(r), None) => (r, r),
+        (None, Some(a)) => (a, a),
+        (Some(r), Some(a)) => (r, a),
+    };
+    for key in ["h", "steps", "max_halvings"] {
+        if d.get_item(key)?.is_some_and(|v| !v.is_none()) {
+            return Err(spark_error(
+                py,
+                format!(
+                    "`{key}` does not apply to a tolerance-driven run (rtol/atol): the controller chooses the \
+                     steps; drop {key} or drop rtol and atol"
+                ),
+            ));
+        }
+    }
+    let t_end: f64 = get(d, "t_end")?.ok_or_else(|| {
+        spark_error(py, format!("a tolerance-driven run (rtol/atol) needs t_end, the end of the run from t0 = {t0:e}"))
+    })?;
+    let max_steps: i64 = get(d, "max_steps")?.unwrap_or(DEFAULT_MAX_STEPS as i64);
+    if max_steps < 1 {
+        return Err(spark_error(py, format!("max_steps = {max_steps} must be at least 1")));
+    }
+    Ok(Some(Tolerance {
+        rtol,
+        atol,
+        first_step: get(d, "first_step")?,
+        max_step: get(d, "max_step")?,
+        max_steps: max_steps as usize,
+        t_end,
+    }))
+}
+
+/// The most step attempts of a tolerance-driven run when the request gives
+/// none (`max_steps`).
+pub const DEFAULT_MAX_STEPS: usize = 1_000_000;
 
 /// Reads an ensemble request: the common fields plus `q0s`, `v0s` (2-D
 /// arrays or nested lists, one row per member) and `threads`.
@@ -597,7 +765,9 @@ pub fn read_ensemble(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Ensemble
 }
 
 /// One run as a dict of NumPy arrays (`t`, `q`, `v`, `energy`,
-/// `constraint`, `psi`, `holonomic`) and statistics.
+/// `constraint`, `psi`, `holonomic`), statistics, `events` (a list of
+/// dicts: `name`, `index`, `rising`, `terminal`, `t`, `q`, `v`, `step`)
+/// and `controller` (a dict of the controller's statistics, or `None`).
 pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let k = c.t.len();
@@ -621,6 +791,34 @@ pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, Py
     d.set_item("substeps", c.substeps)?;
     d.set_item("smallest_step", c.smallest_step)?;
     d.set_item("rust_seconds", c.seconds)?;
+    let events = PyList::empty(py);
+    for e in c.events {
+        let row = PyDict::new(py);
+        row.set_item("name", e.name)?;
+        row.set_item("index", e.index)?;
+        row.set_item("rising", e.rising)?;
+        row.set_item("terminal", e.terminal)?;
+        row.set_item("t", e.t)?;
+        row.set_item("q", Array1::from_vec(e.q).into_pyarray(py))?;
+        row.set_item("v", Array1::from_vec(e.v).into_pyarray(py))?;
+        row.set_item("step", e.step)?;
+        events.append(row)?;
+    }
+    d.set_item("events", events)?;
+    match c.controller {
+        None => d.set_item("controller", py.None())?,
+        Some(a) => {
+            let controller = PyDict::new(py);
+            controller.set_item("accepted", a.accepted)?;
+            controller.set_item("rejected", a.rejected)?;
+            controller.set_item("newton_failures", a.newton_failures)?;
+            controller.set_item("solves", a.solves)?;
+            controller.set_item("newton_iterations", a.newton_iterations)?;
+            controller.set_item("smallest_step", a.smallest_step)?;
+            controller.set_item("largest_step", a.largest_step)?;
+            d.set_item("controller", controller)?;
+        }
+    }
     Ok(d)
 }
 
