@@ -12,6 +12,7 @@ mod paper_short;
 mod peers;
 mod report;
 mod run_api;
+mod run_plans;
 mod scene_effects;
 mod section;
 mod systems;

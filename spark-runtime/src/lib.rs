@@ -157,8 +157,9 @@ extern crate self as spark_runtime;
 pub mod trig;
 
 pub use adaptive::{
-    integrate_adaptive, integrate_adaptive_at, integrate_adaptive_with_events, integrate_reversible, integrate_reversible_with_events,
-    AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun, EstimateFailure, EstimatedStep,
+    integrate_adaptive, integrate_adaptive_at, integrate_adaptive_with_events, integrate_reversible,
+    integrate_reversible_with_events, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun, EstimateFailure,
+    EstimatedStep,
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{

@@ -4,12 +4,15 @@
 
 use super::{parse_method, parse_params, step_count, step_flag, Format, Newton};
 use crate::catalog::lookup;
+use crate::experiments::section::{declared_events, systems_with_events};
 use crate::report::files::{OutputDir, OutputError};
 use crate::report::progress::Progress;
-use crate::run::files::{json_trajectory_bytes, run_figure, write_run_csv, write_run_json, MAX_JSON_TRAJECTORY_BYTES};
+use crate::run::files::{
+    json_trajectory_bytes, run_figure, write_events_csv, write_run_csv, write_run_json, MAX_JSON_TRAJECTORY_BYTES,
+};
 use crate::run::{run, run_report, RunError, RunSpec};
 use clap::Args;
-use spark_runtime::ConsistencyPolicy;
+use spark_runtime::{ConsistencyPolicy, Tolerance};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -84,6 +87,119 @@ pub struct RunArgs {
     /// instead of stopping with an error.
     #[arg(long)]
     pub project_v0: bool,
+    /// Tolerance-driven steps: the relative tolerance of the local error
+    /// (step-doubling estimate, PI controller), from t0 to --t-end, the last
+    /// step landing on it (--h and --max-halvings do not apply). Without
+    /// --atol the absolute tolerance is the same number.
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["h", "max_halvings"])]
+    pub rtol: Option<f64>,
+    /// Tolerance-driven steps: the absolute tolerance of the local error
+    /// (without --rtol the relative tolerance is the same number).
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["h", "max_halvings"])]
+    pub atol: Option<f64>,
+    /// Magnitude of the first step of a tolerance-driven run (default:
+    /// estimated from the initial velocity and acceleration).
+    #[arg(long, allow_hyphen_values = true)]
+    pub first_step: Option<f64>,
+    /// Largest step magnitude of a tolerance-driven run (default: the whole
+    /// interval).
+    #[arg(long, allow_hyphen_values = true)]
+    pub max_step: Option<f64>,
+    /// Most step attempts (accepted and rejected) of a tolerance-driven run;
+    /// a run that needs more ends with an error. The recorded samples are
+    /// checked against memory at this count before the run starts.
+    #[arg(long, default_value_t = DEFAULT_MAX_STEPS)]
+    pub max_steps: usize,
+    /// Record the state at t0 + k·DT for k = 1, 2, … up to --t-end, from
+    /// the continuous extension of the steps (which are not shortened to
+    /// land on these times), instead of at every --every-th step.
+    #[arg(long, value_name = "DT", allow_hyphen_values = true, conflicts_with = "every")]
+    pub sample_every: Option<f64>,
+    /// Locate the events the system declares (see `spark list`) and write
+    /// them to events.csv; a terminal event ends the run.
+    #[arg(long)]
+    pub events: bool,
+}
+
+/// The default `--max-steps`: enough attempts for a million accepted steps
+/// at a few rejections, and the recorded samples of that many fit in memory
+/// for every registered system.
+pub const DEFAULT_MAX_STEPS: usize = 1_000_000;
+
+/// Most output times `--sample-every` makes.
+const MAX_SAMPLE_TIMES: f64 = 1e8;
+
+/// The output times `t0 + k·dt`, `k = 1, 2, …`, up to `t_end` (a time within
+/// a millionth of `dt` of `t_end` is `t_end` itself).
+fn sample_times(t0: f64, t_end: f64, dt: f64) -> Result<Vec<f64>, String> {
+    if !(dt.is_finite() && dt > 0.0) {
+        return Err(format!("--sample-every must be a positive number, got {dt:.3e}"));
+    }
+    let count = ((t_end - t0) / dt * (1.0 + 1e-12) + 1e-6).floor();
+    if !(count >= 1.0) {
+        return Err(format!(
+            "--sample-every {dt:.6e} is longer than the interval from t0 = {t0:.6e} to t_end = {t_end:.6e}; give a \
+             smaller DT"
+        ));
+    }
+    if count > MAX_SAMPLE_TIMES {
+        return Err(format!(
+            "--sample-every {dt:.6e} makes {count:.3e} output times, more than {MAX_SAMPLE_TIMES:.0e}; give a larger DT"
+        ));
+    }
+    let mut times: Vec<f64> = (1..=count as usize).map(|k| (t0 + k as f64 * dt).min(t_end)).collect();
+    if let Some(last) = times.last_mut() {
+        if (t_end - *last).abs() <= 1e-6 * dt {
+            *last = t_end;
+        }
+    }
+    times.dedup();
+    if times.windows(2).any(|w| w[1] <= w[0]) || times.first().is_some_and(|&t| t <= t0) {
+        return Err(format!(
+            "--sample-every {dt:.6e} is below the resolution of t near t0 = {t0:.6e}: the output times repeat; \
+             give a larger DT"
+        ));
+    }
+    Ok(times)
+}
+
+/// The tolerance of a run with `--rtol` and/or `--atol`, or `None`.
+fn tolerance(a: &RunArgs, t_end: f64) -> Result<Option<Tolerance>, String> {
+    let (rtol, atol) = match (a.rtol, a.atol) {
+        (None, None) => {
+            for (flag, given) in [("--first-step", a.first_step.is_some()), ("--max-step", a.max_step.is_some())] {
+                if given {
+                    return Err(format!("{flag} applies to tolerance-driven runs: give --rtol and/or --atol"));
+                }
+            }
+            return Ok(None);
+        }
+        (Some(r), None) => (r, r),
+        (None, Some(a)) => (a, a),
+        (Some(r), Some(a)) => (r, a),
+    };
+    for (flag, x) in [("--rtol", rtol), ("--atol", atol)] {
+        if !(x.is_finite() && x >= 0.0) {
+            return Err(format!("{flag} must be a finite number ≥ 0, got {x:.3e}"));
+        }
+    }
+    if rtol == 0.0 && atol == 0.0 {
+        return Err("--rtol and --atol are both 0: make one of them positive".into());
+    }
+    if rtol > 0.0 && rtol < 1e-15 {
+        return Err(format!("--rtol {rtol:.3e} is below 1e-15, the round-off of double precision; give 0 or ≥ 1e-15"));
+    }
+    for (flag, x) in [("--first-step", a.first_step), ("--max-step", a.max_step)] {
+        if let Some(x) = x {
+            if !(x.is_finite() && x > 0.0) {
+                return Err(format!("{flag} must be a positive number, got {x:.3e}"));
+            }
+        }
+    }
+    if a.max_steps == 0 {
+        return Err("--max-steps must be at least 1".into());
+    }
+    Ok(Some(Tolerance { rtol, atol, first_step: a.first_step, max_step: a.max_step, max_steps: a.max_steps, t_end }))
 }
 
 /// Refuses runs whose recorded trajectory would not fit in memory, or whose
@@ -163,15 +279,30 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
             }
         },
     };
-    spark_runtime::check_step_size(t0, h).map_err(|why| format!("{} from t0 = {t0:.3e}: {why}", step_flag(a.h, h)))?;
     if a.stages == 0 {
         return Err("--stages must be at least 1".into());
     }
     if a.every == 0 {
         return Err("--every must be at least 1 (1 records every step)".into());
     }
-    let steps = step_count(t0, t_end, h)?;
-    check_output_size(steps, entry.n, entry.m, entry.effects.holonomic, a.format, a.every)?;
+    let tolerance = tolerance(&a, t_end)?;
+    // Fixed steps cover the interval in whole steps of h; a tolerance-driven
+    // run is counted at its step limit.
+    let steps = match tolerance {
+        None => {
+            spark_runtime::check_step_size(t0, h)
+                .map_err(|why| format!("{} from t0 = {t0:.3e}: {why}", step_flag(a.h, h)))?;
+            step_count(t0, t_end, h)?
+        }
+        Some(_) => 1,
+    };
+    let times = a.sample_every.map(|dt| sample_times(t0, t_end, dt)).transpose()?;
+    let (recorded, every) = match (&times, &tolerance) {
+        (Some(times), _) => (times.len(), 1),
+        (None, Some(t)) => (t.max_steps, a.every),
+        (None, None) => (steps, a.every),
+    };
+    check_output_size(recorded, entry.n, entry.m, entry.effects.holonomic, a.format, every)?;
     let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
     spec.t0 = t0;
     for (flag, what, given) in [("--q0", "q0", &a.q0), ("--v0", "v0", &a.v0)] {
@@ -193,6 +324,16 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     spec.record_every = a.every;
     spec.newton.mode = a.newton.into();
     spec.max_halvings = a.max_halvings;
+    spec.tolerance = tolerance;
+    spec.times = times;
+    spec.events = a.events;
+    if a.events && declared_events(entry.kind).is_empty() {
+        return Err(format!(
+            "system `{}` declares no events, so --events has nothing to locate; systems with events: {}",
+            entry.name,
+            systems_with_events().join(", ")
+        ));
+    }
     if a.project_v0 {
         spec.consistency = ConsistencyPolicy::Project { tolerance: 1e-12 };
     }
@@ -200,7 +341,8 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     // busy --out is reported at once.
     let mut out = OutputDir::open(&a.out).map_err(|e| e.to_string())?;
     let progress = Progress::on_terminal();
-    let bar = progress.bar(&format!("{} {} s={}", entry.name, method, a.stages), steps as u64);
+    let label = format!("{} {} s={}", entry.name, method, a.stages);
+    let bar = if tolerance.is_some() { progress.counter(&label) } else { progress.bar(&label, steps as u64) };
     let result = run(&spec, &|n| {
         bar.inc(n);
         true
@@ -231,6 +373,11 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     } else {
         out.remove_stale(&format!("{stem}.json"));
     }
+    if a.events {
+        write_events_csv(&result, &mut out, "events.csv").map_err(e)?;
+    } else {
+        out.remove_stale("events.csv");
+    }
     if !a.no_plot {
         out.render(&run_figure(&result), &stem).map_err(e)?;
     } else {
@@ -243,7 +390,8 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     let summary = serde_json::json!({
         "system": entry.name, "type": entry.type_name, "method": method.name(), "stages": a.stages,
         "h": h, "t0": t0, "q0": spec.q0, "v0": spec.v0, "v0_integrated": result.initial_velocity(),
-        "parameters": spec.parameters, "stats": result.stats,
+        "parameters": spec.parameters, "stats": result.stats, "tolerance": spec.tolerance,
+        "controller": result.controller, "events": result.events,
     });
     out.write_json("report.json", &summary).map_err(e)?;
     let files = out.commit().map_err(e)?;

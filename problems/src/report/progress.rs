@@ -43,4 +43,21 @@ impl Progress {
             None => ProgressBar::hidden(),
         }
     }
+
+    /// A counter of steps whose number is not known in advance (a
+    /// tolerance-driven run), labelled `label` (hidden when this `Progress`
+    /// is).
+    pub fn counter(&self, label: &str) -> ProgressBar {
+        match &self.multi {
+            Some(multi) => {
+                let bar = multi.add(ProgressBar::no_length());
+                let style = ProgressStyle::with_template("{prefix:>34} {spinner} {human_pos} steps, {elapsed}")
+                    .unwrap_or_else(|_| ProgressStyle::default_spinner());
+                bar.set_style(style);
+                bar.set_prefix(label.to_string());
+                bar
+            }
+            None => ProgressBar::hidden(),
+        }
+    }
 }

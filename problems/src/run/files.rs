@@ -25,6 +25,35 @@ pub fn write_run_csv(run: &RunResult, out: &mut OutputDir, name: &str) -> Result
     out.write_columns(name, &cols)
 }
 
+/// The located events as CSV: `event, index, direction, terminal, t,
+/// q_<name>…, v_<name>…, step` (direction `rising` or `falling`; `step` the
+/// 0-based accepted step that holds the event). Staged in `out` as `name`.
+pub fn write_events_csv(run: &RunResult, out: &mut OutputDir, name: &str) -> Result<PathBuf, OutputError> {
+    let mut header = vec!["event".to_string(), "index".into(), "direction".into(), "terminal".into(), "t".into()];
+    header.extend(run.coordinates.iter().map(|c| format!("q_{c}")));
+    header.extend(run.coordinates.iter().map(|c| format!("v_{c}")));
+    header.push("step".into());
+    out.write_with(name, |w| -> Result<(), csv::Error> {
+        let mut writer = csv::Writer::from_writer(w);
+        writer.write_record(&header)?;
+        for e in &run.events {
+            let mut fields = vec![
+                e.name.clone(),
+                e.index.to_string(),
+                if e.rising { "rising" } else { "falling" }.to_string(),
+                e.terminal.to_string(),
+                format!("{:e}", e.t),
+            ];
+            // Shortest round trip: every digit that tells a value apart.
+            fields.extend(e.q.iter().chain(&e.v).map(|x| format!("{x:e}")));
+            fields.push(e.step.to_string());
+            writer.write_record(&fields)?;
+        }
+        writer.flush()?;
+        Ok(())
+    })
+}
+
 /// Largest trajectory JSON file (estimated by [`json_trajectory_bytes`])
 /// that `spark run --format json` writes: 64 MiB. Larger trajectories belong
 /// in CSV (a third of the size, and streamable) or thinned with `--every`.

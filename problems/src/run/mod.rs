@@ -22,8 +22,8 @@ use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, Syste
 use crate::report::clock::thread_cpu_time;
 use spark_runtime::{
     consistent_velocity, integrate_plan, AdaptiveReport, ConsistencyPolicy, EventRecord, IntegrationError, LaneStatus,
-    LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError, RunOptions, RunPlan, State,
-    Stepper, Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS, LANES,
+    LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError, RunOptions, RunPlan, State, Stepper,
+    Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS, LANES,
 };
 use std::time::{Duration, Instant};
 
@@ -413,7 +413,9 @@ fn check_spec(spec: &RunSpec) -> Result<(), RunError> {
     }
     if let Some(times) = &spec.times {
         if times.is_empty() {
-            return Err(RunError::Invalid("no output time is given; give at least one, or none to record steps".into()));
+            return Err(RunError::Invalid(
+                "no output time is given; give at least one, or none to record steps".into(),
+            ));
         }
     }
     let (min, max) = spec.method.stage_range();
@@ -645,10 +647,11 @@ where
     // system that declares events costs the same as one of a system that
     // declares none.
     let plan = RunPlan { stepping: spec.stepping(), times: spec.times.as_deref(), events: spec.events };
-    let planned = integrate_plan(&mut stepper, spec.t0, &q0, &v0, &plan, &options, &mut observer).map_err(|e| match e {
-        PlanError::Fixed(source) => RunError::Integration { system: key, method: spec.method, stages: S, source },
-        source => RunError::Plan { system: key, method: spec.method, stages: S, source },
-    })?;
+    let planned =
+        integrate_plan(&mut stepper, spec.t0, &q0, &v0, &plan, &options, &mut observer).map_err(|e| match e {
+            PlanError::Fixed(source) => RunError::Integration { system: key, method: spec.method, stages: S, source },
+            source => RunError::Plan { system: key, method: spec.method, stages: S, source },
+        })?;
     let (traj, controller) = (planned.trajectory, planned.controller);
     let wall_time = start.elapsed();
     let cpu_time = match (cpu_start, thread_cpu_time()) {
@@ -760,6 +763,27 @@ fn halvings(s: &RunStats) -> String {
     )
 }
 
+/// What the report says of the located events: how many of each, and the
+/// terminal one that ended the run.
+fn events_summary(events: &[EventRow]) -> String {
+    if events.is_empty() {
+        return "none (events.csv has the header only)".into();
+    }
+    let mut counts: Vec<(&str, usize)> = Vec::new();
+    for e in events {
+        match counts.iter_mut().find(|(name, _)| *name == e.name) {
+            Some((_, k)) => *k += 1,
+            None => counts.push((&e.name, 1)),
+        }
+    }
+    let each: Vec<String> = counts.iter().map(|(name, k)| format!("`{name}` {k}")).collect();
+    let mut text = format!("{} in events.csv: {}", events.len(), each.join(", "));
+    if let Some(last) = events.last().filter(|e| e.terminal) {
+        text.push_str(&format!("; the terminal event `{}` ended the run at t = {}", last.name, number(last.t)));
+    }
+    text
+}
+
 /// The report of one run as Markdown: the setting, the energy error, the
 /// constraint residual, the holonomic drift (for systems with holonomic
 /// constraints), Newton iterations and timing.
@@ -775,12 +799,52 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
     let row = |out: &mut String, k: &str, v: String| {
         let _ = writeln!(out, "| {} | {} |", k.replace('|', "\\|"), v.replace('|', "\\|"));
     };
-    let t_end = spec.t0 + s.steps as f64 * spec.h;
-    row(
-        &mut out,
-        "steps × h",
-        format!("{} × {} (t = {} … {})", s.steps, number(spec.h), number(spec.t0), number(t_end)),
-    );
+    // Where the run ended: the last sample (a terminal event, output
+    // times) or the end of its interval.
+    let t_end = result.t.last().copied().unwrap_or_else(|| spec.t_end());
+    match (&spec.tolerance, &result.controller) {
+        (Some(tol), Some(c)) => {
+            row(
+                &mut out,
+                "steps (tolerance-driven)",
+                format!(
+                    "{} accepted, step sizes {} … {} (t = {} … {}); rtol = {}, atol = {}",
+                    c.accepted,
+                    number(c.smallest_step),
+                    number(c.largest_step),
+                    number(spec.t0),
+                    number(t_end),
+                    number(tol.rtol),
+                    number(tol.atol)
+                ),
+            );
+            row(
+                &mut out,
+                "steps rejected",
+                format!(
+                    "{} by the error estimate, {} by a failed Newton iteration; {} step solves in all",
+                    c.rejected, c.newton_failures, c.solves
+                ),
+            );
+        }
+        _ => row(
+            &mut out,
+            "steps × h",
+            format!("{} × {} (t = {} … {})", s.steps, number(spec.h), number(spec.t0), number(t_end)),
+        ),
+    }
+    if let Some(times) = &spec.times {
+        row(
+            &mut out,
+            "samples",
+            format!(
+                "the initial point and {} output times ({} … {}) from the continuous extension",
+                times.len(),
+                number(times[0]),
+                number(times[times.len() - 1])
+            ),
+        );
+    }
     if !spec.parameters.is_empty() {
         let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {}", number(*v))).collect();
         row(&mut out, "parameters set", p.join(", "));
@@ -815,8 +879,18 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
     if let Some(g) = s.max_holonomic_drift {
         row(&mut out, "max |g| (holonomic drift, position level)", format!("{g:.3e}"));
     }
-    row(&mut out, "Newton iterations per step (mean)", format!("{:.2}", s.newton_iterations_mean));
-    row(&mut out, "steps halved (Newton failed at h)", halvings(s));
+    let iterations = if spec.tolerance.is_some() {
+        "Newton iterations per accepted step (mean, over its three solves)"
+    } else {
+        "Newton iterations per step (mean)"
+    };
+    row(&mut out, iterations, format!("{:.2}", s.newton_iterations_mean));
+    if spec.tolerance.is_none() {
+        row(&mut out, "steps halved (Newton failed at h)", halvings(s));
+    }
+    if spec.events {
+        row(&mut out, "events located", events_summary(&result.events));
+    }
     row(&mut out, "wall time", format!("{:.3} s", s.wall_time.as_secs_f64()));
     if let Some(c) = s.cpu_time {
         row(&mut out, "CPU time of the integrating thread", format!("{:.3} s", c.as_secs_f64()));

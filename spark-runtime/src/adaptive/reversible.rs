@@ -3,8 +3,8 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, initial_step, is_symmetric, resolution, whole_run, Output, AdaptiveError, AdaptiveOptions, AdaptiveReport,
-    AdaptiveRun, Recorder, Taken,
+    accept, initial_step, is_symmetric, resolution, whole_run, AdaptiveError, AdaptiveOptions, AdaptiveReport,
+    AdaptiveRun, Output, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
 use crate::events::EventFunctions;
@@ -94,9 +94,17 @@ where
     if !is_symmetric(method) {
         return Err(AdaptiveError::NotSymmetric { method });
     }
-    whole_run(stepper, t0, q0, v0, t_end, options, Output { wants_dense: O::DENSE, times: None }, events, |stepper, state, rec| {
-        reversible_loop(stepper, state, t_end, density, options, rec, observer)
-    })
+    whole_run(
+        stepper,
+        t0,
+        q0,
+        v0,
+        t_end,
+        options,
+        Output { wants_dense: O::DENSE, times: None },
+        events,
+        |stepper, state, rec| reversible_loop(stepper, state, t_end, density, options, rec, observer),
+    )
 }
 
 /// `σ(y)` and `G(y) = σ̇(y)/σ(y)`, the derivative along the flow by a central

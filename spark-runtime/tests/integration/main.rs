@@ -20,6 +20,7 @@ mod newcomer_systems;
 mod newcomer_unusual_systems;
 mod orders;
 mod paper;
+mod plan;
 mod small_scales;
 mod step_start;
 mod stop_requests;
