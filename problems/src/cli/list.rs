@@ -1,7 +1,9 @@
 //! `spark list`: the catalogue as a table or as JSON.
 
 use crate::catalog::{entries, SystemEntry, SystemInfo, SystemKind, MAX_DISPATCH_STAGES};
+use crate::experiments::section::declared_events;
 use clap::Args;
+use spark_runtime::Direction;
 use spark_runtime::Method;
 
 /// How `k` depends on `t` and `v`, in a few words (`none`, `linear`,
@@ -72,6 +74,22 @@ pub fn list_table() -> String {
         if !params.is_empty() {
             let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {v}")).collect();
             let _ = writeln!(s, "    parameters: {}", p.join(", "));
+        }
+        let events = declared_events(e.kind);
+        if !events.is_empty() {
+            let each: Vec<String> = events
+                .iter()
+                .map(|ev| {
+                    let direction = match ev.direction {
+                        Direction::Rising => "rising",
+                        Direction::Falling => "falling",
+                        Direction::Both => "either way",
+                    };
+                    let terminal = if ev.terminal { ", terminal" } else { "" };
+                    format!("{} ({direction}{terminal})", ev.name)
+                })
+                .collect();
+            let _ = writeln!(s, "    events (spark run --events, spark section --event): {}", each.join(", "));
         }
         let _ = writeln!(
             s,
