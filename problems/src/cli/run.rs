@@ -136,7 +136,7 @@ fn sample_times(t0: f64, t_end: f64, dt: f64) -> Result<Vec<f64>, String> {
         return Err(format!("--sample-every must be a positive number, got {dt:.3e}"));
     }
     let count = ((t_end - t0) / dt * (1.0 + 1e-12) + 1e-6).floor();
-    if !(count >= 1.0) {
+    if count.is_nan() || count < 1.0 {
         return Err(format!(
             "--sample-every {dt:.6e} is longer than the interval from t0 = {t0:.6e} to t_end = {t_end:.6e}; give a \
              smaller DT"

@@ -57,10 +57,14 @@ fn bits(s: &State<3>) -> Vec<u64> {
     std::iter::once(s.t).chain(s.q.iter().copied()).chain(s.v.iter().copied()).map(f64::to_bits).collect()
 }
 
-/// Every dense step of a run, for sampling it afterwards.
+/// A dense step's start and end times, and its states at the wanted times
+/// it holds.
+type Piece = (f64, f64, Vec<(f64, State<3>)>);
+
+/// Every dense step of a run, sampled at the wanted times.
 #[derive(Default)]
 struct Pieces {
-    steps: Vec<(f64, f64, Vec<(f64, State<3>)>)>,
+    steps: Vec<Piece>,
     wanted: Vec<f64>,
 }
 
@@ -134,7 +138,7 @@ fn a_tolerance_driven_run_sampled_at_times_is_the_extension_of_the_same_steps() 
     let mut interior = Vec::new();
     for rtol in [1e-6, 1e-10] {
         let options = AdaptiveOptions { rtol, atol: rtol, ..AdaptiveOptions::default() };
-        let mut st = Stepper::<Skate, 3, 1, 3, 15>::new(sys.clone(), tableau());
+        let mut st = Stepper::<Skate, 3, 1, 3, 15>::new(sys, tableau());
         let sampled =
             integrate_adaptive_at(&mut st, 0.0, &start.q, &start.v, &times, &options, &mut NoObserver, &NoEvents)
                 .unwrap();
