@@ -544,6 +544,12 @@ class System:
         req["multipliers"] = _flag("multipliers", multipliers)
         req["project_v0"] = _flag("project_v0", project_v0)
         d = self._integrate(req)
+        if "controller" not in d and ("rtol" in req or "t_eval" in req or req["events"]):
+            # A module built by an older spark.compile reads none of these keys.
+            raise SparkError(
+                f"the module of {self.name} predates rtol, t_eval and events and ran another request; delete its "
+                "folder in spark.compile's cache (SPARK_CACHE_DIR or ~/.cache/spark-python) and compile it again"
+            )
         controller = d.get("controller")
         if controller is None and d["rejected_steps"]:
             _warn_halvings(d["steps"], d["steps_with_rejections"], d["substeps"], d["smallest_step"])

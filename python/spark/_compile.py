@@ -48,11 +48,21 @@ def cache_root(cache_dir: str | None = None) -> Path:
     return Path(base) / "spark-python"
 
 
+#: The requests and results a module exchanges with this package (part of
+#: the cache key): a module cached before a change to them would ignore the
+#: new request keys (``rtol``, ``t_eval``, ``events`` of ``integrate``) and
+#: run something else than asked. Raise it whenever they change.
+MODULE_INTERFACE = "2: rtol, t_eval, events; events and controller in the result"
+
+
 def cache_key(text: str, optimize: bool = True) -> str:
     """Hash of the text, the spark version, the source tree it builds
-    against and, for a module built without optimization, that."""
+    against, the module interface (:data:`MODULE_INTERFACE`) and, for a
+    module built without optimization, that."""
     h = hashlib.sha256()
-    parts = (text, _native.version(), _native.source_dir()) + (() if optimize else ("opt-level 0",))
+    parts = (text, _native.version(), _native.source_dir(), MODULE_INTERFACE) + (
+        () if optimize else ("opt-level 0",)
+    )
     for part in parts:
         h.update(part.encode())
         h.update(b"\0")

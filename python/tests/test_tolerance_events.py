@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import spark
+import spark._compile
 from test_compile import declaration
 
 T_END = 10.0
@@ -218,7 +219,8 @@ def assert_same_run(a: spark.Trajectory, b: spark.Trajectory) -> None:
     assert a.controller == b.controller
     assert len(a.events) == len(b.events)
     for x, y in zip(a.events, b.events):
-        assert (x.name, x.index, x.rising, x.terminal, x.t, x.step) == (y.name, y.index, y.rising, y.terminal, y.t, y.step)
+        fields = ("name", "index", "rising", "terminal", "t", "step")
+        assert [getattr(x, f) for f in fields] == [getattr(y, f) for f in fields]
         np.testing.assert_array_equal(x.q, y.q)
         np.testing.assert_array_equal(x.v, y.v)
 
@@ -271,3 +273,24 @@ def test_a_terminal_event_of_a_compiled_system_ends_the_run(cache):
         if "t_eval" in plan:
             before = plan["t_eval"][plan["t_eval"] < event.t]
             np.testing.assert_array_equal(run.t, [0.0, *before, event.t])
+
+
+def test_a_module_that_predates_the_new_keys_is_refused_for_them_not_run_as_fixed_steps():
+    """A module cached by an older spark.compile ignores rtol, t_eval and
+    events and returns no `controller`: such a request is an error, not a
+    silent run of fixed steps (a plain fixed run still works)."""
+    info = spark._native.system_info_of("skate")
+
+    def old_module(request):
+        ignored = ("rtol", "atol", "first_step", "max_step", "max_steps", "t_end", "t_eval", "events")
+        kept = {k: v for k, v in request.items() if k not in ignored}
+        d = spark._native.integrate("skate", {"h": 0.1, "steps": 10} | kept)
+        del d["controller"], d["events"]
+        return d
+
+    old = spark.System(info, old_module, None)
+    assert old.integrate("gauss", 2, 0.1, 10).controller is None
+    for kw in (dict(rtol=1e-6, t_end=1.0), dict(h=0.1, steps=10, t_eval=[0.5]), dict(h=0.1, steps=10, events=True)):
+        with pytest.raises(spark.SparkError, match="predates rtol, t_eval and events"):
+            old.integrate("gauss", 2, **kw)
+    assert spark._compile.MODULE_INTERFACE in "2: rtol, t_eval, events; events and controller in the result"

@@ -425,8 +425,10 @@ where
 /// per step, whatever the thread count.
 ///
 /// The runs the lanes do not take go through [`integrate`] per member (in
-/// parallel over members): a request for the multipliers `ψ`, a request
-/// [`integrate`] rejects before stepping, and a member whose lane fails (it
+/// parallel over members): a request for the multipliers `ψ`, a
+/// tolerance-driven request, one with output times or events (as
+/// `problems::run::run_ensemble`), a request [`integrate`] rejects before
+/// stepping, and a member whose lane fails (it
 /// runs again alone, so the driver's cold retry and step halving apply and
 /// the member gets [`integrate`]'s result or error). Each member's
 /// `seconds` is an equal share of the ensemble's wall time. `stop` ends
@@ -454,7 +456,9 @@ where
     };
     let alone = |j: usize| integrate::<Sys, N, M, S, D>(&member(j), stop).map_err(|e| format!("member {j}: {e}"));
     let work = || -> Result<Vec<Columns>, Failure> {
-        let lanes = if r.run.multipliers || check_request(&r.run).is_err() {
+        // The lanes take fixed steps recorded at the steps, without events.
+        let planned = r.run.tolerance.is_some() || r.run.times.is_some() || r.run.events;
+        let lanes = if r.run.multipliers || planned || check_request(&r.run).is_err() {
             None
         } else {
             configured::<Sys, N, M>(&r.run.parameters).ok().zip(Tableau::<S>::new(r.run.method).ok())
