@@ -21,7 +21,7 @@
 //!   [`Dispatch::with_lane_stages`] is the same dispatch for the entries
 //!   whose ensembles step in SIMD lanes (`ensemble: lanes`).
 
-use spark_runtime::{NonholonomicSystem, OperationCounts, Structure, SystemSource};
+use spark_runtime::{EventSpec, NonholonomicSystem, OperationCounts, Structure, SystemSource};
 
 /// Largest stage count compiled into the dispatch. Every family reaches its
 /// largest useful order here: Gauss s = 1..5 (order 10), Lobatto IIIA-B and
@@ -684,4 +684,24 @@ catalog! {
             q0: [0.6, -0.8], v0: [0.8, 0.6], t_end: 10.0, h: 0.05,
         },
     ]
+}
+
+/// The events `kind` declares.
+pub fn declared_events(kind: SystemKind) -> &'static [EventSpec] {
+    struct Events;
+    impl SystemVisitor for Events {
+        type Output = &'static [EventSpec];
+        fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
+            self,
+            _: &'static SystemEntry,
+        ) -> &'static [EventSpec] {
+            Sys::EVENTS
+        }
+    }
+    visit_system(kind, Events)
+}
+
+/// The registered systems that declare at least one event.
+pub fn systems_with_events() -> Vec<&'static str> {
+    SystemKind::ALL.iter().filter(|k| !declared_events(**k).is_empty()).map(|k| k.key()).collect()
 }

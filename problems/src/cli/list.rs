@@ -1,7 +1,6 @@
 //! `spark list`: the catalogue as a table or as JSON.
 
-use crate::catalog::{entries, SystemEntry, SystemInfo, SystemKind, MAX_DISPATCH_STAGES};
-use crate::experiments::section::declared_events;
+use crate::catalog::{declared_events, entries, SystemEntry, SystemInfo, SystemKind, MAX_DISPATCH_STAGES};
 use clap::Args;
 use spark_runtime::Direction;
 use spark_runtime::Method;

@@ -3,8 +3,7 @@
 //! they start.
 
 use super::{parse_method, parse_params, step_count, step_flag, Format, Newton};
-use crate::catalog::lookup;
-use crate::experiments::section::{declared_events, systems_with_events};
+use crate::catalog::{declared_events, lookup, systems_with_events};
 use crate::report::files::{OutputDir, OutputError};
 use crate::report::progress::Progress;
 use crate::run::files::{

@@ -17,7 +17,10 @@
 //! for the systems that declare section events, stay satisfied; otherwise
 //! the scaled velocity is projected onto them).
 
-use crate::catalog::{did_you_mean, nearest, Dispatch, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
+use crate::catalog::{
+    declared_events, did_you_mean, nearest, systems_with_events, Dispatch, StageVisitor, SystemEntry, SystemKind,
+    SystemVisitor,
+};
 use crate::run::{check_parameters, RunError};
 use crate::systems::mp7_initial_values;
 use rayon::prelude::*;
@@ -231,26 +234,6 @@ impl From<RunError> for SectionError {
     fn from(e: RunError) -> Self {
         SectionError::Run(Box::new(e))
     }
-}
-
-/// The events `kind` declares.
-pub fn declared_events(kind: SystemKind) -> &'static [EventSpec] {
-    struct Events;
-    impl SystemVisitor for Events {
-        type Output = &'static [EventSpec];
-        fn visit<Sys: Dispatch<N, M>, const N: usize, const M: usize, const Y: usize>(
-            self,
-            _: &'static SystemEntry,
-        ) -> &'static [EventSpec] {
-            Sys::EVENTS
-        }
-    }
-    crate::catalog::visit_system(kind, Events)
-}
-
-/// The registered systems that declare at least one event.
-pub fn systems_with_events() -> Vec<&'static str> {
-    SystemKind::ALL.iter().filter(|k| !declared_events(**k).is_empty()).map(|k| k.key()).collect()
 }
 
 /// The index of event `name` among the events of `kind`, or an error that
