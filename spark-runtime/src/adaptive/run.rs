@@ -220,6 +220,12 @@ where
     if !rec.sampled && (step.last || (rec.every != 0 && index.is_multiple_of(rec.every))) {
         let s = stepper.sample(&state, &rec.observe, iterations);
         rec.push(s);
+    } else if rec.observe.energy || rec.observe.constraint_residual {
+        // The report's extremes cover every accepted step, recorded or not
+        // (as in a fixed-step run; the multipliers are not needed for them).
+        let observe = Observe { multipliers: false, ..rec.observe };
+        let s = stepper.sample(&state, &observe, iterations);
+        rec.run.track(&s, rec.e0);
     }
     if !step.last && observer.stop_requested() {
         return Err(AdaptiveError::Stopped { t: state.t, partial: Box::new(*report) });

@@ -272,3 +272,26 @@ fn wrong_plans_are_errors_that_name_what_is_wrong() {
     assert!(matches!(err, PlanError::Tolerance(AdaptiveError::TooManySteps { attempts: 3, .. })), "{err:?}");
     assert!(err.to_string().contains("--max-steps"), "{err}");
 }
+
+#[test]
+fn the_report_of_a_tolerance_driven_run_covers_the_steps_it_does_not_record() {
+    let start = event_start();
+    let tol = tolerance(1e-5, 6.0);
+    let times = [6.0];
+    let every_step = RunPlan { stepping: Stepping::Tolerance(tol), times: None, events: false };
+    let only_end = RunPlan { times: Some(&times), ..every_step };
+    let options = RunOptions::default();
+    let all = integrate_plan(&mut event_stepper(), 0.0, &start.q, &start.v, &every_step, &options, &mut NoObserver)
+        .unwrap()
+        .trajectory;
+    let end = integrate_plan(&mut event_stepper(), 0.0, &start.q, &start.v, &only_end, &options, &mut NoObserver)
+        .unwrap()
+        .trajectory;
+    assert_eq!(end.samples.len(), 2);
+    // The largest energy error over the steps is inside the run, not at its
+    // end, and both runs report it.
+    let at_end = (end.samples[1].energy.unwrap() - end.samples[0].energy.unwrap()).abs();
+    assert!(all.report.max_energy_error > 2.0 * at_end, "{} vs {at_end}", all.report.max_energy_error);
+    assert_eq!(end.report.max_energy_error, all.report.max_energy_error);
+    assert_eq!(end.report.max_constraint_residual, all.report.max_constraint_residual);
+}
