@@ -402,7 +402,11 @@ class System:
 
     Attributes: ``name``, ``type_name``, ``n``, ``m``, ``coordinates``,
     ``parameters`` (defaults), ``structure`` (facts the macro proved),
-    ``effects``, and for registered systems ``description``, ``q0``,
+    ``effects``, ``events`` (the declared events that ``integrate(...,
+    events=True)`` locates: dicts of ``name``, ``direction`` — ``"rising"``,
+    ``"falling"`` or ``"crossing"`` —, ``terminal`` and ``function``, the
+    event function's text; empty when it declares none), and for registered
+    systems ``description``, ``q0``,
     ``v0``, ``h``, ``t_end`` (the defaults of ``spark run``).
     """
 
@@ -418,6 +422,7 @@ class System:
         self.parameters: dict[str, float] = dict(info["parameters"])
         self.structure: dict[str, Any] = dict(info["structure"])
         self.effects: dict[str, bool] = dict(info["effects"])
+        self.events: list[dict[str, Any]] = [dict(e) for e in info.get("events", [])]
         self.description: str = info.get("description", "")
         self.q0: list[float] | None = info.get("q0")
         self.v0: list[float] | None = info.get("v0")

@@ -141,7 +141,7 @@ fn names() -> Vec<&'static str> {
 }
 
 /// Facts about the registered system `name`: description, `N`, `M`,
-/// coordinates, parameters with defaults, structure facts, effects,
+/// coordinates, parameters with defaults, structure facts, effects, events,
 /// operation counts, default initial state, step and final time.
 #[pyfunction]
 fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDict>> {
@@ -157,6 +157,7 @@ fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDic
         forcing: e.effects.forcing,
         nonideal: e.effects.nonideal,
         holonomic: e.effects.holonomic,
+        events: problems::catalog::declared_events(e.kind),
     };
     let d = facts_to_py(py, &facts)?;
     d.set_item("name", e.name)?;

@@ -129,6 +129,15 @@ def test_events_of_registered_systems_are_zeros_of_their_functions():
             assert abs(e.q[1]) < 1e-9 and e.v[1] > 0
 
 
+def test_systems_name_their_declared_events(skate):
+    assert skate.events == [] and skate.info["events"] == []
+    (turn,) = spark.system("sleigh").events
+    assert (turn["name"], turn["direction"], turn["terminal"]) == ("turn", "falling", False)
+    assert "theta" in turn["function"]
+    assert [e["name"] for e in spark.system("mp7-nh").events] == ["section"]
+    assert spark.system("mp7-nh").events[0]["direction"] == "rising"
+
+
 def test_events_of_a_system_that_declares_none_are_an_error(skate):
     with pytest.raises(spark.SparkError, match="declares no events"):
         skate.integrate("gauss", 2, 0.1, 10, events=True)
@@ -255,6 +264,8 @@ def test_a_terminal_event_of_a_compiled_system_ends_the_run(cache):
     terminal = spark.compile(text, cache_dir=str(cache))
     counting = spark.compile(SLEIGH, cache_dir=str(cache))
     registered = spark.system("sleigh")
+    assert [(e["name"], e["terminal"]) for e in terminal.events] == [("turn", True)]
+    assert counting.events == registered.events
     kw = dict(q0=registered.q0, v0=registered.v0, events=True)
     for plan in (
         dict(h=0.05, steps=400),

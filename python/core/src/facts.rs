@@ -3,7 +3,8 @@
 
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use spark_runtime::{ConstraintForm, NonholonomicSystem, Structure, SystemSource};
+use pyo3::types::PyList;
+use spark_runtime::{ConstraintForm, Direction, EventSpec, NonholonomicSystem, Structure, SystemSource};
 
 /// The static facts of a system that `info()` shows, without its type.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,6 +31,8 @@ pub struct SystemFacts {
     pub nonideal: bool,
     /// Holonomic constraints imposed at velocity level.
     pub holonomic: bool,
+    /// The declared events, in index order.
+    pub events: &'static [EventSpec],
 }
 
 impl SystemFacts {
@@ -49,12 +52,13 @@ impl SystemFacts {
             forcing: Sys::HAS_FORCING,
             nonideal: Sys::HAS_NONIDEAL_FORCE,
             holonomic: Sys::HAS_HOLONOMIC,
+            events: Sys::EVENTS,
         }
     }
 }
 
 /// Static facts of a system type for `info()`: name, `N`, `M`, coordinates,
-/// parameters with defaults, structure facts and effects.
+/// parameters with defaults, structure facts, effects and declared events.
 pub fn system_info<'py, Sys, const N: usize, const M: usize>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>>
 where
     Sys: NonholonomicSystem<N, M> + Default,
@@ -100,5 +104,22 @@ pub fn facts_to_py<'py>(py: Python<'py>, facts: &SystemFacts) -> PyResult<Bound<
     d.set_item("effects", fx)?;
     d.set_item("lagrangian", src.lagrangian)?;
     d.set_item("constraints", src.constraints.to_vec())?;
+    let events = PyList::empty(py);
+    for e in facts.events {
+        let row = PyDict::new(py);
+        row.set_item("name", e.name)?;
+        row.set_item(
+            "direction",
+            match e.direction {
+                Direction::Rising => "rising",
+                Direction::Falling => "falling",
+                Direction::Both => "crossing",
+            },
+        )?;
+        row.set_item("terminal", e.terminal)?;
+        row.set_item("function", e.source)?;
+        events.append(row)?;
+    }
+    d.set_item("events", events)?;
     Ok(d)
 }
