@@ -178,7 +178,7 @@ pub use lanes::{
     LaneStageValues, LaneStatus, LaneStepper, LANES, MAX_ENSEMBLE_THREADS,
 };
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
-pub use plan::{integrate_plan, PlanError, PlannedRun, RunPlan, Stepping, Tolerance};
+pub use plan::{event_rows, integrate_plan, EventRow, PlanError, PlannedRun, RunPlan, Stepping, Tolerance};
 pub use rejection::RejectionPolicy;
 pub use spark_macros::nonholonomic_system;
 pub use step::{Jacobian, NewtonMode, NewtonOptions, State, StepResult, Stepper};

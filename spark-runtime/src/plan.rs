@@ -11,7 +11,7 @@ use crate::adaptive::{
 };
 use crate::driver::{IntegrationError, Observer, RunOptions, Schedule, Trajectory};
 use crate::error::Sci;
-use crate::events::{EventFunctions, NoEvents, SystemEvents};
+use crate::events::{EventFunctions, EventRecord, NoEvents, SystemEvents};
 use crate::step::Stepper;
 use crate::system::{NonholonomicSystem, Vector};
 
@@ -89,6 +89,50 @@ pub struct PlannedRun<const N: usize, const M: usize> {
     /// Accepted and rejected steps, solves and step sizes of a
     /// tolerance-driven run (`None` for fixed steps).
     pub controller: Option<AdaptiveReport>,
+}
+
+/// One located event without the system's dimension in its type: what a
+/// front end returns (a row of `spark run`'s `events.csv`, a Python
+/// `spark.Event`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EventRow {
+    /// The event's name, as the system declares it.
+    pub name: String,
+    /// Its index among the system's events.
+    pub index: usize,
+    /// Whether the event function rose through zero (`false`: fell).
+    pub rising: bool,
+    /// Whether the event is terminal (when located, it ended the run).
+    pub terminal: bool,
+    /// Time of the zero.
+    pub t: f64,
+    /// Coordinates there.
+    pub q: Vec<f64>,
+    /// Velocities there.
+    pub v: Vec<f64>,
+    /// Index of the accepted step that holds it (0-based).
+    pub step: usize,
+}
+
+/// The events a run of `Sys` located, as rows with each declaration's
+/// terminal flag.
+pub fn event_rows<Sys, const N: usize, const M: usize>(events: &[EventRecord<N>]) -> Vec<EventRow>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    events
+        .iter()
+        .map(|e| EventRow {
+            name: e.name.clone(),
+            index: e.index,
+            rising: e.rising,
+            terminal: Sys::EVENTS.get(e.index).is_some_and(|spec| spec.terminal),
+            t: e.t,
+            q: e.q.iter().copied().collect(),
+            v: e.v.iter().copied().collect(),
+            step: e.step,
+        })
+        .collect()
 }
 
 /// Why a planned run failed.

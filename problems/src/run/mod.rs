@@ -21,9 +21,9 @@ pub use ensemble::{run_ensemble, run_ensemble_with, EnsembleError, MAX_ENSEMBLE_
 use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::thread_cpu_time;
 use spark_runtime::{
-    consistent_velocity, integrate_plan, AdaptiveReport, ConsistencyPolicy, EventRecord, IntegrationError, LaneStatus,
-    LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError, RunOptions, RunPlan, State, Stepper,
-    Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS, LANES,
+    consistent_velocity, event_rows, integrate_plan, AdaptiveReport, ConsistencyPolicy, EventRow, IntegrationError,
+    LaneStatus, LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError, RunOptions, RunPlan, State,
+    Stepper, Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS, LANES,
 };
 use std::time::{Duration, Instant};
 
@@ -244,27 +244,6 @@ impl RunSpec {
             None => Stepping::Fixed { h: self.h, steps: self.steps },
         }
     }
-}
-
-/// One located event of a run (a row of `events.csv`).
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct EventRow {
-    /// The event's name, as the system declares it.
-    pub name: String,
-    /// Its index among the system's events.
-    pub index: usize,
-    /// Whether the event function rose through zero (`false`: fell).
-    pub rising: bool,
-    /// Whether the event is terminal (it ended the run).
-    pub terminal: bool,
-    /// Time of the zero.
-    pub t: f64,
-    /// Coordinates there.
-    pub q: Vec<f64>,
-    /// Velocities there.
-    pub v: Vec<f64>,
-    /// Index of the accepted step that holds it (0-based).
-    pub step: usize,
 }
 
 /// A recorded run, column by column (no const generics, so results of all
@@ -679,25 +658,6 @@ where
     result.events = event_rows::<Sys, N, M>(&traj.events);
     result.controller = controller;
     Ok(result)
-}
-
-/// The located events as rows, each with its declaration's terminal flag.
-fn event_rows<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
-    events: &[EventRecord<N>],
-) -> Vec<EventRow> {
-    events
-        .iter()
-        .map(|e| EventRow {
-            name: e.name.clone(),
-            index: e.index,
-            rising: e.rising,
-            terminal: Sys::EVENTS.get(e.index).is_some_and(|spec| spec.terminal),
-            t: e.t,
-            q: e.q.iter().copied().collect(),
-            v: e.v.iter().copied().collect(),
-            step: e.step,
-        })
-        .collect()
 }
 
 /// The columns of a run's samples as a [`RunResult`] (generic in the
