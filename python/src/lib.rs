@@ -19,7 +19,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
     columns_to_py, ensemble_to_py, facts_to_py, interruptible, python_words, read_ensemble, read_request, spark_error,
-    Columns, Event, Failure, IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
+    Columns, Failure, IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
 };
 use spark_runtime::{ConsistencyPolicy, Method};
 use std::sync::atomic::Ordering;
@@ -116,20 +116,7 @@ fn columns(r: RunResult, m: usize, seconds: f64) -> Columns {
         substeps: r.stats.substeps,
         smallest_step: r.stats.smallest_step,
         seconds,
-        events: r
-            .events
-            .into_iter()
-            .map(|e| Event {
-                name: e.name,
-                index: e.index,
-                rising: e.rising,
-                terminal: e.terminal,
-                t: e.t,
-                q: e.q,
-                v: e.v,
-                step: e.step,
-            })
-            .collect(),
+        events: r.events,
         controller: r.controller,
     }
 }

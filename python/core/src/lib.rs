@@ -19,8 +19,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    check_record_size, consistent_velocity, integrate_ensemble_until, integrate_plan, AdaptiveReport,
-    ConsistencyPolicy, EnsembleRun, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer,
+    check_record_size, consistent_velocity, event_rows, integrate_ensemble_until, integrate_plan, AdaptiveReport,
+    ConsistencyPolicy, EnsembleRun, EventRow, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer,
     RunOptions, RunPlan, Sample, State, StepError, Stepper, Stepping, Tableau, TableauError, Tolerance, Vector,
     DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
@@ -96,27 +96,6 @@ impl IntegrateRequest {
     }
 }
 
-/// One located event, as the Python side returns it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Event {
-    /// The event's name, as the system declares it.
-    pub name: String,
-    /// Its index among the system's events.
-    pub index: usize,
-    /// Whether the event function rose through zero (`false`: fell).
-    pub rising: bool,
-    /// Whether the event is terminal (it ended the run).
-    pub terminal: bool,
-    /// Time of the zero.
-    pub t: f64,
-    /// Coordinates there.
-    pub q: Vec<f64>,
-    /// Velocities there.
-    pub v: Vec<f64>,
-    /// Index of the accepted step that holds it (0-based).
-    pub step: usize,
-}
-
 /// An ensemble: the same run from many initial states.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EnsembleRequest {
@@ -175,7 +154,7 @@ pub struct Columns {
     /// the overhead of the Python call around it.
     pub seconds: f64,
     /// The located events, in time order (empty unless asked for).
-    pub events: Vec<Event>,
+    pub events: Vec<EventRow>,
     /// The controller's statistics of a tolerance-driven run (`None` for
     /// fixed steps).
     pub controller: Option<AdaptiveReport>,
@@ -382,20 +361,7 @@ where
         substeps: traj.report.substeps,
         smallest_step: traj.report.smallest_step,
         seconds: 0.0,
-        events: traj
-            .events
-            .iter()
-            .map(|e| Event {
-                name: e.name.clone(),
-                index: e.index,
-                rising: e.rising,
-                terminal: Sys::EVENTS.get(e.index).is_some_and(|spec| spec.terminal),
-                t: e.t,
-                q: e.q.iter().copied().collect(),
-                v: e.v.iter().copied().collect(),
-                step: e.step,
-            })
-            .collect(),
+        events: event_rows::<Sys, N, M>(&traj.events),
         controller: planned.controller,
     };
     for s in samples {
