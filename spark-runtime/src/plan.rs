@@ -9,7 +9,7 @@
 use crate::adaptive::{
     integrate_adaptive_at, integrate_adaptive_with_events, AdaptiveError, AdaptiveOptions, AdaptiveReport,
 };
-use crate::driver::{IntegrationError, Observer, RunOptions, Schedule, Trajectory};
+use crate::driver::{check_record_size, IntegrationError, Observer, RunOptions, Schedule, Trajectory};
 use crate::error::Sci;
 use crate::events::{EventFunctions, EventRecord, NoEvents, SystemEvents};
 use crate::step::Stepper;
@@ -78,6 +78,28 @@ pub struct RunPlan<'a> {
     /// a terminal one ends the run. `false` locates none, so the run costs
     /// what a run of a system without events costs.
     pub events: bool,
+}
+
+impl RunPlan<'_> {
+    /// Checks that `members` runs of this plan, recording every
+    /// `record_every`-th step at `bytes_per_sample` bytes a sample, fit
+    /// within [`record_memory_limit`](crate::record_memory_limit), before
+    /// they start: a run with output times records one sample per time,
+    /// fixed steps their step count, a tolerance-driven run at most its
+    /// step limit (`max_steps`), which the message names.
+    pub fn check_record_size(&self, record_every: usize, members: usize, bytes_per_sample: u64) -> Result<(), String> {
+        let (steps, every) = match (self.times, self.stepping) {
+            (Some(times), _) => (times.len(), 1),
+            (None, Stepping::Tolerance(tolerance)) => (tolerance.max_steps, record_every),
+            (None, Stepping::Fixed { steps, .. }) => (steps, record_every),
+        };
+        check_record_size(steps, every, members, bytes_per_sample).map_err(|e| match (self.times, self.stepping) {
+            (None, Stepping::Tolerance(_)) => {
+                format!("{e} (a tolerance-driven run is counted at its step limit, max_steps: lower it)")
+            }
+            _ => e.to_string(),
+        })
+    }
 }
 
 /// A planned run's result: the trajectory (samples, report, located events)

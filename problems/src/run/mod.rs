@@ -244,6 +244,11 @@ impl RunSpec {
             None => Stepping::Fixed { h: self.h, steps: self.steps },
         }
     }
+
+    /// The run as [`spark_runtime::integrate_plan`] takes it.
+    pub fn plan(&self) -> RunPlan<'_> {
+        RunPlan { stepping: self.stepping(), times: self.times.as_deref(), events: self.events }
+    }
 }
 
 /// A recorded run, column by column (no const generics, so results of all
@@ -414,25 +419,15 @@ pub fn bytes_per_sample(n: usize, m: usize) -> u64 {
 }
 
 /// Refuses `members` runs of `spec` whose recorded samples would not fit
-/// in memory ([`spark_runtime::check_record_size`]): such a run would step
+/// in memory ([`RunPlan::check_record_size`]): such a run would step
 /// until an allocation failure aborts the process. A run with output times
 /// records one sample per time; a tolerance-driven run is counted at its
 /// most step attempts.
 pub fn check_record_size(spec: &RunSpec, members: usize) -> Result<(), RunError> {
     let entry = spec.system.entry();
-    let bytes = bytes_per_sample(entry.n, entry.m);
-    let (steps, every) = match (&spec.times, &spec.tolerance) {
-        (Some(times), _) => (times.len(), 1),
-        (None, Some(tolerance)) => (tolerance.max_steps, spec.record_every),
-        (None, None) => (spec.steps, spec.record_every),
-    };
-    spark_runtime::check_record_size(steps, every, members, bytes).map_err(|e| {
-        let mut text = e.to_string();
-        if spec.tolerance.is_some() && spec.times.is_none() {
-            text.push_str(" (a tolerance-driven run is counted at its step limit, max_steps: lower it)");
-        }
-        RunError::Invalid(text)
-    })
+    spec.plan()
+        .check_record_size(spec.record_every, members, bytes_per_sample(entry.n, entry.m))
+        .map_err(RunError::Invalid)
 }
 
 /// Looks `name` up in the catalogue and runs it with its defaults (the
@@ -625,12 +620,12 @@ where
     // Events are located only when the spec asks for them, so a run of a
     // system that declares events costs the same as one of a system that
     // declares none.
-    let plan = RunPlan { stepping: spec.stepping(), times: spec.times.as_deref(), events: spec.events };
-    let planned =
-        integrate_plan(&mut stepper, spec.t0, &q0, &v0, &plan, &options, &mut observer).map_err(|e| match e {
+    let planned = integrate_plan(&mut stepper, spec.t0, &q0, &v0, &spec.plan(), &options, &mut observer).map_err(
+        |e| match e {
             PlanError::Fixed(source) => RunError::Integration { system: key, method: spec.method, stages: S, source },
             source => RunError::Plan { system: key, method: spec.method, stages: S, source },
-        })?;
+        },
+    )?;
     let (traj, controller) = (planned.trajectory, planned.controller);
     let wall_time = start.elapsed();
     let cpu_time = match (cpu_start, thread_cpu_time()) {

@@ -19,9 +19,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    check_record_size, consistent_velocity, event_rows, integrate_ensemble_until, integrate_plan, AdaptiveReport,
-    ConsistencyPolicy, EnsembleRun, EventRow, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer,
-    RunOptions, RunPlan, Sample, State, StepError, Stepper, Stepping, Tableau, TableauError, Tolerance, Vector,
+    consistent_velocity, event_rows, integrate_ensemble_until, integrate_plan, AdaptiveReport, ConsistencyPolicy,
+    EnsembleRun, EventRow, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer, RunOptions,
+    RunPlan, Sample, State, StepError, Stepper, Stepping, Tableau, TableauError, Tolerance, Vector,
     DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -93,6 +93,11 @@ impl IntegrateRequest {
             Some(tolerance) => Stepping::Tolerance(tolerance),
             None => Stepping::Fixed { h: self.h, steps: self.steps },
         }
+    }
+
+    /// The run as [`integrate_plan`] takes it.
+    pub fn plan(&self) -> RunPlan<'_> {
+        RunPlan { stepping: self.stepping(), times: self.times.as_deref(), events: self.events }
     }
 }
 
@@ -228,26 +233,12 @@ fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
 }
 
 /// Refuses a request whose recorded samples (`members` runs of `r`) would
-/// not fit in memory ([`check_record_size`]): such a run would end in an
-/// allocation failure, which aborts the Python process. Per sample it
+/// not fit in memory ([`RunPlan::check_record_size`]): such a run would end
+/// in an allocation failure, which aborts the Python process. Per sample it
 /// counts the driver's record, the result columns and their NumPy copies.
-/// As `problems::run::check_record_size`: a run with output times records
-/// one sample per time, a tolerance-driven run is counted at its most step
-/// attempts (`max_steps`).
 fn check_record<const N: usize, const M: usize>(r: &IntegrateRequest, members: usize) -> Result<(), Failure> {
     let per_sample = std::mem::size_of::<Sample<N, M>>() as u64 + 2 * 8 * (2 * N + M + 4) as u64;
-    let (steps, every) = match (&r.times, &r.tolerance) {
-        (Some(times), _) => (times.len(), 1),
-        (None, Some(tolerance)) => (tolerance.max_steps, r.every),
-        (None, None) => (r.steps, r.every),
-    };
-    check_record_size(steps, every, members, per_sample).map_err(|e| {
-        let mut text = e.to_string();
-        if r.tolerance.is_some() && r.times.is_none() {
-            text.push_str(" (a tolerance-driven run is counted at its step limit, max_steps: lower it)");
-        }
-        text
-    })
+    r.plan().check_record_size(r.every, members, per_sample)
 }
 
 /// A message of the Rust library in the words of the Python API: the
@@ -337,8 +328,7 @@ where
         max_halvings: r.max_halvings,
         ..RunOptions::default()
     };
-    let plan = RunPlan { stepping: r.stepping(), times: r.times.as_deref(), events: r.events };
-    let planned = integrate_plan(&mut stepper, r.t0, &q0, &v0, &plan, &options, &mut StopFlag(stop))
+    let planned = integrate_plan(&mut stepper, r.t0, &q0, &v0, &r.plan(), &options, &mut StopFlag(stop))
         .map_err(|e| python_words(&format!("{} s = {}: {e}", r.method, S)))?;
     let traj = planned.trajectory;
     let samples = &traj.samples;
