@@ -18,7 +18,11 @@
 //!
 //! The same one-core cases for eight members of the paper's particle
 //! (`particle`, `n = 3`, `h = 0.2`), whose quadratic potential the
-//! stage-decoupled matrix and the kernel keep (`CONSTANT_STIFFNESS`).
+//! stage-decoupled matrix and the kernel keep (`CONSTANT_STIFFNESS`), but
+//! whose steps start from the previous step's factors (a closed affine
+//! cover whose first update moves a curved pair), a path the kernel hands
+//! back: its members step alone in their lanes, and the group shows what
+//! the lanes cost where the kernel cannot hold them.
 //!
 //! Run with `cargo bench -p spark-benches --bench lanes`.
 
