@@ -359,9 +359,11 @@ fn a_folder_in_the_way_of_a_file_leaves_the_earlier_results_whole() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Standard output that cannot be written (a full disk, a pipe whose
-/// reader has gone) ends the program with an error, never a panic: `print!`
-/// would panic with "failed printing to stdout" and exit status 101.
+/// Standard output that cannot be written (a full disk) ends the program
+/// with an error, never a panic: `print!` would panic with "failed printing
+/// to stdout" and exit status 101. A pipe whose reader has gone
+/// (`spark list | head -1`) ends it quietly with status 0: the reader took
+/// what it wanted, and `set -o pipefail` must not fail the pipeline.
 #[test]
 fn an_unwritable_standard_output_is_an_error_not_a_panic() {
     let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
@@ -378,6 +380,16 @@ fn an_unwritable_standard_output_is_an_error_not_a_panic() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!stderr.contains("panicked") && !stderr.contains("Broken pipe"), "{stderr}");
+    // The read end closed before the program writes (or, should it write
+    // first, while the listing, larger than a pipe's buffer, is still
+    // being written): the write fails with a broken pipe.
+    for args in [&["list", "--json"][..], &["list"][..]] {
+        let mut child = spark().args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success() && stderr.is_empty(), "{args:?}: {:?}: {stderr}", o.status);
+    }
 }
 
 /// `spark ARGS` must fail within `seconds`: an argument that is accepted

@@ -21,8 +21,11 @@ fn main() -> ExitCode {
             let mut out = std::io::stdout().lock();
             match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
                 Ok(()) => ExitCode::SUCCESS,
-                // The reader has gone (`spark list | head -1`): nothing to tell it.
-                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::FAILURE,
+                // The reader has gone (`spark list | head -1`) after taking
+                // what it wanted: the command did its work (its files are
+                // written), so it ends quietly and succeeds, and a pipeline
+                // under `set -o pipefail` does not fail for it.
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
                 Err(e) => {
                     say(&format!("error: cannot write to standard output: {e}"));
                     ExitCode::FAILURE
