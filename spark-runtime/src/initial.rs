@@ -569,3 +569,90 @@ where
     }
     Err(StepError::MaxIterations { t: t0, h: 0.0, history: Box::new(history) })
 }
+
+/// The kinetic energy of a state is not positive on the velocities the
+/// constraints allow ([`check_positive_kinetic_energy`]).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error(
+    "the kinetic energy is not positive at the initial state (t0 = {}): the mass matrix W = d²L/dv² has {negative} \
+     direction{} of negative kinetic energy among the velocities the constraints allow, so the equations describe \
+     no mechanical motion (a negative mass or inertia?).{}",
+    crate::error::Sci(*t),
+    if *negative == 1 { "" } else { "s" },
+    suspects(parameters)
+)]
+pub struct IndefiniteKineticEnergy {
+    /// The initial time.
+    pub t: f64,
+    /// How many independent admissible velocities have `vᵀWv < 0`.
+    pub negative: usize,
+    /// The parameters that are negative, with their values (the usual cause).
+    pub parameters: Vec<(String, f64)>,
+}
+
+fn suspects(parameters: &[(String, f64)]) -> String {
+    if parameters.is_empty() {
+        return " Give W positive definite on those velocities.".into();
+    }
+    let each: Vec<String> = parameters.iter().map(|(n, v)| format!("{n} = {}", crate::error::Sci(*v))).collect();
+    format!(" Parameters that are negative here: {}; give them physical (positive) values.", each.join(", "))
+}
+
+/// Checks that the kinetic energy is positive at `(t, q, v)` on the
+/// velocities the constraints allow: the mass matrix `W = ∇²_vv L` is
+/// positive definite on `ker K`, `K = ∂k/∂v`. A negative mass or inertia
+/// makes it indefinite (or negative definite) there; the step equations
+/// are still regular, so a run would go on and return a motion no
+/// mechanical system has. [`consistent_velocity`] does not require it
+/// (a Lagrangian need not be mechanical); the front ends, where a user
+/// types parameter values (`spark run --param`, the Python package), call
+/// it after that check.
+///
+/// It counts the negative eigenvalues of the saddle matrix
+/// `[[W, Kᵀ],[K, 0]]`: with `K` of full row rank `M` (which the regular
+/// saddle matrix of [`consistent_velocity`] implies), that matrix has `M`
+/// negative eigenvalues plus as many as `W` restricted to `ker K` (Haynsworth
+/// inertia additivity). One symmetric eigendecomposition of size `N + M`
+/// on the heap, once per run.
+pub fn check_positive_kinetic_energy<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    t: f64,
+    q: &Vector<N>,
+    v: &Vector<N>,
+) -> Result<(), IndefiniteKineticEnergy>
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let (mut vals, mut jac) = (StageValues::<N, M>::zeros(), StageJacobians::<N, M>::boxed_zeros());
+    sys.stage_jacobians_into(t, q, v, &Vector::<M>::zeros(), &mut vals, &mut jac);
+    let mut saddle = nalgebra::DMatrix::<f64>::zeros(N + M, N + M);
+    for i in 0..N {
+        for j in 0..N {
+            saddle[(i, j)] = 0.5 * (jac.mass[(i, j)] + jac.mass[(j, i)]);
+        }
+        for r in 0..M {
+            saddle[(N + r, i)] = jac.constraint_v[(r, i)];
+            saddle[(i, N + r)] = jac.constraint_v[(r, i)];
+        }
+    }
+    if saddle.iter().any(|x| !x.is_finite()) {
+        // `consistent_velocity` names the quantity that is not finite.
+        return Ok(());
+    }
+    let eigenvalues = nalgebra::SymmetricEigen::new(saddle).eigenvalues;
+    let largest = eigenvalues.amax();
+    // Eigenvalues within round-off of 0 belong to a singular saddle matrix,
+    // which `consistent_velocity` refuses with its cause.
+    let negative = eigenvalues.iter().filter(|&&x| x < -1e-12 * largest).count();
+    if negative <= M {
+        return Ok(());
+    }
+    let parameters = Sys::SOURCE
+        .parameters
+        .iter()
+        .zip(sys.parameter_values())
+        .filter(|(_, value)| *value < 0.0)
+        .map(|(name, value)| (name.to_string(), value))
+        .collect();
+    Err(IndefiniteKineticEnergy { t, negative: negative - M, parameters })
+}

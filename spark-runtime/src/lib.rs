@@ -163,16 +163,19 @@ pub use adaptive::{
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{
-    check_record_size, check_step_size, record_memory_limit, FailurePolicy, IntegrationError, NoObserver, Observe,
-    Observer, RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule, SubstepOverrun, Trajectory,
-    DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS, MAX_STEP_SIZE,
+    check_record_size, check_step_size, record_memory_limit, time_resolution, FailurePolicy, IntegrationError,
+    NoObserver, Observe, Observer, RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule,
+    SubstepOverrun, Trajectory, DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS, MAX_STEP_SIZE,
 };
 pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{
     event_time_tolerance, Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents,
     SystemEvents, EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,
 };
-pub use initial::{consistent_acceleration, consistent_velocity, ConsistencyPolicy};
+pub use initial::{
+    check_positive_kinetic_energy, consistent_acceleration, consistent_velocity, ConsistencyPolicy,
+    IndefiniteKineticEnergy,
+};
 pub use lanes::{
     integrate_ensemble, integrate_ensemble_until, EnsembleRun, LaneConstraintJacobians, LaneError, LaneFailure,
     LaneStageValues, LaneStatus, LaneStepper, LANES, MAX_ENSEMBLE_THREADS,

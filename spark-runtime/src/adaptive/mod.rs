@@ -164,11 +164,12 @@ impl AdaptiveOptions {
             ));
         }
         if let Some(h) = self.initial_step {
-            if !(h.is_finite() && h > 0.0) {
+            // A subnormal step overflows 1/h in the step's equations.
+            if !(h.is_finite() && h >= f64::MIN_POSITIVE) {
                 return Err(OptionError::float(
                     "AdaptiveOptions::initial_step",
                     h,
-                    "finite and positive (a magnitude; None estimates it)",
+                    "finite and at least 2.2e-308 (a magnitude; None estimates it)",
                 ));
             }
         }
@@ -299,7 +300,9 @@ where
         iterations += self.last_history().len();
         solves += 1;
         self.restore_continuation(&saved);
-        let half = 0.5 * h;
+        // The midpoint on the time grid, so that the half steps' sizes are
+        // the times they advance (see `on_time_grid`).
+        let half = on_time_grid(state.t, 0.5 * h);
         let first = match self.step(state, half) {
             Ok(r) => r,
             Err(e) => return Err(fail(self, solves, iterations, e)),
@@ -402,12 +405,12 @@ pub enum AdaptiveError {
     },
     /// The controller asked for a step below the smallest allowed one.
     #[error(
-        "step from t = {} needs h = {} below the smallest step {}{}; \
-         loosen rtol/atol, lower AdaptiveOptions::min_step, or check the system for a singularity",
+        "step from t = {} needs h = {} below the smallest step {}{}{}",
         Sci(*t),
         Sci(*h),
         Sci(*min_step),
-        why_too_small(*scaled_error, last_newton.as_deref())
+        why_too_small(*scaled_error, last_newton.as_deref()),
+        too_small_advice(*t, *min_step)
     )]
     StepSizeTooSmall {
         /// Where.
@@ -496,6 +499,24 @@ fn why_too_small(scaled_error: f64, last_newton: Option<&StepError>) -> String {
     }
 }
 
+/// What to change when a step falls below `floor` at `t`. Where the floor
+/// is the resolution of `t` (16 units in the last place), far from
+/// `t = 0`, the steps the problem needs are shorter than the times `f64`
+/// tells apart there, whatever the tolerance: the run has to start nearer
+/// `t = 0`. Otherwise the floor is `AdaptiveOptions::min_step`.
+fn too_small_advice(t: f64, floor: f64) -> String {
+    if floor > 0.0 && floor == resolution(t) {
+        format!(
+            " (16 units in the last place of t: the resolution of t at |t| = {}, below which a step does not \
+             advance time by its size); run nearer t = 0 (for a system without explicit time dependence a shift \
+             of t0 changes nothing else), or loosen rtol/atol if the error estimate asked for the step",
+            Sci(t.abs())
+        )
+    } else {
+        "; loosen rtol/atol, lower AdaptiveOptions::min_step, or check the system for a singularity".to_string()
+    }
+}
+
 /// Whether the method's step is symmetric (`Φ_{−h} = Φ_h^{−1}`).
 pub fn is_symmetric(method: Method) -> bool {
     matches!(method, Method::Gauss | Method::LobattoIIIAB | Method::LobattoIIIBALda)
@@ -516,6 +537,40 @@ where
     } else {
         0.01 * d0 / d1
     }
+}
+
+/// The magnitude of a run's first step from `state`: the given
+/// [`AdaptiveOptions::initial_step`], or the estimate of [`initial_step`]
+/// raised to the smallest step a run takes there (far from `t = 0` the
+/// estimate can lie below the resolution of `t`, and the controller then
+/// starts from that floor rather than give up before its first estimate),
+/// at most `max_step`.
+pub(super) fn first_step<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    state: &State<N>,
+    options: &AdaptiveOptions,
+    max_step: f64,
+) -> f64
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let h = match options.initial_step {
+        Some(h) => h,
+        None => initial_step(sys, state, options).max(options.min_step.max(resolution(state.t))),
+    };
+    h.min(max_step)
+}
+
+/// The signed step `h` from `t` rounded to the time grid: the difference
+/// between `t` and the `f64` nearest `t + h`, which is what the step's end
+/// time advances by. A step integrated over `h` itself but stamped
+/// `t + h` rounded would carry a time off by up to half a unit in the last
+/// place of `t`, and over many steps far from `t = 0` the errors add up
+/// (from `t = 1e12` to `1e12 + 10` at `rtol = 1e-8`, a skate turning at
+/// unit rate reached the end having turned 9.998). Near `t = 0` it changes
+/// `h` by round-off only.
+pub(crate) fn on_time_grid(t: f64, h: f64) -> f64 {
+    (t + h) - t
 }
 
 /// The resolution of `t` near `t`: a step below it does not advance time.
@@ -662,7 +717,7 @@ where
     let k = (stepper.tableau().method.order(S) + 1) as f64;
     let (alpha, beta) = (0.7 / k, 0.4 / k);
     let mut report = AdaptiveReport { smallest_step: f64::INFINITY, ..AdaptiveReport::default() };
-    let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), &state, options)).min(max_step);
+    let mut h = first_step(stepper.system(), &state, options, max_step);
     let mut err_prev = 1.0f64;
     // The last error estimate (∞ after a Newton failure; NaN before the first).
     let mut last_err = f64::NAN;
@@ -672,7 +727,7 @@ where
         let remaining = (t_end - state.t).abs();
         // Land on t_end; stretch a step that would leave a sliver behind.
         let last = h >= remaining || remaining - h < 0.01 * h;
-        let this = if last { remaining } else { h };
+        let this = if last { remaining } else { on_time_grid(state.t, dir * h).abs() };
         let floor = options.min_step.max(resolution(state.t));
         if this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, last_err, None, report));

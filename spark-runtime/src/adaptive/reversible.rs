@@ -3,8 +3,8 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, initial_step, is_symmetric, resolution, whole_run, AdaptiveError, AdaptiveOptions, AdaptiveReport,
-    AdaptiveRun, Output, Recorder, Taken,
+    accept, first_step, is_symmetric, on_time_grid, resolution, whole_run, AdaptiveError, AdaptiveOptions,
+    AdaptiveReport, AdaptiveRun, Output, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
 use crate::events::EventFunctions;
@@ -150,7 +150,7 @@ where
     Sys: NonholonomicSystem<N, M>,
 {
     let k = (stepper.tableau().method.order(S) + 1) as f64;
-    let mut h = options.initial_step.unwrap_or_else(|| initial_step(stepper.system(), state, options)).min(max_step);
+    let mut h = first_step(stepper.system(), state, options, max_step);
     // The last error estimate (∞ after a Newton failure; NaN before the first).
     let mut last_err = f64::NAN;
     for _ in 0..30 {
@@ -223,7 +223,7 @@ where
         // step behind (t accumulated in steps of 0.1 reaches 0.9999999999999999,
         // not 1) is stretched to t_end instead.
         let last = h >= remaining || remaining - h < options.min_step.max(resolution(t_end));
-        let this = if last { remaining } else { h };
+        let this = if last { remaining } else { on_time_grid(state.t, dir * h).abs() };
         if this.is_nan() || this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, f64::NAN, None, report));
         }

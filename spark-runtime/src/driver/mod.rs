@@ -81,8 +81,14 @@ pub const MAX_STEP_SIZE: f64 = 1.340_780_792_994_259_6e154;
 /// change: `h` must be finite and nonzero, a normal number (for a
 /// subnormal `h`, `|h| < f64::MIN_POSITIVE ≈ 2.2e-308`, `1/h` overflows in
 /// the step's equations), at most [`MAX_STEP_SIZE`] in magnitude (beyond
-/// it `h²` overflows in the step's Newton matrix), and large enough to move
-/// `t0` (`t0 + h ≠ t0`; not checked for a non-finite `t0`).
+/// it `h²` overflows in the step's Newton matrix), and at least
+/// [`time_resolution`]`(t0)`, 16 units in the last place of `t0` (not
+/// checked for a non-finite `t0`): the time of step `k` is `t0 + k·h`
+/// rounded to `f64`, and with a step of a few units in the last place the
+/// rounded times come out uneven and even repeat (from `t0 = 1e12`,
+/// `h = 1e-4` steps 2 and 3 both end at `1e12 + 2.44e-4`), so the samples
+/// would carry wrong times. At 16 units each time is off by at most 1/32
+/// of a step, the floor the tolerance-driven drivers step down to.
 /// [`Stepper::integrate`] checks the step size of every schedule with it
 /// before the first step; front ends call it to refuse a step size up
 /// front with the values they were given.
@@ -97,10 +103,19 @@ pub fn check_step_size(t0: f64, h: f64) -> Result<(), &'static str> {
         return Err("step size is above 1.34e154, where h² overflows f64 in the step's Newton matrix; use a smaller \
              |h| (the step sizes of a problem are fractions of its time scale)");
     }
-    if t0.is_finite() && t0 + h == t0 {
-        return Err("step size is below the resolution of t at t0 (t0 + h == t0); use a larger |h| or a t0 nearer 0");
+    if t0.is_finite() && h.abs() < time_resolution(t0) {
+        return Err("step size is below the resolution of t at t0 (16 units in the last place of t0, where the \
+             times t0 + k·h round to uneven or repeated values); use a larger |h| or a t0 nearer 0");
     }
     Ok(())
+}
+
+/// The resolution of time near `t`: `16·ε·|t|`, 16 units in the last place
+/// of `t` at most. Steps below it do not advance time by their size: the
+/// fixed-step schedules refuse them ([`check_step_size`]) and the
+/// tolerance-driven drivers stop there.
+pub fn time_resolution(t: f64) -> f64 {
+    16.0 * f64::EPSILON * t.abs()
 }
 
 impl Schedule<'_> {

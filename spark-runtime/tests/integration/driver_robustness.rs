@@ -161,12 +161,17 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
     let (q0, v0) = speed_start();
     let mut st: spark_runtime::Stepper![ConstantSpeed, 2] =
         Stepper::new(ConstantSpeed::default(), Tableau::new(Method::Gauss).unwrap());
-    let cases: [(f64, Schedule<'_>, &str); 10] = [
+    let cases: [(f64, Schedule<'_>, &str); 12] = [
         (0.0, Schedule::Fixed { h: 1e-311, steps: 3 }, "subnormal"),
         (0.0, Schedule::Fixed { h: -5e-324, steps: 3 }, "subnormal"),
         (0.0, Schedule::Sampled { h: 1e-311, times: &[1e-310] }, "subnormal"),
         (0.0, Schedule::Until { h: 1e-311, t_end: 1e-310 }, "subnormal"),
         (1e20, Schedule::Fixed { h: 1.0, steps: 3 }, "resolution of t"),
+        // t0 + h moves, but the rounded times t0 + k·h do not advance by h:
+        // from 1e12 in steps of 1e-4 (0.82 units in the last place) steps 2
+        // and 3 would both end at 1e12 + 2.44e-4.
+        (1e12, Schedule::Fixed { h: 1e-4, steps: 3 }, "resolution of t"),
+        (-1e12, Schedule::Sampled { h: -1e-3, times: &[-1e12 - 1e-2] }, "resolution of t"),
         (0.0, Schedule::Times(&[1e-320, 1.0]), "closer than 2.2e-308"),
         // h² overflows in the Newton matrix: refused up front, where the run
         // would fail after halving with "non-finite value in the Jacobian".
@@ -187,7 +192,11 @@ fn unusable_step_sizes_are_refused_before_the_first_step() {
     assert!(spark_runtime::check_step_size(0.0, MAX_STEP_SIZE * (1.0 + f64::EPSILON))
         .unwrap_err()
         .contains("1.34e154"));
-    assert!(spark_runtime::check_step_size(1.0, 1e-17).unwrap_err().contains("t0 + h == t0"));
+    assert!(spark_runtime::check_step_size(1.0, 1e-17).unwrap_err().contains("resolution of t at t0"));
+    // 16 units in the last place of t0 is the smallest step.
+    let floor = spark_runtime::time_resolution(1e12);
+    assert_eq!(spark_runtime::check_step_size(1e12, floor), Ok(()));
+    assert!(spark_runtime::check_step_size(1e12, -floor * (1.0 - f64::EPSILON)).is_err());
     assert!(spark_runtime::check_step_size(f64::NAN, 0.1).is_ok(), "t0 is checked with the initial state");
     // `Stepper::step` called directly refuses a subnormal step as well,
     // before Newton (where `1/h` overflows into a non-finite residual), and
@@ -232,7 +241,8 @@ fn halving_is_bounded_and_needs_no_stack() {
 }
 
 /// Halving stops where half a step no longer changes `t`: at t = 1e15
-/// (resolution 0.125) a failing step of size 1 is halved a few times and
+/// (resolution 0.125) a failing step of size 4 (a fixed step there is at
+/// least 16 units in the last place, 3.55) is halved a few times and
 /// the run reports the Newton failure, not a step "below the resolution of
 /// t" that the driver itself produced.
 #[test]
@@ -241,7 +251,7 @@ fn halving_stops_at_the_resolution_of_t() {
     let mut sys = Expiring::default();
     sys.set_parameter("t_end", 1e15).unwrap();
     let mut st: spark_runtime::Stepper![Expiring, 2] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
-    let schedule = Schedule::Fixed { h: 1.0, steps: 3 };
+    let schedule = Schedule::Fixed { h: 4.0, steps: 3 };
     let err = st.integrate(1e15, &q0, &v0, schedule, &quiet(MAX_HALVINGS), &mut NoObserver).unwrap_err();
     match &err {
         IntegrationError::Step { index: 0, source: StepError::NonFinite { h, .. }, partial, .. } => {

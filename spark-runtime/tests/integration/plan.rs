@@ -295,3 +295,37 @@ fn the_report_of_a_tolerance_driven_run_covers_the_steps_it_does_not_record() {
     assert_eq!(end.report.max_energy_error, all.report.max_energy_error);
     assert_eq!(end.report.max_constraint_residual, all.report.max_constraint_residual);
 }
+
+/// Far from `t = 0` the first step the controller estimates can lie below
+/// the resolution of `t` (16 units in the last place: 3.6e-3 at 1e12,
+/// where the event skate's estimate is 3e-3); the run then starts from that
+/// floor and proceeds as it does from `t = 0` (the system is autonomous),
+/// its times strictly increasing. A first step given below the floor is
+/// refused with the resolution named, not with advice to loosen the
+/// tolerance.
+#[test]
+fn a_tolerance_driven_run_far_from_t_zero_starts_at_the_resolution_of_t() {
+    let start = event_start();
+    let (q0, v0) = (start.q, start.v);
+    let t0 = 1e12;
+    let floor = spark_runtime::time_resolution(t0);
+    let options = RunOptions::default();
+    let plan = RunPlan { stepping: Stepping::Tolerance(tolerance(1e-6, t0 + 2.0)), times: None, events: false };
+    let run = integrate_plan(&mut event_stepper(), t0, &q0, &v0, &plan, &options, &mut NoObserver)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let t: Vec<f64> = run.trajectory.samples.iter().map(|s| s.t).collect();
+    assert_eq!((t[0], *t.last().unwrap()), (t0, t0 + 2.0));
+    assert!(t.windows(2).all(|w| w[1] - w[0] >= floor), "{t:?}");
+    // The same steps' states from t = 0 agree to the tolerance.
+    let shifted = RunPlan { stepping: Stepping::Tolerance(tolerance(1e-6, 2.0)), times: None, events: false };
+    let near = integrate_plan(&mut event_stepper(), 0.0, &q0, &v0, &shifted, &options, &mut NoObserver).unwrap();
+    let (a, b) = (run.trajectory.samples.last().unwrap(), near.trajectory.samples.last().unwrap());
+    assert!((a.q - b.q).amax() < 1e-4 && (a.v - b.v).amax() < 1e-4, "{:?} vs {:?}", a.q, b.q);
+    // A first step below the resolution names it.
+    let given = Tolerance { first_step: Some(floor / 4.0), ..tolerance(1e-6, t0 + 2.0) };
+    let plan = RunPlan { stepping: Stepping::Tolerance(given), times: None, events: false };
+    let err = integrate_plan(&mut event_stepper(), t0, &q0, &v0, &plan, &options, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, PlanError::Tolerance(AdaptiveError::StepSizeTooSmall { .. })), "{err:?}");
+    let text = err.to_string();
+    assert!(text.contains("resolution of t") && text.contains("nearer t = 0"), "{text}");
+}

@@ -310,8 +310,9 @@ fn dense_observers_see_every_accepted_adaptive_step_continuously() {
 /// places an event against the largest step it may take. Particle, Gauss
 /// s = 4, rtol = atol = 1e-13, `x = 0.3` crossing over `t ≤ 4`, against the
 /// fixed run with h = 0.01. The dense output's error grows like a power of
-/// the step, so each smaller bound places the event more accurately, and at
-/// 0.02 (pieces of 0.01, the fixed run's step) to 1e-12.
+/// the step, so each smaller bound places the event more accurately, down
+/// to the round-off of the comparison, 1e-12, at 0.02 (pieces of 0.01, the
+/// fixed run's step) or before.
 #[test]
 fn adaptive_event_times_follow_the_largest_step() {
     let start = State::new(0.0, Vector::<3>::new(1.0, 0.0, 0.0), Vector::<3>::new(0.0, 1.0, 0.0));
@@ -346,7 +347,11 @@ fn adaptive_event_times_follow_the_largest_step() {
         let dy = (end.q - fixed_end.q).amax().max((end.v - fixed_end.v).amax());
         let bound = max_step.map_or("none".to_string(), |h| h.to_string());
         println!("| {bound} | {:.2} | {dt:.1e} | {dy:.1e} |", run.report.largest_step);
-        assert!(dt < previous, "max_step {max_step:?}: event time difference {dt:.1e}, not below {previous:.1e}");
+        // About 1e-12 the comparison reaches the round-off of the two runs.
+        assert!(
+            dt < previous || dt <= 2e-12,
+            "max_step {max_step:?}: event time difference {dt:.1e}, not below {previous:.1e}"
+        );
         assert!(dy < 1e-12, "max_step {max_step:?}: end states {dy:.1e} apart");
         previous = dt;
     }
