@@ -727,11 +727,14 @@ where
         let remaining = (t_end - state.t).abs();
         // Land on t_end; stretch a step that would leave a sliver behind.
         let last = h >= remaining || remaining - h < 0.01 * h;
-        let this = if last { remaining } else { on_time_grid(state.t, dir * h).abs() };
+        let this = if last { remaining } else { h };
         let floor = options.min_step.max(resolution(state.t));
         if this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, last_err, None, report));
         }
+        // After the floor's test: rounding moves a step at the floor by half
+        // a unit in the last place of t at most.
+        let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
             return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
         }

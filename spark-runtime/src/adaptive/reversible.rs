@@ -223,10 +223,12 @@ where
         // step behind (t accumulated in steps of 0.1 reaches 0.9999999999999999,
         // not 1) is stretched to t_end instead.
         let last = h >= remaining || remaining - h < options.min_step.max(resolution(t_end));
-        let this = if last { remaining } else { on_time_grid(state.t, dir * h).abs() };
+        let this = if last { remaining } else { h };
         if this.is_nan() || this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, f64::NAN, None, report));
         }
+        // After the floor's test, as in the error-controlled loop.
+        let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
             return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
         }
