@@ -151,6 +151,15 @@ fn spark_run_refuses_what_does_not_apply_naming_the_flag() {
         (&["run", "skate", "--sample-every", "0"][..], "--sample-every must be a positive number"),
         (&["run", "skate", "--sample-every", "1", "--every", "2"][..], "cannot be used with"),
         (&["run", "skate", "--rtol", "1e-12", "--max-steps", "3"][..], "--max-steps"),
+        // A fixed-step run would ignore a step limit.
+        (&["run", "skate", "--max-steps", "10"][..], "--max-steps applies to tolerance-driven runs"),
+        (&["run", "skate", "--rtol", "1e-6", "--max-steps", "-1"][..], "invalid value '-1' for '--max-steps"),
+        (&["run", "skate", "--every", "-2"][..], "invalid value '-2' for '--every"),
+        (&["run", "skate", "--rtol", "1e-6", "--first-step", "1e-320"][..], "--first-step 1.000e-320 is subnormal"),
+        // The advice names flags that apply to the run: a larger DT for
+        // output times, a lower step limit for a tolerance-driven run.
+        (&["run", "skate", "--sample-every", "1e-7"][..], "give a --sample-every of 8.000e-7 or more"),
+        (&["run", "skate", "--rtol", "1e-6", "--max-steps", "1000000000000"][..], "or lower --max-steps"),
     ] {
         let o =
             Command::new(env!("CARGO_BIN_EXE_spark")).args(args).args(["--no-plot", "--out", out]).output().unwrap();
@@ -158,5 +167,67 @@ fn spark_run_refuses_what_does_not_apply_naming_the_flag() {
         assert!(!o.status.success(), "spark {args:?} should fail");
         assert!(stderr.contains(expected), "spark {args:?}: expected `{expected}` in\n{stderr}");
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Far from t = 0 time itself is coarse (1.2e-4 apart at 1e12): a fixed
+/// step below 16 units in the last place there is refused, where the
+/// rounded times t0 + k·h would repeat (1e-4: steps 2 and 3 both ended at
+/// 1e12 + 2.44e-4) or space unevenly; a step above it runs, to the --t-end
+/// given (the interval, itself rounded, is not a whole number of steps,
+/// but the last step's time rounds to it), with strictly increasing times.
+/// A tolerance-driven run starts there from the resolution of t when its
+/// estimated first step lies below it.
+#[test]
+fn runs_far_from_t_zero_have_times_that_advance_by_their_steps() {
+    let dir = out_dir("far");
+    let out = dir.to_str().unwrap();
+    for h in ["1e-4", "1e-3"] {
+        let o = spark(&["run", "skate", "--t0", "1e12", "--h", h, "--t-end", "1000000000000.003", "--out", out]);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && stderr.contains("resolution of t at t0"), "--h {h}: {stderr}");
+    }
+    let times = |args: &[&str]| -> Vec<f64> {
+        let o = spark(&[args, &["--no-plot", "--out", out]].concat());
+        assert!(o.status.success(), "spark {args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        let csv = std::fs::read_to_string(dir.join("skate_gauss_s2.csv")).unwrap();
+        csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect()
+    };
+    let fixed = times(&["run", "skate", "--t0", "1e12", "--h", "4e-3", "--t-end", "1000000000000.04"]);
+    assert_eq!(fixed.len(), 11);
+    assert_eq!((fixed[0], fixed[10]), (1e12, 1000000000000.04));
+    assert!(fixed.windows(2).all(|w| w[1] > w[0]), "{fixed:?}");
+    let adaptive = times(&["run", "skate", "--t0", "1e12", "--rtol", "1e-6", "--t-end", "1000000000001"]);
+    assert_eq!((adaptive[0], *adaptive.last().unwrap()), (1e12, 1000000000001.0));
+    assert!(adaptive.windows(2).all(|w| w[1] > w[0]), "{adaptive:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A parameter that makes the kinetic energy negative on the motions the
+/// constraints allow (a negative mass or inertia) is refused before the
+/// run, naming it, rather than integrated into a motion no mechanical
+/// system has; negative values of other parameters (an inclination, a
+/// gravity pointing the other way) run.
+#[test]
+fn a_negative_mass_is_refused_and_other_negative_parameters_run() {
+    let dir = out_dir("mass");
+    let out = dir.to_str().unwrap();
+    for (param, name) in [("m=-1", "m = -1.000e0"), ("inertia=-2", "inertia = -2.000e0")] {
+        let o = spark(&["run", "skate", "--param", param, "--t-end", "1", "--no-plot", "--out", out]);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "--param {param} should fail");
+        for w in ["kinetic energy is not positive", "Parameters that are negative here", name] {
+            assert!(stderr.contains(w), "--param {param}: expected `{w}` in\n{stderr}");
+        }
+        assert!(!dir.join("report.md").exists());
+    }
+    // Both negative: the kinetic energy is negative definite, still refused.
+    let mut spec = RunSpec::defaults(SystemKind::Skate, Method::Gauss, 2);
+    spec.parameters = vec![("m".into(), -1.0), ("inertia".into(), -1.0)];
+    let err = run(&spec, &|_| true).unwrap_err();
+    assert!(matches!(err, RunError::KineticEnergy { .. }), "{err}");
+    assert!(err.to_string().contains("2 directions"), "{err}");
+    spec.parameters = vec![("g".into(), -9.81), ("beta".into(), -0.5)];
+    run(&spec, &|_| true).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -199,13 +199,26 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
     // step longer or shorter, and the run would end elsewhere than asked.
     // The round-off of the division stays far below either (3e-16 × steps).
     let tolerance = (WHOLE_STEPS_TOLERANCE * steps).min((16.0 * f64::EPSILON * steps).max(1e-3));
+    // Far from t = 0 the interval itself is rounded (t_end − t0 is a
+    // multiple of the spacing of f64 there, up to 1/32 of a step): a
+    // number of steps whose end t0 + k·h rounds to the given --t-end ends
+    // the run exactly there, the time the driver gives its last step.
+    let lands = |k: f64| k >= 1.0 && t0 + k * h == t_end;
+    if let Some(k) = [steps, ratio.floor(), ratio.ceil()].into_iter().find(|&k| lands(k)) {
+        return Ok(k as usize);
+    }
     if (ratio - steps).abs() > tolerance {
         let (below, above) = (ratio.floor().max(1.0), ratio.ceil());
         // Below one step both neighbours are the one step.
-        let ends = if below == above {
-            digits(t0 + above * h)
+        let (low, high) = (t0 + below * h, t0 + above * h);
+        // Fifteen digits hide round-off noise, but far from t = 0 they can
+        // print two different ends alike: then every digit.
+        let ends = if below == above || low == high {
+            digits(high)
+        } else if digits(low) == digits(high) || digits(low) == digits(t_end) || digits(high) == digits(t_end) {
+            format!("{low:e} or {high:e}")
         } else {
-            format!("{} or {}", digits(t0 + below * h), digits(t0 + above * h))
+            format!("{} or {}", digits(low), digits(high))
         };
         let count = if above == 1.0 { "1 step".to_string() } else { format!("{above:.0} steps") };
         return Err(format!(

@@ -28,7 +28,7 @@ pub struct RunArgs {
     #[arg(long, short, default_value = "gauss")]
     pub method: String,
     /// Number of stages s.
-    #[arg(long, short, default_value_t = 2)]
+    #[arg(long, short, default_value_t = 2, allow_hyphen_values = true)]
     pub stages: usize,
     /// Step size h (default: the system's, see `spark list`).
     #[arg(long = "h", visible_alias = "step", allow_hyphen_values = true)]
@@ -56,7 +56,7 @@ pub struct RunArgs {
     /// recorded samples would not fit in memory (at most 4 GiB, or half the
     /// available memory), or whose JSON trajectory would exceed 64 MiB, are
     /// refused before they start, with the --every that fits.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true)]
     pub every: usize,
     /// Trajectory file format.
     #[arg(long, value_enum, default_value_t = Format::Csv)]
@@ -104,11 +104,12 @@ pub struct RunArgs {
     /// interval).
     #[arg(long, allow_hyphen_values = true)]
     pub max_step: Option<f64>,
-    /// Most step attempts (accepted and rejected) of a tolerance-driven run;
-    /// a run that needs more ends with an error. The recorded samples are
-    /// checked against memory at this count before the run starts.
-    #[arg(long, default_value_t = DEFAULT_MAX_STEPS)]
-    pub max_steps: usize,
+    /// Most step attempts (accepted and rejected) of a tolerance-driven run
+    /// (default 1000000); a run that needs more ends with an error. The
+    /// recorded samples are checked against memory at this count before the
+    /// run starts.
+    #[arg(long, allow_hyphen_values = true)]
+    pub max_steps: Option<usize>,
     /// Record the state at t0 + k·DT for k = 1, 2, … up to --t-end, from
     /// the continuous extension of the steps (which are not shortened to
     /// land on these times), instead of at every --every-th step.
@@ -166,7 +167,13 @@ fn sample_times(t0: f64, t_end: f64, dt: f64) -> Result<Vec<f64>, String> {
 fn tolerance(a: &RunArgs, t_end: f64) -> Result<Option<Tolerance>, String> {
     let (rtol, atol) = match (a.rtol, a.atol) {
         (None, None) => {
-            for (flag, given) in [("--first-step", a.first_step.is_some()), ("--max-step", a.max_step.is_some())] {
+            // Each would be ignored by a run of fixed steps.
+            let given = [
+                ("--first-step", a.first_step.is_some()),
+                ("--max-step", a.max_step.is_some()),
+                ("--max-steps", a.max_steps.is_some()),
+            ];
+            for (flag, given) in given {
                 if given {
                     return Err(format!("{flag} applies to tolerance-driven runs: give --rtol and/or --atol"));
                 }
@@ -193,12 +200,49 @@ fn tolerance(a: &RunArgs, t_end: f64) -> Result<Option<Tolerance>, String> {
             if !(x.is_finite() && x > 0.0) {
                 return Err(format!("{flag} must be a positive number, got {x:.3e}"));
             }
+            // Below the smallest normal number 1/h overflows in a step.
+            if x < f64::MIN_POSITIVE {
+                return Err(format!("{flag} {x:.3e} is subnormal; give at least 2.2e-308"));
+            }
         }
     }
-    if a.max_steps == 0 {
+    let max_steps = a.max_steps.unwrap_or(DEFAULT_MAX_STEPS);
+    if max_steps == 0 {
         return Err("--max-steps must be at least 1".into());
     }
-    Ok(Some(Tolerance { rtol, atol, first_step: a.first_step, max_step: a.max_step, max_steps: a.max_steps, t_end }))
+    Ok(Some(Tolerance { rtol, atol, first_step: a.first_step, max_step: a.max_step, max_steps, t_end }))
+}
+
+/// What a run records, for the advice of [`check_output_size`]: each mode
+/// records fewer samples through other flags.
+#[derive(Clone, Copy, Debug)]
+enum Recording {
+    /// Every `--every`-th fixed step.
+    Steps,
+    /// Every `--every`-th accepted step of a tolerance-driven run, counted
+    /// at its step limit `--max-steps`.
+    Tolerance,
+    /// One sample per output time `t0 + k·DT` (`--sample-every DT`).
+    Times {
+        /// The DT given.
+        dt: f64,
+    },
+}
+
+impl Recording {
+    /// How to record at most a `thin`-th of the samples.
+    fn fewer(self, thin: u64) -> String {
+        match self {
+            Recording::Steps => format!("record fewer with --every {thin} or more, raise --h, or shorten --t-end"),
+            Recording::Tolerance => format!(
+                "record fewer with --every {thin} or more, or lower --max-steps (a tolerance-driven run is counted \
+                 at its step limit)"
+            ),
+            Recording::Times { dt } => {
+                format!("give a --sample-every of {:.3e} or more, or shorten --t-end", dt * thin as f64)
+            }
+        }
+    }
 }
 
 /// Refuses runs whose recorded trajectory would not fit in memory, or whose
@@ -210,14 +254,19 @@ fn check_output_size(
     holonomic: bool,
     format: Format,
     every: usize,
+    recording: Recording,
 ) -> Result<(), String> {
     // Per sample: the run's record and columns, and the figure's points.
     let per_sample = crate::run::bytes_per_sample(n, m) + 16 * (2 * n as u64 + 3);
     if let Err(e) = spark_runtime::check_record_size(steps, every, 1, per_sample) {
+        // `e.every` is the record interval that fits; with output times
+        // (every = 1) it is also the factor by which DT has to grow.
         return Err(format!(
-            "the run records {:.3e} samples ({:.3e} bytes in memory), more than the limit of {:.3e} bytes; \
-             record fewer with --every {} or more, raise --h, or shorten --t-end",
-            e.samples as f64, e.bytes, e.limit as f64, e.every,
+            "the run records {:.3e} samples ({:.3e} bytes in memory), more than the limit of {:.3e} bytes; {}",
+            e.samples as f64,
+            e.bytes,
+            e.limit as f64,
+            recording.fewer(e.every as u64),
         ));
     }
     let samples = ((steps / every) as u64).saturating_add(2);
@@ -228,10 +277,10 @@ fn check_output_size(
             let per = json_trajectory_bytes(1, n, holonomic);
             return Err(format!(
                 "the JSON trajectory would take about {:.3e} bytes, more than the limit of {:.3e}; write it as CSV \
-                 (--format csv) or record fewer samples with --every {} or more",
+                 (--format csv) or {}",
                 json as f64,
                 MAX_JSON_TRAJECTORY_BYTES as f64,
-                thin(MAX_JSON_TRAJECTORY_BYTES / per),
+                recording.fewer(thin(MAX_JSON_TRAJECTORY_BYTES / per)),
             ));
         }
     }
@@ -296,12 +345,12 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
         Some(_) => 1,
     };
     let times = a.sample_every.map(|dt| sample_times(t0, t_end, dt)).transpose()?;
-    let (recorded, every) = match (&times, &tolerance) {
-        (Some(times), _) => (times.len(), 1),
-        (None, Some(t)) => (t.max_steps, a.every),
-        (None, None) => (steps, a.every),
+    let (recorded, every, recording) = match (&times, &tolerance, a.sample_every) {
+        (Some(times), _, Some(dt)) => (times.len(), 1, Recording::Times { dt }),
+        (None, Some(t), _) => (t.max_steps, a.every, Recording::Tolerance),
+        _ => (steps, a.every, Recording::Steps),
     };
-    check_output_size(recorded, entry.n, entry.m, entry.effects.holonomic, a.format, every)?;
+    check_output_size(recorded, entry.n, entry.m, entry.effects.holonomic, a.format, every, recording)?;
     let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
     spec.t0 = t0;
     for (flag, what, given) in [("--q0", "q0", &a.q0), ("--v0", "v0", &a.v0)] {

@@ -495,6 +495,10 @@ impl<Sys: Dispatch<N, M>, const N: usize, const M: usize> StageVisitor<Sys, N, M
             Ok(Vector::<N>::from_column_slice(x))
         };
         let (q0, v0) = (vector("q0", q0)?, vector("v0", v0)?);
+        // As in `spark run`: a negative mass or inertia from `--param` is
+        // refused, not integrated.
+        spark_runtime::check_positive_kinetic_energy(&system, spec.t0, &q0, &v0)
+            .map_err(|source| RunError::KineticEnergy { system: entry.name, source })?;
         let tableau = Tableau::<S>::new(spec.method)?;
         let mut stepper = Stepper::<Sys, N, M, S, D>::new(system, tableau).with_options(spec.newton);
         let mut declared = Sys::EVENTS[index];

@@ -21,9 +21,10 @@ pub use ensemble::{run_ensemble, run_ensemble_with, EnsembleError, MAX_ENSEMBLE_
 use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::thread_cpu_time;
 use spark_runtime::{
-    consistent_velocity, event_rows, integrate_plan, AdaptiveReport, ConsistencyPolicy, EventRow, IntegrationError,
-    LaneStatus, LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError, RunOptions, RunPlan, State,
-    Stepper, Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS, LANES,
+    check_positive_kinetic_energy, consistent_velocity, event_rows, integrate_plan, AdaptiveReport, ConsistencyPolicy,
+    EventRow, IntegrationError, LaneStatus, LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError,
+    RunOptions, RunPlan, State, Stepper, Stepping, Tableau, TableauError, Tolerance, Vector, DEFAULT_MAX_HALVINGS,
+    LANES,
 };
 use std::time::{Duration, Instant};
 
@@ -116,6 +117,15 @@ pub enum RunError {
     /// A parameter was rejected by the system.
     #[error(transparent)]
     Parameter(#[from] spark_runtime::SystemError),
+    /// The parameters make the kinetic energy not positive at the initial
+    /// state (a negative mass or inertia).
+    #[error("system `{system}`: {source}")]
+    KineticEnergy {
+        /// The system.
+        system: &'static str,
+        /// The directions and the negative parameters.
+        source: spark_runtime::IndefiniteKineticEnergy,
+    },
     /// The step size or step count is unusable.
     #[error("invalid run: {0}")]
     Invalid(String),
@@ -573,14 +583,19 @@ where
             });
         }
     }
-    consistent_velocity(probe, spec.t0, q0, v0, spec.consistency).map_err(|e| match e {
+    let v = consistent_velocity(probe, spec.t0, q0, v0, spec.consistency).map_err(|e| match e {
         spark_runtime::StepError::InconsistentInitialState { residual, tolerance } => {
             RunError::InconsistentVelocities { system: key, residual, tolerance, default: entry.v0 }
         }
         e => {
             RunError::Integration { system: key, method: spec.method, stages: S, source: IntegrationError::Initial(e) }
         }
-    })
+    })?;
+    // Parameters come from the user here: a negative mass or inertia is
+    // refused rather than integrated into a motion no mechanical system has.
+    check_positive_kinetic_energy(probe, spec.t0, q0, &v)
+        .map_err(|source| RunError::KineticEnergy { system: key, source })?;
+    Ok(v)
 }
 
 /// The generic run: one stepper type, fixed steps, per-step observation.
