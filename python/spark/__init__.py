@@ -615,6 +615,9 @@ class System:
             x = _real("first_step", first_step)
             if not (math.isfinite(x) and x > 0):
                 raise ArgumentError(f"first_step = {x!r} must be finite and positive (a step magnitude)")
+            # Below the smallest normal float 1/h overflows in a step.
+            if x < 2.2250738585072014e-308:
+                raise ArgumentError(f"first_step = {x!r} is subnormal; give at least 2.2e-308")
             req["first_step"] = x
         if max_step is not None:
             x = _real("max_step", max_step)

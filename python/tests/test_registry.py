@@ -258,6 +258,16 @@ def test_a_start_where_no_step_can_succeed_is_refused_with_the_cause():
     # Newton matrix).
     with pytest.raises(spark.SparkError, match=r"mass matrix W = d²L/dv².*coordinate `x`.*Parameters that are 0 here: m"):
         spark.integrate("skate", "gauss", 2, 0.1, 3, params={"m": 0.0})
+    # A negative mass: the kinetic energy is negative along the skate's
+    # heading; refused, naming the parameter, for a run and an ensemble
+    # (the equations are regular, so it would run to a motion no
+    # mechanical system has).
+    negative = r"kinetic energy is not positive.*1 direction .*Parameters that are negative here: m = -1\.000e0"
+    with pytest.raises(spark.SparkError, match=negative):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, params={"m": -1.0})
+    with pytest.raises(spark.SparkError, match=negative):
+        spark.ensemble("skate", "gauss", 2, 0.1, 3, [[0, 0, 0]], [[0, 0, 1]], params={"m": -1.0})
+    spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": -9.81, "beta": -0.5})
     # h² overflows in the Newton matrix: refused up front, saying so (the run
     # would fail after four halvings with a non-finite Jacobian).
     with pytest.raises(spark.SparkError, match=r"h = 1.000e300.*h² overflows f64.*smaller \|h\|"):

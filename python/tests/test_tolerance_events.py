@@ -158,6 +158,10 @@ def test_events_of_a_system_that_declares_none_are_an_error(skate):
         (dict(rtol=True, t_end=1.0), TypeError, "rtol = True is a bool"),
         (dict(rtol="1e-6", t_end=1.0), TypeError, "rtol = '1e-6' is a string"),
         (dict(rtol=1e-6, t_end=1.0, first_step=0.0), spark.ArgumentError, "first_step = 0.0 must be"),
+        (dict(rtol=1e-6, t_end=1.0, first_step=1e-320), spark.ArgumentError, "first_step = 1e-320 is subnormal"),
+        # Fixed steps below the resolution of t at t0 = 1e12 (1.2e-4):
+        # their rounded times would repeat.
+        (dict(h=1e-4, steps=3, t0=1e12), spark.SparkError, "resolution of t at t0"),
         (dict(rtol=1e-6, t_end=1.0, max_step=-1.0), spark.ArgumentError, "max_step = -1.0 must be positive"),
         (dict(rtol=1e-6, t_end=1.0, max_steps=0), spark.ArgumentError, "max_steps = 0 is less than 1"),
         (dict(rtol=1e-6, t_end=1.0, max_steps=2.5), spark.SparkError, "max_steps = 2.5 must be a whole number"),
@@ -179,6 +183,16 @@ def test_events_of_a_system_that_declares_none_are_an_error(skate):
 def test_bad_arguments_raise_the_documented_exceptions(skate, kwargs, error, match):
     with pytest.raises(error, match=match):
         skate.integrate("gauss", 2, **kwargs)
+
+
+def test_a_tolerance_driven_run_far_from_t_zero_starts_at_the_resolution_of_t(skate):
+    # The estimated first step, 3.54e-3, lies below 16 units in the last
+    # place of 1e12 (3.55e-3): the run starts from that floor.
+    run = skate.integrate("gauss", 2, rtol=1e-6, t0=1e12, t_end=1e12 + 1.0)
+    assert run.t[0] == 1e12 and run.t[-1] == 1e12 + 1.0
+    assert np.all(np.diff(run.t) > 0)
+    near = skate.integrate("gauss", 2, rtol=1e-6, t_end=1.0)
+    np.testing.assert_allclose(run.q[-1], near.q[-1], atol=1e-4)
 
 
 def test_the_runtimes_messages_name_the_keywords(skate):
@@ -257,6 +271,9 @@ def test_a_compiled_copy_of_a_registered_system_runs_the_same_plans(cache):
     skate = spark.compile(declaration("Skate"), cache_dir=str(cache))
     with pytest.raises(spark.SparkError, match="declares no events"):
         skate.integrate("gauss", 2, 0.1, 10, q0=[0, 0, 0], v0=[0, 0, 1], events=True)
+    # A negative mass is refused for compiled systems as for registered ones.
+    with pytest.raises(spark.SparkError, match=r"kinetic energy is not positive.*m = -1\.000e0"):
+        skate.integrate("gauss", 2, 0.1, 10, q0=[0, 0, 0], v0=[0, 0, 1], params={"m": -1.0})
 
 
 def test_a_terminal_event_of_a_compiled_system_ends_the_run(cache):

@@ -19,10 +19,10 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
 use spark_runtime::{
-    consistent_velocity, event_rows, integrate_ensemble_until, integrate_plan, AdaptiveReport, ConsistencyPolicy,
-    EnsembleRun, EventRow, Method, NewtonMode, NewtonOptions, NonholonomicSystem, Observe, Observer, RunOptions,
-    RunPlan, Sample, State, StepError, Stepper, Stepping, Tableau, TableauError, Tolerance, Vector,
-    DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
+    check_positive_kinetic_energy, consistent_velocity, event_rows, integrate_ensemble_until, integrate_plan,
+    AdaptiveReport, ConsistencyPolicy, EnsembleRun, EventRow, Method, NewtonMode, NewtonOptions, NonholonomicSystem,
+    Observe, Observer, RunOptions, RunPlan, Sample, State, StepError, Stepper, Stepping, Tableau, TableauError,
+    Tolerance, Vector, DEFAULT_MAX_HALVINGS, MAX_HALVINGS,
 };
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, RecvTimeoutError};
@@ -298,6 +298,9 @@ where
         ),
         e => format!("initial state: {e}"),
     })?;
+    // Parameters come from the user here: a negative mass or inertia is
+    // refused rather than integrated into a motion no mechanical system has.
+    check_positive_kinetic_energy(probe, r.t0, &q0, &v0).map_err(|e| e.to_string())?;
     Ok((q0, v0))
 }
 
