@@ -266,7 +266,7 @@ fn check_output_size(
             e.samples as f64,
             e.bytes,
             e.limit as f64,
-            recording.fewer(e.every as u64),
+            recording.fewer(e.every),
         ));
     }
     let samples = ((steps / every) as u64).saturating_add(2);
