@@ -158,6 +158,9 @@ fn unusable_section_arguments_are_refused_with_what_to_change() {
     assert!(e.contains("--x `q9`") && e.contains("q_q1"), "{e}");
     let e = run_err(&["section", "sleigh", "--event", "turn", "--param", "alfa=0.1", "--out", o]);
     assert!(e.contains("did you mean `alpha`"), "{e}");
+    // A negative mass, as in `spark run`: refused, not integrated.
+    let e = run_err(&["section", "sleigh", "--event", "turn", "--param", "m=-1", "--members", "1", "--out", o]);
+    assert!(e.contains("kinetic energy is not positive") && e.contains("m = -1.000e0"), "{e}");
     let e = run_err(&["section", "mp7", "--event", "section", "--stages", "9", "--out", o]);
     assert!(e.contains("s = 9") || e.contains("stages"), "{e}");
     // A run without any crossing says how to get some.
