@@ -431,9 +431,10 @@ pub enum AdaptiveError {
     /// `max_steps` attempts did not reach the final time.
     #[error(
         "{attempts} step attempts (the limit: AdaptiveOptions::max_steps, `--max-steps` of `spark run`) reached \
-         t = {} of t_end = {}; raise the limit or loosen the tolerance",
+         t = {} of t_end = {}; raise the limit or loosen the tolerance{}",
         Sci(*t),
-        Sci(*t_end)
+        Sci(*t_end),
+        bounded_by_max_step(*attempts, *t, *t_end, *max_step)
     )]
     TooManySteps {
         /// Attempts made.
@@ -442,6 +443,9 @@ pub enum AdaptiveError {
         t: f64,
         /// Requested end.
         t_end: f64,
+        /// The largest step allowed ([`AdaptiveOptions::max_step`]), when
+        /// one was set.
+        max_step: Option<f64>,
         /// Statistics up to the failure.
         partial: Box<AdaptiveReport>,
     },
@@ -514,6 +518,22 @@ fn too_small_advice(t: f64, floor: f64) -> String {
         )
     } else {
         "; loosen rtol/atol, lower AdaptiveOptions::min_step, or check the system for a singularity".to_string()
+    }
+}
+
+/// The advice of [`AdaptiveError::TooManySteps`] when the largest step
+/// allowed is what runs out the step limit: `max_step` alone needs at least
+/// as many more steps to reach `t_end` from `t` as the limit allowed in all,
+/// so neither a looser tolerance nor a slightly higher limit helps.
+fn bounded_by_max_step(attempts: usize, t: f64, t_end: f64, max_step: Option<f64>) -> String {
+    match max_step.map(|h| ((t_end - t).abs() / h).ceil()) {
+        Some(needed) if needed >= attempts as f64 => format!(
+            "; the largest step, max_step = {} (AdaptiveOptions::max_step, `--max-step` of `spark run`), alone \
+             needs {} more steps to t_end: raise it",
+            Sci(max_step.unwrap_or(f64::NAN)),
+            Sci(needed)
+        ),
+        _ => String::new(),
     }
 }
 
@@ -736,7 +756,14 @@ where
         // a unit in the last place of t at most.
         let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
-            return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
+            let max_step = options.max_step;
+            return Err(AdaptiveError::TooManySteps {
+                attempts,
+                t: state.t,
+                t_end,
+                max_step,
+                partial: Box::new(report),
+            });
         }
         attempts += 1;
         // A rejected attempt must not leave the stepper continuing from its

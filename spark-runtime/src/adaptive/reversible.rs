@@ -230,7 +230,14 @@ where
         // After the floor's test, as in the error-controlled loop.
         let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
-            return Err(AdaptiveError::TooManySteps { attempts, t: state.t, t_end, partial: Box::new(report) });
+            let max_step = options.max_step;
+            return Err(AdaptiveError::TooManySteps {
+                attempts,
+                t: state.t,
+                t_end,
+                max_step,
+                partial: Box::new(report),
+            });
         }
         attempts += 1;
         report.solves += 1;

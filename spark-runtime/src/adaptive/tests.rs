@@ -185,6 +185,13 @@ fn adaptive_run_integrates_backward_and_reports_its_failures() {
     let few = AdaptiveOptions { max_steps: 3, ..o };
     let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &few, &mut NoObserver).unwrap_err();
     assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 3, .. }), "{err}");
+    assert!(!err.to_string().contains("max_step ="), "{err}");
+    // A largest step that alone needs more steps than the limit is named.
+    let tiny = AdaptiveOptions { max_step: Some(1e-6), max_steps: 5, ..o };
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &tiny, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 5, .. }), "{err}");
+    assert!(err.to_string().contains("max_step = 1.000e-6 (AdaptiveOptions::max_step"), "{err}");
+    assert!(err.to_string().contains("more steps to t_end: raise it"), "{err}");
     let floor = AdaptiveOptions { min_step: 0.5, initial_step: Some(1.0), ..o };
     let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &floor, &mut NoObserver).unwrap_err();
     assert!(matches!(err, AdaptiveError::StepSizeTooSmall { .. }), "{err}");
