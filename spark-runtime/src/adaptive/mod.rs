@@ -490,6 +490,12 @@ impl AdaptiveError {
         let (last_newton, partial) = (last_newton.map(Box::new), Box::new(report));
         AdaptiveError::StepSizeTooSmall { t, h, min_step, scaled_error, last_newton, partial }
     }
+
+    /// The step limit of `options` reached at `t` after `attempts`
+    /// attempts, short of `t_end`.
+    fn too_many(attempts: usize, t: f64, t_end: f64, options: &AdaptiveOptions, report: AdaptiveReport) -> Self {
+        AdaptiveError::TooManySteps { attempts, t, t_end, max_step: options.max_step, partial: Box::new(report) }
+    }
 }
 
 /// What asked for a step below the floor, for [`AdaptiveError::StepSizeTooSmall`]:
@@ -756,14 +762,7 @@ where
         // a unit in the last place of t at most.
         let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
-            let max_step = options.max_step;
-            return Err(AdaptiveError::TooManySteps {
-                attempts,
-                t: state.t,
-                t_end,
-                max_step,
-                partial: Box::new(report),
-            });
+            return Err(AdaptiveError::too_many(attempts, state.t, t_end, options, report));
         }
         attempts += 1;
         // A rejected attempt must not leave the stepper continuing from its

@@ -230,14 +230,7 @@ where
         // After the floor's test, as in the error-controlled loop.
         let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
-            let max_step = options.max_step;
-            return Err(AdaptiveError::TooManySteps {
-                attempts,
-                t: state.t,
-                t_end,
-                max_step,
-                partial: Box::new(report),
-            });
+            return Err(AdaptiveError::too_many(attempts, state.t, t_end, options, report));
         }
         attempts += 1;
         report.solves += 1;
