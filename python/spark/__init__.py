@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from sys import float_info
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -616,7 +617,7 @@ class System:
             if not (math.isfinite(x) and x > 0):
                 raise ArgumentError(f"first_step = {x!r} must be finite and positive (a step magnitude)")
             # Below the smallest normal float 1/h overflows in a step.
-            if x < 2.2250738585072014e-308:
+            if x < float_info.min:
                 raise ArgumentError(f"first_step = {x!r} is subnormal; give at least 2.2e-308")
             req["first_step"] = x
         if max_step is not None:

@@ -599,9 +599,11 @@ pub(crate) fn on_time_grid(t: f64, h: f64) -> f64 {
     (t + h) - t
 }
 
-/// The resolution of `t` near `t`: a step below it does not advance time.
+/// The fixed-step drivers' [`time_resolution`](crate::driver::time_resolution)
+/// of `t`, kept positive at `t = 0` (16 ε times the smallest normal number)
+/// so that a floor built on it refuses a zero step.
 fn resolution(t: f64) -> f64 {
-    16.0 * f64::EPSILON * t.abs().max(f64::MIN_POSITIVE)
+    crate::driver::time_resolution(t).max(16.0 * f64::EPSILON * f64::MIN_POSITIVE)
 }
 
 /// Integrates from `(t₀, q₀, v₀)` to `t_end` (either direction) with step
