@@ -245,7 +245,7 @@ pub struct OperationCounts {
 /// ```
 /// `(q x)` is the coordinate `x`, `(v x)` its velocity, `(p m)` the runtime
 /// parameter `m`, `(psi j)` the multiplier of constraint `j` (only in
-/// [`SystemSource::nonideal_force`]); named constants are already substituted.
+/// [`SystemSource::nonideal_force`]); a named constant is written as its value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SystemSource {
     /// The type's name.

@@ -77,26 +77,39 @@ impl<'a> Lowerer<'a> {
                 g.var(Var::P(*i as u32))
             }
             SrcExpr::Const(i, s) => {
-                let Some(c) = self.spec.constants.get(*i) else {
+                if *i >= self.spec.constants.len() {
                     return Err(err(*s, format!("constant index {i} out of range")));
-                };
-                if let Some(id) = self.constants[*i] {
-                    return Ok(id);
                 }
-                let value = c.value.clone();
-                let id = self.lower_depth(g, &value, depth + 1)?;
-                if g.as_const(id).is_none() {
-                    return Err(err(
-                        *s,
-                        format!(
-                            "constant `{}` must be a number known at compile time; use a parameter for values that \
-                             change at run time",
-                            c.name.name
-                        ),
-                    ));
+                // A constant refers only to constants declared before it:
+                // lowering those first, in order, finds each reference
+                // already lowered, so a chain `c1 = c0 + 1, c2 = c1 + 1, …`
+                // is not a recursion as deep as the chain is long (which
+                // would overflow the compiler's stack with a debug build of
+                // the macro).
+                let spec = self.spec;
+                for j in 0..=*i {
+                    if self.constants[j].is_some() {
+                        continue;
+                    }
+                    let c = &spec.constants[j];
+                    let at = if j == *i { *s } else { c.name.span };
+                    let id = self.lower_depth(g, &c.value, depth + 1)?;
+                    if g.as_const(id).is_none() {
+                        return Err(err(
+                            at,
+                            format!(
+                                "constant `{}` must be a number known at compile time; use a parameter for values \
+                                 that change at run time",
+                                c.name.name
+                            ),
+                        ));
+                    }
+                    self.constants[j] = Some(id);
                 }
-                self.constants[*i] = Some(id);
-                id
+                match self.constants[*i] {
+                    Some(id) => id,
+                    None => return Err(err(*s, format!("constant index {i} was not lowered"))),
+                }
             }
             SrcExpr::Neg(a, _) => {
                 let a = self.lower_depth(g, a, depth + 1)?;

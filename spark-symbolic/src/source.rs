@@ -1,6 +1,6 @@
 //! The neutral S-expression text of the user's source expressions (see
-//! `spark_runtime::SystemSource`): named constants substituted, numbers
-//! printed so that they parse back to the same `f64`. A constraint row the
+//! `spark_runtime::SystemSource`): named constants replaced by their
+//! values, numbers printed so that they parse back to the same `f64`. A constraint row the
 //! model forms itself (the `k = g_t + g_q·v` of a holonomic constraint) is
 //! printed from the graph in the same grammar.
 
@@ -68,8 +68,20 @@ fn write_node(g: &Graph, spec: &SystemSpec, id: NodeId, out: &mut String, depth:
 /// Prints one source expression as a prefix S-expression.
 pub fn sexpr(spec: &SystemSpec, e: &SrcExpr) -> String {
     let mut out = String::new();
-    write(spec, e, &mut out, 0);
+    write(spec, e, &mut Vec::new(), &mut out, 0);
     out
+}
+
+/// The value of constant `i`, evaluating the constants up to `i` into
+/// `values` (in order: each refers only to earlier ones) on first use. The
+/// parser has checked that every constant evaluates to a finite number.
+fn constant_value(spec: &SystemSpec, i: usize, values: &mut Vec<f64>) -> f64 {
+    while values.len() <= i {
+        let Some(c) = spec.constants.get(values.len()) else { return f64::NAN };
+        let v = crate::dsl::eval_constant(&c.value, values).unwrap_or(f64::NAN);
+        values.push(v);
+    }
+    values[i]
 }
 
 fn op_name(op: BinOp) -> &'static str {
@@ -87,7 +99,7 @@ fn number(x: f64, out: &mut String) {
     out.push_str(&format!("{x:?}"));
 }
 
-fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
+fn write(spec: &SystemSpec, e: &SrcExpr, constants: &mut Vec<f64>, out: &mut String, depth: usize) {
     if depth > 2_000 {
         out.push_str("nan");
         return;
@@ -108,13 +120,13 @@ fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
             named("p", &names, *i, out)
         }
         SrcExpr::Multiplier(j, _) => out.push_str(&format!("(psi {j})")),
-        SrcExpr::Const(i, _) => match spec.constants.get(*i) {
-            Some(c) => write(spec, &c.value, out, depth + 1),
-            None => out.push_str("nan"),
-        },
+        // A named constant is its value: its expression written out in
+        // place would make the text grow exponentially along a chain such
+        // as `c1 = c0*c0, c2 = c1*c1, …` (2^40 copies of `c0` for 40 links).
+        SrcExpr::Const(i, _) => number(constant_value(spec, *i, constants), out),
         SrcExpr::Neg(a, _) => {
             out.push_str("(neg ");
-            write(spec, a, out, depth + 1);
+            write(spec, a, constants, out, depth + 1);
             out.push(')');
         }
         SrcExpr::Binary(op, a, b, _) => {
@@ -136,10 +148,10 @@ fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
                 out.push_str(name);
                 out.push(' ');
             }
-            write(spec, left, out, depth + 1);
+            write(spec, left, constants, out, depth + 1);
             for (_, b) in chain.iter().rev() {
                 out.push(' ');
-                write(spec, b, out, depth + 1);
+                write(spec, b, constants, out, depth + 1);
                 out.push(')');
             }
         }
@@ -148,7 +160,7 @@ fn write(spec: &SystemSpec, e: &SrcExpr, out: &mut String, depth: usize) {
             out.push_str(f.name());
             for a in args {
                 out.push(' ');
-                write(spec, a, out, depth + 1);
+                write(spec, a, constants, out, depth + 1);
             }
             out.push(')');
         }

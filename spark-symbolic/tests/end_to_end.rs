@@ -67,8 +67,8 @@ fn every_function_and_time_from_dsl() {
     assert!(!a.structure.lagrangian_autonomous && !a.structure.constraints_autonomous);
     assert!(!a.structure.constant_mass_matrix && !a.structure.separable);
     assert_eq!(a.structure.constraint_form, ConstraintForm::Nonlinear);
-    // Named constants are substituted in the neutral text.
-    assert!(a.lagrangian_source.contains("(^ 3.0 2.0)"), "{}", a.lagrangian_source);
+    // A named constant is its value in the neutral text (`d = c^2`, `c = 3`).
+    assert!(a.lagrangian_source.contains("(* 9.0 (^ (q a) (neg 2.5)))"), "{}", a.lagrangian_source);
 }
 
 #[test]

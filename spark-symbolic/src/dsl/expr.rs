@@ -103,7 +103,10 @@ const MAX_DEPTH: usize = 200;
 /// the depth of the tree (at most this plus [`MAX_DEPTH`]). A declaration
 /// with the most coordinates ([`MAX_COORDINATES`](super::MAX_COORDINATES))
 /// and a coupling term per neighbouring pair, written term by term, has
-/// about 2 400 in its Lagrangian.
+/// about 2 400 in its Lagrangian. `asin(x)` and `acos(x)` are written
+/// through `atan2` with `x` twice, so they count the operations of `x` once
+/// more, and 2 for `1 - x^2`: nested `asin(asin(…))` doubles the tree at
+/// each level, and 40 levels would otherwise exhaust memory.
 pub const MAX_OPERATIONS: usize = 20_000;
 
 /// The token-level parser for one expression.
@@ -180,7 +183,13 @@ impl Parser<'_, '_> {
     /// Counts one binary operation at `span`; an error once the expression
     /// has more than [`MAX_OPERATIONS`].
     fn operation(&self, span: Span) -> Result<(), SpecError> {
-        let count = self.operations.count.get() + 1;
+        self.operations_at(1, span)
+    }
+
+    /// Counts `n` binary operations at `span`; an error once the expression
+    /// has more than [`MAX_OPERATIONS`].
+    fn operations_at(&self, n: usize, span: Span) -> Result<(), SpecError> {
+        let count = self.operations.count.get().saturating_add(n);
         self.operations.count.set(count);
         if count > MAX_OPERATIONS {
             return err(
@@ -396,6 +405,13 @@ impl Parser<'_, '_> {
             if args.len() != 1 {
                 return err(span, format!("`{name}` takes 1 argument: `{name}(x)`, found {}", args.len()));
             }
+            if sugar != Sugar::Atan {
+                // `asin(x)` is `atan2(x, sqrt(1 - x^2))`: `x` a second time,
+                // and `^` and `-`. Counted, so that nested `asin(asin(…))`,
+                // whose tree doubles at each level, stays within the bound
+                // rather than exhausting memory.
+                self.operations_at(binary_operations(&args[0]) + 2, span)?;
+            }
             return Ok(sugar.expand(args.remove(0), span));
         }
         if args.len() != func.arity() {
@@ -488,6 +504,24 @@ impl Parser<'_, '_> {
         };
         err(tt.span(), msg)
     }
+}
+
+/// The binary operations (`+ - * / ^`) in `e`, counted without recursion.
+fn binary_operations(e: &SrcExpr) -> usize {
+    let mut count = 0;
+    let mut stack = vec![e];
+    while let Some(e) = stack.pop() {
+        match e {
+            SrcExpr::Neg(a, _) => stack.push(a),
+            SrcExpr::Binary(_, a, b, _) => {
+                count += 1;
+                stack.extend([&**a, &**b]);
+            }
+            SrcExpr::Call(_, args, _) => stack.extend(args),
+            _ => {}
+        }
+    }
+    count
 }
 
 /// Inverse trigonometric functions, accepted in the DSL and rewritten at

@@ -383,6 +383,48 @@ fn expressions_with_more_operations_than_supported_are_an_error_not_a_stack_over
     });
 }
 
+/// `asin(x)` and `acos(x)` are `atan2` forms with `x` written twice, so
+/// nested calls double the tree at each level: 40 levels would exhaust
+/// memory. The copies count against `MAX_OPERATIONS`, so deep nesting is an
+/// error at once, and a few levels still parse.
+#[test]
+fn nested_asin_and_acos_count_their_copies_against_the_operation_limit() {
+    for f in ["asin", "acos"] {
+        let src = with_lag(&format!("dot(x)^2 + {}x{}", format!("{f}(").repeat(40), ")".repeat(40)));
+        let (msg, text) = on_main_sized_stack(move || error(&src));
+        assert!(msg.contains(&format!("more than {MAX_OPERATIONS} operations")), "{f}: {msg}");
+        assert_eq!(text, f, "{f}: span of `{msg}`");
+    }
+    lag(&format!("dot(x)^2 + {}x{}", "asin(acos(".repeat(3), "))".repeat(3)));
+}
+
+/// Named constants refer to earlier ones. A chain `c1 = c0*c0, c2 = c1*c1,
+/// …` is small as written, but each constant's expression written out in
+/// place doubles at each link: the neutral text (`SOURCE`, `lagrangian_source`)
+/// writes a constant as its value instead. A long chain `c_i = c_(i-1) + 1`
+/// is lowered link by link rather than as one recursion as deep as the
+/// chain (which overflows the compiler's stack with a debug build of the
+/// macro).
+#[test]
+fn constant_chains_stay_small_in_the_neutral_text_and_shallow_in_lowering() {
+    let doubling: Vec<String> =
+        std::iter::once("c0 = 1".to_string()).chain((1..24).map(|i| format!("c{i} = c{}*c{}", i - 1, i - 1))).collect();
+    let src =
+        format!("struct S {{ coordinates: [x], constants: {{ {} }}, lagrangian: c23*dot(x)^2 }}", doubling.join(", "));
+    let spec = parse_str(&src).expect("parses");
+    let a = crate::analyze(&spec).expect("analyzes");
+    assert_eq!(a.lagrangian_source, "(* 1.0 (^ (v x) 2.0))");
+    let long: Vec<String> =
+        std::iter::once("c0 = 1".to_string()).chain((1..3000).map(|i| format!("c{i} = c{} + 1", i - 1))).collect();
+    let src =
+        format!("struct S {{ coordinates: [x], constants: {{ {} }}, lagrangian: c2999*dot(x)^2 }}", long.join(", "));
+    on_main_sized_stack(move || {
+        let spec = parse_str(&src).expect("parses");
+        crate::generate(&spec).map_err(|e| e.message).expect("generates");
+        crate::analyze(&spec).map_err(|e| e.message).expect("analyzes");
+    });
+}
+
 /// A random well-formed expression over a fixed scope, printed with the
 /// minimal parentheses the grammar needs, and its expected S-expression.
 fn arb_expr() -> impl Strategy<Value = (String, String)> {
