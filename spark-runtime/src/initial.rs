@@ -525,6 +525,15 @@ where
         let (dv, dl) = match step {
             Ok(x) => x,
             Err(SaddleFailure::Singular { column, pivot, scale }) => {
+                // At the first iterate (v = v0, λ = 0, so ∂R/∂v = 0) this is
+                // the saddle matrix [[W, Kᵀ],[K, 0]] of the initial state,
+                // which `check_start` factors too: its error names the
+                // coordinate or constraint of the singular column and the
+                // parameters that are 0, where the message below can only
+                // give a column number.
+                if iteration == 0 {
+                    check_start(sys, t0, q0, v0)?;
+                }
                 history.push(IterationRecord { residual: res, update: f64::NAN, rate: f64::NAN });
                 let which = if column < N {
                     format!("velocity column {column}")

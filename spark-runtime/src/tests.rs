@@ -502,6 +502,18 @@ fn initial_states_where_no_step_can_succeed_are_refused_with_the_cause() {
     let text = run(massless, v0).to_string();
     assert!(text.contains("initial state") && text.contains("mass matrix W = d²L/dv²"), "{text}");
     assert!(text.contains("zero mass or inertia"), "{text}");
+    // The same with a v0 to project (k = v_y = 1): the projection's first
+    // matrix is that saddle matrix, and its failure names the cause alike.
+    let off = V::<3>::new(0.0, 1.0, 1.0);
+    let err =
+        consistent_velocity(&massless, 0.0, &q0, &off, ConsistencyPolicy::Project { tolerance: 0.0 }).unwrap_err();
+    let StepError::SingularInitialState { detail, .. } = &err else { panic!("{err:?}") };
+    assert!(detail.contains("coordinate `x`") && detail.contains("Parameters that are 0 here: m."), "{err}");
+    let project = RunOptions { consistency: ConsistencyPolicy::Project { tolerance: 1e-12 }, ..RunOptions::default() };
+    let err = Stepper::<_, 3, 1, 2, 11>::new(massless, tab(Method::Gauss))
+        .integrate(0.0, &q0, &off, fixed, &project, &mut NoObserver)
+        .unwrap_err();
+    assert!(matches!(err, IntegrationError::Initial(StepError::SingularInitialState { .. })), "{err:?}");
     // A negative mass is no error in itself (the saddle matrix is regular).
     let negative = Skate { m: -1.0, ..Skate::default() };
     assert_eq!(consistent_velocity(&negative, 0.0, &q0, &v0, ConsistencyPolicy::default()), Ok(v0));
