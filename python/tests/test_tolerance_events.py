@@ -202,9 +202,10 @@ def test_the_runtimes_messages_name_the_keywords(skate):
     with pytest.raises(spark.SparkError, match=r"3 step attempts \(the limit: max_steps\)") as raised:
         skate.integrate("gauss", 2, rtol=1e-6, t_end=1.0, max_steps=3)
     assert "--max-steps" not in str(raised.value)
-    with pytest.raises(spark.SparkError, match=r"the largest step, max_step = 1\.000e-6, alone needs") as raised:
+    with pytest.raises(spark.SparkError, match=r"the largest step, max_step = 1\.000e-6, needs at least 1\.000e6 steps") as raised:
         skate.integrate("gauss", 2, rtol=1e-6, t_end=1.0, max_step=1e-6, max_steps=5)
     assert "--max-step" not in str(raised.value) and "AdaptiveOptions" not in str(raised.value)
+    assert "(the limit: max_steps); raise max_step or the limit" in str(raised.value)
     with pytest.raises(spark.SparkError, match="t_end other than t0"):
         skate.integrate("gauss", 2, rtol=1e-6, t_end=0.0)
 

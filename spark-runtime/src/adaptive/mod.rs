@@ -431,10 +431,9 @@ pub enum AdaptiveError {
     /// `max_steps` attempts did not reach the final time.
     #[error(
         "{attempts} step attempts (the limit: AdaptiveOptions::max_steps, `--max-steps` of `spark run`) reached \
-         t = {} of t_end = {}; raise the limit or loosen the tolerance{}",
+         t = {} of t_end = {}; raise the limit or loosen the tolerance",
         Sci(*t),
-        Sci(*t_end),
-        bounded_by_max_step(*attempts, *t, *t_end, *max_step)
+        Sci(*t_end)
     )]
     TooManySteps {
         /// Attempts made.
@@ -443,11 +442,32 @@ pub enum AdaptiveError {
         t: f64,
         /// Requested end.
         t_end: f64,
-        /// The largest step allowed ([`AdaptiveOptions::max_step`]), when
-        /// one was set.
-        max_step: Option<f64>,
         /// Statistics up to the failure.
         partial: Box<AdaptiveReport>,
+    },
+    /// The largest step allowed cannot reach `t_end` within `max_steps`
+    /// steps, whatever the tolerance: refused before the first step, so
+    /// that the run does not spend its attempts to find out.
+    #[error(
+        "the largest step, max_step = {} (AdaptiveOptions::max_step, `--max-step` of `spark run`), needs at least {} \
+         steps from t0 = {} to t_end = {}, more than the {max_steps} step attempts allowed (the limit: \
+         AdaptiveOptions::max_steps, `--max-steps` of `spark run`); raise max_step or the limit",
+        Sci(*max_step),
+        Sci(*needed),
+        Sci(*t0),
+        Sci(*t_end)
+    )]
+    MaxStepTooSmall {
+        /// The largest step allowed.
+        max_step: f64,
+        /// The fewest steps of at most `max_step` from `t0` to `t_end`.
+        needed: f64,
+        /// The step limit ([`AdaptiveOptions::max_steps`]).
+        max_steps: usize,
+        /// Start of the run.
+        t0: f64,
+        /// Requested end.
+        t_end: f64,
     },
     /// The observer asked the run to stop
     /// ([`crate::Observer::stop_requested`]).
@@ -491,10 +511,10 @@ impl AdaptiveError {
         AdaptiveError::StepSizeTooSmall { t, h, min_step, scaled_error, last_newton, partial }
     }
 
-    /// The step limit of `options` reached at `t` after `attempts`
-    /// attempts, short of `t_end`.
-    fn too_many(attempts: usize, t: f64, t_end: f64, options: &AdaptiveOptions, report: AdaptiveReport) -> Self {
-        AdaptiveError::TooManySteps { attempts, t, t_end, max_step: options.max_step, partial: Box::new(report) }
+    /// The step limit reached at `t` after `attempts` attempts, short of
+    /// `t_end`.
+    fn too_many(attempts: usize, t: f64, t_end: f64, report: AdaptiveReport) -> Self {
+        AdaptiveError::TooManySteps { attempts, t, t_end, partial: Box::new(report) }
     }
 }
 
@@ -527,20 +547,22 @@ fn too_small_advice(t: f64, floor: f64) -> String {
     }
 }
 
-/// The advice of [`AdaptiveError::TooManySteps`] when the largest step
-/// allowed is what runs out the step limit: `max_step` alone needs at least
-/// as many more steps to reach `t_end` from `t` as the limit allowed in all,
-/// so neither a looser tolerance nor a slightly higher limit helps.
-fn bounded_by_max_step(attempts: usize, t: f64, t_end: f64, max_step: Option<f64>) -> String {
-    match max_step.map(|h| ((t_end - t).abs() / h).ceil()) {
-        Some(needed) if needed >= attempts as f64 => format!(
-            "; the largest step, max_step = {} (AdaptiveOptions::max_step, `--max-step` of `spark run`), alone \
-             needs {} more steps to t_end: raise it",
-            Sci(max_step.unwrap_or(f64::NAN)),
-            Sci(needed)
-        ),
-        _ => String::new(),
+/// Refuses a run from `t0` to `t_end` whose largest step
+/// ([`AdaptiveOptions::max_step`]) cannot get there within
+/// [`AdaptiveOptions::max_steps`] steps. A step advances `t` by at most
+/// `max_step` plus what rounding to the grid of `t` adds (half a unit in
+/// the last place of `t`), and only the last one by up to 1 % more
+/// (stretched rather than leave a sliver): so at least
+/// `|t_end − t0| / (max_step + ε·max(|t0|, |t_end|)) − 0.01` steps are
+/// needed, however the controller chooses them.
+pub(super) fn check_step_budget(t0: f64, t_end: f64, options: &AdaptiveOptions) -> Result<(), AdaptiveError> {
+    let Some(max_step) = options.max_step else { return Ok(()) };
+    let slack = f64::EPSILON * t0.abs().max(t_end.abs());
+    let needed = ((t_end - t0).abs() / (max_step + slack) - 0.01).ceil();
+    if needed > options.max_steps as f64 {
+        return Err(AdaptiveError::MaxStepTooSmall { max_step, needed, max_steps: options.max_steps, t0, t_end });
     }
+    Ok(())
 }
 
 /// Whether the method's step is symmetric (`Φ_{−h} = Φ_h^{−1}`).
@@ -764,7 +786,7 @@ where
         // a unit in the last place of t at most.
         let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
-            return Err(AdaptiveError::too_many(attempts, state.t, t_end, options, report));
+            return Err(AdaptiveError::too_many(attempts, state.t, t_end, report));
         }
         attempts += 1;
         // A rejected attempt must not leave the stepper continuing from its

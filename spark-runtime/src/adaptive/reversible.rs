@@ -230,7 +230,7 @@ where
         // After the floor's test, as in the error-controlled loop.
         let this = if last { this } else { on_time_grid(state.t, dir * this).abs() };
         if attempts >= options.max_steps {
-            return Err(AdaptiveError::too_many(attempts, state.t, t_end, options, report));
+            return Err(AdaptiveError::too_many(attempts, state.t, t_end, report));
         }
         attempts += 1;
         report.solves += 1;

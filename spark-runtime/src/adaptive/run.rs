@@ -5,7 +5,7 @@
 //! [`DenseRun`] so that an accepted step is treated the same way by every
 //! driver.
 
-use super::{resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
+use super::{check_step_budget, resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
 use crate::driver::{
     check_tableau, Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory,
 };
@@ -88,6 +88,7 @@ where
             reason: "t_end − t0 is below the resolution of t at t0 (16 ulp of t0), the smallest step a run takes",
         });
     }
+    check_step_budget(t0, t_end, options)?;
     let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;
     stepper.reset_run();
     stepper.set_accepted_start_residual(options.consistency.tolerance());

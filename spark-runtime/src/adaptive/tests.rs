@@ -186,12 +186,20 @@ fn adaptive_run_integrates_backward_and_reports_its_failures() {
     let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &few, &mut NoObserver).unwrap_err();
     assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 3, .. }), "{err}");
     assert!(!err.to_string().contains("max_step ="), "{err}");
-    // A largest step that alone needs more steps than the limit is named.
+    // A largest step that cannot reach t_end within the limit is refused
+    // before the first step, with the steps it needs, in both rules; one
+    // that can just do so runs.
     let tiny = AdaptiveOptions { max_step: Some(1e-6), max_steps: 5, ..o };
     let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &tiny, &mut NoObserver).unwrap_err();
-    assert!(matches!(err, AdaptiveError::TooManySteps { attempts: 5, .. }), "{err}");
+    let AdaptiveError::MaxStepTooSmall { needed, max_steps: 5, .. } = err else { panic!("{err}") };
+    assert_eq!(needed, 3e6);
     assert!(err.to_string().contains("max_step = 1.000e-6 (AdaptiveOptions::max_step"), "{err}");
-    assert!(err.to_string().contains("more steps to t_end: raise it"), "{err}");
+    assert!(err.to_string().contains("raise max_step or the limit"), "{err}");
+    let err = integrate_reversible(&mut st, s.t, &s.q, &s.v, 3.0, |_, _, _| 1.0, &tiny, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::MaxStepTooSmall { .. }), "{err}");
+    let enough = AdaptiveOptions { max_step: Some(0.5), max_steps: 6, ..o };
+    let run = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &enough, &mut NoObserver);
+    assert!(!matches!(run, Err(AdaptiveError::MaxStepTooSmall { .. })), "{run:?}");
     let floor = AdaptiveOptions { min_step: 0.5, initial_step: Some(1.0), ..o };
     let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &floor, &mut NoObserver).unwrap_err();
     assert!(matches!(err, AdaptiveError::StepSizeTooSmall { .. }), "{err}");
