@@ -455,12 +455,15 @@ fn projection_and_consistent_acceleration_need_only_a_regular_saddle_matrix() {
     assert!((w * a + k.transpose() * psi - sys.force(0.0, &q0, &v)).amax() < 1e-14);
     assert!((k * a + sys.constraint_q(0.0, &q0, &v) * v).amax() < 1e-14);
     // A singular saddle matrix (the skate's heading has no inertia and no
-    // constraint fixes it) is reported as such.
+    // constraint fixes it) is reported as such, naming the coordinate and
+    // the parameter that is 0.
     let skate = Skate { inertia: 0.0, ..Skate::default() };
     let (q, v0) = (V::<3>::new(0.0, 0.0, 0.3), V::<3>::new(1.0, 0.5, 0.3));
     let err = consistent_velocity(&skate, 0.0, &q, &v0, ConsistencyPolicy::Project { tolerance: 0.0 }).unwrap_err();
     match &err {
-        StepError::SingularMatrix { detail, .. } => assert!(detail.contains("[[W"), "{err}"),
+        StepError::SingularInitialState { detail, .. } => {
+            assert!(detail.contains("coordinate `theta`") && detail.contains("0 here: inertia."), "{err}")
+        }
         _ => panic!("{err:?}"),
     }
     assert!(consistent_acceleration(&skate, 0.0, &q, &v0).is_none());
