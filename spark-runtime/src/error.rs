@@ -205,10 +205,12 @@ pub enum StepError {
         t: f64,
         /// Step size.
         h: f64,
-        /// The offending column, its unknown, the pivot and the column's
-        /// largest magnitude (the pivot's yardstick), e.g. `column 5 (V_2[3]):
-        /// pivot 1.000e0 is below 64 eps x its largest entry 1.5e14` (one
-        /// boxed `str`, not a field for each, keeps the error small).
+        /// The offending column, its unknown (with the coordinate of a
+        /// velocity), the pivot and the column's largest magnitude (the
+        /// pivot's yardstick), e.g. ``column 5 (V_2[3], the velocity of
+        /// `theta`): pivot 1.000e0 is below 64 eps x its largest entry
+        /// 1.5e14`` (one boxed `str`, not a field for each, keeps the error
+        /// small).
         detail: Box<str>,
         /// The iterations.
         history: Box<NewtonHistory>,

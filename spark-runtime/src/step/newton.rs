@@ -227,7 +227,12 @@ where
             StepError::SingularMatrix {
                 t,
                 h,
-                detail: singular_detail::<N, M, S>(s.column, s.pivot, self.newton.matrix().column(s.column).amax()),
+                detail: singular_detail::<N, M, S>(
+                    s.column,
+                    s.pivot,
+                    self.newton.matrix().column(s.column).amax(),
+                    Sys::SOURCE.coordinates,
+                ),
                 history: Box::new(self.history),
             }
         } else {
@@ -686,16 +691,27 @@ fn worth_testing(c: f64, update: f64, tolerance: f64) -> bool {
 }
 
 /// Describes a failed pivot: the column, its unknown of `z` (1-based stage
-/// and component as in the paper: `V_i[d]`, `hΨ_i[d]` or `v1[d]`), the pivot
-/// and the column's largest magnitude `scale`.
-fn singular_detail<const N: usize, const M: usize, const S: usize>(column: usize, pivot: f64, scale: f64) -> Box<str> {
+/// and component as in the paper: `V_i[d]`, `hΨ_i[d]` or `v1[d]`) with the
+/// coordinate of a velocity by its declared name (from `coordinates`, when
+/// the system declares them), the pivot
+/// and the column's largest magnitude `scale`. The name spares the reader
+/// the mapping from the 0-based column to the 1-based component.
+fn singular_detail<const N: usize, const M: usize, const S: usize>(
+    column: usize,
+    pivot: f64,
+    scale: f64,
+    coordinates: &[&str],
+) -> Box<str> {
+    let velocity_of =
+        |c: usize| coordinates.get(c).map_or_else(String::new, |name| format!(", the velocity of `{name}`"));
     let name = if column < S * N {
-        format!("V_{}[{}]", column / N + 1, column % N + 1)
+        format!("V_{}[{}]{}", column / N + 1, column % N + 1, velocity_of(column % N))
     } else if column < S * (N + M) {
         let c = column - S * N;
         format!("hΨ_{}[{}]", c / M + 1, c % M + 1)
     } else {
-        format!("v1[{}]", column - S * (N + M) + 1)
+        let c = column - S * (N + M);
+        format!("v1[{}]{}", c + 1, velocity_of(c))
     };
     format!("column {column} ({name}): pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}")
         .into_boxed_str()
