@@ -19,7 +19,9 @@ impl Differentiator {
 
     /// `∂ node / ∂ var`, simplified.
     pub fn diff(&mut self, g: &mut Graph, node: NodeId, var: Var) -> NodeId {
-        if !g.deps(node).any(var.dep()) {
+        // Past the graph's limit every result is discarded: end the work
+        // at once rather than walk the rest of a swollen expression.
+        if !g.deps(node).any(var.dep()) || g.exhausted() {
             return g.constant(0.0);
         }
         if let Some(&d) = self.memo.get(&(node, var)) {

@@ -159,6 +159,17 @@ pub enum Node {
     Call(Fun, Box<[NodeId]>),
 }
 
+/// The most a [`Graph`] may hold, counted as [`Graph::size`] (nodes plus
+/// their operands) without the nodes of the source expressions themselves
+/// ([`Graph::uncounted`]). Derivatives can swell far beyond the expression
+/// written: the second derivative of a product of `k` factors in one
+/// coordinate has about `k³` operands, so `dot(x)^2 + (x+1)*(x+2)*…*(x+400)`
+/// would take gigabytes and minutes. The 400 coupled coordinates of the
+/// Python tests reach about 1 % of it, the registered systems far less, a
+/// product of 100 such factors 65 %; past it the declaration is an error
+/// ([`Graph::exhausted`]).
+pub const MAX_GRAPH_SIZE: usize = 20_000_000;
+
 /// The arena. Nodes are immutable once created; creating a node that already
 /// exists returns the existing id.
 #[derive(Clone, Debug, Default)]
@@ -166,6 +177,15 @@ pub struct Graph {
     nodes: Vec<Node>,
     deps: Vec<Deps>,
     index: HashMap<Node, NodeId>,
+    /// The operands of every node, summed.
+    operands: usize,
+    /// The part of [`size`](Self::size) made while lowering source
+    /// expressions ([`uncounted`](Self::uncounted)).
+    exempt: usize,
+    /// Inside [`uncounted`](Self::uncounted).
+    lowering: bool,
+    /// A node was refused for [`MAX_GRAPH_SIZE`].
+    exhausted: bool,
 }
 
 impl Graph {
@@ -182,6 +202,30 @@ impl Graph {
     /// `true` if no node was created yet.
     pub fn is_empty(&self) -> bool {
         self.nodes.is_empty()
+    }
+
+    /// Nodes plus their operands: what the graph's memory grows with.
+    pub fn size(&self) -> usize {
+        self.nodes.len() + self.operands
+    }
+
+    /// Runs `f` (the lowering of a source expression) with the nodes it
+    /// makes not counted against [`MAX_GRAPH_SIZE`]: the source's size is
+    /// bounded by the parser's limits, and the limit is for what
+    /// differentiation and emission make of it.
+    pub fn uncounted<T>(&mut self, f: impl FnOnce(&mut Graph) -> T) -> T {
+        let outer = std::mem::replace(&mut self.lowering, true);
+        let r = f(self);
+        self.lowering = outer;
+        r
+    }
+
+    /// `true` once a node was refused for [`MAX_GRAPH_SIZE`]. From then on
+    /// every new node is the constant 0, so the work in progress ends
+    /// quickly with meaningless results, which the caller discards for
+    /// this flag.
+    pub fn exhausted(&self) -> bool {
+        self.exhausted
     }
 
     /// The node behind an id.
@@ -210,8 +254,24 @@ impl Graph {
     /// Interns a node exactly as given (no simplification): callers must
     /// respect the canonical invariants of the module documentation.
     pub(crate) fn intern(&mut self, node: Node) -> NodeId {
+        if self.exhausted {
+            return self.zero();
+        }
         if let Some(&id) = self.index.get(&node) {
             return id;
+        }
+        let operands = match &node {
+            Node::Const(_) | Node::Var(_) => 0,
+            Node::Add(xs) | Node::Mul(xs) | Node::Call(_, xs) => xs.len(),
+            Node::Pow(..) => 2,
+        };
+        if !self.lowering && self.size() - self.exempt + 1 + operands > MAX_GRAPH_SIZE {
+            self.exhausted = true;
+            return self.zero();
+        }
+        self.operands += operands;
+        if self.lowering {
+            self.exempt += 1 + operands;
         }
         let deps = match &node {
             Node::Const(_) => Deps::NONE,
@@ -224,6 +284,19 @@ impl Graph {
         let id = NodeId(u32::try_from(self.nodes.len()).expect("expression graph exceeds 2^32 nodes"));
         self.nodes.push(node.clone());
         self.deps.push(deps);
+        self.index.insert(node, id);
+        id
+    }
+
+    /// The constant 0, interned whatever the size of the graph.
+    fn zero(&mut self) -> NodeId {
+        let node = Node::Const(0.0f64.to_bits());
+        if let Some(&id) = self.index.get(&node) {
+            return id;
+        }
+        let id = NodeId(u32::try_from(self.nodes.len()).expect("expression graph exceeds 2^32 nodes"));
+        self.nodes.push(node.clone());
+        self.deps.push(Deps::NONE);
         self.index.insert(node, id);
         id
     }

@@ -60,6 +60,8 @@ pub fn analyze(spec: &SystemSpec) -> Result<Analysis, SpecError> {
     let params: Vec<proc_macro2::Ident> =
         spec.parameters.iter().map(|p| proc_macro2::Ident::new(&p.name.name, p.name.span)).collect();
     let operations = codegen::count_operations(&mut model, &params);
+    // Emission adds nodes too (the prefixes of long products).
+    model::check_graph_size(spec, &model.graph)?;
     Ok(Analysis {
         n: model.n,
         m: model.m,
@@ -88,7 +90,10 @@ pub(crate) fn generate_checked(spec: &SystemSpec, check: bool) -> Result<TokenSt
     if check {
         model.check_determined(spec)?;
     }
-    Ok(codegen::generate_items(spec, &mut model).0)
+    let items = codegen::generate_items(spec, &mut model).0;
+    // Emission adds nodes too (the prefixes of long products).
+    model::check_graph_size(spec, &model.graph)?;
+    Ok(items)
 }
 
 /// The whole macro: DSL tokens in, generated items (or a `compile_error!`

@@ -38,7 +38,7 @@ impl<'a> Lowerer<'a> {
     /// `dot(x)^2/(x - x)`), or a constant subexpression that is not a finite
     /// number (`ln(0)`).
     pub fn lower(&mut self, g: &mut Graph, e: &SrcExpr) -> Result<NodeId, SpecError> {
-        self.lower_depth(g, e, 0)
+        g.uncounted(|g| self.lower_depth(g, e, 0))
     }
 
     fn lower_depth(&mut self, g: &mut Graph, e: &SrcExpr, depth: usize) -> Result<NodeId, SpecError> {

@@ -253,6 +253,25 @@ fn total_time_derivative(g: &mut Graph, d: &mut Differentiator, node: NodeId, n:
     g.add(&terms)
 }
 
+/// An error on the struct's name once `g` has outgrown
+/// [`MAX_GRAPH_SIZE`](crate::graph::MAX_GRAPH_SIZE).
+pub(crate) fn check_graph_size(spec: &SystemSpec, g: &Graph) -> Result<(), SpecError> {
+    if !g.exhausted() {
+        return Ok(());
+    }
+    Err(SpecError {
+        span: spec.name.span(),
+        message: format!(
+            "the derivatives of `{}` grow beyond the engine's limit of {} nodes and operands \
+             (spark_symbolic::graph::MAX_GRAPH_SIZE): differentiating twice multiplies the size of long products \
+             and deep nestings (the second derivative of a product of k factors in one coordinate has about k³ \
+             operands); expand such products, or split the expression using parameters",
+            spec.name,
+            crate::graph::MAX_GRAPH_SIZE
+        ),
+    })
+}
+
 /// The constraint rows `k`, in order, and for each holonomic row its
 /// position-level `g` (`None` for a row written at velocity level). A
 /// holonomic row's `k = g_t + g_q·v` is formed on the graph.
@@ -588,8 +607,24 @@ impl Model {
     }
 
     /// Lowers `spec` and takes every derivative. Fails with a span on the
-    /// offending expression (bad constant, holonomic constraint).
+    /// offending expression (bad constant, holonomic constraint), or on the
+    /// struct's name when the derivatives outgrow
+    /// [`MAX_GRAPH_SIZE`](crate::graph::MAX_GRAPH_SIZE).
     pub fn build(spec: &SystemSpec) -> Result<Model, SpecError> {
+        let mut g = Graph::new();
+        let built = Self::build_in(spec, &mut g);
+        // Past the limit the graph answers every new node with 0: whatever
+        // the build concluded from that (an error too) is meaningless.
+        check_graph_size(spec, &g)?;
+        let mut model = built?;
+        model.graph = g;
+        model.reject_nonfinite(spec)?;
+        Ok(model)
+    }
+
+    /// [`build`](Self::build) in the graph `g`; the model's own graph is
+    /// left empty.
+    fn build_in(spec: &SystemSpec, g: &mut Graph) -> Result<Model, SpecError> {
         let n = spec.coordinates.len();
         let m = spec.constraints.len();
         if n == 0 {
@@ -598,35 +633,34 @@ impl Model {
                 message: "a system needs at least one generalized coordinate".into(),
             });
         }
-        let mut g = Graph::new();
         let mut lower = Lowerer::new(spec);
         let mut d = Differentiator::new();
-        let lagrangian = lower.lower(&mut g, &spec.lagrangian)?;
-        let (constraint, positions) = constraint_rows(&mut g, &mut d, &mut lower, spec)?;
+        let lagrangian = lower.lower(g, &spec.lagrangian)?;
+        let (constraint, positions) = constraint_rows(g, &mut d, &mut lower, spec)?;
         let qs: Vec<Var> = (0..n as u32).map(Var::Q).collect();
         let vs: Vec<Var> = (0..n as u32).map(Var::V).collect();
-        let momentum = gradient(&mut g, &mut d, lagrangian, &vs);
-        let force = gradient(&mut g, &mut d, lagrangian, &qs);
-        let constraint_q = jacobian(&mut g, &mut d, &constraint, &qs);
-        let constraint_v = jacobian(&mut g, &mut d, &constraint, &vs);
-        reject_velocity_free_rows(&mut g, &mut d, spec, &constraint, &constraint_v)?;
-        let r = constraint_force(&mut g, &constraint_v, n);
-        let momentum_q = jacobian(&mut g, &mut d, &momentum, &qs);
-        let mass = jacobian(&mut g, &mut d, &momentum, &vs);
-        let force_q = jacobian(&mut g, &mut d, &force, &qs);
-        let force_v = jacobian(&mut g, &mut d, &force, &vs);
-        let constraint_force_q = jacobian(&mut g, &mut d, &r, &qs);
-        let constraint_force_v = jacobian(&mut g, &mut d, &r, &vs);
-        let lagrangian_t = d.diff(&mut g, lagrangian, Var::Time);
-        let momentum_t: Vec<NodeId> = momentum.iter().map(|&p| d.diff(&mut g, p, Var::Time)).collect();
-        let force_t: Vec<NodeId> = force.iter().map(|&f| d.diff(&mut g, f, Var::Time)).collect();
-        let constraint_t: Vec<NodeId> = constraint.iter().map(|&k| d.diff(&mut g, k, Var::Time)).collect();
-        let energy = energy(&mut g, &mut d, lagrangian, &vs);
-        let structure = prove_structure(&mut g, lagrangian, &constraint, &constraint_v, &momentum, &force, &mass);
+        let momentum = gradient(g, &mut d, lagrangian, &vs);
+        let force = gradient(g, &mut d, lagrangian, &qs);
+        let constraint_q = jacobian(g, &mut d, &constraint, &qs);
+        let constraint_v = jacobian(g, &mut d, &constraint, &vs);
+        reject_velocity_free_rows(g, &mut d, spec, &constraint, &constraint_v)?;
+        let r = constraint_force(g, &constraint_v, n);
+        let momentum_q = jacobian(g, &mut d, &momentum, &qs);
+        let mass = jacobian(g, &mut d, &momentum, &vs);
+        let force_q = jacobian(g, &mut d, &force, &qs);
+        let force_v = jacobian(g, &mut d, &force, &vs);
+        let constraint_force_q = jacobian(g, &mut d, &r, &qs);
+        let constraint_force_v = jacobian(g, &mut d, &r, &vs);
+        let lagrangian_t = d.diff(g, lagrangian, Var::Time);
+        let momentum_t: Vec<NodeId> = momentum.iter().map(|&p| d.diff(g, p, Var::Time)).collect();
+        let force_t: Vec<NodeId> = force.iter().map(|&f| d.diff(g, f, Var::Time)).collect();
+        let constraint_t: Vec<NodeId> = constraint.iter().map(|&k| d.diff(g, k, Var::Time)).collect();
+        let energy = energy(g, &mut d, lagrangian, &vs);
+        let structure = prove_structure(g, lagrangian, &constraint, &constraint_v, &momentum, &force, &mass);
         // The optional effects are lowered last, so that a declaration without
         // them builds exactly the graph (and node order) it would build alone.
-        let external_force = lower_components(&mut g, &mut lower, &spec.external_force)?;
-        let nonideal_force = lower_components(&mut g, &mut lower, &spec.nonideal_force)?;
+        let external_force = lower_components(g, &mut lower, &spec.external_force)?;
+        let nonideal_force = lower_components(g, &mut lower, &spec.nonideal_force)?;
         for (i, &f) in external_force.iter().enumerate() {
             if g.deps(f).any(Deps::PSI) {
                 let span = spec.external_force[i].as_ref().map_or(spec.name.span(), |x| x.span());
@@ -637,21 +671,21 @@ impl Model {
             }
         }
         let psis: Vec<Var> = (0..m as u32).map(Var::Psi).collect();
-        let external_force_q = jacobian(&mut g, &mut d, &external_force, &qs);
-        let external_force_v = jacobian(&mut g, &mut d, &external_force, &vs);
-        let nonideal_force_q = jacobian(&mut g, &mut d, &nonideal_force, &qs);
-        let nonideal_force_v = jacobian(&mut g, &mut d, &nonideal_force, &vs);
-        let nonideal_force_psi = jacobian(&mut g, &mut d, &nonideal_force, &psis);
-        let holonomic = holonomic_residuals(&mut g, &positions);
+        let external_force_q = jacobian(g, &mut d, &external_force, &qs);
+        let external_force_v = jacobian(g, &mut d, &external_force, &vs);
+        let nonideal_force_q = jacobian(g, &mut d, &nonideal_force, &qs);
+        let nonideal_force_v = jacobian(g, &mut d, &nonideal_force, &vs);
+        let nonideal_force_psi = jacobian(g, &mut d, &nonideal_force, &psis);
+        let holonomic = holonomic_residuals(g, &positions);
         let mut events = Vec::with_capacity(spec.events.len());
         for e in &spec.events {
-            events.push(lower.lower(&mut g, &e.expr)?);
+            events.push(lower.lower(g, &e.expr)?);
         }
-        let events_t: Vec<NodeId> = events.iter().map(|&x| d.diff(&mut g, x, Var::Time)).collect();
-        let events_q = jacobian(&mut g, &mut d, &events, &qs);
-        let events_v = jacobian(&mut g, &mut d, &events, &vs);
-        let model = Model {
-            graph: g,
+        let events_t: Vec<NodeId> = events.iter().map(|&x| d.diff(g, x, Var::Time)).collect();
+        let events_q = jacobian(g, &mut d, &events, &qs);
+        let events_v = jacobian(g, &mut d, &events, &vs);
+        Ok(Model {
+            graph: Graph::new(),
             n,
             m,
             lagrangian,
@@ -685,9 +719,7 @@ impl Model {
             events_t,
             events_q,
             events_v,
-        };
-        model.reject_nonfinite(spec)?;
-        Ok(model)
+        })
     }
 
     /// Refuses a model whose derivatives hold a number beyond the range of

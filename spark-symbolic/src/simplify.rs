@@ -93,6 +93,9 @@ impl Graph {
 
     /// Sum of any number of terms.
     pub fn add(&mut self, terms: &[NodeId]) -> NodeId {
+        if self.exhausted() {
+            return self.constant(0.0);
+        }
         let mut flat = Vec::with_capacity(terms.len());
         for &t in terms {
             match self.node(t) {
@@ -163,6 +166,9 @@ impl Graph {
 
     /// Product of any number of factors.
     pub fn mul(&mut self, factors: &[NodeId]) -> NodeId {
+        if self.exhausted() {
+            return self.constant(0.0);
+        }
         let mut coef = 1.0;
         let mut order: Vec<NodeId> = Vec::new();
         let mut exps: HashMap<NodeId, Vec<NodeId>> = HashMap::new();
