@@ -223,6 +223,30 @@ def test_an_expression_of_too_many_operations_is_a_dsl_error_not_a_crash():
     assert "the lagrangian has more than 20000 operations" in done.stdout, done.stdout
 
 
+def test_a_declaration_whose_derivatives_swell_is_a_dsl_error_in_seconds():
+    """The second derivative of a product of k factors in one coordinate has
+    about k³ operands: 150 factors `(x + i)` (1 KB of text) took minutes and
+    gigabytes, 400 all the memory, which ends the interpreter. Past the
+    graph's limit the check refuses the declaration at its struct's name.
+    Run in a child interpreter, so that a crash fails this test rather than
+    pytest."""
+    code = textwrap.dedent(
+        """
+        import spark
+        factors = "*".join(f"(x + {i})" for i in range(1, 151))
+        text = "pub struct Swell { coordinates: [x], lagrangian: dot(x)^2 + " + factors + " }"
+        try:
+            spark.compile(text)
+        except spark.DslError as e:
+            print(e.line, e.column, e.message)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    assert "the derivatives of `Swell` grow beyond the engine's limit" in done.stdout, done.stdout
+    assert "MAX_GRAPH_SIZE" in done.stdout, done.stdout
+
+
 def test_ctrl_c_interrupts_the_check_of_a_large_declaration():
     # The check of 400 coupled coordinates takes seconds; Ctrl-C ends it at
     # once (the check releases the GIL, so the caller's signal handlers run).
