@@ -203,48 +203,56 @@ def test_more_coordinates_than_supported_are_refused_at_once(tmp_path):
     assert not any(tmp_path.iterdir()), "a refused declaration must not reach cargo"
 
 
+def _dsl_error_in_child(build_text: str, timeout: float) -> str:
+    """Runs `spark.compile(text)` in a child interpreter, with `text` made by
+    the statements `build_text`, and returns what it prints: the line,
+    column and message of the `DslError`. A crash (a stack overflow, an
+    exhausted memory) fails the calling test rather than pytest."""
+    code = (
+        "import spark\n"
+        + textwrap.dedent(build_text)
+        + textwrap.dedent(
+            """
+            try:
+                spark.compile(text)
+            except spark.DslError as e:
+                print(e.line, e.column, e.message)
+            """
+        )
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    return done.stdout
+
+
 def test_an_expression_of_too_many_operations_is_a_dsl_error_not_a_crash():
     """A sum of 200 000 terms is a tree 200 000 levels deep, whose passes
     would overflow the stack of the check thread and kill the interpreter
-    (SIGSEGV); it is refused at the first operation beyond the limit. Run in
-    a child interpreter, so that a crash fails this test rather than pytest."""
-    code = textwrap.dedent(
+    (SIGSEGV); it is refused at the first operation beyond the limit."""
+    out = _dsl_error_in_child(
         """
-        import spark
         text = "pub struct Long { coordinates: [x], lagrangian: dot(x)^2" + " + x" * 200_000 + " }"
-        try:
-            spark.compile(text)
-        except spark.DslError as e:
-            print(e.line, e.column, e.message)
-        """
+        """,
+        timeout=120,
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
-    assert "the lagrangian has more than 20000 operations" in done.stdout, done.stdout
+    assert "the lagrangian has more than 20000 operations" in out, out
 
 
 def test_a_declaration_whose_derivatives_swell_is_a_dsl_error_in_seconds():
     """The second derivative of a product of k factors in one coordinate has
-    about k³ operands: 150 factors `(x + i)` (1 KB of text) took minutes and
-    gigabytes, 400 all the memory, which ends the interpreter. Past the
-    graph's limit the check refuses the declaration at its struct's name.
-    Run in a child interpreter, so that a crash fails this test rather than
-    pytest."""
-    code = textwrap.dedent(
+    about k³ operands: 150 factors `(x + i)` (1 KB of text) take minutes and
+    gigabytes to differentiate and emit, 400 all the memory, which ends the
+    interpreter. Past the graph's limit the check refuses the declaration
+    at its struct's name."""
+    out = _dsl_error_in_child(
         """
-        import spark
         factors = "*".join(f"(x + {i})" for i in range(1, 151))
         text = "pub struct Swell { coordinates: [x], lagrangian: dot(x)^2 + " + factors + " }"
-        try:
-            spark.compile(text)
-        except spark.DslError as e:
-            print(e.line, e.column, e.message)
-        """
+        """,
+        timeout=300,
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
-    assert "the derivatives of `Swell` grow beyond the engine's limit" in done.stdout, done.stdout
-    assert "MAX_GRAPH_SIZE" in done.stdout, done.stdout
+    assert "the derivatives of `Swell` grow beyond the engine's limit" in out, out
+    assert "MAX_GRAPH_SIZE" in out, out
 
 
 def test_ctrl_c_interrupts_the_check_of_a_large_declaration():
