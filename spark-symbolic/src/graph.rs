@@ -281,22 +281,23 @@ impl Graph {
             }
             Node::Pow(b, e) => self.deps[b.index()].with(self.deps[e.index()]),
         };
-        let id = NodeId(u32::try_from(self.nodes.len()).expect("expression graph exceeds 2^32 nodes"));
-        self.nodes.push(node.clone());
-        self.deps.push(deps);
-        self.index.insert(node, id);
-        id
+        self.push(node, deps)
     }
 
     /// The constant 0, interned whatever the size of the graph.
     fn zero(&mut self) -> NodeId {
         let node = Node::Const(0.0f64.to_bits());
-        if let Some(&id) = self.index.get(&node) {
-            return id;
+        match self.index.get(&node) {
+            Some(&id) => id,
+            None => self.push(node, Deps::NONE),
         }
+    }
+
+    /// Appends a node not yet in the graph, with its dependencies.
+    fn push(&mut self, node: Node, deps: Deps) -> NodeId {
         let id = NodeId(u32::try_from(self.nodes.len()).expect("expression graph exceeds 2^32 nodes"));
         self.nodes.push(node.clone());
-        self.deps.push(Deps::NONE);
+        self.deps.push(deps);
         self.index.insert(node, id);
         id
     }
