@@ -55,6 +55,13 @@ def cache_root(cache_dir: str | None = None) -> Path:
 MODULE_INTERFACE = "2: rtol, t_eval, events; events and controller in the result"
 
 
+#: The most characters of the struct's name that the module's name keeps
+#: (``_spark_<name>_<key>``): cargo's file names for it
+#: (``lib<module>-<16 hex digits>.so``, ``.d``) then stay far below the
+#: 255 bytes a file name may have.
+MAX_SLUG = 64
+
+
 def cache_key(text: str, optimize: bool = True) -> str:
     """Hash of the text, the spark version, the source tree it builds
     against, the module interface (:data:`MODULE_INTERFACE`) and, for a
@@ -152,8 +159,10 @@ def _build_and_load(
     name, n, m = checked["name"], checked["n"], checked["m"]
     # The module and crate names are ASCII whatever the struct's name (a
     # raw `r#Name`, letters beyond ASCII): cargo and the module's init
-    # symbol take nothing else.
-    slug = re.sub(r"[^0-9a-z_]", "_", name.removeprefix("r#").lower())
+    # symbol take nothing else. They are cut to MAX_SLUG characters: file
+    # names hold them with the key and cargo's suffixes, and a file name
+    # has at most 255 bytes (the key alone tells declarations apart).
+    slug = re.sub(r"[^0-9a-z_]", "_", name.removeprefix("r#").lower())[:MAX_SLUG]
     module = f"_spark_{slug}_{key}"
     root = cache_root(cache_dir)
     folder = root / key

@@ -340,6 +340,18 @@ def test_a_raw_or_non_ascii_struct_name_compiles(tmp_path):
     assert abs(run.q[-1, 0] - np.cos(1.0)) < 1e-4
 
 
+def test_a_struct_name_longer_than_a_file_name_compiles(tmp_path):
+    # The module's file names hold the struct's name: one of 300 letters
+    # made them longer than the 255 bytes a file name may have, and the
+    # declaration the check accepted failed with a bare OSError.
+    name = "Long" + "g" * 296
+    text = f"pub struct {name} {{\n    coordinates: [x],\n    lagrangian: dot(x)^2/2 - x^2/2,\n}}\n"
+    s = spark.compile(text, cache_dir=str(tmp_path))
+    assert s.name == name
+    run = s.integrate("gauss", 2, 0.1, 10, q0=[1.0], v0=[0.0])
+    assert abs(run.q[-1, 0] - np.cos(1.0)) < 1e-4
+
+
 def test_struct_names_and_attributes_that_cannot_build_are_dsl_errors_before_cargo(tmp_path):
     # Each passed a check that did not know the module's code and then failed
     # in cargo with rustc's output: a primitive type the generated code names,
