@@ -14,7 +14,9 @@
 //! (the ends are the step's own states; the inner points come from the dense
 //! output, [`DenseStep`]). A sign change on a subinterval `(a, b]` — or a
 //! value exactly zero at `b` after a nonzero value at `a` — is a crossing;
-//! its direction is rising when the function was negative before. A
+//! its direction is rising when the function was negative before, in the
+//! direction the run goes (a backward run reports a function that increases
+//! with `t` as falling). A
 //! crossing whose direction the event asks for is located by Newton's method
 //! on `t ↦ g(t, q(t), v(t))` along the interpolant, with the derivative
 //! `g_t + g_q·q̇ + g_v·v̇`, kept inside the bracket by bisection: any Newton
@@ -28,8 +30,11 @@
 //! value at a step's end is carried into the next step unchanged, so a zero
 //! at a step boundary is reported once, by the step that ends there, and a
 //! sign change between two evaluated points is never lost. Two crossings of
-//! the same function closer together than a subinterval cancel and are not
-//! seen (the usual limit of sign-based detection). A zero at the run's start
+//! the same function inside one subinterval cancel and are not seen,
+//! however far apart within it (the usual limit of sign-based detection), so
+//! crossings less than a quarter of a step apart can be missed; a
+//! tolerance-driven run hands each step over as its two half steps, whose
+//! subintervals are an eighth of the step. A zero at the run's start
 //! is not reported (no step ends there), and a NaN value has no sign: a
 //! subinterval with a NaN at either end shows no crossing. Crossings of one
 //! step are reported in time order; a terminal event ends the run at its

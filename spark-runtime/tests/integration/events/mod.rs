@@ -21,6 +21,7 @@
 
 mod adaptive;
 mod affine;
+mod detection;
 
 use affine::Affine;
 use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};
