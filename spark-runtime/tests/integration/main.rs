@@ -8,6 +8,7 @@
 //! wrapper over the system allocator that records each thread's largest
 //! request; the other tests do not observe it.
 
+mod adaptive_new_systems;
 mod client_shapes;
 mod dense_output;
 mod driver_robustness;
