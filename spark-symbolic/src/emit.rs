@@ -80,6 +80,11 @@ fn view(g: &mut Graph, n: NodeId) -> View {
             let mut constant = 0.0;
             let mut terms = Vec::new();
             let mut groups: Vec<(f64, Vec<(bool, NodeId)>)> = Vec::new();
+            // Each coefficient's group, found by its bits rather than by a
+            // scan of the groups: a sum of k terms with distinct
+            // coefficients (the derivative of `Σ atan2(x, i)`) would take
+            // k²/2 comparisons. NaN equals nothing, so it is never looked up.
+            let mut group_of: HashMap<u64, usize> = HashMap::new();
             for &x in xs.iter() {
                 if let Some(c) = g.as_const(x) {
                     constant += c;
@@ -90,9 +95,12 @@ fn view(g: &mut Graph, n: NodeId) -> View {
                     terms.push((c > 0.0, rest));
                     continue;
                 }
-                match groups.iter_mut().find(|(a, _)| *a == c.abs()) {
-                    Some((_, members)) => members.push((c > 0.0, rest)),
-                    None => groups.push((c.abs(), vec![(c > 0.0, rest)])),
+                match group_of.get(&c.abs().to_bits()).filter(|_| !c.is_nan()) {
+                    Some(&i) => groups[i].1.push((c > 0.0, rest)),
+                    None => {
+                        group_of.insert(c.abs().to_bits(), groups.len());
+                        groups.push((c.abs(), vec![(c > 0.0, rest)]));
+                    }
                 }
             }
             // Terms sharing a coefficient are summed first and scaled once:

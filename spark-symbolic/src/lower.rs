@@ -3,6 +3,7 @@
 //! [`Var`]s, `sqrt` becomes a power.
 
 use crate::graph::{Fun, Graph, NodeId, Var};
+use crate::simplify::{Partial, SumChain, KEPT_PARTIAL_SUM};
 use crate::spec::{BinOp, Func, SpecError, SrcExpr, SystemSpec};
 
 /// Lowers source expressions of one declaration, caching its named constants.
@@ -136,14 +137,15 @@ impl<'a> Lowerer<'a> {
                     left = a;
                 }
                 let mut acc = self.lower_depth(g, left, depth + 1)?;
+                if additive {
+                    return self.lower_sum(g, acc, chain, depth);
+                }
                 for (o, b, s) in chain.into_iter().rev() {
                     let b = self.lower_depth(g, b, depth + 1)?;
                     if o == BinOp::Div && g.is_const(b, 0.0) {
                         return Err(err(s, DIVISION_BY_ZERO.into()));
                     }
                     let r = match o {
-                        BinOp::Add => g.add2(acc, b),
-                        BinOp::Sub => g.sub(acc, b),
                         BinOp::Mul => g.mul2(acc, b),
                         _ => g.div(acc, b),
                     };
@@ -170,6 +172,41 @@ impl<'a> Lowerer<'a> {
         };
         Ok(id)
     }
+
+    /// The chain `first ± b ± c …` (`chain` holds the operands after
+    /// `first`, last first), folded from the left as `add(&[partial, b])`
+    /// would fold it, with the same nodes, checks and errors, but without
+    /// interning its partial sums of more than `KEPT_PARTIAL_SUM` operands
+    /// ([`SumChain`]): in time and memory linear in the terms rather than
+    /// quadratic.
+    fn lower_sum(
+        &mut self,
+        g: &mut Graph,
+        first: NodeId,
+        chain: Vec<(BinOp, &SrcExpr, proc_macro2::Span)>,
+        depth: usize,
+    ) -> Result<NodeId, SpecError> {
+        // What `check_finite` looks at in the partial sum: whether it is a
+        // constant node, and the node when it is a single operand.
+        let mut partial = Partial::Node(first);
+        let mut sum: Option<SumChain> = None;
+        for (o, b, s) in chain.into_iter().rev() {
+            let b = self.lower_depth(g, b, depth + 1)?;
+            let term = if o == BinOp::Sub { g.neg(b) } else { b };
+            let acc_is_const = matches!(partial, Partial::Node(a) if g.as_const(a).is_some());
+            let chain = sum.get_or_insert_with(|| g.sum_chain(first, KEPT_PARTIAL_SUM));
+            partial = g.sum_chain_push(chain, term);
+            let (nonfinite, is_const) = match partial {
+                Partial::Node(r) => (g.has_nonfinite_operand(r), g.as_const(r).is_some()),
+                Partial::Sum { constant } => (constant.is_some_and(|c| !c.is_finite()), false),
+            };
+            check_finite_parts(nonfinite, acc_is_const && g.as_const(b).is_some() && !is_const, s)?;
+        }
+        Ok(match sum {
+            Some(chain) => g.sum_chain_finish(chain),
+            None => first,
+        })
+    }
 }
 
 /// The message for a `/` whose denominator simplifies to the constant 0: the
@@ -184,7 +221,18 @@ pub(crate) const DIVISION_BY_ZERO: &str =
 /// that overflowed (`1e308*1e308*x`), mean the value is not a finite number:
 /// say so at the operator instead of emitting `inf`/`NaN`.
 fn check_finite(g: &Graph, args: &[NodeId], r: NodeId, span: proc_macro2::Span) -> Result<(), SpecError> {
-    if g.has_nonfinite_operand(r) {
+    let constant_args = args.iter().all(|&a| g.as_const(a).is_some());
+    check_finite_parts(g.has_nonfinite_operand(r), constant_args && g.as_const(r).is_none(), span)
+}
+
+/// [`check_finite`] given its two findings: `r` has an operand that is not a
+/// finite number, or its operands are constants and it is not.
+fn check_finite_parts(
+    nonfinite_operand: bool,
+    unfolded_constant: bool,
+    span: proc_macro2::Span,
+) -> Result<(), SpecError> {
+    if nonfinite_operand {
         return Err(SpecError {
             span,
             message: "this expression folds to a number beyond the range of f64 (±1.8e308), so the generated code \
@@ -192,7 +240,7 @@ fn check_finite(g: &Graph, args: &[NodeId], r: NodeId, span: proc_macro2::Span) 
                 .into(),
         });
     }
-    if args.iter().all(|&a| g.as_const(a).is_some()) && g.as_const(r).is_none() {
+    if unfolded_constant {
         return Err(SpecError {
             span,
             message: "this constant subexpression is not a finite number: its value overflows f64 (beyond \

@@ -23,6 +23,60 @@ pub fn is_int(x: f64) -> bool {
     x.fract() == 0.0 && x.abs() <= 1e9
 }
 
+/// The fold `((a + b) + c) + …` of a sum written in the source, kept as
+/// its terms rather than as interned partial sums: each partial sum of a
+/// chain of `k` terms is a node with all the terms before it, `k²/2`
+/// operands in all (0.6 GB and 20 s of CPU to check a sum of 10 000 terms), and each
+/// step of [`Graph::add`] goes through all of them.
+///
+/// The steps ([`Graph::sum_chain_push`]) make the nodes the fold of `add`
+/// makes, in the same order, with the same coefficients (like terms are
+/// added in the fold's order), and intern the partial sums of at most
+/// [`KEPT_PARTIAL_SUM`] operands as the fold does; so the node ids, the
+/// order of the operands of every sum and product (sorted by id) and the
+/// emitted code are those of the fold.
+pub(crate) struct SumChain {
+    /// The constant term (0 when there is none).
+    constant: f64,
+    /// Each term's rest (the term without its coefficient) → its
+    /// coefficient and the term's node ([`PENDING`] within a step for a
+    /// rest new in it).
+    terms: HashMap<NodeId, (f64, NodeId)>,
+    /// Number of terms.
+    len: usize,
+    /// The most operands of a partial sum that is interned as the fold
+    /// interns it ([`KEPT_PARTIAL_SUM`]).
+    keep: usize,
+    /// The graph is exhausted: every sum is the constant 0.
+    dead: bool,
+}
+
+/// The partial sums of a [`SumChain`] of at most this many operands are
+/// interned, as the fold interns them, at a cost bounded by it per step. So
+/// the graph is the fold's exactly for every sum whose partial sums are
+/// this small, and otherwise lacks only the longer partial sums: a node
+/// made later that equals one of them (rare: a sum of over 64 operands
+/// written out again) gets a later id than in the fold, which can change
+/// the order of the operands of the sums and products made after it.
+pub(crate) const KEPT_PARTIAL_SUM: usize = 64;
+
+/// A placeholder for a term's node not made yet.
+const PENDING: NodeId = NodeId(u32::MAX);
+
+/// A partial sum of a [`SumChain`], as much of it as the lowering's checks
+/// need: the node `add` returns when it is a single operand (a constant or
+/// one term), or else the value of the sum's constant operand, if it has one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Partial {
+    /// The partial sum is this node.
+    Node(NodeId),
+    /// A sum of several operands, its constant operand (if any) first.
+    Sum {
+        /// The constant operand.
+        constant: Option<f64>,
+    },
+}
+
 impl Graph {
     /// `a + b`.
     pub fn add2(&mut self, a: NodeId, b: NodeId) -> NodeId {
@@ -130,6 +184,117 @@ impl Graph {
         out.sort();
         if constant != 0.0 || out.is_empty() {
             out.insert(0, self.constant(constant));
+        }
+        if out.len() == 1 {
+            return out[0];
+        }
+        self.intern(Node::Add(out.into()))
+    }
+
+    /// Starts the fold `((first + b) + c) + …` of a chain written in the
+    /// source (see [`SumChain`]). Splitting `first`'s terms is the first
+    /// thing `add(&[first, b])` does, so the caller starts the chain after
+    /// lowering `b`.
+    pub(crate) fn sum_chain(&mut self, first: NodeId, keep: usize) -> SumChain {
+        let mut chain = SumChain { constant: 0.0, terms: HashMap::new(), len: 0, keep, dead: self.exhausted() };
+        if chain.dead {
+            return chain;
+        }
+        let flat = match self.node(first) {
+            Node::Add(xs) => xs.to_vec(),
+            _ => vec![first],
+        };
+        for t in flat {
+            if let Some(c) = self.as_const(t) {
+                chain.constant += c;
+                continue;
+            }
+            let (c, rest) = self.split_coefficient(t);
+            // `first` is a canonical node: its terms have distinct rests and
+            // nonzero coefficients, and each is `with_coefficient(c, rest)`.
+            chain.terms.insert(rest, (c, t));
+        }
+        chain.len = chain.terms.len();
+        chain
+    }
+
+    /// One step of the fold: the partial sum becomes `add(&[partial, term])`,
+    /// making the nodes that call makes, in its order, except a partial sum
+    /// of more than `keep` operands. Work proportional to `term`'s operands
+    /// and `keep`, not to the partial sum's operands.
+    pub(crate) fn sum_chain_push(&mut self, chain: &mut SumChain, term: NodeId) -> Partial {
+        if self.exhausted() || chain.dead {
+            chain.dead = true;
+            return Partial::Node(self.constant(0.0));
+        }
+        let flat = match self.node(term) {
+            Node::Add(xs) => xs.to_vec(),
+            _ => vec![term],
+        };
+        // `add` goes through the partial sum's terms (sorted by id) and then
+        // `term`'s, splits each, adds the coefficients of equal rests, and
+        // then makes `with_coefficient(c, rest)` in that order. The partial
+        // sum's splits and unchanged terms are nodes that exist already; the
+        // nodes it makes are the changed terms, in the order of their old
+        // ids, then `term`'s new ones.
+        let mut met: Vec<(NodeId, NodeId)> = Vec::new();
+        let mut fresh: Vec<NodeId> = Vec::new();
+        for t in flat {
+            if let Some(c) = self.as_const(t) {
+                chain.constant += c;
+                continue;
+            }
+            let (c, rest) = self.split_coefficient(t);
+            match chain.terms.get_mut(&rest) {
+                Some(entry) => {
+                    if entry.1 != PENDING {
+                        met.push((entry.1, rest));
+                    }
+                    entry.0 += c;
+                }
+                None => {
+                    fresh.push(rest);
+                    chain.terms.insert(rest, (c, PENDING));
+                }
+            }
+        }
+        met.sort_unstable();
+        met.dedup();
+        for rest in met.into_iter().map(|(_, rest)| rest).chain(fresh) {
+            let c = chain.terms[&rest].0;
+            if c == 0.0 {
+                chain.terms.remove(&rest);
+            } else {
+                let t = self.with_coefficient(c, rest);
+                chain.terms.insert(rest, (c, t));
+            }
+        }
+        chain.len = chain.terms.len();
+        let constant = (chain.constant != 0.0 || chain.len == 0).then(|| self.constant(chain.constant));
+        match (constant, chain.len) {
+            (Some(c), 0) => Partial::Node(c),
+            (None, 1) => Partial::Node(chain.terms.values().next().map_or(term, |e| e.1)),
+            (c, len) => {
+                if len + usize::from(c.is_some()) <= chain.keep {
+                    let mut out: Vec<NodeId> = c.into_iter().collect();
+                    out.extend(chain.terms.values().map(|e| e.1));
+                    out[usize::from(c.is_some())..].sort_unstable();
+                    self.intern(Node::Add(out.into()));
+                }
+                Partial::Sum { constant: c.and_then(|c| self.as_const(c)) }
+            }
+        }
+    }
+
+    /// The node of the chain's sum: what the last `add` of the fold makes.
+    pub(crate) fn sum_chain_finish(&mut self, chain: SumChain) -> NodeId {
+        if chain.dead {
+            return self.constant(0.0);
+        }
+        let mut out: Vec<NodeId> = chain.terms.values().map(|e| e.1).collect();
+        out.sort();
+        if chain.constant != 0.0 || out.is_empty() {
+            out.insert(0, self.constant(chain.constant));
         }
         if out.len() == 1 {
             return out[0];
@@ -311,6 +476,179 @@ impl Graph {
 #[cfg(test)]
 mod tests {
     use crate::graph::{Fun, Graph, Node, NodeId, Var};
+    use proptest::prelude::*;
+
+    /// A term of a chain, built on a graph: a number, a variable times a
+    /// number, a product, a power, a call, a nested sum, or a negation.
+    #[derive(Clone, Debug)]
+    enum Term {
+        Num(f64),
+        Scaled(f64, u32),
+        Product(f64, u32, u32),
+        Power(u32, f64),
+        Sine(u32),
+        Sum(Vec<Term>),
+        Neg(Box<Term>),
+    }
+
+    fn build(g: &mut Graph, t: &Term) -> NodeId {
+        let var = |g: &mut Graph, i: u32| g.var([Var::Q(0), Var::V(0), Var::Q(1), Var::V(1)][i as usize]);
+        match t {
+            Term::Num(c) => g.constant(*c),
+            Term::Scaled(c, i) => {
+                let x = var(g, *i);
+                g.scale(*c, x)
+            }
+            Term::Product(c, i, j) => {
+                let (x, y) = (var(g, *i), var(g, *j));
+                let xy = g.mul2(x, y);
+                g.scale(*c, xy)
+            }
+            Term::Power(i, e) => {
+                let x = var(g, *i);
+                g.powc(x, *e)
+            }
+            Term::Sine(i) => {
+                let x = var(g, *i);
+                g.call(Fun::Sin, &[x])
+            }
+            Term::Sum(ts) => {
+                let xs: Vec<NodeId> = ts.iter().map(|t| build(g, t)).collect();
+                g.add(&xs)
+            }
+            Term::Neg(t) => {
+                let x = build(g, t);
+                g.neg(x)
+            }
+        }
+    }
+
+    fn arb_term() -> impl Strategy<Value = Term> {
+        // Few variables and coefficients, so that like terms meet and cancel.
+        let coefficient = prop_oneof![Just(1.0), Just(-1.0), Just(2.0), Just(-2.0), Just(0.5), Just(1e-300), Just(3.0)];
+        let leaf = prop_oneof![
+            prop_oneof![Just(0.0), Just(1.0), Just(-1.0), Just(2.5), Just(0.1), Just(0.2)].prop_map(Term::Num),
+            (coefficient.clone(), 0u32..4).prop_map(|(c, i)| Term::Scaled(c, i)),
+            (coefficient, 0u32..4, 0u32..4).prop_map(|(c, i, j)| Term::Product(c, i, j)),
+            (0u32..4, prop_oneof![Just(2.0), Just(-1.0), Just(0.5)]).prop_map(|(i, e)| Term::Power(i, e)),
+            (0u32..4).prop_map(Term::Sine),
+        ];
+        leaf.prop_recursive(2, 12, 4, |inner| {
+            prop_oneof![
+                prop::collection::vec(inner.clone(), 2..4).prop_map(Term::Sum),
+                inner.prop_map(|t| Term::Neg(Box::new(t))),
+            ]
+        })
+    }
+
+    /// The text of a node with the operands of sums and products in the
+    /// order of their texts: equal for the same expression whatever the ids.
+    fn text(g: &Graph, x: NodeId) -> String {
+        let list = |xs: &[NodeId]| {
+            let mut ts: Vec<String> = xs.iter().map(|&x| text(g, x)).collect();
+            ts.sort();
+            ts.join(" ")
+        };
+        match g.node(x) {
+            Node::Const(bits) => format!("{:?}", f64::from_bits(*bits)),
+            Node::Var(v) => format!("{v:?}"),
+            Node::Add(xs) => format!("(+ {})", list(xs)),
+            Node::Mul(xs) => format!("(* {})", list(xs)),
+            Node::Pow(b, e) => format!("(^ {} {})", text(g, *b), text(g, *e)),
+            Node::Call(f, xs) => format!("({f:?} {})", xs.iter().map(|&x| text(g, x)).collect::<Vec<_>>().join(" ")),
+        }
+    }
+
+    /// Sums `first ± rest…` by the fold of `add2`/`sub` and by a chain that
+    /// keeps the partial sums of at most `keep` operands, each in a graph of
+    /// its own; returns both graphs, both sums and the partial sums of
+    /// each step (as the fold's nodes and as the chain reports them).
+    #[allow(clippy::type_complexity)]
+    fn fold_and_chain(
+        first: &Term,
+        rest: &[(bool, Term)],
+        keep: usize,
+    ) -> (Graph, Graph, NodeId, NodeId, Vec<NodeId>, Vec<super::Partial>) {
+        let mut folded = Graph::default();
+        let mut acc = build(&mut folded, first);
+        let mut partials = Vec::new();
+        for (subtract, t) in rest {
+            let b = build(&mut folded, t);
+            acc = if *subtract { folded.sub(acc, b) } else { folded.add2(acc, b) };
+            partials.push(acc);
+        }
+        let mut chained = Graph::default();
+        let first_node = build(&mut chained, first);
+        let mut chain = None;
+        let mut reported = Vec::new();
+        for (subtract, t) in rest {
+            let b = build(&mut chained, t);
+            let term = if *subtract { chained.neg(b) } else { b };
+            let c = chain.get_or_insert_with(|| chained.sum_chain(first_node, keep));
+            reported.push(chained.sum_chain_push(c, term));
+        }
+        let sum = chained.sum_chain_finish(chain.expect("one step at least"));
+        (folded, chained, acc, sum, partials, reported)
+    }
+
+    /// What a chain reports of a partial sum the fold makes: its node if it
+    /// is a single operand, else its constant operand (as bits: NaN is not
+    /// equal to itself).
+    fn expected_report(folded: &Graph, partial: NodeId) -> (Option<String>, Option<u64>) {
+        match folded.node(partial) {
+            Node::Add(xs) => (None, folded.as_const(xs[0]).map(f64::to_bits)),
+            _ => (Some(text(folded, partial)), None),
+        }
+    }
+
+    fn report(chained: &Graph, r: super::Partial) -> (Option<String>, Option<u64>) {
+        match r {
+            super::Partial::Node(x) => (Some(text(chained, x)), None),
+            super::Partial::Sum { constant } => (None, constant.map(f64::to_bits)),
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(1000))]
+
+        /// A chain `t0 ± t1 ± …` whose partial sums are interned (at most
+        /// `KEPT_PARTIAL_SUM` operands) makes exactly the graph of the fold
+        /// of `add2`/`sub`: the same nodes with the same ids, and the same
+        /// sum; each step reports the partial sum the fold has.
+        #[test]
+        fn sum_chains_make_the_graph_of_the_fold(
+            first in arb_term(),
+            rest in prop::collection::vec((any::<bool>(), arb_term()), 1..12),
+        ) {
+            let (folded, chained, acc, sum, partials, reported) =
+                fold_and_chain(&first, &rest, super::KEPT_PARTIAL_SUM);
+            prop_assert_eq!(folded.len(), chained.len());
+            for i in 0..folded.len() {
+                let x = NodeId(i as u32);
+                prop_assert_eq!(folded.node(x), chained.node(x), "node {}", i);
+            }
+            prop_assert_eq!(acc, sum);
+            for (&p, &r) in partials.iter().zip(&reported) {
+                prop_assert_eq!(expected_report(&folded, p), report(&chained, r));
+            }
+        }
+
+        /// Without interning any partial sum, a chain still makes the
+        /// fold's sum (its operands may be in another order where a node
+        /// equals a partial sum the chain lacks) and reports its partial
+        /// sums.
+        #[test]
+        fn sum_chains_without_partial_sums_make_the_sum_of_the_fold(
+            first in arb_term(),
+            rest in prop::collection::vec((any::<bool>(), arb_term()), 1..12),
+        ) {
+            let (folded, chained, acc, sum, partials, reported) = fold_and_chain(&first, &rest, 0);
+            prop_assert_eq!(text(&folded, acc), text(&chained, sum));
+            for (&p, &r) in partials.iter().zip(&reported) {
+                prop_assert_eq!(expected_report(&folded, p), report(&chained, r));
+            }
+        }
+    }
 
     /// Every left-folded prefix that emission takes of a product, in its
     /// order (least variable first), is the node `mul` makes of it: with and
