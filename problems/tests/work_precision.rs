@@ -56,6 +56,48 @@ mod sweep {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// The peers' results are read back from a file in the output folder:
+    /// one that an earlier run left there is never taken for this run's.
+    /// A `--python` that ends successfully without writing it (here a
+    /// script that only exits 0) is a peer not measured, naming the file.
+    #[test]
+    fn an_earlier_runs_peer_results_are_not_read_as_this_runs() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-stale-peers-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("external")).unwrap();
+        let stale = dir.join("external").join("skate-points.csv");
+        std::fs::write(
+            &stale,
+            "system,solver,method,stages,setting,steps,error_q,error_v,energy_error,wall_time,cpu_time,\
+             time_per_step,newton_iterations,repeats\nskate,SciPy,EARLIER,0,0.001,7,1e-99,1e-99,NaN,1e-9,1e-9,\
+             1e-10,NaN,1\n",
+        )
+        .unwrap();
+        let python = dir.join("fake-python");
+        std::fs::write(&python, "#!/bin/sh\nexit 0\n").unwrap();
+        std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let script = dir.join("peers.py");
+        std::fs::write(&script, "").unwrap();
+        let mut cfg = WorkPrecisionConfig::quick(&dir);
+        cfg.systems = vec![SystemKind::Skate];
+        cfg.max_steps = 16;
+        cfg.python = Some(python);
+        cfg.peers_script = script;
+        let all = run_work_precision(&cfg, &|_| {}).unwrap();
+        let m = &all[0];
+        assert!(!m.points.iter().any(|p| p.method == "EARLIER"), "the earlier run's peer point was read back");
+        assert!(
+            m.missing.iter().any(|s| s.contains("exited successfully but wrote no") && s.contains("skate-points.csv")),
+            "{:?}",
+            m.missing
+        );
+        assert!(!stale.exists(), "the earlier results are still there");
+        let points = std::fs::read_to_string(dir.join("points.csv")).unwrap();
+        assert!(!points.contains("EARLIER"), "{points}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// The reversible sweep runs on the systems with a step density, and
     /// its driver is compiled for the entries marked `steps: reversible`:
     /// the two lists agree.

@@ -139,7 +139,9 @@ pub fn run_per_step(
 }
 
 /// Writes the problem as JSON into `dir` and runs the peer script on it;
-/// the script writes `output`.
+/// the script writes `output`. An `output` left by an earlier run is
+/// removed first, and a script that ends successfully without writing it is
+/// an error: the earlier run's numbers are never read back as this run's.
 #[allow(clippy::too_many_arguments)]
 fn run_script(
     python: &Path,
@@ -187,6 +189,12 @@ fn run_script(
     let text = serde_json::to_string_pretty(&input).map_err(|e| e.to_string())?;
     std::fs::write(&input_path, text).map_err(|e| format!("could not write {}: {e}", input_path.display()))?;
     let build: PathBuf = dir.join(format!("{}-build", kind.key()));
+    match std::fs::remove_file(output) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(format!("could not remove the earlier peer results {}: {e}", output.display()));
+        }
+        _ => {}
+    }
     let result = Command::new(python)
         .arg(script)
         .arg("--input")
@@ -206,6 +214,15 @@ fn run_script(
             script.display(),
             result.status,
             tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+        ));
+    }
+    if !output.is_file() {
+        return Err(format!(
+            "{} {} exited successfully but wrote no {}; --python must name a Python interpreter with casadi and \
+             scipy (set up by `bash casadi/peers/setup.sh`)",
+            python.display(),
+            script.display(),
+            output.display()
         ));
     }
     Ok(())
