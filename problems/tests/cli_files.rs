@@ -479,3 +479,44 @@ fn an_out_folder_whose_name_is_not_utf8_is_written() {
     assert!(out.join("skate_gauss_s2.csv").exists() && out.join("report.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `spark-casadi-export` replaces its document whole: the file an earlier
+/// export wrote is renamed over, never truncated and rewritten in place (a
+/// link to it keeps the earlier document, as a reader that has it open
+/// does), and a standard error that cannot take its closing line (a full
+/// disk) loses the line, not the export (exit status 0, not a panic).
+#[test]
+fn the_casadi_export_replaces_its_document_whole() {
+    let dir = temp_dir("casadi-export");
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("export.json");
+    let earlier = dir.join("earlier.json");
+    std::fs::write(&out, b"{\"earlier\": true}").unwrap();
+    std::fs::hard_link(&out, &earlier).unwrap();
+    let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_spark-casadi-export"))
+        .arg("--out")
+        .arg(&out)
+        .stderr(Stdio::from(full))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{:?}", o.status);
+    assert_eq!(std::fs::read(&earlier).unwrap(), b"{\"earlier\": true}", "the earlier file was rewritten in place");
+    let document: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    assert!(document["systems"].as_array().is_some_and(|s| !s.is_empty()), "no systems in the export");
+    // A folder in the way is an error naming it, and leaves no temporary file.
+    let folder = dir.join("folder.json");
+    std::fs::create_dir(&folder).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_spark-casadi-export")).arg("--out").arg(&folder).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains(&folder.display().to_string()), "{stderr}");
+    let left: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".spark-tmp-"))
+        .collect();
+    assert!(left.is_empty(), "temporary files left: {left:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

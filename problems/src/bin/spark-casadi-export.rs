@@ -4,11 +4,13 @@
 //!
 //! `spark-casadi-export --out out/casadi/export.json [--seed 20260101]`
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
 use problems::crosscheck::Document;
+use problems::report::files::replace_file;
 
 /// Export sample points and SPARK steps for the CasADi cross-check.
 #[derive(Parser, Debug)]
@@ -22,28 +24,36 @@ struct Args {
     seed: u64,
 }
 
-fn run(args: &Args) -> Result<(), String> {
+fn run(args: &Args) -> Result<String, String> {
     let document = Document::export(args.seed).map_err(|e| format!("exporting: {e}"))?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }
-    let text = serde_json::to_string_pretty(&document).map_err(|e| format!("serializing: {e}"))?;
-    std::fs::write(&args.out, text).map_err(|e| format!("writing {}: {e}", args.out.display()))?;
-    eprintln!(
+    // Under a temporary name, then renamed: an interrupted or failed write
+    // leaves an earlier export whole, never a truncated document under its name.
+    replace_file(&args.out, |w| serde_json::to_writer_pretty(w, &document)).map_err(|e| e.to_string())?;
+    Ok(format!(
         "spark-casadi-export: {} systems, {} steps -> {}",
         document.systems.len(),
         document.steps.len(),
         args.out.display()
-    );
-    Ok(())
+    ))
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    // Written, not `eprintln!`ed, which panics when standard error cannot
+    // take the line (a full disk): that loses the message, not the export.
+    let say = |line: &str| {
+        let _ = writeln!(std::io::stderr(), "{line}");
+    };
     match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(done) => {
+            say(&done);
+            ExitCode::SUCCESS
+        }
         Err(e) => {
-            eprintln!("spark-casadi-export: error: {e}");
+            say(&format!("spark-casadi-export: error: {e}"));
             ExitCode::FAILURE
         }
     }

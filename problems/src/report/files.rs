@@ -474,13 +474,30 @@ fn write_columns_to(w: &mut dyn Write, columns: &[(&str, &[f64])]) -> Result<(),
 /// [`OutputDir::write_columns`].
 pub fn write_columns(path: &Path, columns: &[(&str, &[f64])]) -> Result<(), OutputError> {
     check_columns(path, columns)?;
+    replace_file(path, |w| write_columns_to(w, columns))
+}
+
+/// Writes the file `path` through `write` into a temporary file in its
+/// folder, syncs it and renames it to `path`: a reader of `path` (or of a
+/// link to the file it was) sees the earlier file or the whole new one,
+/// never a part; a failed or interrupted write leaves the earlier file as
+/// it was and no temporary file (but for a killed process, whose temporary
+/// file keeps the prefix `.spark-tmp-`). Holds no folder lock: inside a
+/// command, use [`OutputDir::write_with`].
+pub fn replace_file<E>(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<(), E>) -> Result<(), OutputError>
+where
+    E: Into<WriteFailure>,
+{
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let temp = dir.join(format!("{TEMP_PREFIX}{}-single-{name}", std::process::id()));
+    // Numbered, so that threads replacing one file at once each have their own.
+    static SEQUENCE: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let seq = SEQUENCE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let temp = dir.join(format!("{TEMP_PREFIX}{}-single-{seq}-{name}", std::process::id()));
     let result = (|| {
         let file = OpenOptions::new().write(true).create_new(true).open(&temp).map_err(io(&temp))?;
         let mut w = BufWriter::new(file);
-        write_columns_to(&mut w, columns).map_err(|source| OutputError::Csv { path: path.to_path_buf(), source })?;
+        write(&mut w).map_err(|e| e.into().into_output(path))?;
         let file = w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
         file.sync_all().map_err(io(&temp))?;
         std::fs::rename(&temp, path).map_err(io(path))
