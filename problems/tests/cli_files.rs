@@ -520,3 +520,31 @@ fn the_casadi_export_replaces_its_document_whole() {
     assert!(left.is_empty(), "temporary files left: {left:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Output times too many to record are refused from their count, before
+/// their list is made: `--sample-every 1e-7` over the skate's 10 time units
+/// is 10⁸ times, and the 800 MB list of them made first took seconds and,
+/// under a 600 MB memory limit, aborted the process (allocation failure,
+/// SIGABRT) instead of the refusal.
+#[test]
+fn too_many_output_times_are_refused_before_they_take_memory() {
+    let dir = temp_dir("sample-count");
+    let mut cmd = spark();
+    cmd.args(["run", "skate", "--sample-every", "1.0000001e-7", "--no-plot", "--out"]).arg(&dir);
+    // SAFETY: `setrlimit` is async-signal-safe; the closure touches nothing else.
+    unsafe {
+        cmd.pre_exec(|| {
+            let limit = libc::rlimit { rlim_cur: 600 << 20, rlim_max: 600 << 20 };
+            if libc::setrlimit(libc::RLIMIT_AS, &limit) == 0 {
+                Ok(())
+            } else {
+                Err(std::io::Error::last_os_error())
+            }
+        });
+    }
+    let o = cmd.output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{:?}: {stderr}", o.status);
+    assert!(stderr.contains("records 1.000e8 samples") && stderr.contains("give a --sample-every of"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -129,9 +129,11 @@ pub const DEFAULT_MAX_STEPS: usize = 1_000_000;
 /// Most output times `--sample-every` makes.
 const MAX_SAMPLE_TIMES: f64 = 1e8;
 
-/// The output times `t0 + k·dt`, `k = 1, 2, …`, up to `t_end` (a time within
-/// a millionth of `dt` of `t_end` is `t_end` itself).
-fn sample_times(t0: f64, t_end: f64, dt: f64) -> Result<Vec<f64>, String> {
+/// The number of output times `t0 + k·dt`, `k = 1, 2, …`, up to `t_end`
+/// (a time within a millionth of `dt` of `t_end` is `t_end` itself): known
+/// before any is made, so that a run recording too many is refused before
+/// their list takes memory (10⁸ times are 800 MB).
+fn sample_count(t0: f64, t_end: f64, dt: f64) -> Result<usize, String> {
     if !(dt.is_finite() && dt > 0.0) {
         return Err(format!("--sample-every must be a positive number, got {dt:.3e}"));
     }
@@ -147,7 +149,12 @@ fn sample_times(t0: f64, t_end: f64, dt: f64) -> Result<Vec<f64>, String> {
             "--sample-every {dt:.6e} makes {count:.3e} output times, more than {MAX_SAMPLE_TIMES:.0e}; give a larger DT"
         ));
     }
-    let mut times: Vec<f64> = (1..=count as usize).map(|k| (t0 + k as f64 * dt).min(t_end)).collect();
+    Ok(count as usize)
+}
+
+/// The `count` output times of [`sample_count`].
+fn sample_times(t0: f64, t_end: f64, dt: f64, count: usize) -> Result<Vec<f64>, String> {
+    let mut times: Vec<f64> = (1..=count).map(|k| (t0 + k as f64 * dt).min(t_end)).collect();
     if let Some(last) = times.last_mut() {
         if (t_end - *last).abs() <= 1e-6 * dt {
             *last = t_end;
@@ -344,13 +351,14 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
         }
         Some(_) => 1,
     };
-    let times = a.sample_every.map(|dt| sample_times(t0, t_end, dt)).transpose()?;
-    let (recorded, every, recording) = match (&times, &tolerance, a.sample_every) {
-        (Some(times), _, Some(dt)) => (times.len(), 1, Recording::Times { dt }),
-        (None, Some(t), _) => (t.max_steps, a.every, Recording::Tolerance),
+    let sampled = a.sample_every.map(|dt| sample_count(t0, t_end, dt).map(|count| (dt, count))).transpose()?;
+    let (recorded, every, recording) = match (sampled, &tolerance) {
+        (Some((dt, count)), _) => (count, 1, Recording::Times { dt }),
+        (None, Some(t)) => (t.max_steps, a.every, Recording::Tolerance),
         _ => (steps, a.every, Recording::Steps),
     };
     check_output_size(recorded, entry.n, entry.m, entry.effects.holonomic, a.format, every, recording)?;
+    let times = sampled.map(|(dt, count)| sample_times(t0, t_end, dt, count)).transpose()?;
     let mut spec = RunSpec::paper(entry.kind, method, a.stages, h, steps);
     spec.t0 = t0;
     for (flag, what, given) in [("--q0", "q0", &a.q0), ("--v0", "v0", &a.v0)] {
