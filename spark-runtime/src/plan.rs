@@ -9,7 +9,7 @@
 use crate::adaptive::{
     integrate_adaptive_at, integrate_adaptive_with_events, AdaptiveError, AdaptiveOptions, AdaptiveReport,
 };
-use crate::driver::{check_record_size, IntegrationError, Observer, RunOptions, Schedule, Trajectory};
+use crate::driver::{check_record_size, check_step_size, IntegrationError, Observer, RunOptions, Schedule, Trajectory};
 use crate::error::Sci;
 use crate::events::{EventFunctions, EventRecord, NoEvents, SystemEvents};
 use crate::step::Stepper;
@@ -52,6 +52,16 @@ pub enum Stepping {
 }
 
 impl Stepping {
+    /// Tolerance-driven steps when a `tolerance` is given, else `steps`
+    /// fixed steps of size `h`: how a front end's request (`spark run`'s
+    /// flags, Python's keyword arguments) names its steps.
+    pub fn new(h: f64, steps: usize, tolerance: Option<Tolerance>) -> Self {
+        match tolerance {
+            Some(tolerance) => Stepping::Tolerance(tolerance),
+            None => Stepping::Fixed { h, steps },
+        }
+    }
+
     /// The end of the interval the steps cover: `t0 + steps·h` for fixed
     /// steps, `t_end` for tolerance-driven ones.
     pub fn t_end(&self, t0: f64) -> f64 {
@@ -81,6 +91,36 @@ pub struct RunPlan<'a> {
 }
 
 impl RunPlan<'_> {
+    /// The checks of the steps of a run from `t0` that need no system, in
+    /// the words every front end shares: a finite `t0`; for fixed steps a
+    /// step size that [`check_step_size`] accepts; for a tolerance a finite
+    /// `t_end` other than `t0` and at least one step attempt.
+    pub fn check_steps(&self, t0: f64) -> Result<(), String> {
+        if !t0.is_finite() {
+            return Err(format!("initial time t0 = {t0:.3e} must be finite"));
+        }
+        match self.stepping {
+            Stepping::Fixed { h, .. } => {
+                if !(h.is_finite() && h != 0.0) {
+                    return Err(format!("step size h = {h:.3e} must be finite and nonzero"));
+                }
+                check_step_size(t0, h).map_err(|why| format!("step size h = {h:.3e} from t0 = {t0:.3e}: {why}"))?;
+            }
+            Stepping::Tolerance(tolerance) => {
+                if !tolerance.t_end.is_finite() || tolerance.t_end == t0 {
+                    return Err(format!(
+                        "a tolerance-driven run needs a finite t_end other than t0 = {t0:.3e} (got {:.3e})",
+                        tolerance.t_end
+                    ));
+                }
+                if tolerance.max_steps == 0 {
+                    return Err("max_steps must be at least 1".into());
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Checks that `members` runs of this plan, recording every
     /// `record_every`-th step at `bytes_per_sample` bytes a sample, fit
     /// within [`record_memory_limit`](crate::record_memory_limit), before
@@ -267,5 +307,44 @@ where
             };
             Ok(PlannedRun { trajectory: run.trajectory, controller: Some(run.report) })
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fixed(h: f64) -> RunPlan<'static> {
+        RunPlan { stepping: Stepping::new(h, 10, None), times: None, events: false }
+    }
+
+    fn tolerance(t_end: f64, max_steps: usize) -> RunPlan<'static> {
+        let tolerance = Tolerance { rtol: 1e-6, atol: 1e-6, first_step: None, max_step: None, max_steps, t_end };
+        RunPlan { stepping: Stepping::new(f64::NAN, 0, Some(tolerance)), times: None, events: false }
+    }
+
+    /// Each refusal names the value and what to give instead; the step size
+    /// and `steps` of a tolerance-driven request are not read.
+    #[test]
+    fn check_steps_refuses_what_no_system_can_run() {
+        let refused = |plan: RunPlan<'_>, t0: f64| plan.check_steps(t0).expect_err("refused");
+        assert!(refused(fixed(0.1), f64::NAN).contains("initial time t0 = NaN must be finite"));
+        assert!(refused(fixed(0.0), 0.0).contains("step size h = 0.000e0 must be finite and nonzero"));
+        assert!(refused(fixed(f64::INFINITY), 0.0).contains("must be finite and nonzero"));
+        assert!(refused(fixed(1e-310), 0.0).contains("subnormal"));
+        assert!(refused(fixed(1e-20), 1e10).contains("from t0 = 1.000e10"));
+        assert!(refused(tolerance(1.0, 100), 1.0).contains("finite t_end other than t0 = 1.000e0 (got 1.000e0)"));
+        assert!(refused(tolerance(f64::INFINITY, 100), 0.0).contains("finite t_end"));
+        assert_eq!(refused(tolerance(1.0, 0), 0.0), "max_steps must be at least 1");
+        assert_eq!(fixed(-0.1).check_steps(3.0), Ok(()));
+        assert_eq!(tolerance(-1.0, 1).check_steps(0.0), Ok(()));
+    }
+
+    #[test]
+    fn stepping_is_tolerance_driven_when_a_tolerance_is_given() {
+        assert_eq!(Stepping::new(0.5, 4, None), Stepping::Fixed { h: 0.5, steps: 4 });
+        assert_eq!(Stepping::new(0.5, 4, None).t_end(1.0), 3.0);
+        let Stepping::Tolerance(t) = tolerance(2.0, 7).stepping else { panic!("a tolerance-driven plan") };
+        assert_eq!(Stepping::new(0.5, 4, Some(t)).t_end(1.0), 2.0);
     }
 }

@@ -249,10 +249,7 @@ impl RunSpec {
 
     /// How the run chooses its steps.
     pub fn stepping(&self) -> Stepping {
-        match self.tolerance {
-            Some(tolerance) => Stepping::Tolerance(tolerance),
-            None => Stepping::Fixed { h: self.h, steps: self.steps },
-        }
+        Stepping::new(self.h, self.steps, self.tolerance)
     }
 
     /// The run as [`spark_runtime::integrate_plan`] takes it.
@@ -378,33 +375,11 @@ pub fn run(spec: &RunSpec, tick: Tick<'_>) -> Result<RunResult, RunError> {
     crate::catalog::visit_system(spec.system, RunSystem { spec, tick })
 }
 
-/// The checks of [`run`] that need no system type: step size, initial
-/// time, stage count, parameter names.
+/// The checks of [`run`] that need no system type: those of its steps that
+/// the Python package shares ([`RunPlan::check_steps`]), output times,
+/// stage count, recorded size, parameter names.
 fn check_spec(spec: &RunSpec) -> Result<(), RunError> {
-    if !spec.t0.is_finite() {
-        return Err(RunError::Invalid(format!("initial time t0 = {:.3e} must be finite", spec.t0)));
-    }
-    match &spec.tolerance {
-        None => {
-            if !(spec.h.is_finite() && spec.h != 0.0) {
-                return Err(RunError::Invalid(format!("step size h = {:.3e} must be finite and nonzero", spec.h)));
-            }
-            spark_runtime::check_step_size(spec.t0, spec.h).map_err(|why| {
-                RunError::Invalid(format!("step size h = {:.3e} from t0 = {:.3e}: {why}", spec.h, spec.t0))
-            })?;
-        }
-        Some(tolerance) => {
-            if !tolerance.t_end.is_finite() || tolerance.t_end == spec.t0 {
-                return Err(RunError::Invalid(format!(
-                    "a tolerance-driven run needs a finite t_end other than t0 = {:.3e} (got {:.3e})",
-                    spec.t0, tolerance.t_end
-                )));
-            }
-            if tolerance.max_steps == 0 {
-                return Err(RunError::Invalid("max_steps must be at least 1".into()));
-            }
-        }
-    }
+    spec.plan().check_steps(spec.t0).map_err(RunError::Invalid)?;
     if let Some(times) = &spec.times {
         if times.is_empty() {
             return Err(RunError::Invalid(

@@ -89,10 +89,7 @@ pub struct IntegrateRequest {
 impl IntegrateRequest {
     /// How the run chooses its steps.
     pub fn stepping(&self) -> Stepping {
-        match self.tolerance {
-            Some(tolerance) => Stepping::Tolerance(tolerance),
-            None => Stepping::Fixed { h: self.h, steps: self.steps },
-        }
+        Stepping::new(self.h, self.steps, self.tolerance)
     }
 
     /// The run as [`integrate_plan`] takes it.
@@ -190,34 +187,13 @@ where
     Ok(sys)
 }
 
-/// The checks of a request that need no system type (as `spark run`'s,
-/// `problems::run::check_spec`).
+/// The checks of a request that need no system type: those of its steps
+/// that `spark run` shares ([`RunPlan::check_steps`]), then the request's
+/// own.
 fn check_request(r: &IntegrateRequest) -> Result<(), Failure> {
-    if !r.t0.is_finite() {
-        return Err(format!("initial time t0 = {:.3e} must be finite", r.t0));
-    }
-    match &r.tolerance {
-        None => {
-            if !(r.h.is_finite() && r.h != 0.0) {
-                return Err(format!("step size h = {:.3e} must be finite and nonzero", r.h));
-            }
-            spark_runtime::check_step_size(r.t0, r.h)
-                .map_err(|why| format!("step size h = {:.3e} from t0 = {:.3e}: {why}", r.h, r.t0))?;
-            if r.steps == 0 {
-                return Err("steps must be at least 1".into());
-            }
-        }
-        Some(tolerance) => {
-            if !tolerance.t_end.is_finite() || tolerance.t_end == r.t0 {
-                return Err(format!(
-                    "a tolerance-driven run needs a finite t_end other than t0 = {:.3e} (got {:.3e})",
-                    r.t0, tolerance.t_end
-                ));
-            }
-            if tolerance.max_steps == 0 {
-                return Err("max_steps must be at least 1".into());
-            }
-        }
+    r.plan().check_steps(r.t0)?;
+    if r.tolerance.is_none() && r.steps == 0 {
+        return Err("steps must be at least 1".into());
     }
     if r.times.as_ref().is_some_and(|times| times.is_empty()) {
         return Err("t_eval holds no time; give at least one, or None to record at the steps".into());
