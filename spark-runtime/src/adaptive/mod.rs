@@ -445,6 +445,25 @@ pub enum AdaptiveError {
         /// Statistics up to the failure.
         partial: Box<AdaptiveReport>,
     },
+    /// The given first step is below the smallest step a run takes at
+    /// `t0` (`min_step`, or the resolution of `t` there): refused before
+    /// the first step, which would fail at once.
+    #[error(
+        "the first step, first_step = {} (AdaptiveOptions::initial_step, `--first-step` of `spark run`), is below {}, \
+         the smallest step a run takes from t0 = {}; give a first step of at least that, or none to let the run \
+         estimate it",
+        Sci(*first_step),
+        floor_words(*floor, *t0),
+        Sci(*t0)
+    )]
+    FirstStepTooSmall {
+        /// The first step asked for (capped by `max_step`).
+        first_step: f64,
+        /// The smallest step a run takes at `t0`.
+        floor: f64,
+        /// Start of the run.
+        t0: f64,
+    },
     /// The largest step allowed cannot reach `t_end` within `max_steps`
     /// steps, whatever the tolerance: refused before the first step, so
     /// that the run does not spend its attempts to find out.
@@ -563,6 +582,34 @@ pub(super) fn check_step_budget(t0: f64, t_end: f64, options: &AdaptiveOptions) 
         return Err(AdaptiveError::MaxStepTooSmall { max_step, needed, max_steps: options.max_steps, t0, t_end });
     }
     Ok(())
+}
+
+/// Refuses a given first step ([`AdaptiveOptions::initial_step`], capped
+/// by `max_step`) below the floor every step of a run from `t0` keeps to:
+/// [`AdaptiveOptions::min_step`], or where larger the resolution of `t` at
+/// `t0` (16 units in its last place, the smallest step that advances time
+/// by its size). Far from `t = 0` a first step that suits a run near it
+/// lies below that resolution; without this the run fails on its first
+/// attempt with [`AdaptiveError::StepSizeTooSmall`], whose advice cannot
+/// tell that the step was the caller's.
+pub(super) fn check_first_step(t0: f64, options: &AdaptiveOptions) -> Result<(), AdaptiveError> {
+    let Some(given) = options.initial_step else { return Ok(()) };
+    let first_step = options.max_step.map_or(given, |max_step| given.min(max_step));
+    let floor = options.min_step.max(resolution(t0));
+    if first_step < floor {
+        return Err(AdaptiveError::FirstStepTooSmall { first_step, floor, t0 });
+    }
+    Ok(())
+}
+
+/// The floor of [`AdaptiveError::FirstStepTooSmall`] in words: the
+/// resolution of `t` at `t0`, or `AdaptiveOptions::min_step`.
+fn floor_words(floor: f64, t0: f64) -> String {
+    if floor == resolution(t0) {
+        format!("{} (16 units in the last place of t0, the resolution of t there)", Sci(floor))
+    } else {
+        format!("min_step = {} (AdaptiveOptions::min_step)", Sci(floor))
+    }
 }
 
 /// Whether the method's step is symmetric (`Φ_{−h} = Φ_h^{−1}`).

@@ -5,7 +5,9 @@
 //! [`DenseRun`] so that an accepted step is treated the same way by every
 //! driver.
 
-use super::{check_step_budget, resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun};
+use super::{
+    check_first_step, check_step_budget, resolution, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun,
+};
 use crate::driver::{
     check_tableau, Accepted, DenseRun, Observe, Observer, RunReport, Sample, StepObserver, Trajectory,
 };
@@ -89,6 +91,7 @@ where
         });
     }
     check_step_budget(t0, t_end, options)?;
+    check_first_step(t0, options)?;
     let v = consistent_velocity(stepper.system(), t0, q0, v0, options.consistency).map_err(AdaptiveError::Initial)?;
     stepper.reset_run();
     stepper.set_accepted_start_residual(options.consistency.tolerance());

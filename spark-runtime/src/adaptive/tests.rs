@@ -200,6 +200,32 @@ fn adaptive_run_integrates_backward_and_reports_its_failures() {
     let enough = AdaptiveOptions { max_step: Some(0.5), max_steps: 6, ..o };
     let run = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &enough, &mut NoObserver);
     assert!(!matches!(run, Err(AdaptiveError::MaxStepTooSmall { .. })), "{run:?}");
+    // A given first step below the smallest step a run takes at t0 is
+    // refused before the first step in both rules, naming the option and
+    // the floor: the resolution of t far from 0, or min_step. The same
+    // step capped by max_step counts as what it is; one at the floor runs.
+    let far = 1e6;
+    let resolution = 16.0 * f64::EPSILON * far;
+    let below = AdaptiveOptions { initial_step: Some(1e-12), ..o };
+    let err = integrate_adaptive(&mut st, far, &s.q, &s.v, far + 3.0, &below, &mut NoObserver).unwrap_err();
+    let AdaptiveError::FirstStepTooSmall { first_step, floor, t0 } = err else { panic!("{err}") };
+    assert_eq!((first_step, floor, t0), (1e-12, resolution, far));
+    assert!(err.to_string().contains("first_step = 1.000e-12 (AdaptiveOptions::initial_step"), "{err}");
+    assert!(err.to_string().contains("16 units in the last place of t0"), "{err}");
+    let err =
+        integrate_reversible(&mut st, far, &s.q, &s.v, far + 3.0, |_, _, _| 1.0, &below, &mut NoObserver).unwrap_err();
+    assert!(matches!(err, AdaptiveError::FirstStepTooSmall { .. }), "{err}");
+    let capped = AdaptiveOptions { initial_step: Some(1.0), max_step: Some(0.3), min_step: 0.25, ..o };
+    let run = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &capped, &mut NoObserver);
+    assert!(!matches!(run, Err(AdaptiveError::FirstStepTooSmall { .. })), "{run:?}");
+    let under_min = AdaptiveOptions { initial_step: Some(0.1), min_step: 0.2, ..o };
+    let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &under_min, &mut NoObserver).unwrap_err();
+    let AdaptiveError::FirstStepTooSmall { floor, .. } = err else { panic!("{err}") };
+    assert_eq!(floor, 0.2);
+    assert!(err.to_string().contains("below min_step = 2.000e-1 (AdaptiveOptions::min_step)"), "{err}");
+    let at_floor = AdaptiveOptions { initial_step: Some(resolution), ..o };
+    let run = integrate_adaptive(&mut st, far, &s.q, &s.v, far + 3.0, &at_floor, &mut NoObserver);
+    assert!(!matches!(run, Err(AdaptiveError::FirstStepTooSmall { .. })), "{run:?}");
     let floor = AdaptiveOptions { min_step: 0.5, initial_step: Some(1.0), ..o };
     let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, 3.0, &floor, &mut NoObserver).unwrap_err();
     assert!(matches!(err, AdaptiveError::StepSizeTooSmall { .. }), "{err}");
