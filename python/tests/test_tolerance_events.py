@@ -208,6 +208,11 @@ def test_the_runtimes_messages_name_the_keywords(skate):
     assert "(the limit: max_steps); raise max_step or the limit" in str(raised.value)
     with pytest.raises(spark.SparkError, match="t_end other than t0"):
         skate.integrate("gauss", 2, rtol=1e-6, t_end=0.0)
+    # A first step below the resolution of t at t0 (3.6e-9 at 1e6) is
+    # refused before the first step, naming the keyword.
+    with pytest.raises(spark.SparkError, match=r"the first step, first_step = 1\.000e-12, is below 3\.553e-9") as raised:
+        skate.integrate("gauss", 2, rtol=1e-6, t0=1e6, t_end=1e6 + 1.0, first_step=1e-12)
+    assert "--first-step" not in str(raised.value) and "AdaptiveOptions" not in str(raised.value)
 
 
 def test_ensembles_keep_their_arguments(skate):

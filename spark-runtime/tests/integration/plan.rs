@@ -301,8 +301,8 @@ fn the_report_of_a_tolerance_driven_run_covers_the_steps_it_does_not_record() {
 /// where the event skate's estimate is 3e-3); the run then starts from that
 /// floor and proceeds as it does from `t = 0` (the system is autonomous),
 /// its times strictly increasing. A first step given below the floor is
-/// refused with the resolution named, not with advice to loosen the
-/// tolerance.
+/// refused before the first step, naming the option and the resolution,
+/// not with advice to loosen the tolerance.
 #[test]
 fn a_tolerance_driven_run_far_from_t_zero_starts_at_the_resolution_of_t() {
     let start = event_start();
@@ -325,7 +325,7 @@ fn a_tolerance_driven_run_far_from_t_zero_starts_at_the_resolution_of_t() {
     let given = Tolerance { first_step: Some(floor / 4.0), ..tolerance(1e-6, t0 + 2.0) };
     let plan = RunPlan { stepping: Stepping::Tolerance(given), times: None, events: false };
     let err = integrate_plan(&mut event_stepper(), t0, &q0, &v0, &plan, &options, &mut NoObserver).unwrap_err();
-    assert!(matches!(err, PlanError::Tolerance(AdaptiveError::StepSizeTooSmall { .. })), "{err:?}");
+    assert!(matches!(err, PlanError::Tolerance(AdaptiveError::FirstStepTooSmall { .. })), "{err:?}");
     let text = err.to_string();
-    assert!(text.contains("resolution of t") && text.contains("nearer t = 0"), "{text}");
+    assert!(text.contains("first_step") && text.contains("resolution of t there"), "{text}");
 }
