@@ -146,6 +146,31 @@ pub struct EventRecord<const N: usize> {
     pub step: usize,
 }
 
+/// The most events a run of a system with events `specs` keeps when its
+/// options set no limit: as many as fit in
+/// [`record_memory_limit`](crate::record_memory_limit), at the bytes each
+/// takes as an [`EventRecord`] and again as a front end's row of it
+/// ([`EventRow`](crate::EventRow): its name, coordinates and velocities on
+/// the heap). Unlike the samples, whose count is known before the run
+/// starts, the events are counted as they are located.
+pub fn max_located_events<const N: usize>(specs: &[EventSpec]) -> usize {
+    let name = specs.iter().map(|spec| spec.name.len()).max().unwrap_or(0);
+    let record = std::mem::size_of::<EventRecord<N>>() + name;
+    let row = std::mem::size_of::<crate::EventRow>() + name + 2 * 8 * N;
+    usize::try_from(crate::record_memory_limit() / (record + row) as u64).unwrap_or(usize::MAX)
+}
+
+/// The message of a run that located more than `max_events` events, one
+/// more in the step from `t`.
+pub(crate) fn too_many_events(max_events: usize, t: f64) -> String {
+    format!(
+        "the run located more than {max_events} events, the most it keeps (RunOptions::max_events; by default as \
+         many as fit in 4 GiB or half the available memory), in the step from t = {}; run over a shorter interval, \
+         or declare rarer events or a terminal one",
+        crate::error::Sci(t)
+    )
+}
+
 /// A crossing found inside one step, before it is turned into a record.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Crossing {

@@ -121,6 +121,12 @@ pub struct AdaptiveOptions {
     pub observe: Observe,
     /// How to treat an inconsistent initial velocity.
     pub consistency: ConsistencyPolicy,
+    /// The most events the run keeps; locating one more ends it with
+    /// [`AdaptiveError::TooManyEvents`]. `None`: as many as fit in
+    /// [`record_memory_limit`](crate::record_memory_limit)
+    /// ([`crate::events::max_located_events`]).
+    #[serde(default)]
+    pub max_events: Option<usize>,
 }
 
 impl Default for AdaptiveOptions {
@@ -138,6 +144,7 @@ impl Default for AdaptiveOptions {
             record_every: 1,
             observe: Observe::default(),
             consistency: ConsistencyPolicy::default(),
+            max_events: None,
         }
     }
 }
@@ -487,6 +494,17 @@ pub enum AdaptiveError {
         t0: f64,
         /// Requested end.
         t_end: f64,
+    },
+    /// The run located more events than it keeps
+    /// ([`AdaptiveOptions::max_events`]).
+    #[error("{}", crate::events::too_many_events(*max_events, *t))]
+    TooManyEvents {
+        /// The most events the run keeps.
+        max_events: usize,
+        /// The start of the step in which one more was located.
+        t: f64,
+        /// Statistics up to there.
+        partial: Box<AdaptiveReport>,
     },
     /// The observer asked the run to stop
     /// ([`crate::Observer::stop_requested`]).

@@ -98,8 +98,17 @@ where
     let state = State::new(t0, *q0, v);
     let first = stepper.sample(&state, &options.observe, 0);
     let e0 = first.energy;
-    let dense =
-        DenseRun::new(stepper.system(), stepper.tableau(), events, wants_dense, times, options.observe, e0, &state);
+    let dense = DenseRun::new(
+        stepper.system(),
+        stepper.tableau(),
+        events,
+        wants_dense,
+        times,
+        options.observe,
+        e0,
+        &state,
+        options.max_events,
+    );
     let mut rec = Recorder {
         samples: Vec::new(),
         run: RunReport { projected_initial_velocity: v != *v0, ..RunReport::default() },
@@ -203,6 +212,10 @@ where
         stepper.retarget_warm_start(&state);
     }
     let terminal = rec.dense_needed && extend(stepper.system(), rec, observer, report.accepted, &step, &state);
+    if rec.dense.too_many_events {
+        let max_events = rec.dense.max_events;
+        return Err(AdaptiveError::TooManyEvents { max_events, t: step.start.t, partial: Box::new(*report) });
+    }
     let iterations = step.iterations;
     report.accepted += 1;
     report.smallest_step = report.smallest_step.min(step.this);

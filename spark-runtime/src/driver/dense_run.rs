@@ -9,7 +9,9 @@ use super::trajectory::{sample_of, RunReport, Sample};
 use super::Observe;
 use crate::dense::{DenseBasis, DenseStep};
 use crate::error::OptionError;
-use crate::events::{locate, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS};
+use crate::events::{
+    locate, max_located_events, Crossing, EventFunctions, EventRecord, NoEvents, SystemEvents, EVENT_SUBINTERVALS,
+};
 use crate::step::{State, StepResult};
 use crate::system::NonholonomicSystem;
 use crate::tableau::Tableau;
@@ -61,6 +63,11 @@ pub(crate) struct DenseRun<'a, Sys, const N: usize, const S: usize> {
     e0: Option<f64>,
     /// The state at the terminal event that ends the run, once located.
     pub(crate) terminal: Option<State<N>>,
+    /// The most events the run keeps.
+    pub(crate) max_events: usize,
+    /// One more event than `max_events` was located: the run ends with an
+    /// error at this step.
+    pub(crate) too_many_events: bool,
 }
 
 /// Whether a run builds the continuous extension of its steps: for an
@@ -100,6 +107,7 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
         observe: Observe,
         e0: Option<f64>,
         start: &State<N>,
+        max_events: Option<usize>,
     ) -> Self
     where
         Sys: NonholonomicSystem<N, M>,
@@ -117,6 +125,8 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
             observe,
             e0,
             terminal: None,
+            max_events: max_events.unwrap_or_else(|| if specs.is_empty() { 0 } else { max_located_events::<N>(specs) }),
+            too_many_events: false,
         }
     }
 
@@ -135,7 +145,9 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
     /// Builds the continuous extension of sub-step `at`, locates the events
     /// in it, hands it to the observer of the dense output and records the
     /// `Sampled` times it covers. Returns `true` when a terminal event ends
-    /// the run in it (the event's state is then [`Self::terminal`]). Out of
+    /// the run in it (the event's state is then [`Self::terminal`]), or
+    /// when it holds one event more than the run keeps
+    /// ([`Self::too_many_events`]: the driver ends the run with an error). Out of
     /// line: a run that needs none of this never calls it.
     #[inline(never)]
     pub(crate) fn accepted<const M: usize>(
@@ -157,6 +169,10 @@ impl<'a, Sys, const N: usize, const S: usize> DenseRun<'a, Sys, N, S> {
             self.crossings.clear();
             find_crossings(events, sys, &piece, &mut self.previous, &mut self.crossings);
             for c in self.crossings.iter() {
+                if self.located.len() >= self.max_events {
+                    self.too_many_events = true;
+                    return true;
+                }
                 let state = piece.state_at(c.t);
                 let spec = &specs[c.index];
                 let record = EventRecord {

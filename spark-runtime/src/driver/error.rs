@@ -76,6 +76,17 @@ pub enum IntegrationError {
         /// The run statistics up to the failure.
         partial: Box<RunReport>,
     },
+    /// The run located more events than it keeps
+    /// ([`RunOptions::max_events`](super::RunOptions::max_events)).
+    #[error("{}", crate::events::too_many_events(*max_events, *t))]
+    TooManyEvents {
+        /// The most events the run keeps.
+        max_events: usize,
+        /// The start of the step in which one more was located.
+        t: f64,
+        /// The run statistics up to there.
+        partial: Box<RunReport>,
+    },
     /// The observer asked the run to stop
     /// ([`Observer::stop_requested`](super::Observer::stop_requested)).
     #[error("stopped by its observer after {steps} steps, at t = {}", Sci(*t))]

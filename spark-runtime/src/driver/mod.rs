@@ -274,6 +274,13 @@ pub struct RunOptions {
     /// policies.
     #[serde(default = "default_max_substeps")]
     pub max_substeps: usize,
+    /// The most events the run keeps; locating one more ends it with
+    /// [`IntegrationError::TooManyEvents`]. `None`: as many as fit in
+    /// [`record_memory_limit`] ([`crate::events::max_located_events`]), so
+    /// that a run whose events crowd in stops with an error instead of
+    /// keeping them until memory runs out.
+    #[serde(default)]
+    pub max_events: Option<usize>,
 }
 
 /// The default [`RunOptions::max_substeps`]: `2^12`, as many sub-steps as
@@ -326,6 +333,7 @@ impl Default for RunOptions {
             max_halvings: DEFAULT_MAX_HALVINGS,
             on_failure: FailurePolicy::Halve,
             max_substeps: DEFAULT_MAX_SUBSTEPS,
+            max_events: None,
         }
     }
 }
@@ -478,6 +486,7 @@ where
             options.observe,
             e0,
             &state,
+            options.max_events,
         );
         let dense = dense_run.is_needed();
         // An observer that watches no step (`Observer::STEPS`) is not
@@ -516,6 +525,12 @@ where
             };
             let (end_t, iters) = (counts.state.t, counts.iterations);
             report.count(&counts);
+            if dense_run.too_many_events {
+                report.cold_retries += self.cold_retries.wrapping_sub(cold_retries0);
+                report.events = dense_run.located.len();
+                let max_events = dense_run.max_events;
+                return Err(IntegrationError::TooManyEvents { max_events, t: state.t, partial: Box::new(report) });
+            }
             if let Some(at) = dense_run.terminal {
                 // The run ends here whatever the observer asks.
                 let _ = watched && observer.accepted(self.system(), &at, iters);

@@ -22,6 +22,7 @@
 mod adaptive;
 mod affine;
 mod detection;
+mod limit;
 
 use affine::Affine;
 use spark_runtime::fixtures::paper::{General, MobileRobot, MpParticles, Particle, Skate};

@@ -37,7 +37,7 @@ pub fn step_error_kind(e: &StepError) -> &'static str {
 }
 
 /// The kind of a driver failure (`Step/<kind>`, `Floor/<kind>`, `SubstepBudget/<kind>`, `Initial/<kind>`,
-/// `InvalidSchedule`, `InvalidOption`, `Stopped`).
+/// `InvalidSchedule`, `InvalidOption`, `TooManyEvents`, `Stopped`).
 pub fn integration_error_kind(e: &IntegrationError) -> String {
     match e {
         IntegrationError::InvalidSchedule(_) => "InvalidSchedule".into(),
@@ -46,6 +46,7 @@ pub fn integration_error_kind(e: &IntegrationError) -> String {
         IntegrationError::Step { source, .. } => format!("Step/{}", step_error_kind(source)),
         IntegrationError::Floor { detail, .. } => format!("Floor/{}", step_error_kind(&detail.last)),
         IntegrationError::SubstepBudget { detail, .. } => format!("SubstepBudget/{}", step_error_kind(&detail.last)),
+        IntegrationError::TooManyEvents { .. } => "TooManyEvents".into(),
         IntegrationError::Stopped { .. } => "Stopped".into(),
     }
 }
