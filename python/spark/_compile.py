@@ -139,6 +139,8 @@ def compile_system(
 ) -> System:
     if not isinstance(optimize, bool):
         raise TypeError(f"optimize must be a bool (True or False), got {type(optimize).__name__}")
+    if isinstance(text, str):
+        _check_encodable(text)
     checked = _native.check_dsl(text)
     if "error" in checked:
         raise DslError(checked["error"], checked["line"], checked["column"])
@@ -149,6 +151,25 @@ def compile_system(
         if key not in _loaded:
             _loaded[key] = _build_and_load(text, checked, key, cache_dir, verbose, optimize)
         return _loaded[key]
+
+
+def _check_encodable(text: str) -> None:
+    """:class:`DslError` at the first character of ``text`` that UTF-8
+    cannot encode (a lone surrogate such as ``"\\ud800"``, left by decoding
+    bytes with ``errors="surrogateescape"`` or by a broken escape): the
+    parser and cargo read UTF-8 text."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as e:
+        line = text.count("\n", 0, e.start) + 1
+        column = e.start - (text.rfind("\n", 0, e.start) + 1) + 1
+        raise DslError(
+            f"the text is not valid Unicode: it holds the lone surrogate U+{ord(text[e.start]):04X}, which cannot be "
+            "encoded as UTF-8; remove it (a text read from a file: decode the file as UTF-8 without "
+            "errors=\"surrogateescape\")",
+            line,
+            column,
+        ) from None
 
 
 def _build_and_load(

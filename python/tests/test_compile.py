@@ -388,3 +388,14 @@ def test_struct_names_like_the_module_functions_and_harmless_attributes_compile(
         assert s.name == name
         run = s.integrate("gauss", 2, 0.1, 10, q0=[1.0], v0=[0.0])
         assert abs(run.q[-1, 0] - np.cos(1.0)) < 1e-4
+
+
+def test_a_lone_surrogate_is_a_dsl_error_at_its_position(tmp_path):
+    # The UTF-8 parser cannot take a lone surrogate (text decoded with
+    # errors="surrogateescape"): the bare UnicodeEncodeError of the
+    # conversion to Rust becomes a DslError at the character.
+    text = "pub struct S {\n    coordinates: [x],\n    lagrangian: dot(x)^2/2 - x^2/2, // \ud800\n}\n"
+    with pytest.raises(spark.DslError, match=r"not valid Unicode.*U\+D800.*cannot be encoded as UTF-8") as info:
+        spark.compile(text, cache_dir=str(tmp_path))
+    assert (info.value.line, info.value.column) == (3, 40), str(info.value)
+    assert not any(tmp_path.iterdir()), "a bad declaration must not reach cargo"
