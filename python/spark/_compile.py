@@ -251,11 +251,17 @@ def _build(
             "which is not there any more; rebuild the package from a spark checkout"
         )
     manifest, lib = _crate(source, module, name, n, m, text)
-    (folder / "Cargo.toml").write_text(manifest)
-    (folder / "lib.rs").write_text(lib)
-    lock = source / "Cargo.lock"
-    if lock.exists():
-        shutil.copyfile(lock, folder / "Cargo.lock")
+    try:
+        (folder / "Cargo.toml").write_text(manifest)
+        (folder / "lib.rs").write_text(lib)
+        lock = source / "Cargo.lock"
+        if lock.exists():
+            shutil.copyfile(lock, folder / "Cargo.lock")
+    except OSError as e:
+        raise SparkError(
+            f"spark.compile cannot write the declaration's crate into the cache folder {folder}: {e}; give "
+            "cache_dir= (or SPARK_CACHE_DIR) a folder it can create and write"
+        ) from e
     target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))
     env = dict(os.environ, CARGO_TARGET_DIR=str(target))
     if not optimize:
@@ -281,5 +287,13 @@ def _build(
     if not built.exists():
         raise SparkError(f"cargo reported success but {built} is missing")
     staging = folder / f".{module}.so.tmp"
-    shutil.copyfile(built, staging)
-    os.replace(staging, library)
+    try:
+        shutil.copyfile(built, staging)
+        os.replace(staging, library)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            staging.unlink(missing_ok=True)
+        raise SparkError(
+            f"spark.compile cannot install the built module {built} as {library}: {e}; give cache_dir= (or "
+            "SPARK_CACHE_DIR) a folder it can create and write"
+        ) from e

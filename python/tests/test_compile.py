@@ -399,3 +399,62 @@ def test_a_lone_surrogate_is_a_dsl_error_at_its_position(tmp_path):
         spark.compile(text, cache_dir=str(tmp_path))
     assert (info.value.line, info.value.column) == (3, 40), str(info.value)
     assert not any(tmp_path.iterdir()), "a bad declaration must not reach cargo"
+
+
+def fake_cargo(monkeypatch, tmp_path: Path) -> list:
+    """Replaces cargo by a stand-in that writes a module file of a few
+    bytes where cargo puts the module, and returns the list of the builds
+    it made: the tests of the cache's own files run without a toolchain."""
+    builds = []
+    cargo = tmp_path / "cargo"
+    cargo.write_text("#!/bin/sh\n")
+    cargo.chmod(0o755)
+    monkeypatch.setenv("CARGO", str(cargo))
+
+    def run(cmd, env, **kwargs):
+        manifest = Path(cmd[cmd.index("--manifest-path") + 1])
+        module = manifest.read_text().split('[lib]\nname = "')[1].split('"')[0]
+        built = Path(env["CARGO_TARGET_DIR"]) / "release" / f"lib{module}.so"
+        built.parent.mkdir(parents=True, exist_ok=True)
+        built.write_bytes(b"not a shared library")
+        builds.append(module)
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(spark._compile.subprocess, "run", run)
+    return builds
+
+
+def test_a_module_that_cannot_be_installed_is_a_spark_error_without_leftovers(tmp_path, monkeypatch):
+    # Copying or renaming the built module into the cache failed with a bare
+    # OSError and left its temporary copy in the cache folder.
+    fake_cargo(monkeypatch, tmp_path)
+    cache = tmp_path / "cache"
+    replace = os.replace
+
+    def failing_replace(src, dst):
+        if str(dst).endswith(".abi3.so"):
+            raise OSError(30, "Read-only file system", str(dst))
+        return replace(src, dst)
+
+    monkeypatch.setattr(spark._compile.os, "replace", failing_replace)
+    text = declaration("Skate") + "\n// install fails"
+    with pytest.raises(
+        spark.SparkError, match=r"cannot install the built module .*abi3\.so.*Read-only file system.*SPARK_CACHE_DIR"
+    ):
+        spark.compile(text, cache_dir=str(cache))
+    assert not list(cache.rglob("*.tmp")), list(cache.rglob("*.tmp"))
+    assert not list(cache.rglob("*.abi3.so"))
+
+    copyfile = spark._compile.shutil.copyfile
+
+    def failing_copy(src, dst, *args, **kwargs):
+        if str(dst).endswith(".tmp"):
+            Path(dst).write_bytes(b"half")
+            raise OSError(28, "No space left on device", str(dst))
+        return copyfile(src, dst)
+
+    monkeypatch.setattr(spark._compile.shutil, "copyfile", failing_copy)
+    monkeypatch.setattr(spark._compile.os, "replace", replace)
+    with pytest.raises(spark.SparkError, match=r"cannot install .*No space left on device.*SPARK_CACHE_DIR"):
+        spark.compile(text, cache_dir=str(cache))
+    assert not list(cache.rglob("*.tmp")), list(cache.rglob("*.tmp"))
