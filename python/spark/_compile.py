@@ -123,7 +123,40 @@ debug = false
     return manifest, lib
 
 
+class _Unverified(Exception):
+    """A cached module file that does not match the digest recorded when it
+    was installed (or has none)."""
+
+
+def _digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _seal(library: Path) -> Path:
+    """The file beside ``library`` holding its SHA-256, written when it is
+    installed."""
+    return library.with_name(library.name + ".sha256")
+
+
+def _verify(library: Path) -> None:
+    """Raises :class:`_Unverified` unless ``library`` has the digest
+    recorded beside it: a truncated module file would be mapped by the
+    dynamic loader past its end and end the process (SIGBUS), so a file is
+    checked before it is loaded."""
+    try:
+        recorded = _seal(library).read_text().strip()
+    except OSError as e:
+        raise _Unverified(f"{library} has no recorded digest ({e})") from e
+    if _digest(library) != recorded:
+        raise _Unverified(f"{library} does not match the digest recorded when it was built (truncated or overwritten)")
+
+
 def _load(module: str, path: Path) -> object:
+    _verify(path)
     loader = importlib.machinery.ExtensionFileLoader(module, str(path))
     spec = importlib.util.spec_from_file_location(module, str(path), loader=loader)
     if spec is None:
@@ -193,7 +226,7 @@ def _build_and_load(
             # Another process may have built it while we waited.
             if not library.exists():
                 _build(text, name, n, m, module, root, folder, library, verbose, optimize)
-    mod = _load(module, library)
+    mod = _load_or_rebuild(text, name, n, m, module, root, folder, library, verbose, optimize)
     info = mod.info()
     info["name"] = name
     info["cache_dir"] = str(root)
@@ -201,6 +234,62 @@ def _build_and_load(
     system = System(info, mod.integrate, mod.ensemble)
     system.source = text
     return system
+
+
+def _identity(path: Path) -> tuple | None:
+    """What tells one file at ``path`` from another put there later (an
+    atomic rename gives a new inode), or None without a file."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _load_or_rebuild(
+    text: str,
+    name: str,
+    n: int,
+    m: int,
+    module: str,
+    root: Path,
+    folder: Path,
+    library: Path,
+    verbose: bool,
+    optimize: bool,
+) -> object:
+    """The module ``library``, loaded; a cached file that does not load
+    (truncated, overwritten) is discarded and built again, once. Under the
+    folder's lock, only a file that is still the one that failed is
+    discarded: another process that met it too, or that replaced it
+    meanwhile, loads the new one instead of building it again."""
+    seen = _identity(library)
+    try:
+        return _load(module, library)
+    except (_Unverified, ImportError, OSError) as first:
+        with _folder_lock(folder):
+            if _identity(library) == seen:
+                try:
+                    if library.is_dir() and not library.is_symlink():
+                        shutil.rmtree(library)
+                    else:
+                        library.unlink(missing_ok=True)
+                    _seal(library).unlink(missing_ok=True)
+                except OSError as e:
+                    raise SparkError(
+                        f"the cached module {library} cannot be loaded ({first}) and spark.compile cannot delete it "
+                        f"({e}); delete the folder {folder} and call spark.compile again"
+                    ) from e
+            if not library.exists():
+                _build(text, name, n, m, module, root, folder, library, verbose, optimize)
+        try:
+            return _load(module, library)
+        except (_Unverified, ImportError, OSError) as e:
+            raise SparkError(
+                f"the compiled module {library} cannot be loaded even after spark.compile built it again ({e}); "
+                f"delete the folder {folder} and call spark.compile again (or give cache_dir= or SPARK_CACHE_DIR "
+                "another folder)"
+            ) from e
 
 
 @contextlib.contextmanager
@@ -287,12 +376,17 @@ def _build(
     if not built.exists():
         raise SparkError(f"cargo reported success but {built} is missing")
     staging = folder / f".{module}.so.tmp"
+    seal = folder / f".{module}.sha256.tmp"
     try:
         shutil.copyfile(built, staging)
+        seal.write_text(_digest(staging) + "\n")
+        # The digest first: whenever `library` exists, the digest beside it is its own.
+        os.replace(seal, _seal(library))
         os.replace(staging, library)
     except OSError as e:
-        with contextlib.suppress(OSError):
-            staging.unlink(missing_ok=True)
+        for leftover in (staging, seal):
+            with contextlib.suppress(OSError):
+                leftover.unlink(missing_ok=True)
         raise SparkError(
             f"spark.compile cannot install the built module {built} as {library}: {e}; give cache_dir= (or "
             "SPARK_CACHE_DIR) a folder it can create and write"

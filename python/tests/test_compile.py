@@ -458,3 +458,52 @@ def test_a_module_that_cannot_be_installed_is_a_spark_error_without_leftovers(tm
     with pytest.raises(spark.SparkError, match=r"cannot install .*No space left on device.*SPARK_CACHE_DIR"):
         spark.compile(text, cache_dir=str(cache))
     assert not list(cache.rglob("*.tmp")), list(cache.rglob("*.tmp"))
+
+
+def test_a_corrupt_cached_module_is_rebuilt(cache):
+    # A cached module file overwritten with garbage raised a bare ImportError
+    # on every later compile, and a truncated one ended the interpreter that
+    # loaded it (SIGBUS, the loader mapping it past its end); the cache
+    # checks the file against its digest, discards it and builds it again.
+    text = declaration("Skate") + "\n// corrupt cache"
+    key = cache_key(text)
+    library = cache / key / f"_spark_skate_{key}.abi3.so"
+    library.parent.mkdir(parents=True, exist_ok=True)
+    library.write_bytes(b"\x7fELF garbage")
+    s = spark.compile(text, cache_dir=str(cache))
+    assert library.stat().st_size > 10_000
+    assert abs(s.integrate("gauss", 2, 0.1, 10, q0=[0, 0, 0], v0=[0, 0, 1]).q[-1, 2] - 1.0) < 0.2
+    # A module truncated after it was built, met by a fresh interpreter
+    # (written beside and renamed over it: this process has the module
+    # mapped, and a file rewritten in place under a mapping is a SIGBUS).
+    data = library.read_bytes()
+    truncated = library.with_name("truncated")
+    truncated.write_bytes(data[: len(data) // 3])
+    os.replace(truncated, library)
+    script = textwrap.dedent(
+        f"""
+        import spark, sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_compile import declaration
+        s = spark.compile(declaration("Skate") + "\\n// corrupt cache", cache_dir={str(cache)!r})
+        print(s.integrate("gauss", 2, 0.1, 10, q0=[0, 0, 0], v0=[0, 0, 1]).q[-1, 2])
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert float(done.stdout) > 0.9
+    assert library.stat().st_size > len(data) // 3 and library.read_bytes() != data[: len(data) // 3]
+
+
+def test_a_cached_module_that_stays_unloadable_is_a_spark_error_naming_it(tmp_path, monkeypatch):
+    builds = fake_cargo(monkeypatch, tmp_path)
+    cache = tmp_path / "cache"
+    text = declaration("Skate") + "\n// unloadable"
+    key = cache_key(text)
+    library = cache / key / f"_spark_skate_{key}.abi3.so"
+    library.parent.mkdir(parents=True)
+    library.write_bytes(b"garbage")
+    with pytest.raises(spark.SparkError, match=r"cannot be loaded even after spark\.compile built it again") as info:
+        spark.compile(text, cache_dir=str(cache))
+    assert str(library) in str(info.value) and f"delete the folder {library.parent}" in str(info.value)
+    assert len(builds) == 1, builds
