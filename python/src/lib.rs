@@ -324,6 +324,9 @@ enum Checked {
 fn check_text(text: &str) -> Checked {
     let fail = |message: String, span: proc_macro2::Span| {
         let (line, column) = position(span);
+        // A name of millions of characters is quoted as an excerpt, as in
+        // the macro's errors.
+        let message = spark_symbolic::spec::bound_long_words(&message).into_owned();
         Checked::Bad { message, line, column }
     };
     let tokens: proc_macro2::TokenStream = match text.parse() {

@@ -507,3 +507,19 @@ def test_a_cached_module_that_stays_unloadable_is_a_spark_error_naming_it(tmp_pa
         spark.compile(text, cache_dir=str(cache))
     assert str(library) in str(info.value) and f"delete the folder {library.parent}" in str(info.value)
     assert len(builds) == 1, builds
+
+
+def test_a_name_of_millions_of_characters_is_quoted_as_an_excerpt(tmp_path):
+    # The DslError quoted an unknown name of 10⁷ characters whole (10 MB of
+    # message); it shows its first 40 characters and its length.
+    name = "b" + "a" * (10**7 - 1)
+    text = "pub struct S {\n    coordinates: [x],\n    lagrangian: dot(x)^2/2 - " + name + ",\n}\n"
+    with pytest.raises(spark.DslError) as info:
+        spark.compile(text, cache_dir=str(tmp_path))
+    message = info.value.message
+    assert len(message) < 400, message[:400]
+    assert "`b" + "a" * 39 + "… (10000000 characters)`" in message, message
+    assert (info.value.line, info.value.column) == (3, 30), str(info.value)[:200]
+    # An ordinary name is quoted whole.
+    with pytest.raises(spark.DslError, match="unknown identifier `zeta`"):
+        spark.compile(text.replace(name, "zeta"), cache_dir=str(tmp_path))

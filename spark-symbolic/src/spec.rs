@@ -336,9 +336,69 @@ pub struct SpecError {
 }
 
 impl SpecError {
-    /// The error as a `compile_error!` invocation at its span.
+    /// The error as a `compile_error!` invocation at its span, its message
+    /// as [`SpecError::shown_message`] gives it.
     pub fn to_compile_error(&self) -> TokenStream {
-        let msg = &self.message;
+        let msg = self.shown_message();
+        let msg = msg.as_ref();
         quote::quote_spanned!(self.span=> ::core::compile_error!(#msg);)
     }
+
+    /// The message as shown to the user (the macro's `compile_error!`,
+    /// `spark.compile`'s `DslError`): each name it quotes is cut by
+    /// [`bound_long_words`], so a name of millions of characters does not
+    /// fill the message.
+    pub fn shown_message(&self) -> std::borrow::Cow<'_, str> {
+        bound_long_words(&self.message)
+    }
+}
+
+/// The most characters of one word (a run of letters, digits and `_`: an
+/// identifier, a number) that an error message quotes whole; a longer one is
+/// shown as its first [`WORD_EXCERPT`] characters and `… (N characters)`.
+pub const MAX_QUOTED_WORD: usize = 64;
+
+/// The characters of a word longer than [`MAX_QUOTED_WORD`] that a message
+/// keeps.
+pub const WORD_EXCERPT: usize = 40;
+
+/// `message` with each word (a run of letters, digits and `_`) longer than
+/// [`MAX_QUOTED_WORD`] characters replaced by its first [`WORD_EXCERPT`]
+/// characters and `… (N characters)`; unchanged (borrowed) without one.
+pub fn bound_long_words(message: &str) -> std::borrow::Cow<'_, str> {
+    let is_word = |c: char| c.is_alphanumeric() || c == '_';
+    let mut out = String::new();
+    // The bytes of `message` copied to `out` so far, and the current word:
+    // its start (a byte offset) and its length in characters.
+    let mut copied = 0;
+    let mut word: Option<(usize, usize)> = None;
+    let mut cut = false;
+    let mut flush = |out: &mut String, copied: &mut usize, start: usize, chars: usize, end: usize| {
+        if chars > MAX_QUOTED_WORD {
+            let keep = message[start..end].char_indices().nth(WORD_EXCERPT).map_or(end, |(i, _)| start + i);
+            out.push_str(&message[*copied..keep]);
+            out.push_str(&format!("… ({chars} characters)"));
+            *copied = end;
+            cut = true;
+        }
+    };
+    for (i, c) in message.char_indices() {
+        match (is_word(c), word) {
+            (true, Some((start, chars))) => word = Some((start, chars + 1)),
+            (true, None) => word = Some((i, 1)),
+            (false, Some((start, chars))) => {
+                flush(&mut out, &mut copied, start, chars, i);
+                word = None;
+            }
+            (false, None) => {}
+        }
+    }
+    if let Some((start, chars)) = word {
+        flush(&mut out, &mut copied, start, chars, message.len());
+    }
+    if !cut {
+        return std::borrow::Cow::Borrowed(message);
+    }
+    out.push_str(&message[copied..]);
+    std::borrow::Cow::Owned(out)
 }

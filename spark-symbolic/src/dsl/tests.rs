@@ -935,3 +935,27 @@ fn more_coordinates_than_supported_are_refused_at_the_list() {
     // The limit itself is accepted.
     assert_eq!(parse_str(&with_coordinates(MAX_COORDINATES)).expect("parses").coordinates.len(), MAX_COORDINATES);
 }
+
+#[test]
+fn a_name_of_millions_of_characters_is_quoted_as_an_excerpt() {
+    // An unknown name of 10⁷ characters filled the message (and the macro's
+    // compile error) with it; the message shows its first characters and
+    // its length.
+    let long = format!("b{}", "a".repeat(9_999_999));
+    let e = parse_str(&with_lag(&format!("dot(x)^2 + {long}"))).expect_err("an unknown name");
+    let shown = e.shown_message();
+    assert!(shown.len() < 400, "{} bytes: {}", shown.len(), &shown[..400]);
+    assert!(shown.contains(&format!("`b{}… (10000000 characters)`", "a".repeat(39))), "{shown}");
+    assert!(e.to_compile_error().to_string().len() < 600);
+    // Ordinary names, and a word of exactly the limit, are quoted whole.
+    let e = parse_str(&with_lag("dot(x)^2 + zeta")).expect_err("an unknown name");
+    assert_eq!(e.shown_message(), e.message);
+    let limit = "c".repeat(crate::spec::MAX_QUOTED_WORD);
+    assert_eq!(crate::spec::bound_long_words(&format!("`{limit}` ü")), format!("`{limit}` ü"));
+    // Letters beyond ASCII are counted and cut as characters.
+    let wide = "é".repeat(100);
+    assert_eq!(
+        crate::spec::bound_long_words(&format!("name `{wide}`, again {wide}")),
+        format!("name `{e}… (100 characters)`, again {e}… (100 characters)", e = "é".repeat(40))
+    );
+}
