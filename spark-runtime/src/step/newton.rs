@@ -574,7 +574,7 @@ where
         match Self::affine_rule(decoupled) {
             Some(nonlinearity) => {
                 let plan = Self::affine_plan(decoupled, decoupled && self.decoupled.keeps_stiffness());
-                affine_along::<N, M, S, D>(g, weights, self.options.tolerance, &nonlinearity, &plan)
+                affine_along::<N, M, S, D>(g, weights, self.options.tolerance, &nonlinearity, plan)
             }
             None => false,
         }
@@ -632,10 +632,12 @@ where
     };
 
     /// The [`AffinePlan`] of the exact matrix, or (`decoupled`) of the
-    /// stage-decoupled one keeping the stiffness when `stiffness_kept`.
+    /// stage-decoupled one keeping the stiffness when `stiffness_kept`:
+    /// borrowed from the constant, which a step reads twice (a copy of the
+    /// three plans each time cost more than the test it feeds).
     #[inline(always)]
-    pub(crate) fn affine_plan(decoupled: bool, stiffness_kept: bool) -> AffinePlan {
-        Self::AFFINE_PLANS[if !decoupled {
+    pub(crate) fn affine_plan(decoupled: bool, stiffness_kept: bool) -> &'static AffinePlan {
+        &Self::AFFINE_PLANS[if !decoupled {
             0
         } else if stiffness_kept {
             2

@@ -227,7 +227,7 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
             h,
             stiff,
             stiff_column: vec![0.0; (S + 1) * N].into_boxed_slice(),
-            affine_plan: Stepper::<Sys, N, M, S, D>::affine_plan(true, coupled),
+            affine_plan: *Stepper::<Sys, N, M, S, D>::affine_plan(true, coupled),
             held: [false; W],
             q: fixed(),
             v: fixed(),
