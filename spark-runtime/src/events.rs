@@ -161,10 +161,11 @@ pub fn max_located_events<const N: usize>(specs: &[EventSpec]) -> usize {
 }
 
 /// The message of a run that located more than `max_events` events, one
-/// more in the step from `t`.
-pub(crate) fn too_many_events(max_events: usize, t: f64) -> String {
+/// more in the step from `t`; `option` names the limit's option
+/// (`RunOptions::max_events` or `AdaptiveOptions::max_events`).
+pub(crate) fn too_many_events(option: &str, max_events: usize, t: f64) -> String {
     format!(
-        "the run located more than {max_events} events, the most it keeps (RunOptions::max_events; by default as \
+        "the run located more than {max_events} events, the most it keeps ({option}; by default as \
          many as fit in 4 GiB or half the available memory), in the step from t = {}; run over a shorter interval, \
          or declare rarer events or a terminal one",
         crate::error::Sci(t)

@@ -221,11 +221,12 @@ fn check_record<const N: usize, const M: usize>(r: &IntegrateRequest, members: u
 /// keyword arguments of `System.integrate` where the message names an
 /// option of the runtime or a flag of `spark run`.
 pub fn python_words(message: &str) -> Failure {
-    const WORDS: [(&str, &str); 12] = [
+    const WORDS: [(&str, &str); 13] = [
         ("(the limit: AdaptiveOptions::max_steps, `--max-steps` of `spark run`)", "(the limit: max_steps)"),
         (" (AdaptiveOptions::max_step, `--max-step` of `spark run`)", ""),
         (" (AdaptiveOptions::initial_step, `--first-step` of `spark run`)", ""),
         ("RunOptions::max_events; by default as many as fit", "as many as fit"),
+        ("AdaptiveOptions::max_events; by default as many as fit", "as many as fit"),
         ("AdaptiveOptions::max_steps", "max_steps"),
         ("AdaptiveOptions::initial_step", "first_step"),
         ("AdaptiveOptions::max_step", "max_step"),

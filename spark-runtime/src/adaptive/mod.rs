@@ -497,7 +497,7 @@ pub enum AdaptiveError {
     },
     /// The run located more events than it keeps
     /// ([`AdaptiveOptions::max_events`]).
-    #[error("{}", crate::events::too_many_events(*max_events, *t))]
+    #[error("{}", crate::events::too_many_events("AdaptiveOptions::max_events", *max_events, *t))]
     TooManyEvents {
         /// The most events the run keeps.
         max_events: usize,

@@ -78,7 +78,7 @@ pub enum IntegrationError {
     },
     /// The run located more events than it keeps
     /// ([`RunOptions::max_events`](super::RunOptions::max_events)).
-    #[error("{}", crate::events::too_many_events(*max_events, *t))]
+    #[error("{}", crate::events::too_many_events("RunOptions::max_events", *max_events, *t))]
     TooManyEvents {
         /// The most events the run keeps.
         max_events: usize,
