@@ -613,7 +613,7 @@ pub(super) fn check_step_budget(t0: f64, t_end: f64, options: &AdaptiveOptions) 
 pub(super) fn check_first_step(t0: f64, options: &AdaptiveOptions) -> Result<(), AdaptiveError> {
     let Some(given) = options.initial_step else { return Ok(()) };
     let first_step = options.max_step.map_or(given, |max_step| given.min(max_step));
-    let floor = options.min_step.max(resolution(t0));
+    let floor = step_floor(options, t0);
     if first_step < floor {
         return Err(AdaptiveError::FirstStepTooSmall { first_step, floor, t0 });
     }
@@ -669,7 +669,7 @@ where
 {
     let h = match options.initial_step {
         Some(h) => h,
-        None => initial_step(sys, state, options).max(options.min_step.max(resolution(state.t))),
+        None => initial_step(sys, state, options).max(step_floor(options, state.t)),
     };
     h.min(max_step)
 }
@@ -691,6 +691,14 @@ pub(crate) fn on_time_grid(t: f64, h: f64) -> f64 {
 /// so that a floor built on it refuses a zero step.
 fn resolution(t: f64) -> f64 {
     crate::driver::time_resolution(t).max(16.0 * f64::EPSILON * f64::MIN_POSITIVE)
+}
+
+/// The smallest step a run takes at `t`, the floor of every step size the
+/// controller chooses: [`AdaptiveOptions::min_step`], or where larger the
+/// resolution of `t` (16 units in its last place, below which a step does
+/// not advance time by its size).
+pub(super) fn step_floor(options: &AdaptiveOptions, t: f64) -> f64 {
+    options.min_step.max(resolution(t))
 }
 
 /// Integrates from `(t₀, q₀, v₀)` to `t_end` (either direction) with step
@@ -843,7 +851,7 @@ where
         // Land on t_end; stretch a step that would leave a sliver behind.
         let last = h >= remaining || remaining - h < 0.01 * h;
         let this = if last { remaining } else { h };
-        let floor = options.min_step.max(resolution(state.t));
+        let floor = step_floor(options, state.t);
         if this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, last_err, None, report));
         }
@@ -910,7 +918,7 @@ where
                 stepper.reset_warm_start();
                 h = 0.25 * this;
                 rejected_last = true;
-                let floor = options.min_step.max(resolution(state.t));
+                let floor = step_floor(options, state.t);
                 if h < floor {
                     return Err(AdaptiveError::too_small(state.t, h, floor, f64::INFINITY, Some(f.error), report));
                 }

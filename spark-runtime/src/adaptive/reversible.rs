@@ -3,7 +3,7 @@
 //! once from the tolerances at the initial state.
 
 use super::{
-    accept, first_step, is_symmetric, on_time_grid, resolution, whole_run, AdaptiveError, AdaptiveOptions,
+    accept, first_step, is_symmetric, on_time_grid, step_floor, whole_run, AdaptiveError, AdaptiveOptions,
     AdaptiveReport, AdaptiveRun, Output, Recorder, Taken,
 };
 use crate::driver::{declared_events, Observer};
@@ -154,7 +154,7 @@ where
     // The last error estimate (∞ after a Newton failure; NaN before the first).
     let mut last_err = f64::NAN;
     for _ in 0..30 {
-        let floor = options.min_step.max(resolution(state.t));
+        let floor = step_floor(options, state.t);
         if h < floor {
             return Err(AdaptiveError::too_small(state.t, h, floor, last_err, None, *report));
         }
@@ -218,11 +218,11 @@ where
     loop {
         let h = epsilon / rho.max(rho_min);
         let remaining = (t_end - state.t).abs();
-        let floor = options.min_step.max(resolution(state.t));
+        let floor = step_floor(options, state.t);
         // Land on t_end; a step that would leave less than the smallest
         // step behind (t accumulated in steps of 0.1 reaches 0.9999999999999999,
         // not 1) is stretched to t_end instead.
-        let last = h >= remaining || remaining - h < options.min_step.max(resolution(t_end));
+        let last = h >= remaining || remaining - h < step_floor(options, t_end);
         let this = if last { remaining } else { h };
         if this.is_nan() || this < floor {
             return Err(AdaptiveError::too_small(state.t, this, floor, f64::NAN, None, report));
