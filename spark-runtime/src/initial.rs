@@ -536,9 +536,12 @@ where
                 }
                 history.push(IterationRecord { residual: res, update: f64::NAN, rate: f64::NAN });
                 let which = if column < N {
-                    format!("velocity column {column}")
+                    match Sys::SOURCE.coordinates.get(column) {
+                        Some(name) => format!("velocity column {column} (coordinate `{name}`)"),
+                        None => format!("velocity column {column}"),
+                    }
                 } else {
-                    format!("multiplier column {}", column - N)
+                    format!("multiplier column {} (constraint {} of {M})", column - N, column - N + 1)
                 };
                 return Err(StepError::SingularMatrix {
                     t: t0,

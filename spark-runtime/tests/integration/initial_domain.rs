@@ -51,6 +51,16 @@ nonholonomic_system! {
     }
 }
 
+nonholonomic_system! {
+    /// `v_x² + 1 = 0` has no real solution: the projection's first update
+    /// from `v_x = 1` lands on `v_x = 0`, where `dk/dv` vanishes.
+    pub struct NoRealSpeed {
+        coordinates: [x, y],
+        lagrangian: (dot(x)^2 + dot(y)^2)/2,
+        constraints: [ dot(x)^2 + 1 ],
+    }
+}
+
 const PROJECT: ConsistencyPolicy = ConsistencyPolicy::Project { tolerance: 1e-12 };
 
 /// The error of the initial check at `(q0, v0)`, as text.
@@ -108,6 +118,17 @@ fn a_projection_that_overflows_says_it_is_the_initial_projection_not_a_step() {
             && text.contains("before the first step")
             && text.contains("overflows f64")
             && !text.contains("h = "),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_projection_that_meets_a_singular_saddle_matrix_later_names_the_constraint() {
+    let (err, text) = refusal(NoRealSpeed::new(), [0.0, 0.0], [1.0, 0.0]);
+    let StepError::SingularMatrix { h, history, .. } = &err else { panic!("{err:?}") };
+    assert_eq!((*h, history.len()), (0.0, 2), "{err:?}");
+    assert!(
+        text.contains("(the initial velocity projection, not a step) multiplier column 0 (constraint 1 of 1)"),
         "{text}"
     );
 }
