@@ -311,6 +311,10 @@ fn holonomic_residuals(g: &mut Graph, positions: &[Option<NodeId>]) -> Vec<NodeI
     positions.iter().map(|p| p.unwrap_or_else(|| g.constant(0.0))).collect()
 }
 
+/// The longest velocity-level form of a holonomic constraint, in
+/// characters, that its error message quotes.
+const MAX_QUOTED_DERIVATIVE: usize = 400;
+
 /// Rejects a constraint row free of velocities: it is holonomic (the error
 /// suggests its velocity-level form) or constrains no motion at all.
 fn reject_velocity_free_rows(
@@ -351,11 +355,18 @@ fn reject_velocity_free_rows(
                 ),
             });
         }
+        // A long derivative is not quoted: a message should stay readable
+        // whatever the size of the declaration.
+        let derivative = crate::pretty::dsl_text(g, spec, gdot);
+        let derivative = if derivative.chars().count() <= MAX_QUOTED_DERIVATIVE {
+            format!(": `{derivative}`")
+        } else {
+            format!(" ({} characters long, too long to quote here)", derivative.chars().count())
+        };
         let hint = format!(
-            "write its time derivative instead, the velocity-level constraint g_t + g_q·v: `{}` (or declare \
+            "write its time derivative instead, the velocity-level constraint g_t + g_q·v{derivative} (or declare \
              `name: holonomic(g)` under `effects:` and select it in a scene, which imposes that derivative and \
-             reports the drift of g)",
-            crate::pretty::dsl_text(g, spec, gdot)
+             reports the drift of g)"
         );
         return Err(SpecError {
             span: spec.constraints[j].span,

@@ -78,6 +78,24 @@ fn holonomic_constraint_from_dsl_is_an_error() {
     assert!(e.message.contains("holonomic"), "{}", e.message);
 }
 
+/// The velocity-level form the message suggests is quoted while it is
+/// short; a long one is described by its length, so the message stays
+/// readable whatever the size of the declaration.
+#[test]
+fn a_long_holonomic_constraint_is_not_quoted_in_full() {
+    let short = parse("struct H { coordinates: [x, y], lagrangian: dot(x)^2, constraints: [x^2 + y^2 - 1] }");
+    let e = generate(&short).expect_err("holonomic");
+    assert!(e.message.contains("g_t + g_q·v: `"), "{}", e.message);
+    let terms: Vec<String> = (1..=300).map(|k| format!("sin({k}*x)*y")).collect();
+    let long = parse(&format!(
+        "struct H {{ coordinates: [x, y], lagrangian: dot(x)^2, constraints: [{}] }}",
+        terms.join(" + ")
+    ));
+    let e = generate(&long).expect_err("holonomic");
+    assert!(e.message.contains("characters long, too long to quote here"), "{}", e.message);
+    assert!(e.message.len() < 1000, "{} bytes: {}", e.message.len(), e.message);
+}
+
 /// Derives the user writes are not derived twice; `Default` is generated
 /// from the parameter defaults, so deriving it is an error that says so.
 #[test]
