@@ -22,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 from . import DslError, SparkError, System, ToolchainError, _native
@@ -205,6 +206,26 @@ def _check_encodable(text: str) -> None:
         ) from None
 
 
+@dataclass(frozen=True)
+class _Module:
+    """One declaration's native module in the cache: what builds it (the
+    declaration ``text`` of struct ``name`` with ``n`` coordinates and ``m``
+    constraints, ``verbose`` and ``optimize``) and where it lives (the
+    module name ``module``, the cache ``root``, the declaration's
+    ``folder`` and its ``library`` file)."""
+
+    text: str
+    name: str
+    n: int
+    m: int
+    module: str
+    root: Path
+    folder: Path
+    library: Path
+    verbose: bool
+    optimize: bool
+
+
 def _build_and_load(
     text: str, checked: dict, key: str, cache_dir: str | None, verbose: bool, optimize: bool
 ) -> System:
@@ -220,13 +241,13 @@ def _build_and_load(
     module = f"_spark_{slug}_{key}"
     root = cache_root(cache_dir)
     folder = root / key
-    library = folder / f"{module}.abi3.so"
-    if not library.exists():
+    cached = _Module(text, name, n, m, module, root, folder, folder / f"{module}.abi3.so", verbose, optimize)
+    if not cached.library.exists():
         with _folder_lock(folder):
             # Another process may have built it while we waited.
-            if not library.exists():
-                _build(text, name, n, m, module, root, folder, library, verbose, optimize)
-    mod = _load_or_rebuild(text, name, n, m, module, root, folder, library, verbose, optimize)
+            if not cached.library.exists():
+                _build(cached)
+    mod = _load_or_rebuild(cached)
     info = mod.info()
     info["name"] = name
     info["cache_dir"] = str(root)
@@ -246,23 +267,13 @@ def _identity(path: Path) -> tuple | None:
     return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
 
 
-def _load_or_rebuild(
-    text: str,
-    name: str,
-    n: int,
-    m: int,
-    module: str,
-    root: Path,
-    folder: Path,
-    library: Path,
-    verbose: bool,
-    optimize: bool,
-) -> object:
+def _load_or_rebuild(cached: _Module) -> object:
     """The module ``library``, loaded; a cached file that does not load
     (truncated, overwritten) is discarded and built again, once. Under the
     folder's lock, only a file that is still the one that failed is
     discarded: another process that met it too, or that replaced it
     meanwhile, loads the new one instead of building it again."""
+    module, folder, library = cached.module, cached.folder, cached.library
     seen = _identity(library)
     try:
         return _load(module, library)
@@ -281,7 +292,7 @@ def _load_or_rebuild(
                         f"({e}); delete the folder {folder} and call spark.compile again"
                     ) from e
             if not library.exists():
-                _build(text, name, n, m, module, root, folder, library, verbose, optimize)
+                _build(cached)
         try:
             return _load(module, library)
         except (_Unverified, ImportError, OSError) as e:
@@ -316,22 +327,12 @@ def _folder_lock(folder: Path):
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def _build(
-    text: str,
-    name: str,
-    n: int,
-    m: int,
-    module: str,
-    root: Path,
-    folder: Path,
-    library: Path,
-    verbose: bool,
-    optimize: bool,
-) -> None:
+def _build(cached: _Module) -> None:
     """Builds the declaration's crate in ``folder`` with cargo (in its
     release profile, or at opt-level 0 without ``optimize``) and installs
     its module as ``library`` (copied under a temporary name, then renamed,
     so ``library`` is complete whenever it exists)."""
+    name, module, folder, library = cached.name, cached.module, cached.folder, cached.library
     cargo = _cargo()
     source = Path(_native.source_dir())
     if not (source / "spark-runtime" / "Cargo.toml").exists():
@@ -339,7 +340,7 @@ def _build(
             f"spark.compile builds against the spark source tree this package was built from, {source}, "
             "which is not there any more; rebuild the package from a spark checkout"
         )
-    manifest, lib = _crate(source, module, name, n, m, text)
+    manifest, lib = _crate(source, module, name, cached.n, cached.m, cached.text)
     try:
         (folder / "Cargo.toml").write_text(manifest)
         (folder / "lib.rs").write_text(lib)
@@ -351,9 +352,9 @@ def _build(
             f"spark.compile cannot write the declaration's crate into the cache folder {folder}: {e}; give "
             "cache_dir= (or SPARK_CACHE_DIR) a folder it can create and write"
         ) from e
-    target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (root / "target"))
+    target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (cached.root / "target"))
     env = dict(os.environ, CARGO_TARGET_DIR=str(target))
-    if not optimize:
+    if not cached.optimize:
         env["CARGO_PROFILE_RELEASE_OPT_LEVEL"] = "0"
     # PyO3's build script is rerun whenever these differ from the last
     # build in the target directory: the interpreter that will load the
@@ -365,7 +366,7 @@ def _build(
     env.setdefault("PYO3_ENVIRONMENT_SIGNATURE", _environment_signature())
     cmd = [cargo, "build", "--release", "--quiet", "--manifest-path", str(folder / "Cargo.toml")]
     try:
-        done = subprocess.run(cmd, env=env, capture_output=not verbose, text=True)
+        done = subprocess.run(cmd, env=env, capture_output=not cached.verbose, text=True)
     except OSError as e:
         raise ToolchainError(f"{TOOLCHAIN_HELP} (running {cargo} failed: {e})") from e
     if done.returncode != 0:
