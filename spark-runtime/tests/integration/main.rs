@@ -21,6 +21,7 @@ mod newcomer_systems;
 mod newcomer_unusual_systems;
 mod orders;
 mod paper;
+mod parameter_edge_systems;
 mod plan;
 mod small_scales;
 mod step_start;
