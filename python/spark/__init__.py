@@ -230,7 +230,10 @@ class Ensemble:
     """An ensemble of runs: ``t`` ``(samples,)``; ``q``, ``v``
     ``(members, samples, N)``; ``energy``, ``constraint`` ``(members,
     samples)``; ``e0``, ``rejected_steps`` (halvings of failed steps, see
-    :class:`Trajectory`) and ``smallest_step`` ``(members,)``."""
+    :class:`Trajectory`), ``smallest_step`` and ``steps`` (accepted steps)
+    ``(members,)``; for tolerance-driven members ``controller``, the fields
+    of :class:`ControllerStats` as arrays ``(members,)`` (``None`` for
+    fixed steps)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -241,6 +244,8 @@ class Ensemble:
     newton_iterations_mean: np.ndarray
     rejected_steps: np.ndarray | None = None
     smallest_step: np.ndarray | None = None
+    steps: np.ndarray | None = None
+    controller: dict[str, np.ndarray] | None = None
 
     @property
     def energy_error(self) -> np.ndarray:
@@ -631,31 +636,56 @@ class System:
         self,
         method: str,
         s: int,
-        h: float,
-        steps: int,
-        q0s,
-        v0s,
+        h: float | None = None,
+        steps: int | None = None,
+        q0s=None,
+        v0s=None,
         params: Mapping[str, float] | None = None,
         *,
         t0: float = 0.0,
-        every: int = 1,
+        t_end: float | None = None,
+        every: int | None = None,
         newton: str = "full",
         newton_tol: float | None = None,
         threads: int | None = None,
         max_halvings: int | None = None,
+        rtol: float | None = None,
+        atol: float | None = None,
+        first_step: float | None = None,
+        max_step: float | None = None,
+        max_steps: int | None = None,
+        t_eval: Sequence[float] | np.ndarray | None = None,
     ) -> Ensemble:
         """Integrates every row of ``q0s``/``v0s`` (shape ``(members, N)``)
-        with the same method, step and parameters, on ``threads`` threads
+        with the same method, steps and parameters, on ``threads`` threads
         (default: all cores, or ``RAYON_NUM_THREADS``), with the GIL
-        released: a compiled system and the McLachlan–Perlmutter particles
-        in SIMD lane groups of the native lane stepper
+        released. Each member agrees with what :meth:`integrate` returns for
+        it alone with the same arguments to the Newton tolerance per step,
+        and is the same whatever the thread count.
+
+        Fixed steps: ``steps`` steps of ``h`` (or as many as reach
+        ``t_end``), recorded every ``every`` steps (default 1; always the
+        endpoints). A compiled system and the McLachlan–Perlmutter particles
+        run in SIMD lane groups of the native lane stepper
         (``integrate_ensemble``), the other registered systems one run per
-        member. Each member agrees
-        with what :meth:`integrate` returns for it alone to the Newton
-        tolerance per step, and is the same whatever the thread count.
-        A member whose step fails runs alone, with the halving of
+        member. A member whose step fails runs alone, with the halving of
         :meth:`integrate` (``max_halvings``); if any member halved a step the
-        call warns with :class:`StepHalvingWarning`."""
+        call warns with :class:`StepHalvingWarning`.
+
+        Tolerance-driven steps: ``rtol`` and/or ``atol`` with ``t_end`` (and
+        ``first_step``, ``max_step``, ``max_steps``), as in
+        :meth:`integrate`; each member's controller chooses its own steps,
+        one run per member. The members are recorded at common times: the
+        initial point and each time of ``t_eval`` (default: ``t_end`` alone),
+        from the continuous extension of the step that holds it; the result's
+        ``controller`` holds each member's statistics and ``steps`` its
+        accepted steps. ``t_eval`` records fixed-step members the same way.
+
+        ``events`` are not located in an ensemble (a terminal event would end
+        the members at different times): call :meth:`integrate` per member.
+        """
+        if q0s is None or v0s is None:
+            raise SparkError("give the initial states q0s= and v0s=, arrays of shape (members, N)")
         _real_entries("q0s", q0s)
         _real_entries("v0s", v0s)
         q0s = _floats("q0s", q0s)
@@ -664,12 +694,51 @@ class System:
             raise SparkError(
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
             )
-        req = _request(method, s, h, _steps(h, steps, None, t0), t0, params, every, newton, newton_tol, max_halvings)
+        t0 = _real("t0", t0)
+        if t_eval is not None and every is not None:
+            raise ArgumentError(
+                f"every = {_short(every)} does not apply with t_eval: the samples are the initial point and the "
+                "state at each output time; drop every, or drop t_eval to record at the steps"
+            )
+        tolerance = rtol is not None or atol is not None
+        if tolerance:
+            req = self._tolerance_request(method, s, h, steps, t_end, t0, rtol, atol, first_step, max_step,
+                                          max_steps, max_halvings)
+            if every is not None:
+                raise ArgumentError(
+                    f"every = {_short(every)} does not apply to a tolerance-driven ensemble: each member's "
+                    "controller chooses its own steps, so the members are recorded at the common times of t_eval "
+                    "(default: t_end alone); drop every"
+                )
+            interval_end = req["t_end"]
+            if t_eval is None:
+                t_eval = [interval_end]
+            req.update(params=_params(params), newton=newton, every=1,
+                       newton_tol=None if newton_tol is None else _real("newton_tol", newton_tol))
+        else:
+            for name, given in (("first_step", first_step), ("max_step", max_step), ("max_steps", max_steps)):
+                if given is not None:
+                    raise ArgumentError(
+                        f"{name} = {_short(given)} applies to tolerance-driven runs only; pass rtol= (or atol=) too, "
+                        f"or drop {name}"
+                    )
+            if h is None:
+                raise SparkError("give the step size h= (or rtol=/atol= with t_end= for tolerance-driven steps)")
+            n = _steps(h, steps, t_end, t0)
+            req = _request(method, s, h, n, t0, params, 1 if every is None else every, newton, newton_tol,
+                           max_halvings)
+            # As the runtime computes the end of a run of fixed steps.
+            interval_end = t0 + float(n) * _real("h", h)
+        if t_eval is not None:
+            req["t_eval"] = _output_times(t_eval, t0, interval_end)
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
         req["threads"] = None if threads is None else _whole("threads", threads, 1)
         d = self._ensemble(req)
-        _warn_halved_members(d["rejected_steps"], d["smallest_step"], "the ensemble's rejected_steps", stacklevel=2)
+        controller = d.get("controller")
+        if controller is None:
+            _warn_halved_members(d["rejected_steps"], d["smallest_step"], "the ensemble's rejected_steps",
+                                 stacklevel=2)
         return Ensemble(
             t=d["t"],
             q=d["q"],
@@ -680,6 +749,8 @@ class System:
             newton_iterations_mean=d["newton_iterations_mean"],
             rejected_steps=d["rejected_steps"],
             smallest_step=d["smallest_step"],
+            steps=d.get("steps"),
+            controller=controller,
         )
 
 
@@ -800,8 +871,8 @@ def integrate(sys: System | str, method: str = "gauss", s: int = 2, h: float | N
     return _as_system(sys).integrate(method, s, h, steps, **kwargs)
 
 
-def ensemble(sys: System | str, method: str, s: int, h: float, steps: int, q0s, v0s,
-             params: Mapping[str, float] | None = None, **kwargs) -> Ensemble:
+def ensemble(sys: System | str, method: str, s: int, h: float | None = None, steps: int | None = None, q0s=None,
+             v0s=None, params: Mapping[str, float] | None = None, **kwargs) -> Ensemble:
     """Integrates many initial states at once (see :meth:`System.ensemble`)."""
     return _as_system(sys).ensemble(method, s, h, steps, q0s, v0s, params, **kwargs)
 

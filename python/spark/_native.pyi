@@ -23,7 +23,17 @@ def integrate(name: str, request: dict[str, Any]) -> dict[str, Any]:
     take and return the same dicts.
     """
 
-def ensemble(name: str, request: dict[str, Any]) -> dict[str, Any]: ...
+def ensemble(name: str, request: dict[str, Any]) -> dict[str, Any]:
+    """Many runs of the registered system `name` (`spark.System.ensemble` builds the request).
+
+    The request: that of `integrate` without `q0`, `v0` and with `q0s`,
+    `v0s` (one row per member) and `threads`. The result: `t` (samples),
+    `q`, `v` (members × samples × N), `energy`, `constraint` (members ×
+    samples), `e0`, `steps`, `newton_iterations_mean`, `rejected_steps`,
+    `smallest_step` (members) and `controller` (a dict of the controller's
+    statistics, one entry per member, `None` for fixed steps).
+    """
+
 def methods() -> list[tuple[str, str, int, int]]: ...
 def mp7_initial_values(j: int, big_j: int) -> tuple[list[float], list[float]]: ...
 def check_dsl(text: str) -> dict[str, Any]: ...

@@ -92,3 +92,64 @@ def test_ensemble_releases_the_gil():
     # Thousands of increments during the call when the GIL is released (the
     # main thread sleeps 0.1 ms per increment); none when it is held.
     assert seen[0] >= 100, f"the main thread advanced {seen[0]} times during the call"
+
+
+def test_tolerance_driven_members_equal_their_single_runs_at_common_times():
+    q0s = np.zeros((3, 3))
+    v0s = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [0.0, 0.0, -0.5]])
+    times = [1.0, 2.5, 5.0]
+    e = spark.ensemble("skate", "gauss", 2, q0s=q0s, v0s=v0s, rtol=1e-8, t_end=5.0, t_eval=times, threads=2)
+    assert e.q.shape == (3, 4, 3) and e.energy.shape == (3, 4)
+    np.testing.assert_array_equal(e.t, [0.0, *times])
+    assert set(e.controller) == {"accepted", "rejected", "newton_failures", "solves", "newton_iterations",
+                                 "smallest_step", "largest_step"}
+    for j in range(3):
+        one = spark.integrate("skate", "gauss", 2, q0=q0s[j], v0=v0s[j], rtol=1e-8, t_end=5.0, t_eval=times)
+        np.testing.assert_array_equal(e.q[j], one.q)
+        np.testing.assert_array_equal(e.v[j], one.v)
+        np.testing.assert_array_equal(e.energy[j], one.energy)
+        assert e.steps[j] == one.steps
+        assert e.controller["accepted"][j] == one.controller.accepted
+        assert e.controller["rejected"][j] == one.controller.rejected
+        assert e.controller["largest_step"][j] == one.controller.largest_step
+    # The faster members take more steps for the same tolerance.
+    assert e.steps[1] > e.steps[2]
+
+
+def test_a_tolerance_driven_ensemble_records_t_end_unless_told_otherwise():
+    q0s = np.zeros((2, 3))
+    v0s = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])
+    e = spark.ensemble("skate", "lobatto-iiia-b", 2, q0s=q0s, v0s=v0s, atol=1e-7, t_end=-3.0)
+    np.testing.assert_array_equal(e.t, [0.0, -3.0])
+    one = spark.integrate("skate", "lobatto-iiia-b", 2, q0=q0s[1], v0=v0s[1], atol=1e-7, t_end=-3.0)
+    np.testing.assert_array_equal(e.q[1, -1], one.q[-1])
+
+
+def test_fixed_step_members_at_output_times_equal_their_single_runs():
+    q0s, v0s = _members(3)
+    times = np.linspace(0.5, 10.0, 7)
+    e = spark.ensemble("mp7-nh", "gauss", 2, 0.05, 200, q0s, v0s, t_eval=times)
+    assert e.controller is None and e.q.shape == (3, 8, 7)
+    np.testing.assert_array_equal(e.t, [0.0, *times])
+    for j in range(3):
+        one = spark.integrate("mp7-nh", "gauss", 2, 0.05, 200, q0=q0s[j], v0=v0s[j], t_eval=times)
+        np.testing.assert_array_equal(e.q[j], one.q)
+        assert e.steps[j] == one.steps == 200
+
+
+def test_ensemble_arguments_that_do_not_apply_are_refused():
+    q0s, v0s = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])
+    with pytest.raises(spark.ArgumentError, match="every = 2 does not apply to a tolerance-driven ensemble"):
+        spark.ensemble("skate", "gauss", 2, q0s=q0s, v0s=v0s, rtol=1e-6, t_end=1.0, every=2)
+    with pytest.raises(spark.ArgumentError, match="h = 0.1 does not apply to a tolerance-driven run"):
+        spark.ensemble("skate", "gauss", 2, 0.1, q0s=q0s, v0s=v0s, rtol=1e-6, t_end=1.0)
+    with pytest.raises(spark.ArgumentError, match="every = 2 does not apply with t_eval"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 10, q0s, v0s, every=2, t_eval=[0.5])
+    with pytest.raises(spark.ArgumentError, match="max_step = 0.1 applies to tolerance-driven runs only"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 10, q0s, v0s, max_step=0.1)
+    with pytest.raises(spark.SparkError, match="needs t_end"):
+        spark.ensemble("skate", "gauss", 2, q0s=q0s, v0s=v0s, rtol=1e-6)
+    with pytest.raises(spark.SparkError, match="give the initial states q0s= and v0s="):
+        spark.ensemble("skate", "gauss", 2, 0.1, 10)
+    with pytest.raises(TypeError, match="events"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 10, q0s, v0s, events=True)

@@ -766,7 +766,11 @@ pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, Py
 }
 
 /// An ensemble as a dict: `t` (samples), `q`, `v` (members × samples × N),
-/// `energy`, `constraint` (members × samples), `e0` (members), `steps`.
+/// `energy`, `constraint` (members × samples), `e0`, `steps` (accepted
+/// steps), `newton_iterations_mean`, `rejected_steps`, `smallest_step`
+/// (members), and for tolerance-driven members `controller`, a dict of the
+/// controller's statistics with one entry per member (`None` for fixed
+/// steps).
 pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let members = runs.len();
@@ -782,8 +786,14 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
     let mut iterations = Vec::with_capacity(members);
     let mut rejected = Vec::with_capacity(members);
     let mut smallest = Vec::with_capacity(members);
+    let mut steps = Vec::with_capacity(members);
     let t = runs.first().map(|c| c.t.clone()).unwrap_or_default();
+    if runs.iter().any(|c| c.t != t) {
+        return Err(spark_error(py, "ensemble members recorded their samples at different times"));
+    }
+    let reports: Option<Vec<AdaptiveReport>> = runs.iter().map(|c| c.controller).collect();
     for c in runs {
+        steps.push(c.steps as u64);
         rejected.push(c.rejected_steps as u64);
         smallest.push(c.smallest_step);
         q.extend(c.q);
@@ -803,6 +813,25 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
     d.set_item("newton_iterations_mean", Array1::from_vec(iterations).into_pyarray(py))?;
     d.set_item("rejected_steps", Array1::from_vec(rejected).into_pyarray(py))?;
     d.set_item("smallest_step", Array1::from_vec(smallest).into_pyarray(py))?;
+    d.set_item("steps", Array1::from_vec(steps).into_pyarray(py))?;
+    match reports {
+        Some(reports) if members > 0 => {
+            let count = |f: fn(&AdaptiveReport) -> usize| {
+                Array1::from_iter(reports.iter().map(|a| f(a) as u64)).into_pyarray(py)
+            };
+            let size = |f: fn(&AdaptiveReport) -> f64| Array1::from_iter(reports.iter().map(f)).into_pyarray(py);
+            let controller = PyDict::new(py);
+            controller.set_item("accepted", count(|a| a.accepted))?;
+            controller.set_item("rejected", count(|a| a.rejected))?;
+            controller.set_item("newton_failures", count(|a| a.newton_failures))?;
+            controller.set_item("solves", count(|a| a.solves))?;
+            controller.set_item("newton_iterations", count(|a| a.newton_iterations))?;
+            controller.set_item("smallest_step", size(|a| a.smallest_step))?;
+            controller.set_item("largest_step", size(|a| a.largest_step))?;
+            d.set_item("controller", controller)?;
+        }
+        _ => d.set_item("controller", py.None())?,
+    }
     Ok(d)
 }
 
