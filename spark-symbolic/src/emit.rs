@@ -24,10 +24,14 @@
 
 use crate::graph::{Deps, Graph, Node, NodeId, Var};
 use crate::simplify::is_int;
+use prefixes::Prefixes;
+pub(crate) use prefixes::KEPT_PREFIX;
 use proc_macro2::{Delimiter, Group, Ident, Literal, Span, TokenStream, TokenTree};
 use quote::{format_ident, quote};
 use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
+
+mod prefixes;
 
 /// How the rendered code uses a node: the children listed here are the ones
 /// the code refers to, which is what CSE counts.
@@ -41,7 +45,9 @@ enum View {
         scaled: Vec<(bool, f64, NodeId)>,
         constant: f64,
     },
-    /// `(n1 · n2) / d` with at most two numerator and one denominator node.
+    /// `(n1 · n2 · …) / d`, the numerator folded from the left: two nodes
+    /// (more for a product of over [`KEPT_PREFIX`] factors) and at most one
+    /// denominator node.
     Prod {
         num: Vec<NodeId>,
         den: Vec<NodeId>,
@@ -73,7 +79,7 @@ pub(crate) fn rank(g: &Graph, x: NodeId) -> u8 {
     [(Deps::PSI, 4), (Deps::V, 3), (Deps::Q, 2), (Deps::T, 1)].iter().find(|(k, _)| d.any(*k)).map_or(0, |x| x.1)
 }
 
-fn view(g: &mut Graph, n: NodeId) -> View {
+fn view(g: &mut Graph, n: NodeId, prefixes: &Prefixes) -> View {
     match g.node(n).clone() {
         Node::Const(_) | Node::Var(_) => View::Leaf,
         Node::Add(xs) => {
@@ -153,7 +159,9 @@ fn view(g: &mut Graph, n: NodeId) -> View {
             if coef != 1.0 {
                 items.insert(0, xs[0]);
             }
-            if items.len() >= 3 {
+            if items.len() > KEPT_PREFIX {
+                items = prefixes.factors(g, items);
+            } else if items.len() >= 3 {
                 let last = items.pop().unwrap_or(xs[0]);
                 let prefix = g.sub_product(&items);
                 items = vec![prefix, last];
@@ -824,6 +832,7 @@ impl Emitter<'_> {
 /// Emits the body of one function computing `outputs`, sharing every common
 /// subexpression between them.
 pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) -> Emitted {
+    let prefixes = Prefixes::of(g, outputs.iter().map(|o| o.1));
     // Pass 1: views and reference counts, iteratively (deep graphs are fine).
     let mut views: HashMap<NodeId, View> = HashMap::new();
     let mut refs: HashMap<NodeId, usize> = HashMap::new();
@@ -843,7 +852,7 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
             if *count > 1 {
                 continue;
             }
-            let v = view(g, n);
+            let v = view(g, n, &prefixes);
             stack.push((n, true));
             for c in v.children().into_iter().rev() {
                 stack.push((c, false));
@@ -943,5 +952,68 @@ pub fn emit(g: &mut Graph, outputs: &[(Target, NodeId)], inputs: &Inputs<'_>) ->
         outputs: outputs_r,
         pairs: paired_lets,
         runtime: inputs.runtime.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{emit, rank, Inputs, Target, KEPT_PREFIX};
+    use crate::graph::{Fun, Graph, Node, NodeId, Var};
+    use proc_macro2::{Ident, Span};
+
+    /// A product of more than `KEPT_PREFIX` factors computes what its
+    /// left-folded prefixes compute, bit for bit: the fold of its factors
+    /// least variable first (its coefficient first of all). It makes nodes
+    /// with fewer operands than the product has, and still reads a product
+    /// of all but its last factor that the graph holds (`Π·v` reads `Π`).
+    #[test]
+    fn long_products_are_the_fold_of_their_prefixes() {
+        let mut g = Graph::new();
+        let (m, x, v) = (g.var(Var::P(0)), g.var(Var::Q(0)), g.var(Var::V(0)));
+        let mut factors = vec![g.constant(0.75)];
+        for i in 1..=150 {
+            let c = g.constant(f64::from(i));
+            factors.push(g.call(Fun::Atan2, &[m, c]));
+            if i % 3 == 0 {
+                let shifted = g.add2(x, c);
+                factors.push(g.call(Fun::Sin, &[shifted]));
+            }
+        }
+        let params = g.mul(&factors);
+        let params_only: Vec<NodeId> = factors.iter().copied().filter(|&f| rank(&g, f) == 0).collect();
+        let pi = g.mul(&params_only);
+        let pi_v = g.mul2(pi, v);
+        let mixed = g.mul2(params, v);
+        let outputs = [params, pi, pi_v, mixed];
+        let targets: Vec<(Target, NodeId)> = (0..outputs.len())
+            .map(|i| (Target::Let(Ident::new(&format!("r{i}"), Span::call_site())), outputs[i]))
+            .collect();
+        let names = [Ident::new("m", Span::call_site())];
+        let runtime = quote::quote!(::spark_runtime);
+        let before = g.size();
+        let emitted = emit(&mut g, &targets, &Inputs { parameters: &names, runtime: &runtime, sin_cos_memo: None });
+        let made = g.size() - before;
+        assert!(made < 2 * factors.len(), "emission makes {made} nodes and operands");
+        let env = |var: Var| match var {
+            Var::P(_) => 0.3,
+            Var::Q(_) => -1.7,
+            _ => 2.1,
+        };
+        let values = emitted.evaluate(&env);
+        for (&n, value) in outputs.iter().zip(values) {
+            let Node::Mul(xs) = g.node(n).clone() else { panic!("a product") };
+            let mut items: Vec<NodeId> = xs.iter().copied().filter(|&x| g.as_const(x).is_none()).collect();
+            items.sort_by_key(|&x| (rank(&g, x), x));
+            let coefficient = g.as_const(xs[0]);
+            let fold = coefficient
+                .into_iter()
+                .chain(items.iter().map(|&x| g.eval(x, &env)))
+                .reduce(|a, b| a * b)
+                .unwrap_or(1.0);
+            assert!(xs.len() > KEPT_PREFIX);
+            assert_eq!(value.to_bits(), fold.to_bits(), "{value} and {fold}");
+        }
+        // `Π·v` reads `Π`, bound once (parameter-only).
+        assert!(emitted.let_nodes.contains(&pi));
     }
 }

@@ -3,7 +3,7 @@
 //! [`Var`]s, `sqrt` becomes a power.
 
 use crate::graph::{Fun, Graph, NodeId, Var};
-use crate::simplify::{Partial, SumChain, KEPT_PARTIAL_SUM};
+use crate::simplify::{Partial, PartialProduct, ProductChain, SumChain, KEPT_PARTIAL_PRODUCT, KEPT_PARTIAL_SUM};
 use crate::spec::{BinOp, Func, SpecError, SrcExpr, SystemSpec};
 
 /// Lowers source expressions of one declaration, caching its named constants.
@@ -136,23 +136,12 @@ impl<'a> Lowerer<'a> {
                     chain.push((*o, &**b, *s));
                     left = a;
                 }
-                let mut acc = self.lower_depth(g, left, depth + 1)?;
+                let first = self.lower_depth(g, left, depth + 1)?;
                 if additive {
-                    return self.lower_sum(g, acc, chain, depth);
+                    self.lower_sum(g, first, chain, depth)?
+                } else {
+                    self.lower_product(g, first, chain, depth)?
                 }
-                for (o, b, s) in chain.into_iter().rev() {
-                    let b = self.lower_depth(g, b, depth + 1)?;
-                    if o == BinOp::Div && g.is_const(b, 0.0) {
-                        return Err(err(s, DIVISION_BY_ZERO.into()));
-                    }
-                    let r = match o {
-                        BinOp::Mul => g.mul2(acc, b),
-                        _ => g.div(acc, b),
-                    };
-                    check_finite(g, &[acc, b], r, s)?;
-                    acc = r;
-                }
-                acc
             }
             SrcExpr::Call(f, args, s) => {
                 if args.len() != f.arity() {
@@ -204,6 +193,48 @@ impl<'a> Lowerer<'a> {
         }
         Ok(match sum {
             Some(chain) => g.sum_chain_finish(chain),
+            None => first,
+        })
+    }
+
+    /// The chain `first */ b */ c …` (`chain` holds the operands after
+    /// `first`, last first), folded from the left as `mul2` and `div` would
+    /// fold it, with the same nodes, checks and errors, but without
+    /// interning its partial products of more than `KEPT_PARTIAL_PRODUCT`
+    /// operands ([`ProductChain`]): in time and memory linear in the factors
+    /// rather than quadratic.
+    fn lower_product(
+        &mut self,
+        g: &mut Graph,
+        first: NodeId,
+        chain: Vec<(BinOp, &SrcExpr, proc_macro2::Span)>,
+        depth: usize,
+    ) -> Result<NodeId, SpecError> {
+        let mut partial = PartialProduct::Node(first);
+        let mut product: Option<ProductChain> = None;
+        for (o, b, s) in chain.into_iter().rev() {
+            let b = self.lower_depth(g, b, depth + 1)?;
+            if o == BinOp::Div && g.is_const(b, 0.0) {
+                return Err(SpecError { span: s, message: DIVISION_BY_ZERO.into() });
+            }
+            // `div(a, b)` is `mul(&[a, b^-1])`.
+            let term = if o == BinOp::Div {
+                let m1 = g.constant(-1.0);
+                g.pow(b, m1)
+            } else {
+                b
+            };
+            let acc_is_const = matches!(partial, PartialProduct::Node(a) if g.as_const(a).is_some());
+            let chain = product.get_or_insert_with(|| g.product_chain(first, KEPT_PARTIAL_PRODUCT));
+            partial = g.product_chain_push(chain, term);
+            let (nonfinite, is_const) = match partial {
+                PartialProduct::Node(r) => (g.has_nonfinite_operand(r), g.as_const(r).is_some()),
+                PartialProduct::Long { nonfinite } => (nonfinite, false),
+            };
+            check_finite_parts(nonfinite, acc_is_const && g.as_const(b).is_some() && !is_const, s)?;
+        }
+        Ok(match product {
+            Some(chain) => g.product_chain_finish(chain),
             None => first,
         })
     }

@@ -18,6 +18,9 @@
 use crate::graph::{Fun, Graph, Node, NodeId};
 use std::collections::HashMap;
 
+mod product_chain;
+pub(crate) use product_chain::{PartialProduct, ProductChain, KEPT_PARTIAL_PRODUCT};
+
 /// `true` if `x` is an integer that `powi` can take.
 pub fn is_int(x: f64) -> bool {
     x.fract() == 0.0 && x.abs() <= 1e9
@@ -314,19 +317,35 @@ impl Graph {
     /// constant, if among them, first), at least two of them not constant:
     /// already canonical once sorted, so interned without the work of
     /// [`mul`](Self::mul) (which it equals). Emission takes the left-folded
-    /// prefixes of every product this way, `k` of them for `k` factors.
+    /// prefixes of a product this way, `k` of them for `k` factors (fewer
+    /// for a product longer than [`crate::emit::KEPT_PREFIX`]).
     pub(crate) fn sub_product(&mut self, operands: &[NodeId]) -> NodeId {
+        match Self::sub_product_node(self, operands) {
+            Some(node) => self.intern(node),
+            None => self.mul(operands),
+        }
+    }
+
+    /// The node [`sub_product`](Self::sub_product) makes of `operands`, if
+    /// the graph holds it already: looked up, not added.
+    pub(crate) fn find_sub_product(&self, operands: &[NodeId]) -> Option<NodeId> {
+        self.find(&Self::sub_product_node(self, operands)?)
+    }
+
+    /// The canonical product of some operands of one canonical product,
+    /// unless fewer than two of them are not constant.
+    fn sub_product_node(&self, operands: &[NodeId]) -> Option<Node> {
         let constant = operands.first().filter(|&&x| self.as_const(x).is_some()).copied();
         let rest = &operands[usize::from(constant.is_some())..];
         if rest.len() < 2 {
-            return self.mul(operands);
+            return None;
         }
         let mut xs: Vec<NodeId> = Vec::with_capacity(operands.len());
         xs.extend(constant);
         let from = xs.len();
         xs.extend_from_slice(rest);
         xs[from..].sort_unstable();
-        self.intern(Node::Mul(xs.into()))
+        Some(Node::Mul(xs.into()))
     }
 
     /// Product of any number of factors.
@@ -377,6 +396,12 @@ impl Graph {
             out.push(c);
             return self.mul(&out);
         }
+        self.mul_factors(coef, out)
+    }
+
+    /// The product of a coefficient and canonical factors with distinct
+    /// bases (none a product or a number): the last part of [`mul`](Self::mul).
+    pub(crate) fn mul_factors(&mut self, coef: f64, mut out: Vec<NodeId>) -> NodeId {
         if coef == 0.0 {
             return self.constant(0.0);
         }

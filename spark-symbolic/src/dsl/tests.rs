@@ -411,6 +411,48 @@ fn long_sums_lower_to_a_graph_linear_in_their_terms() {
     assert!(large <= 2 * small + 100, "a sum of 2000 terms lowers to {small}, one of 4000 to {large}");
 }
 
+/// A product of `k` distinct factors, in the Lagrangian and in a
+/// constraint, lowers to a graph that grows linearly with `k`, and so does
+/// the graph once the code is generated: the fold of the chain `a·b·c·…`
+/// does not keep its partial products of more than `KEPT_PARTIAL_PRODUCT`
+/// operands, nor does emission make every left-folded prefix of a product
+/// of more than `KEPT_PREFIX` factors a node (`k²/2` operands each way:
+/// most of a minute to check a product of 4000 factors).
+#[test]
+fn long_products_lower_and_emit_to_a_graph_linear_in_their_factors() {
+    // The graph of the lowered expressions, and of the model once its code
+    // is generated (when `generate`).
+    let size = |k: usize, generate: bool| {
+        on_main_sized_stack(move || {
+            let factors: String = (1..=k).map(|i| format!("*atan2(m, {i})")).collect();
+            let spec = parse_str(&format!(
+                "struct P {{ coordinates: [x, y], parameters: {{ m = 1.0 }}, \
+                 lagrangian: dot(x)^2/2{factors} + dot(y)^2/2 - x^2, constraints: [ dot(y) - x*dot(x){factors} ] }}"
+            ))
+            .expect("parses");
+            if !generate {
+                let mut g = crate::graph::Graph::new();
+                let mut lower = crate::lower::Lowerer::new(&spec);
+                lower.lower(&mut g, &spec.lagrangian).expect("lowers");
+                lower.lower(&mut g, &spec.constraints[0].expr).expect("lowers");
+                return g.size();
+            }
+            let mut model = crate::model::Model::build(&spec).expect("builds");
+            crate::codegen::generate_items(&spec, &mut model);
+            model.graph.size()
+        })
+    };
+    let (small, large) = (size(2_000, false), size(4_000, false));
+    // Each factor is a constant, a call and its operands, and the
+    // products' operands: a few per factor, where the partial products
+    // would be thousands.
+    assert!(large <= 10 * 4_000, "a product of 4000 factors lowers to {large} nodes and operands");
+    assert!(large <= 2 * small + 100, "a product of 2000 factors lowers to {small}, one of 4000 to {large}");
+    let (small, large) = (size(300, true), size(600, true));
+    assert!(large <= 40 * 600, "generating code for 600 factors makes a graph of {large}");
+    assert!(large <= 2 * small + 1_000, "generating code for 300 factors makes a graph of {small}, for 600 of {large}");
+}
+
 /// `asin(x)` and `acos(x)` are `atan2` forms with `x` written twice, so
 /// nested calls double the tree at each level: 40 levels would exhaust
 /// memory. The copies count against `MAX_OPERATIONS`, so deep nesting is an
@@ -455,12 +497,12 @@ fn constant_chains_stay_small_in_the_neutral_text_and_shallow_in_lowering() {
 
 /// Derivatives can swell far beyond the expression written: the second
 /// derivative of a product of `k` factors in one coordinate has about `k³`
-/// operands, so a Lagrangian of 150 factors `(x + i)` (1 KB of text) would
+/// operands, so a Lagrangian of 300 factors `(x + i)` (3 KB of text) would
 /// take minutes and gigabytes to generate. Past `MAX_GRAPH_SIZE` it is an
 /// error on the struct's name that names the limit, within seconds.
 #[test]
 fn derivatives_that_swell_beyond_the_graph_limit_are_an_error() {
-    let factors: Vec<String> = (1..=150).map(|i| format!("(x + {i})")).collect();
+    let factors: Vec<String> = (1..=300).map(|i| format!("(x + {i})")).collect();
     let src = format!("struct S {{ coordinates: [x], lagrangian: dot(x)^2 + {} }}", factors.join("*"));
     let msg = on_main_sized_stack(move || {
         let spec = parse_str(&src).expect("parses");
