@@ -1016,4 +1016,36 @@ mod tests {
         // `Π·v` reads `Π`, bound once (parameter-only).
         assert!(emitted.let_nodes.contains(&pi));
     }
+
+    /// The derivative `Σ_i Π_{j≠i} f_j` of a product of `k` factors (more
+    /// than `KEPT_PREFIX`) shares the prefixes its products begin with:
+    /// about `k²/2` multiplications, where products written out each on
+    /// their own would take `k²`.
+    #[test]
+    fn long_products_share_the_prefixes_they_begin_with() {
+        let mut g = Graph::new();
+        let x = g.var(Var::Q(0));
+        let k = 100;
+        let factors: Vec<NodeId> = (1..=k)
+            .map(|i| {
+                let c = g.constant(f64::from(i));
+                let shifted = g.add2(x, c);
+                g.call(Fun::Sin, &[shifted])
+            })
+            .collect();
+        let terms: Vec<NodeId> = (0..factors.len())
+            .map(|i| {
+                let others: Vec<NodeId> = factors.iter().enumerate().filter(|e| e.0 != i).map(|e| *e.1).collect();
+                g.mul(&others)
+            })
+            .collect();
+        let derivative = g.add(&terms);
+        let targets = [(Target::Let(Ident::new("r", Span::call_site())), derivative)];
+        let runtime = quote::quote!(::spark_runtime);
+        let emitted = emit(&mut g, &targets, &Inputs { parameters: &[], runtime: &runtime, sin_cos_memo: None });
+        let k = k as usize;
+        // k·(k − 1)/2 multiplications, k − 1 additions, k sines and k
+        // additions in their arguments.
+        assert!(emitted.ops <= k * (k - 1) / 2 + 4 * k, "{} operations", emitted.ops);
+    }
 }
