@@ -218,9 +218,12 @@ def test_the_runtimes_messages_name_the_keywords(skate):
 def test_ensembles_keep_their_arguments(skate):
     q0s, v0s = np.zeros((2, 3)), np.array([[0, 0, 1.0], [0, 0, 2.0]])
     e = skate.ensemble("gauss", 2, 0.1, 20, q0s, v0s)
-    assert e.q.shape == (2, 21, 3)
+    assert e.q.shape == (2, 21, 3) and e.controller is None
+    # A tolerance-driven ensemble refuses the fixed steps, as `integrate`.
+    with pytest.raises(spark.ArgumentError, match="h = 0.1 does not apply to a tolerance-driven run"):
+        skate.ensemble("gauss", 2, 0.1, 20, q0s, v0s, rtol=1e-6, t_end=1.0)
     with pytest.raises(TypeError):
-        skate.ensemble("gauss", 2, 0.1, 20, q0s, v0s, rtol=1e-6)
+        skate.ensemble("gauss", 2, 0.1, 20, q0s, v0s, events=True)
 
 
 # --- compiled systems ---------------------------------------------------------
