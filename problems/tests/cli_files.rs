@@ -392,6 +392,46 @@ fn an_unwritable_standard_output_is_an_error_not_a_panic() {
     }
 }
 
+/// Help and version text go to standard output like a listing does: one
+/// that cannot take them (a full disk) is exit status 1 with a message on
+/// standard error, not status 0 with the text lost; a reader that has gone
+/// ends the program quietly with the status the command has. The CasADi
+/// export's help is written alike.
+#[test]
+fn help_and_version_that_cannot_be_written_are_an_error() {
+    let export = env!("CARGO_BIN_EXE_spark-casadi-export");
+    let cases: [(&str, &[&str]); 7] = [
+        ("spark", &["--help"]),
+        ("spark", &["-h"]),
+        ("spark", &["--version"]),
+        ("spark", &["help", "run"]),
+        ("spark", &["run", "--help"]),
+        ("spark", &["list", "--json"]),
+        (export, &["--help"]),
+    ];
+    for (program, args) in cases {
+        let program = if program == "spark" { env!("CARGO_BIN_EXE_spark") } else { program };
+        let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+        let o = Command::new(program).args(args).stdout(full).output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?} > /dev/full: {stderr}");
+        assert!(stderr.contains("cannot write to standard output") && !stderr.contains("panicked"), "{stderr}");
+        // Written in full to a pipe, it succeeds.
+        let o = Command::new(program).args(args).output().unwrap();
+        assert!(o.status.success() && !o.stdout.is_empty(), "{args:?}: {:?}", o.status);
+        let mut child = Command::new(program).args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success() && stderr.is_empty(), "{args:?} | closed: {:?}: {stderr}", o.status);
+    }
+    // A usage error keeps its status 2 and its message on standard error.
+    let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+    let o = spark().arg("--no-such-flag").stdout(full).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--no-such-flag"));
+}
+
 /// `spark ARGS` must fail within `seconds`: an argument that is accepted
 /// would start a run that does not end, so the child is killed and the
 /// test fails rather than hanging.

@@ -4,13 +4,17 @@
 //!
 //! `spark-casadi-export --out out/casadi/export.json [--seed 20260101]`
 
-use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
 use problems::crosscheck::Document;
 use problems::report::files::replace_file;
+
+// Its one line of output goes to standard error: `write_stdout` is spark's.
+#[allow(dead_code)]
+#[path = "shared/stdio.rs"]
+mod stdio;
 
 /// Export sample points and SPARK steps for the CasADi cross-check.
 #[derive(Parser, Debug)]
@@ -41,19 +45,19 @@ fn run(args: &Args) -> Result<String, String> {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    // Written, not `eprintln!`ed, which panics when standard error cannot
-    // take the line (a full disk): that loses the message, not the export.
-    let say = |line: &str| {
-        let _ = writeln!(std::io::stderr(), "{line}");
+    let args = match stdio::parse::<Args>() {
+        Ok(args) => args,
+        Err(status) => return status,
     };
+    // The closing line goes to standard error: one that cannot take it
+    // loses the line, not the export.
     match run(&args) {
         Ok(done) => {
-            say(&done);
+            stdio::say(&done);
             ExitCode::SUCCESS
         }
         Err(e) => {
-            say(&format!("spark-casadi-export: error: {e}"));
+            stdio::say(&format!("spark-casadi-export: error: {e}"));
             ExitCode::FAILURE
         }
     }
