@@ -66,56 +66,78 @@ fn wait_until(child: &mut Child, what: &str, mut done: impl FnMut() -> bool) {
     }
 }
 
+/// A run interrupted in its write phase (SIGINT, SIGTERM, SIGHUP) leaves
+/// the previous results intact and no temporary file, and ends by the
+/// signal (status 128 + signal to a shell).
 #[test]
 fn an_interrupted_run_leaves_the_previous_results_intact() {
+    use std::os::unix::process::ExitStatusExt;
     let dir = temp_dir("sigint");
     let base = ["run", "skate", "--t-end", "10", "--format", "both"];
     run_ok(&[&base[..], &["--h", "0.01"]].concat(), &dir);
     let before = snapshot(&dir, false);
     assert!(before.len() >= 6, "{:?}", before.keys());
 
-    // A second run with another step size, interrupted in its write phase
-    // (as soon as anything in the folder changes).
-    let all_before = snapshot(&dir, true);
+    for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+        // A second run with another step size, interrupted in its write
+        // phase (as soon as anything in the folder changes).
+        let all_before = snapshot(&dir, true);
+        let mut child = spark();
+        child
+            .args(base)
+            .args(["--h", "0.02", "--out"])
+            .arg(&dir)
+            .env(PAUSE_ENV, "60000")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        // A shell that starts this test in the background ignores SIGINT,
+        // and the child would inherit that; give the run the disposition
+        // an interactive Ctrl-C meets.
+        // SAFETY: `signal` is async-signal-safe, the only call between fork and exec.
+        unsafe {
+            child.pre_exec(move || {
+                libc::signal(signal, libc::SIG_DFL);
+                Ok(())
+            });
+        }
+        let mut child = child.spawn().unwrap();
+        wait_until(&mut child, "writing", || snapshot(&dir, true) != all_before);
+        // SAFETY: `kill` takes plain integers; the child is not yet waited for.
+        assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
+        let status = child.wait().unwrap();
+        assert_eq!(status.signal(), Some(signal), "the interrupted run ends by its signal: {status}");
+
+        let names: Vec<String> = snapshot(&dir, true).into_keys().collect();
+        assert!(names.iter().all(|n| !n.starts_with(".spark-tmp-")), "signal {signal} left {names:?}");
+        let after = snapshot(&dir, false);
+        assert_eq!(after.keys().collect::<Vec<_>>(), before.keys().collect::<Vec<_>>());
+        for (name, bytes) in &before {
+            assert!(
+                after[name] == *bytes,
+                "{name} changed by the interrupted run ({} → {} bytes)",
+                bytes.len(),
+                after[name].len()
+            );
+        }
+    }
+
+    // A run that ignores SIGHUP (`nohup`) keeps ignoring it and finishes.
     let mut child = spark();
-    child
-        .args(base)
-        .args(["--h", "0.02", "--out"])
-        .arg(&dir)
-        .env(PAUSE_ENV, "60000")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null());
-    // A shell that starts this test in the background ignores SIGINT, and
-    // the child would inherit that; give the run the disposition an
-    // interactive Ctrl-C meets.
-    // SAFETY: `signal` is async-signal-safe, the only call between fork and exec.
+    child.args(base).args(["--h", "0.02", "--out"]).arg(&dir).env(PAUSE_ENV, "300");
+    child.stdout(Stdio::null()).stderr(Stdio::null());
+    // SAFETY: as above.
     unsafe {
         child.pre_exec(|| {
-            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
             Ok(())
         });
     }
     let mut child = child.spawn().unwrap();
+    let all_before = snapshot(&dir, true);
     wait_until(&mut child, "writing", || snapshot(&dir, true) != all_before);
-    let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
-    assert!(kill.success());
-    let status = child.wait().unwrap();
-    assert!(!status.success(), "the interrupted run must not succeed");
-
-    let after = snapshot(&dir, false);
-    assert_eq!(after.keys().collect::<Vec<_>>(), before.keys().collect::<Vec<_>>());
-    for (name, bytes) in &before {
-        assert!(
-            after[name] == *bytes,
-            "{name} changed by the interrupted run ({} → {} bytes)",
-            bytes.len(),
-            after[name].len()
-        );
-    }
-
-    // The next run replaces the results and removes the interrupted run's
-    // temporary files.
-    run_ok(&[&base[..], &["--h", "0.02"]].concat(), &dir);
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGHUP) }, 0);
+    assert!(child.wait().unwrap().success(), "a run under nohup ends on its own");
     let names: Vec<String> = snapshot(&dir, true).into_keys().collect();
     assert!(names.iter().all(|n| !n.starts_with(".spark-tmp-")), "{names:?}");
     assert_ne!(snapshot(&dir, false)["skate_gauss_s2.csv"], before["skate_gauss_s2.csv"]);

@@ -128,3 +128,29 @@ fn decimation_keeps_the_envelope_of_a_million_points() {
     let circle: Vec<(f64, f64)> = (0..100_000).map(|k| ((k as f64 * 1e-3).cos(), (k as f64 * 1e-3).sin())).collect();
     assert!(decimate(&circle, columns, Scale::Linear).len() <= 2 * columns + 2);
 }
+
+/// `replace_file` replaces a file whole and removes from its folder the
+/// temporary files of processes that no longer exist (killed outright, so
+/// that they could not remove them); those of live processes stay.
+#[test]
+fn replacing_a_file_removes_the_temporary_files_of_dead_processes() {
+    use problems::report::files::replace_file;
+    let dir = std::env::temp_dir().join(format!("spark-out-orphans-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut gone = std::process::Command::new("true").spawn().unwrap();
+    let dead = gone.id();
+    gone.wait().unwrap();
+    let orphan = dir.join(format!("{TEMP_PREFIX}{dead}-single-0-export.json"));
+    // This test's own process and its parent are alive.
+    let live = [std::process::id(), std::os::unix::process::parent_id()]
+        .map(|pid| dir.join(format!("{TEMP_PREFIX}{pid}-single-9-export.json")));
+    for path in live.iter().chain([&orphan]) {
+        std::fs::write(path, b"{\"half\":").unwrap();
+    }
+    replace_file(&dir.join("export.json"), |w| w.write_all(b"{}")).unwrap();
+    assert_eq!(std::fs::read(dir.join("export.json")).unwrap(), b"{}");
+    assert!(!orphan.exists(), "the dead process's temporary file is left");
+    assert!(live.iter().all(|p| p.exists()), "a live process's temporary file was removed");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -11,6 +11,8 @@ use clap::Parser;
 use problems::crosscheck::Document;
 use problems::report::files::replace_file;
 
+#[path = "shared/signals.rs"]
+mod signals;
 // Its one line of output goes to standard error: `write_stdout` is spark's.
 #[allow(dead_code)]
 #[path = "shared/stdio.rs"]
@@ -49,6 +51,7 @@ fn main() -> ExitCode {
         Ok(args) => args,
         Err(status) => return status,
     };
+    signals::remove_temporary_files_on_signals();
     // The closing line goes to standard error: one that cannot take it
     // loses the line, not the export.
     match run(&args) {

@@ -6,6 +6,8 @@
 use problems::cli::Cli;
 use std::process::ExitCode;
 
+#[path = "shared/signals.rs"]
+mod signals;
 #[path = "shared/stdio.rs"]
 mod stdio;
 
@@ -14,6 +16,7 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(status) => return status,
     };
+    signals::remove_temporary_files_on_signals();
     match problems::cli::run(cli, &stdio::say) {
         Ok(text) => stdio::write_stdout(&text),
         Err(message) => {

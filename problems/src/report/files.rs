@@ -15,14 +15,33 @@
 //! - [`OutputDir::commit`] renames the temporary files to their final names,
 //!   in the order they were written (reports last), in one short burst.
 //!   An interrupted run therefore leaves the previous complete results in
-//!   place; its temporary files are removed by the next run that opens the
-//!   folder (or when the value is dropped without a commit).
+//!   place.
+//!
+//! Temporary files do not outlive the process that writes them:
+//! - Every temporary file of the process, of an [`OutputDir`] or of
+//!   [`replace_file`], is created, renamed and removed under one
+//!   process-wide registry of the temporary files that exist.
+//! - A binary's handler of SIGINT, SIGTERM and SIGHUP calls
+//!   [`remove_temporary_files`], which removes every registered file and
+//!   keeps the registry: no temporary file is created or renamed from then
+//!   until the handler ends the process. A folder whose commit has begun is
+//!   completed first (the commit holds the registry), so an interrupted run
+//!   leaves the earlier results or the new ones, never a mix, and no
+//!   temporary file. Figures are drawn in memory and written like any other
+//!   file, so no drawing backend creates a file the registry does not know.
+//! - A process killed outright (SIGKILL, a power cut) cannot remove its
+//!   files: the next run that opens the folder removes them, under the
+//!   folder's lock, and [`replace_file`] removes those of processes that
+//!   no longer exist from the folder it writes into (their names carry the
+//!   process id).
+//! - A value dropped without a commit removes its temporary files.
 
-use crate::report::plot::{render_files, render_scatter_files, Figure, PlotError, Scatter};
+use crate::report::plot::{render, render_scatter, Drawn, Figure, PlotError, Scatter};
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
 
 /// Name of the lock file inside an output folder.
 pub const LOCK_FILE: &str = ".spark-lock";
@@ -35,6 +54,61 @@ pub const TEMP_PREFIX: &str = ".spark-tmp-";
 /// temporary file, so that tests can interrupt a run in its write phase.
 /// It is not a user setting and is not documented in `--help`.
 pub const TEST_PAUSE_ENV: &str = "SPARK_TEST_PAUSE_AFTER_FIRST_FILE_MS";
+
+/// The temporary files of this process that exist under their temporary
+/// names. Creating, renaming and removing one happen while this is held.
+static TEMPORARIES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// The registry of temporary files. A thread that panicked while holding
+/// it left the list consistent (each operation updates it last), so a
+/// poisoned lock is taken as is.
+fn temporaries() -> MutexGuard<'static, Vec<PathBuf>> {
+    TEMPORARIES.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Creates the temporary file `temp` (which must not exist) and registers it.
+fn create_temporary(temp: &Path) -> Result<File, OutputError> {
+    let mut live = temporaries();
+    let file = OpenOptions::new().write(true).create_new(true).open(temp).map_err(io(temp))?;
+    live.push(temp.to_path_buf());
+    Ok(file)
+}
+
+/// Removes the temporary file `temp`, ignoring errors (it may be gone).
+fn remove_temporary(temp: &Path) {
+    let mut live = temporaries();
+    let _ = std::fs::remove_file(temp);
+    live.retain(|p| p != temp);
+}
+
+/// Renames the temporary file `temp` to `path` while `live` holds the
+/// registry; on failure `temp` is removed.
+fn rename_temporary(live: &mut Vec<PathBuf>, temp: &Path, path: &Path) -> std::io::Result<()> {
+    let renamed = std::fs::rename(temp, path);
+    if renamed.is_err() {
+        let _ = std::fs::remove_file(temp);
+    }
+    live.retain(|p| p != temp);
+    renamed
+}
+
+/// Removes every temporary file this process has created and not yet
+/// renamed, and returns the registry, held: until it is dropped no
+/// temporary file is created, renamed or removed by any thread. A folder
+/// commit in progress is finished first. For a binary's signal handler,
+/// which ends the process while holding the value:
+///
+/// ```no_run
+/// let _held = problems::report::files::remove_temporary_files();
+/// std::process::exit(130);
+/// ```
+pub fn remove_temporary_files() -> impl Sized {
+    let mut live = temporaries();
+    for temp in live.drain(..) {
+        let _ = std::fs::remove_file(temp);
+    }
+    live
+}
 
 /// Errors while writing output files.
 #[derive(Debug, thiserror::Error)]
@@ -256,15 +330,15 @@ impl OutputDir {
         E: Into<WriteFailure>,
     {
         let temp = self.temp_path(name);
+        let file = create_temporary(&temp)?;
         let result = (|| {
-            let file = OpenOptions::new().write(true).create_new(true).open(&temp).map_err(io(&temp))?;
             let mut w = BufWriter::new(file);
             write(&mut w).map_err(|e| e.into().into_output(&self.dir.join(name)))?;
             let file = w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
             file.sync_all().map_err(io(&temp))
         })();
         if let Err(e) = result {
-            let _ = std::fs::remove_file(&temp);
+            remove_temporary(&temp);
             return Err(e);
         }
         Ok(self.staged(temp, name))
@@ -290,42 +364,22 @@ impl OutputDir {
 
     /// Stages `fig` as `<stem>.png` and `<stem>.svg`; returns both final paths.
     pub fn render(&mut self, fig: &Figure, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
-        self.stage_figure(stem, |png, svg| render_files(fig, png, svg))
+        let (png, svg) = (format!("{stem}.png"), format!("{stem}.svg"));
+        let drawn = render(fig, &self.join(&png), &self.join(&svg))?;
+        self.stage_drawn(&drawn, &png, &svg)
     }
 
     /// Stages the scatter plot `fig` as `<stem>.png` and `<stem>.svg`;
     /// returns both final paths.
     pub fn render_scatter(&mut self, fig: &Scatter, stem: &str) -> Result<Vec<PathBuf>, OutputError> {
-        self.stage_figure(stem, |png, svg| render_scatter_files(fig, png, svg))
+        let (png, svg) = (format!("{stem}.png"), format!("{stem}.svg"));
+        let drawn = render_scatter(fig, &self.join(&png), &self.join(&svg))?;
+        self.stage_drawn(&drawn, &png, &svg)
     }
 
-    /// Draws a figure into the temporary `<stem>.png` and `<stem>.svg` with
-    /// `draw`, syncs both and stages them; on failure removes both.
-    fn stage_figure<E>(
-        &mut self,
-        stem: &str,
-        draw: impl FnOnce(&Path, &Path) -> Result<(), E>,
-    ) -> Result<Vec<PathBuf>, OutputError>
-    where
-        OutputError: From<E>,
-    {
-        let png_name = format!("{stem}.png");
-        let svg_name = format!("{stem}.svg");
-        let (png, svg) = (self.temp_path(&png_name), self.temp_path(&svg_name));
-        let result = draw(&png, &svg).map_err(OutputError::from).and_then(|()| {
-            for p in [&png, &svg] {
-                File::open(p).and_then(|f| f.sync_all()).map_err(io(p))?;
-            }
-            Ok(())
-        });
-        if let Err(e) = result {
-            let _ = std::fs::remove_file(&png);
-            let _ = std::fs::remove_file(&svg);
-            return Err(e);
-        }
-        let png = self.staged(png, &png_name);
-        let svg = self.staged(svg, &svg_name);
-        Ok(vec![png, svg])
+    /// Stages a figure drawn in memory as the files `png` and `svg`.
+    fn stage_drawn(&mut self, drawn: &Drawn, png: &str, svg: &str) -> Result<Vec<PathBuf>, OutputError> {
+        Ok(vec![self.write_bytes(png, &drawn.png)?, self.write_bytes(svg, &drawn.svg)?])
     }
 
     /// Marks the file `name` for removal at [`OutputDir::commit`]: a file an
@@ -346,6 +400,9 @@ impl OutputDir {
         if let Some(path) = finals.into_iter().find(|p| p.symlink_metadata().is_ok_and(|m| m.is_dir())) {
             return Err(OutputError::FolderInTheWay { path: path.clone() });
         }
+        // Held over the removals and renames: a signal handler's
+        // [`remove_temporary_files`] waits until the folder is complete.
+        let mut live = temporaries();
         for path in std::mem::take(&mut self.stale) {
             match std::fs::remove_file(&path) {
                 Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
@@ -358,15 +415,16 @@ impl OutputDir {
         let mut done = Vec::with_capacity(staged.len());
         let mut pending = staged.into_iter();
         for (temp, path) in pending.by_ref() {
-            if let Err(source) = std::fs::rename(&temp, &path) {
-                let _ = std::fs::remove_file(&temp);
+            if let Err(source) = rename_temporary(&mut live, &temp, &path) {
                 for (t, _) in pending {
-                    let _ = std::fs::remove_file(t);
+                    let _ = std::fs::remove_file(&t);
+                    live.retain(|p| *p != t);
                 }
                 return Err(OutputError::Io { path, source });
             }
             done.push(path);
         }
+        drop(live);
         // Make the renames durable (best effort: not every file system
         // supports syncing a directory).
         if let Ok(d) = File::open(&self.dir) {
@@ -380,7 +438,7 @@ impl Drop for OutputDir {
     /// Removes the temporary files of an uncommitted folder.
     fn drop(&mut self) {
         for (temp, _) in &self.staged {
-            let _ = std::fs::remove_file(temp);
+            remove_temporary(temp);
         }
     }
 }
@@ -481,31 +539,57 @@ pub fn write_columns(path: &Path, columns: &[(&str, &[f64])]) -> Result<(), Outp
 /// folder, syncs it and renames it to `path`: a reader of `path` (or of a
 /// link to the file it was) sees the earlier file or the whole new one,
 /// never a part; a failed or interrupted write leaves the earlier file as
-/// it was and no temporary file (but for a killed process, whose temporary
-/// file keeps the prefix `.spark-tmp-`). Holds no folder lock: inside a
-/// command, use [`OutputDir::write_with`].
+/// it was and no temporary file (see the module documentation; the
+/// temporary files of processes killed outright, which keep the prefix
+/// `.spark-tmp-` and their process id, are removed from the folder here).
+/// Holds no folder lock: inside a command, use [`OutputDir::write_with`].
 pub fn replace_file<E>(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<(), E>) -> Result<(), OutputError>
 where
     E: Into<WriteFailure>,
 {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    remove_orphaned_temporaries(dir);
     // Numbered, so that threads replacing one file at once each have their own.
     static SEQUENCE: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     let seq = SEQUENCE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let temp = dir.join(format!("{TEMP_PREFIX}{}-single-{seq}-{name}", std::process::id()));
+    let file = create_temporary(&temp)?;
     let result = (|| {
-        let file = OpenOptions::new().write(true).create_new(true).open(&temp).map_err(io(&temp))?;
         let mut w = BufWriter::new(file);
         write(&mut w).map_err(|e| e.into().into_output(path))?;
         let file = w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
-        file.sync_all().map_err(io(&temp))?;
-        std::fs::rename(&temp, path).map_err(io(path))
+        file.sync_all().map_err(io(&temp))
     })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temp);
+    match result {
+        Ok(()) => rename_temporary(&mut temporaries(), &temp, path).map_err(io(path)),
+        Err(e) => {
+            remove_temporary(&temp);
+            Err(e)
+        }
     }
-    result
+}
+
+/// Removes from `dir` the temporary files of processes that no longer
+/// exist (`.spark-tmp-PID-…` with no process PID), ignoring errors. A file
+/// whose process id a live process has taken since is left for later; it
+/// is never one being written.
+fn remove_orphaned_temporaries(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix(TEMP_PREFIX)) else { continue };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<libc::pid_t>().ok()) else { continue };
+        if pid <= 0 || pid as u32 == std::process::id() {
+            continue;
+        }
+        // SAFETY: signal 0 only checks whether the process exists.
+        let gone =
+            unsafe { libc::kill(pid, 0) } == -1 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if gone {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 /// Reads a CSV written by [`write_columns`] back as `(header, columns)`.

@@ -125,24 +125,69 @@ fn ensure_font() -> Result<(), PlotError> {
     }
 }
 
-/// Draws `fig` into the files `png` and `svg` (the formats follow the
-/// extensions). Commands write figures through
-/// [`crate::report::files::OutputDir::render`], which calls this with temporary
-/// paths and renames them into place.
-pub fn render_files(fig: &Figure, png: &Path, svg: &Path) -> Result<(), PlotError> {
+/// A figure drawn in memory: the bytes of its PNG and SVG files.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Drawn {
+    /// The PNG file.
+    pub png: Vec<u8>,
+    /// The SVG file.
+    pub svg: Vec<u8>,
+}
+
+/// Draws `fig` in memory as PNG and SVG; `png` and `svg` are the files it
+/// is meant for, named in errors. Commands write figures through
+/// [`crate::report::files::OutputDir::render`], which writes these bytes
+/// under temporary names of its own and renames them into place: no file
+/// is opened by the drawing backends, so every file a command writes is
+/// one the output folder knows about (and removes on an interruption).
+pub fn render(fig: &Figure, png: &Path, svg: &Path) -> Result<Drawn, PlotError> {
     ensure_font()?;
     let columns = fig.columns.max(1);
     let rows = fig.panels.len().div_ceil(columns).max(1);
     let size = (fig.panel_size.0 * columns as u32, fig.panel_size.1 * rows as u32 + 40);
+    let mut pixels = pixel_buffer(size);
     {
-        let root = BitMapBackend::new(png, size).into_drawing_area();
+        let root = BitMapBackend::with_buffer(&mut pixels, size).into_drawing_area();
         draw(fig, &root, rows, columns).map_err(|m| draw_error(png, m))?;
         root.present().map_err(|e| draw_error(png, e.to_string()))?;
     }
+    let png_bytes = encode_png(&pixels, size).map_err(|m| draw_error(png, m))?;
+    let mut text = String::new();
     {
-        let root = SVGBackend::new(svg, size).into_drawing_area();
+        let root = SVGBackend::with_string(&mut text, size).into_drawing_area();
         draw(fig, &root, rows, columns).map_err(|m| draw_error(svg, m))?;
         root.present().map_err(|e| draw_error(svg, e.to_string()))?;
+    }
+    Ok(Drawn { png: png_bytes, svg: text.into_bytes() })
+}
+
+/// Draws `fig` into the files `png` and `svg`, each replaced whole
+/// ([`crate::report::files::replace_file`]).
+pub fn render_files(fig: &Figure, png: &Path, svg: &Path) -> Result<(), PlotError> {
+    write_drawn(&render(fig, png, svg)?, png, svg)
+}
+
+/// An RGB pixel buffer of `size`, white.
+fn pixel_buffer((w, h): (u32, u32)) -> Vec<u8> {
+    vec![255; w as usize * h as usize * 3]
+}
+
+/// The PNG encoding of the RGB `pixels` of `size`, as plotters' file
+/// backend writes it.
+fn encode_png(pixels: &[u8], (w, h): (u32, u32)) -> Result<Vec<u8>, String> {
+    use image::ImageEncoder;
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(pixels, w, h, image::ColorType::Rgb8)
+        .map_err(|e| e.to_string())?;
+    Ok(bytes)
+}
+
+/// Writes a drawn figure into the files `png` and `svg`.
+fn write_drawn(drawn: &Drawn, png: &Path, svg: &Path) -> Result<(), PlotError> {
+    for (path, bytes) in [(png, &drawn.png), (svg, &drawn.svg)] {
+        crate::report::files::replace_file(path, |w| w.write_all(bytes))
+            .map_err(|e| draw_error(path, e.to_string()))?;
     }
     Ok(())
 }
@@ -420,7 +465,8 @@ pub struct Scatter {
 /// Series named in a scatter plot's legend; later ones are drawn unnamed.
 pub const SCATTER_LEGEND_ENTRIES: usize = 12;
 
-/// Draws `fig` into the files `png` and `svg`, every finite point as a dot.
+/// Draws `fig` in memory as PNG and SVG, every finite point as a dot;
+/// `png` and `svg` are the files it is meant for, named in errors.
 /// A dot that a later dot on the same pixel covers is left out
 /// ([`last_dot_per_pixel`]): the figure is the one every dot draws, and a
 /// section of millions of crossings on a few curves writes an SVG of as
@@ -428,20 +474,28 @@ pub const SCATTER_LEGEND_ENTRIES: usize = 12;
 /// of one colour as one path ([`compact_dots`]), about 10 bytes a dot.
 /// Commands write scatter plots through
 /// [`crate::report::files::OutputDir::render_scatter`].
-pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(), PlotError> {
+pub fn render_scatter(fig: &Scatter, png: &Path, svg: &Path) -> Result<Drawn, PlotError> {
     ensure_font()?;
+    let mut pixels = pixel_buffer(fig.size);
     {
-        let root = BitMapBackend::new(png, fig.size).into_drawing_area();
+        let root = BitMapBackend::with_buffer(&mut pixels, fig.size).into_drawing_area();
         draw_scatter(fig, &root).map_err(|m| draw_error(png, m))?;
         root.present().map_err(|e| draw_error(png, e.to_string()))?;
     }
+    let png_bytes = encode_png(&pixels, fig.size).map_err(|m| draw_error(png, m))?;
     let mut text = String::new();
     {
         let root = SVGBackend::with_string(&mut text, fig.size).into_drawing_area();
         draw_scatter(fig, &root).map_err(|m| draw_error(svg, m))?;
         root.present().map_err(|e| draw_error(svg, e.to_string()))?;
     }
-    std::fs::write(svg, compact_dots(&text)).map_err(|e| draw_error(svg, e.to_string()))
+    Ok(Drawn { png: png_bytes, svg: compact_dots(&text).into_bytes() })
+}
+
+/// Draws the scatter plot `fig` into the files `png` and `svg`, each
+/// replaced whole ([`crate::report::files::replace_file`]).
+pub fn render_scatter_files(fig: &Scatter, png: &Path, svg: &Path) -> Result<(), PlotError> {
+    write_drawn(&render_scatter(fig, png, svg)?, png, svg)
 }
 
 fn draw_scatter<DB: DrawingBackend>(fig: &Scatter, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
