@@ -98,6 +98,41 @@ mod sweep {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// The peer script's output is read up to `MAX_PEER_OUTPUT` bytes a
+    /// stream: a `--python` that floods standard output (or standard
+    /// error) is stopped and is a peer not measured naming the program and
+    /// the stream, in bounded memory, and the rest of the study runs.
+    #[test]
+    fn a_python_that_floods_its_output_is_stopped_not_read_without_bound() {
+        use problems::experiments::work_precision::external::MAX_PEER_OUTPUT;
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-flood-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, redirect, stream) in [("out", "", "standard output"), ("err", " >&2", "standard error")] {
+            // `yes` writes without end; it is killed, never waited for to
+            // finish on its own.
+            let python = dir.join(format!("flooding-python-{name}"));
+            std::fs::write(&python, format!("#!/bin/sh\nexec yes spark{redirect}\n")).unwrap();
+            std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+            let script = dir.join("peers.py");
+            std::fs::write(&script, "").unwrap();
+            let mut cfg = WorkPrecisionConfig::quick(&dir.join(name));
+            cfg.systems = vec![SystemKind::Skate];
+            cfg.max_steps = 16;
+            cfg.python = Some(python.clone());
+            cfg.peers_script = script;
+            let all = run_work_precision(&cfg, &|_| {}).unwrap();
+            let limit = format!("more than {} MiB to its {stream}", MAX_PEER_OUTPUT >> 20);
+            assert!(
+                all[0].missing.iter().any(|s| s.contains(&limit) && s.contains(&python.display().to_string())),
+                "{:?}",
+                all[0].missing
+            );
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// The reversible sweep runs on the systems with a step density, and
     /// its driver is compiled for the entries marked `steps: reversible`:
     /// the two lists agree.

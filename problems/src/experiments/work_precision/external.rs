@@ -12,8 +12,17 @@
 use super::{Point, Problem, SystemMeasurement, WorkPrecisionConfig};
 use crate::catalog::{visit_system, Dispatch, SystemEntry, SystemKind, SystemVisitor};
 use spark_runtime::TableauTable;
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, ExitStatus, Stdio};
+
+/// Most bytes read from each of the peer script's standard output and
+/// standard error. The peer script writes nothing on standard output (its
+/// results go to a file) and a few lines on standard error (one per
+/// compiled peer, one per failed method; a Python traceback is a few
+/// kilobytes): a `--python` program that writes more is no peer script,
+/// and is stopped rather than read into memory without bound.
+pub const MAX_PEER_OUTPUT: usize = 4 << 20;
 
 /// Solver label of the CasADi-generated Newton iteration with CasADi's QR solve.
 pub const CASADI_NEWTON_QR: &str = "CasADi C (Newton-QR)";
@@ -195,7 +204,8 @@ fn run_script(
         }
         _ => {}
     }
-    let result = Command::new(python)
+    let mut command = Command::new(python);
+    command
         .arg(script)
         .arg("--input")
         .arg(&input_path)
@@ -203,16 +213,16 @@ fn run_script(
         .arg(output)
         .arg("--build")
         .arg(build)
-        .args(extra)
-        .output()
-        .map_err(|e| format!("could not start {}: {e}", python.display()))?;
-    if !result.status.success() {
-        let stderr = String::from_utf8_lossy(&result.stderr);
+        .args(extra);
+    let program = format!("{} {}", python.display(), script.display());
+    let (status, stderr) = output_bounded(&mut command, &program)?;
+    if !status.success() {
+        let stderr = String::from_utf8_lossy(&stderr);
         let tail: Vec<&str> = stderr.lines().rev().take(12).collect();
         return Err(format!(
             "{} exited with {}: {}",
             script.display(),
-            result.status,
+            status,
             tail.into_iter().rev().collect::<Vec<_>>().join("\n")
         ));
     }
@@ -226,6 +236,71 @@ fn run_script(
         ));
     }
     Ok(())
+}
+
+/// Runs `command` (the program `program`) to its end with standard input
+/// closed and returns its exit status and standard error. Each of its
+/// standard output (read and discarded) and standard error is read up to
+/// [`MAX_PEER_OUTPUT`] bytes; a program that writes more is killed and is
+/// an error naming it and the stream.
+fn output_bounded(command: &mut Command, program: &str) -> Result<(ExitStatus, Vec<u8>), String> {
+    let mut child = command
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("could not start {program}: {e}"))?;
+    // Both streams are read at once, each on its own thread: a program
+    // blocked writing one stream while the other is read would never end.
+    let (sender, received) = std::sync::mpsc::channel();
+    let streams: [(&'static str, Option<Box<dyn Read + Send>>); 2] = [
+        ("standard output", child.stdout.take().map(|s| Box::new(s) as Box<dyn Read + Send>)),
+        ("standard error", child.stderr.take().map(|s| Box::new(s) as Box<dyn Read + Send>)),
+    ];
+    let mut readers = 0;
+    for (stream, reader) in streams {
+        let Some(reader) = reader else { continue };
+        let sender = sender.clone();
+        let read = move || {
+            let mut bytes = Vec::new();
+            let read = reader.take(MAX_PEER_OUTPUT as u64 + 1).read_to_end(&mut bytes).map(|_| bytes);
+            let _ = sender.send((stream, read));
+        };
+        if let Err(e) = std::thread::Builder::new().name("peer output".into()).spawn(read) {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(format!("could not read the output of {program}: {e}"));
+        }
+        readers += 1;
+    }
+    drop(sender);
+    let mut stderr = Vec::new();
+    for _ in 0..readers {
+        // A reader that stops early is not waited for: a process the
+        // program started may still hold the other stream open.
+        let failure = match received.recv() {
+            Ok((stream, Ok(bytes))) if bytes.len() > MAX_PEER_OUTPUT => Some(format!(
+                "{program} wrote more than {} MiB to its {stream}, which no peer script does, and was stopped; \
+                 --python must name a Python interpreter with casadi and scipy (set up by `bash \
+                 casadi/peers/setup.sh`)",
+                MAX_PEER_OUTPUT >> 20,
+            )),
+            Ok(("standard error", Ok(bytes))) => {
+                stderr = bytes;
+                None
+            }
+            Ok((_, Ok(_))) => None,
+            Ok((stream, Err(e))) => Some(format!("could not read the {stream} of {program}: {e}")),
+            Err(_) => Some(format!("could not read the output of {program}")),
+        };
+        if let Some(failure) = failure {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(failure);
+        }
+    }
+    let status = child.wait().map_err(|e| format!("could not wait for {program}: {e}"))?;
+    Ok((status, stderr))
 }
 
 /// The neutral source (coordinates, parameters, Lagrangian, constraints) of
