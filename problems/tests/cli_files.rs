@@ -454,6 +454,25 @@ fn help_and_version_that_cannot_be_written_are_an_error() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--no-such-flag"));
 }
 
+/// A tolerance that is not a finite number ≥ 0 is refused naming the flag
+/// that was given: a lone `--atol` also stands for the relative tolerance,
+/// and the message names `--atol`, not `--rtol`.
+#[test]
+fn an_unusable_tolerance_is_refused_naming_the_flag_given() {
+    let dir = temp_dir("tolerance-flags");
+    let out = dir.to_str().unwrap();
+    for (args, flag) in [
+        (&["--atol", "-1"][..], "--atol must be"),
+        (&["--rtol", "nan"][..], "--rtol must be"),
+        (&["--rtol", "1e-6", "--atol", "inf"][..], "--atol must be"),
+        (&["--atol", "1e-6", "--rtol", "-1e-3"][..], "--rtol must be"),
+    ] {
+        let err = run_err(&[&["run", "skate", "--out", out][..], args].concat());
+        assert!(err.contains(flag), "{args:?}: {err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `spark ARGS` must fail within `seconds`: an argument that is accepted
 /// would start a run that does not end, so the child is killed and the
 /// test fails rather than hanging.

@@ -172,6 +172,13 @@ fn sample_times(t0: f64, t_end: f64, dt: f64, count: usize) -> Result<Vec<f64>, 
 
 /// The tolerance of a run with `--rtol` and/or `--atol`, or `None`.
 fn tolerance(a: &RunArgs, t_end: f64) -> Result<Option<Tolerance>, String> {
+    // Checked as given: a lone --atol stands for --rtol too, but a message
+    // about it names the flag the user typed.
+    for (flag, x) in [("--rtol", a.rtol), ("--atol", a.atol)] {
+        if let Some(x) = x.filter(|x| !(x.is_finite() && *x >= 0.0)) {
+            return Err(format!("{flag} must be a finite number ≥ 0, got {x:.3e}"));
+        }
+    }
     let (rtol, atol) = match (a.rtol, a.atol) {
         (None, None) => {
             // Each would be ignored by a run of fixed steps.
@@ -191,11 +198,6 @@ fn tolerance(a: &RunArgs, t_end: f64) -> Result<Option<Tolerance>, String> {
         (None, Some(a)) => (a, a),
         (Some(r), Some(a)) => (r, a),
     };
-    for (flag, x) in [("--rtol", rtol), ("--atol", atol)] {
-        if !(x.is_finite() && x >= 0.0) {
-            return Err(format!("{flag} must be a finite number ≥ 0, got {x:.3e}"));
-        }
-    }
     if rtol == 0.0 && atol == 0.0 {
         return Err("--rtol and --atol are both 0: make one of them positive".into());
     }
