@@ -117,7 +117,7 @@ mod sweep {
             std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
             let script = dir.join("peers.py");
             std::fs::write(&script, "").unwrap();
-            let mut cfg = WorkPrecisionConfig::quick(&dir.join(name));
+            let mut cfg = WorkPrecisionConfig::quick(dir.join(name));
             cfg.systems = vec![SystemKind::Skate];
             cfg.max_steps = 16;
             cfg.python = Some(python.clone());
