@@ -517,12 +517,7 @@ class System:
                                           max_steps, max_halvings)
             interval_end = req["t_end"]
         else:
-            for name, given in (("first_step", first_step), ("max_step", max_step), ("max_steps", max_steps)):
-                if given is not None:
-                    raise ArgumentError(
-                        f"{name} = {_short(given)} applies to tolerance-driven runs only; pass rtol= (or atol=) too, "
-                        f"or drop {name}"
-                    )
+            _refuse_tolerance_arguments(first_step, max_step, max_steps)
             h = self.h if h is None else _real("h", h)
             if h is None:
                 raise SparkError("give the step size h=")
@@ -542,11 +537,7 @@ class System:
         req["newton"] = newton
         req["newton_tol"] = None if newton_tol is None else _real("newton_tol", newton_tol)
         if t_eval is not None:
-            if every is not None:
-                raise ArgumentError(
-                    f"every = {_short(every)} does not apply with t_eval: the samples are the initial point and the "
-                    "state at each output time; drop every, or drop t_eval to record at the steps"
-                )
+            _refuse_every_with_output_times(every)
             req["t_eval"] = _output_times(t_eval, t0, interval_end)
         req["every"] = 1 if every is None else _whole("every", every, 1)
         req["events"] = _flag("events", events)
@@ -695,11 +686,8 @@ class System:
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
             )
         t0 = _real("t0", t0)
-        if t_eval is not None and every is not None:
-            raise ArgumentError(
-                f"every = {_short(every)} does not apply with t_eval: the samples are the initial point and the "
-                "state at each output time; drop every, or drop t_eval to record at the steps"
-            )
+        if t_eval is not None:
+            _refuse_every_with_output_times(every)
         tolerance = rtol is not None or atol is not None
         if tolerance:
             req = self._tolerance_request(method, s, h, steps, t_end, t0, rtol, atol, first_step, max_step,
@@ -716,12 +704,7 @@ class System:
             req.update(params=_params(params), newton=newton, every=1,
                        newton_tol=None if newton_tol is None else _real("newton_tol", newton_tol))
         else:
-            for name, given in (("first_step", first_step), ("max_step", max_step), ("max_steps", max_steps)):
-                if given is not None:
-                    raise ArgumentError(
-                        f"{name} = {_short(given)} applies to tolerance-driven runs only; pass rtol= (or atol=) too, "
-                        f"or drop {name}"
-                    )
+            _refuse_tolerance_arguments(first_step, max_step, max_steps)
             if h is None:
                 raise SparkError("give the step size h= (or rtol=/atol= with t_end= for tolerance-driven steps)")
             n = _steps(h, steps, t_end, t0)
@@ -751,6 +734,27 @@ class System:
             smallest_step=d["smallest_step"],
             steps=d.get("steps"),
             controller=controller,
+        )
+
+
+def _refuse_tolerance_arguments(first_step, max_step, max_steps) -> None:
+    """:class:`ArgumentError` for an argument of tolerance-driven runs given
+    to a run of fixed steps."""
+    for name, given in (("first_step", first_step), ("max_step", max_step), ("max_steps", max_steps)):
+        if given is not None:
+            raise ArgumentError(
+                f"{name} = {_short(given)} applies to tolerance-driven runs only; pass rtol= (or atol=) too, "
+                f"or drop {name}"
+            )
+
+
+def _refuse_every_with_output_times(every) -> None:
+    """:class:`ArgumentError` for ``every`` given with ``t_eval``: the
+    samples are then at the output times, not at the steps."""
+    if every is not None:
+        raise ArgumentError(
+            f"every = {_short(every)} does not apply with t_eval: the samples are the initial point and the "
+            "state at each output time; drop every, or drop t_eval to record at the steps"
         )
 
 
