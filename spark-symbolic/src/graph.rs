@@ -163,13 +163,14 @@ pub enum Node {
 /// their operands) without the nodes of the source expressions themselves
 /// ([`Graph::uncounted`]). Derivatives can swell far beyond the expression
 /// written: the second derivative of a product of `k` factors in one
-/// coordinate has about `k³` operands, so `dot(x)^2 + (x+1)*(x+2)*…*(x+400)`
-/// would take gigabytes and minutes. The 400 coupled coordinates of the
-/// Python tests reach about 1 % of it, the registered systems far less, a
-/// product of 100 such factors 7 % and one of 150 factors 23 % (with
-/// the code generated); past it the declaration is an error
-/// ([`Graph::exhausted`]).
-pub const MAX_GRAPH_SIZE: usize = 20_000_000;
+/// coordinate has about `k³` operands, so `dot(x)^2 + (x+1)*(x+2)*…*(x+150)`
+/// (1 KB of text) reaches 4.6 million with the code generated, 12 MB of
+/// Rust on which rustc runs out of stack, and 400 factors would take
+/// gigabytes and minutes. The limit sits below that: the 400 coupled
+/// coordinates of the Python tests reach about 5 % of it, the registered
+/// systems far less, a product of 100 such factors 35 % (3.7 MB of code);
+/// past it the declaration is an error ([`Graph::exhausted`]).
+pub const MAX_GRAPH_SIZE: usize = 4_000_000;
 
 /// The arena. Nodes are immutable once created; creating a node that already
 /// exists returns the existing id.

@@ -497,12 +497,13 @@ fn constant_chains_stay_small_in_the_neutral_text_and_shallow_in_lowering() {
 
 /// Derivatives can swell far beyond the expression written: the second
 /// derivative of a product of `k` factors in one coordinate has about `k³`
-/// operands, so a Lagrangian of 300 factors `(x + i)` (3 KB of text) would
-/// take minutes and gigabytes to generate. Past `MAX_GRAPH_SIZE` it is an
-/// error on the struct's name that names the limit, within seconds.
+/// operands, so a Lagrangian of 150 factors `(x + i)` (1 KB of text) would
+/// generate 12 MB of Rust that rustc cannot compile. Past `MAX_GRAPH_SIZE`
+/// it is an error on the struct's name that names the limit, within
+/// seconds.
 #[test]
 fn derivatives_that_swell_beyond_the_graph_limit_are_an_error() {
-    let factors: Vec<String> = (1..=300).map(|i| format!("(x + {i})")).collect();
+    let factors: Vec<String> = (1..=150).map(|i| format!("(x + {i})")).collect();
     let src = format!("struct S {{ coordinates: [x], lagrangian: dot(x)^2 + {} }}", factors.join("*"));
     let msg = on_main_sized_stack(move || {
         let spec = parse_str(&src).expect("parses");
