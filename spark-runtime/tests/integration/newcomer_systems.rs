@@ -519,6 +519,28 @@ pub(super) const NEWCOMER_MODES: [(NewtonMode, Jacobian); 3] = [
     (NewtonMode::Simplified, Jacobian::Auto),
 ];
 
+/// Reads the runs of [`against_tight`]: adds to `failures` each run
+/// farther than `1e-13` from the tight solve or failed, and returns the
+/// largest distance of the others with its run's label.
+pub(super) fn tally_against_tight(
+    results: &[(String, Result<f64, String>)],
+    failures: &mut Vec<String>,
+) -> (f64, String) {
+    let mut worst = (0.0f64, String::new());
+    for (label, result) in results {
+        match result {
+            Ok(d) if *d <= 1e-13 => {
+                if *d > worst.0 {
+                    worst = (*d, label.clone());
+                }
+            }
+            Ok(d) => failures.push(format!("{label}: {d:.3e} from the tight solve")),
+            Err(e) => failures.push(format!("{label}: {e}")),
+        }
+    }
+    worst
+}
+
 /// Steps `steps` of size `h` from `start` in each of the Newton `modes`
 /// and, before each, solves the same step on a clone of the stepper (so
 /// from the same starting guess and warm state) with full Newton to the
@@ -615,18 +637,7 @@ fn newcomer_steps_equal_the_tight_solve_in_every_newton_mode() {
         [0.3f64.cos() * 2.0, 0.3f64.sin() * 2.0, 0.0, 2.0],
         false
     );
-    let mut worst = (0.0f64, String::new());
-    for (label, result) in &results {
-        match result {
-            Ok(d) if *d <= 1e-13 => {
-                if *d > worst.0 {
-                    worst = (*d, label.clone());
-                }
-            }
-            Ok(d) => failures.push(format!("{label}: {d:.3e} from the tight solve")),
-            Err(e) => failures.push(format!("{label}: {e}")),
-        }
-    }
+    let worst = tally_against_tight(&results, &mut failures);
     let above = results.iter().filter(|(_, r)| r.as_ref().is_ok_and(|d| *d > 1e-14)).count();
     println!("{} runs of 20 steps, largest distance {:.2e} ({}), {above} above 1e-14", results.len(), worst.0, worst.1);
     assert!(failures.is_empty(), "{} of {} runs:\n{}", failures.len(), results.len(), failures.join("\n"));

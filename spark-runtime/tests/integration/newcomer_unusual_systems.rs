@@ -19,7 +19,7 @@
 //! differences of at most 5.3e-15 and steps within 5.2e-14 of CasADi's
 //! Newton solve of (6.1) (1232 steps, four steps per method and mode, h = 0.1).
 
-use super::newcomer_systems::{against_tight, derivative_error, step_distance};
+use super::newcomer_systems::{against_tight, derivative_error, step_distance, tally_against_tight};
 
 /// Full Newton and simplified Newton on the exact, the stage-decoupled and
 /// the automatically chosen matrix.
@@ -311,18 +311,7 @@ fn unusual_steps_equal_the_tight_solve_in_every_newton_mode() {
     }
     unusual!(check);
     let mut failures = Vec::new();
-    let mut worst = (0.0f64, String::new());
-    for (label, result) in &results {
-        match result {
-            Ok(d) if *d <= 1e-13 => {
-                if *d > worst.0 {
-                    worst = (*d, label.clone());
-                }
-            }
-            Ok(d) => failures.push(format!("{label}: {d:.3e} from the tight solve")),
-            Err(e) => failures.push(format!("{label}: {e}")),
-        }
-    }
+    let worst = tally_against_tight(&results, &mut failures);
     println!("{} runs of 20 steps, largest distance {:.2e} ({})", results.len(), worst.0, worst.1);
     assert!(failures.is_empty(), "{} of {} runs:\n{}", failures.len(), results.len(), failures.join("\n"));
 }

@@ -24,7 +24,7 @@
 //! agree to 5.2e-16 relative, and 1440 steps of h = 0.1 (four per system,
 //! parameter set, method and Newton mode) agree in `q₁` and `v₁` to 4.6e-15.
 
-use super::newcomer_systems::{against_tight, derivative_error, step_distance};
+use super::newcomer_systems::{against_tight, derivative_error, step_distance, tally_against_tight};
 use spark_runtime::{
     consistent_velocity, nonholonomic_system, ConsistencyPolicy, ConstraintForm, Jacobian, Method, NewtonMode,
     NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector, HISTORY_CAPACITY,
@@ -235,18 +235,7 @@ fn steps_equal_the_tight_solve_at_the_defaults_and_away_from_them() {
     check!(zero_coupling(), 3, 1, [0.5, -0.3, 0.2], [0.4, 0.6, -0.1]);
     check!(magnetic_free(), 2, 0, [0.6, -0.4], [0.3, 0.8]);
     check!(kanai(), 3, 1, [0.5, 0.2, -0.3], [0.4, -0.6, 0.2]);
-    let mut worst = (0.0f64, String::new());
-    for (label, result) in &results {
-        match result {
-            Ok(d) if *d <= 1e-13 => {
-                if *d > worst.0 {
-                    worst = (*d, label.clone());
-                }
-            }
-            Ok(d) => failures.push(format!("{label}: {d:.3e} from the tight solve")),
-            Err(e) => failures.push(format!("{label}: {e}")),
-        }
-    }
+    let worst = tally_against_tight(&results, &mut failures);
     println!("{} runs of 12 steps, largest distance {:.2e} ({})", results.len(), worst.0, worst.1);
     assert!(failures.is_empty(), "{} of {} runs:\n{}", failures.len(), results.len(), failures.join("\n"));
 }
