@@ -675,8 +675,7 @@ class System:
         ``events`` are not located in an ensemble (a terminal event would end
         the members at different times): call :meth:`integrate` per member.
         """
-        if q0s is None or v0s is None:
-            raise SparkError("give the initial states q0s= and v0s=, arrays of shape (members, N)")
+        _members_given(q0s, v0s)
         _real_entries("q0s", q0s)
         _real_entries("v0s", v0s)
         q0s = _floats("q0s", q0s)
@@ -685,6 +684,38 @@ class System:
             raise SparkError(
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
             )
+        req = self._ensemble_request(method, s, h, steps, params, t0, t_end, every, newton, newton_tol,
+                                     max_halvings, rtol, atol, first_step, max_step, max_steps, t_eval)
+        req["q0s"] = q0s.tolist()
+        req["v0s"] = v0s.tolist()
+        req["threads"] = None if threads is None else _whole("threads", threads, 1)
+        d = self._ensemble(req)
+        controller = d.get("controller")
+        if controller is None:
+            _warn_halved_members(d["rejected_steps"], d["smallest_step"], "the ensemble's rejected_steps",
+                                 stacklevel=2)
+        return Ensemble(
+            t=d["t"],
+            q=d["q"],
+            v=d["v"],
+            energy=d["energy"],
+            constraint=d["constraint"],
+            e0=d["e0"],
+            newton_iterations_mean=d["newton_iterations_mean"],
+            rejected_steps=d["rejected_steps"],
+            smallest_step=d["smallest_step"],
+            steps=d.get("steps"),
+            controller=controller,
+        )
+
+    def _ensemble_request(self, method, s, h, steps, params, t0, t_end, every, newton, newton_tol, max_halvings,
+                          rtol, atol, first_step, max_step, max_steps, t_eval) -> dict[str, Any]:
+        """The request of :meth:`ensemble` without its members and threads,
+        every argument checked with its messages; ``spark.ray.sweep`` checks
+        its arguments with it too, before Ray starts. Fixed steps carry
+        ``steps`` (the count), tolerance-driven steps ``rtol``; both carry
+        ``t_eval`` when the samples are at output times (always for
+        tolerance-driven steps: ``t_end`` alone by default)."""
         t0 = _real("t0", t0)
         if t_eval is not None:
             _refuse_every_with_output_times(every)
@@ -714,27 +745,13 @@ class System:
             interval_end = t0 + float(n) * _real("h", h)
         if t_eval is not None:
             req["t_eval"] = _output_times(t_eval, t0, interval_end)
-        req["q0s"] = q0s.tolist()
-        req["v0s"] = v0s.tolist()
-        req["threads"] = None if threads is None else _whole("threads", threads, 1)
-        d = self._ensemble(req)
-        controller = d.get("controller")
-        if controller is None:
-            _warn_halved_members(d["rejected_steps"], d["smallest_step"], "the ensemble's rejected_steps",
-                                 stacklevel=2)
-        return Ensemble(
-            t=d["t"],
-            q=d["q"],
-            v=d["v"],
-            energy=d["energy"],
-            constraint=d["constraint"],
-            e0=d["e0"],
-            newton_iterations_mean=d["newton_iterations_mean"],
-            rejected_steps=d["rejected_steps"],
-            smallest_step=d["smallest_step"],
-            steps=d.get("steps"),
-            controller=controller,
-        )
+        return req
+
+
+def _members_given(q0s, v0s) -> None:
+    """:class:`SparkError` when the initial states of an ensemble are missing."""
+    if q0s is None or v0s is None:
+        raise SparkError("give the initial states q0s= and v0s=, arrays of shape (members, N)")
 
 
 def _refuse_tolerance_arguments(first_step, max_step, max_steps) -> None:
