@@ -2,10 +2,11 @@
 
 :func:`sweep` splits the members into shards, runs each shard as one Ray
 task that calls the native ensemble stepper (:func:`spark.ensemble`, all of
-the task's threads, GIL released), and gathers the results into one Parquet
-file with one row per member and sample (columns ``member``, ``t``,
-``q_<coordinate>``, ``v_<coordinate>``, ``energy``, ``energy_error``,
-``constraint``).
+the task's threads, GIL released), with fixed or tolerance-driven steps, and
+gathers the results into one Parquet file with one row per member and
+sample (columns ``member``, ``t``, ``q_<coordinate>``, ``v_<coordinate>``,
+``energy``, ``energy_error``, ``constraint``); the returned
+:class:`SweepReport` holds each member's step counts.
 
 On one machine ``ray.init()`` starts a local instance. On a cluster, start
 Ray there (``ray start --head`` on one node, ``ray start --address=HEAD:6379``
@@ -26,7 +27,7 @@ import time
 import uuid
 import warnings
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -36,15 +37,21 @@ import spark
 @dataclass
 class SweepReport:
     """What :func:`sweep` did: the file, the member and shard counts, the
-    wall time of the whole sweep and the time per member, and each member's
-    halvings of steps whose Newton iteration failed (``rejected_steps``, in
-    member order; see :class:`spark.Trajectory`)."""
+    wall time of the whole sweep and the time per member, and per member,
+    in member order, as :class:`spark.Ensemble` has them: its halvings of
+    steps whose Newton iteration failed (``rejected_steps``; see
+    :class:`spark.Trajectory`), its accepted steps (``steps``) and, for a
+    tolerance-driven sweep, its controller's statistics (``controller``,
+    the fields of :class:`spark.ControllerStats` as arrays ``(members,)``;
+    ``None`` for fixed steps)."""
 
     path: str
     members: int
     shards: int
     wall_seconds: float
     rejected_steps: np.ndarray
+    steps: np.ndarray | None = None
+    controller: dict[str, np.ndarray] | None = None
 
     @property
     def seconds_per_member(self) -> float:
@@ -57,17 +64,18 @@ def _system(system: "spark.System | str", source: tuple[str, str, bool] | None) 
     return spark.system(system) if isinstance(system, str) else system
 
 
-def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, first, every, newton, threads,
-                 max_halvings):
-    """One shard's table and its members' halvings; the driver warns about
-    them once for the sweep (a worker's warning would not reach the user)."""
+def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, first, threads, options):
+    """One shard's table and its members' halvings, accepted steps and
+    controller statistics (``options``: the keyword arguments of
+    :func:`spark.ensemble` the sweep was given); the driver warns about
+    halvings once for the sweep (a worker's warning would not reach the
+    user)."""
     import pyarrow as pa
 
     sys_ = _system(system_key, source)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", spark.StepHalvingWarning)
-        e = sys_.ensemble(method, s, h, steps, q0s, v0s, params, every=every, newton=newton, threads=threads,
-                          max_halvings=max_halvings)
+        e = sys_.ensemble(method, s, h, steps, q0s, v0s, params, threads=threads, **options)
     members, samples = e.energy.shape
     cols: dict[str, np.ndarray] = {
         "member": np.repeat(np.arange(first, first + members, dtype=np.int64), samples),
@@ -80,46 +88,67 @@ def _shard_table(system_key, source, method, s, h, steps, q0s, v0s, params, firs
     cols["energy"] = e.energy.reshape(-1)
     cols["energy_error"] = e.energy_error.reshape(-1)
     cols["constraint"] = e.constraint.reshape(-1)
-    return pa.table(cols), e.rejected_steps
+    return pa.table(cols), e.rejected_steps, e.steps, e.controller
 
 
 def sweep(
     system: "spark.System | str",
     method: str,
     s: int,
-    h: float,
-    steps: int,
-    q0s,
-    v0s,
+    h: float | None = None,
+    steps: int | None = None,
+    q0s=None,
+    v0s=None,
     params: Mapping[str, float] | None = None,
     *,
     out: str = "sweep.parquet",
-    every: int = 1,
+    t0: float = 0.0,
+    t_end: float | None = None,
+    every: int | None = None,
     newton: str = "full",
+    newton_tol: float | None = None,
     shards: int | None = None,
     threads_per_task: int = 1,
     address: str | None = None,
     max_halvings: int | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    first_step: float | None = None,
+    max_step: float | None = None,
+    max_steps: int | None = None,
+    t_eval: Sequence[float] | np.ndarray | None = None,
 ) -> SweepReport:
     """Integrates every row of ``q0s``/``v0s`` on Ray and writes ``out`` (Parquet).
 
     ``shards`` (default: twice the CPUs Ray reports) tasks each integrate a
-    contiguous block of members with ``threads_per_task`` threads. A system
+    contiguous block of members with ``threads_per_task`` threads, by
+    :func:`spark.ensemble` with this call's arguments: fixed steps (``h``
+    with ``steps`` or ``t_end``, recorded every ``every`` steps) or
+    tolerance-driven ones (``rtol``/``atol`` with ``t_end``, and
+    ``first_step``, ``max_step``, ``max_steps``), recorded at the times of
+    ``t_eval`` when given (a tolerance-driven sweep without it records
+    ``t_end`` alone), with the meaning and the refusals
+    :func:`spark.ensemble` gives them. A system
     built by :func:`spark.compile` is rebuilt in each worker from its text
     with its ``optimize`` (loaded from the shared cache on one machine).
     Ray is started with ``ray.init(address=address)`` unless it is already
     running. Rows are
     ordered by member, then time, whatever the shard count, and every
-    member's numbers are those of :func:`spark.integrate` for it alone.
+    member's numbers are those of :func:`spark.ensemble` (and
+    :func:`spark.integrate`) for it alone.
     ``out`` is checked before Ray starts and written under a temporary name
     in its folder, renamed to ``out`` once complete. The other arguments
-    are checked before Ray starts too, by one step of the first member, and
+    are checked before Ray starts too, as :func:`spark.ensemble` checks
+    them, then by one step of the first member (fixed steps) or by the
+    first member's whole run (tolerance-driven steps, whose steps are known
+    only by running them), and
     a table that would not fit in the driver's memory (4 GiB, or half the
-    available memory) is refused with the ``every`` that fits.
-    ``max_halvings`` is :meth:`spark.System.integrate`'s; a sweep in which
-    any member halved a step warns once with
-    :class:`spark.StepHalvingWarning`, and the report counts each member's
-    halvings.
+    available memory) is refused with the ``every`` (or the number of
+    output times) that fits.
+    ``max_halvings`` is :meth:`spark.System.integrate`'s; a fixed-step sweep
+    in which any member halved a step warns once with
+    :class:`spark.StepHalvingWarning`. The report holds each member's
+    halvings, accepted steps and (tolerance-driven) controller statistics.
     """
     # Missing packages fail here, before any work.
     import pyarrow  # noqa: F401
@@ -128,13 +157,12 @@ def sweep(
     # The arguments are checked here, before Ray starts, as `ensemble`
     # checks them: a bool, a complex number or a string where a real
     # number is meant is a TypeError.
-    s, steps, every = spark._whole("s", s, 1), spark._whole("steps", steps, 1), spark._whole("every", every, 1)
-    h = spark._real("h", h)
     threads_per_task = spark._whole("threads_per_task", threads_per_task, 1)
     if shards is not None:
         shards = spark._whole("shards", shards)
         if shards < 1:
             raise spark.SparkError(f"shards = {shards} must be at least 1")
+    spark._members_given(q0s, v0s)
     spark._real_entries("q0s", q0s)
     spark._real_entries("v0s", v0s)
     q0s = spark._floats("q0s", q0s)
@@ -145,8 +173,6 @@ def sweep(
             f"{v0s.shape}"
         )
     members = q0s.shape[0]
-    if threads_per_task < 1:
-        raise spark.SparkError("threads_per_task must be at least 1")
     # A bytes path would meet the str name of the temporary file only when
     # the file is written, after every member has run.
     out = os.fsdecode(os.fspath(out))
@@ -157,15 +183,16 @@ def sweep(
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
     if not os.path.isdir(folder):
         raise spark.SparkError(f"the folder of out = {out!r}, {folder}, does not exist; create it first")
-    if max_halvings is not None:
-        max_halvings = spark._whole("max_halvings", max_halvings, 0)
-    _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton, max_halvings)
+    options = dict(t0=t0, t_end=t_end, every=every, newton=newton, newton_tol=newton_tol,
+                   max_halvings=max_halvings, rtol=rtol, atol=atol, first_step=first_step, max_step=max_step,
+                   max_steps=max_steps, t_eval=t_eval)
+    options = _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options)
     # The temporary file is created now, so that a folder that cannot be
     # written (read-only, /proc) is reported before Ray starts.
     temp = _reserve(out, folder)
     try:
-        return _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newton, shards,
-                      threads_per_task, address, members, max_halvings)
+        return _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, options, shards,
+                      threads_per_task, address, members)
     finally:
         with contextlib.suppress(OSError):
             os.remove(temp)
@@ -183,14 +210,19 @@ def _row_bytes(n: int) -> int:
 _TABLE_COPIES = 2
 
 
-def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newton, max_halvings) -> None:
+def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options) -> dict:
     """What the shards would otherwise find only in the workers, after Ray
     has started, checked here: the system (a registered name or a
-    :class:`spark.System`), the width of ``q0s``, and the method, stage
-    count, step, parameters, Newton mode and the first member's state (one
-    step of the first member); and the table the driver gathers, which must
-    fit in memory as a run's record must (each shard checks only its own
-    members)."""
+    :class:`spark.System`), the width of ``q0s``, every argument as
+    :func:`spark.ensemble` checks it (its messages, from the same code),
+    the table the driver gathers, which must fit in memory as a run's
+    record must (each shard checks only its own members), and then the
+    method, stage count, parameters, Newton mode and the first member's
+    state: by one step of the first member for fixed steps, by its whole run
+    for tolerance-driven ones (the runtime's checks of the tolerances,
+    ``first_step`` and ``max_step`` come with the run). Returns ``options``
+    (the keyword arguments of :func:`spark.ensemble`) for the shards, with
+    ``t_eval`` as the checked list of floats."""
     if isinstance(system, str):
         sys_ = spark.system(system)
     elif isinstance(system, spark.System):
@@ -203,30 +235,53 @@ def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, every, newt
             f"q0s and v0s must have shape (members, {sys_.n}) for {sys_.name} ({', '.join(sys_.coordinates)}); got "
             f"{q0s.shape}"
         )
-    try:
-        with warnings.catch_warnings():
-            # Halving is counted over the whole sweep, not for this one step.
-            warnings.simplefilter("ignore", spark.StepHalvingWarning)
-            sys_.integrate(method, s, h, 1, q0=q0s[0], v0=v0s[0], params=params, newton=newton,
-                           max_halvings=max_halvings)
-    except spark.SparkError as e:
-        raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {e}") from e
-    samples = steps // every + (1 if steps % every == 0 else 2)
+    req = sys_._ensemble_request(method, s, h, steps, params, **options)
+    tolerance = "rtol" in req
+    times = req.get("t_eval")
+    if options["t_eval"] is not None:
+        options = dict(options, t_eval=times)
+    if times is not None:
+        samples = 1 + len(times)
+    else:
+        n, every = req["steps"], req["every"]
+        samples = n // every + (1 if n % every == 0 else 2)
     rows = members * samples
     need = rows * _row_bytes(sys_.n) * _TABLE_COPIES
     limit = spark._native.record_memory_limit()
     if need > limit:
         fits = limit // (_row_bytes(sys_.n) * _TABLE_COPIES) // members
-        hint = (
-            f"record fewer samples with every = {steps // max(fits - 2, 1) + 1} or more, or sweep fewer members "
-            "per call"
-            if fits >= 2
-            else "sweep fewer members per call (even two samples of each do not fit)"
-        )
+        if times is not None:
+            hint = (
+                f"record at {fits - 1} output times of t_eval or fewer, or sweep fewer members per call"
+                if fits >= 2
+                else "sweep fewer members per call (even two samples of each do not fit)"
+            )
+        else:
+            hint = (
+                f"record fewer samples with every = {n // max(fits - 2, 1) + 1} or more, or sweep fewer members "
+                "per call"
+                if fits >= 2
+                else "sweep fewer members per call (even two samples of each do not fit)"
+            )
         raise spark.ArgumentError(
             f"the sweep's table has {rows:.3e} rows ({need:.3e} bytes in the driver's memory), more than the "
             f"limit of {limit:.3e} bytes (4 GiB or half the available memory); {hint}"
         )
+    common = dict(q0=q0s[0], v0=v0s[0], params=params, t0=req["t0"], newton=options["newton"],
+                  newton_tol=options["newton_tol"])
+    try:
+        with warnings.catch_warnings():
+            # Halving is counted over the whole sweep, not for this one step.
+            warnings.simplefilter("ignore", spark.StepHalvingWarning)
+            if tolerance:
+                sys_.integrate(method, s, t_end=req["t_end"], rtol=req["rtol"], atol=req["atol"],
+                               first_step=options["first_step"], max_step=options["max_step"],
+                               max_steps=options["max_steps"], t_eval=times, **common)
+            else:
+                sys_.integrate(method, s, req["h"], 1, max_halvings=options["max_halvings"], **common)
+    except spark.SparkError as e:
+        raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {e}") from e
+    return options
 
 
 def _reserve(out: str, folder: str) -> str:
@@ -243,8 +298,8 @@ def _reserve(out: str, folder: str) -> str:
     return temp
 
 
-def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newton, shards, threads_per_task,
-           address, members, max_halvings) -> SweepReport:
+def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, options, shards, threads_per_task,
+           address, members) -> SweepReport:
     """:func:`sweep` once its arguments are checked and ``temp`` exists."""
     import pyarrow as pa
     import ray
@@ -270,18 +325,25 @@ def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, every, newt
     bounds = np.linspace(0, members, shards + 1).round().astype(int)
     start = time.perf_counter()
     pending = [
-        task.remote(key, source, method, s, h, steps, q0s[a:b], v0s[a:b], dict(params or {}), int(a), every,
-                    newton, threads_per_task, max_halvings)
+        task.remote(key, source, method, s, h, steps, q0s[a:b], v0s[a:b], dict(params or {}), int(a),
+                    threads_per_task, options)
         for a, b in zip(bounds[:-1], bounds[1:])
         if b > a
     ]
-    tables, halvings = zip(*ray.get(pending))
+    tables, halvings, accepted, controllers = zip(*ray.get(pending))
     _write_atomically(pa.concat_tables(tables), out, temp)
     wall = time.perf_counter() - start
     rejected = np.concatenate(halvings)
-    spark._warn_halved_members(rejected, None, "the report's rejected_steps", stacklevel=3)
+    controller = None
+    if controllers[0] is not None:
+        controller = {name: np.concatenate([c[name] for c in controllers]) for name in controllers[0]}
+    else:
+        # As `ensemble`: the controller of tolerance-driven steps retries a
+        # failed step smaller, and counts it in its own statistics.
+        spark._warn_halved_members(rejected, None, "the report's rejected_steps", stacklevel=3)
     return SweepReport(
-        path=str(out), members=members, shards=len(pending), wall_seconds=wall, rejected_steps=rejected
+        path=str(out), members=members, shards=len(pending), wall_seconds=wall, rejected_steps=rejected,
+        steps=None if any(a is None for a in accepted) else np.concatenate(accepted), controller=controller,
     )
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -242,4 +243,144 @@ def test_more_threads_per_task_than_a_node_has_cpus_is_refused(local_ray, tmp_pa
     q0s, v0s = sray.fig84_members(2)
     with pytest.raises(spark.SparkError, match=r"threads_per_task = 4 .* 2 CPUs"):
         sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=str(tmp_path / "a.parquet"), threads_per_task=4)
+    assert not list(tmp_path.iterdir())
+
+
+# --- tolerance-driven steps, t_end and output times ----------------------------
+
+SKATE_Q0S = np.zeros((5, 3))
+SKATE_V0S = np.array([[0, 0, 1.0], [0, 0, 2.0], [0.3, 0, -0.5], [-1.0, 0, 1.5], [0.2, 0, 0.7]])
+
+
+@pytest.mark.parametrize(
+    "method, kwargs",
+    [
+        ("gauss", dict(rtol=1e-8, t_end=5.0, t_eval=[1.0, 2.5, 5.0])),
+        # atol alone, t_eval by default (t_end alone), backward in time.
+        ("lobatto-iiia-b", dict(atol=1e-7, t_end=-3.0)),
+        ("gauss", dict(rtol=1e-7, atol=1e-9, t0=1.0, t_end=4.0, first_step=1e-3, max_step=0.5, max_steps=10_000,
+                       newton="simplified", t_eval=np.linspace(1.5, 4.0, 6))),
+        # Fixed steps up to t_end, recorded at output times off the grid.
+        ("gauss", dict(h=0.1, t_end=2.0, t_eval=[0.55, 1.0, 1.234, 2.0])),
+        ("gauss", dict(h=0.1, t_end=2.0, every=3)),
+    ],
+)
+def test_a_sweep_over_shards_equals_the_ensemble_with_the_same_arguments(local_ray, tmp_path, method, kwargs):
+    # Each of the three shards calls `spark.ensemble` with the sweep's
+    # arguments; every member's samples, times and step counts are those of
+    # one ensemble of all five, bit for bit.
+    out = tmp_path / "sweep.parquet"
+    report = sray.sweep("skate", method, 2, q0s=SKATE_Q0S, v0s=SKATE_V0S, out=str(out), shards=3, **kwargs)
+    ref = spark.ensemble("skate", method, 2, q0s=SKATE_Q0S, v0s=SKATE_V0S, **kwargs)
+    assert report.shards == 3 and report.members == 5
+    table = pq.read_table(out)
+    members, samples = ref.energy.shape
+    assert table.num_rows == members * samples
+    column = {name: table.column(name).to_numpy().reshape(members, samples) for name in table.column_names}
+    np.testing.assert_array_equal(column["member"], np.repeat(np.arange(members), samples).reshape(members, samples))
+    # The samples are the initial point and t_eval (tolerance-driven: t_end
+    # alone by default), or every `every` steps and the end.
+    if "t_eval" in kwargs or "h" not in kwargs:
+        np.testing.assert_array_equal(ref.t, [kwargs.get("t0", 0.0), *kwargs.get("t_eval", [kwargs["t_end"]])])
+    else:
+        assert len(ref.t) == 20 // 3 + 2 and abs(ref.t[-1] - 2.0) < 1e-12
+    for j in range(members):
+        np.testing.assert_array_equal(column["t"][j], ref.t)
+    for i, c in enumerate(("x", "y", "theta")):
+        np.testing.assert_array_equal(column[f"q_{c}"], ref.q[:, :, i])
+        np.testing.assert_array_equal(column[f"v_{c}"], ref.v[:, :, i])
+    np.testing.assert_array_equal(column["energy"], ref.energy)
+    np.testing.assert_array_equal(column["energy_error"], ref.energy_error)
+    np.testing.assert_array_equal(column["constraint"], ref.constraint)
+    np.testing.assert_array_equal(report.steps, ref.steps)
+    np.testing.assert_array_equal(report.rejected_steps, ref.rejected_steps)
+    if ref.controller is None:
+        assert report.controller is None
+        assert report.steps.tolist() == [20] * members
+        # Fig. 8.4's statistic reads a fixed-step sweep's table as before.
+        t, stat = sray.ensemble_statistic(str(out), 0.1)
+        np.testing.assert_array_equal(t, ref.t)
+        acc = np.zeros(samples)
+        for row in ref.energy_error:
+            acc += row * row
+        np.testing.assert_array_equal(stat, acc / members / (0.1 * 0.1 * (0.1 * 0.1)))
+    else:
+        assert set(report.controller) == set(ref.controller)
+        for name, values in ref.controller.items():
+            np.testing.assert_array_equal(report.controller[name], values, err_msg=name)
+        # Each member's controller chose its own steps.
+        assert len(set(report.steps.tolist())) > 1
+        np.testing.assert_array_equal(report.steps, report.controller["accepted"])
+
+
+def _refusal(call):
+    with pytest.raises(Exception) as raised:
+        call()
+    return raised.value
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(rtol=1e-6, t_end=1.0, every=2),
+        dict(h=0.1, rtol=1e-6, t_end=1.0),
+        dict(steps=10, rtol=1e-6, t_end=1.0),
+        dict(rtol=1e-6, t_end=1.0, max_halvings=2),
+        dict(rtol=1e-6),
+        dict(rtol=-1.0, t_end=1.0),
+        dict(rtol=0.0, atol=0.0, t_end=1.0),
+        dict(rtol="tight", t_end=1.0),
+        dict(rtol=1e-6, t_end=1.0, first_step=0.0),
+        dict(rtol=1e-6, t_end=1.0, max_step=-1.0),
+        dict(rtol=1e-6, t_end=1.0, max_steps=0),
+        dict(rtol=1e-6, t_end=1.0, t_eval=[0.5, 2.0]),
+        dict(rtol=1e-6, t_end=1.0, t_eval=[0.5, 0.25]),
+        dict(h=0.1, steps=10, every=2, t_eval=[0.5]),
+        dict(h=0.1, steps=10, max_step=0.1),
+        dict(h=0.1, steps=10, first_step=0.1),
+        dict(h=0.1, steps=10, max_steps=5),
+        dict(h=0.1, steps=10, t_eval=[0.5, True]),
+        dict(h=0.1, t_end=1.05),
+        dict(steps=10),
+        dict(h=0.1, steps=10, events=True),
+    ],
+    ids=lambda kwargs: ",".join(kwargs),
+)
+def test_a_sweep_refuses_what_the_ensemble_refuses_with_its_message(tmp_path, kwargs):
+    # The same checks (one code, `System._ensemble_request`), before Ray
+    # starts: the same exception and the same words.
+    q0s, v0s = SKATE_Q0S[:2], SKATE_V0S[:2]
+    mine = _refusal(lambda: sray.sweep("skate", "gauss", 2, q0s=q0s, v0s=v0s, out=str(tmp_path / "a.parquet"),
+                                       **kwargs))
+    theirs = _refusal(lambda: spark.ensemble("skate", "gauss", 2, q0s=q0s, v0s=v0s, **kwargs))
+    assert type(mine) is type(theirs)
+    if "events" in kwargs:
+        # Neither takes events (a terminal one would end the members at
+        # different times): Python's own TypeError, naming the keyword.
+        assert str(theirs) == "System.ensemble() got an unexpected keyword argument 'events'"
+        assert str(mine) == "sweep() got an unexpected keyword argument 'events'"
+    else:
+        assert str(mine) == str(theirs)
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_tolerance_driven_sweep_checks_the_runtimes_options_before_ray_starts(tmp_path, monkeypatch):
+    # The controller's own checks (the tolerance's range, max_step against
+    # max_steps, the first step against the resolution of t) run in the
+    # runtime: the sweep runs the first member through before Ray starts,
+    # so they fail there, with the ensemble's words, not in every shard.
+    q0s, v0s = SKATE_Q0S[:2], SKATE_V0S[:2]
+    out = str(tmp_path / "a.parquet")
+    for kwargs in (dict(rtol=1e-17, t_end=1.0), dict(rtol=1e-6, t_end=1.0, max_step=1e-6, max_steps=5),
+                   dict(rtol=1e-6, t0=1e6, t_end=1e6 + 1.0, first_step=1e-12)):
+        theirs = _refusal(lambda: spark.ensemble("skate", "gauss", 2, q0s=q0s, v0s=v0s, **kwargs))
+        with pytest.raises(spark.SparkError, match="the sweep's settings fail on member 0 before any shard runs: ") as e:
+            sray.sweep("skate", "gauss", 2, q0s=q0s, v0s=v0s, out=out, **kwargs)
+        # (The ensemble names the member that failed first of those running.)
+        assert re.sub(r"^member \d+: ", "", str(theirs)) in str(e.value)
+    # The table of a sweep at output times is counted at one sample per time.
+    monkeypatch.setattr(spark._native, "record_memory_limit", lambda: 2 * 5 * 8 * 11 * 2)
+    with pytest.raises(spark.ArgumentError, match=r"record at 4 output times of t_eval or fewer"):
+        sray.sweep("skate", "gauss", 2, q0s=q0s, v0s=v0s, out=out, rtol=1e-6, t_end=1.0,
+                   t_eval=np.linspace(0.1, 1.0, 10))
     assert not list(tmp_path.iterdir())
