@@ -127,42 +127,78 @@ def spark_residual(system: CasadiSystem, method: Dict) -> ca.Function:
     return ca.Function("spark", [x, par], [g])
 
 
+class StepSolver:
+    """The SPARK equations of one (system, method) with CasADi's Newton
+    ``rootfinder`` on them, built once and solved from any state and guess."""
+
+    def __init__(self, system: CasadiSystem, parameter_values, method: Dict):
+        self.system, self.method = system, method
+        self.s, self.n, self.m = int(method["stages"]), system.n, system.m
+        self.parameter_values = np.asarray(parameter_values, float)
+        self.g = spark_residual(system, method)
+        # abstol is below what double precision reaches on purpose: Newton then
+        # stops on the step criterion, i.e. one iteration after the residual
+        # stopped shrinking, which is the most accurate solution available.
+        self.rf = ca.rootfinder(
+            "rf",
+            "newton",
+            self.g,
+            {"abstol": 1e-300, "abstolStep": 1e-15, "max_iter": 60, "error_on_fail": False},
+        )
+        xs, ps = self.g.mx_in(0), self.g.mx_in(1)
+        self.jac = ca.Function("j", [xs, ps], [ca.jacobian(self.g(xs, ps), xs)])
+        self.gfun = None
+        if system.g is not None:
+            self.gfun = ca.Function("g", [system.t, system.q, system.p], [system.g])
+
+    def par(self, t0: float, h: float, q0, v0) -> np.ndarray:
+        """The parameter vector ``[t0, h, q0, v0, p]`` of the equations."""
+        return np.concatenate(([t0, h], np.asarray(q0, float), np.asarray(v0, float), self.parameter_values))
+
+    def constant_guess(self, v0) -> np.ndarray:
+        """``V_i = v0``, ``Ψ_i = 0``, ``v1 = v0``."""
+        v0 = np.asarray(v0, float)
+        return np.concatenate([np.tile(v0, self.s), np.zeros(self.s * self.m), v0])
+
+    def solve(self, t0: float, h: float, q0, v0, x0=None) -> StepSolution:
+        """Solve one step to the limit of double precision from ``x0``
+        (default the constant guess)."""
+        par = self.par(t0, h, q0, v0)
+        x0 = self.constant_guess(v0) if x0 is None else np.asarray(x0, float)
+        x = np.array(self.rf(x0, par)).ravel()
+        return self.solution(x, t0, h, q0, par)
+
+    def solution(self, x: np.ndarray, t0: float, h: float, q0, par: np.ndarray) -> StepSolution:
+        """``(q1, v1, V, Ψ)`` of the unknowns ``x``, with the residual there."""
+        s, n, m = self.s, self.n, self.m
+        res = np.array(self.g(x, par)).ravel()
+        J = np.array(self.jac(x, par))
+        if J.size and np.all(np.isfinite(J)) and np.all(np.isfinite(res)):
+            try:
+                dx = np.linalg.solve(J, -res)
+            except np.linalg.LinAlgError:
+                dx = np.full(x.shape, np.inf)
+        else:
+            dx = np.zeros(0) if not J.size else np.full(x.shape, np.inf)
+        q1 = np.asarray(q0, float) + h * sum(np.array(self.method["b"])[j] * x[j * n : (j + 1) * n] for j in range(s))
+        g1 = None
+        if self.gfun is not None:
+            g1 = np.array(self.gfun(t0 + h, q1, self.parameter_values)).ravel()
+        return StepSolution(
+            q1=q1,
+            v1=x[s * (n + m) :],
+            stage_velocities=x[: s * n].reshape(s, n),
+            psi=x[s * n : s * (n + m)].reshape(s, m),
+            residual=float(np.max(np.abs(res))) if res.size else 0.0,
+            last_newton_step=float(np.max(np.abs(dx))) if dx.size else 0.0,
+            holonomic_residual=g1,
+        )
+
+
 def solve_step(system: CasadiSystem, parameter_values, method: Dict, t0: float, h: float, q0, v0) -> StepSolution:
-    """Solve one step with CasADi's Newton rootfinder to the limit of double precision."""
-    s = int(method["stages"])
-    n, m = system.n, system.m
-    g = spark_residual(system, method)
-    par = np.concatenate(([t0, h], np.asarray(q0, float), np.asarray(v0, float), np.asarray(parameter_values, float)))
-    x0 = np.concatenate([np.tile(np.asarray(v0, float), s), np.zeros(s * m), np.asarray(v0, float)])
-    # abstol is below what double precision reaches on purpose: Newton then
-    # stops on the step criterion, i.e. one iteration after the residual
-    # stopped shrinking, which is the most accurate solution available.
-    rf = ca.rootfinder(
-        "rf",
-        "newton",
-        g,
-        {"abstol": 1e-300, "abstolStep": 1e-15, "max_iter": 60, "error_on_fail": False},
-    )
-    x = np.array(rf(x0, par)).ravel()
-    res = np.array(g(x, par)).ravel()
-    xs, ps = g.mx_in(0), g.mx_in(1)
-    jac = ca.Function("j", [xs, ps], [ca.jacobian(g(xs, ps), xs)])
-    J = np.array(jac(x, par))
-    dx = np.linalg.solve(J, -res) if J.size else np.zeros(0)
-    q1 = np.asarray(q0, float) + h * sum(np.array(method["b"])[j] * x[j * n : (j + 1) * n] for j in range(s))
-    g1 = None
-    if system.g is not None:
-        gfun = ca.Function("g", [system.t, system.q, system.p], [system.g])
-        g1 = np.array(gfun(t0 + h, q1, np.asarray(parameter_values, float))).ravel()
-    return StepSolution(
-        q1=q1,
-        v1=x[s * (n + m) :],
-        stage_velocities=x[: s * n].reshape(s, n),
-        psi=x[s * n : s * (n + m)].reshape(s, m),
-        residual=float(np.max(np.abs(res))) if res.size else 0.0,
-        last_newton_step=float(np.max(np.abs(dx))) if dx.size else 0.0,
-        holonomic_residual=g1,
-    )
+    """Solve one step with CasADi's Newton rootfinder to the limit of double
+    precision, from the constant guess ``V_i = v0, Ψ_i = 0, v1 = v0``."""
+    return StepSolver(system, parameter_values, method).solve(t0, h, q0, v0)
 
 
 def lda_applicable(system: CasadiSystem) -> bool:
