@@ -129,11 +129,26 @@ fn decimation_keeps_the_envelope_of_a_million_points() {
     assert!(decimate(&circle, columns, Scale::Linear).len() <= 2 * columns + 2);
 }
 
+/// Holds an exclusive `flock` on `path` (creating it) for the life of the
+/// file, as the writer of a temporary file of `replace_file` does.
+fn hold_lock(path: &Path) -> std::fs::File {
+    use std::os::unix::io::AsRawFd;
+    let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(path).unwrap();
+    // SAFETY: `flock` only reads the descriptor number, which `file` keeps open.
+    assert_eq!(unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) }, 0);
+    file
+}
+
 /// `replace_file` replaces a file whole and removes from its folder the
-/// temporary files of processes that no longer exist (killed outright, so
-/// that they could not remove them); those of live processes stay.
+/// temporary files of `replace_file` whose writers have ended, told by the
+/// writer's lock and not by the process id in the name: a file whose lock
+/// is held stays though no process of its id exists here (a writer in
+/// another PID namespace), and one whose lock is free goes though a live
+/// process has its id (an id taken again since). A folder's temporary
+/// files are left to the next `OutputDir::open` of the folder, which also
+/// leaves a held one of `replace_file`.
 #[test]
-fn replacing_a_file_removes_the_temporary_files_of_dead_processes() {
+fn replacing_a_file_removes_the_temporary_files_whose_writers_have_ended() {
     use problems::report::files::replace_file;
     let dir = std::env::temp_dir().join(format!("spark-out-orphans-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -141,16 +156,58 @@ fn replacing_a_file_removes_the_temporary_files_of_dead_processes() {
     let mut gone = std::process::Command::new("true").spawn().unwrap();
     let dead = gone.id();
     gone.wait().unwrap();
-    let orphan = dir.join(format!("{TEMP_PREFIX}{dead}-single-0-export.json"));
-    // This test's own process and its parent are alive.
-    let live = [std::process::id(), std::os::unix::process::parent_id()]
-        .map(|pid| dir.join(format!("{TEMP_PREFIX}{pid}-single-9-export.json")));
-    for path in live.iter().chain([&orphan]) {
+    let alive = std::os::unix::process::parent_id();
+    let single = |pid: u32, seq: u32| dir.join(format!("{TEMP_PREFIX}{pid}-single-{seq}-export.json"));
+    let (held_dead, free_alive, free_dead) = (single(dead, 1), single(alive, 2), single(dead, 3));
+    let held_alive = single(alive, 4);
+    let folders = dir.join(format!("{TEMP_PREFIX}{dead}-0-export.csv"));
+    for path in [&free_alive, &free_dead, &folders] {
         std::fs::write(path, b"{\"half\":").unwrap();
     }
+    let writers = [hold_lock(&held_dead), hold_lock(&held_alive)];
     replace_file(&dir.join("export.json"), |w| w.write_all(b"{}")).unwrap();
     assert_eq!(std::fs::read(dir.join("export.json")).unwrap(), b"{}");
-    assert!(!orphan.exists(), "the dead process's temporary file is left");
-    assert!(live.iter().all(|p| p.exists()), "a live process's temporary file was removed");
+    assert!(held_dead.exists(), "a held temporary file was removed for the process id in its name");
+    assert!(held_alive.exists(), "a held temporary file was removed");
+    assert!(!free_alive.exists(), "a temporary file nobody holds is left for the process id in its name");
+    assert!(!free_dead.exists(), "a temporary file nobody holds is left");
+    assert!(folders.exists(), "a folder's temporary file is removed without the folder's lock");
+
+    // The folder's next run removes its own kind and leaves the held ones.
+    drop(OutputDir::open(&dir).unwrap());
+    assert!(!folders.exists(), "a folder's temporary file is left by the folder's next run");
+    assert!(held_dead.exists() && held_alive.exists(), "the folder's next run removed a held temporary file");
+
+    // Once their writers end, they go.
+    drop(writers);
+    replace_file(&dir.join("export.json"), |w| w.write_all(b"[]")).unwrap();
+    assert_eq!(visible_files(&dir), ["export.json"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Threads replacing files in one folder at once, each cleaning the
+/// folder's ended temporary files as it starts, never remove one another's
+/// temporary files: every replacement succeeds and none is left.
+#[test]
+fn replacements_side_by_side_keep_their_temporary_files() {
+    use problems::report::files::replace_file;
+    let dir = std::env::temp_dir().join(format!("spark-out-side-by-side-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::thread::scope(|s| {
+        for t in 0..4 {
+            let dir = &dir;
+            s.spawn(move || {
+                for k in 0..200 {
+                    let path = dir.join(format!("{t}.json"));
+                    replace_file(&path, |w| write!(w, "{k}")).unwrap();
+                }
+            });
+        }
+    });
+    assert_eq!(visible_files(&dir), ["0.json", "1.json", "2.json", "3.json"]);
+    for t in 0..4 {
+        assert_eq!(std::fs::read_to_string(dir.join(format!("{t}.json"))).unwrap(), "199");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

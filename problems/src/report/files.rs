@@ -31,9 +31,14 @@
 //!   file, so no drawing backend creates a file the registry does not know.
 //! - A process killed outright (SIGKILL, a power cut) cannot remove its
 //!   files: the next run that opens the folder removes them, under the
-//!   folder's lock, and [`replace_file`] removes those of processes that
-//!   no longer exist from the folder it writes into (their names carry the
-//!   process id).
+//!   folder's lock. A temporary file of [`replace_file`], which writes
+//!   without the folder's lock, is held under an advisory `flock` by its
+//!   writer from its creation to its rename or removal, and is removed by
+//!   others (a later [`replace_file`] into its folder, a run opening the
+//!   folder) only when they can take that lock: the lock ends with the
+//!   writer however it ends, and it says so across PID namespaces
+//!   (containers sharing a folder) and whatever process has taken the
+//!   writer's process id since, which a process id in the name does not.
 //! - A value dropped without a commit removes its temporary files.
 
 use crate::report::plot::{render, render_scatter, Drawn, Figure, PlotError, Scatter};
@@ -275,11 +280,16 @@ impl OutputDir {
             .and_then(|()| lock.seek(SeekFrom::Start(0)))
             .and_then(|_| lock.write_all(note.as_bytes()))
             .map_err(io(&lock_path))?;
-        // The lock is ours, so any temporary file here belongs to a run that
-        // ended without committing.
+        // The lock is ours, so any temporary file of a folder here belongs
+        // to a run that ended without committing; one of [`replace_file`]
+        // may be a live writer's, which holds its lock.
         let entries = std::fs::read_dir(dir).map_err(io(dir))?;
         for entry in entries.flatten() {
-            if entry.file_name().to_string_lossy().starts_with(TEMP_PREFIX) {
+            let name = entry.file_name();
+            let name = name.to_string_lossy();
+            if is_single_temporary(&name) {
+                remove_if_unlocked(&entry.path());
+            } else if name.starts_with(TEMP_PREFIX) {
                 let _ = std::fs::remove_file(entry.path());
             }
         }
@@ -443,6 +453,22 @@ impl Drop for OutputDir {
     }
 }
 
+/// Takes an exclusive advisory lock on `file`, waiting for another holder
+/// (a cleanup that holds it for a moment) to release it.
+fn lock_exclusive(file: &File) -> std::io::Result<()> {
+    use std::os::unix::io::AsRawFd;
+    loop {
+        // SAFETY: `flock` only reads the descriptor number, which `file` keeps open.
+        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) } == 0 {
+            return Ok(());
+        }
+        let e = std::io::Error::last_os_error();
+        if e.kind() != std::io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
 /// Takes an exclusive advisory lock on `file` without waiting; `false` when
 /// another open file description holds it.
 fn try_lock_exclusive(file: &File) -> std::io::Result<bool> {
@@ -540,8 +566,8 @@ pub fn write_columns(path: &Path, columns: &[(&str, &[f64])]) -> Result<(), Outp
 /// link to the file it was) sees the earlier file or the whole new one,
 /// never a part; a failed or interrupted write leaves the earlier file as
 /// it was and no temporary file (see the module documentation; the
-/// temporary files of processes killed outright, which keep the prefix
-/// `.spark-tmp-` and their process id, are removed from the folder here).
+/// temporary files of writers killed outright, `.spark-tmp-…-single-…`
+/// whose lock nobody holds, are removed from the folder here).
 /// Holds no folder lock: inside a command, use [`OutputDir::write_with`].
 pub fn replace_file<E>(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<(), E>) -> Result<(), OutputError>
 where
@@ -550,45 +576,122 @@ where
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     remove_orphaned_temporaries(dir);
-    // Numbered, so that threads replacing one file at once each have their own.
-    static SEQUENCE: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let seq = SEQUENCE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let temp = dir.join(format!("{TEMP_PREFIX}{}-single-{seq}-{name}", std::process::id()));
-    let file = create_temporary(&temp)?;
+    // Open, and so locked, until the file is renamed or removed.
+    let (temp, file) = create_locked_temporary(dir, &name)?;
     let result = (|| {
-        let mut w = BufWriter::new(file);
+        let mut w = BufWriter::new(&file);
         write(&mut w).map_err(|e| e.into().into_output(path))?;
-        let file = w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
+        w.into_inner().map_err(|e| e.into_error()).map_err(io(&temp))?;
         file.sync_all().map_err(io(&temp))
     })();
-    match result {
+    let result = match result {
         Ok(()) => rename_temporary(&mut temporaries(), &temp, path).map_err(io(path)),
         Err(e) => {
             remove_temporary(&temp);
             Err(e)
         }
+    };
+    drop(file);
+    result
+}
+
+/// Marks the temporary files of [`replace_file`], which carry their
+/// writer's lock, among those of a folder, which do not.
+const SINGLE: &str = "single-";
+
+/// Whether `name` is a temporary file of [`replace_file`]
+/// (`.spark-tmp-PID-single-…`).
+fn is_single_temporary(name: &str) -> bool {
+    name.strip_prefix(TEMP_PREFIX)
+        .and_then(|rest| rest.split_once('-'))
+        .is_some_and(|(_, rest)| rest.starts_with(SINGLE))
+}
+
+/// Most attempts at a temporary file of [`replace_file`]: a name can be
+/// taken (a process of the same id in another PID namespace writing into
+/// the same folder) or the file removed by another process's cleanup
+/// before its writer locks it; each attempt takes a fresh name.
+const CREATE_ATTEMPTS: usize = 64;
+
+/// Creates and registers a temporary file for `name` in `dir` and takes its
+/// exclusive lock, which the returned file keeps. Another process's
+/// cleanup may take the lock in the moment between creation and locking
+/// and remove the file: the file is then no longer under its name, and a
+/// fresh one is made.
+fn create_locked_temporary(dir: &Path, name: &str) -> Result<(PathBuf, File), OutputError> {
+    // Numbered, so that threads replacing one file at once each have their own.
+    static SEQUENCE: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let mut attempt = 0;
+    loop {
+        attempt += 1;
+        let seq = SEQUENCE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let temp = dir.join(format!("{TEMP_PREFIX}{}-{SINGLE}{seq}-{name}", std::process::id()));
+        let file = match create_temporary(&temp) {
+            Err(OutputError::Io { source, .. })
+                if source.kind() == std::io::ErrorKind::AlreadyExists && attempt < CREATE_ATTEMPTS =>
+            {
+                continue;
+            }
+            created => created?,
+        };
+        lock_exclusive(&file).map_err(|e| {
+            remove_temporary(&temp);
+            io(&temp)(e)
+        })?;
+        if same_file(&file, &temp) {
+            return Ok((temp, file));
+        }
+        // Removed by another process; the name is no longer this file's.
+        temporaries().retain(|p| *p != temp);
+        if attempt >= CREATE_ATTEMPTS {
+            return Err(OutputError::Io {
+                path: temp,
+                source: std::io::Error::other("the temporary file was removed by another process as it was created"),
+            });
+        }
     }
 }
 
-/// Removes from `dir` the temporary files of processes that no longer
-/// exist (`.spark-tmp-PID-…` with no process PID), ignoring errors. A file
-/// whose process id a live process has taken since is left for later; it
-/// is never one being written.
+/// Whether `path` names the file `file` has open (same device and inode).
+fn same_file(file: &File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), path.symlink_metadata()) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+/// Removes from `dir` the temporary files of [`replace_file`] whose writers
+/// have ended (see [`remove_if_unlocked`]), ignoring errors. Those of a
+/// folder, which an [`OutputDir`] holds under the folder's lock, are left to
+/// the next [`OutputDir::open`] of the folder.
 fn remove_orphaned_temporaries(dir: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {
-        let name = entry.file_name();
-        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix(TEMP_PREFIX)) else { continue };
-        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<libc::pid_t>().ok()) else { continue };
-        if pid <= 0 || pid as u32 == std::process::id() {
-            continue;
+        if entry.file_name().to_str().is_some_and(is_single_temporary) {
+            remove_if_unlocked(&entry.path());
         }
-        // SAFETY: signal 0 only checks whether the process exists.
-        let gone =
-            unsafe { libc::kill(pid, 0) } == -1 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
-        if gone {
-            let _ = std::fs::remove_file(entry.path());
-        }
+    }
+}
+
+/// Removes the temporary file `path` of [`replace_file`] when its lock can
+/// be taken: its writer holds the lock from before the file has content to
+/// after it is renamed or removed, so a free lock means the writer has
+/// ended (or is about to lock it, and then makes a fresh file). Anything
+/// that cannot be opened or locked (another user's file, a file system
+/// without `flock`) is left as it is.
+fn remove_if_unlocked(path: &Path) {
+    // Not through a symbolic link and without waiting on a FIFO.
+    let Ok(file) = OpenOptions::new().read(true).custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK).open(path) else {
+        return;
+    };
+    if !file.metadata().is_ok_and(|m| m.is_file()) {
+        return;
+    }
+    // The writer may have renamed the file (and released the lock) since it
+    // was listed: only the file still under the temporary name goes.
+    if try_lock_exclusive(&file).unwrap_or(false) && same_file(&file, path) {
+        let _ = std::fs::remove_file(path);
     }
 }
 
