@@ -133,6 +133,48 @@ mod sweep {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// The problem handed to the peer script (`external/<system>-input.json`)
+    /// is replaced whole, never rewritten in place: a second name of the
+    /// earlier file (a hard link, or a reader that has it open) keeps the
+    /// earlier problem whole, the script reads the whole new one, and no
+    /// temporary file stays in the folder.
+    #[test]
+    fn the_peer_input_is_replaced_whole_not_rewritten_in_place() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("spark-work-precision-peer-input-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("external")).unwrap();
+        let input = dir.join("external").join("skate-input.json");
+        let earlier = b"{\"system\": \"EARLIER\"}";
+        std::fs::write(&input, earlier).unwrap();
+        let kept = dir.join("kept-input.json");
+        std::fs::hard_link(&input, &kept).unwrap();
+        // The fake peer script copies the input it is given (`--input
+        // PATH` after the script) and writes no results.
+        let seen = dir.join("seen-input.json");
+        let python = dir.join("fake-python");
+        std::fs::write(&python, format!("#!/bin/sh\ncp \"$3\" '{}'\n", seen.display())).unwrap();
+        std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let script = dir.join("peers.py");
+        std::fs::write(&script, "").unwrap();
+        let mut cfg = WorkPrecisionConfig::quick(&dir);
+        cfg.systems = vec![SystemKind::Skate];
+        cfg.max_steps = 16;
+        cfg.python = Some(python);
+        cfg.peers_script = script;
+        run_work_precision(&cfg, &|_| {}).unwrap();
+        assert_eq!(std::fs::read(&kept).unwrap(), earlier, "the earlier input file was rewritten in place");
+        let new: serde_json::Value = serde_json::from_slice(&std::fs::read(&input).unwrap()).unwrap();
+        assert_eq!(new["system"], "skate");
+        assert_eq!(std::fs::read(&seen).unwrap(), std::fs::read(&input).unwrap());
+        let names: Vec<String> = std::fs::read_dir(dir.join("external"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(names.iter().all(|n| !n.starts_with(".spark-tmp-")), "{names:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// The reversible sweep runs on the systems with a step density, and
     /// its driver is compiled for the entries marked `steps: reversible`:
     /// the two lists agree.

@@ -11,6 +11,7 @@
 
 use super::{Point, Problem, SystemMeasurement, WorkPrecisionConfig};
 use crate::catalog::{visit_system, Dispatch, SystemEntry, SystemKind, SystemVisitor};
+use crate::report::files::replace_file;
 use spark_runtime::TableauTable;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -195,8 +196,10 @@ fn run_script(
     };
     std::fs::create_dir_all(dir).map_err(|e| format!("could not create {}: {e}", dir.display()))?;
     let input_path = dir.join(format!("{}-input.json", kind.key()));
-    let text = serde_json::to_string_pretty(&input).map_err(|e| e.to_string())?;
-    std::fs::write(&input_path, text).map_err(|e| format!("could not write {}: {e}", input_path.display()))?;
+    // Replaced whole, like every output: an interrupted run leaves the
+    // earlier input or the new one, never a part that a later run's peer
+    // script or a reader would take for a problem.
+    replace_file(&input_path, |w| serde_json::to_writer_pretty(w, &input)).map_err(|e| e.to_string())?;
     let build: PathBuf = dir.join(format!("{}-build", kind.key()));
     match std::fs::remove_file(output) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
