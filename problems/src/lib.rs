@@ -4,6 +4,8 @@
 //! - [`systems`]: every `nonholonomic_system!` declaration (the inputs);
 //! - [`catalog`]: the one list of systems `spark` offers and the one
 //!   run-time dispatch from `(system, s)` to the monomorphized stepper;
+//! - [`children`]: child processes (the Python peers) that end with the
+//!   program, also on a signal (it imports no other wing);
 //! - [`report`]: output folders, figures, statistics, number formats, the
 //!   thread-CPU clock and progress bars (it imports no other wing);
 //! - [`run`]: one integration run, [`run::RunSpec`] → [`run::RunResult`],
@@ -27,6 +29,8 @@
 pub mod systems;
 
 pub mod catalog;
+
+pub mod children;
 
 pub mod report;
 

@@ -144,6 +144,94 @@ fn an_interrupted_run_leaves_the_previous_results_intact() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Whether the process `pid` is gone: no such process, or one that has
+/// ended and is not yet reaped (an orphan's new parent may never reap it).
+fn gone(pid: libc::pid_t) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        // The state follows the command name, which is in parentheses.
+        Ok(stat) => stat.rsplit_once(')').is_some_and(|(_, rest)| rest.trim_start().starts_with(['Z', 'X'])),
+        Err(_) => true,
+    }
+}
+
+/// A run ended by a signal, or killed outright, while a peer runs leaves
+/// no child behind. The fake peer (`--python`, a shell script) starts a
+/// long `sleep` of its own, as the Python peer starts the compiler and the
+/// timing driver, and waits: on SIGINT, SIGTERM or SIGHUP the run ends the
+/// peer and what it started (the background `sleep` of a shell ignores
+/// SIGINT, and is killed after the grace time) and ends by the signal; on
+/// SIGKILL the kernel ends the peer with the run.
+#[test]
+#[cfg(target_os = "linux")]
+fn a_run_ended_while_a_peer_runs_leaves_no_child_behind() {
+    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::process::ExitStatusExt;
+    let root = temp_dir("children");
+    std::fs::create_dir_all(root.join("casadi/peers")).unwrap();
+    std::fs::write(root.join("casadi/peers/peers.py"), "").unwrap();
+    let python = root.join("fake-python");
+    let script = format!(
+        "#!/bin/sh\nsleep 1000 &\necho $! > '{0}/grandchild'\necho $$ > '{0}/child.tmp'\nmv '{0}/child.tmp' \
+         '{0}/child'\nwait\n",
+        root.display()
+    );
+    std::fs::write(&python, script).unwrap();
+    std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let read_pid =
+        |name: &str| -> libc::pid_t { std::fs::read_to_string(root.join(name)).unwrap().trim().parse().unwrap() };
+
+    for signal in [libc::SIGTERM, libc::SIGINT, libc::SIGHUP, libc::SIGKILL] {
+        let _ = std::fs::remove_file(root.join("child"));
+        let mut child = spark();
+        child
+            .current_dir(&root)
+            .args(["work-precision", "--quick", "--system", "skate", "--max-steps", "16", "--python"])
+            .arg(&python)
+            .arg("--out")
+            .arg(root.join("out"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        // As in `an_interrupted_run_leaves_the_previous_results_intact`.
+        // SAFETY: `signal` is async-signal-safe, the only call between fork and exec.
+        unsafe {
+            child.pre_exec(move || {
+                if signal != libc::SIGKILL {
+                    libc::signal(signal, libc::SIG_DFL);
+                }
+                Ok(())
+            });
+        }
+        let mut child = child.spawn().unwrap();
+        wait_until(&mut child, "the peer runs", || root.join("child").exists());
+        let (peer, grandchild) = (read_pid("child"), read_pid("grandchild"));
+        // SAFETY: `kill` takes plain integers; the child is not yet waited for.
+        assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
+        let status = child.wait().unwrap();
+        assert_eq!(status.signal(), Some(signal), "the run ends by its signal: {status}");
+        // A process ends a moment after a signal is sent to it, and the
+        // kernel sends the peer its SIGKILL as the run ends.
+        let start = Instant::now();
+        let ended = || gone(peer) && (gone(grandchild) || signal == libc::SIGKILL);
+        while !ended() && start.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let (peer_gone, grandchild_gone) = (gone(peer), gone(grandchild));
+        // What the peer started is left to the peer when the run is killed outright.
+        for pid in [peer, grandchild] {
+            if !gone(pid) {
+                // SAFETY: as above; the process is this test's, started by the run.
+                unsafe { libc::kill(pid, libc::SIGKILL) };
+            }
+        }
+        assert!(peer_gone, "signal {signal} left the peer {peer} running");
+        assert!(
+            grandchild_gone || signal == libc::SIGKILL,
+            "signal {signal} left the peer's child {grandchild} running"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
 #[test]
 fn a_second_run_on_a_busy_folder_is_refused_and_rows_never_interleave() {
     let dir = temp_dir("lock");

@@ -51,7 +51,7 @@ fn main() -> ExitCode {
         Ok(args) => args,
         Err(status) => return status,
     };
-    signals::remove_temporary_files_on_signals();
+    signals::clean_up_on_signals();
     // The closing line goes to standard error: one that cannot take it
     // loses the line, not the export.
     match run(&args) {

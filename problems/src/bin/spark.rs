@@ -16,7 +16,7 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(status) => return status,
     };
-    signals::remove_temporary_files_on_signals();
+    signals::clean_up_on_signals();
     match problems::cli::run(cli, &stdio::say) {
         Ok(text) => stdio::write_stdout(&text),
         Err(message) => {

@@ -11,6 +11,7 @@
 
 use super::{Point, Problem, SystemMeasurement, WorkPrecisionConfig};
 use crate::catalog::{visit_system, Dispatch, SystemEntry, SystemKind, SystemVisitor};
+use crate::children;
 use crate::report::files::replace_file;
 use spark_runtime::TableauTable;
 use std::io::Read;
@@ -245,20 +246,18 @@ fn run_script(
 /// closed and returns its exit status and standard error. Each of its
 /// standard output (read and discarded) and standard error is read up to
 /// [`MAX_PEER_OUTPUT`] bytes; a program that writes more is killed and is
-/// an error naming it and the stream.
+/// an error naming it and the stream. The program runs as a
+/// [`children::spawn`] child: it and what it starts (the compiler, the
+/// timing driver) end with this program, also on a signal.
 fn output_bounded(command: &mut Command, program: &str) -> Result<(ExitStatus, Vec<u8>), String> {
-    let mut child = command
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
+    let mut child = children::spawn(command.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()))
         .map_err(|e| format!("could not start {program}: {e}"))?;
     // Both streams are read at once, each on its own thread: a program
     // blocked writing one stream while the other is read would never end.
     let (sender, received) = std::sync::mpsc::channel();
     let streams: [(&'static str, Option<Box<dyn Read + Send>>); 2] = [
-        ("standard output", child.stdout.take().map(|s| Box::new(s) as Box<dyn Read + Send>)),
-        ("standard error", child.stderr.take().map(|s| Box::new(s) as Box<dyn Read + Send>)),
+        ("standard output", child.child().stdout.take().map(|s| Box::new(s) as Box<dyn Read + Send>)),
+        ("standard error", child.child().stderr.take().map(|s| Box::new(s) as Box<dyn Read + Send>)),
     ];
     let mut readers = 0;
     for (stream, reader) in streams {
@@ -270,7 +269,7 @@ fn output_bounded(command: &mut Command, program: &str) -> Result<(ExitStatus, V
             let _ = sender.send((stream, read));
         };
         if let Err(e) = std::thread::Builder::new().name("peer output".into()).spawn(read) {
-            let _ = child.kill();
+            child.kill();
             let _ = child.wait();
             return Err(format!("could not read the output of {program}: {e}"));
         }
@@ -297,7 +296,7 @@ fn output_bounded(command: &mut Command, program: &str) -> Result<(ExitStatus, V
             Err(_) => Some(format!("could not read the output of {program}")),
         };
         if let Some(failure) = failure {
-            let _ = child.kill();
+            child.kill();
             let _ = child.wait();
             return Err(failure);
         }
