@@ -300,7 +300,7 @@ where
             this.restore_continuation(&saved);
             EstimateFailure { solves, iterations, error }
         };
-        let whole = match self.step(state, h) {
+        let whole = match self.step_or_fail(state, h) {
             Ok(r) => r.state,
             Err(e) => return Err(fail(self, solves, iterations, e)),
         };
@@ -310,13 +310,13 @@ where
         // The midpoint on the time grid, so that the half steps' sizes are
         // the times they advance (see `on_time_grid`).
         let half = on_time_grid(state.t, 0.5 * h);
-        let first = match self.step(state, half) {
+        let first = match self.step_or_fail(state, half) {
             Ok(r) => r,
             Err(e) => return Err(fail(self, solves, iterations, e)),
         };
         iterations += self.last_history().len();
         solves += 1;
-        let second = match self.step(&first.state, h - half) {
+        let second = match self.step_or_fail(&first.state, h - half) {
             Ok(r) => r,
             Err(e) => return Err(fail(self, solves, iterations, e)),
         };

@@ -234,7 +234,7 @@ where
         }
         attempts += 1;
         report.solves += 1;
-        let r = stepper.step(&state, dir * this).map_err(|source| {
+        let r = stepper.step_or_fail(&state, dir * this).map_err(|source| {
             let partial = Box::new(report);
             AdaptiveError::Step { t: state.t, source, partial }
         })?;

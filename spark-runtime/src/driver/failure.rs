@@ -163,7 +163,7 @@ where
     {
         // Borrowed where accepted: the step's result is not moved out of
         // the `Result` (a copy of every stage value) on the common path.
-        match self.step(state, h) {
+        match self.step_or_fail(state, h) {
             Ok(ref r) => {
                 let stopped = on_step(self.system(), state, t_target, h, r);
                 Ok(StepCounts {
@@ -221,13 +221,13 @@ where
             let (sub, level) = pending[len - 1];
             let (warm, attempt) = match taken.take() {
                 Some((warm, first)) => (warm, Err(first)),
-                None => (self.is_warm_for(&out.state), self.step(&out.state, sub)),
+                None => (self.is_warm_for(&out.state), self.step_or_fail(&out.state, sub)),
             };
             let result = match attempt {
                 Err(e) if warm && e.is_curable() => {
                     out.cold_retries += 1;
                     self.reset_warm_start();
-                    self.step(&out.state, sub)
+                    self.step_or_fail(&out.state, sub)
                 }
                 other => other,
             };
@@ -304,7 +304,7 @@ where
                 }
             }
             let this = if sub.abs() >= remaining.abs() { remaining } else { sub };
-            match self.step(&out.state, this) {
+            match self.step_or_fail(&out.state, this) {
                 Ok(r) => {
                     let end_t = if (t_end - r.state.t) * h.signum() <= slack { t_target } else { r.state.t };
                     let stop = on_step(self.system(), &out.state, end_t, this, &r);

@@ -263,7 +263,7 @@ where
     /// kernel when its next step takes the kernel's path.
     fn step_alone(&mut self, j: usize, i: usize) {
         let (lane, state) = (&mut self.lanes[j], &mut self.states[j]);
-        match lane.step(state, self.h) {
+        match lane.step_or_fail(state, self.h) {
             Ok(r) => {
                 // As the driver does: t pinned to the schedule, and the
                 // pinned state declared the continuation of the step.

@@ -32,7 +32,7 @@ where
     let mut run = EnsembleRun { samples: vec![start], steps: 0, iterations: 0, failure: None };
     let mut s = start;
     for k in 0..steps {
-        match st.step(&s, h) {
+        match st.step_or_fail(&s, h) {
             Ok(r) => {
                 s = State { t: start.t + (k + 1) as f64 * h, ..r.state };
                 st.retarget_warm_start(&s);

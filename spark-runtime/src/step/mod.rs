@@ -48,6 +48,7 @@ mod convergence;
 mod energy_guard;
 mod equations;
 mod guess;
+mod homotopy;
 mod lane_handover;
 mod newton;
 
@@ -69,6 +70,7 @@ use cold_start::check_cold_start;
 use compensation::Compensation;
 use equations::{increment, split, Eval, EvalJac};
 use guess::{Guess, Warm, SAFE_EXTRAPOLATION_DEGREE};
+use homotopy::Homotopy;
 use newton::{Solved, Unsolved};
 
 /// A point `(t, q, v)` of the phase space.
@@ -447,7 +449,34 @@ where
     /// The first step after the Newton options were set or changed checks
     /// them ([`NewtonOptions::validate`]): an out-of-range field is a
     /// [`StepError::InvalidOption`].
+    ///
+    /// A step that Newton solves from none of its guesses (under
+    /// velocity-dependent forces that change the velocity by much more
+    /// than itself within `h`, the cold guess `V_i = v₀ + c_i h a₀`
+    /// overshoots) is followed along its branch of solutions from `h = 0`
+    /// (a homotopy in the step size, at most 32 solves), so the root it
+    /// returns is the one connected to the solution of small steps. Where
+    /// that branch does not reach `h`, the step fails with the error of the
+    /// solve at `h`. The drivers (`integrate`, the adaptive and ensemble
+    /// runs) do not follow branches: they halve a step that fails, which
+    /// costs fewer solves and gives a more accurate step.
+    #[inline]
     pub fn step(&mut self, state: &State<N>, h: f64) -> Result<StepResult<N, M, S>, StepError> {
+        self.solve_step(state, h, true)
+    }
+
+    /// [`step`](Self::step) without the homotopy of a step that fails from
+    /// every guess: the drivers' step, which halve such a step instead.
+    #[inline]
+    pub(crate) fn step_or_fail(&mut self, state: &State<N>, h: f64) -> Result<StepResult<N, M, S>, StepError> {
+        self.solve_step(state, h, false)
+    }
+
+    /// The step, following the branch of solutions from `h = 0` when
+    /// `follow_branch` and Newton fails from every guess. Out of line, so
+    /// that its one call of the Newton solve stays inlined in it.
+    #[inline(never)]
+    fn solve_step(&mut self, state: &State<N>, h: f64, follow_branch: bool) -> Result<StepResult<N, M, S>, StepError> {
         let t0 = state.t;
         self.check_options()?;
         if self.terms_stale {
@@ -482,7 +511,7 @@ where
         };
         // The warm start and the energy anchor belong to that state too.
         let continues = continued.is_some();
-        let Guess { mut z, warm: mut warm_started, prior, mut degree } = self.starting_guess(state, h, continues);
+        let Guess { mut z, warm: mut warm_started, mut prior, mut degree } = self.starting_guess(state, h, continues);
         // An extrapolation of high degree is the closer guess while the
         // solution is smooth on the scale of h, and can be far off where it
         // is not: a step it fails is solved again from the guess of degree
@@ -490,12 +519,18 @@ where
         // a step that one solves into a failure. (One call of the solve, in
         // a loop: a second call site makes LLVM leave it out of line.)
         let (mut full_newton, mut abandoned) = (false, 0);
+        // The homotopy in the step size (`homotopy`) of a step that fails
+        // from the cold guess, and the step size being solved.
+        let (mut path, mut h_solve) = (None::<Box<Homotopy<D>>>, h);
         let Solved { factorizations, rate } = loop {
-            match self.newton(state, &carry, h, &mut z, prior, full_newton) {
+            match self.newton(state, &carry, h_solve, &mut z, prior, full_newton) {
                 Err(Unsolved::RestartInFullNewton { factorizations }) => {
                     // The same guess again, solved by full Newton.
-                    Guess { z, degree, .. } = self.repeated_guess(state, h, continues && warm_started);
-                    (full_newton, abandoned) = (true, factorizations);
+                    match &path {
+                        Some(running) => z = running.guess(),
+                        None => Guess { z, degree, .. } = self.repeated_guess(state, h, continues && warm_started),
+                    }
+                    (full_newton, abandoned) = (true, abandoned + factorizations);
                 }
                 Err(_) if degree > SAFE_EXTRAPOLATION_DEGREE => {
                     Guess { z, degree, .. } = self.safe_degree_guess(state, h, continues);
@@ -511,7 +546,24 @@ where
                     full_newton = false;
                     self.cold_retries += 1;
                 }
+                // The cold guess can lie beyond Newton's reach where
+                // velocity-dependent forces change the velocity by much more
+                // than itself within `h`: the step is followed from `h = 0`
+                // along its branch of solutions, in the mode it was asked
+                // for, and fails where that branch does not reach `h`.
+                Err(Unsolved::Failed(e)) if follow_branch => {
+                    (h_solve, z) = self.homotopy_after_failure(&mut path, state, h, e)?;
+                    (full_newton, prior) = (false, (f64::NAN, false));
+                }
                 Err(Unsolved::Failed(e)) => return Err(e),
+                Ok(solved) if path.is_some() => match self.homotopy_after_solve(&mut path, h, &z)? {
+                    Some(next) => {
+                        abandoned += solved.factorizations;
+                        (h_solve, z) = next;
+                        full_newton = false;
+                    }
+                    None => break solved,
+                },
                 Ok(solved) => break solved,
             }
         };

@@ -825,7 +825,7 @@ mod tests {
         let robot = State::new(0.0, Vector::<4>::zeros(), Vector::<4>::new(1.0, 0.0, 0.0, 1.0));
         let tab = Tableau::<2>::new(Method::Gauss).unwrap();
         let mut st = Stepper::<_, 4, 2, 2, 16>::new(MobileRobot::default(), tab).with_options(simplified);
-        let err = run(&mut st, robot, 2.0, 20).expect_err("h = 2 is beyond Newton's reach here");
+        let err = run(&mut st, robot, 3.0, 20).expect_err("h = 3 is beyond Newton's reach here");
         let StepError::Diverged { history, .. } = &err else { panic!("{err}") };
         assert!(history.len() < NewtonOptions::default().max_iterations, "{err}");
         assert_eq!(format!("{:?}", st.last_history()), format!("{history:?}"));

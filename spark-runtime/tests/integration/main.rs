@@ -26,3 +26,4 @@ mod plan;
 mod small_scales;
 mod step_start;
 mod stop_requests;
+mod strong_velocity_forces;
