@@ -5,12 +5,14 @@ Reads the JSON written by ``cargo run -p problems --bin spark-casadi-export``,
 rebuilds every system from its neutral S-expression source with CasADi,
 differentiates it with CasADi, compares every trait output at every sample
 point, solves one SPARK step per (system, method) with CasADi's rootfinder and
-compares (q1, v1, Ψ). Writes a Markdown report.
+compares (q1, v1, Ψ); compares the hard cold steps (every Newton mode) with
+the root on the branch from h → 0 (spark_check.cold). Writes a Markdown report.
 
 Exit status: 0 all agree, 1 some comparison failed, 2 bad input or setup.
 
     python casadi/crosscheck.py --input out/casadi/export.json --report docs/casadi-report.md
     python casadi/crosscheck.py --input ... --perturb derivative   # must exit 1
+    python casadi/crosscheck.py --input ... --perturb cold         # must exit 1
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from spark_check import compare, tableaux  # noqa: E402
+from spark_check import cold, compare, tableaux  # noqa: E402
 from spark_check.step import StepSetupError, lda_applicable, solve_lda, solve_step  # noqa: E402
 from spark_check.system import CasadiSystem, SourceError  # noqa: E402
 from spark_check.sexpr import SexprError  # noqa: E402
@@ -226,6 +228,90 @@ def check_step(
     return result
 
 
+# ----------------------------------------------------------------- cold steps
+
+
+@dataclass
+class ColdResult:
+    """One hard cold step of one Newton mode against the branch root."""
+
+    system: str
+    method: str
+    stages: int
+    newton: str
+    h: float
+    errors: Dict[str, float] = field(default_factory=dict)
+    reference: Optional[cold.Reference] = None
+    to_constant: float = math.nan  # spark's distance to the constant-guess root
+    refusal: Optional[str] = None  # the stepper's error
+    problem: Optional[str] = None  # why there is no branch reference
+    note: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return (
+            self.refusal is None
+            and self.problem is None
+            and bool(self.errors)
+            and all(e <= cold.TOLERANCE for e in self.errors.values())
+        )
+
+    def constant_guess(self) -> str:
+        """What CasADi's Newton from the constant guess found, against the branch root."""
+        r = self.reference
+        if r is None:
+            return "-"
+        if not (math.isfinite(r.constant.last_newton_step) and r.constant.last_newton_step <= 1e-8):
+            return f"no root (last update {r.constant.last_newton_step:.1e})"
+        if r.ambiguous:
+            return f"another root ({r.distance:.1e} away)"
+        return f"the branch root ({r.distance:.1e})"
+
+
+def check_cold_steps(cold_steps: List[Dict], systems: Dict[str, Dict], perturb: bool) -> List[ColdResult]:
+    """Every exported cold step against the branch root of its (system, method), which is
+    computed once per (system, method); with ``perturb`` the first solved step's ``v1[0]``
+    is corrupted."""
+    references: Dict[tuple, object] = {}
+    results = []
+    perturbed = False
+    for step in cold_steps:
+        name, method = step["system"], step["method"]
+        if name not in systems:
+            raise InputError(f"cold step refers to unknown system {name!r}")
+        key = (name, method["key"], int(method["stages"]))
+        r = ColdResult(name, method["key"], int(method["stages"]), step["newton"], float(step["h"]))
+        if key not in references:
+            entry = systems[name]
+            try:
+                solver = cold.BranchSolver(CasadiSystem(entry["source"]), entry["parameter_values"], method)
+                references[key] = solver.reference(float(step["t0"]), float(step["h"]), step["q0"], step["v0"])
+            except StepSetupError as err:
+                raise InputError(f"cold step {name} / {method['key']}: {err}") from None
+            except cold.ContinuationError as err:
+                references[key] = str(err)
+        ref = references[key]
+        if isinstance(ref, str):
+            r.problem = f"no branch reference: {ref}"
+        else:
+            r.reference = ref
+        solved = step.get("solved")
+        if solved is None:
+            r.refusal = str(step.get("error") or "no step and no error exported")
+        elif r.reference is not None:
+            rust = {k: np.asarray(solved[k], dtype=float) for k in ("q1", "v1", "psi", "stage_velocities")}
+            if perturb and not perturbed:
+                rust["v1"] = rust["v1"].copy()
+                rust["v1"][0] = rust["v1"][0] * (1 + PERTURBATION) + PERTURBATION
+                r.note, perturbed = "PERTURBED v1[0]", True
+            branch, constant = r.reference.branch, r.reference.constant
+            for k, label in (("q1", "q1"), ("v1", "v1"), ("psi", "psi"), ("stage_velocities", "V")):
+                r.errors[label] = compare.errors(rust[k], getattr(branch, k))[0]
+            r.to_constant = max(compare.errors(rust[k], getattr(constant, k))[0] for k in rust)
+        results.append(r)
+    return results
+
+
 # --------------------------------------------------------------------- report
 
 
@@ -250,7 +336,9 @@ def seven_three(errors: Dict[str, float]) -> str:
     return fmt(max(vals)) if vals else "-"
 
 
-def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], steps: List[StepResult]) -> None:
+def write_report(
+    path: Path, doc: Dict, systems: List[compare.SystemResult], steps: List[StepResult], colds: List[ColdResult]
+) -> None:
     lines = [
         "# CasADi cross-check report",
         "",
@@ -349,6 +437,33 @@ def write_report(path: Path, doc: Dict, systems: List[compare.SystemResult], ste
                 f"{fmt(st.tableau_error) if st.tableau_error is not None else 'n/a'} | "
                 f"{'pass' if st.ok else '**FAIL**'} |"
             )
+    lines += ["", "## Hard cold steps", ""]
+    if not colds:
+        lines.append("No cold steps were exported.")
+    else:
+        lines += [
+            "Systems with strong velocity-dependent terms (`problems/src/crosscheck/cold.rs`), one step from "
+            "their initial state with no earlier step, in every Newton mode. Reference: the root on the branch "
+            "that starts at `V = v0` for `h → 0`, followed by CasADi from `θh`, "
+            f"θ = {cold.THETA_START:g}, to `h` and polished to round-off; pass: every error of spark's step "
+            f"(`q1`, `v1`, `Ψ`, `V`, the measure above) ≤ {cold.TOLERANCE:g}. Beside it, what CasADi's Newton "
+            "from the constant guess `V = v0, Ψ = 0, v1 = v0` finds: the branch root, another root (an "
+            f"ambiguous case: more than {cold.SAME_ROOT:g} away, never the reference) or none.",
+            "",
+            "| system | method | s | h | Newton | q1 | v1 | Ψ | V | continuation steps | constant guess | verdict |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for c in colds:
+            e = c.errors
+            if c.refusal is not None:
+                cells = ["refused: " + c.refusal.splitlines()[0].replace("|", "\\|")[:160]] + ["-"] * 3
+            else:
+                cells = [fmt(e[k]) if k in e else "-" for k in ("q1", "v1", "psi", "V")]
+            steps_taken = str(c.reference.continuation_steps) if c.reference is not None else (c.problem or "-")
+            lines.append(
+                f"| {c.system} | {c.method} | {c.stages} | {c.h:g} | {c.newton} | " + " | ".join(cells) + " | "
+                f"{steps_taken} | {c.constant_guess()} | {'pass' if c.ok else '**FAIL**'} |"
+            )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
@@ -380,6 +495,7 @@ def run(args) -> int:
         print(f"corrupted: {len(selected)} systems declare `{effect_field}`")
     do_derivatives = args.perturb in (None, "derivative", "force", "nonideal", "event")
     do_steps = args.perturb in (None, "step", "force", "nonideal")
+    do_cold = args.perturb in (None, "cold")
     passed = failed = 0
     system_results: List[compare.SystemResult] = []
     if do_derivatives:
@@ -435,8 +551,40 @@ def run(args) -> int:
             passed += 1 if st.ok else 0
             failed += 0 if st.ok else 1
 
+    cold_results: List[ColdResult] = []
+    if do_cold:
+        systems = {s["name"]: s for s in doc["systems"]}
+        cold_steps = doc.get("cold_steps", [])
+        if args.perturb == "cold":
+            if not any(st.get("solved") for st in cold_steps):
+                raise InputError("--perturb cold: the export has no solved cold step to perturb")
+            # Only the (system, method) of the first solved step: its modes.
+            first = next(st for st in cold_steps if st.get("solved"))
+            group = (first["system"], first["method"]["label"])
+            cold_steps = [st for st in cold_steps if (st["system"], st["method"]["label"]) == group]
+        if args.require_steps and not cold_steps:
+            print("[FAIL] cold steps: the export contains no hard cold steps")
+            failed += 1
+        for c in check_cold_steps(cold_steps, systems, perturb=(args.perturb == "cold")):
+            cold_results.append(c)
+            status = "ok  " if c.ok else "FAIL"
+            if c.refusal is not None:
+                what = "refused: " + c.refusal.splitlines()[0][:200]
+            elif c.problem is not None:
+                what = c.problem
+            else:
+                what = " ".join(f"{k}={v:.1e}" for k, v in c.errors.items())
+            if c.reference is not None and c.reference.ambiguous and math.isfinite(c.to_constant):
+                what += f" (to the constant guess's root: {c.to_constant:.1e})"
+            print(
+                f"[{status}] cold-step {c.system:<22} {c.method:<17} s={c.stages} {c.newton:<20} {what} "
+                f"| constant guess: {c.constant_guess()} {c.note}"
+            )
+            passed += 1 if c.ok else 0
+            failed += 0 if c.ok else 1
+
     if args.report and args.perturb is None:
-        write_report(Path(args.report), doc, system_results, step_results)
+        write_report(Path(args.report), doc, system_results, step_results, cold_results)
         print(f"report written to {args.report}")
     print(f"casadi: {passed} passed, {failed} failed")
     return 1 if failed else 0
@@ -448,8 +596,9 @@ def main() -> int:
     parser.add_argument("--report", help="Markdown report to write (not written when perturbing)")
     parser.add_argument(
         "--perturb",
-        choices=["derivative", "step", "force", "nonideal", "event"],
-        help="deliberately corrupt one exported value (derivative, step) or CasADi's own f, N or event "
+        choices=["derivative", "step", "force", "nonideal", "event", "cold"],
+        help="deliberately corrupt one exported value (derivative, step, cold: a hard cold step, and only the "
+        "cold steps of its system and method are checked) or CasADi's own f, N or event "
         "functions (force, nonideal, event: only systems with that effect are checked) by 1e-10; "
         "the check must then fail (exit 1)",
     )
@@ -458,7 +607,9 @@ def main() -> int:
         default="stage_jacobians.force_q",
         help="which output of the first point of the first system --perturb derivative corrupts",
     )
-    parser.add_argument("--require-steps", action="store_true", help="fail if the export has no SPARK steps")
+    parser.add_argument(
+        "--require-steps", action="store_true", help="fail if the export has no SPARK steps or no hard cold steps"
+    )
     args = parser.parse_args()
     try:
         return run(args)

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The CasADi cross-check, alone: sets up casadi/.venv (pinned requirements),
-# exports every system's derivatives and SPARK steps from Rust, compares them
-# with CasADi, writes docs/casadi-report.md, and proves the check can fail.
+# exports every system's derivatives, SPARK steps and hard cold steps from
+# Rust, compares them with CasADi, writes docs/casadi-report.md, and proves
+# the check can fail.
 #
 #   bash casadi/run.sh             # the whole cross-check
 #   bash casadi/run.sh --prepare   # only set up casadi/.venv, then exit
@@ -79,7 +80,9 @@ echo "==> Newton-LU peer against spark's exported steps"
 SPARK_CASADI_EXPORT="$OUT/export.json" "$PY" -m unittest discover -s casadi/peers -p 'test_*.py' -q
 
 # --- negative tests: a corrupted value must be caught ------------------------
-for what in derivative step; do
+# A hard cold step (v1 of the first one solved) corrupted the same way must
+# fail its comparison with the branch root.
+for what in derivative step cold; do
     echo "==> negative test: --perturb $what must fail"
     set +e
     "$PY" casadi/crosscheck.py --input "$OUT/export.json" --perturb "$what" >"$OUT/perturb-$what.log" 2>&1
@@ -129,5 +132,5 @@ else
     cat "$OUT/perturb-event.log" >&2
     fail "the corrupted event function was NOT caught (exit $rc, derivative failures $d of ${k:-?} systems)."
 fi
-echo "casadi cross-check: every comparison agrees; all five corrupted values were caught"
-echo "casadi: $((passed + 5)) passed, 0 failed"
+echo "casadi cross-check: every comparison agrees; all six corrupted values were caught"
+echo "casadi: $((passed + 6)) passed, 0 failed"

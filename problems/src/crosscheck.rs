@@ -1,7 +1,8 @@
 //! Export for the independent CasADi cross-check (`casadi/`): seeded sample
 //! points with every output of [`NonholonomicSystem`], plus the system's
-//! neutral source text and parameter values, and one whole SPARK step per
-//! (system, method), as JSON with round-trip floats.
+//! neutral source text and parameter values, one whole SPARK step per
+//! (system, method), and the hard cold steps of [`cold`] in every Newton
+//! mode, as JSON with round-trip floats.
 //!
 //! The Python side rebuilds each system from the source text alone,
 //! differentiates it with CasADi and compares. Nothing here derives anything:
@@ -29,6 +30,7 @@ use spark_runtime::{
 
 use crate::catalog::{self, Dispatch, DispatchError, StageVisitor, SystemEntry, SystemVisitor};
 
+pub mod cold;
 pub mod handwritten;
 mod sample;
 mod wire;
@@ -55,13 +57,22 @@ pub struct Document {
     pub systems: Vec<SystemExport>,
     /// Whole-step results, one per (system, method, stage count).
     pub steps: Vec<StepExport>,
+    /// Hard cold steps ([`cold`]), one per (system, method, stage count,
+    /// Newton mode), solved or refused.
+    pub cold_steps: Vec<cold::ColdStepExport>,
 }
 
 impl Document {
     /// Every system and step of the cross-check, with sample points drawn
     /// from `seed`.
     pub fn export(seed: u64) -> Result<Self, CrosscheckError> {
-        Ok(Self { format: FORMAT, seed, systems: export_all_systems(seed)?, steps: export_all_steps()? })
+        Ok(Self {
+            format: FORMAT,
+            seed,
+            systems: export_all_systems(seed)?,
+            steps: export_all_steps()?,
+            cold_steps: cold::export_cold_steps()?,
+        })
     }
 }
 
@@ -233,7 +244,8 @@ pub fn checked_methods() -> Vec<(Method, usize)> {
         .collect()
 }
 
-/// Every system the cross-check covers ([`visit_cases`]), exported with
+/// Every system the cross-check covers ([`visit_cases`], then the hard cold
+/// cases of [`cold::visit_cold_cases`]), exported with
 /// `seed`: once with its default parameters and again with every parameter
 /// moved off its default, so that special values (β = π/2, unit masses) hide
 /// nothing and `set_parameter` is exercised.
@@ -262,6 +274,7 @@ pub fn export_all_systems(seed: u64) -> Result<Vec<SystemExport>, CrosscheckErro
     }
     let mut samples = Samples { seed, out: Vec::new() };
     visit_cases(&mut samples)?;
+    cold::visit_cold_cases(&mut samples)?;
     Ok(samples.out)
 }
 

@@ -68,7 +68,12 @@ fn every_scene_is_exported() {
 
 #[test]
 fn every_system_takes_every_step() {
-    let systems = export_all_systems(1).unwrap().iter().filter(|s| !s.name.contains("varied")).count();
+    let cold = cold::COLD_CASES.map(|c| c.name);
+    let systems = export_all_systems(1)
+        .unwrap()
+        .iter()
+        .filter(|s| !s.name.contains("varied") && !cold.contains(&s.name.as_str()))
+        .count();
     let steps = export_all_steps().expect("all steps succeed");
     // Gauss 1..3, IIIA-B 2..3, IIIA-B-D 2..3, Euler I, II, modified Lobatto, LDA.
     assert_eq!(checked_methods().len(), 11);
@@ -117,7 +122,35 @@ fn every_catalogue_entry_is_exported_under_its_command_line_name() {
     let exported = exported_names();
     let mut expected: Vec<String> = problems::catalog::entries().iter().map(|e| e.name.to_owned()).collect();
     expected.extend(["rheonomic-hand", "appell-hamel-sprung"].map(String::from));
+    expected.extend(cold::COLD_CASES.map(|c| c.name.to_owned()));
     assert_eq!(exported, expected);
+}
+
+/// Every hard cold case takes every cold method in every Newton mode from
+/// its own state, and each step is either solved or refused with the
+/// stepper's error (the export itself does not fail on a refused step).
+#[test]
+fn cold_cases_take_every_method_in_every_mode() {
+    let steps = cold::export_cold_steps().expect("the cold export records refusals instead of failing");
+    let mut want = Vec::new();
+    for case in cold::COLD_CASES {
+        for (method, stages) in cold::COLD_METHODS {
+            for (mode, _, _) in cold::NEWTON_MODES {
+                want.push((case.name, method.key(), stages, mode));
+            }
+        }
+    }
+    let taken: Vec<_> =
+        steps.iter().map(|st| (st.system.as_str(), st.method.key, st.method.stages, st.newton)).collect();
+    assert_eq!(taken, want);
+    for st in &steps {
+        let case = cold::COLD_CASES.into_iter().find(|c| c.name == st.system).unwrap();
+        assert!(st.t0 == case.t0 && st.h == case.h && st.q0 == case.q0, "{}", st.system);
+        assert_eq!(st.solved.is_some(), st.error.is_none(), "{} {}: {:?}", st.system, st.method.label, st.error);
+        if let Some(sol) = &st.solved {
+            assert_eq!((sol.psi.len(), sol.stage_velocities.len()), (st.method.stages, st.method.stages));
+        }
+    }
 }
 
 #[test]
