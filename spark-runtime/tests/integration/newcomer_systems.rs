@@ -510,6 +510,15 @@ pub(super) fn step_distance<const N: usize, const M: usize, const S: usize>(
     worst
 }
 
+/// Every Newton mode the options offer: full Newton and simplified Newton
+/// on the exact, the stage-decoupled and the automatically chosen matrix.
+pub(super) const EVERY_MODE: [(NewtonMode, Jacobian); 4] = [
+    (NewtonMode::Full, Jacobian::Auto),
+    (NewtonMode::Simplified, Jacobian::Exact),
+    (NewtonMode::Simplified, Jacobian::StageDecoupled),
+    (NewtonMode::Simplified, Jacobian::Auto),
+];
+
 /// The Newton modes [`newcomer_steps_equal_the_tight_solve_in_every_newton_mode`]
 /// checks: full Newton, simplified Newton on the exact matrix and on the
 /// matrix `Jacobian::Auto` picks.

@@ -19,16 +19,8 @@
 //! differences of at most 5.3e-15 and steps within 5.2e-14 of CasADi's
 //! Newton solve of (6.1) (1232 steps, four steps per method and mode, h = 0.1).
 
-use super::newcomer_systems::{against_tight, derivative_error, step_distance, tally_against_tight};
+use super::newcomer_systems::{against_tight, derivative_error, step_distance, tally_against_tight, EVERY_MODE};
 
-/// Full Newton and simplified Newton on the exact, the stage-decoupled and
-/// the automatically chosen matrix.
-const EVERY_MODE: [(NewtonMode, Jacobian); 4] = [
-    (NewtonMode::Full, Jacobian::Auto),
-    (NewtonMode::Simplified, Jacobian::Exact),
-    (NewtonMode::Simplified, Jacobian::StageDecoupled),
-    (NewtonMode::Simplified, Jacobian::Auto),
-];
 use spark_runtime::{
     consistent_velocity, nonholonomic_system, ConsistencyPolicy, ConstraintForm, Jacobian, Method, NewtonMode,
     NewtonOptions, NoObserver, NonholonomicSystem, RunOptions, Schedule, State, Stepper, Tableau, Vector,

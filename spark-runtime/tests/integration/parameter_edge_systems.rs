@@ -24,7 +24,7 @@
 //! agree to 5.2e-16 relative, and 1440 steps of h = 0.1 (four per system,
 //! parameter set, method and Newton mode) agree in `q₁` and `v₁` to 4.6e-15.
 
-use super::newcomer_systems::{against_tight, derivative_error, step_distance, tally_against_tight};
+use super::newcomer_systems::{against_tight, derivative_error, step_distance, tally_against_tight, EVERY_MODE};
 use spark_runtime::{
     consistent_velocity, nonholonomic_system, ConsistencyPolicy, ConstraintForm, Jacobian, Method, NewtonMode,
     NewtonOptions, NonholonomicSystem, State, Stepper, Tableau, Vector, HISTORY_CAPACITY,
@@ -88,14 +88,6 @@ nonholonomic_system! {
         nonideal_forces: { y: -mu*psi[0]*dot(y) },
     }
 }
-
-/// Every Newton mode the options offer.
-const EVERY_MODE: [(NewtonMode, Jacobian); 4] = [
-    (NewtonMode::Full, Jacobian::Auto),
-    (NewtonMode::Simplified, Jacobian::Exact),
-    (NewtonMode::Simplified, Jacobian::StageDecoupled),
-    (NewtonMode::Simplified, Jacobian::Auto),
-];
 
 /// The systems at their defaults and at other values.
 fn edge_defaults() -> [EdgeDefaults; 2] {

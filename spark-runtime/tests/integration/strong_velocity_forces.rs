@@ -8,10 +8,10 @@
 //! its equations, and a step far beyond the branch's reach must still fail
 //! with a typed error, not a success.
 
-use super::newcomer_systems::{against_tight, tally_against_tight};
+use super::newcomer_systems::{against_tight, tally_against_tight, EVERY_MODE};
+use super::newcomer_unusual_systems::start;
 use spark_runtime::{
-    consistent_velocity, nonholonomic_system, ConsistencyPolicy, Jacobian, Method, NewtonMode, NewtonOptions,
-    NonholonomicSystem, State, StepError, Stepper, Tableau, Vector,
+    nonholonomic_system, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, StepError, Stepper, Tableau,
 };
 
 nonholonomic_system! {
@@ -50,25 +50,6 @@ nonholonomic_system! {
     }
 }
 
-/// Every Newton mode the options offer.
-const EVERY_MODE: [(NewtonMode, Jacobian); 4] = [
-    (NewtonMode::Full, Jacobian::Auto),
-    (NewtonMode::Simplified, Jacobian::Exact),
-    (NewtonMode::Simplified, Jacobian::StageDecoupled),
-    (NewtonMode::Simplified, Jacobian::Auto),
-];
-
-/// A start consistent with the constraints of `sys` (projected).
-fn start<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize>(
-    sys: &Sys,
-    q0: [f64; N],
-    v0: [f64; N],
-) -> State<N> {
-    let (q0, v0) = (Vector::<N>::from(q0), Vector::<N>::from(v0));
-    let v0 = consistent_velocity(sys, 0.0, &q0, &v0, ConsistencyPolicy::Project { tolerance: 1e-14 }).unwrap();
-    State::new(0.0, q0, v0)
-}
-
 /// The cold step of size `h` from `start` in every Newton mode against the
 /// tight solve: the largest distance, failures added to `failures`.
 fn steps<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
@@ -90,13 +71,13 @@ where
 fn strong_velocity_forces_step_in_every_mode() {
     let mut failures = Vec::new();
     let mut worst = Vec::new();
-    let damped = start(&DampedKnife::default(), [1.0, 0.5, 0.3], [0.8, -0.4, 1.5]);
+    let damped = start(&DampedKnife::default(), 0.0, [1.0, 0.5, 0.3], [0.8, -0.4, 1.5]);
     worst.push(steps::<_, 3, 1, 3, 15>(&DampedKnife::default(), Method::LobattoIIIABD, &damped, 0.25, &mut failures));
     worst.push(steps::<_, 3, 1, 2, 11>(&DampedKnife::default(), Method::Gauss, &damped, 0.25, &mut failures));
-    let magnetic = start(&MagneticKnife::default(), [0.8, 0.6, 0.2], [0.3, -0.2, -0.5]);
+    let magnetic = start(&MagneticKnife::default(), 0.0, [0.8, 0.6, 0.2], [0.3, -0.2, -0.5]);
     worst.push(steps::<_, 3, 1, 2, 11>(&MagneticKnife::default(), Method::Gauss, &magnetic, 1.0, &mut failures));
     worst.push(steps::<_, 3, 1, 3, 15>(&MagneticKnife::default(), Method::LobattoIIIAB, &magnetic, 1.0, &mut failures));
-    let drag = start(&CubicDrag::default(), [0.2, 0.1, 0.0], [3.0, -2.0, 0.0]);
+    let drag = start(&CubicDrag::default(), 0.0, [0.2, 0.1, 0.0], [3.0, -2.0, 0.0]);
     worst.push(steps::<_, 3, 1, 2, 11>(&CubicDrag::default(), Method::Gauss, &drag, 0.1, &mut failures));
     worst.push(steps::<_, 3, 1, 2, 11>(&CubicDrag::default(), Method::LobattoIIIABD, &drag, 0.1, &mut failures));
     println!("largest distances from the tight solve: {worst:?}");
@@ -108,7 +89,7 @@ fn strong_velocity_forces_step_in_every_mode() {
 /// full step, which the stepper's last history repeats.
 #[test]
 fn a_step_beyond_the_branch_still_fails() {
-    let damped = start(&DampedKnife::default(), [1.0, 0.5, 0.3], [0.8, -0.4, 1.5]);
+    let damped = start(&DampedKnife::default(), 0.0, [1.0, 0.5, 0.3], [0.8, -0.4, 1.5]);
     for mode in [NewtonMode::Full, NewtonMode::Simplified] {
         let opts = NewtonOptions { mode, ..NewtonOptions::default() };
         let mut st = Stepper::<_, 3, 1, 2, 11>::new(DampedKnife::default(), Tableau::new(Method::Gauss).unwrap())
