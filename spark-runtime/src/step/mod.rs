@@ -2,9 +2,10 @@
 //! and the [`StepResult`] it returns. The pieces of a step live beside it:
 //! the starting guess (`guess`), the residual and Jacobian of eq. 6.1
 //! (`equations`), Newton's method on them (`newton`) with its stopping rule
-//! (`convergence`), the checks of a cold start (`cold_start`), the energy
-//! guard (`energy_guard`) and the compensated summation of `q` across steps
-//! (`compensation`).
+//! (`convergence`), the checks of a cold start (`cold_start`), the homotopy
+//! in the step size of a step that Newton solves from none of its guesses
+//! (`homotopy`), the energy guard (`energy_guard`) and the compensated
+//! summation of `q` across steps (`compensation`).
 //!
 //! Unknowns `z = [V_1..V_S | μ_1..μ_S | v₁]` with `μ_i = hΨ_i` (scaling the
 //! multipliers by `h` keeps every block of the Newton matrix `O(1)`), `D =
