@@ -79,15 +79,14 @@ impl<const D: usize> Homotopy<D> {
         let guess = self.guess();
         let (from, ref at) = self.solved;
         let advance = self.trying - from;
-        let (correction, travel) = ((z - guess).amax(), (guess - at).amax());
-        let slope = (z - at) / advance;
-        let close = correction <= 0.5 * travel + 64.0 * f64::EPSILON * z.amax();
+        let correction = (z - guess).amax();
         // A NaN or infinite distance is never kept.
         if !correction.is_finite() {
             return false;
         }
-        self.slope = slope;
-        if from > 0.0 && !close {
+        let travel = (guess - at).amax();
+        self.slope = (z - at) / advance;
+        if from > 0.0 && correction > 0.5 * travel + 64.0 * f64::EPSILON * z.amax() {
             return false;
         }
         self.solves += 1;

@@ -1,11 +1,13 @@
 //! Cold steps under velocity-dependent forces that change the velocity by
-//! much more than itself within one step (`h·‖∂f/∂v‖` of 3 to 40): strong
-//! linear damping, a strong magnetic term `A(q)·v`, a cubic drag with a
-//! time-dependent drive. From the cold guess `V_i = v₀ + c_i h a₀` Newton
-//! diverges in every mode there, and the step is solved by following its
-//! branch of solutions from `h = 0` (`step/homotopy.rs`). Each step must
-//! succeed in every Newton mode and equal the tightly converged solution of
-//! its equations, and a step far beyond the branch's reach must still fail
+//! much more than itself within one step: linear damping with `h·c = 7.5`,
+//! a magnetic term `A(q)·v` with `h·b = 12`, a cubic drag with
+//! `h·3c·v₀² = 108` beside a time-dependent drive. From the cold guess
+//! `V_i = v₀ + c_i h a₀` Newton diverges there (in every mode for the
+//! damping and the drag; the magnetic term's Gauss step stalls in
+//! simplified Newton), and the step is solved by following its branch of
+//! solutions from `h = 0` (`step/homotopy.rs`). Each step must succeed in
+//! every Newton mode and equal the tightly converged solution of its
+//! equations, and a step far beyond the branch's reach must still fail
 //! with a typed error, not a success.
 
 use super::newcomer_systems::{against_tight, tally_against_tight, EVERY_MODE};
