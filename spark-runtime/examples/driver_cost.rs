@@ -27,7 +27,7 @@ use spark_runtime::{
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{MobileRobot, Mp7, Particle, Skate};
+use paper_systems::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
 
 /// Steps per run and their size.
 const STEPS: usize = 200;
@@ -102,7 +102,7 @@ fn main() -> Result<(), String> {
         (
             "particle",
             time::<_, 3, 1, 11>(
-                Particle::default(),
+                NonholonomicParticle::default(),
                 Vector::<3>::new(1.0, 0.0, 0.0),
                 Vector::<3>::new(0.0, 1.0, 0.0),
                 seconds,
@@ -121,7 +121,7 @@ fn main() -> Result<(), String> {
                 seconds,
             )?,
         ),
-        ("mp7", time::<_, 7, 1, 23>(Mp7::default(), mp_q, mp_v, seconds)?),
+        ("mp7", time::<_, 7, 1, 23>(McLachlanPerlmutter7::default(), mp_q, mp_v, seconds)?),
     ];
     // Written, not printed: a closed pipe is an error to report, not a panic.
     let mut out = std::io::stdout().lock();

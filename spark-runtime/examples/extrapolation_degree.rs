@@ -17,7 +17,7 @@ use spark_runtime::{Jacobian, Method, NewtonMode, NewtonOptions, NonholonomicSys
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{mp7_start, particle_start, skate_start, Mp7, Particle, Skate};
+use paper_systems::{mp7_start, particle_start, skate_start, McLachlanPerlmutter7, NonholonomicParticle, Skate};
 
 fn report<Sys, const N: usize, const S: usize, const D: usize>(
     name: &str,
@@ -71,13 +71,19 @@ fn main() -> Result<(), String> {
         report::<_, 3, 2, 11>("skate, Lobatto IIIA-B s = 2", &Skate::default(), skate, h, Method::LobattoIIIAB)?;
     }
     for h in [0.1, 0.2, 0.4, 0.7] {
-        report::<_, 3, 1, 7>("particle, Gauss s = 1", &Particle::default(), particle, h, Method::Gauss)?;
+        report::<_, 3, 1, 7>("particle, Gauss s = 1", &NonholonomicParticle::default(), particle, h, Method::Gauss)?;
     }
     for h in [0.05, 0.1, 0.3, 0.6] {
-        report::<_, 7, 2, 23>("mp7, Gauss s = 2", &Mp7::default(), mp7, h, Method::Gauss)?;
+        report::<_, 7, 2, 23>("mp7, Gauss s = 2", &McLachlanPerlmutter7::default(), mp7, h, Method::Gauss)?;
     }
     for h in [0.05, 0.3, 0.6] {
-        report::<_, 7, 2, 23>("mp7, Lobatto IIIA-B s = 2", &Mp7::default(), mp7, h, Method::LobattoIIIAB)?;
+        report::<_, 7, 2, 23>(
+            "mp7, Lobatto IIIA-B s = 2",
+            &McLachlanPerlmutter7::default(),
+            mp7,
+            h,
+            Method::LobattoIIIAB,
+        )?;
     }
     Ok(())
 }

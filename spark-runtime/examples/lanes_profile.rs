@@ -23,7 +23,7 @@ use spark_runtime::{Jacobian, LaneStepper, Method, NewtonMode, NewtonOptions, St
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::Mp7;
+use paper_systems::McLachlanPerlmutter7;
 
 const H: f64 = 0.05;
 const STEPS: usize = 500;
@@ -49,7 +49,7 @@ fn main() -> Result<(), String> {
     let mut check = 0.0;
     match mode.as_str() {
         "lanes" => {
-            let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(Mp7::default(), tableau()?, options);
+            let mut lanes = LaneStepper::<_, 7, 1, 2, 23, 8>::new(McLachlanPerlmutter7::default(), tableau()?, options);
             for _ in 0..repeats {
                 lanes.start(&starts, H).map_err(|e| e.to_string())?;
                 lanes.advance_by(STEPS);
@@ -61,7 +61,9 @@ fn main() -> Result<(), String> {
         "sequential" => {
             let mut steppers = Vec::new();
             for _ in 0..starts.len() {
-                steppers.push(Stepper::<_, 7, 1, 2, 23>::new(Mp7::default(), tableau()?).with_options(options));
+                steppers.push(
+                    Stepper::<_, 7, 1, 2, 23>::new(McLachlanPerlmutter7::default(), tableau()?).with_options(options),
+                );
             }
             for _ in 0..repeats {
                 for (stepper, start) in steppers.iter_mut().zip(&starts) {

@@ -35,7 +35,9 @@ use spark_runtime::{
 
 #[path = "common/paper_systems.rs"]
 mod paper_systems;
-use paper_systems::{mp7_start, particle_start, robot_start, skate_start, MobileRobot, Mp7, Particle, Skate};
+use paper_systems::{
+    mp7_start, particle_start, robot_start, skate_start, McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate,
+};
 
 fn run<Sys: NonholonomicSystem<N, M>, const N: usize, const M: usize, const S: usize, const D: usize>(
     sys: Sys,
@@ -146,21 +148,51 @@ fn main() -> Result<(), String> {
         ("skate", 2) => run::<_, 3, 1, 2, 11>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
         ("skate", 3) => run::<_, 3, 1, 3, 15>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
         ("skate", 4) => run::<_, 3, 1, 4, 19>(Skate::default(), skate, step(0.1)?, method, options, repeats, driver),
-        ("particle", 1) => {
-            run::<_, 3, 1, 1, 7>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
-        }
-        ("particle", 2) => {
-            run::<_, 3, 1, 2, 11>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
-        }
-        ("particle", 3) => {
-            run::<_, 3, 1, 3, 15>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
-        }
-        ("particle", 4) => {
-            run::<_, 3, 1, 4, 19>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
-        }
-        ("particle", 5) => {
-            run::<_, 3, 1, 5, 23>(Particle::default(), particle, step(0.2)?, method, options, repeats, driver)
-        }
+        ("particle", 1) => run::<_, 3, 1, 1, 7>(
+            NonholonomicParticle::default(),
+            particle,
+            step(0.2)?,
+            method,
+            options,
+            repeats,
+            driver,
+        ),
+        ("particle", 2) => run::<_, 3, 1, 2, 11>(
+            NonholonomicParticle::default(),
+            particle,
+            step(0.2)?,
+            method,
+            options,
+            repeats,
+            driver,
+        ),
+        ("particle", 3) => run::<_, 3, 1, 3, 15>(
+            NonholonomicParticle::default(),
+            particle,
+            step(0.2)?,
+            method,
+            options,
+            repeats,
+            driver,
+        ),
+        ("particle", 4) => run::<_, 3, 1, 4, 19>(
+            NonholonomicParticle::default(),
+            particle,
+            step(0.2)?,
+            method,
+            options,
+            repeats,
+            driver,
+        ),
+        ("particle", 5) => run::<_, 3, 1, 5, 23>(
+            NonholonomicParticle::default(),
+            particle,
+            step(0.2)?,
+            method,
+            options,
+            repeats,
+            driver,
+        ),
         ("robot", 1) => {
             run::<_, 4, 2, 1, 10>(MobileRobot::default(), robot, step(0.2)?, method, options, repeats, driver)
         }
@@ -173,11 +205,21 @@ fn main() -> Result<(), String> {
         ("robot", 4) => {
             run::<_, 4, 2, 4, 28>(MobileRobot::default(), robot, step(0.2)?, method, options, repeats, driver)
         }
-        ("mp7", 1) => run::<_, 7, 1, 1, 15>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 2) => run::<_, 7, 1, 2, 23>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 3) => run::<_, 7, 1, 3, 31>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 4) => run::<_, 7, 1, 4, 39>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
-        ("mp7", 5) => run::<_, 7, 1, 5, 47>(Mp7::default(), mp7, step(0.05)?, method, options, repeats, driver),
+        ("mp7", 1) => {
+            run::<_, 7, 1, 1, 15>(McLachlanPerlmutter7::default(), mp7, step(0.05)?, method, options, repeats, driver)
+        }
+        ("mp7", 2) => {
+            run::<_, 7, 1, 2, 23>(McLachlanPerlmutter7::default(), mp7, step(0.05)?, method, options, repeats, driver)
+        }
+        ("mp7", 3) => {
+            run::<_, 7, 1, 3, 31>(McLachlanPerlmutter7::default(), mp7, step(0.05)?, method, options, repeats, driver)
+        }
+        ("mp7", 4) => {
+            run::<_, 7, 1, 4, 39>(McLachlanPerlmutter7::default(), mp7, step(0.05)?, method, options, repeats, driver)
+        }
+        ("mp7", 5) => {
+            run::<_, 7, 1, 5, 47>(McLachlanPerlmutter7::default(), mp7, step(0.05)?, method, options, repeats, driver)
+        }
         (system, s) => {
             Err(format!("no case {system} with s = {s}: particle or mp7 with s = 1..=5, skate or robot with s = 1..=4"))
         }
