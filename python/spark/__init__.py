@@ -365,8 +365,25 @@ def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
 
 
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
+    """The number of fixed steps of ``h`` from ``t0``: ``steps``, or as many
+    as reach ``t_end``. Given both, they must agree: a run of ``steps``
+    steps that ended elsewhere than the ``t_end`` also given would return
+    another interval than asked, as a success."""
     if steps is not None:
-        return _whole("steps", steps, 1)
+        n = _whole("steps", steps, 1)
+        if t_end is not None:
+            h, t_end, t0 = _real("h", h), _real("t_end", t_end), _real("t0", t0)
+            ends = t0 + float(n) * h
+            try:
+                agree = _steps(h, None, t_end, t0) == n
+            except SparkError:
+                agree = False
+            if not agree:
+                raise ArgumentError(
+                    f"steps = {n} and t_end = {t_end!r} disagree: {n} steps of h = {h!r} from t0 = {t0!r} end at "
+                    f"t = {ends!r}; give one of them"
+                )
+        return n
     if t_end is None:
         raise SparkError("give steps= or t_end=")
     h, t_end, t0 = _real("h", h), _real("t_end", t_end), _real("t0", t0)

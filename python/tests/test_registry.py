@@ -292,6 +292,24 @@ def test_a_final_time_is_reached_in_whole_steps_in_its_direction_or_refused():
     assert skate.integrate("gauss", 2, 0.1, t_end=0.3).t.shape == (4,)
 
 
+def test_steps_and_t_end_given_together_must_agree():
+    # 10 steps of 0.1 end at 1, not at the t_end also given: one of the two
+    # would be dropped, and the run returned for another interval than asked.
+    skate = spark.system("skate")
+    q0s, v0s = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])
+    message = r"steps = 10 and t_end = 5.0 disagree: 10 steps of h = 0.1 from t0 = 0.0 end at t = 1.0"
+    with pytest.raises(spark.ArgumentError, match=message):
+        skate.integrate("gauss", 2, 0.1, 10, t_end=5.0)
+    with pytest.raises(spark.ArgumentError, match=message):
+        spark.ensemble("skate", "gauss", 2, 0.1, 10, q0s, v0s, t_end=5.0)
+    with pytest.raises(spark.ArgumentError, match="steps = 10 and t_end = -1.0 disagree"):
+        skate.integrate("gauss", 2, 0.1, 10, t_end=-1.0)
+    # Both given and agreeing (up to the round-off of t_end / h) run as either alone.
+    run = skate.integrate("gauss", 2, 0.1, 10, t_end=1.0)
+    np.testing.assert_array_equal(run.q, skate.integrate("gauss", 2, 0.1, 10).q)
+    assert spark.ensemble("skate", "gauss", 2, -0.1, 3, q0s, v0s, t_end=-0.3).t.shape == (4,)
+
+
 def test_complex_numbers_and_strings_where_real_numbers_are_meant_are_type_errors():
     # NumPy's cast to float64 drops the imaginary part with a warning and
     # parses strings: unchecked, q0 = [1+2j, 0, 0] would run from x = 1,
