@@ -84,13 +84,17 @@ use proc_macro::TokenStream;
 /// `∇²_vv L ≡ 0` (no velocity term, or only linear ones), a coordinate whose
 /// velocity is in neither the mass matrix `∇²_vv L` nor any constraint (a
 /// forgotten kinetic term), fewer velocities in `∇²_vv L` than coordinates
-/// minus constraints, and two constraints whose rows of `K = ∂k/∂v` are
-/// proportional. A division whose denominator simplifies to the constant 0
-/// (`m/(2 - 2)`, `dot(x)^2/(x - x)`, a constant that folds to 0) is an error
-/// at its `/`, wherever it is written: `lagrangian`, constraints, forces,
-/// effects (selected by a scene or not), constants and parameter defaults.
-/// (The base of a system with scenes is exempt from the second check, since
-/// a scene's constraint may fix that velocity; each scene is checked.)
+/// minus constraints, a coordinate whose velocity a constraint fixes but
+/// which has no column in `∇²_vv L` (the integrators need a regular
+/// Lagrangian: the momentum equations of such a coordinate at the stages and
+/// at the step's end are dependent), and two constraints whose rows of
+/// `K = ∂k/∂v` are proportional. A division whose denominator simplifies to
+/// the constant 0 (`m/(2 - 2)`, `dot(x)^2/(x - x)`, a constant that folds
+/// to 0) is an error at its `/`, wherever it is written: `lagrangian`,
+/// constraints, forces, effects (selected by a scene or not), constants and
+/// parameter defaults. (The base of a system with scenes is exempt from the
+/// checks on coordinates, since a scene's constraint may fix a velocity and
+/// its potential give it inertia; each scene is checked.)
 ///
 /// # Effects and scenes
 ///

@@ -490,6 +490,10 @@ impl Model {
     /// - fewer velocities with inertia than `N − M`: the columns of `v₁` are
     ///   `[∇²_vv L; K]`, whose rank is at most the number of nonzero columns
     ///   of `∇²_vv L` plus `M`;
+    /// - a coordinate without inertia whose velocity a constraint fixes: the
+    ///   saddle-point matrix may be regular, but the step's momentum rows of
+    ///   that coordinate are dependent (Gauss: exactly, up to the quadrature
+    ///   error of its momentum), so Newton fails or returns a wrong step;
     /// - two constraints whose rows of `K = ∂k/∂v` are proportional (every
     ///   2 × 2 minor simplifies to 0), so `K` never has full rank.
     ///
@@ -587,6 +591,35 @@ impl Model {
                     names(&inert, false),
                 ),
             });
+        }
+        // A constraint that fixes the velocity of a coordinate `c` without
+        // inertia determines the motion but not a step: `c`'s component of
+        // `∇_v L` is a function of `(t, q)` alone, and for Gauss (`Â = Ã = A`,
+        // `b̂ = b̃ = b`) the momentum row of `c` at the step's end is `bᵀA⁻¹`
+        // times its stage rows up to the quadrature error of that function, so
+        // the Newton matrix is singular, or so ill-conditioned that a step it
+        // solves lands anywhere on a family of near-solutions.
+        for (i, coordinate) in spec.coordinates.iter().enumerate() {
+            if (0..n).all(|j| g.is_const(self.mass[j][i], 0.0)) {
+                let c = &coordinate.name;
+                let how = if g.is_const(self.momentum[i], 0.0) {
+                    format!("`dot({c})` appears only in constraints")
+                } else {
+                    format!("the Lagrangian is at most linear in `dot({c})` (∂²L/∂dot({c})∂dot(q) = 0)")
+                };
+                return Err(SpecError {
+                    span: coordinate.span,
+                    message: format!(
+                        "coordinate `{c}` of `{name}` has no inertia: {how}, so the mass matrix ∇²_vv L is singular \
+                         everywhere. A constraint fixes the velocity of `{c}` but not the step: the integrators need a \
+                         regular Lagrangian (∇²_vv L nonsingular, paper §2), and without it the momentum equations of \
+                         `{c}` at the stages and at the step's end are dependent, so the Newton matrix of a step is \
+                         singular or so ill-conditioned that a step it solves is wrong; give `{c}` a kinetic energy \
+                         term, e.g. `+ inertia/2*dot({c})^2` (with a parameter `inertia`), or remove it and compute \
+                         it from the other coordinates after the run"
+                    ),
+                });
+            }
         }
         // The minors are built in a scratch copy: the graph handed to code
         // generation stays exactly what `build` made.

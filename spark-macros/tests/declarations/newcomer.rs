@@ -1,8 +1,8 @@
 //! Declarations a new user writes: physics-style parameter names (`I`, `M`,
-//! `R`) compile without warnings, `atan`/`asin`/`acos` are available, a
-//! massless coordinate is fine when a constraint fixes its velocity, and the
-//! base of a system with scenes is not rejected for a coordinate only a
-//! scene's constraint determines.
+//! `R`) compile without warnings, `atan`/`asin`/`acos` are available, and
+//! the base of a system with scenes is not rejected for a coordinate only a
+//! scene's effects determine (a constraint on its velocity and, since a
+//! step needs a regular Lagrangian, a kinetic term).
 #![deny(warnings)]
 use spark_runtime::{nonholonomic_system, NonholonomicSystem, Vector};
 
@@ -16,20 +16,16 @@ nonholonomic_system! {
 }
 
 nonholonomic_system! {
-    /// `s` has no inertia; the constraint ties dot(s) to dot(x).
-    pub struct Follower {
-        coordinates: [x, s],
-        lagrangian: dot(x)^2/2 - x^2/2,
-        constraints: [ dot(s) - x*dot(x) ],
-    }
-}
-
-nonholonomic_system! {
+    /// `s` has no inertia in the base; the scene's effects tie dot(s) to the
+    /// speed and give it one.
     pub struct Tracer {
         coordinates: [x, y, s],
         lagrangian: (dot(x)^2 + dot(y)^2)/2,
-        effects: { pen: constraint(dot(s) - sqrt(1 + dot(x)^2 + dot(y)^2)) },
-        scenes: { Drawing = [pen] },
+        effects: {
+            pen: constraint(dot(s) - sqrt(1 + dot(x)^2 + dot(y)^2)),
+            ink: potential(-dot(s)^2/2),
+        },
+        scenes: { Drawing = [pen, ink] },
     }
 }
 
@@ -40,7 +36,7 @@ fn physics_style_names_and_scenes() {
     let expected = 2.0 + 0.5 - 0.5f64.atan() + 0.125f64.asin() - 0.1f64.acos();
     assert!((w.lagrangian(0.0, &q, &v) - expected).abs() < 1e-15);
     assert_eq!(w.constraint(0.0, &q, &v)[0], 0.0);
-    assert_eq!((Follower::M, Tracer::M, Drawing::M), (1, 0, 1));
+    assert_eq!((Tracer::M, Drawing::M), (0, 1));
 }
 
 // A `#[cfg]` on the declaration applies to everything the macro generates,

@@ -662,12 +662,10 @@ fn find_declaration_searches_items_and_inline_modules() {
 fn structurally_singular_declarations_are_rejected_and_regular_ones_are_not() {
     let generate_str = |src: &str| crate::generate(&parse_str(src).expect("parses")).map(|_| ());
     let message = |src: &str| generate_str(src).expect_err("must be rejected").message;
-    // Regular: two independent constraints (the robot), a massless
-    // coordinate whose velocity a constraint fixes, M = N.
+    // Regular: two independent constraints (the robot), M = N.
     for ok in [
         "struct R { coordinates: [x, y, th, ph], lagrangian: (dot(x)^2 + dot(y)^2 + dot(th)^2 + dot(ph)^2)/2,
            constraints: [ dot(x) - cos(th)*dot(ph), dot(y) - sin(th)*dot(ph) ] }",
-        "struct F { coordinates: [x, s], lagrangian: dot(x)^2/2, constraints: [ dot(s) - x*dot(x) ] }",
         "struct Q { coordinates: [x, y], lagrangian: (dot(x)^2 + dot(y)^2)/2,
            constraints: [ dot(x) - y, dot(y) + x ] }",
     ] {
@@ -699,6 +697,21 @@ fn structurally_singular_declarations_are_rejected_and_regular_ones_are_not() {
     );
     assert!(msg.contains("involves only `dot(x)`") && msg.contains("the 2 coordinates `y`, `z`"), "{msg}");
     assert_eq!(at, "dot(x)");
+    // A coordinate without inertia whose velocity a constraint fixes: the
+    // saddle-point matrix is regular, but Gauss's momentum rows of `s` are
+    // dependent (exactly for `p_s` constant or linear in `q`), so its steps
+    // fail with a singular Newton matrix or return a wrong step as solved.
+    let (msg, at) =
+        generate_error("struct F { coordinates: [x, s], lagrangian: dot(x)^2/2, constraints: [ dot(s) - x*dot(x) ] }");
+    assert!(msg.contains("`s` of `F` has no inertia: `dot(s)` appears only in constraints"), "{msg}");
+    assert!(msg.contains("A constraint fixes the velocity of `s` but not the step"), "{msg}");
+    assert_eq!(at, "s");
+    let (msg, at) = generate_error(
+        "struct C { coordinates: [x, y, w], lagrangian: (dot(x)^2 + dot(y)^2)/2 + x*dot(w) - w^2/2,
+           constraints: [ dot(w) - y*dot(x) ] }",
+    );
+    assert!(msg.contains("`w` of `C` has no inertia: the Lagrangian is at most linear in `dot(w)`"), "{msg}");
+    assert_eq!(at, "w");
     assert!(message(
         "struct D { coordinates: [x, y, z], lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2,
            constraints: [ dot(y) - x*dot(z), sin(x)*dot(y) - x*sin(x)*dot(z) + t ] }"
