@@ -40,7 +40,6 @@ def main() -> None:
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
     system = "mp7" if a.printed else "mp7-nh"
-    steps = round(a.t_end / a.h)
     q0s, v0s = sray.fig84_members(a.members)
     if a.address or os.environ.get("RAY_ADDRESS"):
         ray.init(address=a.address, include_dashboard=False)
@@ -50,7 +49,12 @@ def main() -> None:
     for method in METHODS:
         path = os.path.join(a.out, f"{system}_{method}.parquet")
         start = time.perf_counter()
-        report = sray.sweep(system, method, 2, a.h, steps, q0s, v0s, out=path, every=a.every, newton="simplified")
+        # t_end, not a step count rounded from it: the sweep refuses an
+        # interval that is not a whole number of steps instead of running
+        # another one.
+        report = sray.sweep(system, method, 2, a.h, q0s=q0s, v0s=v0s, out=path, t_end=a.t_end, every=a.every,
+                            newton="simplified")
+        steps = int(report.steps[0])
         t, stat = sray.ensemble_statistic(path, a.h)
         columns.setdefault("t", list(t))
         columns[method] = list(stat)

@@ -160,7 +160,7 @@ def test_a_sweep_checks_its_settings_and_the_size_of_its_table_before_ray_starts
         ("step size h = NaN", ("mp7-nh", METHOD, 2, float("nan"), 10, q0s, v0s), {}),
         (r"shape \(members, 7\) for mp7-nh", ("mp7-nh", METHOD, 2, H, 10, q0s[:, :3], v0s[:, :3]), {}),
         ("has no parameter `g`", ("mp7-nh", METHOD, 2, H, 10, q0s, v0s, {"g": 1.0}), {}),
-        ("member 0 .*v0 violates the constraints", ("mp7-nh", METHOD, 2, H, 10, q0s, bad_v0), {}),
+        ("member 0 .*v0 violates the constraints.*a row of v0s", ("mp7-nh", METHOD, 2, H, 10, q0s, bad_v0), {}),
         (r"the sweep's table has 3\.000e\+12 rows", ("mp7-nh", METHOD, 2, H, 10**12, q0s, v0s), {}),
     ]
     for words, args, kwargs in cases:
@@ -201,6 +201,19 @@ def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
         sray.ensemble_statistic(table.slice(0, 0), 0.1)
     with pytest.raises(ValueError, match="member 1 has 1 samples and others 2"):
         sray.ensemble_statistic(table.slice(0, 3), 0.1)
+
+
+def test_the_fig84_example_refuses_an_interval_that_is_not_a_whole_number_of_steps(local_ray, tmp_path,
+                                                                                   monkeypatch):
+    # 10.03 / 0.05 = 200.6 steps: a count rounded from it ran to t = 10.05.
+    import runpy
+    import sys
+
+    monkeypatch.setattr(ray, "init", lambda *args, **kwargs: None)
+    monkeypatch.setattr(sys, "argv", ["fig84_ray.py", "--members", "2", "--t-end", "10.03", "--every", "1",
+                                      "--out", str(tmp_path)])
+    with pytest.raises(spark.SparkError, match=r"1\.003000e\+01 is 2\.006000e\+02 steps .* not a whole number"):
+        runpy.run_path(str(Path(__file__).parents[1] / "examples" / "fig84_ray.py"), run_name="__main__")
 
 
 def test_a_sweep_writes_to_bytes_and_non_utf8_paths(local_ray, tmp_path):
