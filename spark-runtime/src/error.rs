@@ -331,19 +331,19 @@ pub enum StepError {
         /// Its value (for a vector or matrix, the first non-finite entry).
         value: f64,
     },
-    /// The saddle matrix `[[W, Kᵀ],[K, 0]]` (`W = ∇²_vv L` the mass matrix,
-    /// `K = ∂k/∂v`) is singular at the initial state (checked by
+    /// No step can be solved from the initial state. Either the saddle
+    /// matrix `[[W, Kᵀ],[K, 0]]` (`W = ∇²_vv L` the mass matrix,
+    /// `K = ∂k/∂v`) is singular there (checked by
     /// [`consistent_velocity`](crate::consistent_velocity) before the first
     /// step), so the equations of motion do not determine the
-    /// accelerations there: `W` is singular on the velocities the
-    /// constraints leave free (a zero mass or inertia parameter, a velocity
-    /// missing from `L`), or the constraint rows are dependent or vanish.
-    /// Every step from this state would fail with a singular Newton matrix.
-    #[error(
-        "the accelerations are not determined at the initial state (t0 = {}): the saddle matrix [[W, K^T],[K, 0]] \
-         of the mass matrix W = d²L/dv² and the constraint rows K = dk/dv is singular there; {detail}",
-        Sci(*t)
-    )]
+    /// accelerations: `W` is singular on the velocities the constraints
+    /// leave free (a zero mass or inertia parameter, a velocity missing from
+    /// `L`), or the constraint rows are dependent or vanish. Or the saddle
+    /// matrix is regular but `W` is singular (checked by a step that starts
+    /// cold): the constraints fix the velocities `W` leaves without inertia,
+    /// but the momentum equations of a step are dependent along them, so
+    /// Newton fails or lands on a wrong step. `detail` says which.
+    #[error("no step can be solved from the initial state (t0 = {}): {detail}", Sci(*t))]
     SingularInitialState {
         /// Initial time.
         t: f64,

@@ -343,7 +343,9 @@ where
 /// Newton step solves the conditions exactly (a second confirms it), and the
 /// solution is unique whenever `[[W, Kᵀ],[K, 0]]` is regular, also when `W`
 /// is singular (a coordinate without mass, such as the mobile robot's
-/// position with `m = 0`). For a positive semidefinite `W` regularity means
+/// position with `m = 0`; a step from there is refused all the same, since
+/// the integrators need a regular `W`: [`StepError::SingularInitialState`]).
+/// For a positive semidefinite `W` regularity means
 /// that `W` is positive definite on `ker K`; since the difference of two
 /// consistent velocities lies in `ker K`, `(v − v₀)ᵀW(v − v₀)` is then a
 /// norm on the feasible set, and `v` is the closest consistent velocity in
@@ -455,32 +457,76 @@ where
 {
     use crate::error::Sci;
     let source = Sys::SOURCE;
-    let zero: Vec<&str> = source
+    let suspects = zero_parameters(sys);
+    let pivot = format!("pivot {} is below 64 eps x its column's largest entry {}", Sci(pivot), Sci(scale));
+    let saddle = "the accelerations are not determined there: the saddle matrix [[W, K^T],[K, 0]] of the mass \
+                  matrix W = d²L/dv² and the constraint rows K = dk/dv is singular; ";
+    if column < N {
+        let name = source.coordinates.get(column).map_or_else(|| format!("{column}"), |c| format!("`{c}`"));
+        format!(
+            "{saddle}the mass matrix d²L/dv² is singular on the velocities the constraints leave free, at the \
+             velocity of coordinate {name} (column {column}: {pivot}). Likely a parameter that makes it degenerate, \
+             such as a zero mass or inertia, or a velocity that L does not contain.{suspects} Give the mass matrix \
+             full rank on the motions the constraints allow."
+        )
+    } else {
+        format!(
+            "{saddle}the constraint rows dk/dv are dependent or vanish, or the mass matrix d²L/dv² is singular on \
+             the velocities the constraints leave free (column of constraint {} of {M}: {pivot}).{suspects} Start \
+             where the constraints are independent, remove a redundant constraint, or give the mass matrix full \
+             rank.",
+            column - N + 1
+        )
+    }
+}
+
+/// " Parameters that are 0 here: …." naming the parameters of `sys` that
+/// are 0 (the usual cause of a singular mass matrix), or nothing.
+fn zero_parameters<Sys, const N: usize, const M: usize>(sys: &Sys) -> String
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    let zero: Vec<&str> = Sys::SOURCE
         .parameters
         .iter()
         .zip(sys.parameter_values())
         .filter(|(_, value)| *value == 0.0)
         .map(|(name, _)| *name)
         .collect();
-    let suspects =
-        if zero.is_empty() { String::new() } else { format!(" Parameters that are 0 here: {}.", zero.join(", ")) };
-    let pivot = format!("pivot {} is below 64 eps x its column's largest entry {}", Sci(pivot), Sci(scale));
-    if column < N {
-        let name = source.coordinates.get(column).map_or_else(|| format!("{column}"), |c| format!("`{c}`"));
-        format!(
-            "the mass matrix d²L/dv² is singular on the velocities the constraints leave free, at the velocity of \
-             coordinate {name} (column {column}: {pivot}). Likely a parameter that makes it degenerate, such as a \
-             zero mass or inertia, or a velocity that L does not contain.{suspects} Give the mass matrix full rank \
-             on the motions the constraints allow."
-        )
+    if zero.is_empty() {
+        String::new()
     } else {
-        format!(
-            "the constraint rows dk/dv are dependent or vanish, or the mass matrix d²L/dv² is singular on the \
-             velocities the constraints leave free (column of constraint {} of {M}: {pivot}).{suspects} Start where \
-             the constraints are independent, remove a redundant constraint, or give the mass matrix full rank.",
-            column - N + 1
-        )
+        format!(" Parameters that are 0 here: {}.", zero.join(", "))
     }
+}
+
+/// What [`StepError::SingularInitialState`] says when the saddle matrix is
+/// regular but the mass matrix `W` is singular at the velocity of
+/// coordinate `column` (a cold start's check): the constraints determine
+/// the accelerations, but not a step.
+pub(crate) fn singular_mass_detail<Sys, const N: usize, const M: usize>(
+    sys: &Sys,
+    column: usize,
+    pivot: f64,
+    scale: f64,
+) -> String
+where
+    Sys: NonholonomicSystem<N, M>,
+{
+    use crate::error::Sci;
+    let name = Sys::SOURCE.coordinates.get(column).map_or_else(|| format!("{column}"), |c| format!("`{c}`"));
+    format!(
+        "the mass matrix W = d²L/dv² is singular at the velocity of coordinate {name} (column {column}: pivot {} is \
+         below 64 eps x its column's largest entry {}), and the constraints fix that velocity: the saddle matrix \
+         [[W, K^T],[K, 0]] is regular and determines the accelerations, but the integrators need a regular \
+         Lagrangian (W nonsingular, paper §2). Along the velocities W leaves without inertia the momentum \
+         equations of a step at its stages and at its end are dependent, so Newton fails or lands on a wrong step. \
+         Likely a zero mass or inertia parameter, or a velocity that L holds only linearly or in a combination \
+         such as (dot(x) + dot(y))^2.{} Give the mass matrix full rank.",
+        Sci(pivot),
+        Sci(scale),
+        zero_parameters(sys)
+    )
 }
 
 /// The projection of [`consistent_velocity`].

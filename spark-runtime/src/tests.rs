@@ -524,10 +524,20 @@ fn initial_states_where_no_step_can_succeed_are_refused_with_the_cause() {
     let negative = Skate { m: -1.0, ..Skate::default() };
     assert_eq!(consistent_velocity(&negative, 0.0, &q0, &v0, ConsistencyPolicy::default()), Ok(v0));
     // A singular W with a regular saddle matrix passes the check (the robot
-    // with m = 0: the constraints tie v_x and v_y to the wheel).
+    // with m = 0: the constraints tie v_x and v_y to the wheel), but no step
+    // is determined there: the first step refuses it before Newton, naming
+    // the coordinate and the parameter, instead of failing with a singular
+    // Newton matrix after four halvings.
     let robot = MobileRobot { m: 0.0, ..MobileRobot::default() };
     let (rq, rv) = (V::<4>::new(0.0, 0.0, 0.3, 0.0), V::<4>::new(0.3f64.cos(), 0.3f64.sin(), 0.5, 1.0));
     assert_eq!(consistent_velocity(&robot, 0.0, &rq, &rv, ConsistencyPolicy::default()), Ok(rv));
+    let err = Stepper::<_, 4, 2, 2, 16>::new(robot, tab(Method::Gauss))
+        .integrate(0.0, &rq, &rv, fixed, &RunOptions::default(), &mut NoObserver)
+        .unwrap_err();
+    let IntegrationError::Step { index: 0, source: StepError::SingularInitialState { detail, .. }, .. } = &err else {
+        panic!("{err:?}")
+    };
+    assert!(detail.contains("coordinate `x`") && detail.contains("Parameters that are 0 here: m."), "{err}");
 }
 
 // ---------------------------------------------------------------- driver

@@ -1,8 +1,9 @@
 //! The checks of a step that starts cold, at a state no earlier step of the
-//! stepper ended at: the constraints hold there and their rows are
-//! independent.
+//! stepper ended at: the constraints hold there, their rows are
+//! independent, and the mass matrix is regular.
 
 use crate::error::StepError;
+use crate::initial::singular_mass_detail;
 use crate::linalg::{column_scales, factor_in_place, solve_in_place, Lu};
 use crate::system::{Matrix, NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::State;
@@ -39,8 +40,8 @@ pub(crate) fn inconsistent_row<const N: usize, const M: usize>(
 }
 
 /// The checks of a step that starts cold, at a state no earlier step of the
-/// stepper ended at: `(t, q, v)` satisfies the constraints, and their rows
-/// are independent there.
+/// stepper ended at: `(t, q, v)` satisfies the constraints, their rows
+/// are independent there, and the mass matrix is regular.
 ///
 /// - `|k_i(t,q,v)| ≤ tolerance · max(1, Σ_j |K_ij v_j| + |k_i − (Kv)_i|)`:
 ///   the constraint residual measured against the size of the terms it is
@@ -52,11 +53,17 @@ pub(crate) fn inconsistent_row<const N: usize, const M: usize>(
 ///   with an impulse in one step (measured: energy 1.0 → 0.498).
 /// - `κ₁(K W⁻¹ Kᵀ) ≤` [`CONSTRAINT_CONDITION_LIMIT`], `W = ∇²_vv L`, the
 ///   Schur complement of the saddle matrix `[[W, Kᵀ],[K, 0]]` that determines
-///   the accelerations and multipliers (index 2 requires it regular). When
-///   `W` is singular (a coordinate without kinetic energy whose velocity a
-///   constraint fixes) `W + γKᵀK`, `γ = max|W_ij| / max|K_ij|²`, stands in
-///   for it: the saddle's solution is unchanged, and that matrix is regular
-///   exactly when the saddle is (for positive semi-definite `W`). When both
+///   the accelerations and multipliers (index 2 requires it regular).
+/// - `W` is regular. When it is singular, `W + γKᵀK`,
+///   `γ = max|W_ij| / max|K_ij|²`, tells the two cases apart: it is regular
+///   exactly when the saddle is (for positive semi-definite `W`). A regular
+///   saddle with a singular `W` (a velocity without inertia that a
+///   constraint fixes, a zero mass the constraints make up for) determines
+///   the motion but not a step: the momentum rows of the step along `W`'s
+///   null space are dependent (for Gauss exactly when the momentum there is
+///   constant or linear in `q`), so Newton fails or returns a wrong step as
+///   solved (a Gauss s = 2 step of `L = ((ȧ + ḃ)² + ẏ²)/2 + (a + b)(ȧ − ḃ) − …`
+///   ended 7e-4 off). That is [`StepError::SingularInitialState`]. When both
 ///   are singular the mass matrix is, and the Newton matrix reports it with
 ///   its column.
 ///
@@ -95,10 +102,12 @@ where
     let kmax = jac.constraint_v.amax();
     let mut perm = [0usize; N];
     let scale = column_scales::<N>(jac.mass.as_slice());
-    if factor_in_place::<N>(jac.mass.as_mut_slice(), &mut perm, &scale, &[N]).is_err() {
+    if let Err(singular) = factor_in_place::<N>(jac.mass.as_mut_slice(), &mut perm, &scale, &[N]) {
         // W is singular: the augmented W + γKᵀK (the evaluation is repeated,
         // the failed factorization overwrote W).
+        let w_scale = scale[singular.column];
         sys.stage_jacobians_into(t, q, v, &zero, vals, jac);
+        let w_finite = jac.mass.iter().all(|x| x.is_finite());
         let gamma = jac.mass.amax() / (kmax * kmax);
         if !gamma.is_finite() {
             return Ok(());
@@ -116,6 +125,12 @@ where
         let scale = column_scales::<N>(jac.mass.as_slice());
         if factor_in_place::<N>(jac.mass.as_mut_slice(), &mut perm, &scale, &[N]).is_err() {
             return Ok(());
+        }
+        // The saddle matrix is regular and W is not: refused (see above). A
+        // W that is not finite is left to Newton, which reports it as such.
+        if w_finite {
+            let detail = singular_mass_detail(sys, singular.column, singular.pivot, w_scale);
+            return Err(StepError::SingularInitialState { t, detail: detail.into() });
         }
     }
     // S = K W⁻¹ Kᵀ and κ₁(S) = ‖S‖₁ ‖S⁻¹‖₁, computed exactly (M is small).
