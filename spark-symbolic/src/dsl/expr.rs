@@ -85,7 +85,20 @@ pub(crate) fn number(lit: &proc_macro2::Literal) -> Result<f64, SpecError> {
             };
         return err(span, format!("numeric literal `{repr}` has suffix `{suffix}`{hint}"));
     }
+    // A literal with a nonzero digit before its exponent that reads as 0
+    // (`1e-400`) lies below the smallest positive f64, about 4.9e-324: it
+    // would silently become 0, e.g. a smoothing `eps` that then leaves
+    // `sqrt(x^2 + eps^2)` non-differentiable at 0.
+    let mantissa = digits.split(['e', 'E']).next().unwrap_or_default();
+    let nonzero = mantissa.chars().any(|c| matches!(c, '1'..='9'));
     match digits.parse::<f64>() {
+        Ok(v) if v == 0.0 && nonzero => err(
+            span,
+            format!(
+                "`{repr}` is below the smallest positive f64 (about 4.9e-324) and would read as 0; write 0, or \
+                 rescale the units so that it is a representable number"
+            ),
+        ),
         Ok(v) if v.is_finite() => Ok(if negative { -v } else { v }),
         _ => err(span, format!("`{repr}` is out of range for f64")),
     }

@@ -318,6 +318,11 @@ fn expression_errors() {
     assert_error(&with_lag("2 x"), "x", "missing operator");
     assert_error(&with_lag("2x"), "2x", "write `2*x`");
     assert_error(&with_lag("2u8"), "2u8", "remove the type suffix");
+    assert_error(&with_lag("1e400*x"), "1e400", "out of range for f64");
+    assert_error(&with_lag("1e-400*x"), "1e-400", "would read as 0");
+    assert_error(&with_lag("x + 0.5E-330*y"), "0.5E-330", "would read as 0");
+    // Zero written with an exponent, and a subnormal, are numbers.
+    assert!(parse_str(&with_lag("0e-400*x + 0.0e5 + 1e-320*x")).is_ok());
     assert_error(&with_lag("x.sin()"), ".", "method calls");
     assert_error(&with_lag("()"), "()", "empty parentheses");
     assert_error(&with_lag("[x]"), "[x]", "use parentheses");
