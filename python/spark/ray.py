@@ -267,20 +267,23 @@ def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options) ->
             f"the sweep's table has {rows:.3e} rows ({need:.3e} bytes in the driver's memory), more than the "
             f"limit of {limit:.3e} bytes (4 GiB or half the available memory); {hint}"
         )
-    common = dict(q0=q0s[0], v0=v0s[0], params=params, t0=req["t0"], newton=options["newton"],
-                  newton_tol=options["newton_tol"])
+    # The first member alone, as a shard runs it (an ensemble's messages
+    # give the advice that applies to a sweep: it has no project_v0).
+    common = dict(q0s=q0s[:1], v0s=v0s[:1], params=params, t0=req["t0"], newton=options["newton"],
+                  newton_tol=options["newton_tol"], threads=1)
     try:
         with warnings.catch_warnings():
             # Halving is counted over the whole sweep, not for this one step.
             warnings.simplefilter("ignore", spark.StepHalvingWarning)
             if tolerance:
-                sys_.integrate(method, s, t_end=req["t_end"], rtol=req["rtol"], atol=req["atol"],
-                               first_step=options["first_step"], max_step=options["max_step"],
-                               max_steps=options["max_steps"], t_eval=times, **common)
+                sys_.ensemble(method, s, t_end=req["t_end"], rtol=req["rtol"], atol=req["atol"],
+                              first_step=options["first_step"], max_step=options["max_step"],
+                              max_steps=options["max_steps"], t_eval=times, **common)
             else:
-                sys_.integrate(method, s, req["h"], 1, max_halvings=options["max_halvings"], **common)
+                sys_.ensemble(method, s, req["h"], 1, max_halvings=options["max_halvings"], **common)
     except spark.SparkError as e:
-        raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {e}") from e
+        why = str(e).removeprefix("member 0: ")
+        raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {why}") from e
     return options
 
 

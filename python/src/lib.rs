@@ -19,7 +19,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
     columns_to_py, ensemble_to_py, facts_to_py, interruptible, python_words, read_ensemble, read_request, spark_error,
-    Columns, Failure, IntegrateRequest, SystemFacts, PROJECTION_TOLERANCE,
+    Columns, Failure, IntegrateRequest, SystemFacts, ENSEMBLE_PROJECT_HINT, PROJECTION_TOLERANCE,
 };
 use spark_runtime::{ConsistencyPolicy, Method};
 use std::sync::atomic::Ordering;
@@ -81,8 +81,19 @@ fn message(e: &RunError) -> Failure {
     }
 }
 
+/// An ensemble's error in the words of the Python API; an inconsistent
+/// member is told what `spark.ensemble` takes (it has no `project_v0`).
 fn ensemble_message(e: &EnsembleError) -> Failure {
     match e {
+        EnsembleError::Member {
+            member,
+            source: RunError::InconsistentVelocities { system, residual, tolerance, .. },
+        } => {
+            format!(
+                "member {member}: v0 violates the constraints of `{system}`: max |k(t0, q0, v0)| = {residual:.3e} > \
+                 {tolerance:.1e}; {ENSEMBLE_PROJECT_HINT}"
+            )
+        }
         EnsembleError::Member { member, source } => format!("member {member}: {}", message(source)),
         e => e.to_string(),
     }

@@ -64,8 +64,15 @@ def test_compiled_system_matches_the_same_declaration_compiled_in_rust(cache):
     np.testing.assert_array_equal(
         skate.ensemble("gauss", 2, 0.1, 50, q0s, v0s).q, registered.ensemble("gauss", 2, 0.1, 50, q0s, v0s).q
     )
-    with pytest.raises(spark.SparkError, match="v0 violates the constraints"):
+    with pytest.raises(spark.SparkError, match="v0 violates the constraints.*pass project_v0=True"):
         skate.integrate("gauss", 2, 0.1, 5, q0=[0, 0, 0], v0=[0, 1.0, 0])
+    # An ensemble takes no project_v0, and its message does not offer it,
+    # in the lanes and in a member's run alone (output times).
+    for kw in (dict(), dict(t_eval=[0.2])):
+        with pytest.raises(spark.SparkError, match="member 2: v0 violates the constraints") as e:
+            skate.ensemble("gauss", 2, 0.1, 5, q0s, np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 1.0, 0]]), **kw)
+        assert "give the member a row of v0s with k = 0" in str(e.value)
+        assert "pass project_v0" not in str(e.value)
 
 
 def test_an_unoptimized_module_builds_at_opt_level_0_and_is_cached_apart(cache, monkeypatch):

@@ -49,8 +49,15 @@ def test_parameters_apply_to_every_member():
 def test_ensemble_errors_name_the_member_and_the_shape():
     with pytest.raises(spark.SparkError, match=r"shape \(members, 3\)"):
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 2)), np.zeros((2, 2)))
-    with pytest.raises(spark.SparkError, match="member 1: v0 violates"):
-        spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((2, 3)), np.array([[0, 0, 1.0], [0, 1.0, 0]]))
+    # An ensemble takes no project_v0: its message does not offer it.
+    for system, kw in (("skate", {}), ("skate", dict(t_eval=[0.2])), ("mp7", {})):
+        n = spark.system(system).n
+        q0s, v0s = np.array([spark.system(system).q0] * 2), np.zeros((2, n))
+        v0s[1] = 1.0
+        with pytest.raises(spark.SparkError, match="member 1: v0 violates") as e:
+            spark.ensemble(system, "gauss", 2, 0.1, 5, q0s, v0s, **kw)
+        assert "give the member a row of v0s with k = 0" in str(e.value)
+        assert "pass project_v0" not in str(e.value)
     with pytest.raises(spark.SparkError, match="threads"):
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), threads=0)
 

@@ -239,6 +239,21 @@ pub fn python_words(message: &str) -> Failure {
     WORDS.iter().fold(message.to_string(), |text, (rust, python)| text.replace(rust, python))
 }
 
+/// What to do about a `v0` that violates the constraints, in a run.
+const PROJECT_HINT: &str = "give a v0 with k = 0 or pass project_v0=True to use the nearest consistent one";
+
+/// The same in an ensemble, whose members start from their rows as given:
+/// `spark.ensemble` takes no `project_v0`.
+pub const ENSEMBLE_PROJECT_HINT: &str = "give the member a row of v0s with k = 0 (an ensemble integrates its \
+                                         initial states as given; spark.integrate with project_v0=True returns the \
+                                         nearest consistent v0 as run.v[0])";
+
+/// Member `j`'s failure as an ensemble reports it: named, and without the
+/// advice of a run that the ensemble does not take.
+fn member_failure(j: usize, e: &str) -> Failure {
+    format!("member {j}: {}", e.replace(PROJECT_HINT, ENSEMBLE_PROJECT_HINT))
+}
+
 /// How a request treats an inconsistent `v0`.
 fn consistency(r: &IntegrateRequest) -> ConsistencyPolicy {
     if r.project_v0 {
@@ -272,10 +287,11 @@ where
         }
     }
     let v0 = consistent_velocity(probe, r.t0, &q0, &v0, consistency(r)).map_err(|e| match e {
-        StepError::InconsistentInitialState { residual, tolerance } => format!(
-            "v0 violates the constraints: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; give a v0 with \
-             k = 0 or pass project_v0=True to use the nearest consistent one"
-        ),
+        StepError::InconsistentInitialState { residual, tolerance } => {
+            format!(
+                "v0 violates the constraints: max |k(t0, q0, v0)| = {residual:.3e} > {tolerance:.1e}; {PROJECT_HINT}"
+            )
+        }
         e => format!("initial state: {e}"),
     })?;
     // Parameters come from the user here: a negative mass or inertia is
@@ -393,7 +409,7 @@ where
         v0: r.v0s[j * N..(j + 1) * N].to_vec(),
         ..r.run.clone()
     };
-    let alone = |j: usize| integrate::<Sys, N, M, S, D>(&member(j), stop).map_err(|e| format!("member {j}: {e}"));
+    let alone = |j: usize| integrate::<Sys, N, M, S, D>(&member(j), stop).map_err(|e| member_failure(j, &e));
     let work = || -> Result<Vec<Columns>, Failure> {
         // The lanes take fixed steps recorded at the steps, without events.
         let planned = r.run.tolerance.is_some() || r.run.times.is_some() || r.run.events;
@@ -409,7 +425,7 @@ where
         let starts = (0..r.members)
             .map(|j| {
                 let (q0, v0) = checked_start::<Sys, N, M>(&r.run, &probe, &member(j).q0, &member(j).v0)
-                    .map_err(|e| format!("member {j}: {e}"))?;
+                    .map_err(|e| member_failure(j, &e))?;
                 Ok(State::new(r.run.t0, q0, v0))
             })
             .collect::<Result<Vec<State<N>>, Failure>>()?;
