@@ -396,6 +396,16 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
             "at the same times; pass the table of one sweep"
         )
     samples = int(counts[0])
+    # Members of equal counts at other times (tables of two sweeps with
+    # different steps) would be averaged as if they were at the first one's.
+    times = t.reshape(len(ids), samples)
+    differs = np.any(times != times[0], axis=1)
+    if np.any(differs):
+        other = int(ids[np.argmax(differs)])
+        raise spark.ArgumentError(
+            f"member {other} has samples at other times than member {int(ids[0])}: the statistic needs every member "
+            "at the same times; pass the table of one sweep"
+        )
     err = err.reshape(len(ids), samples)
     acc = np.zeros(samples)
     for row in err:  # member after member, as the Rust sum

@@ -201,6 +201,10 @@ def test_fig84_members_and_the_statistic_refuse_what_they_cannot_compute():
         sray.ensemble_statistic(table.slice(0, 0), 0.1)
     with pytest.raises(ValueError, match="member 1 has 1 samples and others 2"):
         sray.ensemble_statistic(table.slice(0, 3), 0.1)
+    # As many samples, at other times: the mean would mix t = 0.1 with t = 0.2.
+    other = pa.table({"member": [0, 0, 1, 1], "t": [0.0, 0.1, 0.0, 0.2], "energy_error": [0.0, 1e-3, 0.0, 2e-3]})
+    with pytest.raises(ValueError, match="member 1 has samples at other times than member 0"):
+        sray.ensemble_statistic(other, 0.1)
 
 
 def test_the_fig84_example_refuses_an_interval_that_is_not_a_whole_number_of_steps(local_ray, tmp_path,
