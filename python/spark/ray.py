@@ -178,6 +178,10 @@ def sweep(
     out = os.fsdecode(os.fspath(out))
     if not out:
         raise spark.SparkError("out = '' names no file; give the path of the Parquet file to write")
+    # The OS takes no path with a NUL, and the checks below do not raise for
+    # one: the final rename would fail after every member had run.
+    if "\0" in out:
+        raise spark.SparkError(f"out = {out!r} holds a NUL character, which no file name can hold")
     folder = os.path.dirname(os.path.abspath(out))
     if os.path.isdir(out) or out.endswith(os.sep):
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
