@@ -178,10 +178,16 @@ def sweep(
     out = os.fsdecode(os.fspath(out))
     if not out:
         raise spark.SparkError("out = '' names no file; give the path of the Parquet file to write")
-    # The OS takes no path with a NUL, and the checks below do not raise for
-    # one: the final rename would fail after every member had run.
+    # The OS takes no path with a NUL, nor one the file system's encoding
+    # cannot encode (a lone surrogate such as "\ud800"), and the checks
+    # below do not raise for either: the final rename would fail after every
+    # member had run.
     if "\0" in out:
         raise spark.SparkError(f"out = {out!r} holds a NUL character, which no file name can hold")
+    try:
+        os.fsencode(out)
+    except UnicodeEncodeError as e:
+        raise spark.SparkError(f"out = {out!r} is no file name: {e}; give a path of valid characters") from e
     folder = os.path.dirname(os.path.abspath(out))
     if os.path.isdir(out) or out.endswith(os.sep):
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")

@@ -134,6 +134,8 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
         sray.sweep(*args, out="")
     with pytest.raises(spark.SparkError, match="holds a NUL character"):
         sray.sweep(*args, out=str(tmp_path / "a\0b.parquet"))
+    with pytest.raises(spark.SparkError, match="is no file name: .*surrogates not allowed"):
+        sray.sweep(*args, out=str(tmp_path / "a\ud800.parquet"))
     with pytest.raises(spark.SparkError, match="is a folder"):
         sray.sweep(*args, out=str(tmp_path) + "/")
     with pytest.raises(spark.SparkError, match="cannot write into the folder of out = '/proc/sweep.parquet'"):
