@@ -156,13 +156,9 @@ pub enum StepError {
         reason: &'static str,
     },
     /// Newton updates grew (contraction rate ≥ 1 above round-off level).
-    #[error(
-        "Newton diverged in the step from t = {} with h = {} (try a smaller step; if it diverges at every h, the \
-         equations may not be differentiable at this state, e.g. sqrt(...) of a vanishing speed in a constraint); \
-         history: {history}",
-        Sci(*t),
-        Sci(*h)
-    )]
+    /// `h = 0` marks the projection of the initial velocity, whose message
+    /// names its causes instead of a step size.
+    #[error("{}", diverged_message(*t, *h, history))]
     Diverged {
         /// Start time.
         t: f64,
@@ -171,13 +167,9 @@ pub enum StepError {
         /// The iterations.
         history: Box<NewtonHistory>,
     },
-    /// Newton did not reach the tolerance within the iteration limit.
-    #[error(
-        "Newton did not converge in {} iterations in the step from t = {} with h = {}; history: {history}",
-        history.len(),
-        Sci(*t),
-        Sci(*h)
-    )]
+    /// Newton did not reach the tolerance within the iteration limit
+    /// (`h = 0`: in the projection of the initial velocity).
+    #[error("{}", max_iterations_message(*t, *h, history))]
     MaxIterations {
         /// Start time.
         t: f64,
@@ -409,6 +401,50 @@ impl StepError {
 const INITIAL_STATE_CAUSES: &str = "at this state a function in L or k is outside its domain (sqrt or ln of a \
      negative number, ln of 0, asin or acos beyond ±1) or not differentiable (sqrt at 0, e.g. of a vanishing \
      speed), a value overflows f64 (|v0|² does for |v0| above 1.3e154), or a parameter makes it undefined";
+
+/// What the projection of the initial velocity (`h = 0` in a Newton
+/// failure) says when it finds no consistent velocity: it is no step, so a
+/// smaller step cannot help; the constraints may have no solution at `q₀`,
+/// or `v₀` is too far from them for Newton.
+const PROJECTION_CAUSES: &str = "before the first step, so no step size cures it: the constraints may have no \
+     solution at q0 (a constraint nonlinear in v such as dot(x)^2 + dot(y)^2 + c with c > 0 has no real one), or v0 \
+     is too far from the constraint surface for Newton; start from a v0 that nearly satisfies the constraints";
+
+/// The message of [`StepError::Diverged`].
+fn diverged_message(t: f64, h: f64, history: &NewtonHistory) -> String {
+    if h == 0.0 {
+        return format!(
+            "Newton diverged in the projection of the initial velocity onto the constraints at t0 = {}, \
+             {PROJECTION_CAUSES}; history: {history}",
+            Sci(t)
+        );
+    }
+    format!(
+        "Newton diverged in the step from t = {} with h = {} (try a smaller step; if it diverges at every h, the \
+         equations may not be differentiable at this state, e.g. sqrt(...) of a vanishing speed in a constraint); \
+         history: {history}",
+        Sci(t),
+        Sci(h)
+    )
+}
+
+/// The message of [`StepError::MaxIterations`].
+fn max_iterations_message(t: f64, h: f64, history: &NewtonHistory) -> String {
+    if h == 0.0 {
+        return format!(
+            "Newton did not converge in {} iterations in the projection of the initial velocity onto the \
+             constraints at t0 = {}, {PROJECTION_CAUSES}; history: {history}",
+            history.len(),
+            Sci(t)
+        );
+    }
+    format!(
+        "Newton did not converge in {} iterations in the step from t = {} with h = {}; history: {history}",
+        history.len(),
+        Sci(t),
+        Sci(h)
+    )
+}
 
 /// The message of [`StepError::NonFinite`]. Before the first step (`h = 0`)
 /// it names the causes at the initial state. In a step (`h ≠ 0`) it names

@@ -132,3 +132,27 @@ fn a_projection_that_meets_a_singular_saddle_matrix_later_names_the_constraint()
         "{text}"
     );
 }
+
+nonholonomic_system! {
+    /// `|v|² + c = 0` has no real velocity for `c > 0`.
+    pub struct ImaginarySpeed {
+        coordinates: [x, y],
+        parameters: { c = 1.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2)/2 - x^2/2,
+        constraints: [ dot(x)^2 + dot(y)^2 + c ],
+    }
+}
+
+/// A projection that finds no consistent velocity says so, naming the
+/// projection and its causes (no real solution, a `v0` too far), not a step
+/// size to reduce: it is no step.
+#[test]
+fn a_projection_without_a_solution_names_the_projection_not_a_step_size() {
+    let (q0, v0) = (Vector::<2>::new(0.3, 0.1), Vector::<2>::new(0.5, 0.5));
+    let project = ConsistencyPolicy::Project { tolerance: 1e-12 };
+    let err = consistent_velocity(&ImaginarySpeed::default(), 0.0, &q0, &v0, project).unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, StepError::Diverged { .. } | StepError::MaxIterations { .. }), "{text}");
+    assert!(text.contains("projection of the initial velocity") && text.contains("no solution at q0"), "{text}");
+    assert!(!text.contains("smaller step") && !text.contains("h = "), "{text}");
+}
