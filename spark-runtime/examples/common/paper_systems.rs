@@ -8,14 +8,12 @@
 //! that file imports nothing of `problems`, and so the examples time the
 //! code generated from the very text the `spark` binary and its catalogue
 //! compile.
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
 use spark_runtime::{State, Vector};
 
 #[path = "../../../problems/src/systems/paper.rs"]
-#[allow(dead_code)]
 mod catalogue;
-#[allow(unused_imports)]
 pub use catalogue::{McLachlanPerlmutter7, MobileRobot, NonholonomicParticle, Skate};
 
 /// The particle's initial values (§8.1).
