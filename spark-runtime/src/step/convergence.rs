@@ -258,9 +258,20 @@ fn power(mut x: f64, mut k: i32) -> f64 {
 /// is below the tolerance whenever the iteration contracts, by the same
 /// argument that lets an update within the tolerance end the solve — but
 /// here only the curved part of the update has to be that small: the
-/// affine part is solved exactly, up to the linear solve's round-off, which
-/// a confirming update (one step of iterative refinement in working
-/// precision) would not improve.
+/// affine part is solved exactly, up to round-off.
+///
+/// That round-off is the rounding of `G(z)`, whose terms are as large as
+/// the iterate `z` the update starts from, carried through `J⁻¹`. An update
+/// that moves the unknowns by more than their own size (a scaled entry
+/// above [`LANDING_LIMIT`]) starts where those terms are larger than at the
+/// solution, and `J⁻¹` amplifies their rounding by up to `J`'s condition
+/// number, which grows like `h²`: the belt skate of
+/// `spark-runtime/tests/integration/landing.rs`, one cold Gauss step with
+/// a first update of 11 at `h = 30`, landed `3.5e-12` from the root of its
+/// equations and, with an update of 5.8e3 at `h = 1e4`, `2.5e-6` from it;
+/// a confirming update, which evaluates `G` at the new iterate, reaches
+/// the root to round-off. Such an update does not end the solve: the next
+/// one confirms it.
 ///
 /// Such updates occur where the starting guess is within round-off in the
 /// groups the equations are curved in: the heading of the skate (§8.2) and
@@ -274,7 +285,22 @@ pub(crate) fn affine_along<const N: usize, const M: usize, const S: usize, const
     nonlinearity: &Nonlinearity,
     plan: &AffinePlan,
 ) -> bool {
-    affine_along_by::<N, M, S>(|i| moved_beyond(update[i], weights[i], tolerance), nonlinearity, plan)
+    (0..D).all(|i| within_landing_limit(update[i], weights[i]))
+        && affine_along_by::<N, M, S>(|i| moved_beyond(update[i], weights[i], tolerance), nonlinearity, plan)
+}
+
+/// Largest scaled entry `|Δz_i|·w_i` of an update that [`affine_along`]
+/// lets end a solve: beyond it the rounding of the residual at the
+/// iterate the update starts from, whose terms grow with the distance to
+/// the solution, is no longer that of a converged iterate (see
+/// [`affine_along`]).
+pub(crate) const LANDING_LIMIT: f64 = 1.0;
+
+/// Whether an update entry `delta` with weight `weight` is within
+/// [`LANDING_LIMIT`] (NaN is not).
+#[inline(always)]
+pub(crate) fn within_landing_limit(delta: f64, weight: f64) -> bool {
+    delta.abs() * weight <= LANDING_LIMIT
 }
 
 /// Whether an update entry `delta` with weight `weight` moved its unknown

@@ -16,6 +16,7 @@ mod end_point_values;
 mod events;
 mod hand_built_tableaux;
 mod initial_domain;
+mod landing;
 mod lanes_newcomer;
 mod newcomer_systems;
 mod newcomer_unusual_systems;

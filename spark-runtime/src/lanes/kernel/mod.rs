@@ -38,7 +38,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
     affine_along_lanes, check_energy, energy_is_invariant, moved_beyond, rounding_moved, too_slow, two_sum_error_of,
-    AffinePlan, Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper, PAST,
+    within_landing_limit, AffinePlan, Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State,
+    StepPolynomial, Stepper, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -465,7 +466,10 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
         let moved_at = |d: usize| -> [bool; W] {
             std::array::from_fn(|w| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance))
         };
-        affine_along_lanes::<N, M, S, W>(moved_at, nonlinearity, &self.affine_plan)
+        let small: [bool; W] =
+            std::array::from_fn(|w| (0..D).all(|d| within_landing_limit(self.first_update[d][w], self.weights[d][w])));
+        let affine = affine_along_lanes::<N, M, S, W>(moved_at, nonlinearity, &self.affine_plan);
+        std::array::from_fn(|w| small[w] & affine[w])
     }
 
     /// `Stepper::end_point_stays` for lane `w`, whose `z` holds the updated
