@@ -78,6 +78,13 @@ class ArgumentError(SparkError, ValueError):
 #: integers.
 MAX_WHOLE = 2**63 - 1
 
+#: The deepest nesting of halved steps (``max_halvings``), the Rust library's.
+MAX_HALVINGS: int = _native.MAX_HALVINGS
+
+#: The most threads an ensemble starts (``threads``, and a sweep's
+#: ``threads_per_task``), the Rust library's.
+MAX_THREADS: int = _native.MAX_ENSEMBLE_THREADS
+
 
 class StepHalvingWarning(UserWarning):
     """A run replaced steps whose Newton iteration failed by smaller sub-steps.
@@ -267,15 +274,15 @@ def _request(
 ) -> dict[str, Any]:
     return {
         # The range (0 to 60) and the default are the Rust library's.
-        "max_halvings": None if max_halvings is None else _whole("max_halvings", max_halvings, 0),
-        "method": method,
+        "max_halvings": None if max_halvings is None else _whole("max_halvings", max_halvings, 0, MAX_HALVINGS),
+        "method": _text("method", method),
         "s": _whole("s", s, 1),
         "h": _real("h", h),
         "steps": _whole("steps", steps, 1),
         "t0": _real("t0", t0),
         "params": _params(params),
         "every": _whole("every", every, 1),
-        "newton": newton,
+        "newton": _text("newton", newton),
         "newton_tol": None if newton_tol is None else _real("newton_tol", newton_tol),
     }
 
@@ -315,6 +322,31 @@ def _real(name: str, x: Any) -> float:
         raise TypeError(f"{name} = {x!r} is not a number") from e
 
 
+def _utf8(what: str, x: str) -> str:
+    """``x``; :class:`ArgumentError` naming ``what`` (``"name = 'a\\ud800'"``)
+    when UTF-8 cannot encode it: a lone surrogate such as ``"\\ud800"``
+    (left by decoding bytes with ``errors="surrogateescape"``) cannot cross
+    into the Rust library, whose strings are UTF-8."""
+    try:
+        x.encode("utf-8")
+    except UnicodeEncodeError as e:
+        raise ArgumentError(
+            f"{what} holds the lone surrogate U+{ord(x[e.start]):04X} at index {e.start}, which UTF-8 cannot "
+            "encode: it is no valid Unicode text; remove it (text decoded with errors=\"surrogateescape\" keeps "
+            "undecodable bytes as such surrogates)"
+        ) from None
+    return x
+
+
+def _text(name: str, x: Any) -> str:
+    """``x`` as a str: :class:`TypeError` naming the argument for anything
+    else, :class:`ArgumentError` for a str UTF-8 cannot encode
+    (:func:`_utf8`)."""
+    if not isinstance(x, str):
+        raise TypeError(f"{name} = {_short(x)} is not a string")
+    return _utf8(f"{name} = {_short(x)}", x)
+
+
 def _short(x: Any) -> str:
     """``repr(x)``, cut to its first and last digits when long (an int such as
     ``10**400`` would fill the message)."""
@@ -324,18 +356,22 @@ def _short(x: Any) -> str:
 
 def _whole(name: str, x: Any, low: int | None = None, high: int = MAX_WHOLE) -> int:
     """``x`` as an int in ``low..=high``; :class:`TypeError` for a bool,
-    :class:`SparkError` when it is not a whole number (``s=2.5`` or
-    ``every=1.5`` would otherwise be truncated silently),
-    :class:`ArgumentError` naming the range outside it (the native module
-    reads 64-bit integers, and PyO3's own overflow message names no
-    argument)."""
+    :class:`ArgumentError` when it is not a whole number (``s=2.5`` or
+    ``every=1.5`` would otherwise be truncated silently) and naming the
+    range outside it (the native module reads 64-bit integers, and PyO3's
+    own overflow message names no argument)."""
     _not_bool(name, x)
     try:
         whole = int(x)
     except (TypeError, ValueError, OverflowError):
         whole = None
-    if whole is None or whole != x:
-        raise SparkError(f"{name} = {_short(x)} must be a whole number")
+    try:
+        # An array's comparison is an array, whose truth raises ValueError.
+        integral = whole is not None and bool(whole == x)
+    except (TypeError, ValueError):
+        integral = False
+    if not integral:
+        raise ArgumentError(f"{name} = {_short(x)} must be a whole number")
     if whole > high or (low is not None and whole < low):
         lowest = "" if low is None else f"{low} ≤ "
         side = f"more than {high}" if whole > high else f"less than {low}"
@@ -361,6 +397,7 @@ def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
     for name in params:
         if not isinstance(name, str):
             raise TypeError(f"params key {name!r} is not a string; name a parameter, e.g. params={{'g': 9.81}}")
+        _utf8(f"params key {_short(name)}", name)
     return {name: _real(f"params[{name!r}]", value) for name, value in params.items()}
 
 
@@ -551,11 +588,11 @@ class System:
             # As the runtime computes the end of a run of fixed steps.
             interval_end = t0 + float(n) * h
         req["params"] = _params(params)
-        req["newton"] = newton
+        req["newton"] = _text("newton", newton)
         req["newton_tol"] = None if newton_tol is None else _real("newton_tol", newton_tol)
         if t_eval is not None:
             _refuse_every_with_output_times(every)
-            req["t_eval"] = _output_times(t_eval, t0, interval_end)
+            req["t_eval"] = _output_times(t_eval, t0, interval_end, self._sample_bytes(), 1)
         req["every"] = 1 if every is None else _whole("every", every, 1)
         req["events"] = _flag("events", events)
         req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
@@ -617,7 +654,7 @@ class System:
         if rtol == 0 and atol == 0:
             raise ArgumentError("rtol and atol are both 0; give a positive rtol or atol")
         req: dict[str, Any] = {
-            "method": method,
+            "method": _text("method", method),
             "s": _whole("s", s, 1),
             "t0": t0,
             "t_end": _real("t_end", t_end),
@@ -701,11 +738,15 @@ class System:
             raise SparkError(
                 f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
             )
+        if q0s.shape[0] == 0:
+            raise ArgumentError("an ensemble needs at least one member; give q0s and v0s of shape (members, N) with "
+                                "members ≥ 1")
         req = self._ensemble_request(method, s, h, steps, params, t0, t_end, every, newton, newton_tol,
-                                     max_halvings, rtol, atol, first_step, max_step, max_steps, t_eval)
+                                     max_halvings, rtol, atol, first_step, max_step, max_steps, t_eval,
+                                     members=q0s.shape[0])
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
-        req["threads"] = None if threads is None else _whole("threads", threads, 1)
+        req["threads"] = None if threads is None else _whole("threads", threads, 1, MAX_THREADS)
         d = self._ensemble(req)
         controller = d.get("controller")
         if controller is None:
@@ -726,13 +767,16 @@ class System:
         )
 
     def _ensemble_request(self, method, s, h, steps, params, t0, t_end, every, newton, newton_tol, max_halvings,
-                          rtol, atol, first_step, max_step, max_steps, t_eval) -> dict[str, Any]:
+                          rtol, atol, first_step, max_step, max_steps, t_eval,
+                          members: int | None = 1) -> dict[str, Any]:
         """The request of :meth:`ensemble` without its members and threads,
         every argument checked with its messages; ``spark.ray.sweep`` checks
         its arguments with it too, before Ray starts. Fixed steps carry
         ``steps`` (the count), tolerance-driven steps ``rtol``; both carry
         ``t_eval`` when the samples are at output times (always for
-        tolerance-driven steps: ``t_end`` alone by default)."""
+        tolerance-driven steps: ``t_end`` alone by default), its count
+        checked against the record of ``members`` runs first (``None``:
+        the caller has checked it)."""
         t0 = _real("t0", t0)
         if t_eval is not None:
             _refuse_every_with_output_times(every)
@@ -749,7 +793,7 @@ class System:
             interval_end = req["t_end"]
             if t_eval is None:
                 t_eval = [interval_end]
-            req.update(params=_params(params), newton=newton, every=1,
+            req.update(params=_params(params), newton=_text("newton", newton), every=1,
                        newton_tol=None if newton_tol is None else _real("newton_tol", newton_tol))
         else:
             _refuse_tolerance_arguments(first_step, max_step, max_steps)
@@ -761,8 +805,14 @@ class System:
             # As the runtime computes the end of a run of fixed steps.
             interval_end = t0 + float(n) * _real("h", h)
         if t_eval is not None:
-            req["t_eval"] = _output_times(t_eval, t0, interval_end)
+            req["t_eval"] = _output_times(t_eval, t0, interval_end, self._sample_bytes(), members)
         return req
+
+    def _sample_bytes(self) -> int:
+        """Bytes of one recorded sample of this system, as the native check
+        of a registered system's record counts them (a compiled module's
+        record takes at least as many)."""
+        return _native.record_bytes_per_sample(self.n, self.m)
 
 
 def _members_given(q0s, v0s) -> None:
@@ -852,11 +902,58 @@ def _vector(what: str, x) -> list[float]:
     return a.tolist()
 
 
-def _output_times(t_eval, t0: float, t_end: float) -> list[float]:
+def _sci(x: float) -> str:
+    """``x`` as the Rust library writes it in its messages (``1.000e8``)."""
+    mantissa, exponent = f"{x:.3e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def _output_count(t_eval) -> int | None:
+    """How many times ``t_eval`` holds, without reading them (``None`` for
+    an object without a length, which is read and checked instead)."""
+    if isinstance(t_eval, np.ndarray):
+        return t_eval.size
+    try:
+        return len(t_eval)
+    except TypeError:
+        return None
+
+
+def _check_output_count(t_eval, sample_bytes: int, members: int) -> None:
+    """:class:`ArgumentError` when the samples ``members`` runs record at
+    the times of ``t_eval`` (the initial point and one per time, at
+    ``sample_bytes`` each) would not fit within the record's limit
+    (:func:`_native.record_memory_limit`), from the count alone: the times
+    are not read (as floats, then as the list the request carries, 10⁸
+    times would take 3 GB before the native check of the record refused
+    them). A ``t_eval`` without a length passes, to be read and checked."""
+    count = _output_count(t_eval)
+    if count is None:
+        return
+    samples = members * (count + 1)
+    need = samples * sample_bytes
+    limit = _native.record_memory_limit()
+    if need <= limit:
+        return
+    fits = max(limit // sample_bytes // members - 1, 0)
+    who = "the run" if members == 1 else f"the {members} members"
+    hint = f"give at most {fits} output times" if fits else "even one output time does not fit: use fewer members"
+    raise ArgumentError(
+        f"t_eval holds {_sci(count)} times: {who} would record {_sci(samples)} samples ({_sci(need)} bytes in "
+        f"memory), more than the limit of {_sci(limit)} bytes (4 GiB or half the available memory); {hint}"
+    )
+
+
+def _output_times(t_eval, t0: float, t_end: float, sample_bytes: int, members: int | None) -> list[float]:
     """``t_eval`` as a list of floats: a non-empty 1-D array of finite times,
     strictly monotone in the direction from ``t0`` to ``t_end``, within
-    ``[t0, t_end]``; :class:`ArgumentError` (:class:`TypeError` for entries
-    that are no real numbers) naming what is wrong."""
+    ``[t0, t_end]``, whose samples for ``members`` runs fit in memory
+    (:func:`_check_output_count`, before the times are read; ``None``: the
+    caller has checked the count); :class:`ArgumentError`
+    (:class:`TypeError` for entries that are no real numbers) naming what
+    is wrong."""
+    if members is not None:
+        _check_output_count(t_eval, sample_bytes, members)
     _real_entries("t_eval", t_eval)
     times = _floats("t_eval", t_eval)
     if times.ndim != 1 or times.size == 0:
@@ -888,8 +985,8 @@ def systems() -> list[str]:
 
 def system(name: str) -> System:
     """The registered system ``name`` (any case; ``-``/``_`` ignored).
-    Unknown names raise :class:`SparkError` with the closest name."""
-    info = _native.system_info_of(name)
+    Unknown names raise :class:`ArgumentError` with the closest name."""
+    info = _native.system_info_of(_text("name", name))
     key = info["name"]
     return System(info, lambda req: _native.integrate(key, req), lambda req: _native.ensemble(key, req))
 
@@ -925,6 +1022,11 @@ def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False, o
     ``SPARK_CACHE_DIR``); a second call with the same text loads the cached
     module. Needs the Rust toolchain (``cargo``) at run time, as CasADi's
     ``jit`` needs a C compiler; without it raises :class:`ToolchainError`.
+
+    ``cache_dir`` (default ``None``: ``SPARK_CACHE_DIR`` or
+    ``~/.cache/spark-python``) must name a folder: an empty path, one
+    holding a NUL character or a lone surrogate is refused with
+    :class:`ArgumentError` before the text is checked.
 
     ``optimize=False`` builds the module without optimization: a new
     declaration compiles in seconds instead of tens of seconds and steps

@@ -25,7 +25,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import DslError, SparkError, System, ToolchainError, _native
+from . import ArgumentError, DslError, SparkError, System, ToolchainError, _flag, _native, _short
 
 _loaded: dict[str, System] = {}
 _loading = threading.Lock()
@@ -39,9 +39,9 @@ TOOLCHAIN_HELP = (
 
 
 def cache_root(cache_dir: str | None = None) -> Path:
-    """Where compiled modules live: ``cache_dir``, ``SPARK_CACHE_DIR`` or
-    ``~/.cache/spark-python``."""
-    if cache_dir:
+    """Where compiled modules live: ``cache_dir`` (checked by
+    :func:`_cache_dir`), ``SPARK_CACHE_DIR`` or ``~/.cache/spark-python``."""
+    if cache_dir is not None:
         return Path(cache_dir)
     if os.environ.get("SPARK_CACHE_DIR"):
         return Path(os.environ["SPARK_CACHE_DIR"])
@@ -168,13 +168,51 @@ def _load(module: str, path: Path) -> object:
     return mod
 
 
+def _cache_dir(cache_dir) -> str | None:
+    """``cache_dir`` as a str path (``None``: the default folder);
+    :class:`TypeError` for what is no path, :class:`ArgumentError` for an
+    empty path (which would name no folder; refused rather than read as the
+    default), one holding a NUL character or one the file system's encoding
+    cannot encode (a lone surrogate such as ``"\\ud800"``): the OS takes
+    neither, and ``mkdir`` would raise its own ``ValueError`` naming no
+    argument."""
+    if cache_dir is None:
+        return None
+    try:
+        path = os.fspath(cache_dir)
+    except TypeError:
+        raise TypeError(
+            f"cache_dir = {_short(cache_dir)} is not a path; give a folder (a str, bytes or os.PathLike), or None "
+            "for the default"
+        ) from None
+    if not path:
+        raise ArgumentError(
+            f"cache_dir = {path!r} names no folder; give the folder to cache compiled modules in, or None for the "
+            "default (SPARK_CACHE_DIR or ~/.cache/spark-python)"
+        )
+    path = os.fsdecode(path)
+    if "\0" in path:
+        raise ArgumentError(f"cache_dir = {path!r} holds a NUL character, which no path can hold")
+    try:
+        os.fsencode(path)
+    except UnicodeEncodeError as e:
+        raise ArgumentError(
+            f"cache_dir = {path!r} holds the lone surrogate U+{ord(path[e.start]):04X}, which the file system's "
+            "encoding cannot encode, so no path can hold it; give a path of valid characters"
+        ) from None
+    return path
+
+
 def compile_system(
     text: str, *, cache_dir: str | None = None, verbose: bool = False, optimize: bool = True
 ) -> System:
     if not isinstance(optimize, bool):
         raise TypeError(f"optimize must be a bool (True or False), got {type(optimize).__name__}")
-    if isinstance(text, str):
-        _check_encodable(text)
+    verbose = _flag("verbose", verbose)
+    cache_dir = _cache_dir(cache_dir)
+    if not isinstance(text, str):
+        raise TypeError(f"text = {_short(text)} is not a string; give the body of nonholonomic_system! as a str")
+    _check_encodable(text)
     checked = _native.check_dsl(text)
     if "error" in checked:
         raise DslError(checked["error"], checked["line"], checked["column"])

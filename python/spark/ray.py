@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import socket
 import time
 import uuid
 import warnings
@@ -132,7 +133,11 @@ def sweep(
     built by :func:`spark.compile` is rebuilt in each worker from its text
     with its ``optimize`` (loaded from the shared cache on one machine).
     Ray is started with ``ray.init(address=address)`` unless it is already
-    running. Rows are
+    running; an ``address`` of ``host:port`` or ``ray://host:port`` is then
+    tried with a TCP connection first, and refused with
+    :class:`spark.SparkError` naming it when none opens within
+    :data:`ADDRESS_TIMEOUT` seconds (``ray.init`` would wait far longer).
+    Rows are
     ordered by member, then time, whatever the shard count, and every
     member's numbers are those of :func:`spark.ensemble` (and
     :func:`spark.integrate`) for it alone.
@@ -157,11 +162,10 @@ def sweep(
     # The arguments are checked here, before Ray starts, as `ensemble`
     # checks them: a bool, a complex number or a string where a real
     # number is meant is a TypeError.
-    threads_per_task = spark._whole("threads_per_task", threads_per_task, 1)
+    threads_per_task = spark._whole("threads_per_task", threads_per_task, 1, spark.MAX_THREADS)
     if shards is not None:
-        shards = spark._whole("shards", shards)
-        if shards < 1:
-            raise spark.SparkError(f"shards = {shards} must be at least 1")
+        shards = spark._whole("shards", shards, 1)
+    address = _address(address)
     spark._members_given(q0s, v0s)
     spark._real_entries("q0s", q0s)
     spark._real_entries("v0s", v0s)
@@ -175,7 +179,12 @@ def sweep(
     members = q0s.shape[0]
     # A bytes path would meet the str name of the temporary file only when
     # the file is written, after every member has run.
-    out = os.fsdecode(os.fspath(out))
+    try:
+        out = os.fsdecode(os.fspath(out))
+    except TypeError:
+        raise TypeError(
+            f"out = {spark._short(out)} is not a path; give the path of the Parquet file to write"
+        ) from None
     if not out:
         raise spark.SparkError("out = '' names no file; give the path of the Parquet file to write")
     # The OS takes no path with a NUL, nor one the file system's encoding
@@ -196,6 +205,8 @@ def sweep(
     options = dict(t0=t0, t_end=t_end, every=every, newton=newton, newton_tol=newton_tol,
                    max_halvings=max_halvings, rtol=rtol, atol=atol, first_step=first_step, max_step=max_step,
                    max_steps=max_steps, t_eval=t_eval)
+    if address is not None and not ray.is_initialized():
+        _probe(address)
     options = _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options)
     # The temporary file is created now, so that a folder that cannot be
     # written (read-only, /proc) is reported before Ray starts.
@@ -206,6 +217,70 @@ def sweep(
     finally:
         with contextlib.suppress(OSError):
             os.remove(temp)
+
+
+#: Seconds :func:`sweep` waits for a TCP connection to ``address`` before
+#: it refuses the address.
+ADDRESS_TIMEOUT = 5.0
+
+#: The addresses ``ray.init`` resolves itself, without a host and port.
+_RAY_WORDS = ("auto", "local")
+
+
+def _address(address) -> "tuple[str, str, int] | str | None":
+    """``address`` checked: ``None`` (a local instance, or ``RAY_ADDRESS``),
+    ``"auto"`` or ``"local"`` as given, else ``(address, host, port)`` of
+    ``host:port`` or ``ray://host:port``; :class:`TypeError` for what is no
+    string, :class:`spark.ArgumentError` for a string that names no host or
+    no port."""
+    if address is None:
+        return None
+    if not isinstance(address, str):
+        raise TypeError(
+            f"address = {spark._short(address)} is not a string; give 'host:port' or 'ray://host:port' of a running "
+            "Ray instance, 'auto', 'local', or None"
+        )
+    spark._utf8(f"address = {spark._short(address)}", address)
+    if address in _RAY_WORDS:
+        return address
+    if not address:
+        raise spark.ArgumentError(
+            "address = '' names no Ray instance; give 'host:port' or 'ray://host:port', 'auto', 'local', or None for "
+            "a local instance"
+        )
+    host, colon, port_text = address.removeprefix("ray://").rpartition(":")
+    port = int(port_text) if port_text.isdecimal() else None
+    if not colon or port is None:
+        raise spark.ArgumentError(
+            f"address = {address!r} names no port; give 'host:port' (the head node's GCS port, 6379 by default) or "
+            "'ray://host:port' (the Ray Client's, 10001 by default)"
+        )
+    host = host.removeprefix("[").removesuffix("]")
+    if not host:
+        raise spark.ArgumentError(f"address = {address!r} names no host; give 'host:port' or 'ray://host:port'")
+    if not 1 <= port <= 65535:
+        raise spark.ArgumentError(f"address = {address!r}: port {port} is outside 1..=65535")
+    return (address, host, port)
+
+
+def _probe(address: "tuple[str, str, int] | str") -> None:
+    """:class:`spark.SparkError` naming ``address`` when no TCP connection to
+    its host and port opens within :data:`ADDRESS_TIMEOUT`: ``ray.init``
+    would wait inside Ray's connect for much longer at an address where no
+    Ray listens. ``"auto"`` and ``"local"`` are Ray's to resolve."""
+    if isinstance(address, str):
+        return
+    given, host, port = address
+    try:
+        with socket.create_connection((host, port), timeout=ADDRESS_TIMEOUT):
+            pass
+    except OSError as e:
+        why = "timed out" if isinstance(e, TimeoutError) else (e.strerror or str(e))
+        raise spark.SparkError(
+            f"address = {given!r} cannot be reached: a TCP connection to {host}:{port} failed within "
+            f"{ADDRESS_TIMEOUT:g} s ({why}); start Ray there (`ray start --head`), check the host and the port, or "
+            "pass address=None for a local instance"
+        ) from None
 
 
 def _row_bytes(n: int) -> int:
@@ -245,38 +320,21 @@ def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options) ->
             f"q0s and v0s must have shape (members, {sys_.n}) for {sys_.name} ({', '.join(sys_.coordinates)}); got "
             f"{q0s.shape}"
         )
-    req = sys_._ensemble_request(method, s, h, steps, params, **options)
+    # A table at output times is checked from their count, before they are
+    # read (10⁸ times would take gigabytes as the request's list).
+    count = None if options["t_eval"] is None else spark._output_count(options["t_eval"])
+    if count is not None:
+        _check_table(sys_.n, members, 1 + count, None)
+    req = sys_._ensemble_request(method, s, h, steps, params, **options, members=None)
     tolerance = "rtol" in req
     times = req.get("t_eval")
     if options["t_eval"] is not None:
         options = dict(options, t_eval=times)
     if times is not None:
-        samples = 1 + len(times)
+        _check_table(sys_.n, members, 1 + len(times), None)
     else:
         n, every = req["steps"], req["every"]
-        samples = n // every + (1 if n % every == 0 else 2)
-    rows = members * samples
-    need = rows * _row_bytes(sys_.n) * _TABLE_COPIES
-    limit = spark._native.record_memory_limit()
-    if need > limit:
-        fits = limit // (_row_bytes(sys_.n) * _TABLE_COPIES) // members
-        if times is not None:
-            hint = (
-                f"record at {fits - 1} output times of t_eval or fewer, or sweep fewer members per call"
-                if fits >= 2
-                else "sweep fewer members per call (even two samples of each do not fit)"
-            )
-        else:
-            hint = (
-                f"record fewer samples with every = {n // max(fits - 2, 1) + 1} or more, or sweep fewer members "
-                "per call"
-                if fits >= 2
-                else "sweep fewer members per call (even two samples of each do not fit)"
-            )
-        raise spark.ArgumentError(
-            f"the sweep's table has {rows:.3e} rows ({need:.3e} bytes in the driver's memory), more than the "
-            f"limit of {limit:.3e} bytes (4 GiB or half the available memory); {hint}"
-        )
+        _check_table(sys_.n, members, n // every + (1 if n % every == 0 else 2), n)
     # The first member alone, as a shard runs it (an ensemble's messages
     # give the advice that applies to a sweep: it has no project_v0).
     common = dict(q0s=q0s[:1], v0s=v0s[:1], params=params, t0=req["t0"], newton=options["newton"],
@@ -295,6 +353,32 @@ def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options) ->
         why = str(e).removeprefix("member 0: ")
         raise type(e)(f"the sweep's settings fail on member 0 before any shard runs: {why}") from e
     return options
+
+
+def _check_table(n: int, members: int, samples: int, steps: int | None) -> None:
+    """:class:`spark.ArgumentError` when the table of ``members`` members of
+    ``samples`` samples each (``n`` coordinates) would not fit in the
+    driver's memory: the driver gathers the whole table, while each shard
+    checks only its own members. The message names the record interval that
+    fits for ``steps`` fixed steps recorded every so many, or the number of
+    output times that fit (``steps`` is ``None``)."""
+    rows = members * samples
+    need = rows * _row_bytes(n) * _TABLE_COPIES
+    limit = spark._native.record_memory_limit()
+    if need <= limit:
+        return
+    fits = limit // (_row_bytes(n) * _TABLE_COPIES) // members
+    if fits < 2:
+        hint = "sweep fewer members per call (even two samples of each do not fit)"
+    elif steps is None:
+        hint = f"record at {fits - 1} output times of t_eval or fewer, or sweep fewer members per call"
+    else:
+        every = steps // max(fits - 2, 1) + 1
+        hint = f"record fewer samples with every = {every} or more, or sweep fewer members per call"
+    raise spark.ArgumentError(
+        f"the sweep's table has {rows:.3e} rows ({need:.3e} bytes in the driver's memory), more than the "
+        f"limit of {limit:.3e} bytes (4 GiB or half the available memory); {hint}"
+    )
 
 
 def _reserve(out: str, folder: str) -> str:
@@ -318,12 +402,18 @@ def _sweep(system, method, s, h, steps, q0s, v0s, params, out, temp, options, sh
     import ray
 
     if not ray.is_initialized():
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        given = address[0] if isinstance(address, tuple) else address
+        try:
+            ray.init(address=given, include_dashboard=False, log_to_driver=False)
+        except ConnectionError as e:
+            if given is None:
+                raise
+            raise spark.SparkError(f"Ray could not connect to address = {given!r}: {e}") from e
     # Ray keeps a task that asks for more CPUs than any node has waiting for
     # such a node, so the sweep would never end.
     largest = max((n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")), default=0)
     if threads_per_task > largest:
-        raise spark.SparkError(
+        raise spark.ArgumentError(
             f"threads_per_task = {threads_per_task} is more than the {largest:g} CPUs of the largest Ray node; "
             f"its tasks would wait forever for a node that has them; use threads_per_task ≤ {int(largest)}"
         )
@@ -387,8 +477,32 @@ def ensemble_statistic(table, h: float) -> tuple[np.ndarray, np.ndarray]:
     h = spark._real("h", h)
     if not (math.isfinite(h) and h != 0.0):
         raise spark.ArgumentError(f"h = {h!r} must be a finite, nonzero step size (the sweep's h)")
+    columns = ["member", "t", "energy_error"]
     if isinstance(table, (str, bytes)) or hasattr(table, "__fspath__"):
-        table = pq.read_table(table, columns=["member", "t", "energy_error"])
+        path = os.fsdecode(os.fspath(table))
+        if not path or "\0" in path:
+            raise spark.ArgumentError(f"table = {path!r} names no file; pass the Parquet file a sweep wrote")
+        try:
+            # Opened by Python, which takes any path the OS does (pyarrow
+            # refuses a path that is not UTF-8).
+            with open(path, "rb") as f:
+                table = pq.read_table(f, columns=columns)
+        except (KeyError, ValueError) as e:
+            # pyarrow's own errors (ArrowInvalid, a ValueError; KeyError for
+            # a missing column) name neither the argument nor the remedy.
+            raise spark.ArgumentError(
+                f"table = {path!r} is not the Parquet file of a sweep ({e}); pass the file a sweep wrote"
+            ) from e
+    if not (hasattr(table, "column") and hasattr(table, "column_names")):
+        raise TypeError(
+            f"table = {spark._short(table)} is neither a pyarrow Table nor the path of a sweep's Parquet file"
+        )
+    missing = [c for c in columns if c not in table.column_names]
+    if missing:
+        raise spark.ArgumentError(
+            f"the table has no column {', '.join(missing)}; pass the file or table a sweep wrote (its columns: "
+            "member, t, …, energy_error)"
+        )
     member = table.column("member").to_numpy()
     t = table.column("t").to_numpy()
     err = table.column("energy_error").to_numpy()

@@ -18,8 +18,9 @@ use problems::run::{run, run_ensemble_with, EnsembleError, RunError, RunResult, 
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
-    columns_to_py, ensemble_to_py, facts_to_py, interruptible, python_words, read_ensemble, read_request, spark_error,
-    Columns, Failure, IntegrateRequest, SystemFacts, ENSEMBLE_PROJECT_HINT, PROJECTION_TOLERANCE,
+    argument_error, check_stages, columns_to_py, ensemble_to_py, facts_to_py, interruptible, python_words,
+    read_ensemble, read_request, spark_error, text, Columns, Failure, IntegrateRequest, SystemFacts,
+    ENSEMBLE_PROJECT_HINT, PROJECTION_TOLERANCE,
 };
 use spark_runtime::{ConsistencyPolicy, Method};
 use std::sync::atomic::Ordering;
@@ -33,9 +34,14 @@ pyo3::create_exception!(
      The message is the Rust library's and says what to change."
 );
 
+/// The registered system `name`; an unknown name is a bad argument.
 fn entry(py: Python<'_>, name: &str) -> PyResult<&'static SystemEntry> {
-    lookup(name).map_err(|e| spark_error(py, e.to_string()))
+    lookup(name).map_err(|e| argument_error(py, e.to_string()))
 }
+
+/// Where a registered system's steppers are compiled, for the message of a
+/// stage count beyond them.
+const PROGRAM: &str = "this program";
 
 /// The run `r` asks for, of the registered system `e`.
 fn run_spec(e: &'static SystemEntry, r: &IntegrateRequest) -> RunSpec {
@@ -142,8 +148,8 @@ fn names() -> Vec<&'static str> {
 /// coordinates, parameters with defaults, structure facts, effects, events,
 /// operation counts, default initial state, step and final time.
 #[pyfunction]
-fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDict>> {
-    let e = entry(py, name)?;
+fn system_info_of<'py>(py: Python<'py>, name: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+    let e = entry(py, &text(name, "name")?)?;
     let facts = SystemFacts {
         source: e.source,
         n: e.n,
@@ -177,7 +183,9 @@ fn system_info_of<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDic
 #[pyfunction]
 fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
     let e = entry(py, name)?;
-    let spec = run_spec(e, &read_request(py, request)?);
+    let r = read_request(py, request)?;
+    check_stages(py, &r, MAX_DISPATCH_STAGES, PROGRAM)?;
+    let spec = run_spec(e, &r);
     let c = interruptible(py, |stop| {
         let start = Instant::now();
         let result = run(&spec, &|_| !stop.load(Ordering::Relaxed)).map_err(|err| message(&err))?;
@@ -191,6 +199,7 @@ fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> 
 fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
     let e = entry(py, name)?;
     let r = read_ensemble(py, request)?;
+    check_stages(py, &r.run, MAX_DISPATCH_STAGES, PROGRAM)?;
     if r.q0s.len() != r.members * e.n || r.v0s.len() != r.members * e.n {
         return Err(spark_error(
             py,
@@ -465,6 +474,15 @@ fn record_memory_limit() -> u64 {
     spark_runtime::record_memory_limit()
 }
 
+/// Bytes of one recorded sample of a registered system with `n` coordinates
+/// and `m` constraints, as its record's check counts them
+/// (`problems::run::bytes_per_sample`): what `spark` checks a count of
+/// output times with before it reads them.
+#[pyfunction]
+fn record_bytes_per_sample(n: usize, m: usize) -> u64 {
+    problems::run::bytes_per_sample(n, m)
+}
+
 /// The crate version (part of `spark.compile`'s cache key).
 #[pyfunction]
 fn version() -> &'static str {
@@ -480,6 +498,8 @@ fn catalogue() -> Vec<(&'static str, &'static str)> {
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SparkError", m.py().get_type::<SparkError>())?;
+    m.add("MAX_HALVINGS", spark_runtime::MAX_HALVINGS)?;
+    m.add("MAX_ENSEMBLE_THREADS", spark_runtime::MAX_ENSEMBLE_THREADS)?;
     m.add_function(wrap_pyfunction!(names, m)?)?;
     m.add_function(wrap_pyfunction!(catalogue, m)?)?;
     m.add_function(wrap_pyfunction!(system_info_of, m)?)?;
@@ -491,5 +511,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(source_dir, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;
     m.add_function(wrap_pyfunction!(record_memory_limit, m)?)?;
+    m.add_function(wrap_pyfunction!(record_bytes_per_sample, m)?)?;
     Ok(())
 }

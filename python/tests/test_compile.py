@@ -530,3 +530,28 @@ def test_a_name_of_millions_of_characters_is_quoted_as_an_excerpt(tmp_path):
     # An ordinary name is quoted whole.
     with pytest.raises(spark.DslError, match="unknown identifier `zeta`"):
         spark.compile(text.replace(name, "zeta"), cache_dir=str(tmp_path))
+
+
+def test_a_cache_dir_that_names_no_folder_is_an_argument_error_before_the_check(tmp_path, monkeypatch):
+    # Unchecked, a NUL in cache_dir raised the OS layer's raw ValueError
+    # ("embedded null byte") from mkdir, after the declaration's check; an
+    # empty one silently used the default cache. Each is refused first,
+    # naming cache_dir, and nothing is written anywhere.
+    monkeypatch.setenv("SPARK_CACHE_DIR", str(tmp_path / "default"))
+    text = declaration("Skate") + "\n// cache_dir refused"
+    cases = {
+        "": r"cache_dir = '' names no folder",
+        b"": r"cache_dir = b'' names no folder",
+        str(tmp_path / "a\0b"): r"cache_dir = .* holds a NUL character",
+        str(tmp_path / "a\ud800"): r"cache_dir = .* lone surrogate U\+D800",
+    }
+    for cache_dir, words in cases.items():
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark.compile(text, cache_dir=cache_dir)
+    with pytest.raises(TypeError, match=r"^cache_dir = 5 is not a path"):
+        spark.compile(text, cache_dir=5)
+    with pytest.raises(TypeError, match=r"^verbose = 'yes' is not a bool"):
+        spark.compile(text, cache_dir=str(tmp_path), verbose="yes")
+    with pytest.raises(TypeError, match=r"^text = 5 is not a string"):
+        spark.compile(5, cache_dir=str(tmp_path))
+    assert not list(tmp_path.iterdir())

@@ -15,6 +15,8 @@ from __future__ import annotations
 import concurrent.futures
 import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -123,7 +125,7 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     cases = {
         "is a folder": dict(out=str(tmp_path)),
         "does not exist": dict(out=str(tmp_path / "missing" / "sweep.parquet")),
-        "shards = 0 must be at least 1": dict(out=str(tmp_path / "a.parquet"), shards=0),
+        "shards = 0 is less than 1": dict(out=str(tmp_path / "a.parquet"), shards=0),
     }
     for words, kwargs in cases.items():
         with pytest.raises(spark.SparkError, match=words):
@@ -262,7 +264,7 @@ def test_more_threads_per_task_than_a_node_has_cpus_is_refused(local_ray, tmp_pa
     # for such a node: the sweep would hang (threads_per_task=4 on this
     # two-CPU instance).
     q0s, v0s = sray.fig84_members(2)
-    with pytest.raises(spark.SparkError, match=r"threads_per_task = 4 .* 2 CPUs"):
+    with pytest.raises(spark.ArgumentError, match=r"threads_per_task = 4 .* 2 CPUs"):
         sray.sweep("mp7-nh", METHOD, 2, H, 10, q0s, v0s, out=str(tmp_path / "a.parquet"), threads_per_task=4)
     assert not list(tmp_path.iterdir())
 
@@ -405,3 +407,97 @@ def test_a_tolerance_driven_sweep_checks_the_runtimes_options_before_ray_starts(
         sray.sweep("skate", "gauss", 2, q0s=q0s, v0s=v0s, out=out, rtol=1e-6, t_end=1.0,
                    t_eval=np.linspace(0.1, 1.0, 10))
     assert not list(tmp_path.iterdir())
+
+
+def _closed_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on (bound, then released)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_an_unreachable_address_is_refused_before_ray_starts(tmp_path):
+    # ray.init(address=…) at an address where no Ray listens waits inside
+    # Ray's connect, well beyond any patience. The sweep tries a TCP
+    # connection first (5 s at most) and refuses the address, naming it,
+    # without starting Ray. Run in a fresh interpreter, so that no Ray
+    # instance of the other tests is running, with a time limit.
+    port = _closed_port()
+    script = f"""
+import time, numpy as np, ray, spark, spark.ray as sray
+q0s, v0s = sray.fig84_members(2)
+for address in ("127.0.0.1:{port}", "ray://127.0.0.1:{port}"):
+    start = time.monotonic()
+    try:
+        sray.sweep("mp7-nh", "lobatto-iiia-b", 2, 0.05, 10, q0s, v0s, out={str(tmp_path / "a.parquet")!r},
+                   address=address)
+    except spark.SparkError as e:
+        print(type(e).__name__, "|", e)
+    else:
+        print("no error")
+    assert time.monotonic() - start < 10, time.monotonic() - start
+assert not ray.is_initialized()
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    assert len(lines) == 2, done.stdout
+    for line, address in zip(lines, (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}")):
+        assert line.startswith("SparkError | "), line
+        assert f"address = '{address}'" in line and "cannot be reached" in line, line
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_address_that_names_no_port_is_an_argument_error(tmp_path):
+    q0s, v0s = sray.fig84_members(2)
+    args = ("mp7-nh", METHOD, 2, H, 10, q0s, v0s)
+    out = str(tmp_path / "a.parquet")
+    for address, words in (("", "address = '' names no Ray instance"),
+                           ("127.0.0.1", "address = '127.0.0.1' names no port"),
+                           ("127.0.0.1:99999", "port 99999 is outside 1..=65535"),
+                           ("ray://:10001", "names no host")):
+        with pytest.raises(spark.ArgumentError, match=words):
+            sray.sweep(*args, out=out, address=address)
+    with pytest.raises(TypeError, match="^address = 6379 is not a string"):
+        sray.sweep(*args, out=out, address=6379)
+    with pytest.raises(TypeError, match="^out = 5 is not a path"):
+        sray.sweep(*args, out=5)
+    assert not list(tmp_path.iterdir())
+
+
+def test_out_of_range_sweep_options_are_argument_errors(tmp_path):
+    q0s, v0s = sray.fig84_members(2)
+    args = ("mp7-nh", METHOD, 2, H, 10, q0s, v0s)
+    out = str(tmp_path / "a.parquet")
+    cases = [
+        (dict(shards=0), r"shards = 0 is less than 1; give 1 ≤ shards"),
+        (dict(threads_per_task=1025),
+         r"threads_per_task = 1025 is more than 1024; give 1 ≤ threads_per_task ≤ 1024"),
+        (dict(max_halvings=61), r"max_halvings = 61 is more than 60"),
+        (dict(newton_tol=1.5), r"newton_tol = 1\.500e0 must lie in \(0, 1\)"),
+    ]
+    for kwargs, words in cases:
+        with pytest.raises(spark.ArgumentError, match=words):
+            sray.sweep(*args, out=out, **kwargs)
+    with pytest.raises(spark.ArgumentError, match=r"Lobatto IIIA-B with s = 100 is not compiled into this program"):
+        sray.sweep("mp7-nh", METHOD, 100, H, 10, q0s, v0s, out=out)
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_statistic_refuses_what_is_no_sweeps_table_naming_it(tmp_path):
+    # Unchecked, a number raised AttributeError ("'int' object has no
+    # attribute 'column'"), a table without energy_error pyarrow's KeyError,
+    # and a path with a NUL pyarrow's ArrowInvalid.
+    import pyarrow as pa
+
+    with pytest.raises(TypeError, match=r"^table = 5 is neither a pyarrow Table nor the path"):
+        sray.ensemble_statistic(5, 0.1)
+    with pytest.raises(spark.ArgumentError, match=r"the table has no column energy_error"):
+        sray.ensemble_statistic(pa.table({"member": [0], "t": [0.0]}), 0.1)
+    with pytest.raises(spark.ArgumentError, match=r"names no file"):
+        sray.ensemble_statistic(str(tmp_path / "a\0b.parquet"), 0.1)
+    pq.write_table(pa.table({"member": [0], "t": [0.0]}), tmp_path / "other.parquet")
+    with pytest.raises(spark.ArgumentError, match=r"other\.parquet' is not the Parquet file of a sweep"):
+        sray.ensemble_statistic(tmp_path / "other.parquet", 0.1)

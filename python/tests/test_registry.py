@@ -226,7 +226,7 @@ def test_halved_steps_warn_and_are_counted_or_refused_with_max_halvings_0(spark_
     with pytest.raises(spark.SparkError, match=r"step 0 .* failed: Newton diverged"):
         spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=0)
     # Out of range or of the wrong kind: refused, naming it.
-    with pytest.raises(spark.SparkError, match=r"max_halvings = 61 must lie in 0..=60"):
+    with pytest.raises(spark.ArgumentError, match=r"max_halvings = 61 is more than 60; give 0 ≤ max_halvings ≤ 60"):
         spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=61)
     with pytest.raises(spark.ArgumentError, match=r"max_halvings = -1 is less than 0"):
         spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=-1)
@@ -411,3 +411,84 @@ def test_the_native_request_names_an_integer_beyond_64_bits():
         spark._native.integrate("skate", {**request, "steps": 3, "every": 10**400})
     with pytest.raises(ValueError, match=r"^`h` = 10+…0+ \(401 characters\) is outside the floats"):
         spark._native.integrate("skate", {**request, "steps": 3, "h": 10**400})
+
+
+def test_a_lone_surrogate_in_a_name_is_an_argument_error():
+    # A str holding a lone surrogate ("\ud800", left by decoding bytes with
+    # errors="surrogateescape") cannot cross into Rust as UTF-8: each name
+    # that carries one is refused, naming the argument, instead of the raw
+    # UnicodeEncodeError of the conversion.
+    cases = {
+        "name": lambda: spark.system("sk\ud800ate"),
+        "method": lambda: spark.integrate("skate", "gauss\ud800", 2, 0.1, 3),
+        "newton": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, newton="full\udcff"),
+        "params key": lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g\ud800": 1.0}),
+        "params key ": lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, [[0, 0, 0]], [[0, 0, 1]],
+                                              params={"\udcff": 1.0}),
+    }
+    for what, call in cases.items():
+        with pytest.raises(spark.ArgumentError, match=rf"^{what.strip()} .*lone surrogate U\+D[8C][0F][0F]"):
+            call()
+    # The native functions refuse it as well, naming the key.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    with pytest.raises(spark.ArgumentError, match=r"`method` .*lone surrogate"):
+        spark._native.integrate("skate", {**request, "method": "\ud800"})
+    with pytest.raises(spark.ArgumentError, match=r"params key .*lone surrogate"):
+        spark._native.integrate("skate", {**request, "params": {"\ud800": 1.0}})
+    with pytest.raises(spark.ArgumentError, match=r"lone surrogate"):
+        spark._native.system_info_of("\ud800")
+
+
+def test_options_out_of_range_are_argument_errors_naming_the_range():
+    # Each is a bad argument, refused as spark.ArgumentError (a SparkError
+    # and a ValueError) naming it and the range it takes.
+    q0s, v0s = [[0, 0, 0]], [[0, 0, 1]]
+    cases = [
+        (r"max_halvings = 61 is more than 60; give 0 ≤ max_halvings ≤ 60",
+         lambda: spark.integrate("robot", "gauss", 2, 3.0, 4, max_halvings=61)),
+        (r"max_halvings = 61 is more than 60; give 0 ≤ max_halvings ≤ 60",
+         lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, max_halvings=61)),
+        (r"Gauss with s = 100 is not compiled into this program; supported: s = 1\.\.=5",
+         lambda: spark.integrate("skate", "gauss", 100, 0.1, 3)),
+        (r"Gauss with s = 100 is not compiled into this program",
+         lambda: spark.ensemble("skate", "gauss", 100, 0.1, 3, q0s, v0s)),
+        (r"symplectic Euler I needs exactly 1 stage, got s = 2",
+         lambda: spark.integrate("skate", "euler-1", 2, 0.1, 3)),
+        (r"Gauss with s = 6 is not compiled into this program; supported: s = 1\.\.=5",
+         lambda: spark.integrate("skate", "gauss", 6, 0.1, 3)),
+        (r"threads = 1025 is more than 1024; give 1 ≤ threads ≤ 1024",
+         lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, threads=1025)),
+        (r"newton_tol = 2\.000e0 must lie in \(0, 1\)",
+         lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=2.0)),
+        (r"newton_tol = NaN must lie in \(0, 1\)",
+         lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, newton_tol=float("nan"))),
+        (r"newton = `fast`: write \"full\" or \"simplified\"",
+         lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, newton="fast")),
+        (r"unknown method `nope`", lambda: spark.integrate("skate", "nope", 2, 0.1, 3)),
+    ]
+    for words, call in cases:
+        with pytest.raises(spark.ArgumentError, match=words):
+            call()
+    # The native functions refuse them as ArgumentError too.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    native = [
+        (r"max_halvings = 61 must lie in 0\.\.=60", {"max_halvings": 61}),
+        (r"Gauss with s = 100 is not compiled into this program", {"s": 100}),
+        (r"Lobatto IIIA-B needs between 2 and \d+ stages, got s = 1", {"method": "lobatto-iiia-b", "s": 1}),
+        (r"s = 0 must be at least 1", {"s": 0}),
+        (r"steps = 0 must be at least 1", {"steps": 0}),
+        (r"every = -2 must be at least 1", {"every": -2}),
+        (r"max_steps = 0 must be at least 1", {"rtol": 1e-6, "t_end": 1.0, "steps": None, "h": None, "max_steps": 0}),
+    ]
+    for words, change in native:
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark._native.integrate("skate", {**request, **change})
+    members = {**request, "q0s": q0s, "v0s": v0s}
+    for threads, words in ((1025, "threads = 1025 is more than 1024"), (0, "threads = 0 must be at least 1")):
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark._native.ensemble("skate", {**members, "threads": threads})
+    with pytest.raises(spark.ArgumentError, match="an ensemble needs at least one member"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 3, np.zeros((0, 3)), np.zeros((0, 3)))
+    # An unknown system is an ArgumentError with the closest name.
+    with pytest.raises(spark.ArgumentError, match="unknown system `skat`.*did you mean `skate`"):
+        spark.system("skat")

@@ -334,3 +334,52 @@ def test_a_module_that_predates_the_new_keys_is_refused_for_them_not_run_as_fixe
         with pytest.raises(spark.SparkError, match="predates rtol, t_eval and events"):
             old.integrate("gauss", 2, **kw)
     assert spark._compile.MODULE_INTERFACE in "2: rtol, t_eval, events; events and controller in the result"
+
+
+class _Huge:
+    """A sequence that says it holds 10⁸ times and fails the test if
+    anything reads them."""
+
+    def __len__(self):
+        return 10**8
+
+    def __array__(self, *args, **kwargs):
+        raise AssertionError("t_eval was materialized")
+
+    def __iter__(self):
+        raise AssertionError("t_eval was materialized")
+
+    def __getitem__(self, i):
+        raise AssertionError("t_eval was materialized")
+
+
+def test_more_output_times_than_memory_holds_are_refused_before_they_are_read(skate):
+    # 10⁸ times: as a Python list of floats 3.2 GB, before the native check
+    # of the record refused the run. The count alone is checked first,
+    # against the record's limit, naming the most times that fit.
+    words = (r"t_eval holds 1\.000e8 times: the run would record .* more than the limit .*; "
+             r"give at most \d+ output times")
+    with pytest.raises(spark.ArgumentError, match=words):
+        skate.integrate("gauss", 2, 1e-9, 10**9, t_eval=_Huge())
+    with pytest.raises(spark.ArgumentError, match=words):
+        skate.integrate("gauss", 2, rtol=1e-6, t_end=1.0, t_eval=_Huge())
+    q0s, v0s = np.zeros((2, 3)), np.array([[0, 0, 1.0]] * 2)
+    with pytest.raises(spark.ArgumentError, match=r"t_eval holds 1\.000e8 times"):
+        skate.ensemble("gauss", 2, 1e-9, 10**9, q0s, v0s, t_eval=_Huge())
+    # An array of 10⁸ times that takes no memory itself (a broadcast view):
+    # refused with next to no allocation (no copy, no list).
+    import tracemalloc
+
+    times = np.broadcast_to(np.float64(0.5), (10**8,))
+    tracemalloc.start()
+    try:
+        with pytest.raises(spark.ArgumentError, match=r"t_eval holds 1\.000e8 times"):
+            skate.integrate("gauss", 2, rtol=1e-6, t_end=1.0, t_eval=times)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 10**7, peak
+    # An ensemble's members are counted together: 1000 members of 10⁶ times.
+    many = np.zeros((1000, 3)), np.tile([0, 0, 1.0], (1000, 1))
+    with pytest.raises(spark.ArgumentError, match=r"t_eval holds 1\.000e6 times: the 1000 members would record"):
+        skate.ensemble("gauss", 2, 1e-6, 10**6, *many, t_eval=np.broadcast_to(np.float64(0.5), (10**6,)))

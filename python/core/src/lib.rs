@@ -14,7 +14,7 @@
 
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::IntoPyArray;
-use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyOverflowError, PyTypeError, PyUnicodeEncodeError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
@@ -43,7 +43,10 @@ pub const PROJECTION_TOLERANCE: f64 = 1e-12;
 use spark_runtime::MAX_ENSEMBLE_THREADS as MAX_THREADS;
 
 fn too_many_threads(t: i64) -> Failure {
-    format!("threads = {t} is more than {MAX_THREADS}, the most an ensemble starts; use at most the number of cores")
+    format!(
+        "threads = {t} is more than {MAX_THREADS}, the most an ensemble starts; give 1 ≤ threads ≤ {MAX_THREADS} (at \
+         most the number of cores)"
+    )
 }
 
 /// One integration run, as read from the Python side.
@@ -523,12 +526,70 @@ pub fn spark_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
     }
 }
 
+/// `spark.ArgumentError` with `message`: an argument outside the range the
+/// request takes (a `SparkError` and a `ValueError`, defined by the `spark`
+/// package); `spark.SparkError` when the package's class cannot be found.
+pub fn argument_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
+    let message = message.into();
+    match py.import("spark").and_then(|m| m.getattr("ArgumentError")) {
+        Ok(class) => match class.call1((message.clone(),)) {
+            Ok(instance) => PyErr::from_value(instance),
+            Err(e) => e,
+        },
+        Err(_) => spark_error(py, message),
+    }
+}
+
+/// The refusal of a str that UTF-8 cannot encode (`what` names it): a lone
+/// surrogate such as `"\ud800"` cannot become a Rust string.
+fn not_unicode(py: Python<'_>, what: &str) -> PyErr {
+    argument_error(
+        py,
+        format!(
+            "{what} holds a lone surrogate, which UTF-8 cannot encode: it is no valid Unicode text; remove it (text \
+             decoded with errors=\"surrogateescape\" keeps undecodable bytes as such surrogates)"
+        ),
+    )
+}
+
+/// `x` as a Rust string: [`not_unicode`] for a str UTF-8 cannot encode,
+/// `TypeError` naming `what` for anything but a str.
+pub fn text(x: &Bound<'_, PyAny>, what: &str) -> PyResult<String> {
+    x.extract::<String>().map_err(|e| {
+        if e.is_instance_of::<PyUnicodeEncodeError>(x.py()) {
+            not_unicode(x.py(), &format!("{what} = {}", short(x)))
+        } else {
+            PyTypeError::new_err(format!("{what} = {} is not a string", short(x)))
+        }
+    })
+}
+
+/// Refuses a stage count that `method` does not have or that `what` (the
+/// program or module) has no stepper compiled for, up to `max`.
+pub fn check_stages(py: Python<'_>, r: &IntegrateRequest, max: usize, what: &str) -> PyResult<()> {
+    let (method, s) = (r.method, r.stages);
+    if s > max {
+        return Err(argument_error(
+            py,
+            format!("{method} with s = {s} is not compiled into {what}; supported: s = 1..={max}"),
+        ));
+    }
+    let (min, most) = method.stage_range();
+    if s < min || s > most {
+        return Err(argument_error(py, TableauError::UnsupportedStages { method, s, min, max: most }.to_string()));
+    }
+    Ok(())
+}
+
 fn get<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<T>> {
     match d.get_item(key)? {
         None => Ok(None),
         Some(v) if v.is_none() => Ok(None),
         Some(v) => v.extract::<T>().map(Some).map_err(|e| {
             let e: PyErr = e.into();
+            if e.is_instance_of::<PyUnicodeEncodeError>(d.py()) {
+                return not_unicode(d.py(), &format!("`{key}` = {}", short(&v)));
+            }
             // PyO3's overflow message ("too large to convert to C long")
             // names no argument and no range.
             if e.is_instance_of::<PyOverflowError>(d.py()) {
@@ -537,7 +598,7 @@ fn get<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyR
                     "f64" => "the floats (magnitude below 1.8e308)".to_string(),
                     _ => format!("what the request takes ({})", e.value(d.py())),
                 };
-                return PyValueError::new_err(format!("`{key}` = {} is outside {range}", short(&v)));
+                return argument_error(d.py(), format!("`{key}` = {} is outside {range}", short(&v)));
             }
             PyTypeError::new_err(format!("`{key}`: {}", e.value(d.py())))
         }),
@@ -571,17 +632,17 @@ fn required<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -
 /// output times `t_eval` and `events`.
 pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<IntegrateRequest> {
     let method: String = required(d, "method")?;
-    let method: Method = method.parse().map_err(|e: spark_runtime::TableauError| spark_error(py, e.to_string()))?;
+    let method: Method = method.parse().map_err(|e: spark_runtime::TableauError| argument_error(py, e.to_string()))?;
     let newton_mode: String = get(d, "newton")?.unwrap_or_else(|| "full".into());
     let mode = match newton_mode.to_ascii_lowercase().as_str() {
         "full" => NewtonMode::Full,
         "simplified" => NewtonMode::Simplified,
-        other => return Err(spark_error(py, format!("newton = `{other}`: write \"full\" or \"simplified\""))),
+        other => return Err(argument_error(py, format!("newton = `{other}`: write \"full\" or \"simplified\""))),
     };
     let mut newton = NewtonOptions { mode, ..NewtonOptions::default() };
     if let Some(tol) = get::<f64>(d, "newton_tol")? {
         if !(tol > 0.0 && tol < 1.0) {
-            return Err(spark_error(
+            return Err(argument_error(
                 py,
                 format!("newton_tol = {tol:.3e} must lie in (0, 1): the largest update accepted, relative to 1 + |z|"),
             ));
@@ -594,8 +655,15 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
             let p = p.cast_into::<PyDict>().map_err(|_| PyTypeError::new_err("`params` must be a dict"))?;
             let mut v = Vec::new();
             for (k, x) in p.iter() {
-                let name: String = k.extract()?;
-                let value: f64 = x.extract()?;
+                let name = text(&k, "params key")?;
+                let value = x.extract::<f64>().map_err(|e| {
+                    let what = format!("params[{}] = {}", short(&k), short(&x));
+                    if e.is_instance_of::<PyOverflowError>(py) {
+                        argument_error(py, format!("{what} is outside the floats (magnitude below 1.8e308)"))
+                    } else {
+                        PyTypeError::new_err(format!("{what} is not a number: {}", e.value(py)))
+                    }
+                })?;
                 if !value.is_finite() {
                     return Err(spark_error(py, format!("parameter `{name}` = {value:.3e} must be finite")));
                 }
@@ -610,13 +678,15 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
     let steps: i64 = if tolerance.is_some() { 1 } else { required(d, "steps")? };
     let every: i64 = get(d, "every")?.unwrap_or(1);
     let stages: i64 = required(d, "s")?;
-    if steps < 1 || every < 1 || stages < 1 {
-        return Err(spark_error(py, "steps, every and s must be at least 1"));
+    for (name, value) in [("steps", steps), ("every", every), ("s", stages)] {
+        if value < 1 {
+            return Err(argument_error(py, format!("{name} = {value} must be at least 1")));
+        }
     }
     let times: Option<Vec<f64>> = get(d, "t_eval")?;
     let max_halvings: i64 = get(d, "max_halvings")?.unwrap_or(DEFAULT_MAX_HALVINGS as i64);
     if !(0..=MAX_HALVINGS as i64).contains(&max_halvings) {
-        return Err(spark_error(
+        return Err(argument_error(
             py,
             format!(
                 "max_halvings = {max_halvings} must lie in 0..={MAX_HALVINGS} (0 ends the run at the first step whose \
@@ -673,7 +743,7 @@ fn read_tolerance(py: Python<'_>, d: &Bound<'_, PyDict>, t0: f64) -> PyResult<Op
     })?;
     let max_steps: i64 = get(d, "max_steps")?.unwrap_or(DEFAULT_MAX_STEPS as i64);
     if max_steps < 1 {
-        return Err(spark_error(py, format!("max_steps = {max_steps} must be at least 1")));
+        return Err(argument_error(py, format!("max_steps = {max_steps} must be at least 1")));
     }
     Ok(Some(Tolerance {
         rtol,
@@ -699,15 +769,15 @@ pub fn read_ensemble(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Ensemble
         return Err(spark_error(py, format!("q0s has {} rows but v0s has {}", q0s.len(), v0s.len())));
     }
     if q0s.is_empty() {
-        return Err(spark_error(py, "an ensemble needs at least one member"));
+        return Err(argument_error(py, "an ensemble needs at least one member"));
     }
     let threads: Option<i64> = get(d, "threads")?;
     if let Some(t) = threads {
         if t < 1 {
-            return Err(spark_error(py, "threads must be at least 1"));
+            return Err(argument_error(py, format!("threads = {t} must be at least 1")));
         }
         if t > MAX_THREADS as i64 {
-            return Err(spark_error(py, too_many_threads(t)));
+            return Err(argument_error(py, too_many_threads(t)));
         }
     }
     let width = q0s[0].len();
@@ -915,6 +985,9 @@ pub fn interruptible<T: Send>(
     })
 }
 
+/// The largest stage count [`export_system!`] compiles a stepper for.
+pub const MODULE_STAGES: usize = 5;
+
 /// A list of strings as a Python list (for `names()`).
 pub fn string_list<'py>(py: Python<'py>, items: &[&str]) -> PyResult<Bound<'py, PyList>> {
     PyList::new(py, items)
@@ -982,6 +1055,7 @@ macro_rules! export_system {
             request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_request(py, request)?;
+            $crate::check_stages(py, &r, $crate::MODULE_STAGES, "this module")?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::integrate(&r, stop))?;
             $crate::columns_to_py(py, c)
         }
@@ -993,6 +1067,7 @@ macro_rules! export_system {
             request: &$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>,
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_ensemble(py, request)?;
+            $crate::check_stages(py, &r.run, $crate::MODULE_STAGES, "this module")?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::ensemble(&r, stop))?;
             $crate::ensemble_to_py(py, c)
         }
