@@ -159,7 +159,7 @@ pub mod trig;
 pub use adaptive::{
     integrate_adaptive, integrate_adaptive_at, integrate_adaptive_with_events, integrate_reversible,
     integrate_reversible_with_events, AdaptiveError, AdaptiveOptions, AdaptiveReport, AdaptiveRun, EstimateFailure,
-    EstimatedStep,
+    EstimatedStep, MAX_ABSOLUTE_TOLERANCE,
 };
 pub use dense::{DenseBasis, DenseStep, DenseValue};
 pub use driver::{

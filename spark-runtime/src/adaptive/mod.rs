@@ -94,9 +94,12 @@ use run::{accept, whole_run, Output, Recorder, Taken};
 /// Options of a tolerance-driven run.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AdaptiveOptions {
-    /// Relative tolerance of the local error (per component of `(q, v)`).
+    /// Relative tolerance of the local error (per component of `(q, v)`):
+    /// 0 or in `[1e-15, 1)`.
     pub rtol: f64,
-    /// Absolute tolerance of the local error (per component of `(q, v)`).
+    /// Absolute tolerance of the local error (per component of `(q, v)`):
+    /// in `[0, MAX_ABSOLUTE_TOLERANCE]` (≈ 1.34e154), positive when `rtol`
+    /// is 0.
     pub atol: f64,
     /// Magnitude of the first step tried; `None` estimates it from the
     /// initial velocity and acceleration.
@@ -152,24 +155,7 @@ impl Default for AdaptiveOptions {
 impl AdaptiveOptions {
     /// Checks every field against its allowed range.
     pub fn validate(&self) -> Result<(), OptionError> {
-        // rtol, atol ≥ 0 with one of them positive; below 1e-15 relative the
-        // estimate is round-off, so such a tolerance cannot be met.
-        if !(self.rtol.is_finite() && self.rtol >= 0.0) {
-            return Err(OptionError::float("AdaptiveOptions::rtol", self.rtol, "finite and non-negative"));
-        }
-        if !(self.atol.is_finite() && self.atol >= 0.0) {
-            return Err(OptionError::float("AdaptiveOptions::atol", self.atol, "finite and non-negative"));
-        }
-        if self.rtol == 0.0 && self.atol == 0.0 {
-            return Err(OptionError::float("AdaptiveOptions::atol", self.atol, "positive when rtol is 0"));
-        }
-        if self.rtol > 0.0 && self.rtol < 1e-15 {
-            return Err(OptionError::float(
-                "AdaptiveOptions::rtol",
-                self.rtol,
-                "0 or at least 1e-15 (round-off in double precision)",
-            ));
-        }
+        check_tolerances(self.rtol, self.atol)?;
         if let Some(h) = self.initial_step {
             // A subnormal step overflows 1/h in the step's equations.
             if !(h.is_finite() && h >= f64::MIN_POSITIVE) {
@@ -207,6 +193,49 @@ impl AdaptiveOptions {
         }
         self.consistency.validate()
     }
+}
+
+/// The largest absolute tolerance, `√f64::MAX ≈ 1.34e154`: no state with a
+/// finite kinetic energy is that large (`|v|²` overflows beyond it), so an
+/// absolute error bound above it bounds nothing.
+pub const MAX_ABSOLUTE_TOLERANCE: f64 = 1.340_780_792_994_259_6e154;
+
+/// Checks `rtol` and `atol` against their ranges: `rtol` is 0 or in
+/// `[1e-15, 1)`, `atol` in `[0, MAX_ABSOLUTE_TOLERANCE]`, one of them
+/// positive. Below 1e-15 relative the estimate is round-off, so such a
+/// tolerance cannot be met; at 1 and above a relative error as large as
+/// the state itself passes, so no digit of the solution is controlled and
+/// the steps grow until Newton fails.
+pub(crate) fn check_tolerances(rtol: f64, atol: f64) -> Result<(), OptionError> {
+    if !(rtol.is_finite() && rtol >= 0.0) {
+        return Err(OptionError::float("AdaptiveOptions::rtol", rtol, "0 or in [1e-15, 1)"));
+    }
+    if rtol > 0.0 && rtol < 1e-15 {
+        return Err(OptionError::float(
+            "AdaptiveOptions::rtol",
+            rtol,
+            "0 or in [1e-15, 1) (below 1e-15 the error estimate is round-off in double precision)",
+        ));
+    }
+    if rtol >= 1.0 {
+        return Err(OptionError::float(
+            "AdaptiveOptions::rtol",
+            rtol,
+            "0 or in [1e-15, 1) (a relative error of 1 is as large as the state: no digit of the solution is \
+             controlled)",
+        ));
+    }
+    if !(atol.is_finite() && (0.0..=MAX_ABSOLUTE_TOLERANCE).contains(&atol)) {
+        return Err(OptionError::float(
+            "AdaptiveOptions::atol",
+            atol,
+            "in [0, 1.34e154] (above it, the largest state with a finite kinetic energy, it bounds nothing)",
+        ));
+    }
+    if rtol == 0.0 && atol == 0.0 {
+        return Err(OptionError::float("AdaptiveOptions::atol", atol, "positive when rtol is 0"));
+    }
+    Ok(())
 }
 
 /// One step with its error estimate (see the module docs).
@@ -273,7 +302,9 @@ where
     /// step doubling (module docs): the whole step, then two half steps from
     /// `state`. The stepper continues from the half steps' end (a following
     /// step from `result.state` is warm-started), as if only they had been
-    /// taken. On failure the stepper continues from `state` again.
+    /// taken. On failure the stepper continues from `state` again. `rtol`
+    /// and `atol` have the ranges of [`AdaptiveOptions::rtol`] and
+    /// [`AdaptiveOptions::atol`] ([`StepError::InvalidOption`] otherwise).
     pub fn step_with_estimate(
         &mut self,
         state: &State<N>,
@@ -281,6 +312,9 @@ where
         rtol: f64,
         atol: f64,
     ) -> Result<EstimatedStep<N>, EstimateFailure> {
+        if let Err(e) = check_tolerances(rtol, atol) {
+            return Err(EstimateFailure { solves: 0, iterations: 0, error: StepError::InvalidOption(Box::new(e)) });
+        }
         self.estimate(state, h, rtol, atol).map(|(est, _)| est)
     }
 

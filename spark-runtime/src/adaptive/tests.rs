@@ -242,6 +242,14 @@ fn every_adaptive_option_is_checked_before_any_step() {
         (AdaptiveOptions { rtol: 1e-17, ..d }, "AdaptiveOptions::rtol"),
         (AdaptiveOptions { atol: -1.0, ..d }, "AdaptiveOptions::atol"),
         (AdaptiveOptions { atol: 0.0, rtol: 0.0, ..d }, "AdaptiveOptions::atol"),
+        // A relative error as large as the state controls no digit; an
+        // absolute one above any state with a finite energy bounds nothing.
+        (AdaptiveOptions { rtol: 1e300, ..d }, "AdaptiveOptions::rtol"),
+        (AdaptiveOptions { rtol: 1.0, ..d }, "AdaptiveOptions::rtol"),
+        (AdaptiveOptions { rtol: f64::INFINITY, ..d }, "AdaptiveOptions::rtol"),
+        (AdaptiveOptions { rtol: -1e-6, ..d }, "AdaptiveOptions::rtol"),
+        (AdaptiveOptions { atol: 1e300, ..d }, "AdaptiveOptions::atol"),
+        (AdaptiveOptions { atol: f64::NAN, ..d }, "AdaptiveOptions::atol"),
         (AdaptiveOptions { initial_step: Some(0.0), ..d }, "AdaptiveOptions::initial_step"),
         (AdaptiveOptions { initial_step: Some(f64::INFINITY), ..d }, "AdaptiveOptions::initial_step"),
         (AdaptiveOptions { max_step: Some(f64::NAN), ..d }, "AdaptiveOptions::max_step"),
@@ -260,6 +268,18 @@ fn every_adaptive_option_is_checked_before_any_step() {
         assert!(matches!(err, AdaptiveError::InvalidOption(_)) && err.to_string().contains(name), "{name}: {err}");
         let err = integrate_reversible(&mut st, s.t, &s.q, &s.v, 1.0, |_, _, _| 1.0, &o, &mut NoObserver).unwrap_err();
         assert!(matches!(err, AdaptiveError::InvalidOption(_)), "{name}: {err}");
+    }
+    // The edges of the ranges run.
+    for (rtol, atol) in [(0.999, 1e-6), (1e-15, 0.0), (0.0, MAX_ABSOLUTE_TOLERANCE)] {
+        AdaptiveOptions { rtol, atol, ..d }.validate().unwrap();
+    }
+    let loose = AdaptiveOptions { rtol: 0.999, max_step: Some(0.1), ..d };
+    integrate_adaptive(&mut st, s.t, &s.q, &s.v, 0.2, &loose, &mut NoObserver).unwrap();
+    // One step with its estimate checks the same ranges.
+    for (rtol, atol) in [(1e300, 1e-6), (1e-6, 1e300), (f64::NAN, 1e-6), (0.0, 0.0)] {
+        let err = st.step_with_estimate(&s, 0.01, rtol, atol).unwrap_err();
+        assert!(matches!(err.error, StepError::InvalidOption(_)), "{rtol:e} {atol:e}: {}", err.error);
+        assert_eq!(err.solves, 0);
     }
     for t_end in [0.0, f64::NAN, f64::INFINITY] {
         let err = integrate_adaptive(&mut st, s.t, &s.q, &s.v, t_end, &d, &mut NoObserver).unwrap_err();
