@@ -184,10 +184,13 @@ pub enum StepError {
     /// The test is relative to the column, so a matrix evaluated at a
     /// runaway iterate (huge multipliers dominating a column) can fail it
     /// with an unremarkable pivot: `scale` and the history tell the cases apart.
+    /// A matrix that is regular once its rows and columns are scaled to
+    /// unit size is singular by its magnitudes alone (a state or step too
+    /// large for double precision to resolve the equations), and `detail`
+    /// says so instead of pointing at a mass or a constraint.
     #[error(
-        "numerically singular Newton matrix at iteration {} in the step from t = {} with h = {}: {detail} \
-         (a V column points at the mass matrix ∇²_vv L — a zero mass or inertia parameter? — a hΨ column at \
-         dependent or vanishing constraint rows ∂k/∂v); history: {history}",
+        "numerically singular Newton matrix at iteration {} in the step from t = {} with h = {}: {detail}; \
+         history: {history}",
         history.len(),
         Sci(*t),
         Sci(*h)
@@ -199,10 +202,10 @@ pub enum StepError {
         h: f64,
         /// The offending column, its unknown (with the coordinate of a
         /// velocity), the pivot and the column's largest magnitude (the
-        /// pivot's yardstick), e.g. ``column 5 (V_2[3], the velocity of
-        /// `theta`): pivot 1.000e0 is below 64 eps x its largest entry
-        /// 1.5e14`` (one boxed `str`, not a field for each, keeps the error
-        /// small).
+        /// pivot's yardstick) and the likely cause, e.g. ``column 5 (V_2[3],
+        /// the velocity of `theta`): pivot 1.000e0 is below 64 eps x its
+        /// largest entry 1.5e14 (…)`` (one boxed `str`, not a field for
+        /// each, keeps the error small).
         detail: Box<str>,
         /// The iterations.
         history: Box<NewtonHistory>,

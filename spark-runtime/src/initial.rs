@@ -436,11 +436,81 @@ where
         Ok(()) => Ok(()),
         Err(SaddleFailure::Singular { column, pivot, scale }) => Err(StepError::SingularInitialState {
             t: t0,
-            detail: singular_start_detail(sys, column, pivot, scale).into(),
+            detail: match saddle_out_of_range(&jac.mass, &jac.constraint_v, q0, v0) {
+                Some(detail) => detail,
+                None => singular_start_detail(sys, column, pivot, scale),
+            }
+            .into(),
         }),
         // Not reached: the entries were checked above.
         Err(SaddleFailure::NonFinite) => Err(non_finite("mass matrix d²L/dv²", f64::NAN)),
     }
+}
+
+/// What [`StepError::SingularInitialState`] says when the saddle matrix
+/// `[[W, Kᵀ],[K, 0]]` is singular to working precision as given but regular
+/// once its rows and columns are scaled to unit size: its entries lie too
+/// far apart for elimination in double precision (a velocity of 1e150
+/// against a constraint quadratic in it), so the cause is the magnitude of
+/// the state, not a mass or a constraint. `None` for a matrix singular at
+/// any scale. The scaling keeps the saddle form: `W` divided by its
+/// largest entry, each constraint row by its largest entry and each
+/// multiplier column by that entry over `W`'s (so `Kᵀ` scales as `K`),
+/// which changes neither regularity nor the solution's meaning.
+fn saddle_out_of_range<const N: usize, const M: usize>(
+    w: &Matrix<N, N>,
+    k: &Matrix<M, N>,
+    q0: &Vector<N>,
+    v0: &Vector<N>,
+) -> Option<String> {
+    use crate::error::Sci;
+    let d = N + M;
+    let mut a = vec![0.0; d * d];
+    for j in 0..N {
+        for i in 0..N {
+            a[j * d + i] = w[(i, j)];
+        }
+        for r in 0..M {
+            a[j * d + N + r] = k[(r, j)];
+            a[(N + r) * d + j] = k[(r, j)];
+        }
+    }
+    let (smallest, largest) = crate::linalg::magnitude_range(&a);
+    let w_largest = w.amax();
+    if w_largest == 0.0 || crate::linalg::regular(&a, d) {
+        return None;
+    }
+    let mut scaled = a.clone();
+    for j in 0..N {
+        for i in 0..N {
+            scaled[j * d + i] /= w_largest;
+        }
+    }
+    for r in 0..M {
+        let k_largest = k.row(r).amax();
+        if k_largest == 0.0 {
+            return None;
+        }
+        for j in 0..N {
+            scaled[j * d + N + r] /= k_largest;
+            scaled[(N + r) * d + j] /= k_largest;
+        }
+    }
+    if !crate::linalg::regular(&scaled, d) {
+        return None;
+    }
+    Some(format!(
+        "the magnitudes at the initial state are out of the range double precision resolves: the saddle matrix \
+         [[W, K^T],[K, 0]] of the mass matrix W = d²L/dv² and the constraint rows K = dk/dv is regular once its \
+         rows and columns are scaled to unit size, but its entries span {} to {}, too far apart for elimination in \
+         double precision, so it is singular to working precision as given (max |q0| = {}, max |v0| = {}), and so \
+         is a step's Newton matrix, which holds the same entries. Rescale the units so that q0 and v0 are nearer 1, \
+         or start from a smaller state.",
+        Sci(smallest),
+        Sci(largest),
+        Sci(q0.amax()),
+        Sci(v0.amax())
+    ))
 }
 
 /// What [`StepError::SingularInitialState`] says about the singular column

@@ -649,3 +649,58 @@ fn states_compare_like_their_components() {
     let nan = State { t: f64::NAN, ..a };
     assert_ne!(nan, nan);
 }
+
+nonholonomic_system! {
+    /// The Appell–Hamel particle: a constraint quadratic in the velocities.
+    struct QuadraticInV {
+        coordinates: [x, y, z],
+        parameters: { a = 1.0 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + dot(z)^2)/2 - z,
+        constraints: [ dot(z)^2 - a^2*(dot(x)^2 + dot(y)^2) ],
+    }
+}
+
+/// A velocity of 1e150 against a constraint quadratic in it gives the
+/// saddle matrix `[[W, Kᵀ],[K, 0]]` rows of 1 and 1e150: singular to
+/// working precision as given, regular once scaled. The error names the
+/// magnitudes, not a zero mass or dependent constraints; at a moderate
+/// velocity the same state starts.
+#[test]
+fn a_start_singular_only_by_its_magnitudes_is_refused_naming_them() {
+    let q0 = V::<3>::zeros();
+    for (v0, policy) in [
+        (V::<3>::new(1e150, 0.0, 1e150), ConsistencyPolicy::default()),
+        (V::<3>::new(1e150, 1e150, 1e150), ConsistencyPolicy::Project { tolerance: 1e-12 }),
+    ] {
+        let err = consistent_velocity(&QuadraticInV::default(), 0.0, &q0, &v0, policy).unwrap_err();
+        let StepError::SingularInitialState { detail, .. } = &err else { panic!("{err:?}") };
+        assert!(detail.starts_with("the magnitudes at the initial state are out of the range"), "{err}");
+        assert!(detail.contains("max |v0| = 1.000e150") && !detail.contains("zero mass"), "{err}");
+    }
+    consistent_velocity(&QuadraticInV::default(), 0.0, &q0, &V::<3>::new(1.0, 0.0, 1.0), ConsistencyPolicy::default())
+        .unwrap();
+    // A zero mass is still named as such.
+    let err = consistent_velocity(
+        &Skate { m: 0.0, ..Skate::default() },
+        0.0,
+        &q0,
+        &V::<3>::new(0.0, 0.0, 1.0),
+        ConsistencyPolicy::default(),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("Parameters that are 0 here: m"), "{err}");
+}
+
+/// The skate sliding at 1e20: the step's Newton matrix holds entries from
+/// 1e-4 to 1e17, regular once scaled but singular to working precision as
+/// given. The error says the magnitudes are out of range, not a mass or a
+/// constraint.
+#[test]
+fn a_step_singular_only_by_its_magnitudes_says_so() {
+    let mut st = Stepper::<_, 3, 1, 2, 11>::new(Skate::default(), tab(Method::Gauss));
+    let state = State { t: 0.0, q: V::<3>::zeros(), v: V::<3>::new(1e20, 0.0, 1.0) };
+    let err = st.step(&state, 0.1).unwrap_err();
+    let StepError::SingularMatrix { detail, .. } = &err else { panic!("{err:?}") };
+    assert!(detail.contains("magnitudes are out of range") && detail.contains("max |v| = 1.000e20"), "{err}");
+    assert!(!detail.contains("zero mass"), "{err}");
+}

@@ -35,6 +35,66 @@ pub(crate) use padded_lu::PaddedLu;
 
 use crate::system::Vector;
 
+/// Whether the `n × n` column-major matrix `a` is singular to working
+/// precision as given (a pivot of the elimination with partial pivoting
+/// below `64 ε` times its column's largest entry) but regular once its rows
+/// and columns are scaled to unit size: then its entries lie too far apart
+/// in magnitude for the elimination to resolve, and the singularity is one
+/// of scale, not of structure (a zero mass, dependent constraints). The
+/// scaling is Ruiz's equilibration (each row and column divided by the
+/// square root of its largest magnitude, repeated). Allocates: for the
+/// failure paths only.
+pub(crate) fn singular_only_by_scale(a: &[f64], n: usize) -> bool {
+    let regular = |m: &[f64]| regular(m, n);
+    let a = &a[..n * n];
+    if !a.iter().all(|x| x.is_finite()) || regular(a) {
+        return false;
+    }
+    let mut b = a.to_vec();
+    let (mut rows, mut cols) = (vec![0.0f64; n], vec![0.0f64; n]);
+    for _ in 0..32 {
+        rows.fill(0.0);
+        cols.fill(0.0);
+        for (j, col) in b.chunks_exact(n).enumerate() {
+            for (i, x) in col.iter().enumerate() {
+                rows[i] = rows[i].max(x.abs());
+                cols[j] = cols[j].max(x.abs());
+            }
+        }
+        for (j, col) in b.chunks_exact_mut(n).enumerate() {
+            for (i, x) in col.iter_mut().enumerate() {
+                if rows[i] > 0.0 && cols[j] > 0.0 {
+                    *x /= rows[i].sqrt() * cols[j].sqrt();
+                }
+            }
+        }
+    }
+    regular(&b)
+}
+
+/// Whether the `n × n` column-major matrix `a` passes the factorization's
+/// test (every pivot of the elimination with partial pivoting at least
+/// `64 ε` times its column's largest entry). Allocates: for the failure
+/// paths only.
+pub(crate) fn regular(a: &[f64], n: usize) -> bool {
+    let mut lu = a[..n * n].to_vec();
+    let (mut perm, mut scale) = (vec![0; n], vec![0.0; n]);
+    factor_runtime(&mut lu, n, &mut perm, &mut scale).is_ok()
+}
+
+/// The smallest nonzero and the largest magnitude among the entries of `a`
+/// (`(0, 0)` when every entry is zero).
+pub(crate) fn magnitude_range(a: &[f64]) -> (f64, f64) {
+    let nonzero = a.iter().map(|x| x.abs()).filter(|x| *x > 0.0);
+    let smallest = nonzero.clone().fold(f64::INFINITY, f64::min);
+    let largest = nonzero.fold(0.0, f64::max);
+    if largest == 0.0 {
+        (0.0, 0.0)
+    } else {
+        (smallest, largest)
+    }
+}
+
 /// Whether the `N × N` column-major matrix `m` is diagonal (every
 /// off-diagonal entry zero).
 pub(crate) fn is_diagonal<const N: usize>(m: &[f64]) -> bool {

@@ -8,7 +8,7 @@ use super::convergence::{
 };
 use super::equations::Derivatives;
 use super::Stepper;
-use crate::error::{IterationRecord, NewtonHistory, StepError, HISTORY_CAPACITY};
+use crate::error::{IterationRecord, NewtonHistory, Sci, StepError, HISTORY_CAPACITY};
 use crate::linalg::{largest_magnitude, weigh_and_norm, weighted_update_norm};
 use crate::system::{NonholonomicSystem, Vector};
 use crate::State;
@@ -219,22 +219,36 @@ where
     /// Assembles and factors the exact Jacobian at the latest evaluation; a
     /// failure is recorded in the history with the iteration's `residual`
     /// and returned as a singular (or non-finite) Newton matrix.
-    fn factor_exact(&mut self, t: f64, h: f64, residual: f64) -> Result<(), StepError> {
+    fn factor_exact(&mut self, state: &State<N>, h: f64, residual: f64) -> Result<(), StepError> {
+        let t = state.t;
         self.assemble_jacobian(h);
         let Err(s) = self.newton.factor() else { return Ok(()) };
         self.history.push(IterationRecord { residual, update: f64::NAN, rate: f64::NAN });
         Err(if self.newton.matrix().iter().all(|x| x.is_finite()) {
-            StepError::SingularMatrix {
-                t,
-                h,
-                detail: singular_detail::<N, M, S>(
-                    s.column,
-                    s.pivot,
-                    self.newton.matrix().column(s.column).amax(),
-                    Sys::SOURCE.coordinates,
-                ),
-                history: Box::new(self.history),
-            }
+            let matrix = self.newton.matrix();
+            let mut detail =
+                singular_detail::<N, M, S>(s.column, s.pivot, matrix.column(s.column).amax(), Sys::SOURCE.coordinates);
+            // Column-major, as the factorization holds it.
+            let entries: Vec<f64> = matrix.iter().copied().collect();
+            let by_scale = crate::linalg::singular_only_by_scale(&entries, D);
+            detail.push_str(&if by_scale {
+                let (smallest, largest) = crate::linalg::magnitude_range(&entries);
+                format!(
+                    " (the matrix is regular once its rows and columns are scaled to unit size: its entries span \
+                     {} to {}, too far apart for elimination in double precision, so the magnitudes are out of \
+                     range, not a mass or a constraint; the step starts at max |q| = {}, max |v| = {}: rescale the \
+                     units so that q, v and h v are nearer 1, or reduce h)",
+                    Sci(smallest),
+                    Sci(largest),
+                    Sci(state.q.amax()),
+                    Sci(state.v.amax())
+                )
+            } else {
+                " (a V column points at the mass matrix ∇²_vv L — a zero mass or inertia parameter? — a hΨ column at \
+                 dependent or vanishing constraint rows ∂k/∂v)"
+                    .to_string()
+            });
+            StepError::SingularMatrix { t, h, detail: detail.into(), history: Box::new(self.history) }
         } else {
             StepError::NonFinite { t, h, stage: "Jacobian", history: Box::new(self.history) }
         })
@@ -395,7 +409,7 @@ where
                     }
                 }
                 if fresh && !decoupled {
-                    self.factor_exact(t, h, residual)?;
+                    self.factor_exact(state, h, residual)?;
                 }
                 if decoupled {
                     self.decoupled.solve_in_place(&mut g);
@@ -703,7 +717,7 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(
     pivot: f64,
     scale: f64,
     coordinates: &[&str],
-) -> Box<str> {
+) -> String {
     let velocity_of =
         |c: usize| coordinates.get(c).map_or_else(String::new, |name| format!(", the velocity of `{name}`"));
     let name = if column < S * N {
@@ -716,7 +730,6 @@ fn singular_detail<const N: usize, const M: usize, const S: usize>(
         format!("v1[{}]{}", c + 1, velocity_of(c))
     };
     format!("column {column} ({name}): pivot {pivot:.3e} is below 64 eps x its largest entry {scale:.3e}")
-        .into_boxed_str()
 }
 
 #[cfg(test)]
