@@ -81,8 +81,8 @@ where
     Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
 {
     let Some(first) = starts.first() else { return Ok(Vec::new()) };
-    if !h.is_normal() {
-        return Err(LaneError::StepSize { h });
+    if let Err(reason) = crate::check_step_size(first.t, h) {
+        return Err(LaneError::StepSize { h, reason });
     }
     if let Some((member, s)) = starts.iter().enumerate().find(|(_, s)| s.t.to_bits() != first.t.to_bits()) {
         return Err(LaneError::StartTimes { member, t: s.t, t0: first.t });

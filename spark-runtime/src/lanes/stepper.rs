@@ -37,11 +37,16 @@ pub enum LaneError {
         /// Member 0's start time.
         t0: f64,
     },
-    /// The step size is zero, not finite or subnormal.
-    #[error("step size h = {h:.3e} must be finite, nonzero and at least 2.2e-308 in magnitude (1/h overflows below)")]
+    /// The step size is one [`check_step_size`](crate::check_step_size)
+    /// refuses: zero, not finite, subnormal, above
+    /// [`MAX_STEP_SIZE`](crate::MAX_STEP_SIZE) or below the resolution of
+    /// `t` at the start time.
+    #[error("step size h = {h:.3e}: {reason}")]
     StepSize {
         /// The step size asked for.
         h: f64,
+        /// What is wrong with it and what to use.
+        reason: &'static str,
     },
     /// The caller asked the ensemble to stop
     /// ([`integrate_ensemble_until`](super::integrate_ensemble_until)).
@@ -172,11 +177,13 @@ where
         if starts.is_empty() || starts.len() > W {
             return Err(LaneError::MemberCount { members: starts.len(), lanes: W });
         }
-        // Zero, non-finite and subnormal (where `1/h` overflows).
-        if !h.is_normal() {
-            return Err(LaneError::StepSize { h });
-        }
         let t0 = starts[0].t;
+        // The step sizes `Stepper::integrate` refuses: zero, non-finite,
+        // subnormal (where `1/h` overflows), too large for `h²`, or too
+        // small to move `t0`.
+        if let Err(reason) = crate::check_step_size(t0, h) {
+            return Err(LaneError::StepSize { h, reason });
+        }
         if let Some((member, s)) = starts.iter().enumerate().find(|(_, s)| s.t.to_bits() != t0.to_bits()) {
             return Err(LaneError::StartTimes { member, t: s.t, t0 });
         }

@@ -367,9 +367,16 @@ fn lane_groups_refuse_what_they_cannot_run() {
     let starts = mp_starts(5);
     assert_eq!(lanes.start(&starts, 0.05), Err(LaneError::MemberCount { members: 5, lanes: 4 }));
     assert_eq!(lanes.start(&[], 0.05), Err(LaneError::MemberCount { members: 0, lanes: 4 }));
-    for h in [0.0, f64::NAN, f64::INFINITY, 1e-310] {
+    for h in [0.0, f64::NAN, f64::INFINITY, 1e-310, 1e200, -1e200] {
         assert!(matches!(lanes.start(&starts[..2], h), Err(LaneError::StepSize { .. })), "{h}");
     }
+    // A step that does not move t0 (16 units in its last place at least).
+    let mut far = starts.clone();
+    for s in &mut far {
+        s.t = 1e20;
+    }
+    let err = lanes.start(&far[..2], 0.05).unwrap_err();
+    assert!(matches!(err, LaneError::StepSize { .. }) && err.to_string().contains("resolution of t"), "{err}");
     let mut late = starts.clone();
     late[3].t = 1.0;
     let err = lanes.start(&late[..4], 0.05).unwrap_err();
@@ -380,6 +387,8 @@ fn lane_groups_refuse_what_they_cannot_run() {
     assert!(matches!(run(&late, 0.05), Err(LaneError::StartTimes { member: 3, .. })));
     assert!(matches!(run(&starts, f64::NAN), Err(LaneError::StepSize { .. })));
     assert!(matches!(run(&starts, -1e-310), Err(LaneError::StepSize { .. })));
+    assert!(matches!(run(&starts, 1e200), Err(LaneError::StepSize { .. })));
+    assert!(matches!(run(&far, 0.05), Err(LaneError::StepSize { .. })));
     assert_eq!(run(&[], 0.05), Ok(Vec::new()));
 }
 
