@@ -279,13 +279,16 @@ fn power(mut x: f64, mut k: i32) -> f64 {
 /// whose equations are affine altogether (no pairs).
 #[inline]
 pub(crate) fn affine_along<const N: usize, const M: usize, const S: usize, const D: usize>(
-    update: &Vector<D>,
+    (update, norm): (&Vector<D>, f64),
     weights: &Vector<D>,
     tolerance: f64,
     nonlinearity: &Nonlinearity,
     plan: &AffinePlan,
 ) -> bool {
-    (0..D).all(|i| within_landing_limit(update[i], weights[i]))
+    // `norm` is the update's largest scaled entry, `max_i |Δz_i|·w_i` with
+    // these weights (NaN if any is), which the iteration has measured
+    // already: within the limit exactly when every entry is.
+    norm <= LANDING_LIMIT
         && affine_along_by::<N, M, S>(|i| moved_beyond(update[i], weights[i], tolerance), nonlinearity, plan)
 }
 
@@ -295,13 +298,6 @@ pub(crate) fn affine_along<const N: usize, const M: usize, const S: usize, const
 /// the solution, is no longer that of a converged iterate (see
 /// [`affine_along`]).
 pub(crate) const LANDING_LIMIT: f64 = 1.0;
-
-/// Whether an update entry `delta` with weight `weight` is within
-/// [`LANDING_LIMIT`] (NaN is not).
-#[inline(always)]
-pub(crate) fn within_landing_limit(delta: f64, weight: f64) -> bool {
-    delta.abs() * weight <= LANDING_LIMIT
-}
 
 /// Whether an update entry `delta` with weight `weight` moved its unknown
 /// beyond `tolerance` ([`affine_along`]'s measure; NaN counts as moved).

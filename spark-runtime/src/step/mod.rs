@@ -57,7 +57,7 @@ pub use newton::{Jacobian, NewtonMode, NewtonOptions};
 
 pub(crate) use compensation::{two_sum_error, two_sum_error_of};
 pub(crate) use convergence::{
-    affine_along_lanes, moved_beyond, rounding_moved, too_slow, within_landing_limit, AffinePlan, Contraction,
+    affine_along_lanes, moved_beyond, rounding_moved, too_slow, AffinePlan, Contraction, LANDING_LIMIT,
 };
 pub(crate) use energy_guard::{check_energy, energy_is_invariant, EnergyAnchor};
 pub(crate) use guess::{extrapolation_degree, StepPolynomial, EXTRAPOLATION, MAX_EXTRAPOLATION_DEGREE, PAST};

@@ -500,7 +500,7 @@ where
                 // read at both iterates.
                 let lands = !converged
                     && fresh
-                    && self.lands_on_solution(&g, &weights, decoupled)
+                    && self.lands_on_solution((&g, update), &weights, decoupled)
                     && self.end_point_stays(state, carry, h, (z, &g, &weights), decoupled);
                 *z -= g;
                 if converged || lands {
@@ -532,7 +532,7 @@ where
                     // guess as far off, will too, and cannot land: it starts
                     // from this refresh's factors instead of factoring at its
                     // guess.
-                    cover_stale_first = fresh || !self.lands_on_solution(&g, &weights, decoupled);
+                    cover_stale_first = fresh || !self.lands_on_solution((&g, update), &weights, decoupled);
                     refresh = true;
                     prev_update = f64::NAN;
                 }
@@ -580,7 +580,7 @@ where
     /// the equations are affine in what it moved beyond the tolerance
     /// ([`affine_along`], on the system's [`Nonlinearity`](crate::Nonlinearity)).
     #[inline]
-    fn lands_on_solution(&self, g: &Vector<D>, weights: &Vector<D>, decoupled: bool) -> bool {
+    fn lands_on_solution(&self, (g, norm): (&Vector<D>, f64), weights: &Vector<D>, decoupled: bool) -> bool {
         #[cfg(test)]
         if self.always_confirm {
             return false;
@@ -588,7 +588,7 @@ where
         match Self::affine_rule(decoupled) {
             Some(nonlinearity) => {
                 let plan = Self::affine_plan(decoupled, decoupled && self.decoupled.keeps_stiffness());
-                affine_along::<N, M, S, D>(g, weights, self.options.tolerance, &nonlinearity, plan)
+                affine_along::<N, M, S, D>((g, norm), weights, self.options.tolerance, &nonlinearity, plan)
             }
             None => false,
         }

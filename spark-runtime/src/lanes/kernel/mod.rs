@@ -38,8 +38,8 @@ use crate::linalg::decoupled::factor_mass;
 use crate::linalg::stiff_stages::{kept_stiffness_points, StiffStages};
 use crate::step::{
     affine_along_lanes, check_energy, energy_is_invariant, moved_beyond, rounding_moved, too_slow, two_sum_error_of,
-    within_landing_limit, AffinePlan, Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State,
-    StepPolynomial, Stepper, PAST,
+    AffinePlan, Contraction, EnergyAnchor, LaneContinuation, NewtonOptions, State, StepPolynomial, Stepper,
+    LANDING_LIMIT, PAST,
 };
 use crate::system::{NonholonomicSystem, StageJacobians, StageValues, Vector};
 use crate::tableau::Tableau;
@@ -408,7 +408,8 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
                 self.factor(tab, &mut iterating, &mut out);
             }
             let update = self.solve_and_update(&iterating, fresh);
-            let lands = if fresh { self.first_updates_land(affine.as_ref(), opts.tolerance) } else { [false; W] };
+            let lands =
+                if fresh { self.first_updates_land(affine.as_ref(), opts.tolerance, &update) } else { [false; W] };
             for w in 0..W {
                 if !iterating[w] {
                     continue;
@@ -461,15 +462,15 @@ impl<const N: usize, const M: usize, const S: usize, const D: usize, const W: us
     /// solve ([`Self::end_point_stays`] is the second, asked lane by lane
     /// of the lanes that pass).
     #[inline(always)]
-    fn first_updates_land(&self, affine: Option<&crate::Nonlinearity>, tolerance: f64) -> [bool; W] {
+    fn first_updates_land(&self, affine: Option<&crate::Nonlinearity>, tolerance: f64, norm: &L<W>) -> [bool; W] {
         let Some(nonlinearity) = affine else { return [false; W] };
         let moved_at = |d: usize| -> [bool; W] {
             std::array::from_fn(|w| moved_beyond(self.first_update[d][w], self.weights[d][w], tolerance))
         };
-        let small: [bool; W] =
-            std::array::from_fn(|w| (0..D).all(|d| within_landing_limit(self.first_update[d][w], self.weights[d][w])));
         let affine = affine_along_lanes::<N, M, S, W>(moved_at, nonlinearity, &self.affine_plan);
-        std::array::from_fn(|w| small[w] & affine[w])
+        // `norm`: each lane's largest scaled entry of this update, with
+        // the weights `moved_at` reads.
+        std::array::from_fn(|w| norm[w] <= LANDING_LIMIT && affine[w])
     }
 
     /// `Stepper::end_point_stays` for lane `w`, whose `z` holds the updated
