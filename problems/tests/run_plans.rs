@@ -147,6 +147,12 @@ fn spark_run_refuses_what_does_not_apply_naming_the_flag() {
         (&["run", "skate", "--max-step", "0.1"][..], "--max-step applies to tolerance-driven runs"),
         (&["run", "skate", "--rtol", "-1"][..], "--rtol must be a finite number"),
         (&["run", "skate", "--rtol", "0", "--atol", "0"][..], "both 0"),
+        // Tolerances that control nothing: a relative error as large as
+        // the state, an absolute one above any state.
+        (&["run", "skate", "--rtol", "1e300"][..], "--rtol 1.000e300: a relative tolerance must lie below 1"),
+        (&["run", "skate", "--rtol", "1"][..], "--rtol 1.000e0: a relative tolerance must lie below 1"),
+        (&["run", "skate", "--atol", "2"][..], "--atol (without --rtol, the relative tolerance too) 2.000e0"),
+        (&["run", "skate", "--rtol", "1e-6", "--atol", "1e300"][..], "--atol 1.000e300 is above 1.34e154"),
         (&["run", "skate", "--rtol", "1e-6", "--h", "0.1"][..], "cannot be used with"),
         (&["run", "skate", "--sample-every", "0"][..], "--sample-every must be a positive number"),
         (&["run", "skate", "--sample-every", "1", "--every", "2"][..], "cannot be used with"),

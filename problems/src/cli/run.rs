@@ -11,7 +11,7 @@ use crate::run::files::{
 };
 use crate::run::{run, run_report, RunError, RunSpec};
 use clap::Args;
-use spark_runtime::{ConsistencyPolicy, Tolerance};
+use spark_runtime::{ConsistencyPolicy, Tolerance, MAX_ABSOLUTE_TOLERANCE};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -203,6 +203,20 @@ fn tolerance(a: &RunArgs, t_end: f64) -> Result<Option<Tolerance>, String> {
     }
     if rtol > 0.0 && rtol < 1e-15 {
         return Err(format!("--rtol {rtol:.3e} is below 1e-15, the round-off of double precision; give 0 or ≥ 1e-15"));
+    }
+    if rtol >= 1.0 {
+        // Without --rtol the relative tolerance is --atol's value.
+        let given = if a.rtol.is_some() { "--rtol" } else { "--atol (without --rtol, the relative tolerance too)" };
+        return Err(format!(
+            "{given} {rtol:.3e}: a relative tolerance must lie below 1 (a relative error of 1 is as large as the \
+             state, so no digit would be controlled); give --rtol in [1e-15, 1) or 0"
+        ));
+    }
+    if atol > MAX_ABSOLUTE_TOLERANCE {
+        return Err(format!(
+            "--atol {atol:.3e} is above 1.34e154, the largest state with a finite kinetic energy, so it bounds \
+             nothing; give --atol in [0, 1.34e154]"
+        ));
     }
     for (flag, x) in [("--first-step", a.first_step), ("--max-step", a.max_step)] {
         if let Some(x) = x {
