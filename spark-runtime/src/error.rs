@@ -188,13 +188,9 @@ pub enum StepError {
     /// unit size is singular by its magnitudes alone (a state or step too
     /// large for double precision to resolve the equations), and `detail`
     /// says so instead of pointing at a mass or a constraint.
-    #[error(
-        "numerically singular Newton matrix at iteration {} in the step from t = {} with h = {}: {detail}; \
-         history: {history}",
-        history.len(),
-        Sci(*t),
-        Sci(*h)
-    )]
+    /// `h = 0` marks the projection of the initial velocity, whose matrix is
+    /// the saddle matrix and whose message names no step.
+    #[error("{}", singular_message(*t, *h, detail, history))]
     SingularMatrix {
         /// Start time.
         t: f64,
@@ -443,6 +439,25 @@ fn max_iterations_message(t: f64, h: f64, history: &NewtonHistory) -> String {
     }
     format!(
         "Newton did not converge in {} iterations in the step from t = {} with h = {}; history: {history}",
+        history.len(),
+        Sci(t),
+        Sci(h)
+    )
+}
+
+/// The message of [`StepError::SingularMatrix`].
+fn singular_message(t: f64, h: f64, detail: &str, history: &NewtonHistory) -> String {
+    if h == 0.0 {
+        return format!(
+            "numerically singular saddle matrix at iteration {} in the projection of the initial velocity onto \
+             the constraints at t0 = {}, before the first step, so no step size cures it: {detail}; history: {history}",
+            history.len(),
+            Sci(t)
+        );
+    }
+    format!(
+        "numerically singular Newton matrix at iteration {} in the step from t = {} with h = {}: {detail}; history: \
+         {history}",
         history.len(),
         Sci(t),
         Sci(h)

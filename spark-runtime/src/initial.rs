@@ -663,7 +663,7 @@ where
                     t: t0,
                     h: 0.0,
                     detail: format!(
-                        "(the initial velocity projection, not a step) {which} of the saddle matrix \
+                        "{which} of the saddle matrix \
                          [[W − ∂R/∂v, Kᵀ],[K, 0]] at (t0, q0, v): pivot {pivot:.3e} is below 64 eps x its largest \
                          entry {scale:.3e}. Either the constraint rows K = ∂k/∂v are dependent or vanish there, or \
                          the mass matrix W = ∇²_vv L is singular on the velocities the constraints leave free \
