@@ -31,6 +31,9 @@
 
 use criterion::measurement::WallTime;
 use criterion::{black_box, criterion_group, Criterion};
+// The catalogue's skate (`problems`), declared by `nonholonomic_system!`
+// without events.
+use problems::systems::Skate as DslSkate;
 use spark_runtime::fixtures::paper::{MobileRobot, MpParticles, Particle, Skate};
 use spark_runtime::{
     nonholonomic_system, Method, NoEvents, NoObserver, NonholonomicSystem, Observe, RunOptions, Schedule, State,
@@ -51,17 +54,7 @@ const ROUNDS: usize = 101;
 const CALLS: usize = 5;
 
 nonholonomic_system! {
-    /// The skate on an inclined plane (§8.2), declared without events.
-    pub struct DslSkate {
-        coordinates: [x, y, theta],
-        parameters: { m = 1.0, inertia = 1.0, g = 1.0, beta = 1.5707963267948966 },
-        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + inertia/2*dot(theta)^2 + m*g*x*sin(beta),
-        constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ],
-    }
-}
-
-nonholonomic_system! {
-    /// The same skate with an `events:` block: the heading crossing the
+    /// The catalogue's skate again, with an `events:` block: the heading crossing the
     /// slope's direction and the skate turning back up the slope.
     pub struct DslSkateEvents {
         coordinates: [x, y, theta],
