@@ -34,8 +34,8 @@ use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use problems::systems::{McLachlanPerlmutter7 as Mp7, NonholonomicParticle as Particle};
 use spark_runtime::fixtures::paper::MpParticles;
 use spark_runtime::{
-    integrate_ensemble, Jacobian, LaneStepper, Method, NewtonMode, NewtonOptions,
-    NonholonomicSystem, State, Stepper, Tableau, Vector,
+    integrate_ensemble, Jacobian, LaneStepper, Method, NewtonMode, NewtonOptions, NonholonomicSystem, State, Stepper,
+    Tableau, Vector,
 };
 
 use std::time::Duration;
