@@ -513,31 +513,37 @@ where
     out
 }
 
-/// `spark.SparkError` with `message` (the class lives in `spark._native`, so
-/// errors of every compiled module are the same Python class).
-pub fn spark_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
-    let message = message.into();
-    match py.import("spark._native").and_then(|m| m.getattr("SparkError")) {
+/// An instance of the exception class `class` of the Python module `module`,
+/// carrying `message`; `fallback(message)` when the class cannot be found.
+/// Both classes spark raises are Python classes: `SparkError` of the
+/// extension module and `ArgumentError` of the `spark` package.
+fn error_of_class(
+    py: Python<'_>,
+    module: &str,
+    class: &str,
+    message: String,
+    fallback: impl FnOnce(String) -> PyErr,
+) -> PyErr {
+    match py.import(module).and_then(|m| m.getattr(class)) {
         Ok(class) => match class.call1((message.clone(),)) {
             Ok(instance) => PyErr::from_value(instance),
             Err(e) => e,
         },
-        Err(_) => pyo3::exceptions::PyRuntimeError::new_err(message),
+        Err(_) => fallback(message),
     }
+}
+
+/// `spark.SparkError` with `message` (the class lives in `spark._native`, so
+/// errors of every compiled module are the same Python class).
+pub fn spark_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
+    error_of_class(py, "spark._native", "SparkError", message.into(), pyo3::exceptions::PyRuntimeError::new_err)
 }
 
 /// `spark.ArgumentError` with `message`: an argument outside the range the
 /// request takes (a `SparkError` and a `ValueError`, defined by the `spark`
 /// package); `spark.SparkError` when the package's class cannot be found.
 pub fn argument_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
-    let message = message.into();
-    match py.import("spark").and_then(|m| m.getattr("ArgumentError")) {
-        Ok(class) => match class.call1((message.clone(),)) {
-            Ok(instance) => PyErr::from_value(instance),
-            Err(e) => e,
-        },
-        Err(_) => spark_error(py, message),
-    }
+    error_of_class(py, "spark", "ArgumentError", message.into(), |message| spark_error(py, message))
 }
 
 /// The refusal of a str that UTF-8 cannot encode (`what` names it): a lone
