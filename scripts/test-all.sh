@@ -10,8 +10,8 @@
 # side by side, each into its own log under out/logs, printed whole when the
 # stage ends:
 #   rust    the workspace's tests;
-#   casadi  the CasADi cross-check (casadi/run.sh), then the README main
-#           job's build (a no-op after the main job);
+#   casadi  the CasADi cross-check (casadi/run.sh), then a check that the
+#           README main job's target compiles;
 #   python  the Python package (python/run.sh).
 # Cargo holds its build lock only while it compiles, so a stage's tests
 # never wait for another stage's cargo; the stages' cargo calls after the
@@ -74,18 +74,19 @@ rust_stage() {
 }
 
 # The CasADi cross-check runs the exporter the build above made (no cargo
-# call, so it starts at once); then the README main job's build, exactly as
-# the README runs it: its profile (not this script's overrides) and
-# `problems` without its default features (the workspace's tests build it
-# with them). After the main job it is a no-op; on a clean checkout (CI) it
-# compiles the main job. It comes second so that its hold on cargo's build
-# lock does not delay the wheel build of the python stage.
+# call, so it starts at once); then a check that the README main job's
+# target compiles: `problems` without its default features (the
+# workspace's tests build it with them). A check, not the main job's
+# release build: on a clean checkout (CI) that build is minutes of
+# thin-local LTO on the cores the Python stage needs; a check is under a
+# minute. It checks into a target directory of its own, so that it never
+# holds the build lock of the one the Python stage's cargo calls (the
+# wheel, `spark.compile`'s builds in its tests) share.
 casadi_stage() {
     echo "==> CasADi cross-check (casadi/run.sh)"
     SPARK_CASADI_EXPORTER="$(cargo_target_dir)/release/spark-casadi-export" bash casadi/run.sh
-    echo "==> the main job's build (problems --no-default-features, the release profile)"
-    env -u CARGO_PROFILE_RELEASE_LTO -u CARGO_PROFILE_RELEASE_OPT_LEVEL \
-        cargo build --release -p problems --no-default-features --bin spark
+    echo "==> the main job's target compiles (cargo check -p problems --no-default-features --bin spark)"
+    cargo check --release -p problems --no-default-features --bin spark --target-dir "$(cargo_target_dir)/main-job-check"
 }
 
 python_stage() {
