@@ -12,8 +12,9 @@ use crate::step::{Jacobian, NewtonMode, NewtonOptions, MAX_EXTRAPOLATION_DEGREE}
 impl NewtonOptions {
     /// Checks every field against its allowed range: `tolerance` in `[0, 1)`
     /// (it bounds the relative size of the last update, so 1 or more accepts
-    /// an update with no correct digit), `stagnation_level` finite and
-    /// non-negative, `max_iterations` in
+    /// an update with no correct digit), `stagnation_level` in `[0, 1)`
+    /// (for the same reason: an update at or below it that no longer
+    /// contracts ends the iteration as converged), `max_iterations` in
     /// `1..=HISTORY_CAPACITY`, `extrapolation_degree` in `1..=MAX_EXTRAPOLATION_DEGREE`,
     /// `energy_drift_limit` (when set) finite and positive, and no
     /// [`Jacobian::StageDecoupled`] with [`NewtonMode::Full`].
@@ -26,11 +27,12 @@ impl NewtonOptions {
                  accepts an update with no correct digit (0 iterates to round-off stagnation)",
             ));
         }
-        if !(self.stagnation_level.is_finite() && self.stagnation_level >= 0.0) {
+        if !(self.stagnation_level >= 0.0 && self.stagnation_level < 1.0) {
             return Err(OptionError::float(
                 "NewtonOptions::stagnation_level",
                 self.stagnation_level,
-                "finite and non-negative",
+                "in [0, 1): an iteration that stops contracting with an update at or below it ends as \
+                 converged, so 1 or more accepts a diverging update with no correct digit",
             ));
         }
         if !(1..=HISTORY_CAPACITY).contains(&self.max_iterations) {

@@ -706,3 +706,64 @@ fn a_record_that_would_not_fit_names_the_interval_that_does() {
         assert!(spark_runtime::check_record_size(steps, e.every as usize, members, per_sample).is_ok(), "{e}");
     }
 }
+
+nonholonomic_system! {
+    /// A speed fixed along a curve, `|v|²(1 + x²) = c`: a constraint
+    /// nonlinear in `v` and `q`, on which Newton diverges at `h = 10`.
+    pub struct SpeedOnCurve {
+        coordinates: [x, y, z],
+        parameters: { c = 1.2, kap = 0.8, e = 0.3 },
+        lagrangian: (dot(x)^2 + dot(y)^2 + (1 + y^2/2)*dot(z)^2)/2 - kap/2*(x^2 + y^2 + z^2) - e*x*z,
+        constraints: [ (dot(x)^2 + dot(y)^2 + dot(z)^2)*(1 + x^2) - c ],
+    }
+}
+
+/// A stagnation level of 1 or more accepts, as round-off, the update of an
+/// iteration that has stopped contracting however large it is — an update
+/// with no correct digit, the reason `tolerance` stays below 1. With
+/// `stagnation_level = 1e300` a Lobatto IIIA-B-D step of `SpeedOnCurve`
+/// that Newton cannot solve (h = 10) came back `Ok` with `|v₁| ≈ 5e5` and
+/// the constraint violated by 6e20 (simplified Newton; 2e9 with full
+/// Newton). Such a level is an invalid option, as an out-of-range tolerance is.
+#[test]
+fn a_stagnation_level_of_one_or_more_is_refused_rather_than_a_diverged_step_returned_as_ok() {
+    use spark_runtime::{consistent_velocity, NewtonMode};
+    let sys = SpeedOnCurve::default();
+    let q0 = Vector::<3>::new(0.4, -0.3, 0.2);
+    let v0 = consistent_velocity(
+        &sys,
+        0.1,
+        &q0,
+        &Vector::<3>::new(0.6, 0.5, -0.4),
+        ConsistencyPolicy::Project { tolerance: 0.0 },
+    )
+    .unwrap();
+    let start = State::new(0.1, q0, v0);
+    for mode in [NewtonMode::Full, NewtonMode::Simplified] {
+        let newton = NewtonOptions { mode, ..NewtonOptions::default() };
+        let mut st: spark_runtime::Stepper![SpeedOnCurve, 2] =
+            Stepper::new(sys, Tableau::new(Method::LobattoIIIABD).unwrap()).with_options(newton);
+        assert!(st.step(&start, 10.0).is_err(), "{mode:?}: the step at h = 10 is expected to fail");
+        for level in [1e300, 1e3, 1.0] {
+            let newton = NewtonOptions { mode, stagnation_level: level, ..NewtonOptions::default() };
+            let mut st: spark_runtime::Stepper![SpeedOnCurve, 2] =
+                Stepper::new(sys, Tableau::new(Method::LobattoIIIABD).unwrap()).with_options(newton);
+            match st.step(&start, 10.0) {
+                Err(StepError::InvalidOption(e)) => {
+                    assert_eq!(e.option, "NewtonOptions::stagnation_level", "{e}");
+                    assert!(e.to_string().contains("[0, 1)"), "{e}");
+                }
+                Ok(r) => panic!(
+                    "{mode:?}, stagnation_level {level:e}: Ok with v1 = {:?}, |k(t1, q1, v1)| = {:.1e}",
+                    r.state.v.as_slice(),
+                    sys.constraint(r.state.t, &r.state.q, &r.state.v)[0].abs()
+                ),
+                Err(other) => panic!("{mode:?}, stagnation_level {level:e}: expected InvalidOption, got {other}"),
+            }
+            assert_eq!(newton.validate().unwrap_err().option, "NewtonOptions::stagnation_level");
+        }
+    }
+    for level in [0.0, 1e-12, 0.5] {
+        NewtonOptions { stagnation_level: level, ..NewtonOptions::default() }.validate().unwrap();
+    }
+}
