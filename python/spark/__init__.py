@@ -17,6 +17,7 @@ Errors are :class:`SparkError` exceptions carrying the Rust message.
 
 from __future__ import annotations
 
+import difflib
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -66,8 +67,9 @@ class DslError(SparkError):
 
 class ArgumentError(SparkError, ValueError):
     """An argument outside the range the library accepts (``steps=2**70``,
-    ``threads=0``, ``h=10**400``, ``rtol=-1``, a ``t_eval`` that is not
-    monotone), or given together with one it does not apply with
+    ``threads=0``, ``h=10**400``, ``rtol=-1``, ``t0=nan``, a ``t_eval``
+    that is not monotone, a ``params`` name the system does not have or
+    one named twice), or given together with one it does not apply with
     (``steps`` with ``rtol``, ``every`` with ``t_eval``); the message names
     the argument and the range. Both a :class:`SparkError` and a
     :class:`ValueError`."""
@@ -379,26 +381,76 @@ def _whole(name: str, x: Any, low: int | None = None, high: int = MAX_WHOLE) -> 
     return whole
 
 
-def _params(params: Mapping[str, float] | None) -> dict[str, float] | None:
+def _params(params: Mapping[str, float] | None, system: System | None = None) -> dict[str, float] | None:
     """The parameter overrides, each name a string and each value a number
-    (a bool is refused)."""
+    (a bool is refused). A list of pairs that names a parameter twice is an
+    :class:`ArgumentError` (``dict`` would keep the last value silently),
+    and so is a name that ``system`` (when given) does not have, naming the
+    ones it has: checked here, before the run, rather than as a failure of
+    the native run."""
     if params is None:
         return None
+    pairs = None
     try:
-        params = dict(params)
+        if not hasattr(params, "keys"):
+            # Read once: an iterator of pairs has no second pass.
+            pairs = [tuple(pair) for pair in params]
+            if any(len(pair) != 2 for pair in pairs):
+                raise ValueError("a pair without two items")
+        params = dict(params if pairs is None else pairs)
     except (TypeError, ValueError) as e:
         # `dict("g")`'s own message names neither the argument nor the form.
         raise TypeError(
             f"params = {_short(params)} is not a mapping of parameter names to numbers; write e.g. "
             "params={'g': 9.81}"
         ) from e
+    if pairs is not None and len(params) < len(pairs):
+        seen: set = set()
+        twice = next(name for name, _ in pairs if name in seen or seen.add(name))
+        values = ", ".join(_short(value) for name, value in pairs if name == twice)
+        raise ArgumentError(
+            f"params names {_short(twice)} more than once ({values}); give each parameter once"
+        )
     if not params:
         return None
     for name in params:
         if not isinstance(name, str):
             raise TypeError(f"params key {name!r} is not a string; name a parameter, e.g. params={{'g': 9.81}}")
         _utf8(f"params key {_short(name)}", name)
+    if system is not None:
+        for name in params:
+            if name not in system.parameters:
+                raise ArgumentError(_unknown_parameter(system, name))
     return {name: _real(f"params[{name!r}]", value) for name, value in params.items()}
+
+
+def _unknown_parameter(system: System, name: str) -> str:
+    """The message for a ``params`` name that ``system`` does not have: the
+    names it has, and the closest one."""
+    known = list(system.parameters)
+    if not known:
+        return (
+            f"params key {_short(name)}: system `{system.name}` has no parameter `{name}`; it has no parameters at "
+            "all, so give params=None"
+        )
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f" (did you mean `{close[0]}`?)" if close else ""
+    return (
+        f"params key {_short(name)}: system `{system.name}` has no parameter `{name}`{hint}; its parameters: "
+        f"{', '.join(known)} (see `.parameters` of the system)"
+    )
+
+
+def _time(name: str, x: Any) -> float:
+    """``x`` as a finite float: :class:`ArgumentError` naming the argument
+    for NaN or ±inf (a run starts and ends at finite times), otherwise as
+    :func:`_real`."""
+    t = _real(name, x)
+    if not math.isfinite(t):
+        raise ArgumentError(
+            f"{name} = {t!r} is not a finite time; give a finite {name} (magnitude below 1.8e308)"
+        )
+    return t
 
 
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
@@ -565,7 +617,9 @@ class System:
         given with one it does not apply with, :class:`TypeError` for an
         argument of the wrong type).
         """
-        t0 = _real("t0", t0)
+        t0 = _time("t0", t0)
+        t_end = None if t_end is None else _time("t_end", t_end)
+        params = _params(params, self)
         if rtol is not None or atol is not None:
             req = self._tolerance_request(method, s, h, steps, t_end, t0, rtol, atol, first_step, max_step,
                                           max_steps, max_halvings)
@@ -587,7 +641,7 @@ class System:
             req = _request(method, s, h, n, t0, params, 1, newton, newton_tol, max_halvings)
             # As the runtime computes the end of a run of fixed steps.
             interval_end = t0 + float(n) * h
-        req["params"] = _params(params)
+        req["params"] = params
         req["newton"] = _text("newton", newton)
         req["newton_tol"] = None if newton_tol is None else _real("newton_tol", newton_tol)
         if t_eval is not None:
@@ -777,7 +831,9 @@ class System:
         tolerance-driven steps: ``t_end`` alone by default), its count
         checked against the record of ``members`` runs first (``None``:
         the caller has checked it)."""
-        t0 = _real("t0", t0)
+        t0 = _time("t0", t0)
+        t_end = None if t_end is None else _time("t_end", t_end)
+        params = _params(params, self)
         if t_eval is not None:
             _refuse_every_with_output_times(every)
         tolerance = rtol is not None or atol is not None
@@ -793,7 +849,7 @@ class System:
             interval_end = req["t_end"]
             if t_eval is None:
                 t_eval = [interval_end]
-            req.update(params=_params(params), newton=_text("newton", newton), every=1,
+            req.update(params=params, newton=_text("newton", newton), every=1,
                        newton_tol=None if newton_tol is None else _real("newton_tol", newton_tol))
         else:
             _refuse_tolerance_arguments(first_step, max_step, max_steps)
@@ -1026,7 +1082,8 @@ def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False, o
     ``cache_dir`` (default ``None``: ``SPARK_CACHE_DIR`` or
     ``~/.cache/spark-python``) must name a folder: an empty path, one
     holding a NUL character or a lone surrogate is refused with
-    :class:`ArgumentError` before the text is checked.
+    :class:`ArgumentError` before the text is checked, and so is an empty
+    ``SPARK_CACHE_DIR`` when no ``cache_dir`` is given.
 
     ``optimize=False`` builds the module without optimization: a new
     declaration compiles in seconds instead of tens of seconds and steps

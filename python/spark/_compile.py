@@ -43,8 +43,9 @@ def cache_root(cache_dir: str | None = None) -> Path:
     :func:`_cache_dir`), ``SPARK_CACHE_DIR`` or ``~/.cache/spark-python``."""
     if cache_dir is not None:
         return Path(cache_dir)
-    if os.environ.get("SPARK_CACHE_DIR"):
-        return Path(os.environ["SPARK_CACHE_DIR"])
+    from_environment = _environment_cache_dir()
+    if from_environment is not None:
+        return Path(from_environment)
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "spark-python"
 
@@ -203,6 +204,22 @@ def _cache_dir(cache_dir) -> str | None:
     return path
 
 
+def _environment_cache_dir() -> str | None:
+    """``SPARK_CACHE_DIR`` (``None`` when it is not set); :class:`ArgumentError`
+    naming it when it is set but empty. An empty path names no folder, as
+    ``cache_dir=""`` does, which is refused the same way: falling back to
+    ``~/.cache/spark-python`` would put the cache (gigabytes of cargo's build
+    folder) where the caller did not ask, typically when the variable was
+    set from a shell variable that expanded to nothing."""
+    value = os.environ.get("SPARK_CACHE_DIR")
+    if value == "":
+        raise ArgumentError(
+            "the environment variable SPARK_CACHE_DIR is set but empty, which names no folder; set it to the folder "
+            "to cache compiled modules in, or unset it for the default (~/.cache/spark-python), or give cache_dir="
+        )
+    return value
+
+
 def compile_system(
     text: str, *, cache_dir: str | None = None, verbose: bool = False, optimize: bool = True
 ) -> System:
@@ -210,6 +227,8 @@ def compile_system(
         raise TypeError(f"optimize must be a bool (True or False), got {type(optimize).__name__}")
     verbose = _flag("verbose", verbose)
     cache_dir = _cache_dir(cache_dir)
+    if cache_dir is None:
+        _environment_cache_dir()
     if not isinstance(text, str):
         raise TypeError(f"text = {_short(text)} is not a string; give the body of nonholonomic_system! as a str")
     _check_encodable(text)

@@ -14,7 +14,7 @@
 //! same dicts.
 
 use problems::catalog::{entries, lookup, SystemEntry, MAX_DISPATCH_STAGES};
-use problems::run::{run, run_ensemble_with, EnsembleError, RunError, RunResult, RunSpec};
+use problems::run::{check_parameters, run, run_ensemble_with, EnsembleError, RunError, RunResult, RunSpec};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
@@ -185,6 +185,7 @@ fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> 
     let e = entry(py, name)?;
     let r = read_request(py, request)?;
     check_stages(py, &r, MAX_DISPATCH_STAGES, PROGRAM)?;
+    check_parameters(e, &r.parameters).map_err(|err| argument_error(py, message(&err)))?;
     let spec = run_spec(e, &r);
     let c = interruptible(py, |stop| {
         let start = Instant::now();
@@ -200,6 +201,7 @@ fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> P
     let e = entry(py, name)?;
     let r = read_ensemble(py, request)?;
     check_stages(py, &r.run, MAX_DISPATCH_STAGES, PROGRAM)?;
+    check_parameters(e, &r.run.parameters).map_err(|err| argument_error(py, message(&err)))?;
     if r.q0s.len() != r.members * e.n || r.v0s.len() != r.members * e.n {
         return Err(spark_error(
             py,

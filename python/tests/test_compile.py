@@ -555,3 +555,46 @@ def test_a_cache_dir_that_names_no_folder_is_an_argument_error_before_the_check(
     with pytest.raises(TypeError, match=r"^text = 5 is not a string"):
         spark.compile(5, cache_dir=str(tmp_path))
     assert not list(tmp_path.iterdir())
+
+
+def test_an_empty_spark_cache_dir_is_an_argument_error_naming_it(tmp_path, monkeypatch):
+    # A SPARK_CACHE_DIR set to nothing (a shell variable that expanded to
+    # nothing) names no folder, as cache_dir="" does: it is refused before
+    # the check, naming the variable, instead of building into the default
+    # cache under the home folder.
+    monkeypatch.setenv("SPARK_CACHE_DIR", "")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    for text in (BAD, declaration("Skate") + "\n// empty SPARK_CACHE_DIR"):
+        with pytest.raises(spark.ArgumentError, match=r"^the environment variable SPARK_CACHE_DIR is set but empty"):
+            spark.compile(text)
+    with pytest.raises(spark.ArgumentError, match=r"SPARK_CACHE_DIR is set but empty"):
+        spark._compile.cache_root()
+    assert not list(tmp_path.iterdir())
+    # A cache_dir given takes precedence: the variable is not read.
+    with pytest.raises(spark.DslError):
+        spark.compile(BAD, cache_dir=str(tmp_path / "given"))
+    assert spark._compile.cache_root(str(tmp_path / "given")) == tmp_path / "given"
+
+
+def test_a_compiled_system_refuses_bad_parameters_and_times_as_argument_errors(cache):
+    # As for a registered system: an unknown parameter name and a time that
+    # is not finite are bad arguments, refused before the run, by the
+    # package and by the module's own functions (whose run failed with a
+    # SparkError).
+    skate = spark.compile(declaration("Skate"), cache_dir=str(cache))
+    with pytest.raises(spark.ArgumentError, match=r"^params key 'bta': system `Skate` has no parameter `bta` "
+                                                  r"\(did you mean `beta`\?\); its parameters: m, inertia, g, beta"):
+        skate.integrate("gauss", 2, 0.1, 3, q0=[0, 0, 0], v0=[0, 0, 1], params={"bta": 1.0})
+    with pytest.raises(spark.ArgumentError, match=r"^t0 = nan is not a finite time"):
+        skate.integrate("gauss", 2, 0.1, 3, q0=[0, 0, 0], v0=[0, 0, 1], t0=float("nan"))
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    members = {**request, "q0s": [[0, 0, 0]], "v0s": [[0, 0, 1]]}
+    unknown = r"^unknown parameter `bta`; this system declares: m, inertia, g, beta"
+    with pytest.raises(spark.ArgumentError, match=unknown):
+        skate._integrate({**request, "params": {"bta": 1.0}})
+    with pytest.raises(spark.ArgumentError, match=unknown):
+        skate._ensemble({**members, "params": {"bta": 1.0}})
+    with pytest.raises(spark.ArgumentError, match=r"^parameter `g` = NaN must be finite"):
+        skate._integrate({**request, "params": {"g": float("nan")}})
+    with pytest.raises(spark.ArgumentError, match=r"^`t0` = inf is not a finite time"):
+        skate._ensemble({**members, "t0": float("inf")})

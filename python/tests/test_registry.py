@@ -115,6 +115,9 @@ def test_a_record_that_would_not_fit_in_memory_is_refused_before_any_step():
     with pytest.raises(spark.SparkError, match="must be a whole number"):
         spark.integrate("skate", "gauss", 2, 0.1, 10.5)
     with pytest.raises(spark.SparkError, match="not a finite number of steps"):
+        spark.system("skate").integrate(h=0.1, t0=-1e308, t_end=1e308)
+    # An infinite end is no time at all: a bad argument, named as such.
+    with pytest.raises(spark.ArgumentError, match="t_end = inf is not a finite time"):
         spark.system("skate").integrate(h=0.1, t_end=float("inf"))
 
 
@@ -492,3 +495,85 @@ def test_options_out_of_range_are_argument_errors_naming_the_range():
     # An unknown system is an ArgumentError with the closest name.
     with pytest.raises(spark.ArgumentError, match="unknown system `skat`.*did you mean `skate`"):
         spark.system("skat")
+
+
+def test_a_time_that_is_not_finite_is_an_argument_error_naming_it():
+    # A NaN or infinite t0 or t_end is the caller's bad argument: refused as
+    # ArgumentError naming it, before any step, instead of a SparkError
+    # about "the interval ... is not a finite number of steps", a member's
+    # "invalid run", or (t_end with steps) a claim that the two disagree.
+    skate = spark.system("skate")
+    q0s, v0s = [skate.q0], [skate.v0]
+    nan, inf = float("nan"), float("inf")
+    for bad in (nan, inf, -inf):
+        calls = {
+            "t0": [
+                lambda: skate.integrate("gauss", 2, 0.1, 10, t0=bad),
+                lambda: skate.integrate("gauss", 2, 0.1, t0=bad),
+                lambda: skate.integrate("gauss", 2, rtol=1e-6, t_end=1.0, t0=bad),
+                lambda: spark.ensemble("skate", "gauss", 2, 0.1, 10, q0s, v0s, t0=bad),
+                lambda: spark.ensemble("skate", "gauss", 2, None, None, q0s, v0s, t_end=1.0, t0=bad, rtol=1e-6),
+            ],
+            "t_end": [
+                lambda: skate.integrate("gauss", 2, 0.1, t_end=bad),
+                lambda: skate.integrate("gauss", 2, 0.1, 10, t_end=bad),
+                lambda: skate.integrate("gauss", 2, rtol=1e-6, t_end=bad),
+                lambda: spark.ensemble("skate", "gauss", 2, 0.1, None, q0s, v0s, t_end=bad),
+                lambda: spark.ensemble("skate", "gauss", 2, None, None, q0s, v0s, t_end=bad, rtol=1e-6),
+            ],
+        }
+        for name, cases in calls.items():
+            for call in cases:
+                with pytest.raises(spark.ArgumentError, match=rf"^{name} = {bad!r} is not a finite time; give a "
+                                                              rf"finite {name}"):
+                    call()
+    # The native functions refuse them as ArgumentError too.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    tolerance = {**request, "h": None, "steps": None, "rtol": 1e-6, "t_end": 1.0}
+    for bad in (nan, inf):
+        with pytest.raises(spark.ArgumentError, match=r"`t0` = (NaN|inf) is not a finite time"):
+            spark._native.integrate("skate", {**request, "t0": bad})
+        with pytest.raises(spark.ArgumentError, match=r"`t_end` = (NaN|inf) is not a finite time"):
+            spark._native.integrate("skate", {**tolerance, "t_end": bad})
+        with pytest.raises(spark.ArgumentError, match=r"`t0` = (NaN|inf) is not a finite time"):
+            spark._native.ensemble("skate", {**request, "t0": bad, "q0s": q0s, "v0s": v0s})
+
+
+def test_unknown_and_repeated_parameter_names_are_argument_errors():
+    # A name the system does not have is the caller's bad argument, named
+    # with the names it has, before the run (it was a SparkError of the
+    # run, "member 0: ..." in an ensemble).
+    q0s, v0s = [[0, 0, 0]], [[0, 0, 1]]
+    words = (r"^params key 'bta': system `skate` has no parameter `bta` \(did you mean `beta`\?\); its parameters: "
+             r"m, inertia, g, beta")
+    for call in (
+        lambda: spark.integrate("skate", "gauss", 2, 0.1, 3, params={"bta": 1.0}),
+        lambda: spark.integrate("skate", "gauss", 2, rtol=1e-6, t_end=1.0, params={"bta": 1.0}),
+        lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, params={"bta": 1.0}),
+        lambda: spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, params=[("g", 2.0), ("bta", 1.0)]),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            call()
+    with pytest.raises(spark.ArgumentError, match=r"system `particle` has no parameter `m`; it has no parameters"):
+        spark.integrate("particle", "gauss", 2, 0.1, 3, params={"m": 1.0})
+    # A list of pairs that names a parameter twice is refused: dict() kept
+    # the last value silently.
+    with pytest.raises(spark.ArgumentError, match=r"^params names 'g' more than once \(1.0, 2.0\); give each "
+                                                  r"parameter once"):
+        spark.integrate("skate", "gauss", 2, 0.1, 3, params=[("g", 1.0), ("m", 1.0), ("g", 2.0)])
+    with pytest.raises(spark.ArgumentError, match=r"^params names 'g' more than once"):
+        spark.ensemble("skate", "gauss", 2, 0.1, 3, q0s, v0s, params=[("g", 1.0), ("g", 1.0)])
+    # An iterator of pairs is read once, and its values are the run's (it
+    # was read twice, and the second, empty reading ran the defaults).
+    given = spark.integrate("skate", "gauss", 2, 0.1, 3, params=iter([("g", 2.0)]))
+    np.testing.assert_array_equal(given.q, spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": 2.0}).q)
+    # The native functions refuse an unknown name, and a value that is not
+    # finite, as ArgumentError too.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    with pytest.raises(spark.ArgumentError, match=r"system `skate` has no parameter `bta` \(did you mean `beta`"):
+        spark._native.integrate("skate", {**request, "params": {"bta": 1.0}})
+    with pytest.raises(spark.ArgumentError, match=r"^system `skate` has no parameter `bta`"):
+        spark._native.ensemble("skate", {**request, "params": {"bta": 1.0}, "q0s": q0s, "v0s": v0s})
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(spark.ArgumentError, match=r"parameter `g` = (NaN|inf) must be finite"):
+            spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": bad})

@@ -671,7 +671,7 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
                     }
                 })?;
                 if !value.is_finite() {
-                    return Err(spark_error(py, format!("parameter `{name}` = {value:.3e} must be finite")));
+                    return Err(argument_error(py, format!("parameter `{name}` = {value:.3e} must be finite")));
                 }
                 v.push((name, value));
             }
@@ -680,6 +680,9 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
         _ => Vec::new(),
     };
     let t0: f64 = get(d, "t0")?.unwrap_or(0.0);
+    if !t0.is_finite() {
+        return Err(not_a_time(py, "t0", t0));
+    }
     let tolerance = read_tolerance(py, d, t0)?;
     let steps: i64 = if tolerance.is_some() { 1 } else { required(d, "steps")? };
     let every: i64 = get(d, "every")?.unwrap_or(1);
@@ -747,6 +750,9 @@ fn read_tolerance(py: Python<'_>, d: &Bound<'_, PyDict>, t0: f64) -> PyResult<Op
     let t_end: f64 = get(d, "t_end")?.ok_or_else(|| {
         spark_error(py, format!("a tolerance-driven run (rtol/atol) needs t_end, the end of the run from t0 = {t0:e}"))
     })?;
+    if !t_end.is_finite() {
+        return Err(not_a_time(py, "t_end", t_end));
+    }
     let max_steps: i64 = get(d, "max_steps")?.unwrap_or(DEFAULT_MAX_STEPS as i64);
     if max_steps < 1 {
         return Err(argument_error(py, format!("max_steps = {max_steps} must be at least 1")));
@@ -759,6 +765,12 @@ fn read_tolerance(py: Python<'_>, d: &Bound<'_, PyDict>, t0: f64) -> PyResult<Op
         max_steps: max_steps as usize,
         t_end,
     }))
+}
+
+/// The refusal of a time `key` (`t0`, `t_end`) that is NaN or infinite: a
+/// run starts and ends at finite times.
+fn not_a_time(py: Python<'_>, key: &str, t: f64) -> PyErr {
+    argument_error(py, format!("`{key}` = {t} is not a finite time; give a finite {key} (magnitude below 1.8e308)"))
 }
 
 /// The most step attempts of a tolerance-driven run when the request gives
@@ -1062,6 +1074,7 @@ macro_rules! export_system {
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_request(py, request)?;
             $crate::check_stages(py, &r, $crate::MODULE_STAGES, "this module")?;
+            $crate::configured::<$ty, $n, $m>(&r.parameters).map_err(|e| $crate::argument_error(py, e))?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::integrate(&r, stop))?;
             $crate::columns_to_py(py, c)
         }
@@ -1074,6 +1087,7 @@ macro_rules! export_system {
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_ensemble(py, request)?;
             $crate::check_stages(py, &r.run, $crate::MODULE_STAGES, "this module")?;
+            $crate::configured::<$ty, $n, $m>(&r.run.parameters).map_err(|e| $crate::argument_error(py, e))?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::ensemble(&r, stop))?;
             $crate::ensemble_to_py(py, c)
         }
