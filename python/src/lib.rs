@@ -185,6 +185,8 @@ fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> 
     let e = entry(py, name)?;
     let r = read_request(py, request)?;
     check_stages(py, &r, MAX_DISPATCH_STAGES, PROGRAM)?;
+    // A parameter name the system does not have is the caller's bad
+    // argument: refused here, as the others, not as the run's failure.
     check_parameters(e, &r.parameters).map_err(|err| argument_error(py, message(&err)))?;
     let spec = run_spec(e, &r);
     let c = interruptible(py, |stop| {
@@ -201,6 +203,7 @@ fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> P
     let e = entry(py, name)?;
     let r = read_ensemble(py, request)?;
     check_stages(py, &r.run, MAX_DISPATCH_STAGES, PROGRAM)?;
+    // As in `integrate`: before the members run, not as member 0's failure.
     check_parameters(e, &r.run.parameters).map_err(|err| argument_error(py, message(&err)))?;
     if r.q0s.len() != r.members * e.n || r.v0s.len() != r.members * e.n {
         return Err(spark_error(

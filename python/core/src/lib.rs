@@ -1074,6 +1074,8 @@ macro_rules! export_system {
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_request(py, request)?;
             $crate::check_stages(py, &r, $crate::MODULE_STAGES, "this module")?;
+            // A parameter name the system does not have is the caller's bad
+            // argument: refused here, as the others, not as the run's failure.
             $crate::configured::<$ty, $n, $m>(&r.parameters).map_err(|e| $crate::argument_error(py, e))?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::integrate(&r, stop))?;
             $crate::columns_to_py(py, c)
@@ -1087,6 +1089,7 @@ macro_rules! export_system {
         ) -> $crate::pyo3::PyResult<$crate::pyo3::Bound<'py, $crate::pyo3::types::PyDict>> {
             let r = $crate::read_ensemble(py, request)?;
             $crate::check_stages(py, &r.run, $crate::MODULE_STAGES, "this module")?;
+            // As in `integrate`: before the members run, not as member 0's failure.
             $crate::configured::<$ty, $n, $m>(&r.run.parameters).map_err(|e| $crate::argument_error(py, e))?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::ensemble(&r, stop))?;
             $crate::ensemble_to_py(py, c)
