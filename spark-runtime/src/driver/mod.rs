@@ -62,7 +62,10 @@ pub enum Schedule<'a> {
     },
     /// Steps of size `h` from `t₀` to `t_end`, the last one shortened to
     /// land on `t_end` (`⌈(t_end − t₀)/h⌉` steps; `t_end` lies ahead of
-    /// `t₀` in the direction of `h`). Step `k` ends at `t₀ + (k+1)·h`.
+    /// `t₀` in the direction of `h`). Step `k` ends at `t₀ + (k+1)·h`. A
+    /// last step that would be shorter than the [`time_resolution`] at its
+    /// start (a `t_end` on the grid computed in floats, as `t₀ + k·h`, that
+    /// rounds past it) is not taken: the step before ends at `t_end`.
     Until {
         /// Step size.
         h: f64,
@@ -201,7 +204,24 @@ impl Schedule<'_> {
                 if !span.is_finite() || span >= usize::MAX as f64 {
                     return Err(IntegrationError::InvalidSchedule("too many steps of size h to reach the final time"));
                 }
-                span.ceil() as usize
+                // The last step runs from `t0 + (steps − 1)·h` as rounded to
+                // `t_end`. A final time on the grid computed in floats can
+                // lie a rounding past it (t0 = 0, h = 0.1, t_end = 0.1·3:
+                // the quotient is 3.0000000000000004, and its ceiling asks
+                // for a fourth step of size 0), or a few units in the last
+                // place past it on purpose: a last step below the time's
+                // resolution would be refused, or would not advance time by
+                // its size. The step before it lands on `t_end` instead,
+                // longer than `h` by less than that resolution.
+                let mut steps = span.ceil() as usize;
+                while steps > 1 {
+                    let from = t0 + (steps - 1) as f64 * h;
+                    if (t_end - from) * h.signum() > time_resolution(from) {
+                        break;
+                    }
+                    steps -= 1;
+                }
+                steps
             }
         })
     }

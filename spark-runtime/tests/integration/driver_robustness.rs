@@ -767,3 +767,45 @@ fn a_stagnation_level_of_one_or_more_is_refused_rather_than_a_diverged_step_retu
         NewtonOptions { stagnation_level: level, ..NewtonOptions::default() }.validate().unwrap();
     }
 }
+
+/// A final time on the step grid computed in floats, `t_end = t₀ + k·h`,
+/// can round past the grid point the driver computes: from `t₀ = 0` with
+/// `h = 0.1`, `t_end = 0.1·3` makes `(t_end − t₀)/h` 3.0000000000000004,
+/// whose ceiling asked for a fourth step of size 0, and the run failed
+/// after its three steps. A `t_end` a few units in the last place past a
+/// grid point gave a last step below the time's resolution. Such a run
+/// takes `k` steps, the last one landing on `t_end`.
+#[test]
+fn a_final_time_on_the_grid_computed_in_floats_takes_its_steps() {
+    let tab = Tableau::new(Method::Gauss).unwrap();
+    let (q0, v0) = (Vector::<3>::zeros(), Vector::<3>::new(0.0, 0.0, 1.0));
+    let mut st: spark_runtime::Stepper![Skate, 2] = Stepper::new(Skate::default(), tab);
+    let mut grids = 0;
+    for t0 in [0.0, 0.3, 0.7, 1.0] {
+        for h in [0.1, 0.01, 0.05, -0.1, 0.3] {
+            for k in 1..60usize {
+                let t_end = t0 + k as f64 * h;
+                let run = st
+                    .integrate(t0, &q0, &v0, Schedule::Until { h, t_end }, &RunOptions::default(), &mut NoObserver)
+                    .unwrap_or_else(|e| panic!("t0 = {t0}, h = {h}, k = {k}, t_end = {t_end:e}: {e}"));
+                let end = run.last().unwrap();
+                assert_eq!(end.t, t_end, "t0 = {t0}, h = {h}, k = {k}");
+                assert_eq!(run.report.steps, k, "t0 = {t0}, h = {h}, k = {k}, t_end = {t_end:e}");
+                grids += usize::from(((t_end - t0) / h).abs() > k as f64);
+            }
+        }
+    }
+    // The quotient rounds past `k` in some of these (the case of the test).
+    assert!(grids > 0);
+    // A final time a few units in the last place past a grid point.
+    let t_end = 0.3 + 1e-16;
+    let run = st
+        .integrate(0.0, &q0, &v0, Schedule::Until { h: 0.1, t_end }, &RunOptions::default(), &mut NoObserver)
+        .unwrap();
+    assert_eq!((run.report.steps, run.last().unwrap().t), (3, t_end));
+    // A final time half a step past the grid keeps its short last step.
+    let run = st
+        .integrate(0.0, &q0, &v0, Schedule::Until { h: 0.1, t_end: 0.35 }, &RunOptions::default(), &mut NoObserver)
+        .unwrap();
+    assert_eq!((run.report.steps, run.last().unwrap().t), (4, 0.35));
+}
