@@ -356,7 +356,7 @@ where
         };
         iterations += self.last_history().len();
         let end = second.state;
-        let p = self.tableau().method.order(S) as i32;
+        let p = self.tableau().method.order_for(S, &Sys::STRUCTURE) as i32;
         let denominator = 2f64.powi(p) - 1.0;
         let error_q = (whole.q - end.q) / denominator;
         let error_v = (whole.v - end.v) / denominator;
@@ -871,7 +871,7 @@ where
     let dir = (t_end - state.t).signum();
     let span = (t_end - state.t).abs();
     let max_step = options.max_step.unwrap_or(span).min(span);
-    let k = (stepper.tableau().method.order(S) + 1) as f64;
+    let k = (stepper.tableau().method.order_for(S, &Sys::STRUCTURE) + 1) as f64;
     let (alpha, beta) = (0.7 / k, 0.4 / k);
     let mut report = AdaptiveReport { smallest_step: f64::INFINITY, ..AdaptiveReport::default() };
     let mut h = first_step(stepper.system(), &state, options, max_step);

@@ -149,7 +149,7 @@ fn calibrate_step<Sys, const N: usize, const M: usize, const S: usize, const D: 
 where
     Sys: NonholonomicSystem<N, M>,
 {
-    let k = (stepper.tableau().method.order(S) + 1) as f64;
+    let k = (stepper.tableau().method.order_for(S, &Sys::STRUCTURE) + 1) as f64;
     let mut h = first_step(stepper.system(), state, options, max_step);
     // The last error estimate (∞ after a Newton failure; NaN before the first).
     let mut last_err = f64::NAN;
