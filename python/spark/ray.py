@@ -207,6 +207,9 @@ def sweep(
                    max_steps=max_steps, t_eval=t_eval)
     if address is not None and not ray.is_initialized():
         _probe(address)
+    # Read once, as a dict: an iterator of pairs has no second pass, and the
+    # check below and the shards both read it.
+    params = spark._params(params)
     options = _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options)
     # The temporary file is created now, so that a folder that cannot be
     # written (read-only, /proc) is reported before Ray starts.

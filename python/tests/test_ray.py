@@ -116,6 +116,22 @@ def test_sweep_of_a_compiled_system(local_ray, tmp_path, monkeypatch):
     assert built == [cache_key(text, optimize=False)], built
 
 
+def test_a_sweep_with_params_as_an_iterator_of_pairs_uses_them(local_ray, tmp_path):
+    # The check before Ray starts read the iterator, and the shards were
+    # handed what was left of it: nothing, so they ran with the default
+    # parameters and wrote the wrong trajectories without a word.
+    q0s = np.zeros((2, 3))
+    v0s = np.array([[0, 0, 1.0], [0, 0, 2.0]])
+    args = ("skate", "gauss", 2, 0.1, 20, q0s, v0s)
+    out = tmp_path / "pairs.parquet"
+    sray.sweep(*args, params=iter([("g", 3.0)]), out=str(out), shards=2)
+    x = pq.read_table(out).column("q_x").to_numpy().reshape(2, 21)
+    ref = spark.ensemble(*args, params={"g": 3.0})
+    np.testing.assert_array_equal(x, ref.q[:, :, 0])
+    default = spark.ensemble(*args)
+    assert not np.array_equal(ref.q, default.q)
+
+
 def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     # An output path it cannot write and a shard count below 1 are refused
     # up front: found only when the file is written, they would cost a run of
