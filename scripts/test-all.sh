@@ -77,9 +77,9 @@ rust_stage() {
 # call, so it starts at once); then a check that the README main job's
 # target compiles: `problems` without its default features (the
 # workspace's tests build it with them). A check, not the main job's
-# release build: on a clean checkout (CI) that build is minutes of
-# thin-local LTO on the cores the Python stage needs; a check is under a
-# minute. It checks into a target directory of its own, so that it never
+# release build: on a clean checkout (CI) that build is five minutes of
+# thin-local LTO on the cores the Python stage needs, a check half of that.
+# It checks into a target directory of its own, so that it never
 # holds the build lock of the one the Python stage's cargo calls (the
 # wheel, `spark.compile`'s builds in its tests) share.
 casadi_stage() {

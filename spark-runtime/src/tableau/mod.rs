@@ -48,8 +48,8 @@ pub enum Method {
     SymplecticEulerII,
     /// Lobatto IIIA-B SPARK with `s = 2` whose condition `½K₁ + ½K₂ = 0` is
     /// replaced by `0 = k(t₀ + h/2, q₀ + (h/2)V₁, V₁)` (paper §8.4). Order 2
-    /// for `L = ½vᵀMv − U(t, q)` with a constant mass matrix `M` (the
-    /// paper's systems), 1 where the mass matrix depends on `q`
+    /// with a constant mass matrix and a separable `L` (the paper's
+    /// systems), order 1 where the mass matrix depends on `q`
     /// ([`Method::order_for`]).
     ModifiedLobattoIIIAB,
     /// McLachlan–Perlmutter's Lobatto IIIB-A LDA method (paper eq. 7.3),
@@ -150,16 +150,16 @@ impl Method {
     /// The global order with `s` stages on a system of the given
     /// structure: [`order`](Self::order), but 1 for the modified Lobatto
     /// IIIA-B unless the mass matrix is constant and `L` separable
-    /// (`L = T(t, v) − U(t, q)`). Its replaced condition holds the constraint
-    /// at `q₀ + (h/2)V₁` with the velocity `V₁` alone, which is second-order
-    /// consistent with the end point's momentum only when the momentum is
-    /// `M v` with `M` constant: measured on an offset Chaplygin sleigh
-    /// (mass matrix depending on the heading), a ball on a turntable and a
-    /// particle with `(1 + y²/2)ż²` in `T`, the error falls as `h¹`, in
-    /// spark's steps and in CasADi's solve of the same equations, where
-    /// plain Lobatto IIIA-B s = 2 falls as `h²` (test
-    /// `spark-runtime/tests/integration/orders.rs`). The tolerance-driven
-    /// drivers take their error estimate and step-size exponent from it.
+    /// (`L = T(t, v) − U(t, q)`), where its second order is measured. Its
+    /// replaced condition holds the constraint at `q₀ + (h/2)V₁` with the
+    /// velocity `V₁` alone; on an offset Chaplygin sleigh (mass matrix
+    /// depending on the heading), a ball on a turntable and a particle with
+    /// `(1 + y²/2)ż²` in `T` the error falls as `h¹`, in spark's steps and in
+    /// CasADi's solve of the same equations, where plain Lobatto IIIA-B
+    /// s = 2 falls as `h²` (test `spark-runtime/tests/integration/orders.rs`).
+    /// A system outside both cases is given the order that is sure. The
+    /// tolerance-driven drivers take their error estimate and step-size
+    /// exponent from it.
     pub const fn order_for(self, s: usize, structure: &crate::system::Structure) -> usize {
         match self {
             Method::ModifiedLobattoIIIAB if !(structure.constant_mass_matrix && structure.separable) => 1,
