@@ -220,6 +220,21 @@ def _environment_cache_dir() -> str | None:
     return value
 
 
+def _environment_target_dir() -> str | None:
+    """``SPARK_CARGO_TARGET_DIR`` (``None`` when it is not set);
+    :class:`ArgumentError` naming it when it is set but empty, as an empty
+    ``SPARK_CACHE_DIR`` is: the empty path names no folder, and taking it
+    as unset would build in ``<cache>/target``, gigabytes where the caller
+    did not ask, rather than in the target directory meant to be shared."""
+    value = os.environ.get("SPARK_CARGO_TARGET_DIR")
+    if value == "":
+        raise ArgumentError(
+            "the environment variable SPARK_CARGO_TARGET_DIR is set but empty, which names no folder; set it to the "
+            "cargo target directory to build compiled modules in, or unset it for the default (<cache>/target)"
+        )
+    return value
+
+
 def compile_system(
     text: str, *, cache_dir: str | None = None, verbose: bool = False, optimize: bool = True
 ) -> System:
@@ -229,6 +244,7 @@ def compile_system(
     cache_dir = _cache_dir(cache_dir)
     if cache_dir is None:
         _environment_cache_dir()
+    _environment_target_dir()
     if not isinstance(text, str):
         raise TypeError(f"text = {_short(text)} is not a string; give the body of nonholonomic_system! as a str")
     _check_encodable(text)
@@ -409,7 +425,7 @@ def _build(cached: _Module) -> None:
             f"spark.compile cannot write the declaration's crate into the cache folder {folder}: {e}; give "
             "cache_dir= (or SPARK_CACHE_DIR) a folder it can create and write"
         ) from e
-    target = Path(os.environ.get("SPARK_CARGO_TARGET_DIR") or (cached.root / "target"))
+    target = Path(_environment_target_dir() or (cached.root / "target"))
     env = dict(os.environ, CARGO_TARGET_DIR=str(target))
     if not cached.optimize:
         env["CARGO_PROFILE_RELEASE_OPT_LEVEL"] = "0"

@@ -576,6 +576,18 @@ def test_an_empty_spark_cache_dir_is_an_argument_error_naming_it(tmp_path, monke
     assert spark._compile.cache_root(str(tmp_path / "given")) == tmp_path / "given"
 
 
+def test_an_empty_spark_cargo_target_dir_is_an_argument_error_naming_it(tmp_path, monkeypatch):
+    # A SPARK_CARGO_TARGET_DIR set to nothing names no folder, as an empty
+    # SPARK_CACHE_DIR does: refused before the check, naming the variable,
+    # instead of being taken as unset and building in <cache>/target.
+    monkeypatch.setenv("SPARK_CARGO_TARGET_DIR", "")
+    for text in (BAD, declaration("Skate") + "\n// empty SPARK_CARGO_TARGET_DIR"):
+        with pytest.raises(spark.ArgumentError,
+                           match=r"^the environment variable SPARK_CARGO_TARGET_DIR is set but empty"):
+            spark.compile(text, cache_dir=str(tmp_path))
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_compiled_system_refuses_bad_parameters_and_times_as_argument_errors(cache):
     # As for a registered system: an unknown parameter name and a time that
     # is not finite are bad arguments, refused before the run, by the
