@@ -67,11 +67,14 @@ class DslError(SparkError):
 
 class ArgumentError(SparkError, ValueError):
     """An argument outside the range the library accepts (``steps=2**70``,
-    ``threads=0``, ``h=10**400``, ``rtol=-1``, ``t0=nan``, a ``t_eval``
-    that is not monotone, a ``params`` name the system does not have or
-    one named twice), or given together with one it does not apply with
-    (``steps`` with ``rtol``, ``every`` with ``t_eval``); the message names
-    the argument and the range. Both a :class:`SparkError` and a
+    ``steps=2.5``, ``threads=0``, ``h=0``, ``h=10**400``, ``rtol=-1``,
+    ``t0=nan``, a ``t_end`` behind ``t0``, a ``t_eval`` that is not
+    monotone, a ``params`` name the system does not have or one named
+    twice, ``q0s`` of another width than the system's ``N`` or with a NaN),
+    missing (``h`` of a compiled system, ``q0s``), or given together with
+    one it does not apply with (``steps`` with ``rtol``, ``every`` with
+    ``t_eval``); the message names the argument and the range, and it is
+    raised before the run starts. Both a :class:`SparkError` and a
     :class:`ValueError`."""
 
 
@@ -453,11 +456,34 @@ def _time(name: str, x: Any) -> float:
     return t
 
 
+def _step_size(h: Any) -> float:
+    """``h`` as a float that can be a step: :class:`ArgumentError` naming
+    it when it is missing (``None``), NaN, infinite or zero (no run of
+    fixed steps advances with it), otherwise as :func:`_real`. The native
+    check of the step size refuses the rest (subnormal, above 1.34e154,
+    below the resolution of ``t`` at ``t0``) with its reason."""
+    if h is None:
+        raise ArgumentError(
+            "give the step size h= for fixed steps (or rtol=/atol= with t_end= for steps chosen for a tolerance)"
+        )
+    x = _real("h", h)
+    if not math.isfinite(x) or x == 0:
+        # In the runtime's words, which the native check uses too.
+        shown = "NaN" if math.isnan(x) else repr(x)
+        raise ArgumentError(
+            f"step size h = {shown} must be finite and nonzero; give a finite h, negative to integrate backward"
+        )
+    return x
+
+
 def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
     """The number of fixed steps of ``h`` from ``t0``: ``steps``, or as many
     as reach ``t_end``. Given both, they must agree: a run of ``steps``
     steps that ended elsewhere than the ``t_end`` also given would return
-    another interval than asked, as a success."""
+    another interval than asked, as a success. Every refusal is an
+    :class:`ArgumentError`: each is the caller's choice of ``h``, ``steps``,
+    ``t0`` or ``t_end``, refused before the run starts."""
+    h = _step_size(h)
     if steps is not None:
         n = _whole("steps", steps, 1)
         if t_end is not None:
@@ -474,22 +500,26 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
                 )
         return n
     if t_end is None:
-        raise SparkError("give steps= or t_end=")
+        raise ArgumentError(
+            "give steps= (the number of steps of h) or t_end= (the time the last step ends at); neither was given"
+        )
     h, t_end, t0 = _real("h", h), _real("t_end", t_end), _real("t0", t0)
     ratio = (t_end - t0) / h
     if not math.isfinite(ratio):
-        raise SparkError(
+        # h is finite and nonzero: t_end − t0 overflows (t0 = -1e308,
+        # t_end = 1e308), or the quotient does.
+        raise ArgumentError(
             f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} with h = {h:.6e} is not a finite number of "
-            "steps; give finite t0, t_end and a nonzero h"
+            "steps (its length overflows a float); give a t0 and t_end nearer each other, or a larger h"
         )
     n = round(ratio)
     if n < 1:
         if ratio < 0:
-            raise SparkError(
+            raise ArgumentError(
                 f"t_end = {t_end:.6e} lies behind t0 = {t0:.6e} for h = {h:.6e}: the steps go from t0 in the "
                 "direction of h; give h the sign of t_end − t0 (a negative h integrates backward)"
             )
-        raise SparkError(
+        raise ArgumentError(
             f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is shorter than one step of h = {h:.6e}; "
             "use a later t_end or a smaller h"
         )
@@ -502,9 +532,9 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
     # a step (beyond 10⁶ steps a relative tolerance alone accepts an end
     # half a step away, and the run ends elsewhere than asked).
     if abs(ratio - n) > min(1e-9 * n, max(16 * np.finfo(np.float64).eps * n, 1e-3)):
-        raise SparkError(
+        raise ArgumentError(
             f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is {ratio:.6e} steps of h = {h:.6e}, "
-            "not a whole number; pass steps= instead"
+            "not a whole number; pass steps= instead, or a t_end a whole number of steps from t0"
         )
     return n
 
@@ -626,13 +656,11 @@ class System:
             interval_end = req["t_end"]
         else:
             _refuse_tolerance_arguments(first_step, max_step, max_steps)
-            h = self.h if h is None else _real("h", h)
-            if h is None:
-                raise SparkError("give the step size h=")
+            h = _step_size(self.h if h is None else h)
             if steps is None and t_end is None and self.t_end is not None:
                 t_end = t0 + self.t_end
                 if math.isfinite(t0) and not t_end > t0:
-                    raise SparkError(
+                    raise ArgumentError(
                         f"t0 = {t0:.6e} leaves no interval to run: the default end, t0 + {self.t_end} (the system's "
                         f"run length), is {t_end:.6e}, not after t0 at this magnitude; pass t_end= or steps=, or a "
                         "t0 nearer 0"
@@ -649,8 +677,8 @@ class System:
             req["t_eval"] = _output_times(t_eval, t0, interval_end, self._sample_bytes(), 1)
         req["every"] = 1 if every is None else _whole("every", every, 1)
         req["events"] = _flag("events", events)
-        req["q0"] = _vector("q0", q0 if q0 is not None else self.q0)
-        req["v0"] = _vector("v0", v0 if v0 is not None else self.v0)
+        req["q0"] = _vector("q0", q0 if q0 is not None else self.q0, self)
+        req["v0"] = _vector("v0", v0 if v0 is not None else self.v0, self)
         req["multipliers"] = _flag("multipliers", multipliers)
         req["project_v0"] = _flag("project_v0", project_v0)
         d = self._integrate(req)
@@ -694,8 +722,13 @@ class System:
                     f"chooses the steps; drop {name}, or drop rtol and atol for fixed steps"
                 )
         if t_end is None:
-            raise SparkError(
+            raise ArgumentError(
                 "a tolerance-driven run (rtol/atol) needs t_end=, the time its last step lands on"
+            )
+        if t_end == t0:
+            raise ArgumentError(
+                f"t_end = {t_end!r} is t0: a tolerance-driven run needs an interval to step over; give a t_end "
+                "other than t0 (before it to integrate backward)"
             )
         for name, x in (("rtol", rtol), ("atol", atol)):
             if x is not None and not (math.isfinite(_real(name, x)) and x >= 0):
@@ -783,18 +816,8 @@ class System:
         ``events`` are not located in an ensemble (a terminal event would end
         the members at different times): call :meth:`integrate` per member.
         """
-        _members_given(q0s, v0s)
-        _real_entries("q0s", q0s)
-        _real_entries("v0s", v0s)
-        q0s = _floats("q0s", q0s)
-        v0s = _floats("v0s", v0s)
-        if q0s.ndim != 2 or v0s.shape != q0s.shape or q0s.shape[1] != self.n:
-            raise SparkError(
-                f"q0s and v0s must both have shape (members, {self.n}); got {q0s.shape} and {v0s.shape}"
-            )
-        if q0s.shape[0] == 0:
-            raise ArgumentError("an ensemble needs at least one member; give q0s and v0s of shape (members, N) with "
-                                "members ≥ 1")
+        q0s, v0s = _member_states(q0s, v0s)
+        _member_width(q0s, self)
         req = self._ensemble_request(method, s, h, steps, params, t0, t_end, every, newton, newton_tol,
                                      max_halvings, rtol, atol, first_step, max_step, max_steps, t_eval,
                                      members=q0s.shape[0])
@@ -853,8 +876,7 @@ class System:
                        newton_tol=None if newton_tol is None else _real("newton_tol", newton_tol))
         else:
             _refuse_tolerance_arguments(first_step, max_step, max_steps)
-            if h is None:
-                raise SparkError("give the step size h= (or rtol=/atol= with t_end= for tolerance-driven steps)")
+            h = _step_size(h)
             n = _steps(h, steps, t_end, t0)
             req = _request(method, s, h, n, t0, params, 1 if every is None else every, newton, newton_tol,
                            max_halvings)
@@ -872,9 +894,60 @@ class System:
 
 
 def _members_given(q0s, v0s) -> None:
-    """:class:`SparkError` when the initial states of an ensemble are missing."""
-    if q0s is None or v0s is None:
-        raise SparkError("give the initial states q0s= and v0s=, arrays of shape (members, N)")
+    """:class:`ArgumentError` when the initial states of an ensemble are
+    missing, naming the one that is."""
+    missing = [name for name, x in (("q0s", q0s), ("v0s", v0s)) if x is None]
+    if missing:
+        raise ArgumentError(
+            f"give the initial states q0s= and v0s=, arrays of shape (members, N) ({' and '.join(missing)} "
+            f"{'is' if len(missing) == 1 else 'are'} missing)"
+        )
+
+
+def _member_states(q0s, v0s) -> tuple[np.ndarray, np.ndarray]:
+    """``q0s`` and ``v0s`` as float64 arrays of one shape ``(members, N)``
+    with at least one member and finite entries: :class:`ArgumentError`
+    naming what is wrong (a missing one, a 1-D array, two shapes, an entry
+    that is not finite) before any member runs, :class:`TypeError` for
+    entries that are no real numbers. A NaN or an infinity would otherwise
+    fail as one member's run, after the members before it had run."""
+    _members_given(q0s, v0s)
+    _real_entries("q0s", q0s)
+    _real_entries("v0s", v0s)
+    q0s = _floats("q0s", q0s)
+    v0s = _floats("v0s", v0s)
+    for name, x in (("q0s", q0s), ("v0s", v0s)):
+        if x.ndim != 2:
+            one = " (one member's state is a row: write [q0])" if x.ndim == 1 else ""
+            raise ArgumentError(
+                f"{name} must be a 2-D array of shape (members, N), one row per member; got shape {x.shape}{one}"
+            )
+    if q0s.shape != v0s.shape:
+        raise ArgumentError(
+            f"q0s and v0s must have the same shape (members, N), a row of each per member; got {q0s.shape} and "
+            f"{v0s.shape}"
+        )
+    if q0s.shape[0] == 0:
+        raise ArgumentError("an ensemble needs at least one member; give q0s and v0s of shape (members, N) with "
+                            "members ≥ 1")
+    for name, x in (("q0s", q0s), ("v0s", v0s)):
+        bad = np.argwhere(~np.isfinite(x))
+        if bad.size:
+            j, i = (int(k) for k in bad[0])
+            raise ArgumentError(
+                f"{name}[{j}, {i}] = {float(x[j, i])!r} is not finite (member {j}); give finite initial states"
+            )
+    return q0s, v0s
+
+
+def _member_width(q0s: np.ndarray, system: System) -> None:
+    """:class:`ArgumentError` when the rows of ``q0s`` (and ``v0s``, of the
+    same shape) do not have the system's ``N`` entries."""
+    if q0s.shape[1] != system.n:
+        raise ArgumentError(
+            f"q0s and v0s must have shape (members, {system.n}) for {system.name} ({', '.join(system.coordinates)}); "
+            f"got {q0s.shape}"
+        )
 
 
 def _refuse_tolerance_arguments(first_step, max_step, max_steps) -> None:
@@ -948,13 +1021,25 @@ def _floats(what: str, x) -> np.ndarray:
         raise TypeError(f"{what} = {_short(x)} is not an array of real numbers: {e}") from e
 
 
-def _vector(what: str, x) -> list[float]:
+def _vector(what: str, x, system: System) -> list[float]:
+    """``x`` as the list of the ``N`` finite floats of ``system``'s initial
+    ``q0`` or ``v0`` (``what``): :class:`ArgumentError` naming it when it
+    is missing, not 1-D, of another length or not finite, before the run
+    starts."""
     if x is None:
-        raise SparkError(f"give {what}=")
+        raise ArgumentError(f"give {what}=, the initial {what[0]} of {system.name} ({system.n} numbers)")
     _real_entries(what, x)
     a = _floats(what, x)
     if a.ndim != 1:
-        raise SparkError(f"{what} must be a vector; got shape {a.shape}")
+        raise ArgumentError(f"{what} must be a vector of {system.n} numbers; got shape {a.shape}")
+    if a.size != system.n:
+        raise ArgumentError(
+            f"{what} has {a.size} entries but {system.name} has {system.n} coordinates "
+            f"({', '.join(system.coordinates)}); give one entry per coordinate"
+        )
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ArgumentError(f"{what}[{int(bad[0])}] = {float(a[bad[0]])!r} is not finite; give a finite {what}")
     return a.tolist()
 
 

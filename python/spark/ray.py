@@ -166,16 +166,7 @@ def sweep(
     if shards is not None:
         shards = spark._whole("shards", shards, 1)
     address = _address(address)
-    spark._members_given(q0s, v0s)
-    spark._real_entries("q0s", q0s)
-    spark._real_entries("v0s", v0s)
-    q0s = spark._floats("q0s", q0s)
-    v0s = spark._floats("v0s", v0s)
-    if q0s.ndim != 2 or q0s.shape[0] == 0 or q0s.shape != v0s.shape:
-        raise spark.SparkError(
-            f"q0s and v0s must have the same shape (members, N), with at least one member; got {q0s.shape}, "
-            f"{v0s.shape}"
-        )
+    q0s, v0s = spark._member_states(q0s, v0s)
     members = q0s.shape[0]
     # A bytes path would meet the str name of the temporary file only when
     # the file is written, after every member has run.
@@ -185,18 +176,22 @@ def sweep(
         raise TypeError(
             f"out = {spark._short(out)} is not a path; give the path of the Parquet file to write"
         ) from None
+    # An empty path and one no file can have are the caller's bad argument
+    # whatever the file system holds, as the same in cache_dir of
+    # spark.compile; a folder that is missing or not writable stays a
+    # SparkError of the file system below.
     if not out:
-        raise spark.SparkError("out = '' names no file; give the path of the Parquet file to write")
+        raise spark.ArgumentError("out = '' names no file; give the path of the Parquet file to write")
     # The OS takes no path with a NUL, nor one the file system's encoding
     # cannot encode (a lone surrogate such as "\ud800"), and the checks
     # below do not raise for either: the final rename would fail after every
     # member had run.
     if "\0" in out:
-        raise spark.SparkError(f"out = {out!r} holds a NUL character, which no file name can hold")
+        raise spark.ArgumentError(f"out = {out!r} holds a NUL character, which no file name can hold")
     try:
         os.fsencode(out)
     except UnicodeEncodeError as e:
-        raise spark.SparkError(f"out = {out!r} is no file name: {e}; give a path of valid characters") from e
+        raise spark.ArgumentError(f"out = {out!r} is no file name: {e}; give a path of valid characters") from e
     folder = os.path.dirname(os.path.abspath(out))
     if os.path.isdir(out) or out.endswith(os.sep):
         raise spark.SparkError(f"out = {out!r} is a folder; give the path of the Parquet file to write")
@@ -318,11 +313,7 @@ def _check_before_ray(system, method, s, h, steps, q0s, v0s, params, options) ->
     else:
         raise TypeError(f"system = {spark._short(system)} is neither a system name nor a spark.System")
     members = q0s.shape[0]
-    if q0s.shape[1] != sys_.n:
-        raise spark.SparkError(
-            f"q0s and v0s must have shape (members, {sys_.n}) for {sys_.name} ({', '.join(sys_.coordinates)}); got "
-            f"{q0s.shape}"
-        )
+    spark._member_width(q0s, sys_)
     # A table at output times is checked from their count, before they are
     # read (10⁸ times would take gigabytes as the request's list).
     count = None if options["t_eval"] is None else spark._output_count(options["t_eval"])

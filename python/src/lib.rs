@@ -18,9 +18,9 @@ use problems::run::{check_parameters, run, run_ensemble_with, EnsembleError, Run
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use spark_python_core::{
-    argument_error, check_stages, columns_to_py, ensemble_to_py, facts_to_py, interruptible, python_words,
-    read_ensemble, read_request, spark_error, text, Columns, Failure, IntegrateRequest, SystemFacts,
-    ENSEMBLE_PROJECT_HINT, PROJECTION_TOLERANCE,
+    argument_error, check_initial_state, check_members, check_stages, columns_to_py, ensemble_to_py, facts_to_py,
+    interruptible, python_words, read_ensemble, read_request, spark_error, text, Columns, Failure, IntegrateRequest,
+    SystemFacts, ENSEMBLE_PROJECT_HINT, PROJECTION_TOLERANCE,
 };
 use spark_runtime::{ConsistencyPolicy, Method};
 use std::sync::atomic::Ordering;
@@ -188,6 +188,7 @@ fn integrate<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> 
     // A parameter name the system does not have is the caller's bad
     // argument: refused here, as the others, not as the run's failure.
     check_parameters(e, &r.parameters).map_err(|err| argument_error(py, message(&err)))?;
+    check_initial_state(py, &r, e.n)?;
     let spec = run_spec(e, &r);
     let c = interruptible(py, |stop| {
         let start = Instant::now();
@@ -205,18 +206,7 @@ fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> P
     check_stages(py, &r.run, MAX_DISPATCH_STAGES, PROGRAM)?;
     // As in `integrate`: before the members run, not as member 0's failure.
     check_parameters(e, &r.run.parameters).map_err(|err| argument_error(py, message(&err)))?;
-    if r.q0s.len() != r.members * e.n || r.v0s.len() != r.members * e.n {
-        return Err(spark_error(
-            py,
-            format!(
-                "q0s and v0s must have shape (members, {n}) = ({}, {n}); got {} and {} numbers",
-                r.members,
-                r.q0s.len(),
-                r.v0s.len(),
-                n = e.n
-            ),
-        ));
-    }
+    check_members(py, &r, e.n)?;
     let row = |x: &[f64], j: usize| x[j * e.n..(j + 1) * e.n].to_vec();
     let members: Vec<(Vec<f64>, Vec<f64>)> = (0..r.members).map(|j| (row(&r.q0s, j), row(&r.v0s, j))).collect();
     let spec = run_spec(e, &r.run);

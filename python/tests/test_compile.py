@@ -576,6 +576,47 @@ def test_an_empty_spark_cache_dir_is_an_argument_error_naming_it(tmp_path, monke
     assert spark._compile.cache_root(str(tmp_path / "given")) == tmp_path / "given"
 
 
+def test_a_compiled_system_refuses_bad_steps_and_initial_states_as_argument_errors(cache):
+    # A compiled system has no default h, run length or initial state: a
+    # missing one is the caller's bad argument, as are a step size that is
+    # zero or not finite and initial states of another width or not
+    # finite, refused before the run by the package and by the module's own
+    # functions (whose run failed with a SparkError, or member 0's).
+    skate = spark.compile(declaration("Skate"), cache_dir=str(cache))
+    state = dict(q0=[0, 0, 0], v0=[0, 0, 1])
+    q0s, v0s = [[0, 0, 0], [0, 0, 0]], [[0, 0, 1], [0, 0, 2]]
+    for words, call in (
+        (r"^give the step size h=", lambda: skate.integrate("gauss", 2, None, 3, **state)),
+        (r"^give steps= .* or t_end=", lambda: skate.integrate("gauss", 2, 0.1, **state)),
+        (r"^give q0=, the initial q of Skate \(3 numbers\)", lambda: skate.integrate("gauss", 2, 0.1, 3)),
+        (r"^step size h = 0.0 must be finite", lambda: skate.integrate("gauss", 2, 0.0, 3, **state)),
+        (r"^t_end = -1.000000e\+00 lies behind t0", lambda: skate.integrate("gauss", 2, 0.1, t_end=-1.0, **state)),
+        (r"^q0s and v0s must have shape \(members, 3\) for Skate", lambda: skate.ensemble(
+            "gauss", 2, 0.1, 3, [[0, 0]], [[0, 1]])),
+        (r"^v0s\[1, 2\] = nan is not finite \(member 1\)", lambda: skate.ensemble(
+            "gauss", 2, 0.1, 3, q0s, [[0, 0, 1], [0, 0, float("nan")]])),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            call()
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, **state}
+    members = {**request, "q0s": q0s, "v0s": v0s}
+    for words, call in (
+        (r"^step size h = NaN must be finite and nonzero", lambda: skate._integrate({**request, "h": float("nan")})),
+        (r"^the request has no `h`", lambda: skate._integrate({**request, "h": None})),
+        (r"^`steps` = 2.5 must be a whole number", lambda: skate._ensemble({**members, "steps": 2.5})),
+        (r"^`t_end` applies to a tolerance-driven request", lambda: skate._integrate({**request, "t_end": 1.0})),
+        (r"^q0\[0\] = inf is not finite", lambda: skate._integrate({**request, "q0": [float("inf"), 0, 0]})),
+        (r"^v0 has 2 entries but the system has 3 coordinates", lambda: skate._integrate({**request, "v0": [0, 1]})),
+        (r"^q0s and v0s must have shape \(members, 3\) = \(1, 3\); got rows of 2",
+         lambda: skate._ensemble({**members, "q0s": [[0, 0]], "v0s": [[0, 1]]})),
+        (r"^row 1 of v0s has 2 numbers", lambda: skate._ensemble({**members, "v0s": [[0, 0, 1], [0, 1]]})),
+        (r"^q0s\[1, 0\] = NaN is not finite \(member 1\)",
+         lambda: skate._ensemble({**members, "q0s": [[0, 0, 0], [float("nan"), 0, 0]]})),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            call()
+
+
 def test_an_empty_spark_cargo_target_dir_is_an_argument_error_naming_it(tmp_path, monkeypatch):
     # A SPARK_CARGO_TARGET_DIR set to nothing names no folder, as an empty
     # SPARK_CACHE_DIR does: refused before the check, naming the variable,

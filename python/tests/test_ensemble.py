@@ -62,6 +62,42 @@ def test_ensemble_errors_name_the_member_and_the_shape():
         spark.ensemble("skate", "gauss", 2, 0.1, 5, np.zeros((1, 3)), np.array([[0, 0, 1.0]]), threads=0)
 
 
+def test_missing_or_misshaped_initial_states_are_argument_errors_before_any_member_runs():
+    # q0s and v0s are the caller's arguments: a missing one, a 1-D array,
+    # rows of another width than the system's N, two shapes and an entry
+    # that is not finite are refused as ArgumentError naming them, before
+    # any member runs (a NaN failed as "member 0: invalid run: q0 has a
+    # non-finite entry" once the members before it had run).
+    q0s, v0s = np.zeros((2, 3)), np.tile([0.0, 0.0, 1.0], (2, 1))
+    bad_q, bad_v = q0s.copy(), v0s.copy()
+    bad_q[1, 2] = np.nan
+    bad_v[0, 1] = -np.inf
+    for words, qs, vs in (
+        (r"^give the initial states q0s= and v0s=.*\(q0s and v0s are missing\)", None, None),
+        (r"^give the initial states q0s= and v0s=.*\(v0s is missing\)", q0s, None),
+        (r"^q0s must be a 2-D array of shape \(members, N\).*got shape \(3,\)", q0s[0], v0s[0]),
+        (r"^q0s and v0s must have shape \(members, 3\) for skate \(x, y, theta\); got \(2, 2\)",
+         q0s[:, :2], v0s[:, :2]),
+        (r"^q0s and v0s must have the same shape .* got \(2, 3\) and \(1, 3\)", q0s, v0s[:1]),
+        (r"^q0s\[1, 2\] = nan is not finite \(member 1\)", bad_q, v0s),
+        (r"^v0s\[0, 1\] = -inf is not finite \(member 0\)", q0s, bad_v),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark.ensemble("skate", "gauss", 2, 0.1, 5, qs, vs)
+    # The native function refuses them as ArgumentError too.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 5}
+    for words, members in (
+        (r"^the request has no `q0s`", dict(v0s=v0s.tolist())),
+        (r"^q0s and v0s must have shape \(members, 3\) = \(2, 3\); got rows of 2", dict(
+            q0s=q0s[:, :2].tolist(), v0s=v0s[:, :2].tolist())),
+        (r"^q0s has 2 rows but v0s has 1", dict(q0s=q0s.tolist(), v0s=v0s[:1].tolist())),
+        (r"^row 1 of q0s has 2 numbers but row 0 of q0s has 3", dict(q0s=[[0, 0, 0], [0, 0]], v0s=v0s.tolist())),
+        (r"^q0s\[1, 2\] = NaN is not finite \(member 1\)", dict(q0s=bad_q.tolist(), v0s=v0s.tolist())),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark._native.ensemble("skate", {**request, **members})
+
+
 def test_ensemble_releases_the_gil():
     """The main thread runs Python code while `spark.ensemble` steps in
     another thread. The switch interval is raised far above the call's

@@ -165,6 +165,34 @@ def test_a_sweep_refuses_what_cannot_work_before_ray_starts(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_a_sweep_refuses_bad_arguments_as_argument_errors_before_ray_starts(tmp_path):
+    # An output path no file can have, and initial states that are missing,
+    # of another width than the system's or not finite, are the caller's
+    # bad arguments whatever the file system holds: ArgumentError, as
+    # spark.ensemble and cache_dir of spark.compile refuse them.
+    q0s, v0s = sray.fig84_members(2)
+    args = ("mp7-nh", METHOD, 2, H, 10, q0s, v0s)
+    for words, out in (
+        ("names no file", ""),
+        ("holds a NUL character", str(tmp_path / "a\0b.parquet")),
+        ("is no file name: .*surrogates not allowed", str(tmp_path / "a\ud800.parquet")),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            sray.sweep(*args, out=out)
+    out = str(tmp_path / "a.parquet")
+    bad = v0s.copy()
+    bad[1, 3] = np.nan
+    for words, h, qs, vs in (
+        (r"\(v0s is missing\)", H, q0s, None),
+        (r"^q0s and v0s must have shape \(members, 7\) for mp7-nh", H, q0s[:, :3], v0s[:, :3]),
+        (r"^v0s\[1, 3\] = nan is not finite \(member 1\)", H, q0s, bad),
+        (r"^step size h = 0.0 must be finite and nonzero", 0.0, q0s, v0s),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            sray.sweep("mp7-nh", METHOD, 2, h, 10, qs, vs, out=out)
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_sweep_checks_its_settings_and_the_size_of_its_table_before_ray_starts(tmp_path):
     # An unknown system, method or parameter, an unusable h, a width of q0s
     # other than the system's and an inconsistent first member are refused

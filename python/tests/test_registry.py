@@ -577,3 +577,92 @@ def test_unknown_and_repeated_parameter_names_are_argument_errors():
     for bad in (float("nan"), float("inf")):
         with pytest.raises(spark.ArgumentError, match=r"parameter `g` = (NaN|inf) must be finite"):
             spark.integrate("skate", "gauss", 2, 0.1, 3, params={"g": bad})
+
+
+def test_bad_steps_and_intervals_are_argument_errors_before_the_run():
+    # The step size, the step count and the interval are the caller's
+    # arguments: an end behind t0 or within one step, a step size that is
+    # zero or not finite (h = 0 with t_end divided by zero), no h, no steps
+    # and no t_end are refused as ArgumentError naming them, before the
+    # run, not as a generic SparkError of the run ("invalid run: ...",
+    # "member 0: ...").
+    skate = spark.system("skate")
+    q0s, v0s = [skate.q0], [skate.v0]
+    nan, inf = float("nan"), float("inf")
+    cases = [
+        (r"^t_end = -1.000000e\+00 lies behind t0", lambda: skate.integrate("gauss", 2, 0.1, t_end=-1.0)),
+        (r"^t_end = -1.000000e\+00 lies behind t0",
+         lambda: spark.ensemble("skate", "gauss", 2, 0.1, None, q0s, v0s, t_end=-1.0)),
+        (r"^the interval .* is shorter than one step", lambda: skate.integrate("gauss", 2, 0.1, t_end=0.04)),
+        (r"^the interval .* is shorter than one step", lambda: skate.integrate("gauss", 2, 0.1, t_end=0.0)),
+        (r"^the interval .* 3.500000e\+00 steps .* not a whole number",
+         lambda: skate.integrate("gauss", 2, 0.1, t_end=0.35)),
+        (r"^the interval .* is not a finite number of steps",
+         lambda: skate.integrate("gauss", 2, 0.1, t0=-1e308, t_end=1e308)),
+        (r"^steps = 2.5 must be a whole number", lambda: skate.integrate("gauss", 2, 0.1, 2.5)),
+        (r"^steps = 0 is less than 1", lambda: spark.ensemble("skate", "gauss", 2, 0.1, 0, q0s, v0s)),
+        (r"^give the step size h=", lambda: spark.ensemble("skate", "gauss", 2, None, 3, q0s, v0s)),
+        (r"^give steps= .* or t_end=", lambda: spark.ensemble("skate", "gauss", 2, 0.1, None, q0s, v0s)),
+        (r"needs t_end=", lambda: skate.integrate("gauss", 2, rtol=1e-6)),
+        (r"^t_end = 0.0 is t0: a tolerance-driven run needs an interval",
+         lambda: skate.integrate("gauss", 2, rtol=1e-6, t_end=0.0)),
+        (r"^t_end = 0.0 is t0", lambda: spark.ensemble("skate", "gauss", 2, None, None, q0s, v0s, rtol=1e-6,
+                                                        t_end=0.0)),
+    ]
+    for h in (0.0, -0.0, nan, inf, -inf):
+        shown = "NaN" if h != h else repr(h)
+        words = rf"^step size h = {re.escape(shown)} must be finite and nonzero"
+        cases += [
+            (words, lambda h=h: skate.integrate("gauss", 2, h, 3)),
+            (words, lambda h=h: skate.integrate("gauss", 2, h, t_end=1.0)),
+            (words, lambda h=h: spark.ensemble("skate", "gauss", 2, h, 3, q0s, v0s)),
+        ]
+    for words, call in cases:
+        with pytest.raises(spark.ArgumentError, match=words):
+            call()
+    # The native functions refuse them as ArgumentError too: a step size
+    # the runtime cannot step with, a missing h or steps, a count that is
+    # not a whole number, a t_end beside fixed steps (which it would
+    # ignore), a tolerance-driven request without an interval.
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    tolerance = {**request, "h": None, "steps": None, "rtol": 1e-6, "t_end": 1.0}
+    native = [
+        (r"^step size h = 0.000e0 must be finite and nonzero", {**request, "h": 0.0}),
+        (r"^step size h = NaN must be finite and nonzero", {**request, "h": nan}),
+        (r"^step size h = 1.000e300 from t0 = 0.000e0: step size is above 1.34e154", {**request, "h": 1e300}),
+        (r"^the request has no `h`", {**request, "h": None}),
+        (r"^the request has no `steps`", {**request, "steps": None}),
+        (r"^`steps` = 2.5 must be a whole number", {**request, "steps": 2.5}),
+        (r"^`t_end` applies to a tolerance-driven request", {**request, "t_end": 5.0}),
+        (r"needs a finite t_end other than t0", {**tolerance, "t_end": 0.0}),
+        (r"needs t_end", {**tolerance, "t_end": None}),
+        (r"^`h` does not apply to a tolerance-driven run", {**tolerance, "h": 0.1}),
+    ]
+    for words, req in native:
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark._native.integrate("skate", req)
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark._native.ensemble("skate", {**req, "q0s": q0s, "v0s": v0s})
+
+
+def test_a_missing_or_bad_initial_state_is_an_argument_error_before_the_run():
+    # q0 and v0 of another length, of another shape or with an entry that
+    # is not finite are refused as ArgumentError naming the entry, not as
+    # the run's "invalid run: q0 has a non-finite entry".
+    skate = spark.system("skate")
+    for words, kw in (
+        (r"^q0\[1\] = nan is not finite", dict(q0=[0, float("nan"), 0])),
+        (r"^v0\[2\] = inf is not finite", dict(v0=[0, 0, float("inf")])),
+        (r"^q0 has 2 entries but skate has 3 coordinates \(x, y, theta\)", dict(q0=[0, 0])),
+        (r"^v0 must be a vector of 3 numbers; got shape \(1, 3\)", dict(v0=[[0, 0, 1]])),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            skate.integrate("gauss", 2, 0.1, 3, **kw)
+    request = {"method": "gauss", "s": 2, "h": 0.1, "steps": 3, "q0": [0, 0, 0], "v0": [0, 0, 1]}
+    for words, kw in (
+        (r"^q0\[1\] = NaN is not finite", dict(q0=[0, float("nan"), 0])),
+        (r"^q0 has 2 entries but the system has 3 coordinates", dict(q0=[0, 0])),
+        (r"^v0 has 0 entries", dict(v0=None)),
+    ):
+        with pytest.raises(spark.ArgumentError, match=words):
+            spark._native.integrate("skate", {**request, **kw})

@@ -386,9 +386,10 @@ where
 /// parallel over members): a request for the multipliers `ψ`, a
 /// tolerance-driven request, one with output times or events (as
 /// `problems::run::run_ensemble`), a request [`integrate`] rejects before
-/// stepping, and a member whose lane fails (it
-/// runs again alone, so the driver's cold retry and step halving apply and
-/// the member gets [`integrate`]'s result or error). Each member's
+/// stepping, and a member whose lane fails (it runs again alone, so that it
+/// gets [`integrate`]'s error; a lane retries a failed step cold and halves
+/// it up to `max_halvings` levels as [`integrate`]'s driver does, and counts
+/// its halvings as [`integrate`] counts them). Each member's
 /// `seconds` is an equal share of the ensemble's wall time. `stop` ends
 /// every member as in [`integrate`].
 pub fn ensemble<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
@@ -440,6 +441,7 @@ where
             r.run.h,
             r.run.steps,
             r.run.every,
+            r.run.max_halvings,
             &|| stop.load(Ordering::Relaxed),
         )
         .map_err(|e| e.to_string())?;
@@ -490,12 +492,10 @@ where
         e0: probe.energy(start.t, &start.q, &start.v),
         steps: run.steps,
         newton_iterations_mean: if run.steps > 0 { run.iterations as f64 / run.steps as f64 } else { 0.0 },
-        // A member that fails in its lane runs again alone: the lanes halve
-        // no step.
-        rejected_steps: 0,
-        steps_with_rejections: 0,
-        substeps: run.steps,
-        smallest_step: h.abs(),
+        rejected_steps: run.recovery.rejected_steps,
+        steps_with_rejections: run.recovery.steps_with_rejections,
+        substeps: run.steps + run.recovery.extra_substeps,
+        smallest_step: run.recovery.smallest_step(h),
         seconds,
         events: Vec::new(),
         controller: None,
@@ -596,6 +596,11 @@ fn get<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyR
             if e.is_instance_of::<PyUnicodeEncodeError>(d.py()) {
                 return not_unicode(d.py(), &format!("`{key}` = {}", short(&v)));
             }
+            // A float where a whole number is meant (`steps` = 2.5) is a
+            // value out of range, as the package refuses it, not a wrong type.
+            if std::any::type_name::<T>() == "i64" && v.is_instance_of::<pyo3::types::PyFloat>() {
+                return argument_error(d.py(), format!("`{key}` = {} must be a whole number, an int", short(&v)));
+            }
             // PyO3's overflow message ("too large to convert to C long")
             // names no argument and no range.
             if e.is_instance_of::<PyOverflowError>(d.py()) {
@@ -626,8 +631,20 @@ fn short(v: &Bound<'_, PyAny>) -> String {
 
 use pyo3::conversion::FromPyObjectOwned;
 
+/// The value of `key`, which the request must carry: its absence (or
+/// `None`) is the caller's bad argument, named with what gives it.
 fn required<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<T> {
-    get(d, key)?.ok_or_else(|| PyTypeError::new_err(format!("missing `{key}`")))
+    get(d, key)?.ok_or_else(|| {
+        let what = match key {
+            "h" | "steps" => {
+                " (a run of fixed steps takes `h` and `steps`; a tolerance-driven one `rtol`/`atol` and \
+                              `t_end`)"
+            }
+            "q0s" | "v0s" => " (the members' initial states, one row of N numbers each)",
+            _ => "",
+        };
+        argument_error(d.py(), format!("the request has no `{key}`{what}; give it"))
+    })
 }
 
 /// Reads the common fields of a request dict (everything but the initial
@@ -704,7 +721,16 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
         ));
     }
     let max_halvings = max_halvings as u32;
-    Ok(IntegrateRequest {
+    if tolerance.is_none() && d.get_item("t_end")?.is_some_and(|v| !v.is_none()) {
+        // A request of fixed steps runs `steps` steps of `h`: a `t_end`
+        // beside them would be ignored, and the run end elsewhere.
+        return Err(argument_error(
+            py,
+            "`t_end` applies to a tolerance-driven request (rtol/atol); a request of fixed steps ends after `steps` \
+             steps of `h`: drop t_end",
+        ));
+    }
+    let r = IntegrateRequest {
         method,
         stages: stages as usize,
         h: if tolerance.is_some() { f64::NAN } else { required(d, "h")? },
@@ -721,7 +747,58 @@ pub fn read_request(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Integrate
         tolerance,
         times,
         events: get(d, "events")?.unwrap_or(false),
-    })
+    };
+    // The steps' own checks (a step size that cannot step from t0, a
+    // tolerance-driven t_end at t0) concern the caller's arguments alone:
+    // refused here, before the run, rather than as its failure.
+    r.plan().check_steps(r.t0).map_err(|e| argument_error(py, python_words(&e)))?;
+    Ok(r)
+}
+
+/// Refuses, as the caller's bad arguments, an initial state of a run of a
+/// system of `n` coordinates whose `q0` or `v0` does not have `n` entries
+/// or holds one that is not finite: before the run, rather than as its
+/// failure.
+pub fn check_initial_state(py: Python<'_>, r: &IntegrateRequest, n: usize) -> PyResult<()> {
+    for (what, x) in [("q0", &r.q0), ("v0", &r.v0)] {
+        if x.len() != n {
+            return Err(argument_error(
+                py,
+                format!(
+                    "{what} has {} entries but the system has {n} coordinates; give one entry per coordinate",
+                    x.len()
+                ),
+            ));
+        }
+        if let Some(i) = x.iter().position(|x| !x.is_finite()) {
+            return Err(argument_error(py, format!("{what}[{i}] = {} is not finite; give a finite {what}", x[i])));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses, as the caller's bad arguments, the initial states of an
+/// ensemble of a system of `n` coordinates whose rows do not have `n`
+/// entries or that hold one that is not finite: before any member runs,
+/// rather than as one member's failure after the members before it ran.
+pub fn check_members(py: Python<'_>, r: &EnsembleRequest, n: usize) -> PyResult<()> {
+    let width = r.q0s.len() / r.members.max(1);
+    if width != n || r.q0s.len() != r.members * n || r.v0s.len() != r.members * n {
+        return Err(argument_error(
+            py,
+            format!("q0s and v0s must have shape (members, {n}) = ({}, {n}); got rows of {width} numbers", r.members),
+        ));
+    }
+    for (what, x) in [("q0s", &r.q0s), ("v0s", &r.v0s)] {
+        if let Some(k) = x.iter().position(|x| !x.is_finite()) {
+            let (j, i) = (k / n, k % n);
+            return Err(argument_error(
+                py,
+                format!("{what}[{j}, {i}] = {} is not finite (member {j}); give finite initial states", x[k]),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The tolerance of a request with `rtol` or `atol` (the missing one takes
@@ -738,7 +815,7 @@ fn read_tolerance(py: Python<'_>, d: &Bound<'_, PyDict>, t0: f64) -> PyResult<Op
     };
     for key in ["h", "steps", "max_halvings"] {
         if d.get_item(key)?.is_some_and(|v| !v.is_none()) {
-            return Err(spark_error(
+            return Err(argument_error(
                 py,
                 format!(
                     "`{key}` does not apply to a tolerance-driven run (rtol/atol): the controller chooses the \
@@ -748,7 +825,10 @@ fn read_tolerance(py: Python<'_>, d: &Bound<'_, PyDict>, t0: f64) -> PyResult<Op
         }
     }
     let t_end: f64 = get(d, "t_end")?.ok_or_else(|| {
-        spark_error(py, format!("a tolerance-driven run (rtol/atol) needs t_end, the end of the run from t0 = {t0:e}"))
+        argument_error(
+            py,
+            format!("a tolerance-driven run (rtol/atol) needs t_end, the end of the run from t0 = {t0:e}"),
+        )
     })?;
     if !t_end.is_finite() {
         return Err(not_a_time(py, "t_end", t_end));
@@ -784,7 +864,10 @@ pub fn read_ensemble(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Ensemble
     let rows = |key: &str| -> PyResult<Vec<Vec<f64>>> { required(d, key) };
     let (q0s, v0s) = (rows("q0s")?, rows("v0s")?);
     if q0s.len() != v0s.len() {
-        return Err(spark_error(py, format!("q0s has {} rows but v0s has {}", q0s.len(), v0s.len())));
+        return Err(argument_error(
+            py,
+            format!("q0s has {} rows but v0s has {}; give one row of each per member", q0s.len(), v0s.len()),
+        ));
     }
     if q0s.is_empty() {
         return Err(argument_error(py, "an ensemble needs at least one member"));
@@ -800,7 +883,14 @@ pub fn read_ensemble(py: Python<'_>, d: &Bound<'_, PyDict>) -> PyResult<Ensemble
     }
     let width = q0s[0].len();
     if let Some(j) = q0s.iter().chain(v0s.iter()).position(|r| r.len() != width) {
-        return Err(spark_error(py, format!("row {} of q0s/v0s has another length than row 0", j % q0s.len())));
+        let (what, row) = if j < q0s.len() { ("q0s", j) } else { ("v0s", j - q0s.len()) };
+        return Err(argument_error(
+            py,
+            format!(
+                "row {row} of {what} has {} numbers but row 0 of q0s has {width}; give rows of one length, N",
+                if what == "q0s" { q0s[row].len() } else { v0s[row].len() }
+            ),
+        ));
     }
     Ok(EnsembleRequest {
         members: q0s.len(),
@@ -1077,6 +1167,7 @@ macro_rules! export_system {
             // A parameter name the system does not have is the caller's bad
             // argument: refused here, as the others, not as the run's failure.
             $crate::configured::<$ty, $n, $m>(&r.parameters).map_err(|e| $crate::argument_error(py, e))?;
+            $crate::check_initial_state(py, &r, $n)?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::integrate(&r, stop))?;
             $crate::columns_to_py(py, c)
         }
@@ -1091,6 +1182,7 @@ macro_rules! export_system {
             $crate::check_stages(py, &r.run, $crate::MODULE_STAGES, "this module")?;
             // As in `integrate`: before the members run, not as member 0's failure.
             $crate::configured::<$ty, $n, $m>(&r.run.parameters).map_err(|e| $crate::argument_error(py, e))?;
+            $crate::check_members(py, &r, $n)?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::ensemble(&r, stop))?;
             $crate::ensemble_to_py(py, c)
         }
