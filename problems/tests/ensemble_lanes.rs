@@ -50,6 +50,14 @@ fn agrees(a: &RunResult, b: &RunResult, what: &str) {
         &format!("{what}: max |g|"),
     );
     assert!(s.newton_iterations_mean >= 1.0, "{what}: Newton iterations {}", s.newton_iterations_mean);
+    same_bits(&[s.newton_iterations_mean], &[t.newton_iterations_mean], &format!("{what}: Newton iterations"));
+    // Failed steps retried and halved as the driver does, and counted alike.
+    assert_eq!(
+        (s.rejected_steps, s.steps_with_rejections, s.substeps),
+        (t.rejected_steps, t.steps_with_rejections, t.substeps),
+        "{what}: rejections and sub-steps"
+    );
+    same_bits(&[s.smallest_step], &[t.smallest_step], &format!("{what}: smallest step"));
 }
 
 /// Runs `members` as an ensemble on 1 and 2 threads and on the global pool,
@@ -93,6 +101,19 @@ fn mp7_members_agree_with_their_runs_alone() {
     assert_ne!(out[0].q, out[5].q, "each member starts from its own state");
     // The constraint as printed, every step recorded.
     check_against_solo_runs(&mp7_spec("mp7", 200, 1), &members[..3], 201);
+}
+
+/// At h = 1.2 some members' steps fail and are halved: in their lanes as
+/// in their runs alone, counted alike (see [`agrees`]), the members staying
+/// in the lane group.
+#[test]
+fn members_whose_steps_are_halved_agree_with_their_runs_alone() {
+    let members = mp7_members(8);
+    let mut spec = mp7_spec("mp7-nh", 60, 10);
+    spec.h = 1.2;
+    let out = check_against_solo_runs(&spec, &members, 7);
+    let halved = out.iter().filter(|r| r.stats.rejected_steps > 0).count();
+    assert!(halved > 0, "no member halved a step at h = 1.2");
 }
 
 #[test]

@@ -80,7 +80,8 @@ def test_members_of_a_compiled_ensemble_are_their_single_runs(tmp_path_factory, 
                 np.testing.assert_array_equal(ens.q[j], one.q, err_msg=f"{method} s = {s}, member {j}")
                 np.testing.assert_array_equal(ens.v[j], one.v, err_msg=f"{method} s = {s}, member {j}")
                 assert ens.rejected_steps[j] == one.rejected_steps, f"{method} s = {s}, member {j}"
+                assert ens.smallest_step[j] == one.smallest_step, f"{method} s = {s}, member {j}"
         halvings += int(np.sum(ens.rejected_steps))
-    # The large steps do halve some members' steps: those members leave
-    # their lanes and run through `integrate`.
+    # The large steps do halve some members' steps: their lanes retry and
+    # halve them as `integrate` does, and count the halvings alike.
     assert (halvings > 0) == (abs(h) >= 1.0), halvings

@@ -178,7 +178,7 @@ pub use initial::{
 };
 pub use lanes::{
     integrate_ensemble, integrate_ensemble_until, EnsembleRun, LaneConstraintJacobians, LaneError, LaneFailure,
-    LaneStageValues, LaneStatus, LaneStepper, LANES, MAX_ENSEMBLE_THREADS,
+    LaneRecovery, LaneStageValues, LaneStatus, LaneStepper, LANES, MAX_ENSEMBLE_THREADS,
 };
 pub use linalg::newton_matrix::{Factorization, NewtonMatrix, SingularMatrix};
 pub use plan::{event_rows, integrate_plan, EventRow, PlanError, PlannedRun, RunPlan, Stepping, Tolerance};

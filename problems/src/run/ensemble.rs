@@ -83,10 +83,10 @@ pub fn run_ensemble(
 /// - a spec [`run`] rejects before stepping (step size, initial time, stage
 ///   count, parameter names): every member runs through [`run`] and reports
 ///   that error;
-/// - a member whose lane fails (a Newton failure, an inconsistent start, an
-///   energy drift) runs again alone through [`run`], whose driver retries a
-///   failed step from the cold starting guess and halves it: the member gets
-///   [`run`]'s result or [`run`]'s error.
+/// - a member whose lane fails runs again alone through [`run`], so that it
+///   reports [`run`]'s error. (A lane retries a failed step from the cold
+///   starting guess and halves it up to [`RunSpec::max_halvings`] levels, as
+///   [`run`]'s driver does, and counts its halvings as [`run`] counts them.)
 ///
 /// Before any member steps, every initial state is checked (and `v0`
 /// projected when [`RunSpec::consistency`] asks for it) as [`run`] checks
@@ -262,7 +262,8 @@ where
     let residual = |s: &State<N>| probe.constraint(s.t, &s.q, &s.v).amax();
     let wall_start = Instant::now();
     let cpu_start = thread_cpu_time();
-    let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(probe.clone(), tableau, spec.newton);
+    let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(probe.clone(), tableau, spec.newton)
+        .with_max_halvings(spec.max_halvings);
     if let Err(e) = lanes.start(starts, spec.h) {
         return starts.iter().map(|_| Err(RunError::Invalid(e.to_string()))).collect();
     }
@@ -347,6 +348,7 @@ where
             }
             let steps = spec.steps;
             let iterations = lanes.total_iterations(j).unwrap_or(0);
+            let recovery = lanes.recovery(j).copied().unwrap_or_default();
             let column = |f: &dyn Fn(&State<N>) -> f64| r.samples.iter().map(f).collect::<Vec<f64>>();
             Ok(RunResult {
                 system: key,
@@ -368,12 +370,10 @@ where
                     max_constraint_residual: r.max_constraint_residual,
                     max_holonomic_drift: Sys::HAS_HOLONOMIC.then_some(r.max_holonomic_drift),
                     newton_iterations_mean: iterations as f64 / steps as f64,
-                    // A member that fails in its lane runs again alone
-                    // (above): the lanes halve no step.
-                    rejected_steps: 0,
-                    steps_with_rejections: 0,
-                    substeps: steps,
-                    smallest_step: spec.h.abs(),
+                    rejected_steps: recovery.rejected_steps,
+                    steps_with_rejections: recovery.steps_with_rejections,
+                    substeps: steps + recovery.extra_substeps,
+                    smallest_step: recovery.smallest_step(spec.h),
                     wall_time,
                     cpu_time,
                 },

@@ -186,6 +186,30 @@ where
         }
     }
 
+    /// One scheduled step of size `h` ending at `t_target`, as
+    /// [`Stepper::integrate`] takes it under [`RunOptions`] with
+    /// `max_halvings` and otherwise the defaults (`FailurePolicy::Halve`,
+    /// nothing observed): the lane stepper's step of a member, so that an
+    /// ensemble member recovers where its solo run does. Returns the step's
+    /// counts (the end's time not pinned); a failure gives the error of the
+    /// last attempt (where the sub-step budget ran out, `integrate`'s
+    /// error says so instead).
+    pub(crate) fn scheduled_step(
+        &mut self,
+        state: &State<N>,
+        h: f64,
+        t_target: f64,
+        max_halvings: u32,
+    ) -> Result<StepCounts<N>, StepError> {
+        let budget = Budget { max_halvings, max_substeps: RunOptions::default().max_substeps };
+        match self.robust_step(state, h, t_target, budget, &mut |_, _, _, _, _| false) {
+            Ok(counts) => Ok(counts),
+            Err(StepFailure::Step(last) | StepFailure::Floor { last, .. } | StepFailure::Budget { last, .. }) => {
+                Err(last)
+            }
+        }
+    }
+
     /// The rest of [`robust_step`](Self::robust_step) after its first
     /// attempt failed with `first`: the cold retry, then the halving.
     /// Iterative, with the pending sub-steps in a fixed array: no

@@ -19,7 +19,8 @@ mod observer;
 mod trajectory;
 
 pub use error::{IntegrationError, RejectionFloor, SubstepOverrun};
-use failure::{Budget, StepCounts};
+use failure::Budget;
+pub(crate) use failure::StepCounts;
 pub(crate) use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::sample_storage;

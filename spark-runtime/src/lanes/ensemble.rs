@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::stepper::{LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
+use super::stepper::{LaneError, LaneFailure, LaneRecovery, LaneStatus, LaneStepper, LANES};
 use crate::step::{NewtonOptions, State};
 use crate::system::NonholonomicSystem;
 use crate::tableau::Tableau;
@@ -23,6 +23,9 @@ pub struct EnsembleRun<const N: usize> {
     pub steps: usize,
     /// Newton iterations over those steps.
     pub iterations: usize,
+    /// What its failed steps cost (retries from the cold guess and
+    /// halvings, as its solo `integrate` takes them).
+    pub recovery: LaneRecovery,
     /// The failed step that stopped it, if one did.
     pub failure: Option<LaneFailure>,
 }
@@ -30,14 +33,13 @@ pub struct EnsembleRun<const N: usize> {
 /// Integrates every member of `starts` (one start time) with `steps` fixed
 /// steps of size `h`, in lane groups of [`LANES`] that run in parallel on
 /// rayon's current thread pool. Each member's samples are bit for bit
-/// those of its own [`Stepper`](struct@crate::Stepper) stepped alone with
-/// `t` pinned to `t₀ + k·h` (what [`Stepper::integrate`](crate::Stepper::integrate)
-/// computes for a fixed schedule when no step fails), whatever the
-/// grouping and the thread count; a member that fails stops with its
-/// [`LaneFailure`], the error of [`Stepper::step`](crate::Stepper::step)
-/// at that step, and no other member is affected. (`integrate` instead
-/// recovers where its `FailurePolicy` can: a second attempt from the cold
-/// guess, then halving; the lanes do not.)
+/// those [`Stepper::integrate`](crate::Stepper::integrate) computes for it
+/// alone with a fixed schedule and the default [`RunOptions`](crate::RunOptions)
+/// (`t` pinned to `t₀ + k·h`; a step whose Newton iteration fails retried
+/// from the cold guess, then halved, counted in [`EnsembleRun::recovery`]),
+/// whatever the grouping and the thread count; a member whose step fails
+/// even so stops with its [`LaneFailure`], the error of the last attempt,
+/// and no other member is affected.
 ///
 /// `sample_every = 0` records the start and the end only. Fails only for a
 /// request no member can run: a zero or non-finite `h`, or start times that
@@ -54,18 +56,31 @@ pub fn integrate_ensemble<Sys, const N: usize, const M: usize, const S: usize, c
 where
     Sys: NonholonomicSystem<N, M> + Clone + Send + Sync,
 {
-    integrate_ensemble_until::<Sys, N, M, S, D>(system, tableau, options, starts, h, steps, sample_every, &|| false)
+    let halvings = crate::DEFAULT_MAX_HALVINGS;
+    integrate_ensemble_until::<Sys, N, M, S, D>(
+        system,
+        tableau,
+        options,
+        starts,
+        h,
+        steps,
+        sample_every,
+        halvings,
+        &|| false,
+    )
 }
 
 /// Steps a lane group takes between two calls of the `stop` of
 /// [`integrate_ensemble_until`].
 const STOP_CHECK_EVERY: usize = 1024;
 
-/// [`integrate_ensemble`] that asks `stop` (from every lane group's
-/// thread) every 1024 steps (`STOP_CHECK_EVERY`) and ends with
-/// [`LaneError::Stopped`] once it says so: how a front end lets its user
-/// interrupt a long ensemble. The members' samples are those of
-/// [`integrate_ensemble`] up to there, bit for bit.
+/// [`integrate_ensemble`] with failed steps halved at most `max_halvings`
+/// levels deep ([`RunOptions::max_halvings`](crate::RunOptions::max_halvings))
+/// that asks `stop` (from every lane group's thread) every 1024 steps
+/// (`STOP_CHECK_EVERY`) and ends with [`LaneError::Stopped`] once it says
+/// so: how a front end lets its user interrupt a long ensemble. The
+/// members' samples are those of `integrate` with that `max_halvings` up
+/// to there, bit for bit.
 #[allow(clippy::too_many_arguments)]
 pub fn integrate_ensemble_until<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     system: &Sys,
@@ -75,6 +90,7 @@ pub fn integrate_ensemble_until<Sys, const N: usize, const M: usize, const S: us
     h: f64,
     steps: usize,
     sample_every: usize,
+    max_halvings: u32,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<Vec<EnsembleRun<N>>, LaneError>
 where
@@ -90,11 +106,18 @@ where
     let groups = starts
         .par_chunks(LANES)
         .map(|chunk| {
-            let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(system.clone(), tableau, options);
+            let mut lanes = LaneStepper::<Sys, N, M, S, D, LANES>::new(system.clone(), tableau, options)
+                .with_max_halvings(max_halvings);
             lanes.start(chunk, h)?;
             let mut runs: Vec<EnsembleRun<N>> = chunk
                 .iter()
-                .map(|s| EnsembleRun { samples: vec![*s], steps: 0, iterations: 0, failure: None })
+                .map(|s| EnsembleRun {
+                    samples: vec![*s],
+                    steps: 0,
+                    iterations: 0,
+                    recovery: LaneRecovery::default(),
+                    failure: None,
+                })
                 .collect();
             // Lane after lane up to the next sample (see `advance_by`), at
             // most `STOP_CHECK_EVERY` steps at a time.
@@ -116,11 +139,13 @@ where
                         Some(LaneStatus::Failed(f)) => {
                             run.steps = f.step;
                             run.iterations = lanes.total_iterations(j).unwrap_or(0);
+                            run.recovery = lanes.recovery(j).copied().unwrap_or_default();
                             run.failure = Some((**f).clone());
                         }
                         Some(LaneStatus::Running) => {
                             run.steps = done;
                             run.iterations = lanes.total_iterations(j).unwrap_or(0);
+                            run.recovery = lanes.recovery(j).copied().unwrap_or_default();
                             if let Some(s) = lanes.state(j).filter(|_| sampled) {
                                 run.samples.push(*s);
                             }

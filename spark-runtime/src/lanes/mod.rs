@@ -18,8 +18,11 @@
 //! the kernel does not repeat (a slow contraction, a singular matrix, a
 //! failure), the member's own stepper computes from the same continuation.
 //! So each member's trajectory is bit for bit the one its stepper computes
-//! alone, whatever the other lanes do, and a member that fails stops with
-//! its own [`StepError`](crate::StepError) while the others go on. The
+//! alone, whatever the other lanes do. A step that fails is retried from
+//! the cold guess and halved as `Stepper::integrate` does, by the member's
+//! own stepper ([`LaneRecovery`] counts it); a member that fails even so
+//! stops with its own [`StepError`](crate::StepError) while the others go
+//! on. The
 //! tests in this module compare every lane with its member stepped alone,
 //! bit for bit, including steps the kernel hands back.
 //!
@@ -50,5 +53,5 @@ mod tests;
 pub(crate) mod values;
 
 pub use ensemble::{integrate_ensemble, integrate_ensemble_until, EnsembleRun, MAX_ENSEMBLE_THREADS};
-pub use stepper::{LaneError, LaneFailure, LaneStatus, LaneStepper, LANES};
+pub use stepper::{LaneError, LaneFailure, LaneRecovery, LaneStatus, LaneStepper, LANES};
 pub use values::{LaneConstraintJacobians, LaneStageValues};

@@ -3,6 +3,7 @@
 //! a status per member.
 
 use super::kernel::{Kernel, Outcome, Simd};
+use crate::driver::{StepCounts, DEFAULT_MAX_HALVINGS, MAX_HALVINGS};
 use crate::step::{NewtonOptions, State, Stepper};
 use crate::system::NonholonomicSystem;
 use crate::tableau::Tableau;
@@ -69,6 +70,47 @@ pub struct LaneFailure {
     pub error: StepError,
 }
 
+/// What recovering from failed steps cost a member: a step whose Newton
+/// iteration fails is retried from the cold guess and halved as
+/// [`Stepper::integrate`] does ([`LaneStepper::with_max_halvings`]), and
+/// counted here as its run report counts it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LaneRecovery {
+    /// Failures each followed by smaller sub-steps
+    /// ([`RunReport::rejected_steps`](crate::RunReport::rejected_steps)).
+    pub rejected_steps: usize,
+    /// Steps with at least one such failure.
+    pub steps_with_rejections: usize,
+    /// Sub-steps beyond one per step: the halved steps' extra sub-steps.
+    pub extra_substeps: usize,
+    /// The smallest accepted sub-step's magnitude, 0 while no step was
+    /// halved (every sub-step then has the step size).
+    pub smallest_substep: f64,
+}
+
+impl LaneRecovery {
+    /// Counts one step taken as `counts`.
+    pub(crate) fn count<const N: usize>(&mut self, counts: &StepCounts<N>) {
+        if counts.rejected > 0 {
+            self.rejected_steps += counts.rejected;
+            self.steps_with_rejections += 1;
+            self.extra_substeps += counts.substeps.saturating_sub(1);
+            if self.smallest_substep == 0.0 || counts.smallest < self.smallest_substep {
+                self.smallest_substep = counts.smallest;
+            }
+        }
+    }
+
+    /// The smallest sub-step of a run with steps of size `h`.
+    pub fn smallest_step(&self, h: f64) -> f64 {
+        if self.smallest_substep == 0.0 {
+            h.abs()
+        } else {
+            self.smallest_substep.min(h.abs())
+        }
+    }
+}
+
 /// What a lane is doing.
 #[derive(Clone, Debug, PartialEq)]
 pub enum LaneStatus {
@@ -110,6 +152,10 @@ pub struct LaneStepper<Sys, const N: usize, const M: usize, const S: usize, cons
     total_iterations: [usize; W],
     /// Steps each lane took in the kernel since [`Self::start`].
     kernel_steps: [usize; W],
+    /// What each lane's failed steps cost since [`Self::start`].
+    recovery: [LaneRecovery; W],
+    /// Halving levels of a failed step ([`Self::with_max_halvings`]).
+    max_halvings: u32,
     t0: f64,
     h: f64,
     steps: usize,
@@ -138,6 +184,8 @@ where
             iterations: [0; W],
             total_iterations: [0; W],
             kernel_steps: [0; W],
+            recovery: [LaneRecovery::default(); W],
+            max_halvings: DEFAULT_MAX_HALVINGS,
             t0: 0.0,
             h: 0.0,
             steps: 0,
@@ -158,6 +206,15 @@ where
     /// does not pay).
     pub fn without_kernel(mut self) -> Self {
         self.kernel_enabled = false;
+        self
+    }
+
+    /// A failed step is halved at most `max_halvings` levels deep (at most
+    /// [`MAX_HALVINGS`]; 0 ends a member at its first failed step), as
+    /// [`RunOptions::max_halvings`](crate::RunOptions::max_halvings) does
+    /// for `integrate`; default [`DEFAULT_MAX_HALVINGS`].
+    pub fn with_max_halvings(mut self, max_halvings: u32) -> Self {
+        self.max_halvings = max_halvings.min(MAX_HALVINGS);
         self
     }
 
@@ -196,6 +253,7 @@ where
             self.iterations[j] = 0;
             self.total_iterations[j] = 0;
             self.kernel_steps[j] = 0;
+            self.recovery[j] = LaneRecovery::default();
             match starts.get(j) {
                 Some(s) => {
                     self.states[j] = *s;
@@ -270,14 +328,16 @@ where
     /// kernel when its next step takes the kernel's path.
     fn step_alone(&mut self, j: usize, i: usize) {
         let (lane, state) = (&mut self.lanes[j], &mut self.states[j]);
-        match lane.step_or_fail(state, self.h) {
-            Ok(r) => {
+        let t_target = self.t0 + (i + 1) as f64 * self.h;
+        match lane.scheduled_step(state, self.h, t_target, self.max_halvings) {
+            Ok(counts) => {
                 // As the driver does: t pinned to the schedule, and the
                 // pinned state declared the continuation of the step.
-                *state = State { t: self.t0 + (i + 1) as f64 * self.h, ..r.state };
+                *state = State { t: t_target, ..counts.state };
                 lane.retarget_warm_start(state);
-                self.iterations[j] = r.iterations;
-                self.total_iterations[j] += r.iterations;
+                self.iterations[j] = counts.iterations;
+                self.total_iterations[j] += counts.iterations;
+                self.recovery[j].count(&counts);
             }
             Err(error) => {
                 let failure = LaneFailure { step: i, t: state.t, error };
@@ -332,6 +392,12 @@ where
     /// the module docs). `None` when `j ≥ W`.
     pub fn kernel_steps(&self, j: usize) -> Option<usize> {
         self.kernel_steps.get(j).copied()
+    }
+
+    /// What lane `j`'s failed steps since [`Self::start`] cost: its
+    /// retries, halvings and smallest sub-step (`None` when `j ≥ W`).
+    pub fn recovery(&self, j: usize) -> Option<&LaneRecovery> {
+        self.recovery.get(j)
     }
 
     /// The stepper of lane `j`: its options, system and latest Newton

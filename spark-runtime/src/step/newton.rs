@@ -71,6 +71,11 @@ pub struct NewtonOptions {
     pub tolerance: f64,
     /// Updates below this level that stop contracting are round-off
     /// stagnation and are accepted; above it they count as divergence.
+    /// Scaled like [`tolerance`](Self::tolerance), it is the error a step
+    /// accepted this way can carry, since an iteration that stops
+    /// contracting has no rate to vouch for the digits past its update:
+    /// keep it near the round-off of the step's equations (default 1e-12;
+    /// about `ε · cond` for an ill-conditioned step), in `[0, 1)`.
     pub stagnation_level: f64,
     /// Iteration limit (at most [`HISTORY_CAPACITY`]).
     pub max_iterations: usize,
