@@ -604,9 +604,15 @@ fn why_too_small(scaled_error: f64, last_newton: Option<&StepError>) -> String {
 /// is the resolution of `t` (16 units in the last place), far from
 /// `t = 0`, the steps the problem needs are shorter than the times `f64`
 /// tells apart there, whatever the tolerance: the run has to start nearer
-/// `t = 0`. Otherwise the floor is `AdaptiveOptions::min_step`.
+/// `t = 0`. Within about 6e-294 of `t = 0` it is the smallest normal step,
+/// which only a looser tolerance lifts the steps above. Otherwise the floor
+/// is `AdaptiveOptions::min_step`.
 fn too_small_advice(t: f64, floor: f64) -> String {
-    if floor > 0.0 && floor == resolution(t) {
+    if floor == resolution(t) && normal_floor(t) {
+        " (2.2e-308, the smallest normal step: below it 1/h overflows in the step's equations); loosen rtol/atol, \
+         or check the system for a singularity"
+            .to_string()
+    } else if floor > 0.0 && floor == resolution(t) {
         format!(
             " (16 units in the last place of t: the resolution of t at |t| = {}, below which a step does not \
              advance time by its size); run nearer t = 0 (for a system without explicit time dependence a shift \
@@ -657,7 +663,9 @@ pub(super) fn check_first_step(t0: f64, options: &AdaptiveOptions) -> Result<(),
 /// The floor of [`AdaptiveError::FirstStepTooSmall`] in words: the
 /// resolution of `t` at `t0`, or `AdaptiveOptions::min_step`.
 fn floor_words(floor: f64, t0: f64) -> String {
-    if floor == resolution(t0) {
+    if floor == resolution(t0) && normal_floor(t0) {
+        format!("{} (the smallest normal step, below which 1/h overflows in the step's equations)", Sci(floor))
+    } else if floor == resolution(t0) {
         format!("{} (16 units in the last place of t0, the resolution of t there)", Sci(floor))
     } else {
         format!("min_step = {} (AdaptiveOptions::min_step)", Sci(floor))
@@ -721,10 +729,19 @@ pub(crate) fn on_time_grid(t: f64, h: f64) -> f64 {
 }
 
 /// The fixed-step drivers' [`time_resolution`](crate::driver::time_resolution)
-/// of `t`, kept positive at `t = 0` (16 ε times the smallest normal number)
-/// so that a floor built on it refuses a zero step.
+/// of `t`, and at least the smallest normal number: near `t = 0` the
+/// resolution of `t` is subnormal, and a subnormal step overflows `1/h` in
+/// the step's equations, so `Stepper::step` refuses it: the controller
+/// stops at this floor with `StepSizeTooSmall` rather than propose a step
+/// the stepper refuses.
 fn resolution(t: f64) -> f64 {
-    crate::driver::time_resolution(t).max(16.0 * f64::EPSILON * f64::MIN_POSITIVE)
+    crate::driver::time_resolution(t).max(f64::MIN_POSITIVE)
+}
+
+/// Whether the floor of a step at `t` is the smallest normal number rather
+/// than the resolution of `t` (only within about 6e-294 of `t = 0`).
+fn normal_floor(t: f64) -> bool {
+    crate::driver::time_resolution(t) < f64::MIN_POSITIVE
 }
 
 /// The smallest step a run takes at `t`, the floor of every step size the

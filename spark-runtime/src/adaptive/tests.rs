@@ -433,3 +433,40 @@ fn step_size_too_small_names_the_estimate_that_asked_for_it() {
         integrate_reversible(&mut st, 1.0, &s.q, &s.v, 1.0 - 2.2e-16, |_, _, _| 1.0, &d, &mut NoObserver).unwrap_err();
     assert!(matches!(err, AdaptiveError::InvalidInterval { .. }), "{err}");
 }
+
+crate::nonholonomic_system! {
+    /// A sleigh with a cross term `e cos(θ) ẋ θ̇`, a time-dependent spring and
+    /// an affine, time-dependent constraint.
+    pub struct CrossSleigh {
+        coordinates: [x, y, th],
+        parameters: { m = 1.2, i0 = 0.3, e = 0.25, k = 0.8, u = 0.3, nu = 1.1 },
+        lagrangian: m/2*(dot(x)^2 + dot(y)^2) + i0/2*dot(th)^2 + e*cos(th)*dot(x)*dot(th)
+            - k*(1 + 0.3*sin(nu*t))/2*(x^2 + y^2),
+        constraints: [ cos(th)*dot(y) - sin(th)*dot(x) - u*sin(nu*t) ],
+    }
+}
+
+/// Near `t = 0` the resolution of `t` is subnormal, and a tolerance no
+/// step meets (`atol = 1e-300` alone: the error estimate overflows) drives
+/// the controller below the smallest normal step, which `Stepper::step`
+/// refuses (`1/h` overflows). The run stops at that floor with
+/// `StepSizeTooSmall` and the advice to loosen the tolerance, not with the
+/// step's refusal of a step size the caller never chose, nor with the
+/// advice to start nearer `t = 0`.
+#[test]
+fn a_tolerance_that_asks_for_subnormal_steps_is_step_size_too_small() {
+    let sys = CrossSleigh::default();
+    let q = V::<3>::new(0.5, -0.2, 0.4);
+    let v =
+        consistent_velocity(&sys, 0.0, &q, &V::<3>::new(0.8, 0.3, 0.9), ConsistencyPolicy::Project { tolerance: 0.0 })
+            .unwrap();
+    let mut st: Stepper![CrossSleigh, 3] = Stepper::new(sys, Tableau::new(Method::Gauss).unwrap());
+    let o = AdaptiveOptions { rtol: 0.0, atol: 1e-300, ..AdaptiveOptions::default() };
+    for t_end in [5.0, -5.0] {
+        let err = integrate_adaptive(&mut st, 0.0, &q, &v, t_end, &o, &mut NoObserver).unwrap_err();
+        let AdaptiveError::StepSizeTooSmall { t, min_step, .. } = err else { panic!("t_end = {t_end}: {err}") };
+        assert!(t == 0.0 && min_step == f64::MIN_POSITIVE, "t_end = {t_end}: {err}");
+        let text = err.to_string();
+        assert!(text.contains("loosen rtol/atol") && !text.contains("nearer t = 0"), "t_end = {t_end}: {text}");
+    }
+}
