@@ -120,6 +120,7 @@ fn an_ensemble_stops_when_asked_and_is_otherwise_unchanged_by_the_checks() {
         0.05,
         3000,
         700,
+        spark_runtime::DEFAULT_MAX_HALVINGS,
         &|| false,
     )
     .unwrap();
@@ -140,6 +141,7 @@ fn an_ensemble_stops_when_asked_and_is_otherwise_unchanged_by_the_checks() {
         0.05,
         1_000_000,
         0,
+        spark_runtime::DEFAULT_MAX_HALVINGS,
         &|| true,
     );
     assert_eq!(stopped, Err(LaneError::Stopped { steps: 1024 }));
