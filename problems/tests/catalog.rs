@@ -340,3 +340,28 @@ fn kinds_index_their_own_entries() {
         assert_eq!(e.v0.len(), e.n, "{}: v0", e.name);
     }
 }
+
+/// `spark list` gives the modified Lobatto IIIA-B its order per system, as
+/// the drivers take it ([`Method::order_for`]): 2 with a constant mass
+/// matrix and separable L, and names the systems where it is 1.
+#[test]
+fn spark_list_names_the_systems_where_the_modified_lobatto_is_first_order() {
+    use problems::cli::list::{list, ListArgs};
+    let text = list(ListArgs { json: false }).unwrap();
+    let key = Method::ModifiedLobattoIIIAB.key();
+    let line = text.lines().find(|l| l.trim_start().starts_with(&format!("{key} "))).unwrap();
+    assert!(line.contains("order 2 with a constant mass matrix and separable L; order 1 on "), "{line}");
+    let named: Vec<&str> = line.split("order 1 on ").nth(1).unwrap().split(", ").collect();
+    let first_order: Vec<&str> = entries()
+        .iter()
+        .filter(|e| !(e.structure.constant_mass_matrix && e.structure.separable))
+        .map(|e| e.name)
+        .collect();
+    assert!(!first_order.is_empty());
+    assert_eq!(named, first_order, "{line}");
+    // The other methods' orders hold on every system: no caveat.
+    for m in Method::ALL.into_iter().filter(|&m| m != Method::ModifiedLobattoIIIAB) {
+        let line = text.lines().find(|l| l.trim_start().starts_with(&format!("{} ", m.key()))).unwrap();
+        assert!(!line.contains("separable"), "{line}");
+    }
+}

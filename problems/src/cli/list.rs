@@ -130,9 +130,32 @@ pub fn list(a: ListArgs) -> Result<String, String> {
         let hi = hi.min(MAX_DISPATCH_STAGES);
         let stages = if lo == hi { format!("s = {lo}") } else { format!("s = {lo}..{hi}") };
         let order = if lo == hi { format!("order {}", m.order(lo)) } else { "order ".to_string() + &order_formula(m) };
-        let _ = writeln!(s, "  {key:<24} {:<42} {stages:<10} {order}", m.name());
+        let caveat = if lo == hi { order_caveat(m, lo) } else { String::new() };
+        let _ = writeln!(s, "  {key:<24} {:<42} {stages:<10} {order}{caveat}", m.name());
     }
     Ok(s)
+}
+
+/// What the order `spark list` prints for `m` with `s` stages depends on,
+/// when it is not the same on every system: the modified Lobatto IIIA-B is
+/// of order 2 with a constant mass matrix and separable `L`
+/// ([`Method::order_for`]) and of order 1 otherwise, so the listing names
+/// the systems where it is lower, by the same rule the drivers use.
+pub fn order_caveat(m: Method, s: usize) -> String {
+    let order = m.order(s);
+    let mut lower: std::collections::BTreeMap<usize, Vec<&str>> = Default::default();
+    for e in entries() {
+        let here = m.order_for(s, &e.structure);
+        if here != order {
+            lower.entry(here).or_default().push(e.name);
+        }
+    }
+    let others: Vec<String> =
+        lower.iter().map(|(here, names)| format!("order {here} on {}", names.join(", "))).collect();
+    if others.is_empty() {
+        return String::new();
+    }
+    format!(" with a constant mass matrix and separable L; {}", others.join("; "))
 }
 
 /// The order of `m` as a formula in `s`.
