@@ -201,7 +201,7 @@ where
         t_target: f64,
         max_halvings: u32,
     ) -> Result<StepCounts<N>, StepError> {
-        let budget = Budget { max_halvings, max_substeps: RunOptions::default().max_substeps };
+        let budget = Budget { max_halvings, max_substeps: DEFAULT_MAX_SUBSTEPS };
         match self.robust_step(state, h, t_target, budget, &mut |_, _, _, _, _| false) {
             Ok(counts) => Ok(counts),
             Err(StepFailure::Step(last) | StepFailure::Floor { last, .. } | StepFailure::Budget { last, .. }) => {
