@@ -23,8 +23,9 @@ pub struct EnsembleRun<const N: usize> {
     pub steps: usize,
     /// Newton iterations over those steps.
     pub iterations: usize,
-    /// What its failed steps cost (retries from the cold guess and
-    /// halvings, as its solo `integrate` takes them).
+    /// What its failed steps cost: the halvings its solo `integrate`
+    /// takes and counts (a step solved by the retry from the cold guess
+    /// alone counts nothing here).
     pub recovery: LaneRecovery,
     /// The failed step that stopped it, if one did.
     pub failure: Option<LaneFailure>,
