@@ -35,9 +35,9 @@ use proc_macro::TokenStream;
 ///              | "constants"       ":" "{" (name "=" const_expr),* ","? "}"    folded at compile time
 ///              | "lagrangian"      ":" expr                                    required
 ///              | "constraints"     ":" "[" (expr),* ","? "]"                  optional; none or [] = unconstrained
-///              | "forces"          ":" "{" (coordinate ":" expr),* ","? "}"   external force f(t,q,v); absent = 0
-///              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"   non-ideal constraint force N(t,q,v,ψ)
-///              | "events"          ":" "{" (name ":" event),* ","? "}"        zeros of g(t,q,v) the driver locates
+///              | "forces"          ":" "{" (coordinate ":" expr),* ","? "}"   external force f(t,q,v); none or {} = 0
+///              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"   non-ideal constraint force N(t,q,v,ψ); none or {} = 0
+///              | "events"          ":" "{" (name ":" event),* ","? "}"        zeros of g(t,q,v) the driver locates; none or {} = none
 /// event       := ("rising" | "falling" | "crossing")? "(" expr ")" "terminal"?  or  expr "terminal"?
 /// ```
 ///

@@ -25,6 +25,24 @@ fn skate_from_dsl_generates_valid_rust() {
     assert!(a.structure.constant_mass_matrix);
 }
 
+/// An empty `forces: {}`, `nonideal_forces: {}` or `events: {}` block
+/// declares nothing: the generated code, the structure facts and the
+/// operation counts are those of the declaration without the block.
+#[test]
+fn empty_force_and_event_blocks_generate_what_absent_ones_do() {
+    let base = "coordinates: [x, y, theta], parameters: { m = 1.0 }, \
+                lagrangian: m/2*(dot(x)^2 + dot(y)^2) + dot(theta)^2/2, \
+                constraints: [ cos(theta)*dot(y) - sin(theta)*dot(x) ]";
+    let absent = parse(&format!("pub struct Skate {{ {base} }}"));
+    let code = generate(&absent).expect("generate").to_string();
+    let facts = analyze(&absent).expect("analyze");
+    for blocks in ["forces: {}", "nonideal_forces: {}", "events: {}", "forces: {}, nonideal_forces: {}, events: {},"] {
+        let empty = parse(&format!("pub struct Skate {{ {base}, {blocks} }}"));
+        assert_eq!(generate(&empty).expect("generate").to_string(), code, "{blocks}");
+        assert_eq!(analyze(&empty).expect("analyze"), facts, "{blocks}");
+    }
+}
+
 const EVERYTHING: &str = "struct Everything {
             coordinates: [a, b],
             parameters: { k = 2.0 },

@@ -70,3 +70,28 @@ fn a_cfg_on_the_declaration_applies_to_every_generated_item() {
     // E = |v|²/2 + k x²/2.
     assert_eq!(<AlwaysBuilt as NonholonomicSystem<2, 1>>::energy(&sys, 0.0, &q, &v), 2.5 + 0.25);
 }
+
+// Empty blocks declare nothing: `forces: {}`, `nonideal_forces: {}` and
+// `events: {}` are none, as empty `parameters` and `constraints` are.
+nonholonomic_system! {
+    pub struct EmptyBlocks {
+        coordinates: [x],
+        parameters: {},
+        lagrangian: dot(x)^2/2 - x^2/2,
+        constraints: [],
+        forces: {},
+        nonideal_forces: {},
+        events: {},
+    }
+}
+
+#[test]
+fn empty_blocks_compile_to_a_system_without_them() {
+    const {
+        assert!(!<EmptyBlocks as NonholonomicSystem<1, 0>>::HAS_FORCING);
+        assert!(!<EmptyBlocks as NonholonomicSystem<1, 0>>::HAS_NONIDEAL_FORCE);
+        assert!(!<EmptyBlocks as NonholonomicSystem<1, 0>>::HAS_EVENTS);
+    };
+    let (q, v) = (Vector::<1>::new(1.0), Vector::<1>::new(2.0));
+    assert_eq!(EmptyBlocks::new().lagrangian(0.0, &q, &v), 2.0 - 0.5);
+}

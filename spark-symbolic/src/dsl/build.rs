@@ -251,24 +251,32 @@ fn parse_constraints(s: &Sections, scope: &Scope<'_>) -> Result<Vec<ConstraintSp
     Ok(constraints)
 }
 
-/// The `forces` and `nonideal_forces` blocks (empty when absent); only the
-/// latter may use the multipliers of the `m` constraints.
+/// The `forces` and `nonideal_forces` blocks (empty when absent or written
+/// `{}`); only the latter may use the multipliers of the `m` constraints.
 type ForceBlocks = (Vec<Option<SrcExpr>>, Vec<Option<SrcExpr>>);
 
 fn parse_forces(s: &Sections, scope: &Scope<'_>, coordinate: &str, m: usize) -> Result<ForceBlocks, SpecError> {
+    // An empty block declares no force, as an empty `parameters`, `constraints`
+    // or `events` block declares none: it stays an empty list rather than N
+    // zero components, so the system has no force method and reports no
+    // forcing, exactly as without the block.
     let mut external_force = Vec::new();
     if let Some((span, value)) = s.forces.as_ref() {
         let group = single_group("forces", *span, value, Delimiter::Brace)?;
         let scope = Scope { multipliers: Multipliers::Forbidden { named: &[] }, ..*scope };
         let example = format!("`forces: {{ {coordinate}: tau }}`");
-        external_force = parse_force_block(&group, &scope, "the external force", &example)?;
+        if !group.stream().is_empty() {
+            external_force = parse_force_block(&group, &scope, "the external force", &example)?;
+        }
     }
     let mut nonideal_force = Vec::new();
     if let Some((span, value)) = s.nonideal_forces.as_ref() {
         let group = single_group("nonideal_forces", *span, value, Delimiter::Brace)?;
         let scope = Scope { multipliers: Multipliers::Allowed { base: m, named: &[] }, ..*scope };
         let example = format!("`nonideal_forces: {{ {coordinate}: -mu*psi[0] }}`");
-        nonideal_force = parse_force_block(&group, &scope, "the non-ideal force", &example)?;
+        if !group.stream().is_empty() {
+            nonideal_force = parse_force_block(&group, &scope, "the non-ideal force", &example)?;
+        }
     }
     Ok((external_force, nonideal_force))
 }

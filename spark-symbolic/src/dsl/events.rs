@@ -12,14 +12,13 @@ fn err<T>(span: Span, message: impl Into<String>) -> Result<T, SpecError> {
 }
 
 /// The entries `name: [rising|falling|crossing](expr) [terminal]` of an
-/// `events` section.
+/// `events` section. An empty section declares no event, as an empty
+/// `parameters`, `constraints` or `forces` section declares none: the
+/// system is then the one without the section.
 pub(super) fn parse_events(group: &Group, scope: &Scope<'_>) -> Result<Vec<EventDecl>, SpecError> {
     let toks: Vec<TokenTree> = group.stream().into_iter().collect();
     let example = "`events: { impact: falling(y) terminal }`";
     let pieces = split_commas(&toks);
-    if pieces.is_empty() {
-        return err(group.span(), format!("`events` is empty; write e.g. {example}, or remove the section"));
-    }
     let mut out: Vec<EventDecl> = Vec::new();
     for (piece, comma) in pieces {
         let (ident, value) = match piece.as_slice() {

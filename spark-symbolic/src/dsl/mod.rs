@@ -15,9 +15,9 @@
 //!              | "constants"   ":" "{" (name "=" const_expr),* ","? "}"     folded at compile time
 //!              | "lagrangian"  ":" expr                                     required
 //!              | "constraints" ":" "[" (expr),* ","? "]"                   optional; empty = none
-//!              | "forces"      ":" "{" (coordinate ":" expr),* ","? "}"    external force f(t,q,v)
-//!              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"  non-ideal force N(t,q,v,ψ)
-//!              | "events"      ":" "{" (name ":" event),* ","? "}"       zeros of g(t,q,v) to locate
+//!              | "forces"      ":" "{" (coordinate ":" expr),* ","? "}"    external force f(t,q,v); empty = none
+//!              | "nonideal_forces" ":" "{" (coordinate ":" expr),* ","? "}"  non-ideal force N(t,q,v,ψ); empty = none
+//!              | "events"      ":" "{" (name ":" event),* ","? "}"       zeros of g(t,q,v) to locate; empty = none
 //! event       := ("rising" | "falling" | "crossing")? "(" expr ")" "terminal"?
 //!              | expr "terminal"?                                      (crossing in both directions)
 //! expr        := sum

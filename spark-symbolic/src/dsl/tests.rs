@@ -146,6 +146,22 @@ fn sections_in_any_order_with_trailing_commas() {
 }
 
 #[test]
+fn empty_blocks_declare_nothing_as_absent_ones_do() {
+    let s = parse_str(
+        "struct U { coordinates: [x, y], parameters: {}, constraints: [], forces: {}, nonideal_forces: {}, \
+         events: {}, lagrangian: dot(x)^2 + dot(y)^2 }",
+    )
+    .unwrap();
+    assert!(s.parameters.is_empty() && s.constraints.is_empty() && s.events.is_empty());
+    assert!(s.external_force.is_empty(), "an empty `forces` block is no force, not N zero components");
+    assert!(s.nonideal_force.is_empty(), "an empty `nonideal_forces` block is no force");
+    // A stray comma is still an error, not an empty block.
+    let (msg, at) = error("struct U { coordinates: [x], lagrangian: dot(x)^2, forces: { , } }");
+    assert!(msg.contains("unexpected `,`"), "{msg}");
+    assert_eq!(at, ",");
+}
+
+#[test]
 fn parameter_defaults_are_evaluated() {
     let s = parse_str(
         "struct P { constants: { two = 2 }, coordinates: [x], parameters: { a = -two^2, b = atan2(1, 1)*4, c = sqrt(two)^2, d = 1e3 }, lagrangian: dot(x)^2 }",
