@@ -83,7 +83,7 @@ mod tests;
 pub use reversible::{integrate_reversible, integrate_reversible_with_events};
 
 use crate::driver::{declared_events, Observe, Observer, Trajectory};
-use crate::error::{OptionError, Sci, StepError};
+use crate::error::{Exact, OptionError, Sci, StepError};
 use crate::events::EventFunctions;
 use crate::initial::{consistent_acceleration, ConsistencyPolicy};
 use crate::step::{State, StepResult, Stepper};
@@ -256,7 +256,9 @@ pub struct EstimatedStep<const N: usize> {
 /// The weighted RMS norm of `(eq, ev)` with weights `atol + rtol·max(|a|, |b|)`.
 /// A zero error counts zero whatever its weight: with `atol = 0` a component
 /// that is zero at both ends has weight 0, and `0/0` would make the norm NaN
-/// (every step rejected) for a coordinate that merely stays at rest.
+/// (every step rejected) for a coordinate that merely stays at rest. Where
+/// the squares overflow the norm is `inf`, which [`initial_step`] reads as
+/// "no usable scale".
 fn scaled_norm<const N: usize>(
     eq: &Vector<N>,
     ev: &Vector<N>,
@@ -265,13 +267,51 @@ fn scaled_norm<const N: usize>(
     rtol: f64,
     atol: f64,
 ) -> f64 {
-    let mut sum = 0.0;
-    for i in 0..N {
+    let sum = scaled_ratios(eq, ev, a, b, rtol, atol).fold(0.0, |sum, (rq, rv)| sum + (rq.powi(2) + rv.powi(2)));
+    (sum / (2 * N).max(1) as f64).sqrt()
+}
+
+/// [`scaled_norm`] of a step's error estimate. Where the squares overflow
+/// (an error above about 1e154 of a tiny tolerance, as `atol = 1e-300`
+/// gives) the same norm is taken of the ratios over the largest one, so
+/// that the estimate a failure reports is the finite number it is, not
+/// `inf`; the controller shrinks the step by `min_factor` either way.
+/// Below that it is [`scaled_norm`], bit for bit.
+fn error_norm<const N: usize>(
+    eq: &Vector<N>,
+    ev: &Vector<N>,
+    a: &State<N>,
+    b: &State<N>,
+    rtol: f64,
+    atol: f64,
+) -> f64 {
+    let norm = scaled_norm(eq, ev, a, b, rtol, atol);
+    if norm.is_finite() {
+        return norm;
+    }
+    let ratios = scaled_ratios(eq, ev, a, b, rtol, atol);
+    let largest = ratios.clone().fold(0.0, |m: f64, (rq, rv)| m.max(rq.abs()).max(rv.abs()));
+    if !largest.is_finite() {
+        return largest;
+    }
+    let scaled = ratios.fold(0.0, |sum, (rq, rv)| sum + ((rq / largest).powi(2) + (rv / largest).powi(2)));
+    largest * (scaled / (2 * N).max(1) as f64).sqrt()
+}
+
+/// The ratios of [`scaled_norm`], `(eq_i / w_q,i, ev_i / w_v,i)` per coordinate.
+fn scaled_ratios<'a, const N: usize>(
+    eq: &'a Vector<N>,
+    ev: &'a Vector<N>,
+    a: &'a State<N>,
+    b: &'a State<N>,
+    rtol: f64,
+    atol: f64,
+) -> impl Iterator<Item = (f64, f64)> + Clone + 'a {
+    (0..N).map(move |i| {
         let wq = atol + rtol * a.q[i].abs().max(b.q[i].abs());
         let wv = atol + rtol * a.v[i].abs().max(b.v[i].abs());
-        sum += weighted(eq[i], wq).powi(2) + weighted(ev[i], wv).powi(2);
-    }
-    (sum / (2 * N).max(1) as f64).sqrt()
+        (weighted(eq[i], wq), weighted(ev[i], wv))
+    })
 }
 
 /// `e / w`, and 0 for `e = 0` (also where `w = 0`).
@@ -360,7 +400,7 @@ where
         let denominator = 2f64.powi(p) - 1.0;
         let error_q = (whole.q - end.q) / denominator;
         let error_v = (whole.v - end.v) / denominator;
-        let scaled_error = scaled_norm(&error_q, &error_v, state, &end, rtol, atol);
+        let scaled_error = error_norm(&error_q, &error_v, state, &end, rtol, atol);
         let sizes = [half, h - half];
         Ok((
             EstimatedStep { state: end, error_q, error_v, scaled_error, iterations },
@@ -416,7 +456,7 @@ pub enum AdaptiveError {
     #[error("{0}")]
     InvalidOption(OptionError),
     /// The interval is unusable.
-    #[error("invalid interval t0 = {}, t_end = {}: {reason}", Sci(*t0), Sci(*t_end))]
+    #[error("invalid interval t0 = {}, t_end = {}: {reason}", Exact(*t0), Exact(*t_end))]
     InvalidInterval {
         /// Start.
         t0: f64,
@@ -473,8 +513,8 @@ pub enum AdaptiveError {
     #[error(
         "{attempts} step attempts (the limit: AdaptiveOptions::max_steps, `--max-steps` of `spark run`) reached \
          t = {} of t_end = {}; raise the limit or loosen the tolerance",
-        Sci(*t),
-        Sci(*t_end)
+        Exact(*t),
+        Exact(*t_end)
     )]
     TooManySteps {
         /// Attempts made.
@@ -514,8 +554,8 @@ pub enum AdaptiveError {
          AdaptiveOptions::max_steps, `--max-steps` of `spark run`); raise max_step or the limit",
         Sci(*max_step),
         Sci(*needed),
-        Sci(*t0),
-        Sci(*t_end)
+        Exact(*t0),
+        Exact(*t_end)
     )]
     MaxStepTooSmall {
         /// The largest step allowed.

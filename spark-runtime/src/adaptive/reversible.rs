@@ -138,6 +138,14 @@ where
 /// The step size whose error estimate lies between ½ and 1 of the
 /// tolerance at `state` (a few estimates, none kept), from which a
 /// reversible run takes its scale `ε`.
+///
+/// Estimates above the tolerance shrink the step down to the floor, where
+/// the run ends with [`AdaptiveError::StepSizeTooSmall`] as
+/// [`integrate_adaptive`](super::integrate_adaptive) ends: a tolerance below
+/// what round-off lets a step meet must not hand the run a scale it never
+/// met. Growth is capped at [`MAX_GROWTHS`] rounds (noisy estimates can
+/// step over the bracket back and forth); the step returned then is the
+/// last one that met the tolerance.
 fn calibrate_step<Sys, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
     state: &State<N>,
@@ -153,7 +161,8 @@ where
     let mut h = first_step(stepper.system(), state, options, max_step);
     // The last error estimate (∞ after a Newton failure; NaN before the first).
     let mut last_err = f64::NAN;
-    for _ in 0..30 {
+    let mut growths = 0;
+    loop {
         let floor = step_floor(options, state.t);
         if h < floor {
             return Err(AdaptiveError::too_small(state.t, h, floor, last_err, None, *report));
@@ -166,7 +175,8 @@ where
                 last_err = err;
                 if err > 1.0 {
                     h *= (options.safety * err.powf(-1.0 / k)).clamp(options.min_factor, 1.0);
-                } else if err < 0.5 && h < max_step {
+                } else if err < 0.5 && h < max_step && growths < MAX_GROWTHS {
+                    growths += 1;
                     let grow = if err == 0.0 { options.max_factor } else { options.safety * err.powf(-1.0 / k) };
                     h = (h * grow.clamp(1.0, options.max_factor)).min(max_step);
                 } else {
@@ -187,6 +197,9 @@ where
     }
     Ok(h)
 }
+
+/// Rounds of [`calibrate_step`] that grow the step.
+const MAX_GROWTHS: usize = 30;
 
 fn reversible_loop<Sys, O, F, const N: usize, const M: usize, const S: usize, const D: usize>(
     stepper: &mut Stepper<Sys, N, M, S, D>,
