@@ -277,14 +277,7 @@ fn scaled_norm<const N: usize>(
 /// that the estimate a failure reports is the finite number it is, not
 /// `inf`; the controller shrinks the step by `min_factor` either way.
 /// Below that it is [`scaled_norm`], bit for bit.
-fn error_norm<const N: usize>(
-    eq: &Vector<N>,
-    ev: &Vector<N>,
-    a: &State<N>,
-    b: &State<N>,
-    rtol: f64,
-    atol: f64,
-) -> f64 {
+fn error_norm<const N: usize>(eq: &Vector<N>, ev: &Vector<N>, a: &State<N>, b: &State<N>, rtol: f64, atol: f64) -> f64 {
     let norm = scaled_norm(eq, ev, a, b, rtol, atol);
     if norm.is_finite() {
         return norm;

@@ -484,4 +484,3 @@ fn a_tolerance_that_asks_for_subnormal_steps_is_step_size_too_small() {
         }
     }
 }
-
