@@ -245,7 +245,15 @@ class Ensemble:
     :class:`Trajectory`), ``smallest_step`` and ``steps`` (accepted steps)
     ``(members,)``; for tolerance-driven members ``controller``, the fields
     of :class:`ControllerStats` as arrays ``(members,)`` (``None`` for
-    fixed steps)."""
+    fixed steps).
+
+    ``events`` holds one list per member of its located events
+    (:class:`Event`, in time order; every list empty unless the ensemble
+    asked for them with ``events=True``), and ``t_stop`` ``(members,)``
+    the time each member's run ended: ``t[-1]``, or the time of the
+    terminal event that ended it (then ``events[j][-1].terminal``). A
+    member's ``q``, ``v``, ``energy`` and ``constraint`` are NaN at the
+    sample times after its ``t_stop``."""
 
     t: np.ndarray
     q: np.ndarray
@@ -258,6 +266,8 @@ class Ensemble:
     smallest_step: np.ndarray | None = None
     steps: np.ndarray | None = None
     controller: dict[str, np.ndarray] | None = None
+    events: list[list[Event]] = field(default_factory=list)
+    t_stop: np.ndarray | None = None
 
     @property
     def energy_error(self) -> np.ndarray:
@@ -787,6 +797,7 @@ class System:
         max_step: float | None = None,
         max_steps: int | None = None,
         t_eval: Sequence[float] | np.ndarray | None = None,
+        events: bool = False,
     ) -> Ensemble:
         """Integrates every row of ``q0s``/``v0s`` (shape ``(members, N)``)
         with the same method, steps and parameters, on ``threads`` threads
@@ -813,8 +824,19 @@ class System:
         ``controller`` holds each member's statistics and ``steps`` its
         accepted steps. ``t_eval`` records fixed-step members the same way.
 
-        ``events`` are not located in an ensemble (a terminal event would end
-        the members at different times): call :meth:`integrate` per member.
+        ``events=True`` locates the events the system declares in every
+        member, as :meth:`integrate` does: each member then runs alone (one
+        run per member in parallel, never in SIMD lane groups), with fixed or
+        tolerance-driven steps, and its ``events`` (``result.events[j]``) and
+        samples are, bit for bit, those of :meth:`integrate` for it alone. A
+        terminal event ends its member only: the member keeps its samples at
+        the ensemble's sample times up to the event (the grid of ``every``
+        steps, or the initial point and the times of ``t_eval``; at the
+        event's time itself only when that is one of them) and is NaN at the
+        later ones (``q``, ``v``, ``energy``, ``constraint``); its state at
+        the event is ``events[j][-1]``, and ``t_stop[j]`` the event's time
+        where the members that ran to the end have ``t[-1]``. A system that
+        declares no events raises :class:`SparkError`.
         """
         q0s, v0s = _member_states(q0s, v0s)
         _member_width(q0s, self)
@@ -824,7 +846,15 @@ class System:
         req["q0s"] = q0s.tolist()
         req["v0s"] = v0s.tolist()
         req["threads"] = None if threads is None else _whole("threads", threads, 1, MAX_THREADS)
+        req["events"] = _flag("events", events)
         d = self._ensemble(req)
+        if "t_stop" not in d and req["events"]:
+            # A module built by an older spark.compile reads no `events` of an
+            # ensemble and returns neither events nor end times.
+            raise SparkError(
+                f"the module of {self.name} predates events in ensembles; delete its folder in spark.compile's "
+                "cache (SPARK_CACHE_DIR or ~/.cache/spark-python) and compile it again"
+            )
         controller = d.get("controller")
         if controller is None:
             _warn_halved_members(d["rejected_steps"], d["smallest_step"], "the ensemble's rejected_steps",
@@ -841,6 +871,8 @@ class System:
             smallest_step=d["smallest_step"],
             steps=d.get("steps"),
             controller=controller,
+            events=[[_event(e) for e in member] for member in d.get("events", [[]] * len(q0s))],
+            t_stop=d["t_stop"] if "t_stop" in d else np.full(len(q0s), d["t"][-1]),
         )
 
     def _ensemble_request(self, method, s, h, steps, params, t0, t_end, every, newton, newton_tol, max_halvings,

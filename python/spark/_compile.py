@@ -52,9 +52,10 @@ def cache_root(cache_dir: str | None = None) -> Path:
 
 #: The requests and results a module exchanges with this package (part of
 #: the cache key): a module cached before a change to them would ignore the
-#: new request keys (``rtol``, ``t_eval``, ``events`` of ``integrate``) and
-#: run something else than asked. Raise it whenever they change.
-MODULE_INTERFACE = "2: rtol, t_eval, events; events and controller in the result"
+#: new request keys (``rtol``, ``t_eval``, ``events`` of ``integrate`` and
+#: of ``ensemble``) and run something else than asked. Raise it whenever
+#: they change.
+MODULE_INTERFACE = "3: rtol, t_eval, events; events and controller in the result; ensemble events and t_stop"
 
 
 #: The most characters of the struct's name that the module's name keeps

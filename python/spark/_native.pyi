@@ -34,9 +34,11 @@ def ensemble(name: str, request: dict[str, Any]) -> dict[str, Any]:
     The request: that of `integrate` without `q0`, `v0` and with `q0s`,
     `v0s` (one row per member) and `threads`. The result: `t` (samples),
     `q`, `v` (members × samples × N), `energy`, `constraint` (members ×
-    samples), `e0`, `steps`, `newton_iterations_mean`, `rejected_steps`,
-    `smallest_step` (members) and `controller` (a dict of the controller's
-    statistics, one entry per member, `None` for fixed steps).
+    samples; NaN after a terminal event ended the member), `e0`, `steps`,
+    `newton_iterations_mean`, `rejected_steps`, `smallest_step`, `t_stop`
+    (the time each member's run ended) (members), `events` (one list of
+    `integrate`'s event dicts per member) and `controller` (a dict of the
+    controller's statistics, one entry per member, `None` for fixed steps).
     """
 
 def methods() -> list[tuple[str, str, int, int]]: ...

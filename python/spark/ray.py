@@ -118,6 +118,7 @@ def sweep(
     max_step: float | None = None,
     max_steps: int | None = None,
     t_eval: Sequence[float] | np.ndarray | None = None,
+    events: bool = False,
 ) -> SweepReport:
     """Integrates every row of ``q0s``/``v0s`` on Ray and writes ``out`` (Parquet).
 
@@ -154,7 +155,18 @@ def sweep(
     in which any member halved a step warns once with
     :class:`spark.StepHalvingWarning`. The report holds each member's
     halvings, accepted steps and (tolerance-driven) controller statistics.
+    ``events=True`` is refused with :class:`spark.ArgumentError`: the table
+    holds samples only, so the events would be lost; call
+    :func:`spark.ensemble` with ``events=True`` (per block of members).
     """
+    # Refused before anything else: a sweep that ran and dropped the events
+    # would look like one in which none occurred.
+    if spark._flag("events", events):
+        raise spark.ArgumentError(
+            "events=True is not taken by spark.ray.sweep: its Parquet table holds one row per member and sample, "
+            "with no place for the located events or the end of a member that a terminal event stops; call "
+            "spark.ensemble(..., events=True) (on blocks of members, in Ray tasks of your own if needed)"
+        )
     # Missing packages fail here, before any work.
     import pyarrow  # noqa: F401
     import ray  # noqa: F401

@@ -221,7 +221,7 @@ fn ensemble<'py>(py: Python<'py>, name: &str, request: &Bound<'py, PyDict>) -> P
             })
             .collect::<Vec<_>>())
     })?;
-    ensemble_to_py(py, runs)
+    ensemble_to_py(py, &r.run, runs)
 }
 
 /// The methods: `(key, name, smallest s, largest compiled s)`.

@@ -385,7 +385,9 @@ where
 /// The runs the lanes do not take go through [`integrate`] per member (in
 /// parallel over members): a request for the multipliers `ψ`, a
 /// tolerance-driven request, one with output times or events (as
-/// `problems::run::run_ensemble`), a request [`integrate`] rejects before
+/// `problems::run::run_ensemble`; each member is then its run alone bit
+/// for bit, events included, and one that a terminal event ends stops
+/// there alone), a request [`integrate`] rejects before
 /// stepping, and a member whose lane fails (it runs again alone, so that it
 /// gets [`integrate`]'s error; a lane retries a failed step cold and halves
 /// it up to `max_halvings` levels as [`integrate`]'s driver does, and counts
@@ -928,20 +930,7 @@ pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, Py
     d.set_item("substeps", c.substeps)?;
     d.set_item("smallest_step", c.smallest_step)?;
     d.set_item("rust_seconds", c.seconds)?;
-    let events = PyList::empty(py);
-    for e in c.events {
-        let row = PyDict::new(py);
-        row.set_item("name", e.name)?;
-        row.set_item("index", e.index)?;
-        row.set_item("rising", e.rising)?;
-        row.set_item("terminal", e.terminal)?;
-        row.set_item("t", e.t)?;
-        row.set_item("q", Array1::from_vec(e.q).into_pyarray(py))?;
-        row.set_item("v", Array1::from_vec(e.v).into_pyarray(py))?;
-        row.set_item("step", e.step)?;
-        events.append(row)?;
-    }
-    d.set_item("events", events)?;
+    d.set_item("events", events_to_py(py, c.events)?)?;
     match c.controller {
         None => d.set_item("controller", py.None())?,
         Some(a) => {
@@ -959,13 +948,111 @@ pub fn columns_to_py<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, Py
     Ok(d)
 }
 
-/// An ensemble as a dict: `t` (samples), `q`, `v` (members × samples × N),
-/// `energy`, `constraint` (members × samples), `e0`, `steps` (accepted
-/// steps), `newton_iterations_mean`, `rejected_steps`, `smallest_step`
-/// (members), and for tolerance-driven members `controller`, a dict of the
-/// controller's statistics with one entry per member (`None` for fixed
-/// steps).
-pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Bound<'py, PyDict>> {
+/// Located events as a list of dicts: `name`, `index`, `rising`,
+/// `terminal`, `t`, `q`, `v`, `step`.
+fn events_to_py(py: Python<'_>, events: Vec<EventRow>) -> PyResult<Bound<'_, PyList>> {
+    let list = PyList::empty(py);
+    for e in events {
+        let row = PyDict::new(py);
+        row.set_item("name", e.name)?;
+        row.set_item("index", e.index)?;
+        row.set_item("rising", e.rising)?;
+        row.set_item("terminal", e.terminal)?;
+        row.set_item("t", e.t)?;
+        row.set_item("q", Array1::from_vec(e.q).into_pyarray(py))?;
+        row.set_item("v", Array1::from_vec(e.v).into_pyarray(py))?;
+        row.set_item("step", e.step)?;
+        list.append(row)?;
+    }
+    Ok(list)
+}
+
+/// The times every member of an ensemble of `r` records at, as its run
+/// alone records them: the initial point and each output time, or for
+/// fixed steps recorded at the steps `t0 + k·h` for every `every`-th `k`
+/// and the last (the driver's scheduled times). `None` for a
+/// tolerance-driven ensemble without output times, whose members record
+/// at their own accepted steps.
+fn common_times(r: &IntegrateRequest) -> Option<Vec<f64>> {
+    match (&r.times, r.tolerance) {
+        (Some(times), _) => Some(std::iter::once(r.t0).chain(times.iter().copied()).collect()),
+        (None, Some(_)) => None,
+        (None, None) => {
+            let every = r.every.max(1);
+            let grid = (every..r.steps).step_by(every).chain(std::iter::once(r.steps));
+            Some(std::iter::once(r.t0).chain(grid.map(|k| r.t0 + k as f64 * r.h)).collect())
+        }
+    }
+}
+
+/// Member `j`'s run `c` on the ensemble's common `times`. A run that went
+/// to its end recorded at exactly these times and is returned as it is. A
+/// run that a terminal event ended recorded a prefix of them and then the
+/// event's state at its time: it keeps the samples at the times of that
+/// prefix (the event's own sample too when its time is one of them) and
+/// gets NaN at the later times. Anything else is a failure: the member
+/// recorded at other times than the ensemble's.
+fn on_common_times(j: usize, mut c: Columns, times: &[f64]) -> Result<Columns, Failure> {
+    let same = |a: &f64, b: &f64| a.to_bits() == b.to_bits();
+    let kept = c.t.iter().zip(times).take_while(|(a, b)| same(a, b)).count();
+    if kept == times.len() && c.t.len() == kept {
+        return Ok(c);
+    }
+    let ended = c.events.last().zip(c.t.last()).is_some_and(|(e, t)| e.terminal && same(&e.t, t));
+    if !ended || kept + 1 < c.t.len() {
+        return Err(format!(
+            "member {j} recorded {} samples at times other than the ensemble's {} (a bug: please report it)",
+            c.t.len(),
+            times.len()
+        ));
+    }
+    let (n, m, k) = (c.n, c.m, times.len());
+    let pad = |x: &mut Vec<f64>, width: usize| {
+        x.truncate(kept * width);
+        x.resize(k * width, f64::NAN);
+    };
+    c.t = times.to_vec();
+    pad(&mut c.q, n);
+    pad(&mut c.v, n);
+    pad(&mut c.energy, 1);
+    pad(&mut c.constraint, 1);
+    if !c.psi.is_empty() {
+        pad(&mut c.psi, m);
+    }
+    if !c.holonomic.is_empty() {
+        pad(&mut c.holonomic, 1);
+    }
+    Ok(c)
+}
+
+/// The members of an ensemble of `r` on common sample times, with the time
+/// each member's run ended (its last sample's, before any NaN is added).
+/// Without events every member records at the same times; with events a
+/// member that a terminal event ended is put on the ensemble's times by
+/// [`on_common_times`].
+pub fn ensemble_members(r: &IntegrateRequest, runs: Vec<Columns>) -> Result<(Vec<f64>, Vec<Columns>), Failure> {
+    let t_stop = runs.iter().map(|c| c.t.last().copied().unwrap_or(f64::NAN)).collect();
+    let runs = match common_times(r) {
+        Some(times) if r.events => {
+            runs.into_iter().enumerate().map(|(j, c)| on_common_times(j, c, &times)).collect::<Result<_, _>>()?
+        }
+        _ => runs,
+    };
+    Ok((t_stop, runs))
+}
+
+/// An ensemble of `r` as a dict: `t` (samples), `q`, `v` (members ×
+/// samples × N), `energy`, `constraint` (members × samples), `e0`, `steps`
+/// (accepted steps), `newton_iterations_mean`, `rejected_steps`,
+/// `smallest_step`, `t_stop` (the time each member's run ended: a terminal
+/// event's, or the end of the run) (members), `events` (per member, a list
+/// of its located events as `columns_to_py` gives them; empty lists
+/// without events), and for tolerance-driven members `controller`, a dict
+/// of the controller's statistics with one entry per member (`None` for
+/// fixed steps). A member that a terminal event ended is NaN at the
+/// sample times after it ([`ensemble_members`]).
+pub fn ensemble_to_py<'py>(py: Python<'py>, r: &IntegrateRequest, runs: Vec<Columns>) -> PyResult<Bound<'py, PyDict>> {
+    let (t_stop, runs) = ensemble_members(r, runs).map_err(|e| spark_error(py, e))?;
     let d = PyDict::new(py);
     let members = runs.len();
     let (k, n) = runs.first().map_or((0, 0), |c| (c.t.len(), c.n));
@@ -986,7 +1073,9 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
         return Err(spark_error(py, "ensemble members recorded their samples at different times"));
     }
     let reports: Option<Vec<AdaptiveReport>> = runs.iter().map(|c| c.controller).collect();
+    let events = PyList::empty(py);
     for c in runs {
+        events.append(events_to_py(py, c.events)?)?;
         steps.push(c.steps as u64);
         rejected.push(c.rejected_steps as u64);
         smallest.push(c.smallest_step);
@@ -1008,6 +1097,8 @@ pub fn ensemble_to_py<'py>(py: Python<'py>, runs: Vec<Columns>) -> PyResult<Boun
     d.set_item("rejected_steps", Array1::from_vec(rejected).into_pyarray(py))?;
     d.set_item("smallest_step", Array1::from_vec(smallest).into_pyarray(py))?;
     d.set_item("steps", Array1::from_vec(steps).into_pyarray(py))?;
+    d.set_item("t_stop", Array1::from_vec(t_stop).into_pyarray(py))?;
+    d.set_item("events", events)?;
     match reports {
         Some(reports) if members > 0 => {
             let count = |f: fn(&AdaptiveReport) -> usize| {
@@ -1184,7 +1275,7 @@ macro_rules! export_system {
             $crate::configured::<$ty, $n, $m>(&r.run.parameters).map_err(|e| $crate::argument_error(py, e))?;
             $crate::check_members(py, &r, $n)?;
             let c = $crate::interruptible(py, |stop| __spark_dispatch::ensemble(&r, stop))?;
-            $crate::ensemble_to_py(py, c)
+            $crate::ensemble_to_py(py, &r.run, c)
         }
 
         #[$crate::pyo3::pymodule]
