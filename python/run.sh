@@ -79,6 +79,8 @@ echo "    clean install and import: $(took "$t")"
 "$PY" -m pip install --disable-pip-version-check --quiet --force-reinstall --no-deps "$wheel"
 echo "==> pytest python/tests"
 t=$(stamp)
+# --durations: the ten slowest tests close the log, so that a run that got
+# slower says where (the spark.compile builds are most of the stage).
 CARGO_TARGET_DIR="$target_dir" SPARK_CARGO_TARGET_DIR="$target_dir" \
-    "$PY" -m pytest python/tests -q -p no:cacheprovider || fail "pytest failed."
+    "$PY" -m pytest python/tests -q -p no:cacheprovider --durations=10 || fail "pytest failed."
 echo "    pytest: $(took "$t")"
