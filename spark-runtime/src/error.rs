@@ -4,14 +4,34 @@ use std::fmt;
 
 /// Displays a float in compact scientific notation, `{:.3e}` unless the
 /// format asks for another precision (`{:.6}` gives `{:.6e}`): every float
-/// in an error message goes through it, so `h = 1e300` prints as `1.000e300`
-/// instead of a 301-digit number.
+/// in an error message goes through it or [`Exact`], so `h = 1e300` prints
+/// as `1.000e300` instead of a 301-digit number.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Sci(pub(crate) f64);
 
 impl fmt::Display for Sci {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{:.*e}", f.precision().unwrap_or(3), self.0)
+    }
+}
+
+/// Displays a float with every digit that tells it apart from its
+/// neighbours (the shortest form that reads back as the same `f64`), in
+/// scientific notation outside `1e-4 ≤ |x| < 1e16` (`1e300`, not 301
+/// digits). For the numbers a message compares, such as the ends of an
+/// interval or an energy against its start value: three digits print
+/// `t0 = 1e17` and `t_end = 1e17 + 16` alike.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Exact(pub(crate) f64);
+
+impl fmt::Display for Exact {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let x = self.0;
+        if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
+            write!(f, "{x}")
+        } else {
+            write!(f, "{x:e}")
+        }
     }
 }
 
@@ -236,15 +256,15 @@ pub enum StepError {
     /// only when [`NewtonOptions::energy_drift_limit`](crate::NewtonOptions)
     /// is set (the default).
     #[error(
-        "energy drift in the step from t = {} with h = {}: E = {:.6} against E0 = {:.6} at \
+        "energy drift in the step from t = {} with h = {}: E = {} against E0 = {} at \
          the start of the continued steps, |E - E0| = {} > {} = energy_drift_limit x (|E0| + |p0.v0|); E is a first \
          integral of this system, so the discrete map does not keep it at this step size (an unstable map, e.g. \
          a stiff mode beyond the method's stability range, or the drift of a non-reversible system): reduce h, \
          use a method stable there, or set NewtonOptions::energy_drift_limit to None to continue regardless",
         Sci(*t),
         Sci(*h),
-        Sci(*energy),
-        Sci(*energy0),
+        Exact(*energy),
+        Exact(*energy0),
         Sci((energy - energy0).abs()),
         Sci(*bound)
     )]
@@ -286,7 +306,7 @@ pub enum StepError {
     /// the size of the terms of `k_i` (at least 1). Such a step enforces
     /// `k = 0` at its end at once, an impulse that changes the energy.
     #[error(
-        "the step from t = {t:.6e} starts cold (not where the stepper's previous step ended) at a state that \
+        "the step from t = {t:.3e} starts cold (not where the stepper's previous step ended) at a state that \
          violates the constraints: max |k_i(t,q,v)| = {residual:.3e} > {tolerance:.3e} (consistency_tolerance x \
          the size of the terms of k); project v onto the constraints first with \
          spark_runtime::consistent_velocity(.., ConsistencyPolicy::Project {{ .. }}) (integrate does this with \
@@ -348,7 +368,7 @@ pub enum StepError {
     /// working precision there and a step would return a meaningless
     /// constraint force.
     #[error(
-        "the constraint rows K = dk/dv are dependent at the start of the step from t = {t:.6e}: condition number \
+        "the constraint rows K = dk/dv are dependent at the start of the step from t = {t:.3e}: condition number \
          of K W^-1 K^T = {condition:.3e} > {limit:.3e} (W = the mass matrix), so the multipliers are not \
          determined there; start from a configuration where the constraints are independent, or remove the \
          redundant constraint"
@@ -488,4 +508,38 @@ fn non_finite_message(t: f64, h: f64, stage: &str, history: &NewtonHistory) -> S
         Sci(t),
         Sci(h)
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::adaptive::AdaptiveError;
+    use crate::plan::PlanError;
+
+    /// Numbers a message compares print with every digit that tells them
+    /// apart: far from t = 0 the two ends of an interval, and an energy
+    /// near its start value, differ beyond the fourth digit.
+    #[test]
+    fn compared_numbers_print_every_digit_that_tells_them_apart() {
+        let (t0, t_end) = (1e17, 1e17 + 16.0);
+        let interval = AdaptiveError::InvalidInterval { t0, t_end, reason: "r" }.to_string();
+        assert!(interval.contains("t0 = 1e17, t_end = 1.0000000000000002e17"), "{interval}");
+        let outside = PlanError::TimeOutsideInterval { t: 1e17 + 32.0, t0, t_end }.to_string();
+        assert!(outside.contains("t = 1.0000000000000003e17 lies outside the interval from t0 = 1e17"), "{outside}");
+        let drift = StepError::EnergyDrift { t: 2.5, h: 0.1, energy0: 0.5, energy: 0.5000001, bound: 1e-8 }.to_string();
+        assert!(drift.contains("E = 0.5000001 against E0 = 0.5 at"), "{drift}");
+        // Every digit, but not hundreds of them.
+        assert_eq!(Exact(1e300).to_string(), "1e300");
+        assert_eq!(Exact(-2.5e-7).to_string(), "-2.5e-7");
+        assert_eq!((Exact(0.0).to_string(), Exact(f64::NAN).to_string()), ("0".to_string(), "NaN".to_string()));
+    }
+
+    /// The other floats of the messages have one style, three decimals.
+    #[test]
+    fn other_floats_print_with_three_decimals() {
+        let cold = StepError::InconsistentStart { t: 1e300, residual: 0.5, tolerance: 1e-12 }.to_string();
+        assert!(cold.contains("from t = 1.000e300 starts cold"), "{cold}");
+        let dependent = StepError::DependentConstraints { t: 2.0, condition: 1e17, limit: 1e14 }.to_string();
+        assert!(dependent.contains("from t = 2.000e0: condition number"), "{dependent}");
+    }
 }

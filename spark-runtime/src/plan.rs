@@ -10,7 +10,7 @@ use crate::adaptive::{
     integrate_adaptive_at, integrate_adaptive_with_events, AdaptiveError, AdaptiveOptions, AdaptiveReport,
 };
 use crate::driver::{check_record_size, check_step_size, IntegrationError, Observer, RunOptions, Schedule, Trajectory};
-use crate::error::Sci;
+use crate::error::Exact;
 use crate::events::{EventFunctions, EventRecord, NoEvents, SystemEvents};
 use crate::step::Stepper;
 use crate::system::{NonholonomicSystem, Vector};
@@ -209,9 +209,9 @@ pub enum PlanError {
     /// An output time lies outside the run's interval.
     #[error(
         "output time t = {} lies outside the interval from t0 = {} to t_end = {}; give times within it",
-        Sci(*t),
-        Sci(*t0),
-        Sci(*t_end)
+        Exact(*t),
+        Exact(*t0),
+        Exact(*t_end)
     )]
     TimeOutsideInterval {
         /// The output time.

@@ -56,7 +56,7 @@ mod tests;
 
 pub use acceleration::acceleration;
 
-use crate::error::Sci;
+use crate::error::{Exact, Sci};
 use crate::system::{NonholonomicSystem, Vector};
 use gbs::{Gbs, State};
 
@@ -92,7 +92,7 @@ pub enum ReferenceError {
     #[error("invalid reference option: {0}")]
     InvalidOptions(String),
     /// Output times must be finite and ordered in the direction of integration.
-    #[error("output times must be finite and monotone away from t0 = {}; offending time {}", Sci(*t0), Sci(*time))]
+    #[error("output times must be finite and monotone away from t0 = {}; offending time {}", Exact(*t0), Exact(*time))]
     InvalidTimes {
         /// Initial time.
         t0: f64,
