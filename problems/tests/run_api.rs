@@ -132,12 +132,31 @@ fn an_interval_that_is_not_a_whole_number_of_steps_is_refused_at_any_length() {
     let err = step_count(0.0, 1e12, 0.1).unwrap_err();
     assert!(err.contains("more than 1e10"), "{err}");
     let err = step_count(0.0, 50_000_000.05, 0.1).unwrap_err();
-    assert!(err.contains("not a whole number") && err.contains("--t-end 5e7 or 5.00000001e7"), "{err}");
-    assert!(step_count(0.0, 5_000_000.05, 0.1).unwrap_err().contains("--t-end 5e6 or 5.0000001e6"));
+    assert!(err.contains("not a whole number") && err.contains("--t-end 50000000 or 50000000.1"), "{err}");
+    assert!(step_count(0.0, 5_000_000.05, 0.1).unwrap_err().contains("--t-end 5000000 or 5000000.1"));
     // Half a step rounds to one: the one end that is a whole number of
     // steps is named once, and its count in the singular.
     let err = step_count(0.0, 0.05, 0.1).unwrap_err();
-    assert!(err.contains("use --t-end 1e-1, or --h 5e-2 (1 step)"), "{err}");
+    assert!(err.contains("use --t-end 0.1, or --h 0.05 (1 step)"), "{err}");
+}
+
+/// Far from t = 0 the given ends of an interval differ beyond fifteen
+/// digits (at 1e17 by 16, one unit in the last place): the refusals print
+/// them with every digit, as the suggested ends when fifteen would print
+/// one of them as the given end.
+#[test]
+fn a_refused_interval_far_from_zero_prints_its_ends_apart() {
+    use problems::cli::step_count;
+    let (t0, t_end) = (1e17, 1e17 + 16.0);
+    let err = step_count(t0, t_end, 1000.0).unwrap_err();
+    assert!(
+        err.contains("from t0 = 1e17 to --t-end 1.0000000000000002e17 is shorter than one step of --h 1000;"),
+        "{err}"
+    );
+    let t_end = 1e17 + 1024.0;
+    let err = step_count(t0, t_end, 1000.0).unwrap_err();
+    assert!(err.contains("from t0 = 1e17 to --t-end 1.0000000000000102e17 is 1.024 steps of --h 1000,"), "{err}");
+    assert!(err.contains("use --t-end 1.00000000000001e17 or 1.00000000000002e17, or --h 512 (2 steps)"), "{err}");
 }
 
 /// A run or an ensemble whose record would not fit in memory is refused

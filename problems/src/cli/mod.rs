@@ -18,6 +18,7 @@ pub mod stress;
 pub mod work_precision;
 
 use crate::catalog::nearest;
+use crate::report::format::exact;
 use clap::{Parser, Subcommand, ValueEnum};
 use spark_runtime::{Method, NewtonMode};
 
@@ -190,8 +191,11 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
     let steps = ratio.round();
     if steps < 1.0 {
         return Err(format!(
-            "the interval from t0 = {t0:.6e} to --t-end {t_end:.6e} is shorter than one step of --h {h:.6e}; \
-             use a later --t-end or a smaller --h"
+            "the interval from t0 = {} to --t-end {} is shorter than one step of --h {}; use a later --t-end or a \
+             smaller --h",
+            exact(t0),
+            exact(t_end),
+            exact(h)
         ));
     }
     // Relative to the step count, capped at a thousandth of a step: beyond
@@ -214,9 +218,13 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
         // Fifteen digits hide round-off noise, but far from t = 0 they can
         // print two different ends alike: then every digit.
         let ends = if below == above || low == high {
-            digits(high)
+            if digits(high) == digits(t_end) {
+                exact(high)
+            } else {
+                digits(high)
+            }
         } else if digits(low) == digits(high) || digits(low) == digits(t_end) || digits(high) == digits(t_end) {
-            format!("{low:e} or {high:e}")
+            format!("{} or {}", exact(low), exact(high))
         } else {
             format!("{} or {}", digits(low), digits(high))
         };
@@ -224,25 +232,21 @@ pub fn step_count(t0: f64, t_end: f64, h: f64) -> Result<usize, String> {
         return Err(format!(
             "the interval from t0 = {} to --t-end {} is {} steps of --h {}, not a whole number; use --t-end {ends}, \
              or --h {} ({count})",
-            digits(t0),
-            digits(t_end),
+            // The values given, every digit: fifteen print t0 = 1e17 and
+            // --t-end 1e17 + 16 alike.
+            exact(t0),
+            exact(t_end),
             digits(ratio),
-            digits(h),
+            exact(h),
             digits((t_end - t0) / above),
         ));
     }
     Ok(steps as usize)
 }
 
-/// `x` in scientific notation with up to 15 significant digits and no
-/// trailing zeros (`3e-1` for `0.30000000000000004`, `5.00000001e7`): as
+/// `x` rounded to 15 significant digits, written as [`exact`] writes
+/// numbers (`0.3` for `0.30000000000000004`, `50000000.1`, `1e17`): as
 /// many digits as tell nearby suggestions apart, without round-off noise.
 fn digits(x: f64) -> String {
-    let s = format!("{x:.14e}");
-    match s.split_once('e') {
-        Some((mantissa, exponent)) if mantissa.contains('.') => {
-            format!("{}e{exponent}", mantissa.trim_end_matches('0').trim_end_matches('.'))
-        }
-        _ => s,
-    }
+    exact(format!("{x:.14e}").parse().unwrap_or(x))
 }

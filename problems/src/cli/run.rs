@@ -5,6 +5,7 @@
 use super::{parse_method, parse_params, step_count, step_flag, Format, Newton};
 use crate::catalog::{declared_events, lookup, systems_with_events};
 use crate::report::files::{OutputDir, OutputError};
+use crate::report::format::exact;
 use crate::report::progress::Progress;
 use crate::run::files::{
     json_trajectory_bytes, run_figure, write_events_csv, write_run_csv, write_run_json, MAX_JSON_TRAJECTORY_BYTES,
@@ -140,13 +141,15 @@ fn sample_count(t0: f64, t_end: f64, dt: f64) -> Result<usize, String> {
     let count = ((t_end - t0) / dt * (1.0 + 1e-12) + 1e-6).floor();
     if count.is_nan() || count < 1.0 {
         return Err(format!(
-            "--sample-every {dt:.6e} is longer than the interval from t0 = {t0:.6e} to t_end = {t_end:.6e}; give a \
-             smaller DT"
+            "--sample-every {} is longer than the interval from t0 = {} to t_end = {}; give a smaller DT",
+            exact(dt),
+            exact(t0),
+            exact(t_end)
         ));
     }
     if count > MAX_SAMPLE_TIMES {
         return Err(format!(
-            "--sample-every {dt:.6e} makes {count:.3e} output times, more than {MAX_SAMPLE_TIMES:.0e}; give a larger DT"
+            "--sample-every {dt:.3e} makes {count:.3e} output times, more than {MAX_SAMPLE_TIMES:.0e}; give a larger DT"
         ));
     }
     Ok(count as usize)
@@ -163,8 +166,9 @@ fn sample_times(t0: f64, t_end: f64, dt: f64, count: usize) -> Result<Vec<f64>, 
     times.dedup();
     if times.windows(2).any(|w| w[1] <= w[0]) || times.first().is_some_and(|&t| t <= t0) {
         return Err(format!(
-            "--sample-every {dt:.6e} is below the resolution of t near t0 = {t0:.6e}: the output times repeat; \
-             give a larger DT"
+            "--sample-every {} is below the resolution of t near t0 = {}: the output times repeat; give a larger DT",
+            exact(dt),
+            exact(t0)
         ));
     }
     Ok(times)
@@ -333,7 +337,7 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
     }
     let t_end = match a.t_end {
         Some(t_end) if !(t_end.is_finite() && t_end > t0) => {
-            return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));
+            return Err(format!("--t-end must be a number greater than t0 = {}, got {}", exact(t0), exact(t_end)));
         }
         Some(t_end) => t_end,
         // Only a --t0 far from 0 makes the default end fall on t0 (or
@@ -342,10 +346,12 @@ pub fn run_command(a: RunArgs) -> Result<String, String> {
             t_end if t_end.is_finite() && t_end > t0 => t_end,
             t_end => {
                 return Err(format!(
-                    "--t0 {t0:.6e} leaves no interval to run: the default end, t0 + {} (the system's run length, \
-                     see `spark list`), is {t_end:.6e}, not after t0 at this magnitude; give a --t-end greater \
-                     than --t0, or a --t0 nearer 0",
-                    entry.t_end
+                    "--t0 {} leaves no interval to run: the default end, t0 + {} (the system's run length, see \
+                     `spark list`), is {}, not after t0 at this magnitude; give a --t-end greater than --t0, or a \
+                     --t0 nearer 0",
+                    exact(t0),
+                    exact(entry.t_end),
+                    exact(t_end)
                 ));
             }
         },

@@ -7,6 +7,7 @@ use crate::experiments::section::{
     default_axes, find_event, parse_axis, run_section, write_section, SectionSpec, MAX_SECTION_MEMBERS,
 };
 use crate::report::files::OutputDir;
+use crate::report::format::exact;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -78,7 +79,7 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
     spark_runtime::check_step_size(t0, h).map_err(|why| format!("{} from t0 = {t0:.3e}: {why}", step_flag(a.h, h)))?;
     let t_end = a.t_end.unwrap_or(t0 + entry.t_end);
     if !(t_end.is_finite() && t_end > t0) {
-        return Err(format!("--t-end must be a number greater than t0 = {t0:.6e}, got {t_end:.3e}"));
+        return Err(format!("--t-end must be a number greater than t0 = {}, got {}", exact(t0), exact(t_end)));
     }
     if a.stages == 0 {
         return Err("--stages must be at least 1".into());
@@ -90,10 +91,12 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
     // Every member takes every step: the work is their product.
     if steps as f64 * a.members as f64 > super::MAX_STEPS {
         return Err(format!(
-            "--members {} × {steps} steps (t = {t0:.6e} … {t_end:.6e} with h = {h:.3e}) is {:.3e} steps in all, \
+            "--members {} × {steps} steps (t = {} … {} with h = {h:.3e}) is {:.3e} steps in all, \
              more than {:.0e}, the most one section takes (hours at 0.1–1 µs per step); use fewer --members, a \
              shorter --t-end or a larger --h",
             a.members,
+            exact(t0),
+            exact(t_end),
             steps as f64 * a.members as f64,
             super::MAX_STEPS
         ));
@@ -116,30 +119,35 @@ pub fn section_command(a: SectionArgs) -> Result<String, String> {
     let section = run_section(&spec).map_err(|e| e.to_string())?;
     if section.points.is_empty() {
         return Err(format!(
-            "no member crossed `{}` ({} = 0, {:?}) by t = {t_end:.6e}: there is no crossing of the event to plot; \
+            "no member crossed `{}` ({} = 0, {:?}) by t = {}: there is no crossing of the event to plot; \
              integrate longer with --t-end, or choose another event",
-            section.event, section.source, section.direction
+            section.event,
+            section.source,
+            section.direction,
+            exact(t_end)
         ));
     }
     write_section(&section, &spec, (x, y), &mut out).map_err(|e| e.to_string())?;
     let files = out.commit().map_err(|e| e.to_string())?;
     let mut text = format!(
-        "{} {} ({}): {} crossings of {} = 0 in {} member(s) to t = {t_end}, max |g| = {:.3e}\n",
+        "{} {} ({}): {} crossings of {} = 0 in {} member(s) to t = {}, max |g| = {:.3e}\n",
         entry.name,
         section.event,
         method.name(),
         section.points.len(),
         section.source,
         a.members,
+        exact(t_end),
         section.max_residual()
     );
     let halved = section.rejected_steps.iter().filter(|&&r| r > 0).count();
     if halved > 0 {
         text.push_str(&format!(
-            "steps halved: {halved} of {} member(s) halved steps whose Newton iteration failed at h = {h} ({} \
+            "steps halved: {halved} of {} member(s) halved steps whose Newton iteration failed at h = {} ({} \
              halvings in all; section.json's rejected_steps_per_member): their crossings are not those of fixed \
              steps h alone; use a smaller --h, or --max-halvings 0 to make such a step an error\n",
             a.members,
+            exact(h),
             section.rejected_steps.iter().sum::<usize>()
         ));
     }

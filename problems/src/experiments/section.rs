@@ -200,7 +200,7 @@ pub enum SectionError {
     Run(Box<RunError>),
     /// The members crossed the event more often than a section can keep.
     #[error(
-        "the members crossed `{event}` more than {limit} times before t = {t:.6e} (the most crossings a section \
+        "the members crossed `{event}` more than {limit} times before t = {t:.3e} (the most crossings a section \
          keeps in memory: {bytes} bytes of 4 GiB or half the available memory); use fewer --members, a shorter \
          --t-end, or a step that is not close to a multiple of the crossings' period (a larger --h can cross \
          several times a step)",

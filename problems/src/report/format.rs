@@ -1,5 +1,6 @@
 //! Number formats of tables, reports and figures, one of each: scientific
-//! ([`sci`]), durations ([`duration`]), short decimals ([`short`]), and the
+//! ([`sci`]), every digit ([`exact`]), durations ([`duration`]), short
+//! decimals ([`short`]), and the
 //! point lists of log-scale figures ([`log_points`], [`thin`]).
 
 /// `x` in scientific notation with three decimals (`1.234e-5`).
@@ -10,6 +11,19 @@ pub fn sci(x: f64) -> String {
 /// `x` in scientific notation with `digits` decimals.
 pub fn sci_digits(x: f64, digits: usize) -> String {
     format!("{x:.digits$e}")
+}
+
+/// `x` with every digit that tells it apart (shortest round trip), in
+/// scientific notation beyond `1e-4 ≤ |x| < 1e16`, where the positional
+/// form would run to hundreds of digits (`1e300`, not 301 digits). For
+/// numbers a reader compares, such as the two ends of an interval far from
+/// t = 0, which [`sci`] prints alike.
+pub fn exact(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }
 
 /// A number without accumulated rounding noise (`12.600000000000001` → `12.6`).

@@ -20,6 +20,7 @@ pub use ensemble::{run_ensemble, run_ensemble_with, EnsembleError, MAX_ENSEMBLE_
 
 use crate::catalog::{lookup, nearest, Dispatch, LookupError, StageVisitor, SystemEntry, SystemKind, SystemVisitor};
 use crate::report::clock::thread_cpu_time;
+use crate::report::format::exact;
 use spark_runtime::{
     check_positive_kinetic_energy, consistent_velocity, event_rows, integrate_plan, AdaptiveReport, ConsistencyPolicy,
     EventRow, IntegrationError, LaneStatus, LaneStepper, Method, NewtonOptions, NonholonomicSystem, Observe, PlanError,
@@ -680,17 +681,6 @@ fn run_result<const N: usize, const M: usize>(
     }
 }
 
-/// `x` with every digit that tells it apart (shortest round trip), in
-/// scientific notation beyond `1e-4 ≤ |x| < 1e16`, where the positional
-/// form would run to hundreds of digits (`1e300`, not 301 digits).
-fn number(x: f64) -> String {
-    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
-        format!("{x}")
-    } else {
-        format!("{x:e}")
-    }
-}
-
 /// What the report says of the steps that were halved: a run with any is
 /// not a run of fixed steps `h` alone.
 fn halvings(s: &RunStats) -> String {
@@ -704,7 +694,7 @@ fn halvings(s: &RunStats) -> String {
         s.steps,
         s.substeps,
         s.rejected_steps,
-        number(s.smallest_step)
+        exact(s.smallest_step)
     )
 }
 
@@ -724,7 +714,7 @@ fn events_summary(events: &[EventRow]) -> String {
     let each: Vec<String> = counts.iter().map(|(name, k)| format!("`{name}` {k}")).collect();
     let mut text = format!("{} in events.csv: {}", events.len(), each.join(", "));
     if let Some(last) = events.last().filter(|e| e.terminal) {
-        text.push_str(&format!("; the terminal event `{}` ended the run at t = {}", last.name, number(last.t)));
+        text.push_str(&format!("; the terminal event `{}` ended the run at t = {}", last.name, exact(last.t)));
     }
     text
 }
@@ -755,12 +745,12 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
                 format!(
                     "{} accepted, step sizes {} … {} (t = {} … {}); rtol = {}, atol = {}",
                     c.accepted,
-                    number(c.smallest_step),
-                    number(c.largest_step),
-                    number(spec.t0),
-                    number(t_end),
-                    number(tol.rtol),
-                    number(tol.atol)
+                    exact(c.smallest_step),
+                    exact(c.largest_step),
+                    exact(spec.t0),
+                    exact(t_end),
+                    exact(tol.rtol),
+                    exact(tol.atol)
                 ),
             );
             row(
@@ -775,7 +765,7 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
         _ => row(
             &mut out,
             "steps × h",
-            format!("{} × {} (t = {} … {})", s.steps, number(spec.h), number(spec.t0), number(t_end)),
+            format!("{} × {} (t = {} … {})", s.steps, exact(spec.h), exact(spec.t0), exact(t_end)),
         ),
     }
     if let Some(times) = &spec.times {
@@ -785,13 +775,13 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
             format!(
                 "the initial point and {} output times ({} … {}) from the continuous extension",
                 times.len(),
-                number(times[0]),
-                number(times[times.len() - 1])
+                exact(times[0]),
+                exact(times[times.len() - 1])
             ),
         );
     }
     if !spec.parameters.is_empty() {
-        let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {}", number(*v))).collect();
+        let p: Vec<String> = spec.parameters.iter().map(|(n, v)| format!("{n} = {}", exact(*v))).collect();
         row(&mut out, "parameters set", p.join(", "));
     }
     row(&mut out, "q0", format!("{:?}", spec.q0));
@@ -806,7 +796,7 @@ pub fn run_report(result: &RunResult, spec: &RunSpec) -> String {
             format!("{:?}", integrated.unwrap_or_default()),
         );
     }
-    row(&mut out, "E0", number(s.e0));
+    row(&mut out, "E0", exact(s.e0));
     let conserved = entry.structure.autonomous() && !entry.effects.does_work();
     row(
         &mut out,
