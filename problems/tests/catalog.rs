@@ -365,3 +365,53 @@ fn spark_list_names_the_systems_where_the_modified_lobatto_is_first_order() {
         assert!(!line.contains("separable"), "{line}");
     }
 }
+
+/// `spark list --json` carries the orders the text listing prints: per
+/// system, each method's order at each stage count as the drivers take it
+/// ([`Method::order_for`], so the modified Lobatto IIIA-B is of order 1 on
+/// the systems the text names), and per method the order the paper states.
+#[test]
+fn spark_list_json_gives_each_methods_order_per_system() {
+    use problems::cli::list::{list, ListArgs};
+    let v: serde_json::Value = serde_json::from_str(&list(ListArgs { json: true }).unwrap()).unwrap();
+    let systems = v["systems"].as_array().unwrap();
+    assert_eq!(systems.len(), entries().len());
+    for (json, e) in systems.iter().zip(entries()) {
+        assert_eq!(json["name"], e.name);
+        let orders = json["orders"].as_object().unwrap_or_else(|| panic!("{}: no orders in {json}", e.name));
+        assert_eq!(orders.len(), Method::ALL.len(), "{}", e.name);
+        for m in Method::ALL {
+            let (lo, hi) = m.stage_range();
+            let per_stage = orders[m.key()].as_object().unwrap();
+            assert_eq!(per_stage.len(), hi.min(MAX_DISPATCH_STAGES) - lo + 1, "{} {m}", e.name);
+            for s in lo..=hi.min(MAX_DISPATCH_STAGES) {
+                assert_eq!(per_stage[&s.to_string()], m.order_for(s, &e.structure), "{} {m} s = {s}", e.name);
+            }
+        }
+    }
+    let order = |name: &str, key: &str, s: usize| {
+        systems.iter().find(|j| j["name"] == name).unwrap()["orders"][key][s.to_string()].clone()
+    };
+    assert_eq!(order("skate", "gauss", 3), 6);
+    assert_eq!(order("skate", "lobatto-iiia-b", 2), 2);
+    // The systems the text names after "order 1 on" are those with order 1 here.
+    let text = list(ListArgs { json: false }).unwrap();
+    let key = Method::ModifiedLobattoIIIAB.key();
+    let line = text.lines().find(|l| l.trim_start().starts_with(&format!("{key} "))).unwrap();
+    let named: Vec<&str> = line.split("order 1 on ").nth(1).unwrap().split(", ").collect();
+    let first_order: Vec<&str> =
+        systems.iter().filter(|j| j["orders"][key]["2"] == 1).map(|j| j["name"].as_str().unwrap()).collect();
+    assert_eq!(named, first_order, "{line}");
+    assert_eq!(order("skate", key, 2), 2);
+    let methods = v["methods"].as_array().unwrap();
+    assert_eq!(methods.len(), Method::ALL.len());
+    for (json, m) in methods.iter().zip(Method::ALL) {
+        assert_eq!((json["key"].as_str(), json["name"].as_str()), (Some(m.key()), Some(m.name())));
+        let (lo, hi) = m.stage_range();
+        assert_eq!(
+            (json["min_stages"].as_u64(), json["max_stages"].as_u64()),
+            (Some(lo as u64), Some(hi.min(MAX_DISPATCH_STAGES) as u64))
+        );
+        assert_eq!(json["orders"][lo.to_string()], m.order(lo), "{m}");
+    }
+}

@@ -4,6 +4,7 @@ use crate::catalog::{declared_events, entries, SystemEntry, SystemInfo, SystemKi
 use clap::Args;
 use spark_runtime::Direction;
 use spark_runtime::Method;
+use std::collections::BTreeMap;
 
 /// How `k` depends on `t` and `v`, in a few words (`none`, `linear`,
 /// `affine`, `nonlinear`, with `, t` when rheonomic).
@@ -99,10 +100,80 @@ pub fn list_table() -> String {
     s
 }
 
-/// Every entry with its parameter defaults, for `spark list --json`.
-pub fn list_json() -> serde_json::Value {
-    let infos: Vec<SystemInfo> = SystemKind::ALL.iter().map(|k| k.info()).collect();
-    serde_json::json!({ "systems": infos, "max_stages": MAX_DISPATCH_STAGES })
+/// What `spark list --json` prints: every system with its parameter
+/// defaults and the orders of the methods on it, the methods, and the most
+/// stages the dispatch compiles.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Listing {
+    /// The systems, in catalogue order.
+    pub systems: Vec<ListedSystem>,
+    /// The methods, in [`Method::ALL`] order.
+    pub methods: Vec<ListedMethod>,
+    /// The most stages `spark` runs a method with.
+    pub max_stages: usize,
+}
+
+/// A system of [`Listing`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ListedSystem {
+    /// The entry and its parameter defaults.
+    #[serde(flatten)]
+    pub info: SystemInfo,
+    /// The global order of each method (by key) with each stage count it
+    /// runs with on this system, as the drivers take it
+    /// ([`Method::order_for`]): the figures the text listing prints, its
+    /// caveat included (the modified Lobatto IIIA-B is of order 1 where
+    /// the mass matrix is not constant or `L` not separable).
+    pub orders: BTreeMap<&'static str, BTreeMap<usize, usize>>,
+}
+
+/// A method of [`Listing`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ListedMethod {
+    /// The name `--method` takes.
+    pub key: &'static str,
+    /// The human-readable name.
+    pub name: &'static str,
+    /// The fewest stages.
+    pub min_stages: usize,
+    /// The most stages `spark` runs it with.
+    pub max_stages: usize,
+    /// The order with each stage count on the systems the paper states it
+    /// for ([`Method::order`]); a system's `orders` has it per system.
+    pub orders: BTreeMap<usize, usize>,
+}
+
+/// The stage counts `spark` runs `m` with.
+fn stage_counts(m: Method) -> std::ops::RangeInclusive<usize> {
+    let (lo, hi) = m.stage_range();
+    lo..=hi.min(MAX_DISPATCH_STAGES)
+}
+
+/// Every entry with its parameter defaults and method orders, and the
+/// methods, for `spark list --json`.
+pub fn list_json() -> Listing {
+    let systems = SystemKind::ALL
+        .iter()
+        .map(|k| {
+            let info = k.info();
+            let orders = Method::ALL
+                .iter()
+                .map(|&m| (m.key(), stage_counts(m).map(|s| (s, m.order_for(s, &info.entry.structure))).collect()))
+                .collect();
+            ListedSystem { info, orders }
+        })
+        .collect();
+    let methods = Method::ALL
+        .iter()
+        .map(|&m| ListedMethod {
+            key: m.key(),
+            name: m.name(),
+            min_stages: *stage_counts(m).start(),
+            max_stages: *stage_counts(m).end(),
+            orders: stage_counts(m).map(|s| (s, m.order(s))).collect(),
+        })
+        .collect();
+    Listing { systems, methods, max_stages: MAX_DISPATCH_STAGES }
 }
 
 #[derive(Args, Debug)]
@@ -126,8 +197,7 @@ pub fn list(a: ListArgs) -> Result<String, String> {
     let _ = writeln!(s, "\nMethods (use the name with --method, the stage count with --stages):\n");
     for m in Method::ALL {
         let key = m.key();
-        let (lo, hi) = m.stage_range();
-        let hi = hi.min(MAX_DISPATCH_STAGES);
+        let (lo, hi) = (*stage_counts(m).start(), *stage_counts(m).end());
         let stages = if lo == hi { format!("s = {lo}") } else { format!("s = {lo}..{hi}") };
         let order = if lo == hi { format!("order {}", m.order(lo)) } else { "order ".to_string() + &order_formula(m) };
         let caveat = if lo == hi { order_caveat(m, lo) } else { String::new() };
