@@ -17,19 +17,7 @@ import spark._compile
 from conftest import REPO, interrupt_after_start
 from spark._compile import cache_key
 
-
-@pytest.fixture(scope="module", autouse=True)
-def compiles_without_optimization():
-    """Every compile of this module, and of the interpreters its tests
-    start, builds without optimization (cargo's
-    `CARGO_PROFILE_RELEASE_OPT_LEVEL`, which the compiles' cargo inherits):
-    about 3 s a declaration instead of 25 s, with the same results bit for
-    bit, as a floating-point result in Rust does not depend on the
-    optimization level (the first test compares such a module with the
-    optimized registry)."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("CARGO_PROFILE_RELEASE_OPT_LEVEL", "0")
-        yield
+pytestmark = pytest.mark.usefixtures("compiles_without_optimization")
 
 
 def declaration(type_name: str) -> str:

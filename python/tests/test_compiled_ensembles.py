@@ -12,6 +12,8 @@ import pytest
 
 import spark
 
+pytestmark = pytest.mark.usefixtures("compiles_without_optimization")
+
 FORCED = """
     pub struct ForcedBladeEnsemble {
         coordinates: [x, y, th],
@@ -30,14 +32,6 @@ NONLINEAR = """
         constraints: [ dot(z) - c*(dot(x)*dot(y) + sin(t)*dot(x)^2) ],
     }
 """
-
-
-@pytest.fixture(scope="module", autouse=True)
-def compiles_without_optimization():
-    """Built at opt-level 0, as in test_compile.py: the same results bit for bit."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("CARGO_PROFILE_RELEASE_OPT_LEVEL", "0")
-        yield
 
 
 def members(which: str, scale: float):

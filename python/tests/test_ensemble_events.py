@@ -15,6 +15,8 @@ import pytest
 import spark
 from test_compile import declaration
 
+pytestmark = pytest.mark.usefixtures("compiles_without_optimization")
+
 EVENT_FIELDS = ("name", "index", "rising", "terminal", "t", "step")
 
 
@@ -154,15 +156,6 @@ def test_a_module_that_predates_ensemble_events_is_refused_for_them():
 
 
 # --- a compiled system with a terminal event -----------------------------------
-
-
-@pytest.fixture(scope="module", autouse=True)
-def compiles_without_optimization():
-    """The compiles of this module build without optimization (as in
-    test_compile.py): the same results bit for bit, in seconds."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("CARGO_PROFILE_RELEASE_OPT_LEVEL", "0")
-        yield
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,8 @@ import spark
 import spark._compile
 from test_compile import declaration
 
+pytestmark = pytest.mark.usefixtures("compiles_without_optimization")
+
 T_END = 10.0
 
 
@@ -229,15 +231,6 @@ def test_ensembles_keep_their_arguments(skate):
 
 
 # --- compiled systems ---------------------------------------------------------
-
-
-@pytest.fixture(scope="module", autouse=True)
-def compiles_without_optimization():
-    """The compiles of this module build without optimization (as in
-    test_compile.py): the same results bit for bit, in seconds."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("CARGO_PROFILE_RELEASE_OPT_LEVEL", "0")
-        yield
 
 
 @pytest.fixture(scope="module")
