@@ -317,6 +317,19 @@ def _flag(name: str, x: Any) -> bool:
     return bool(x)
 
 
+def _exact(x: float) -> str:
+    """``x`` with every digit that tells it apart from its neighbours, as
+    the runtime's messages print it (``spark_runtime::Exact``): Python's
+    shortest round trip, positional for ``1e-4 <= |x| < 1e16`` and
+    scientific beyond, so ``t0 = 1e17`` and ``t_end = 1e17 + 16`` read
+    apart."""
+    text = repr(float(x))
+    if "e" not in text:
+        return text
+    mantissa, exponent = text.split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
 def _real(name: str, x: Any) -> float:
     """``x`` as a float; :class:`TypeError` naming the argument for a bool, a
     string, a complex number (``float`` would drop its imaginary part) or
@@ -519,32 +532,33 @@ def _steps(h: float, steps: int | None, t_end: float | None, t0: float) -> int:
         # h is finite and nonzero: t_end − t0 overflows (t0 = -1e308,
         # t_end = 1e308), or the quotient does.
         raise ArgumentError(
-            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} with h = {h:.6e} is not a finite number of "
-            "steps (its length overflows a float); give a t0 and t_end nearer each other, or a larger h"
+            f"the interval from t0 = {_exact(t0)} to t_end = {_exact(t_end)} with h = {_exact(h)} is not a "
+            "finite number of steps (its length overflows a float); give a t0 and t_end nearer each other, or a "
+            "larger h"
         )
     n = round(ratio)
     if n < 1:
         if ratio < 0:
             raise ArgumentError(
-                f"t_end = {t_end:.6e} lies behind t0 = {t0:.6e} for h = {h:.6e}: the steps go from t0 in the "
-                "direction of h; give h the sign of t_end − t0 (a negative h integrates backward)"
+                f"t_end = {_exact(t_end)} lies behind t0 = {_exact(t0)} for h = {_exact(h)}: the steps go "
+                "from t0 in the direction of h; give h the sign of t_end − t0 (a negative h integrates backward)"
             )
         raise ArgumentError(
-            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is shorter than one step of h = {h:.6e}; "
-            "use a later t_end or a smaller h"
+            f"the interval from t0 = {_exact(t0)} to t_end = {_exact(t_end)} is shorter than one step of "
+            f"h = {_exact(h)}; use a later t_end or a smaller h"
         )
     if n > MAX_WHOLE:
         raise ArgumentError(
-            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is {ratio:.3e} steps of h = {h:.6e}, more "
-            f"than {MAX_WHOLE}, the most a run can count; use a larger h or a shorter interval"
+            f"the interval from t0 = {_exact(t0)} to t_end = {_exact(t_end)} is {ratio:.3e} steps of "
+            f"h = {_exact(h)}, more than {MAX_WHOLE}, the most a run can count; use a larger h or a shorter interval"
         )
     # As `spark run`: relative to the step count, capped at a thousandth of
     # a step (beyond 10⁶ steps a relative tolerance alone accepts an end
     # half a step away, and the run ends elsewhere than asked).
     if abs(ratio - n) > min(1e-9 * n, max(16 * np.finfo(np.float64).eps * n, 1e-3)):
         raise ArgumentError(
-            f"the interval from t0 = {t0:.6e} to t_end = {t_end:.6e} is {ratio:.6e} steps of h = {h:.6e}, "
-            "not a whole number; pass steps= instead, or a t_end a whole number of steps from t0"
+            f"the interval from t0 = {_exact(t0)} to t_end = {_exact(t_end)} is {_exact(ratio)} steps of "
+            f"h = {_exact(h)}, not a whole number; pass steps= instead, or a t_end a whole number of steps from t0"
         )
     return n
 
@@ -671,9 +685,9 @@ class System:
                 t_end = t0 + self.t_end
                 if math.isfinite(t0) and not t_end > t0:
                     raise ArgumentError(
-                        f"t0 = {t0:.6e} leaves no interval to run: the default end, t0 + {self.t_end} (the system's "
-                        f"run length), is {t_end:.6e}, not after t0 at this magnitude; pass t_end= or steps=, or a "
-                        "t0 nearer 0"
+                        f"t0 = {_exact(t0)} leaves no interval to run: the default end, t0 + {self.t_end} (the "
+                        f"system's run length), is {_exact(t_end)}, not after t0 at this magnitude; pass t_end= or "
+                        "steps=, or a t0 nearer 0"
                     )
             n = _steps(h, steps, t_end, t0)
             req = _request(method, s, h, n, t0, params, 1, newton, newton_tol, max_halvings)

@@ -22,7 +22,7 @@ impl fmt::Display for Sci {
 /// interval or an energy against its start value: three digits print
 /// `t0 = 1e17` and `t_end = 1e17 + 16` alike.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Exact(pub(crate) f64);
+pub struct Exact(pub f64);
 
 impl fmt::Display for Exact {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {

@@ -167,7 +167,7 @@ pub use driver::{
     NoObserver, Observe, Observer, RecordTooLarge, RejectionFloor, RunOptions, RunReport, Sample, Schedule,
     SubstepOverrun, Trajectory, DEFAULT_MAX_HALVINGS, DEFAULT_MAX_SUBSTEPS, MAX_HALVINGS, MAX_STEP_SIZE,
 };
-pub use error::{IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
+pub use error::{Exact, IterationRecord, NewtonHistory, OptionError, StepError, SystemError, HISTORY_CAPACITY};
 pub use events::{
     event_time_tolerance, Direction, EventFunctions, EventGradient, EventRecord, EventSpec, NoEvents, RuntimeEvents,
     SystemEvents, EVENT_SUBINTERVALS, EVENT_TIME_TOLERANCE,

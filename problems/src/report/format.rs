@@ -13,17 +13,12 @@ pub fn sci_digits(x: f64, digits: usize) -> String {
     format!("{x:.digits$e}")
 }
 
-/// `x` with every digit that tells it apart (shortest round trip), in
-/// scientific notation beyond `1e-4 ≤ |x| < 1e16`, where the positional
-/// form would run to hundreds of digits (`1e300`, not 301 digits). For
-/// numbers a reader compares, such as the two ends of an interval far from
-/// t = 0, which [`sci`] prints alike.
+/// `x` with every digit that tells it apart, as the runtime's error
+/// messages print it ([`spark_runtime::Exact`]): for numbers a reader
+/// compares, such as the two ends of an interval far from t = 0, which
+/// [`sci`] prints alike.
 pub fn exact(x: f64) -> String {
-    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
-        format!("{x}")
-    } else {
-        format!("{x:e}")
-    }
+    spark_runtime::Exact(x).to_string()
 }
 
 /// A number without accumulated rounding noise (`12.600000000000001` → `12.6`).
