@@ -9,7 +9,9 @@
 use crate::adaptive::{
     integrate_adaptive_at, integrate_adaptive_with_events, AdaptiveError, AdaptiveOptions, AdaptiveReport,
 };
-use crate::driver::{check_record_size, check_step_size, IntegrationError, Observer, RunOptions, Schedule, Trajectory};
+use crate::driver::{
+    check_record_size, check_step_size, recorded_steps, IntegrationError, Observer, RunOptions, Schedule, Trajectory,
+};
 use crate::error::Exact;
 use crate::events::{EventFunctions, EventRecord, NoEvents, SystemEvents};
 use crate::step::Stepper;
@@ -119,6 +121,25 @@ impl RunPlan<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The times a run of this plan from `t0` records at when it runs to
+    /// its end, recording every `record_every`-th step: `t0` and each
+    /// output time, or for fixed steps `t0` and the scheduled end
+    /// `t0 + (k+1)·h` of every step [`Stepper::integrate`] records. `None`
+    /// for tolerance-driven steps without output times, which record at
+    /// steps chosen as the run goes. For front ends that lay several runs
+    /// on one time axis (the Python package's ensembles with events).
+    pub fn recorded_times(&self, t0: f64, record_every: usize) -> Option<Vec<f64>> {
+        match (self.times, self.stepping) {
+            (Some(times), _) => Some(std::iter::once(t0).chain(times.iter().copied()).collect()),
+            (None, Stepping::Tolerance(_)) => None,
+            (None, Stepping::Fixed { h, steps }) => {
+                let schedule = Schedule::Fixed { h, steps };
+                let ends = recorded_steps(steps, record_every).map(|k| schedule.step(k, steps, t0, t0).1);
+                Some(std::iter::once(t0).chain(ends).collect())
+            }
+        }
     }
 
     /// Checks that `members` runs of this plan, recording every

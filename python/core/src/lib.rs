@@ -968,21 +968,11 @@ fn events_to_py(py: Python<'_>, events: Vec<EventRow>) -> PyResult<Bound<'_, PyL
 }
 
 /// The times every member of an ensemble of `r` records at, as its run
-/// alone records them: the initial point and each output time, or for
-/// fixed steps recorded at the steps `t0 + k·h` for every `every`-th `k`
-/// and the last (the driver's scheduled times). `None` for a
+/// alone records them ([`RunPlan::recorded_times`]). `None` for a
 /// tolerance-driven ensemble without output times, whose members record
 /// at their own accepted steps.
 fn common_times(r: &IntegrateRequest) -> Option<Vec<f64>> {
-    match (&r.times, r.tolerance) {
-        (Some(times), _) => Some(std::iter::once(r.t0).chain(times.iter().copied()).collect()),
-        (None, Some(_)) => None,
-        (None, None) => {
-            let every = r.every.max(1);
-            let grid = (every..r.steps).step_by(every).chain(std::iter::once(r.steps));
-            Some(std::iter::once(r.t0).chain(grid.map(|k| r.t0 + k as f64 * r.h)).collect())
-        }
-    }
+    r.plan().recorded_times(r.t0, r.every)
 }
 
 /// Member `j`'s run `c` on the ensemble's common `times`. A run that went

@@ -25,6 +25,7 @@ pub(crate) use observer::StepObserver;
 pub use observer::{NoObserver, Observer};
 pub(crate) use trajectory::sample_storage;
 pub use trajectory::{check_record_size, record_memory_limit, RecordTooLarge, RunReport, Sample, Trajectory};
+pub(crate) use trajectory::{recorded_steps, records_step};
 
 use crate::events::EventFunctions;
 use crate::initial::{consistent_velocity, ConsistencyPolicy};
@@ -229,7 +230,7 @@ impl Schedule<'_> {
 
     /// Step `k` of `steps` from time `t`, for a run that starts at `t0`: its
     /// size and the scheduled time it ends at.
-    fn step(&self, k: usize, steps: usize, t0: f64, t: f64) -> (f64, f64) {
+    pub(crate) fn step(&self, k: usize, steps: usize, t0: f64, t: f64) -> (f64, f64) {
         match *self {
             Schedule::Fixed { h, .. } | Schedule::Sampled { h, .. } => (h, t0 + (k + 1) as f64 * h),
             Schedule::Times(ts) => (ts[k] - t, ts[k]),
@@ -570,7 +571,7 @@ where
             state.t = t_target;
             let stop = watched && observer.accepted(self.system(), &state, iters);
             let last = k + 1 == steps;
-            if sampled.is_none() && (last || (every != 0 && (k + 1) % every == 0)) {
+            if sampled.is_none() && records_step(k, steps, every) {
                 let s = self.sample(&state, &options.observe, iters);
                 track(&s, &mut report);
                 samples.push(s);

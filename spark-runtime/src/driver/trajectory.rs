@@ -70,6 +70,27 @@ pub fn check_record_size(
     Err(RecordTooLarge { samples, bytes, limit, every: steps / room + 1 })
 }
 
+/// Whether a run of `steps` fixed steps records the end of step `k`
+/// (counted from 0) when it records every `record_every`-th step: the
+/// `record_every`-th, `2·record_every`-th, … and always the last
+/// (`record_every = 0`: the last only). The driver's rule, per step.
+#[inline]
+pub(crate) fn records_step(k: usize, steps: usize, record_every: usize) -> bool {
+    k + 1 == steps || (record_every != 0 && (k + 1) % record_every == 0)
+}
+
+/// The steps, in order, whose ends [`records_step`] records, without
+/// visiting the others: what a caller that lays runs on their common time
+/// axis counts, for step counts up to `usize::MAX`.
+pub(crate) fn recorded_steps(steps: usize, record_every: usize) -> impl Iterator<Item = usize> {
+    let regular = match record_every {
+        0 => 0,
+        every => steps / every,
+    };
+    let ends_between = record_every == 0 || steps % record_every != 0;
+    (1..=regular).map(move |j| j * record_every - 1).chain((ends_between && steps > 0).then(|| steps - 1))
+}
+
 /// One recorded point of a trajectory.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Sample<const N: usize, const M: usize> {
@@ -310,5 +331,26 @@ where
 {
     pub(crate) fn sample(&self, state: &State<N>, observe: &Observe, iterations: usize) -> Sample<N, M> {
         sample_of(self.system(), state, observe, iterations)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{recorded_steps, records_step};
+
+    /// The two forms of the recording rule name the same steps, and the
+    /// iterator reaches the last step of a count no loop could visit.
+    #[test]
+    fn recorded_steps_are_the_steps_records_step_records() {
+        for steps in 0..40 {
+            for every in 0..45 {
+                let by_rule: Vec<usize> = (0..steps).filter(|&k| records_step(k, steps, every)).collect();
+                let listed: Vec<usize> = recorded_steps(steps, every).collect();
+                assert_eq!(listed, by_rule, "{steps} steps, every {every}");
+            }
+        }
+        let huge = usize::MAX;
+        assert_eq!(recorded_steps(huge, 0).collect::<Vec<_>>(), [huge - 1]);
+        assert_eq!(recorded_steps(huge, huge / 2).collect::<Vec<_>>(), [huge / 2 - 1, 2 * (huge / 2) - 1, huge - 1]);
     }
 }

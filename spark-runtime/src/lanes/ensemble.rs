@@ -131,7 +131,7 @@ where
                 if stop() {
                     return Err(LaneError::Stopped { steps: done });
                 }
-                let sampled = done == steps || (sample_every != 0 && done.is_multiple_of(sample_every));
+                let sampled = crate::driver::records_step(done - 1, steps, sample_every);
                 for (j, run) in runs.iter_mut().enumerate() {
                     if run.failure.is_some() {
                         continue;

@@ -329,3 +329,40 @@ fn a_tolerance_driven_run_far_from_t_zero_starts_at_the_resolution_of_t() {
     let text = err.to_string();
     assert!(text.contains("first_step") && text.contains("resolution of t there"), "{text}");
 }
+
+/// `RunPlan::recorded_times` names the times a run of the plan records at,
+/// bit for bit: fixed steps with every recording interval (one that divides
+/// the step count, one that does not, 0 for the endpoints alone, one beyond
+/// the count), from a `t0` far from zero where `t0 + k·h` rounds, forward
+/// and backward; output times; and none for tolerance-driven steps.
+#[test]
+fn recorded_times_are_the_times_a_run_records_at() {
+    let start = event_start();
+    for (t0, h) in [(0.0, 0.1), (1e5 + 0.3, 0.07), (2.5, -0.05)] {
+        for (steps, every) in [(12, 1), (12, 3), (12, 5), (12, 0), (12, 40), (1, 1), (1, 0)] {
+            let plan = RunPlan { stepping: Stepping::Fixed { h, steps }, times: None, events: false };
+            let options = RunOptions { record_every: every, ..RunOptions::default() };
+            let run =
+                integrate_plan(&mut event_stepper(), t0, &start.q, &start.v, &plan, &options, &mut NoObserver).unwrap();
+            let recorded: Vec<u64> = run.trajectory.samples.iter().map(|s| s.t.to_bits()).collect();
+            let named: Vec<u64> = plan.recorded_times(t0, every).unwrap().iter().map(|t| t.to_bits()).collect();
+            assert_eq!(named, recorded, "t0 = {t0}, h = {h}, {steps} steps, every {every}");
+        }
+    }
+    let times = [0.05, 0.3, 0.71];
+    let sampled = RunPlan { stepping: Stepping::Fixed { h: 0.1, steps: 8 }, times: Some(&times), events: false };
+    let run = integrate_plan(
+        &mut event_stepper(),
+        0.0,
+        &start.q,
+        &start.v,
+        &sampled,
+        &RunOptions::default(),
+        &mut NoObserver,
+    )
+    .unwrap();
+    let recorded: Vec<f64> = run.trajectory.samples.iter().map(|s| s.t).collect();
+    assert_eq!(sampled.recorded_times(0.0, 1), Some(recorded));
+    let adaptive = RunPlan { stepping: Stepping::Tolerance(tolerance(1e-8, 1.0)), times: None, events: false };
+    assert_eq!(adaptive.recorded_times(0.0, 1), None);
+}
