@@ -5,8 +5,9 @@ bad declaration fails with its line and column before cargo runs. A good one
 becomes a small crate (``nonholonomic_system! { text }`` plus
 ``spark_python_core::export_system!``) that cargo builds into an extension
 module, kept under ``<cache>/<key>/`` where the key hashes the text, the
-spark version, the source tree and whether the module is optimized.
-Loading a cached module needs no cargo.
+spark version, the source tree and whether the module is optimized
+(``optimize=False``, or ``SPARK_COMPILE_OPTIMIZE=0`` in the environment:
+:func:`_optimized` decides). Loading a cached module needs no cargo.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import shutil
 import subprocess
 import sys
 import threading
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,13 +67,39 @@ MODULE_INTERFACE = "3: rtol, t_eval, events; events and controller in the result
 MAX_SLUG = 64
 
 
+#: The environment variable that builds every module without optimization
+#: when it is ``0``, as ``optimize=False`` does (``1`` or unset: ``optimize``
+#: decides). Being in the environment, it reaches the interpreters a
+#: program starts (Ray workers, a test's subprocess), which then compute the
+#: same cache key and load the same module.
+OPTIMIZE_VARIABLE = "SPARK_COMPILE_OPTIMIZE"
+
+
+def _optimized(optimize: bool) -> bool:
+    """Whether a module is built with optimization: ``optimize``, unless
+    ``SPARK_COMPILE_OPTIMIZE`` is ``0``. The one place that decides it: the
+    cache key (:func:`cache_key`) and the cargo command (:func:`_build`)
+    both follow it. :class:`ArgumentError` naming the variable for a value
+    other than ``0`` or ``1``."""
+    value = os.environ.get(OPTIMIZE_VARIABLE)
+    if value is None or value == "1":
+        return optimize
+    if value == "0":
+        return False
+    raise ArgumentError(
+        f"the environment variable {OPTIMIZE_VARIABLE} = {value!r} is neither 0 nor 1; set it to 0 to build "
+        "every spark.compile module without optimization (as optimize=False does), or unset it"
+    )
+
+
 def cache_key(text: str, optimize: bool = True) -> str:
     """Hash of the text, the spark version, the source tree it builds
     against, the module interface (:data:`MODULE_INTERFACE`) and, for a
-    module built without optimization, that."""
+    module built without optimization (``optimize=False`` or
+    ``SPARK_COMPILE_OPTIMIZE=0``, see :func:`_optimized`), that."""
     h = hashlib.sha256()
     parts = (text, _native.version(), _native.source_dir(), MODULE_INTERFACE) + (
-        () if optimize else ("opt-level 0",)
+        () if _optimized(optimize) else ("opt-level 0",)
     )
     for part in parts:
         h.update(part.encode())
@@ -92,11 +120,80 @@ def _cargo() -> str:
     return cargo
 
 
+def _package(module: str) -> str:
+    """The cargo package name of the crate that builds ``module``."""
+    return module.replace("_", "-").strip("-")
+
+
+def _unoptimized_packages(module: str) -> tuple[str, ...]:
+    """The packages a build without optimization compiles at opt-level 0:
+    the declaration's crate, where its system's code is generated and
+    monomorphized, and the spark crates it depends on by path. Cargo
+    compiles a path dependency for each workspace apart (its artifacts'
+    hash holds its path relative to the workspace root, or the whole path
+    outside it), so a declaration's crate never reuses the wheel's build of
+    spark-runtime and spark-python-core, and builds them in seconds at
+    opt-level 0 instead of minutes optimized. The crates from crates.io
+    (pyo3, numpy, nalgebra, rayon, serde, …) keep the release profile the
+    environment gives them: they are the ones the wheel's build, or an
+    optimized compile, already compiled in the target directory."""
+    return (_package(module), "spark-runtime", "spark-python-core")
+
+
+#: Features the wheel's build turns on in crates a declaration's crate
+#: depends on, without that crate asking for them: the wheel's package
+#: depends on `problems` (the registry), whose dependencies add them (its
+#: own pins in python/Cargo.toml, clap's derive asking syn for `full`,
+#: nalgebra's default features). Each is (kind, crate, version prefix,
+#: features); :func:`_pins` asks for them, so that the crates from crates.io
+#: resolve with the wheel's features and a target directory shared with
+#: its build keeps them compiled (cargo compiles a crate again for each
+#: other feature set, and every crate above it too).
+FEATURE_PINS = (
+    ("dependencies", "serde", "1", ("alloc",)),
+    ("dependencies", "either", "1", ("use_std",)),
+    ("dependencies", "bytemuck", "1", ("extern_crate_alloc",)),
+    ("dependencies", "nalgebra", "0.33", ()),
+    ("dependencies", "approx", "0.5", ()),
+    ("dependencies", "simba", "0.9", ()),
+    ("build-dependencies", "syn", "3", ("full",)),
+)
+
+
+def _pins(lock: Path) -> dict[str, list[str]]:
+    """The manifest lines of :data:`FEATURE_PINS` for the crate versions
+    ``lock`` (the source tree's Cargo.lock) holds, by table: each pins its
+    crate to the locked version, so that no pin makes cargo resolve
+    anything anew. A pin whose crate the lock does not hold at that
+    version prefix is left out (the build then compiles that crate for its
+    own features)."""
+    try:
+        locked = tomllib.loads(lock.read_text()).get("package", [])
+    except (OSError, tomllib.TOMLDecodeError):
+        return {}
+    tables: dict[str, list[str]] = {}
+    for table, crate, prefix, features in FEATURE_PINS:
+        versions = [
+            p["version"]
+            for p in locked
+            if p.get("name") == crate and (p.get("version") == prefix or p.get("version", "").startswith(prefix + "."))
+        ]
+        if len(versions) == 1:
+            listed = ", ".join(f'"{f}"' for f in features)
+            tables.setdefault(table, []).append(f'{crate} = {{ version = "={versions[0]}", features = [{listed}] }}')
+    return tables
+
+
 def _crate(source: Path, module: str, type_name: str, n: int, m: int, text: str) -> tuple[str, str]:
     runtime = (source / "spark-runtime").as_posix()
     core = (source / "python" / "core").as_posix()
+    pins = _pins(source / "Cargo.lock")
+    dependencies = "".join(line + "\n" for line in pins.get("dependencies", []))
+    build_dependencies = "".join(line + "\n" for line in pins.get("build-dependencies", []))
+    if build_dependencies:
+        build_dependencies = "\n[build-dependencies]\n" + build_dependencies
     manifest = f"""[package]
-name = "{module.replace('_', '-').strip('-')}"
+name = "{_package(module)}"
 version = "0.1.0"
 edition = "2021"
 publish = false
@@ -110,7 +207,7 @@ crate-type = ["cdylib"]
 spark-runtime = {{ path = "{runtime}" }}
 spark-python-core = {{ path = "{core}" }}
 pyo3 = {{ version = "0.27", features = ["abi3-py311", "extension-module"] }}
-
+{dependencies}{build_dependencies}
 [workspace]
 
 [profile.release]
@@ -246,6 +343,7 @@ def compile_system(
     if cache_dir is None:
         _environment_cache_dir()
     _environment_target_dir()
+    optimize = _optimized(optimize)
     if not isinstance(text, str):
         raise TypeError(f"text = {_short(text)} is not a string; give the body of nonholonomic_system! as a str")
     _check_encodable(text)
@@ -284,7 +382,8 @@ def _check_encodable(text: str) -> None:
 class _Module:
     """One declaration's native module in the cache: what builds it (the
     declaration ``text`` of struct ``name`` with ``n`` coordinates and ``m``
-    constraints, ``verbose`` and ``optimize``) and where it lives (the
+    constraints, ``verbose`` and ``optimize``, as :func:`_optimized`
+    decided it) and where it lives (the
     module name ``module``, the cache ``root``, the declaration's
     ``folder`` and its ``library`` file)."""
 
@@ -403,9 +502,10 @@ def _folder_lock(folder: Path):
 
 def _build(cached: _Module) -> None:
     """Builds the declaration's crate in ``folder`` with cargo (in its
-    release profile, or at opt-level 0 without ``optimize``) and installs
-    its module as ``library`` (copied under a temporary name, then renamed,
-    so ``library`` is complete whenever it exists)."""
+    release profile; without ``optimize``, that crate and the spark crates
+    at opt-level 0, see :func:`_unoptimized_packages`)
+    and installs its module as ``library`` (copied under a temporary name,
+    then renamed, so ``library`` is complete whenever it exists)."""
     name, module, folder, library = cached.name, cached.module, cached.folder, cached.library
     cargo = _cargo()
     source = Path(_native.source_dir())
@@ -428,17 +528,20 @@ def _build(cached: _Module) -> None:
         ) from e
     target = Path(_environment_target_dir() or (cached.root / "target"))
     env = dict(os.environ, CARGO_TARGET_DIR=str(target))
-    if not cached.optimize:
-        env["CARGO_PROFILE_RELEASE_OPT_LEVEL"] = "0"
     # PyO3's build script is rerun whenever these differ from the last
     # build in the target directory: the interpreter that will load the
-    # module, and the signature maturin sets for it. With the values a
-    # wheel build made with `maturin build -i <this interpreter>` used, a
-    # target directory shared with it keeps PyO3 and the crates above it
-    # compiled, instead of each build invalidating the other's.
+    # module, the signature maturin sets for it and maturin's mark of an
+    # extension module. With the values a wheel build made with
+    # `maturin build -i <this interpreter>` used, a target directory shared
+    # with it keeps PyO3 and the crates above it compiled, instead of each
+    # build invalidating the other's.
     env.setdefault("PYO3_PYTHON", sys.executable)
     env.setdefault("PYO3_ENVIRONMENT_SIGNATURE", _environment_signature())
+    env.setdefault("PYO3_BUILD_EXTENSION_MODULE", "1")
     cmd = [cargo, "build", "--release", "--quiet", "--manifest-path", str(folder / "Cargo.toml")]
+    if not cached.optimize:
+        for package in _unoptimized_packages(cached.module):
+            cmd += ["--config", f'profile.release.package."{package}".opt-level=0']
     try:
         done = subprocess.run(cmd, env=env, capture_output=not cached.verbose, text=True)
     except OSError as e:

@@ -25,14 +25,17 @@ def _target_dir() -> Path:
 def compiles_without_optimization():
     """Every compile of a module that uses this (`pytestmark =
     pytest.mark.usefixtures("compiles_without_optimization")`), and of the
-    interpreters its tests start, builds without optimization (cargo's
-    `CARGO_PROFILE_RELEASE_OPT_LEVEL`, which the compiles' cargo inherits):
-    about 3 s a declaration instead of 25 s, with the same results bit for
-    bit, as a floating-point result in Rust does not depend on the
-    optimization level (test_compile.py's first test compares such a module
-    with the optimized registry)."""
+    interpreters its tests start, builds without optimization
+    (`SPARK_COMPILE_OPTIMIZE=0`, which they inherit and which `spark.compile`
+    takes as `optimize=False`, the same cache key included): the
+    declaration's crate and the spark crates at opt-level 0, about 3 s a
+    declaration instead of 25 s, the crates from crates.io those the
+    wheel's build compiled in the shared target directory; the same
+    results bit for bit, as a floating-point result in Rust does not
+    depend on the optimization level (test_compile.py's first test compares
+    such a module with the optimized registry)."""
     with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("CARGO_PROFILE_RELEASE_OPT_LEVEL", "0")
+        patch.setenv("SPARK_COMPILE_OPTIMIZE", "0")
         yield
 
 

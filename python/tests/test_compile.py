@@ -63,30 +63,52 @@ def test_compiled_system_matches_the_same_declaration_compiled_in_rust(cache):
         assert "pass project_v0" not in str(e.value)
 
 
-def test_an_unoptimized_module_builds_at_opt_level_0_and_is_cached_apart(cache, monkeypatch):
+def test_an_unoptimized_module_builds_at_opt_level_0_and_is_cached_apart(cache, monkeypatch, tmp_path):
     text = declaration("Skate")
-    optimized = spark.compile(text, cache_dir=str(cache))
-    # Without the module's opt-level, so that only `optimize=False` sets it.
-    monkeypatch.delenv("CARGO_PROFILE_RELEASE_OPT_LEVEL")
-    levels = []
-    run = subprocess.run
-
-    def recording_run(cmd, **kwargs):
-        levels.append(kwargs["env"].get("CARGO_PROFILE_RELEASE_OPT_LEVEL"))
-        return run(cmd, **kwargs)
-
-    monkeypatch.setattr(spark._compile.subprocess, "run", recording_run)
-    quick = spark.compile(text, cache_dir=str(cache), optimize=False)
-    assert levels == ["0"], levels
-    assert optimized.info["optimized"] is True and quick.info["optimized"] is False
+    # This module's fixture sets SPARK_COMPILE_OPTIMIZE=0: the first test's
+    # module is the one optimize=False builds, under the same key.
+    knob = spark.compile(text, cache_dir=str(cache))
+    assert knob.info["optimized"] is False and cache_key(text) == cache_key(text, optimize=False)
+    assert spark.compile(text, cache_dir=str(cache), optimize=False) is knob
+    monkeypatch.delenv("SPARK_COMPILE_OPTIMIZE")
     assert cache_key(text, optimize=False) != cache_key(text)
-    assert (cache / cache_key(text, optimize=False)).is_dir() and (cache / cache_key(text)).is_dir()
-    # A second call loads the unoptimized module, without cargo.
-    assert spark.compile(text, cache_dir=str(cache), optimize=False) is quick and levels == ["0"]
-    a = optimized.integrate("gauss", 2, 0.1, 50, q0=[0, 0, 0], v0=[0, 0, 1], multipliers=True)
-    b = quick.integrate("gauss", 2, 0.1, 50, q0=[0, 0, 0], v0=[0, 0, 1], multipliers=True)
-    for column in ("q", "v", "psi"):
-        np.testing.assert_array_equal(getattr(a, column), getattr(b, column))
+    # The cargo commands of a new declaration, recorded instead of run.
+    commands = []
+
+    class Recorded(Exception):
+        pass
+
+    def record(cmd, env, **kwargs):
+        commands.append((cmd, env))
+        raise Recorded
+
+    monkeypatch.setattr(spark._compile.subprocess, "run", record)
+    recorded = text + "\n// recorded"
+    for optimize, knob_value in ((True, None), (False, None), (True, "0"), (False, "1")):
+        if knob_value is not None:
+            monkeypatch.setenv("SPARK_COMPILE_OPTIMIZE", knob_value)
+        with pytest.raises(Recorded):
+            spark.compile(recorded, cache_dir=str(tmp_path), optimize=optimize)
+    (optimized, _), *unoptimized = commands
+    assert "--config" not in optimized, optimized
+    # Only the declaration's crate and the spark crates are built at
+    # opt-level 0: the crates from crates.io keep the caller's release
+    # profile, so a target directory shared with the wheel's build keeps
+    # them compiled.
+    package = f"spark-skate-{cache_key(recorded, optimize=False)}"
+    overrides = [
+        f'profile.release.package."{name}".opt-level=0' for name in (package, "spark-runtime", "spark-python-core")
+    ]
+    for cmd, env in unoptimized:
+        assert [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--config"] == overrides, cmd
+        assert env.get("CARGO_PROFILE_RELEASE_OPT_LEVEL") == os.environ.get("CARGO_PROFILE_RELEASE_OPT_LEVEL")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        {cache_key(recorded), cache_key(recorded, optimize=False)}
+    )
+    monkeypatch.setenv("SPARK_COMPILE_OPTIMIZE", "2")
+    for call in (lambda: cache_key(text), lambda: spark.compile(text, cache_dir=str(cache))):
+        with pytest.raises(spark.ArgumentError, match=r"SPARK_COMPILE_OPTIMIZE = '2' is neither 0 nor 1"):
+            call()
     with pytest.raises(TypeError, match="optimize must be a bool"):
         spark.compile(text, cache_dir=str(cache), optimize=1)
 
