@@ -76,7 +76,7 @@ pub fn check_record_size(
 /// (`record_every = 0`: the last only). The driver's rule, per step.
 #[inline]
 pub(crate) fn records_step(k: usize, steps: usize, record_every: usize) -> bool {
-    k + 1 == steps || (record_every != 0 && (k + 1) % record_every == 0)
+    k + 1 == steps || (record_every != 0 && (k + 1).is_multiple_of(record_every))
 }
 
 /// The steps, in order, whose ends [`records_step`] records, without
@@ -87,7 +87,7 @@ pub(crate) fn recorded_steps(steps: usize, record_every: usize) -> impl Iterator
         0 => 0,
         every => steps / every,
     };
-    let ends_between = record_every == 0 || steps % record_every != 0;
+    let ends_between = record_every == 0 || !steps.is_multiple_of(record_every);
     (1..=regular).map(move |j| j * record_every - 1).chain((ends_between && steps > 0).then(|| steps - 1))
 }
 
