@@ -1220,6 +1220,10 @@ def compile(text: str, *, cache_dir: str | None = None, verbose: bool = False, o
     declaration compiles in seconds instead of tens of seconds and steps
     about 40 times slower, with the same results bit for bit (for trying
     declarations out, not for long runs). The two builds are cached apart.
+    ``SPARK_COMPILE_OPTIMIZE=0`` in the environment builds every module of
+    the process, and of the interpreters it starts, as ``optimize=False``
+    does (``1`` or unset: ``optimize`` decides; another value raises
+    :class:`ArgumentError`).
     """
     from ._compile import compile_system
 
