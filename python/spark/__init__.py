@@ -323,7 +323,12 @@ def _exact(x: float) -> str:
     shortest round trip, positional for ``1e-4 <= |x| < 1e16`` and
     scientific beyond, so ``t0 = 1e17`` and ``t_end = 1e17 + 16`` read
     apart."""
-    text = repr(float(x))
+    return _rust_exponent(repr(float(x)))
+
+
+def _rust_exponent(text: str) -> str:
+    """A float's text with its exponent written as Rust writes it (``e17``,
+    ``e-5``; Python writes ``e+17``, ``e-05``)."""
     if "e" not in text:
         return text
     mantissa, exponent = text.split("e")
@@ -1091,8 +1096,7 @@ def _vector(what: str, x, system: System) -> list[float]:
 
 def _sci(x: float) -> str:
     """``x`` as the Rust library writes it in its messages (``1.000e8``)."""
-    mantissa, exponent = f"{x:.3e}".split("e")
-    return f"{mantissa}e{int(exponent)}"
+    return _rust_exponent(f"{x:.3e}")
 
 
 def _output_count(t_eval) -> int | None:

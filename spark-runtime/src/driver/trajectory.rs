@@ -83,10 +83,7 @@ pub(crate) fn records_step(k: usize, steps: usize, record_every: usize) -> bool 
 /// visiting the others: what a caller that lays runs on their common time
 /// axis counts, for step counts up to `usize::MAX`.
 pub(crate) fn recorded_steps(steps: usize, record_every: usize) -> impl Iterator<Item = usize> {
-    let regular = match record_every {
-        0 => 0,
-        every => steps / every,
-    };
+    let regular = steps.checked_div(record_every).unwrap_or(0);
     let ends_between = record_every == 0 || !steps.is_multiple_of(record_every);
     (1..=regular).map(move |j| j * record_every - 1).chain((ends_between && steps > 0).then(|| steps - 1))
 }
